@@ -1,0 +1,4 @@
+"""The ROS-free model core: friction laws, footprint geometry, wrenches, integrators.
+
+Nothing under this package imports rclpy or any message module (a test enforces it).
+"""
