@@ -1,0 +1,47 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'sorter_cell'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages',
+            ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/config/scenes', glob('config/scenes/*.yaml')),
+    ],
+    python_requires='>=3.11',
+    install_requires=[
+        'setuptools',
+        'numpy>=2.0',
+        'scipy>=1.13',
+        'numba>=0.60',
+        'PyYAML>=6.0',
+        'matplotlib>=3.8',
+        'ros-jazzy-rclpy[fastrtps]>=7.1',
+        'ros-jazzy-common-interfaces>=5.3',
+    ],
+    extras_require={
+        'test': ['pytest', 'pytest-timeout'],
+    },
+    zip_safe=True,
+    maintainer='sorter_cell maintainers',
+    maintainer_email='sorter-cell@example.com',
+    description=(
+        'Emulated parcel sorter cell: belt conveyor with a pop-up '
+        'torsional-disk diverter, simulation and controller nodes.'
+    ),
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'sorter = sorter_sim.cli:main',
+            'sim_node = sorter_sim.node:main',
+            'controller_node = sorter_control.node:main',
+        ],
+    },
+)

@@ -1,0 +1,73 @@
+"""ROS environment defaults and config lookup shared by the entry points.
+
+This module imports nothing from ROS at module level, so the ROS-free parts of
+the project (and their tests) can use it freely.
+
+Network: left alone, Fast DDS announces every participant by multicast on every
+network interface, so a simulated cell started on a laptop in an office or lab
+network talks to (and is disturbed by) any other ROS 2 graph on the same
+subnet. The entry points therefore call :func:`apply_ros_env_defaults` before
+``rclpy.init()``, which keeps discovery on this host unless the user chose
+otherwise:
+
+* ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` is the default set here; a value
+  already in the environment always wins.
+* To reach nodes on other machines, set ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``
+  (or ``SYSTEM_DEFAULT`` for the middleware's own default), and pick a
+  ``ROS_DOMAIN_ID`` (0-232, shared by all nodes that should see each other)
+  to keep separate graphs apart.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+PACKAGE_NAME = 'sorter_cell'
+
+DISCOVERY_RANGE_VAR = 'ROS_AUTOMATIC_DISCOVERY_RANGE'
+DEFAULT_DISCOVERY_RANGE = 'LOCALHOST'
+
+# config/ of a checkout (or an editable install): the repository root is the
+# parent of this package.
+SOURCE_CONFIG_DIR = Path(__file__).resolve().parents[1] / 'config'
+
+
+def apply_ros_env_defaults() -> None:
+    """Restrict DDS discovery to this host unless the user set a range.
+
+    Call before ``rclpy.init()``; the setting is read when the context starts.
+    """
+    os.environ.setdefault(DISCOVERY_RANGE_VAR, DEFAULT_DISCOVERY_RANGE)
+
+
+def find_config_dir() -> Path:
+    """Return the directory holding ``cell.yaml`` and ``scenes/``.
+
+    Looks first for ``config/`` in the source tree next to this package (a
+    checkout or an editable install), then in the installed package share
+    directory (``share/sorter_cell/config`` of a colcon/ament install).
+    """
+    if SOURCE_CONFIG_DIR.is_dir():
+        return SOURCE_CONFIG_DIR
+
+    share_config = None
+    try:
+        from ament_index_python.packages import get_package_share_directory
+    except ImportError:
+        pass
+    else:
+        try:
+            share_config = Path(get_package_share_directory(PACKAGE_NAME)) / 'config'
+        except (LookupError, OSError, ValueError):
+            # PackageNotFoundError is a LookupError; OSError: no AMENT_PREFIX_PATH.
+            pass
+    if share_config is not None and share_config.is_dir():
+        return share_config
+
+    share_where = share_config or f'share/{PACKAGE_NAME}/config via the ament index'
+    raise FileNotFoundError(
+        f'sorter_cell config directory not found; looked in {SOURCE_CONFIG_DIR} '
+        f'and {share_where}. Run from a checkout of the repository, or build '
+        f'and source the ROS 2 workspace that installs sorter_cell.'
+    )
