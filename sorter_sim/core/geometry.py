@@ -1,0 +1,191 @@
+"""Footprint geometry: the parcel box, its part over one conveyor strip, and exact integrals.
+
+A zone's share of the footprint (the seed's S_i, eq. 4.3) is the convex polygon
+box ∩ {x_lo <= x <= x_hi}: at most six vertices, kept in fixed-size arrays so the
+numba kernels allocate nothing large. Besides area and centroid this module gives
+two exact integrals over such a polygon P about a point c,
+
+    ∫_P |p - c| dA                 (the seed's ∫ r dS of eq. 4.5, static moment limit)
+    ∫_P (p - c)/|p - c| dA         (= ∫ ∇|p - c| dA = ∮ |p - c| n ds)
+
+both by the divergence theorem reduced to the edge integral ∫ sqrt(τ² + h²) dτ,
+which has a closed form. They make the constant-μ friction wrench exact
+(see ``wrench.py``). Lengths in m, areas in m².
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+MAX_VERTS = 8
+
+
+@njit(cache=True)
+def box_corners(x, y, phi, half_a, half_b, out):
+    """Corners of the A x B box (A along x at φ = 0) centred at (x, y), counter-clockwise."""
+    c = math.cos(phi)
+    s = math.sin(phi)
+    # order (a,-b) -> (a,b) -> (-a,b) -> (-a,-b) is counter-clockwise
+    ox = (half_a, half_a, -half_a, -half_a)
+    oy = (-half_b, half_b, half_b, -half_b)
+    for i in range(4):
+        out[i, 0] = x + c * ox[i] - s * oy[i]
+        out[i, 1] = y + s * ox[i] + c * oy[i]
+
+
+@njit(cache=True)
+def _clip_halfplane(src, n_src, dst, bound, keep_above):
+    """Sutherland-Hodgman step against x >= bound (keep_above) or x <= bound."""
+    n = 0
+    if n_src == 0:
+        return 0
+    for i in range(n_src):
+        j = (i + 1) % n_src
+        xi = src[i, 0]
+        xj = src[j, 0]
+        if keep_above:
+            in_i = xi >= bound
+            in_j = xj >= bound
+        else:
+            in_i = xi <= bound
+            in_j = xj <= bound
+        if in_i:
+            dst[n, 0] = src[i, 0]
+            dst[n, 1] = src[i, 1]
+            n += 1
+        if in_i != in_j:
+            t = (bound - xi) / (xj - xi)
+            dst[n, 0] = bound
+            dst[n, 1] = src[i, 1] + t * (src[j, 1] - src[i, 1])
+            n += 1
+    return n
+
+
+@njit(cache=True)
+def clip_to_strip(corners, x_lo, x_hi, out, work):
+    """Polygon corners ∩ {x_lo <= x <= x_hi} into ``out``; returns the vertex count."""
+    n = 4
+    for i in range(4):
+        work[i, 0] = corners[i, 0]
+        work[i, 1] = corners[i, 1]
+    if x_lo > -math.inf:
+        n = _clip_halfplane(work, n, out, x_lo, True)
+        for i in range(n):
+            work[i, 0] = out[i, 0]
+            work[i, 1] = out[i, 1]
+    if x_hi < math.inf:
+        n = _clip_halfplane(work, n, out, x_hi, False)
+    else:
+        for i in range(n):
+            out[i, 0] = work[i, 0]
+            out[i, 1] = work[i, 1]
+    return n
+
+
+@njit(cache=True)
+def polygon_area_centroid(poly, n):
+    """Signed-positive area and centroid of a counter-clockwise polygon."""
+    if n < 3:
+        return 0.0, 0.0, 0.0
+    # shift to the first vertex for round-off
+    x0 = poly[0, 0]
+    y0 = poly[0, 1]
+    a2 = 0.0
+    cx = 0.0
+    cy = 0.0
+    for i in range(n):
+        j = (i + 1) % n
+        xi = poly[i, 0] - x0
+        yi = poly[i, 1] - y0
+        xj = poly[j, 0] - x0
+        yj = poly[j, 1] - y0
+        cr = xi * yj - xj * yi
+        a2 += cr
+        cx += (xi + xj) * cr
+        cy += (yi + yj) * cr
+    if a2 <= 0.0:
+        return 0.0, 0.0, 0.0
+    area = 0.5 * a2
+    return area, x0 + cx / (3.0 * a2), y0 + cy / (3.0 * a2)
+
+
+@njit(cache=True)
+def polygon_second_moments(poly, n, qx, qy):
+    """∫ ρρᵀ dA about (qx, qy): returns (Jxx, Jxy, Jyy) [m⁴]."""
+    jxx = 0.0
+    jxy = 0.0
+    jyy = 0.0
+    for i in range(n):
+        k = (i + 1) % n
+        xi = poly[i, 0] - qx
+        yi = poly[i, 1] - qy
+        xk = poly[k, 0] - qx
+        yk = poly[k, 1] - qy
+        cr = xi * yk - xk * yi
+        jxx += (xi * xi + xi * xk + xk * xk) * cr
+        jyy += (yi * yi + yi * yk + yk * yk) * cr
+        jxy += (xi * yk + 2.0 * xi * yi + 2.0 * xk * yk + xk * yi) * cr
+    return jxx / 12.0, jxy / 24.0, jyy / 12.0
+
+
+@njit(cache=True)
+def _sqrt_integral(t, h):
+    """Antiderivative of sqrt(τ² + h²) at τ = t."""
+    r = math.sqrt(t * t + h * h)
+    if h == 0.0:
+        return 0.5 * t * abs(t)
+    return 0.5 * (t * r + h * h * math.asinh(t / abs(h)))
+
+
+@njit(cache=True)
+def distance_integrals(poly, n, cx, cy):
+    """Exact (∫_P |p-c| dA, ∫_P (p-c)/|p-c| dA) for a counter-clockwise polygon.
+
+    Returns (I_r, Gx, Gy). Each edge contributes ∫ r ds = ∫ sqrt(τ² + h²) dτ with
+    h its signed distance from c: ∫ r dA = (1/3) Σ h_e ∫_e r ds (since ∇·((p-c) r) = 3r)
+    and ∫ ∇r dA = Σ n_e ∫_e r ds.
+    """
+    i_r = 0.0
+    gx = 0.0
+    gy = 0.0
+    for i in range(n):
+        j = (i + 1) % n
+        ex = poly[j, 0] - poly[i, 0]
+        ey = poly[j, 1] - poly[i, 1]
+        length = math.sqrt(ex * ex + ey * ey)
+        if length == 0.0:
+            continue
+        dx = ex / length
+        dy = ey / length
+        # outward normal of a counter-clockwise polygon
+        nx = dy
+        ny = -dx
+        px = poly[i, 0] - cx
+        py = poly[i, 1] - cy
+        t0 = px * dx + py * dy          # coordinate of the edge start along the edge
+        h = px * nx + py * ny           # signed distance of the edge line from c
+        line = _sqrt_integral(t0 + length, h) - _sqrt_integral(t0, h)
+        i_r += h * line / 3.0
+        gx += nx * line
+        gy += ny * line
+    return i_r, gx, gy
+
+
+@njit(cache=True)
+def max_radius(poly, n, qx, qy):
+    """Largest vertex distance from (qx, qy)."""
+    r2 = 0.0
+    for i in range(n):
+        dx = poly[i, 0] - qx
+        dy = poly[i, 1] - qy
+        r2 = max(r2, dx * dx + dy * dy)
+    return math.sqrt(r2)
+
+
+def footprint(x: float, y: float, phi: float, A: float, B: float) -> np.ndarray:
+    """Corners (4 x 2) of the parcel footprint; a convenience for callers outside numba."""
+    out = np.empty((4, 2))
+    box_corners(x, y, phi, 0.5 * A, 0.5 * B, out)
+    return out

@@ -1,0 +1,1026 @@
+"""Integrators of the planar parcel model: three methods behind one calling convention.
+
+All three advance one parcel from ``t0`` towards ``t_end`` over a fixed set of
+strips and write a trajectory (t, state, mode) into caller-owned arrays, stopping
+early at the scrap line y = ``y_target`` (``inf`` for none). They return a status
+and counters; ``simulate.py`` wraps them in a result object.
+
+``accurate``  (ACCURATE) Dormand-Prince 5(4) with error control and 4th-order
+    dense output, run inside a hybrid automaton of modes SLIDE / STICK(surface).
+    Mode changes are events located by root finding on the dense output, not a
+    velocity threshold: stick when a surface's generalized slip
+    σ = (ẋ - v_sx, ẏ - v_sy, ρ φ̇) reaches zero (its projection on the step-start
+    slip changes sign, or |σ| falls below the velocity tolerance while falling),
+    break-away when the kinetic wrench of the other surfaces leaves the static
+    limits of the stuck one (the seed's configurations after eq. 4.9, limits of
+    eqs. 4.3/4.5), corners crossing strip borders (where the area functions have
+    kinks, so steps restart there), and the scrap line. While stuck the motion is
+    rigid translation with the surface, so it is advanced in closed form; with a
+    single surface under the parcel it jumps straight to the next border crossing.
+
+``implicit``  (IMPLICIT) fixed step, backward Euler in velocity. The step
+    M (W+ - W)/h = wrench(W+) with set-valued Coulomb friction is the minimiser of
+    ½ (W+ - W)ᵀ M (W+ - W)/h + D(W+), D = Σ_k c_k |u_k(W+)| the dissipation over
+    quadrature points (μ lagged one step where it depends on speed), a strongly
+    convex problem: one solution for any h, exact sticking (the minimiser sits on
+    the kink at a surface's velocity when the static limits hold), no chatter.
+    This is Kikuuwe et al.'s (2005) implicit friction step carried to the planar
+    footprint. Positions follow with the new velocity (symplectic Euler).
+
+``threshold`` (THRESHOLD) the seed's own model: eqs. 3.1/4.2/4.4 with the
+    threshold speed v_min (a surface slipping slower than v_min is "static" and
+    pushes back with at most its limit against the other surfaces' force, and
+    likewise the moments with φ̇_min = v_min/ρ), integrated by classic RK4 at a
+    fixed step. Kept for comparison with the paper and for the error study.
+
+Units: SI throughout (m, s, rad, kg, N).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .layout import (
+    MODE_SLIDE,
+    P_HALF_A,
+    P_HALF_B,
+    P_INERTIA,
+    P_MASS,
+    P_ROTATION,
+    S_SURF,
+    S_VX,
+    S_VY,
+    S_WEIGHT,
+    S_XHI,
+    S_XLO,
+    S_LAW,
+    S_PARAMS,
+    P_GRAV,
+)
+from .friction import mu_kinetic, mu_static
+from .geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
+from .wrench import evaluate_surfaces
+
+METHOD_ACCURATE = 0
+METHOD_IMPLICIT = 1
+METHOD_THRESHOLD = 2
+
+# status codes
+ST_END = 0        # reached t_end
+ST_TARGET = 1     # reached the scrap line
+ST_MAX_STEPS = 2  # ran out of output capacity / step budget
+ST_STEP_FAIL = 3  # step size underflow
+ST_NONFINITE = 4  # a NaN or inf appeared
+
+# event kinds in the event log
+EV_STICK = 1
+EV_BREAK = 2
+EV_BORDER = 3
+EV_TARGET = 4
+EV_LEAVE = 5
+
+# Dormand-Prince 5(4) tableau (Dormand & Prince 1980) and dense output (Shampine 1986)
+_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])
+_A = np.array([
+    [0.0, 0.0, 0.0, 0.0, 0.0],
+    [1 / 5, 0.0, 0.0, 0.0, 0.0],
+    [3 / 40, 9 / 40, 0.0, 0.0, 0.0],
+    [44 / 45, -56 / 15, 32 / 9, 0.0, 0.0],
+    [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0.0],
+    [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656],
+])
+_B = np.array([35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84])
+_E = np.array([-71 / 57600, 0.0, 71 / 16695, -71 / 1920, 17253 / 339200, -22 / 525, 1 / 40])
+_P = np.array([
+    [1.0, -8048581381 / 2820520608, 8663915743 / 2820520608, -12715105075 / 11282082432],
+    [0.0, 0.0, 0.0, 0.0],
+    [0.0, 131558114200 / 32700410799, -68118460800 / 10900136933, 87487479700 / 32700410799],
+    [0.0, -1754552775 / 470086768, 14199869525 / 1410260304, -10690763975 / 1880347072],
+    [0.0, 127303824393 / 49829197408, -318862633887 / 49829197408, 701980252875 / 199316789632],
+    [0.0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844],
+    [0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423],
+])
+
+
+@njit(cache=True)
+def n_surf_of(strips):
+    n = 0
+    for k in range(strips.shape[0]):
+        n = max(n, int(strips[k, S_SURF]) + 1)
+    return n
+
+
+@njit(cache=True)
+def surface_velocity(strips, surf):
+    for k in range(strips.shape[0]):
+        if int(strips[k, S_SURF]) == surf:
+            return strips[k, S_VX], strips[k, S_VY]
+    return 0.0, 0.0
+
+
+@njit(cache=True)
+def rhs_slide(state, strips, parcel, nodes, weights, nsurf, out):
+    """Time derivative of the state while sliding (eq. 4.1 with kinetic friction)."""
+    kin = np.empty((nsurf, 3))
+    stat = np.empty((nsurf, 2))
+    area = np.empty(nsurf)
+    slip = np.empty(nsurf)
+    evaluate_surfaces(state, strips, parcel, nodes, weights, -2, False, kin, stat, area, slip)
+    fx = 0.0
+    fy = 0.0
+    t = 0.0
+    for s in range(nsurf):
+        fx += kin[s, 0]
+        fy += kin[s, 1]
+        t += kin[s, 2]
+    out[0] = state[3]
+    out[1] = state[4]
+    out[2] = state[5]
+    out[3] = fx / parcel[P_MASS]
+    out[4] = fy / parcel[P_MASS]
+    out[5] = t / parcel[P_INERTIA] if parcel[P_ROTATION] > 0.5 else 0.0
+
+
+@njit(cache=True)
+def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf):
+    """Break-away margin of sticking to ``surf`` at this pose (> 0: the stick breaks).
+
+    Returns (margin, area of surf, Fx, Fy, T of the other surfaces' kinetic wrench).
+    ``state`` must carry the stuck velocity (surface velocity, φ̇ = 0).
+    """
+    kin = np.empty((nsurf, 3))
+    stat = np.empty((nsurf, 2))
+    area = np.empty(nsurf)
+    slip = np.empty(nsurf)
+    evaluate_surfaces(state, strips, parcel, nodes, weights, surf, True, kin, stat, area, slip)
+    fx = 0.0
+    fy = 0.0
+    t = 0.0
+    for s in range(nsurf):
+        if s != surf:
+            fx += kin[s, 0]
+            fy += kin[s, 1]
+            t += kin[s, 2]
+    margin = math.hypot(fx, fy) - stat[surf, 0]
+    if parcel[P_ROTATION] > 0.5:
+        margin = max(margin, abs(t) - stat[surf, 1])
+    return margin, area[surf], fx, fy, t
+
+
+@njit(cache=True)
+def _rms_norm(err, y0, y1, rtol, atol):
+    acc = 0.0
+    for i in range(err.shape[0]):
+        sc = atol + rtol * max(abs(y0[i]), abs(y1[i]))
+        acc += (err[i] / sc) ** 2
+    return math.sqrt(acc / err.shape[0])
+
+
+@njit(cache=True)
+def _dense(y0, K, h, theta, out):
+    """Dense output y(t0 + θh) from the stage derivatives K (7 x 6)."""
+    q0 = theta
+    q1 = theta * theta
+    q2 = q1 * theta
+    q3 = q2 * theta
+    for j in range(6):
+        acc = 0.0
+        for i in range(7):
+            acc += K[i, j] * (_P[i, 0] * q0 + _P[i, 1] * q1 + _P[i, 2] * q2 + _P[i, 3] * q3)
+        out[j] = y0[j] + h * acc
+
+
+@njit(cache=True)
+def _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err):
+    """One Dormand-Prince step; K[0] must hold f(y). Fills K[1..6], y_new, err."""
+    ys = np.empty(6)
+    for i in range(1, 6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(i):
+                acc += _A[i, k] * K[k, j]
+            ys[j] = y[j] + h * acc
+        rhs_slide(ys, strips, parcel, nodes, weights, nsurf, K[i])
+    for j in range(6):
+        acc = 0.0
+        for k in range(6):
+            acc += _B[k] * K[k, j]
+        y_new[j] = y[j] + h * acc
+    rhs_slide(y_new, strips, parcel, nodes, weights, nsurf, K[6])
+    for j in range(6):
+        acc = 0.0
+        for k in range(7):
+            acc += _E[k] * K[k, j]
+        err[j] = h * acc
+
+
+@njit(cache=True)
+def _gen_slip(state, vsx, vsy, rho, rot, out):
+    out[0] = state[3] - vsx
+    out[1] = state[4] - vsy
+    out[2] = rho * state[5] if rot else 0.0
+    return math.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2)
+
+
+@njit(cache=True)
+def _corner_event_values(state, parcel, borders, out):
+    """Corner x minus border x for every (corner, border) pair."""
+    corners = np.empty((4, 2))
+    box_corners(state[0], state[1], state[2], parcel[P_HALF_A], parcel[P_HALF_B], corners)
+    nb = borders.shape[0]
+    for i in range(4):
+        for b in range(nb):
+            out[i * nb + b] = corners[i, 0] - borders[b]
+
+
+@njit(cache=True)
+def _log_event(ev, n_ev, t, kind, info):
+    if n_ev < ev.shape[0]:
+        ev[n_ev, 0] = t
+        ev[n_ev, 1] = kind
+        ev[n_ev, 2] = info
+    return n_ev + 1
+
+
+@njit(cache=True)
+def _record(ts, ys, ms, n_out, t, y, mode):
+    if n_out < ts.shape[0]:
+        ts[n_out] = t
+        for j in range(6):
+            ys[n_out, j] = y[j]
+        ms[n_out] = mode
+    return n_out + 1
+
+
+@njit(cache=True)
+def _contact_surfaces(state, strips, parcel, nsurf, out_area):
+    """Weighted contact area per surface (cheap: clipping only)."""
+    corners = np.empty((4, 2))
+    poly = np.empty((MAX_VERTS, 2))
+    work = np.empty((MAX_VERTS, 2))
+    box_corners(state[0], state[1], state[2], parcel[P_HALF_A], parcel[P_HALF_B], corners)
+    out_area[:] = 0.0
+    for k in range(strips.shape[0]):
+        w = strips[k, S_WEIGHT]
+        if w <= 0.0:
+            continue
+        n = clip_to_strip(corners, strips[k, S_XLO], strips[k, S_XHI], poly, work)
+        a, _, _ = polygon_area_centroid(poly, n)
+        out_area[int(strips[k, S_SURF])] += w * a
+
+
+@njit(cache=True)
+def _time_to_next_border(state, vx, parcel, borders):
+    """Time until a corner of a parcel translating at vx reaches the next strip border."""
+    if vx == 0.0 or borders.shape[0] == 0:
+        return math.inf
+    corners = np.empty((4, 2))
+    box_corners(state[0], state[1], state[2], parcel[P_HALF_A], parcel[P_HALF_B], corners)
+    best = math.inf
+    for i in range(4):
+        for b in range(borders.shape[0]):
+            dt = (borders[b] - corners[i, 0]) / vx
+            if dt >= 0.0 and dt < best:
+                best = dt
+    return best
+
+
+@njit(cache=True)
+def _stick_advance(y, surf, t, t_end, y_target, strips, parcel, nodes, weights, nsurf,
+                   borders, reductions, counters):
+    """Advance a parcel stuck to ``surf``; returns (t_new, reason).
+
+    reason: 0 reached t_end, 1 reached the target line, 2 break-away, 3 left the surface.
+    ``y`` is updated in place (rigid translation with the surface, φ̇ = 0).
+    ``counters``: [n_rhs, closed_form_jumps].
+    """
+    vsx, vsy = surface_velocity(strips, surf)
+    y[3] = vsx
+    y[4] = vsy
+    y[5] = 0.0
+    t_stop = t_end
+    reason_stop = 0
+    if vsy > 0.0 and y_target < math.inf and y[1] < y_target:
+        tt = t + (y_target - y[1]) / vsy
+        if tt < t_stop:
+            t_stop = tt
+            reason_stop = 1
+    speed = math.hypot(vsx, vsy)
+    if speed == 0.0:
+        # a stopped surface holds the parcel for good (only the other surfaces could
+        # move it, and they are checked at the start)
+        m, a, _, _, _ = stick_margin(y, strips, parcel, nodes, weights, nsurf, surf)
+        counters[0] += 1
+        if m > 0.0:
+            return t, 2
+        if a <= 0.0:
+            return t, 3
+        return t_stop, reason_stop
+    area = np.empty(nsurf)
+    lmin = 2.0 * min(parcel[P_HALF_A], parcel[P_HALF_B])
+    dt_scan = lmin / (16.0 * speed)
+    y0x = y[0]
+    y0y = y[1]
+    t0 = t
+    ys = y.copy()
+    while t < t_stop:
+        # reduction: only this surface under the parcel -> no force can break the stick
+        # until a corner reaches a border; jump there in closed form.
+        if reductions:
+            _contact_surfaces(y, strips, parcel, nsurf, area)
+            alone = True
+            for s in range(nsurf):
+                if s != surf and area[s] > 0.0:
+                    alone = False
+            dt_b = _time_to_next_border(y, vsx, parcel, borders) if alone else 0.0
+            # a corner sitting on a border and moving across it gives dt_b ~ 0: scan instead
+            if alone and area[surf] > 0.0 and dt_b > 1e-12:
+                t_next = min(t_stop, t + dt_b)
+                counters[1] += 1
+                t = t_next
+                y[0] = y0x + vsx * (t - t0)
+                y[1] = y0y + vsy * (t - t0)
+                if t >= t_stop:
+                    break
+                continue
+        t_next = min(t_stop, t + dt_scan)
+        ys[0] = y0x + vsx * (t_next - t0)
+        ys[1] = y0y + vsy * (t_next - t0)
+        m, a, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf)
+        counters[0] += 1
+        if m > 0.0 or a <= 0.0:
+            # locate the first pose where the stick fails, by bisection in time
+            lo = t
+            hi = t_next
+            want_leave = a <= 0.0
+            for _ in range(60):
+                mid = 0.5 * (lo + hi)
+                ys[0] = y0x + vsx * (mid - t0)
+                ys[1] = y0y + vsy * (mid - t0)
+                m2, a2, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf)
+                counters[0] += 1
+                failed = (a2 <= 0.0) if want_leave else (m2 > 0.0 or a2 <= 0.0)
+                if failed:
+                    hi = mid
+                else:
+                    lo = mid
+                if hi - lo <= 1e-13 * (1.0 + abs(hi)):
+                    break
+            t = hi
+            y[0] = y0x + vsx * (t - t0)
+            y[1] = y0y + vsy * (t - t0)
+            return t, 3 if want_leave else 2
+        t = t_next
+        y[0] = ys[0]
+        y[1] = ys[1]
+    t = t_stop
+    y[0] = y0x + vsx * (t - t0)
+    y[1] = y0y + vsy * (t - t0)
+    return t, reason_stop
+
+
+@njit(cache=True)
+def _break_nudge(y, strips, parcel, nodes, weights, nsurf, surf, delta):
+    """Leave a stick: a velocity offset of size ``delta`` along the other surfaces' pull.
+
+    At break-away the slip on the stuck surface is exactly zero, where kinetic
+    friction has no direction; the offset picks the direction the parcel leaves
+    in (the limit of the slip as t -> t_break+).
+    """
+    _, _, fx, fy, t = stick_margin(y, strips, parcel, nodes, weights, nsurf, surf)
+    m = parcel[P_MASS]
+    rho = math.sqrt(parcel[P_INERTIA] / m)
+    gx = fx / m
+    gy = fy / m
+    gw = t / (m * rho) if parcel[P_ROTATION] > 0.5 else 0.0
+    norm = math.sqrt(gx * gx + gy * gy + gw * gw)
+    if norm == 0.0:
+        return
+    y[3] += delta * gx / norm
+    y[4] += delta * gy / norm
+    y[5] += delta * gw / norm / rho
+
+
+@njit(cache=True)
+def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights, borders,
+                 rtol, atol, h_max, reductions, ts, ys, ms, ev, counters):
+    """Event-located Dormand-Prince integration of the hybrid model.
+
+    counters (out): [n_steps, n_rhs, n_rejected, n_out, n_events, closed_form_jumps,
+                     stick_scans]. Returns (status, t, mode) with the final state in ys.
+    """
+    nsurf = n_surf_of(strips)
+    rot = parcel[P_ROTATION] > 0.5
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
+    y = y0.copy()
+    t = t0
+    mode = mode0
+    n_out = _record(ts, ys, ms, 0, t, y, mode)
+    n_ev = 0
+    n_steps = 0
+    n_rhs = 0
+    n_rej = 0
+    vscale = 0.0
+    for k in range(strips.shape[0]):
+        vscale = max(vscale, math.hypot(strips[k, S_VX], strips[k, S_VY]))
+    vscale = max(vscale, math.hypot(y0[3], y0[4]), 1e-3)
+    stick_tol = max(atol, rtol * vscale)
+    nudge = 1e-3 * stick_tol
+    K = np.empty((7, 6))
+    y_new = np.empty(6)
+    err = np.empty(6)
+    yd = np.empty(6)
+    sig = np.empty(3)
+    sig0 = np.empty(nsurf * 3)
+    sig0n = np.empty(nsurf)
+    area = np.empty(nsurf)
+    nb = borders.shape[0]
+    ev0 = np.empty(4 * nb)
+    ev1 = np.empty(4 * nb)
+    stick_counters = np.zeros(2, dtype=np.int64)
+    h = min(h_max, 1e-3)
+    fresh = True
+    status = ST_END
+    max_out = ts.shape[0]
+    while t < t_end:
+        if n_steps + n_out >= 50 * max_out:
+            status = ST_MAX_STEPS
+            break
+        if mode >= 0:
+            t_new, reason = _stick_advance(y, mode, t, t_end, y_target, strips, parcel, nodes,
+                                           weights, nsurf, borders, reductions, stick_counters)
+            t = t_new
+            n_out = _record(ts, ys, ms, n_out, t, y, mode)
+            if reason == 1:
+                n_ev = _log_event(ev, n_ev, t, EV_TARGET, mode)
+                status = ST_TARGET
+                break
+            if reason == 2 or reason == 3:
+                n_ev = _log_event(ev, n_ev, t, EV_BREAK if reason == 2 else EV_LEAVE, mode)
+                if reason == 2:
+                    _break_nudge(y, strips, parcel, nodes, weights, nsurf, mode, nudge)
+                mode = MODE_SLIDE
+                fresh = True
+                n_out = _record(ts, ys, ms, n_out, t, y, mode)
+            continue
+        # ---- sliding: one Dormand-Prince step with event location ----
+        if fresh:
+            rhs_slide(y, strips, parcel, nodes, weights, nsurf, K[0])
+            n_rhs += 1
+            fresh = False
+        if not np.all(np.isfinite(K[0])):
+            status = ST_NONFINITE
+            break
+        h = min(h, h_max, t_end - t)
+        if h <= 1e-14 * max(1.0, abs(t)):
+            status = ST_STEP_FAIL
+            break
+        _contact_surfaces(y, strips, parcel, nsurf, area)
+        for s in range(nsurf):
+            vsx, vsy = surface_velocity(strips, s)
+            sig0n[s] = _gen_slip(y, vsx, vsy, rho, rot, sig)
+            for j in range(3):
+                sig0[3 * s + j] = sig[j] / sig0n[s] if sig0n[s] > 0.0 else 0.0
+        if nb > 0:
+            _corner_event_values(y, parcel, borders, ev0)
+        _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err)
+        n_rhs += 6
+        enorm = _rms_norm(err, y, y_new, rtol, atol)
+        if not np.isfinite(enorm):
+            h *= 0.2
+            n_rej += 1
+            continue
+        if enorm > 1.0:
+            h *= max(0.2, 0.9 * enorm ** -0.2)
+            n_rej += 1
+            continue
+        # accepted: look for the earliest event inside (t, t + h]
+        theta_ev = 2.0
+        ev_kind = 0
+        ev_info = -1
+        # scrap line
+        if y_target < math.inf and y[1] < y_target <= y_new[1]:
+            lo = 0.0
+            hi = 1.0
+            for _ in range(80):
+                mid = 0.5 * (lo + hi)
+                _dense(y, K, h, mid, yd)
+                if yd[1] >= y_target:
+                    hi = mid
+                else:
+                    lo = mid
+                if hi - lo < 1e-15:
+                    break
+            theta_ev = hi
+            ev_kind = EV_TARGET
+        # corners crossing borders
+        if nb > 0:
+            _corner_event_values(y_new, parcel, borders, ev1)
+            for q in range(4 * nb):
+                if ev0[q] != 0.0 and ev0[q] * ev1[q] < 0.0:
+                    lo = 0.0
+                    hi = 1.0
+                    for _ in range(80):
+                        mid = 0.5 * (lo + hi)
+                        _dense(y, K, h, mid, yd)
+                        _corner_event_values(yd, parcel, borders, ev1)
+                        if ev1[q] * ev0[q] <= 0.0:
+                            hi = mid
+                        else:
+                            lo = mid
+                        if hi - lo < 1e-15:
+                            break
+                    if hi < theta_ev:
+                        theta_ev = hi
+                        ev_kind = EV_BORDER
+                        ev_info = q % nb
+                    _corner_event_values(y_new, parcel, borders, ev1)
+        # slip of a surface reaching zero
+        stick_surf = -1
+        for s in range(nsurf):
+            if area[s] <= 0.0 or sig0n[s] <= 0.0:
+                continue
+            vsx, vsy = surface_velocity(strips, s)
+            n1 = _gen_slip(y_new, vsx, vsy, rho, rot, sig)
+            proj1 = sig[0] * sig0[3 * s] + sig[1] * sig0[3 * s + 1] + sig[2] * sig0[3 * s + 2]
+            # falling towards zero: d|σ|²/dt = 2 σ·σ̇ < 0 at the step end
+            falling = (sig[0] * K[6, 3] + sig[1] * K[6, 4] + sig[2] * rho * K[6, 5]) < 0.0
+            th = 2.0
+            if proj1 <= 0.0:
+                lo = 0.0
+                hi = 1.0
+                for _ in range(80):
+                    mid = 0.5 * (lo + hi)
+                    _dense(y, K, h, mid, yd)
+                    _gen_slip(yd, vsx, vsy, rho, rot, sig)
+                    pr = sig[0] * sig0[3 * s] + sig[1] * sig0[3 * s + 1] + sig[2] * sig0[3 * s + 2]
+                    if pr <= 0.0:
+                        hi = mid
+                    else:
+                        lo = mid
+                    if hi - lo < 1e-15:
+                        break
+                th = hi
+            elif n1 <= stick_tol and falling:
+                th = 1.0
+            if th < theta_ev or (th == theta_ev and th <= 1.0 and ev_kind != EV_TARGET):
+                theta_ev = th
+                ev_kind = EV_STICK
+                stick_surf = s
+        if theta_ev <= 1.0 and theta_ev < 1.0 - 1e-12:
+            # redo the step to the event, so no stage sees past it
+            h = theta_ev * h
+            _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err)
+            n_rhs += 6
+        n_steps += 1
+        t = t + h
+        for j in range(6):
+            y[j] = y_new[j]
+        for j in range(6):
+            K[0, j] = K[6, j]
+        if not np.all(np.isfinite(y)):
+            status = ST_NONFINITE
+            break
+        if theta_ev <= 1.0:
+            if ev_kind == EV_TARGET:
+                n_out = _record(ts, ys, ms, n_out, t, y, mode)
+                n_ev = _log_event(ev, n_ev, t, EV_TARGET, -1)
+                status = ST_TARGET
+                break
+            if ev_kind == EV_BORDER:
+                n_ev = _log_event(ev, n_ev, t, EV_BORDER, ev_info)
+            if ev_kind == EV_STICK:
+                vsx, vsy = surface_velocity(strips, stick_surf)
+                n1 = _gen_slip(y, vsx, vsy, rho, rot, sig)
+                if n1 <= 100.0 * stick_tol:
+                    n_ev = _log_event(ev, n_ev, t, EV_STICK, stick_surf)
+                    mode = stick_surf
+                    y[3] = vsx
+                    y[4] = vsy
+                    y[5] = 0.0
+                    fresh = True
+        n_out = _record(ts, ys, ms, n_out, t, y, mode)
+        if enorm == 0.0:
+            fac = 5.0
+        else:
+            fac = min(5.0, max(0.2, 0.9 * enorm ** -0.2))
+        if theta_ev > 1.0:
+            h *= fac
+    counters[0] = n_steps
+    counters[1] = n_rhs + stick_counters[0]
+    counters[2] = n_rej
+    counters[3] = n_out
+    counters[4] = n_ev
+    counters[5] = stick_counters[1]
+    counters[6] = stick_counters[0]
+    return status, t, mode
+
+
+# ---------------------------------------------------------------- implicit step
+@njit(cache=True)
+def _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy,
+                  stat):
+    """Quadrature points of the footprint (centroid fans, Gauss n x n per triangle).
+
+    ck[k] = weight · μ_k · pressure with μ_k the kinetic coefficient at the current
+    slip of that point (the 'lag' that keeps the implicit problem convex).
+    stat[s] = (F_max, T_max) static limits. Returns the number of points.
+    """
+    corners = np.empty((4, 2))
+    poly = np.empty((MAX_VERTS, 2))
+    work = np.empty((MAX_VERTS, 2))
+    half_a = parcel[P_HALF_A]
+    half_b = parcel[P_HALF_B]
+    box_corners(y[0], y[1], y[2], half_a, half_b, corners)
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * half_a * half_b)
+    nq = nodes.shape[0]
+    npt = 0
+    stat[:, :] = 0.0
+    for k in range(strips.shape[0]):
+        w = strips[k, S_WEIGHT]
+        if w <= 0.0:
+            continue
+        n = clip_to_strip(corners, strips[k, S_XLO], strips[k, S_XHI], poly, work)
+        a, qx, qy = polygon_area_centroid(poly, n)
+        if a <= 0.0:
+            continue
+        s_id = int(strips[k, S_SURF])
+        law = int(strips[k, S_LAW])
+        params = strips[k, S_PARAMS:]
+        pressure = p_unit * w
+        mus = mu_static(law, params)
+        for i in range(n):
+            j = (i + 1) % n
+            e0x = poly[i, 0] - qx
+            e0y = poly[i, 1] - qy
+            dex = poly[j, 0] - poly[i, 0]
+            dey = poly[j, 1] - poly[i, 1]
+            det = e0x * dey - e0y * dex
+            for aa in range(nq):
+                ex = e0x + nodes[aa] * dex
+                ey = e0y + nodes[aa] * dey
+                for bb in range(nq):
+                    s = nodes[bb]
+                    xk = qx + s * ex
+                    yk = qy + s * ey
+                    wk = weights[aa] * weights[bb] * s * det
+                    ux = y[3] - y[5] * (yk - y[1]) - strips[k, S_VX]
+                    uy = y[4] + y[5] * (xk - y[0]) - strips[k, S_VY]
+                    sp = math.hypot(ux, uy)
+                    mu = mu_kinetic(law, params, max(sp, 1e-12))
+                    px[npt] = xk
+                    py[npt] = yk
+                    ck[npt] = wk * mu * pressure
+                    surf_of[npt] = s_id
+                    svx[npt] = strips[k, S_VX]
+                    svy[npt] = strips[k, S_VY]
+                    npt += 1
+                    rr = math.hypot(xk - y[0], yk - y[1])
+                    stat[s_id, 0] += wk * mus * pressure
+                    stat[s_id, 1] += wk * mus * pressure * rr
+    return npt
+
+
+@njit(cache=True)
+def _friction_at(W, y, npt, px, py, ck, surf_of, svx, svy, skip, out):
+    """Kinetic wrench of the point set at generalized velocity W (surface ``skip`` left out).
+
+    Returns the dissipation D(W) = Σ c_k |u_k| of the included points.
+    """
+    out[0] = 0.0
+    out[1] = 0.0
+    out[2] = 0.0
+    d = 0.0
+    for k in range(npt):
+        if surf_of[k] == skip:
+            continue
+        rx = px[k] - y[0]
+        ry = py[k] - y[1]
+        ux = W[0] - W[2] * ry - svx[k]
+        uy = W[1] + W[2] * rx - svy[k]
+        sp = math.hypot(ux, uy)
+        d += ck[k] * sp
+        if sp > 0.0:
+            fx = -ck[k] * ux / sp
+            fy = -ck[k] * uy / sp
+            out[0] += fx
+            out[1] += fy
+            out[2] += rx * fy - ry * fx
+    return d
+
+
+@njit(cache=True)
+def _solve_spd(H, grad, nvar):
+    """-H⁻¹ grad for the 2x2 or 3x3 symmetric positive-definite Newton system (Cramer)."""
+    out = np.zeros(3)
+    if nvar == 2:
+        det = H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0]
+        out[0] = -(H[1, 1] * grad[0] - H[0, 1] * grad[1]) / det
+        out[1] = -(H[0, 0] * grad[1] - H[1, 0] * grad[0]) / det
+        return out
+    c00 = H[1, 1] * H[2, 2] - H[1, 2] * H[2, 1]
+    c01 = H[1, 2] * H[2, 0] - H[1, 0] * H[2, 2]
+    c02 = H[1, 0] * H[2, 1] - H[1, 1] * H[2, 0]
+    det = H[0, 0] * c00 + H[0, 1] * c01 + H[0, 2] * c02
+    c11 = H[0, 0] * H[2, 2] - H[0, 2] * H[2, 0]
+    c12 = H[0, 1] * H[2, 0] - H[0, 0] * H[2, 1]
+    c22 = H[0, 0] * H[1, 1] - H[0, 1] * H[1, 0]
+    # H symmetric: the adjugate is symmetric too
+    out[0] = -(c00 * grad[0] + c01 * grad[1] + c02 * grad[2]) / det
+    out[1] = -(c01 * grad[0] + c11 * grad[1] + c12 * grad[2]) / det
+    out[2] = -(c02 * grad[0] + c12 * grad[1] + c22 * grad[2]) / det
+    return out
+
+
+@njit(cache=True)
+def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy,
+                  stat, y_out):
+    """One backward-Euler velocity step; returns (mode, newton_iterations)."""
+    m = parcel[P_MASS]
+    inertia = parcel[P_INERTIA]
+    rot = parcel[P_ROTATION] > 0.5
+    npt = _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy,
+                        stat)
+    W0 = np.array([y[3], y[4], y[5] if rot else 0.0])
+    mass = np.array([m, m, inertia if rot else 1.0])
+    wr = np.empty(3)
+    # stick test, surface by surface (the seed's decoupled force and moment limits)
+    present = np.zeros(nsurf)
+    for k in range(npt):
+        present[surf_of[k]] = 1.0
+    for s in range(nsurf):
+        if present[s] == 0.0:
+            continue
+        vsx, vsy = surface_velocity(strips, s)
+        Ws = np.array([vsx, vsy, 0.0])
+        _friction_at(Ws, y, npt, px, py, ck, surf_of, svx, svy, s, wr)
+        rfx = mass[0] * (Ws[0] - W0[0]) / h - wr[0]
+        rfy = mass[1] * (Ws[1] - W0[1]) / h - wr[1]
+        rt = mass[2] * (Ws[2] - W0[2]) / h - wr[2]
+        ok = math.hypot(rfx, rfy) <= stat[s, 0]
+        if rot:
+            ok = ok and abs(rt) <= stat[s, 1]
+        if ok:
+            y_out[3] = vsx
+            y_out[4] = vsy
+            y_out[5] = 0.0
+            y_out[0] = y[0] + h * vsx
+            y_out[1] = y[1] + h * vsy
+            y_out[2] = y[2]
+            return s, 0
+    # no stick: damped Newton on f(W) = ½ (W-W0)ᵀM(W-W0)/h + D(W)
+    W = W0.copy()
+    its = 0
+    grad = np.empty(3)
+    H = np.empty((3, 3))
+    nvar = 3 if rot else 2
+    for its in range(1, 60):
+        fval = _friction_at(W, y, npt, px, py, ck, surf_of, svx, svy, -1, wr)
+        for i in range(3):
+            fval += 0.5 * mass[i] * (W[i] - W0[i]) ** 2 / h
+            grad[i] = mass[i] * (W[i] - W0[i]) / h - wr[i]
+        H[:, :] = 0.0
+        for i in range(3):
+            H[i, i] = mass[i] / h
+        for k in range(npt):
+            rx = px[k] - y[0]
+            ry = py[k] - y[1]
+            ux = W[0] - W[2] * ry - svx[k]
+            uy = W[1] + W[2] * rx - svy[k]
+            sp = max(math.hypot(ux, uy), 1e-12)
+            hx = ux / sp
+            hy = uy / sp
+            c = ck[k] / sp
+            # J = [[1, 0, -ry], [0, 1, rx]]; H += c Jᵀ (I - ûûᵀ) J
+            pxx = c * (1.0 - hx * hx)
+            pxy = -c * hx * hy
+            pyy = c * (1.0 - hy * hy)
+            H[0, 0] += pxx
+            H[0, 1] += pxy
+            H[1, 1] += pyy
+            H[0, 2] += -pxx * ry + pxy * rx
+            H[1, 2] += -pxy * ry + pyy * rx
+            H[2, 2] += pxx * ry * ry - 2.0 * pxy * rx * ry + pyy * rx * rx
+        H[1, 0] = H[0, 1]
+        H[2, 0] = H[0, 2]
+        H[2, 1] = H[1, 2]
+        gn = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + (grad[2] ** 2 if rot else 0.0))
+        if gn <= 1e-12 * (m / h) * 1e-3:
+            break
+        dW = _solve_spd(H, grad, nvar)
+        # backtracking line search on f
+        step = 1.0
+        Wt = np.empty(3)
+        for _ in range(40):
+            for i in range(3):
+                Wt[i] = W[i] + step * dW[i]
+            ft = _friction_at(Wt, y, npt, px, py, ck, surf_of, svx, svy, -1, wr)
+            for i in range(3):
+                ft += 0.5 * mass[i] * (Wt[i] - W0[i]) ** 2 / h
+            if ft <= fval - 1e-4 * step * (-(grad[0] * dW[0] + grad[1] * dW[1] + grad[2] * dW[2])):
+                break
+            step *= 0.5
+        for i in range(3):
+            W[i] = Wt[i]
+        if step * math.sqrt(dW[0] ** 2 + dW[1] ** 2 + dW[2] ** 2) <= 1e-15 * (1.0 + math.sqrt(W[0] ** 2 + W[1] ** 2)):
+            break
+    y_out[3] = W[0]
+    y_out[4] = W[1]
+    y_out[5] = W[2] if rot else 0.0
+    y_out[0] = y[0] + h * y_out[3]
+    y_out[1] = y[1] + h * y_out[4]
+    y_out[2] = y[2] + h * y_out[5]
+    return MODE_SLIDE, its
+
+
+@njit(cache=True)
+def run_implicit(y0, t0, t_end, y_target, strips, parcel, nodes, weights, h,
+                 ts, ys, ms, ev, counters):
+    """Fixed-step implicit integration; the scrap line is located by linear interpolation."""
+    nsurf = n_surf_of(strips)
+    cap = 4 * nodes.shape[0] * nodes.shape[0] * MAX_VERTS * strips.shape[0] + 1
+    px = np.empty(cap)
+    py = np.empty(cap)
+    ck = np.empty(cap)
+    surf_of = np.empty(cap, dtype=np.int64)
+    svx = np.empty(cap)
+    svy = np.empty(cap)
+    stat = np.empty((nsurf, 2))
+    y = y0.copy()
+    y_new = np.empty(6)
+    t = t0
+    mode = MODE_SLIDE
+    n_out = _record(ts, ys, ms, 0, t, y, mode)
+    n_ev = 0
+    n_steps = 0
+    n_newton = 0
+    status = ST_END
+    while t < t_end - 1e-12 * h:
+        hh = min(h, t_end - t)
+        new_mode, its = implicit_step(y, hh, strips, parcel, nodes, weights, nsurf, px, py, ck,
+                                      surf_of, svx, svy, stat, y_new)
+        n_newton += its
+        n_steps += 1
+        if new_mode != mode:
+            n_ev = _log_event(ev, n_ev, t + hh, EV_STICK if new_mode >= 0 else EV_BREAK,
+                              new_mode if new_mode >= 0 else mode)
+        if not np.all(np.isfinite(y_new)):
+            status = ST_NONFINITE
+            break
+        if y_target < math.inf and y[1] < y_target <= y_new[1]:
+            th = (y_target - y[1]) / (y_new[1] - y[1])
+            for j in range(6):
+                y_new[j] = y[j] + th * (y_new[j] - y[j])
+            t += th * hh
+            mode = new_mode
+            for j in range(6):
+                y[j] = y_new[j]
+            n_out = _record(ts, ys, ms, n_out, t, y, mode)
+            n_ev = _log_event(ev, n_ev, t, EV_TARGET, -1)
+            status = ST_TARGET
+            break
+        t += hh
+        mode = new_mode
+        for j in range(6):
+            y[j] = y_new[j]
+        n_out = _record(ts, ys, ms, n_out, t, y, mode)
+        if n_out >= ts.shape[0]:
+            status = ST_MAX_STEPS
+            break
+    counters[0] = n_steps
+    counters[1] = n_steps  # one point-set build (the 'rhs') per step
+    counters[2] = n_newton
+    counters[3] = n_out
+    counters[4] = n_ev
+    return status, t, mode
+
+
+# ---------------------------------------------------------------- the seed's threshold model
+@njit(cache=True)
+def rhs_threshold(state, strips, parcel, nodes, weights, nsurf, v_min, out, modes_out):
+    """Eqs. 4.1/4.2/4.4: kinetic where a surface slips faster than v_min, else static.
+
+    A 'static' surface answers the kinetic pull of the others with at most its limit
+    (middle rows of eqs. 4.2 and 4.4); its own kinetic wrench is not applied.
+    modes_out[s] = 1 where surface s is static in force.
+    """
+    kin = np.empty((nsurf, 3))
+    stat = np.empty((nsurf, 2))
+    area = np.empty(nsurf)
+    slip = np.empty(nsurf)
+    evaluate_surfaces(state, strips, parcel, nodes, weights, -2, True, kin, stat, area, slip)
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
+    om_min = v_min / rho
+    rot = parcel[P_ROTATION] > 0.5
+    slow = abs(state[5]) <= om_min
+    fkx = 0.0
+    fky = 0.0
+    tk = 0.0
+    for s in range(nsurf):
+        modes_out[s] = 0
+        if area[s] > 0.0 and slip[s] <= v_min:
+            modes_out[s] = 1
+        else:
+            fkx += kin[s, 0]
+            fky += kin[s, 1]
+    for s in range(nsurf):
+        if not slow or not rot:
+            tk += kin[s, 2]
+        elif modes_out[s] == 0:
+            tk += kin[s, 2]
+    fx = fkx
+    fy = fky
+    fn = math.hypot(fkx, fky)
+    for s in range(nsurf):
+        if modes_out[s] == 1 and fn > 0.0:
+            lim = min(stat[s, 0], fn)
+            fx -= lim * fkx / fn
+            fy -= lim * fky / fn
+    t = tk
+    if rot and slow:
+        t_stat = tk
+        for s in range(nsurf):
+            if area[s] > 0.0 and modes_out[s] == 1:
+                lim = min(stat[s, 1], abs(t_stat))
+                t -= lim * (1.0 if t_stat > 0.0 else -1.0) if t_stat != 0.0 else 0.0
+    out[0] = state[3]
+    out[1] = state[4]
+    out[2] = state[5]
+    out[3] = fx / parcel[P_MASS]
+    out[4] = fy / parcel[P_MASS]
+    out[5] = t / parcel[P_INERTIA] if rot else 0.0
+
+
+@njit(cache=True)
+def run_threshold(y0, t0, t_end, y_target, strips, parcel, nodes, weights, h, v_min,
+                  ts, ys, ms, ev, counters):
+    """Classic RK4 at a fixed step on the seed's threshold model."""
+    nsurf = n_surf_of(strips)
+    y = y0.copy()
+    k1 = np.empty(6)
+    k2 = np.empty(6)
+    k3 = np.empty(6)
+    k4 = np.empty(6)
+    yt = np.empty(6)
+    y_new = np.empty(6)
+    mo = np.zeros(nsurf, dtype=np.int64)
+    t = t0
+    mode_code = 0
+    rec_mode = MODE_SLIDE
+    n_out = _record(ts, ys, ms, 0, t, y, MODE_SLIDE)
+    n_ev = 0
+    n_steps = 0
+    status = ST_END
+    while t < t_end - 1e-12 * h:
+        hh = min(h, t_end - t)
+        rhs_threshold(y, strips, parcel, nodes, weights, nsurf, v_min, k1, mo)
+        code = 0
+        for s in range(nsurf):
+            code += mo[s] << s
+        for j in range(6):
+            yt[j] = y[j] + 0.5 * hh * k1[j]
+        rhs_threshold(yt, strips, parcel, nodes, weights, nsurf, v_min, k2, mo)
+        for j in range(6):
+            yt[j] = y[j] + 0.5 * hh * k2[j]
+        rhs_threshold(yt, strips, parcel, nodes, weights, nsurf, v_min, k3, mo)
+        for j in range(6):
+            yt[j] = y[j] + hh * k3[j]
+        rhs_threshold(yt, strips, parcel, nodes, weights, nsurf, v_min, k4, mo)
+        for j in range(6):
+            y_new[j] = y[j] + hh / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+        n_steps += 1
+        if code != mode_code:
+            n_ev = _log_event(ev, n_ev, t, EV_STICK if code > mode_code else EV_BREAK, code)
+            mode_code = code
+            # the trajectory's mode: the one 'static' surface, else sliding
+            rec_mode = MODE_SLIDE
+            for s in range(nsurf):
+                if code == (1 << s):
+                    rec_mode = s
+        if not np.all(np.isfinite(y_new)):
+            status = ST_NONFINITE
+            break
+        if y_target < math.inf and y[1] < y_target <= y_new[1]:
+            th = (y_target - y[1]) / (y_new[1] - y[1])
+            for j in range(6):
+                y[j] = y[j] + th * (y_new[j] - y[j])
+            t += th * hh
+            n_out = _record(ts, ys, ms, n_out, t, y, rec_mode)
+            n_ev = _log_event(ev, n_ev, t, EV_TARGET, -1)
+            status = ST_TARGET
+            break
+        t += hh
+        for j in range(6):
+            y[j] = y_new[j]
+        n_out = _record(ts, ys, ms, n_out, t, y, rec_mode)
+        if n_out >= ts.shape[0]:
+            status = ST_MAX_STEPS
+            break
+    counters[0] = n_steps
+    counters[1] = 4 * n_steps
+    counters[2] = 0
+    counters[3] = n_out
+    counters[4] = n_ev
+    return status, t, MODE_SLIDE

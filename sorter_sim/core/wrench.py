@@ -1,0 +1,241 @@
+"""Friction force and moment on the parcel from each conveyor surface (seed eqs. 4.1-4.9).
+
+Every area element dS of the footprint part over a strip opposes its own rubbing
+velocity u(p) = V + φ̇ ẑ×(p - g) - v_surface with dF = -μ(|u|) (m g w / S) û dS.
+Because u is the velocity field of a planar rigid motion it vanishes at one point,
+the instantaneous centre c of the parcel's motion relative to that surface; then
+û = sgn(φ̇) ẑ×(p - c)/|p - c| and, for a constant μ,
+
+    F = -μ p sgn(φ̇) ẑ × ∫ ∇|p - c| dA,
+    T = -μ p sgn(φ̇) [∫ |p - c| dA + (c - g)·∫ ∇|p - c| dA],
+
+exact through ``geometry.distance_integrals``, and for pure translation simply
+F = -μ p S û, T = (q - g)×F. When c is far away but not at infinity those terms
+cancel catastrophically; there the integrand is analytic over the footprint and
+the quadrature below is used instead (see ``SMALL_ROTATION``).
+
+A speed-dependent μ needs quadrature. The fan of triangles from c with a Duffy
+map p = c + s (e_i + t (e_{i+1} - e_i)) puts the kink of û at s = 0, where the
+Jacobian s vanishes, so Gauss-Legendre in (s, t) converges fast; when c is far
+the fan starts at the centroid and the integrand is smooth anyway.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .friction import law_is_constant, mu_kinetic, mu_static
+from .geometry import (
+    MAX_VERTS,
+    box_corners,
+    clip_to_strip,
+    distance_integrals,
+    max_radius,
+    polygon_area_centroid,
+)
+from .layout import (
+    P_CLOSED,
+    P_GRAV,
+    P_HALF_A,
+    P_HALF_B,
+    P_MASS,
+    S_LAW,
+    S_PARAMS,
+    S_SURF,
+    S_VX,
+    S_VY,
+    S_WEIGHT,
+    S_XHI,
+    S_XLO,
+)
+
+# |φ̇| R / |u_q| below which the exact formula is not used: it loses about
+# eps/ε² to cancellation (terms of size r², r = R/ε, cancel to R²), while the
+# integrand is analytic over the footprint and the centroid-fan Gauss rule of
+# order n errs by about ε^(2n): at 0.02 both stay near 1e-13.
+SMALL_ROTATION = 0.02
+
+
+def gauss_legendre_01(n: int):
+    """Gauss-Legendre nodes and weights on [0, 1]."""
+    x, w = np.polynomial.legendre.leggauss(int(n))
+    return 0.5 * (x + 1.0), 0.5 * w
+
+
+@njit(cache=True)
+def closed_form_applies(poly, n, qx, qy, ux_q, uy_q, omega):
+    """True where the exact constant-μ wrench is accurate: pure translation or a near ICR."""
+    if omega == 0.0:
+        return True
+    return abs(omega) * max_radius(poly, n, qx, qy) >= SMALL_ROTATION * math.hypot(ux_q, uy_q)
+
+
+@njit(cache=True)
+def strip_wrench_closed(poly, n, area, qx, qy, gx, gy, ux_q, uy_q, omega, mu, pressure):
+    """Exact friction wrench (Fx, Fy, T about g) of a constant-μ strip part.
+
+    Valid where ``closed_form_applies``; for φ̇ = 0 it is F = -μ p S û_q, T = (q - g)×F.
+    """
+    scale = mu * pressure
+    if omega == 0.0:
+        uq = math.hypot(ux_q, uy_q)
+        if uq == 0.0:
+            return 0.0, 0.0, 0.0
+        fx = -scale * area * ux_q / uq
+        fy = -scale * area * uy_q / uq
+        return fx, fy, (qx - gx) * fy - (qy - gy) * fx
+    cx = qx - uy_q / omega
+    cy = qy + ux_q / omega
+    i_r, g_x, g_y = distance_integrals(poly, n, cx, cy)
+    sgn = 1.0 if omega > 0.0 else -1.0
+    fx = -scale * sgn * (-g_y)
+    fy = -scale * sgn * g_x
+    t = -scale * sgn * (i_r + (cx - gx) * g_x + (cy - gy) * g_y)
+    return fx, fy, t
+
+
+@njit(cache=True)
+def strip_wrench_quad(poly, n, qx, qy, gx, gy, ux_q, uy_q, omega, law, params,
+                      pressure, nodes, weights):
+    """Friction wrench (Fx, Fy, T about g) of a strip part by Duffy-fan Gauss quadrature."""
+    radius = max_radius(poly, n, qx, qy)
+    cx = qx
+    cy = qy
+    if omega != 0.0:
+        icx = qx - uy_q / omega
+        icy = qy + ux_q / omega
+        if math.hypot(icx - qx, icy - qy) < 4.0 * radius:
+            cx = icx
+            cy = icy
+    fx = 0.0
+    fy = 0.0
+    t = 0.0
+    nq = nodes.shape[0]
+    for i in range(n):
+        j = (i + 1) % n
+        e0x = poly[i, 0] - cx
+        e0y = poly[i, 1] - cy
+        dex = poly[j, 0] - poly[i, 0]
+        dey = poly[j, 1] - poly[i, 1]
+        det = e0x * dey - e0y * dex
+        if det == 0.0:
+            continue
+        for a in range(nq):
+            tt = nodes[a]
+            ex = e0x + tt * dex
+            ey = e0y + tt * dey
+            for b in range(nq):
+                s = nodes[b]
+                px = cx + s * ex
+                py = cy + s * ey
+                ux = ux_q - omega * (py - qy)
+                uy = uy_q + omega * (px - qx)
+                sp = math.hypot(ux, uy)
+                if sp == 0.0:
+                    continue
+                wgt = weights[a] * weights[b] * s * det * pressure * mu_kinetic(law, params, sp) / sp
+                dfx = -wgt * ux
+                dfy = -wgt * uy
+                fx += dfx
+                fy += dfy
+                t += (px - gx) * dfy - (py - gy) * dfx
+    return fx, fy, t
+
+
+@njit(cache=True)
+def evaluate_surfaces(state, strips, parcel, nodes, weights, skip_kinetic, need_static,
+                      kin, stat, area, slip_c):
+    """Per-surface kinetic wrench, static limits, contact area and centroid slip speed.
+
+    Fills, for every surface k:
+      kin[k]    = (Fx, Fy, T) of kinetic friction from its strips (zero for
+                  ``skip_kinetic``, whose slip is zero while the parcel sticks to it),
+      stat[k]   = (F_max, T_max) with μ_s: eq. 4.3 and the rest row of eq. 4.5
+                  (only when ``need_static``; sliding needs none),
+      area[k]   = footprint area over it, weighted by load share [m²],
+      slip_c[k] = rubbing speed at the area-weighted centroid of its parts [m/s]
+                  (the zone speed the threshold model compares with v_min).
+    Strips the footprint does not reach cost one clip and nothing else.
+    """
+    x = state[0]
+    y = state[1]
+    phi = state[2]
+    vx = state[3]
+    vy = state[4]
+    om = state[5]
+    half_a = parcel[P_HALF_A]
+    half_b = parcel[P_HALF_B]
+    full_area = 4.0 * half_a * half_b
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / full_area
+    closed_ok = parcel[P_CLOSED] > 0.5
+    kin[:, :] = 0.0
+    stat[:, :] = 0.0
+    area[:] = 0.0
+    slip_c[:] = 0.0
+    qsum = np.zeros((kin.shape[0], 2))
+    corners = np.empty((4, 2))
+    poly = np.empty((MAX_VERTS, 2))
+    work = np.empty((MAX_VERTS, 2))
+    box_corners(x, y, phi, half_a, half_b, corners)
+    xmin = min(corners[0, 0], corners[1, 0], corners[2, 0], corners[3, 0])
+    xmax = max(corners[0, 0], corners[1, 0], corners[2, 0], corners[3, 0])
+    for k in range(strips.shape[0]):
+        w = strips[k, S_WEIGHT]
+        if w <= 0.0 or strips[k, S_XHI] <= xmin or strips[k, S_XLO] >= xmax:
+            continue
+        n = clip_to_strip(corners, strips[k, S_XLO], strips[k, S_XHI], poly, work)
+        a, qx, qy = polygon_area_centroid(poly, n)
+        if a <= 0.0:
+            continue
+        surf = int(strips[k, S_SURF])
+        law = int(strips[k, S_LAW])
+        params = strips[k, S_PARAMS:]
+        pressure = p_unit * w
+        ux_q = vx - om * (qy - y) - strips[k, S_VX]
+        uy_q = vy + om * (qx - x) - strips[k, S_VY]
+        area[surf] += w * a
+        qsum[surf, 0] += w * a * qx
+        qsum[surf, 1] += w * a * qy
+        if need_static:
+            mus = mu_static(law, params)
+            i_r, _, _ = distance_integrals(poly, n, x, y)
+            stat[surf, 0] += mus * pressure * a
+            stat[surf, 1] += mus * pressure * i_r
+        if surf == skip_kinetic:
+            continue
+        if closed_ok and law_is_constant(law) and closed_form_applies(poly, n, qx, qy, ux_q, uy_q, om):
+            mu = mu_kinetic(law, params, 1.0)
+            fx, fy, t = strip_wrench_closed(poly, n, a, qx, qy, x, y, ux_q, uy_q, om, mu, pressure)
+        else:
+            fx, fy, t = strip_wrench_quad(poly, n, qx, qy, x, y, ux_q, uy_q, om, law, params,
+                                          pressure, nodes, weights)
+        kin[surf, 0] += fx
+        kin[surf, 1] += fy
+        kin[surf, 2] += t
+    for s in range(kin.shape[0]):
+        if area[s] > 0.0:
+            qx = qsum[s, 0] / area[s]
+            qy = qsum[s, 1] / area[s]
+            # any strip of the surface has its velocity
+            for k in range(strips.shape[0]):
+                if int(strips[k, S_SURF]) == s:
+                    ux = vx - om * (qy - y) - strips[k, S_VX]
+                    uy = vy + om * (qx - x) - strips[k, S_VY]
+                    slip_c[s] = math.hypot(ux, uy)
+                    break
+
+
+def n_surfaces(strips: np.ndarray) -> int:
+    """Number of distinct surfaces referenced by the strips."""
+    return int(strips[:, S_SURF].max()) + 1 if strips.shape[0] else 0
+
+
+__all__ = [
+    "evaluate_surfaces",
+    "gauss_legendre_01",
+    "n_surfaces",
+    "strip_wrench_closed",
+    "strip_wrench_quad",
+]
