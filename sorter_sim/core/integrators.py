@@ -382,25 +382,123 @@ def _stick_advance(y, surf, t, t_end, y_target, strips, parcel, nodes, weights, 
 
 
 @njit(cache=True)
-def _break_nudge(y, strips, parcel, nodes, weights, nsurf, surf, delta):
-    """Leave a stick: a velocity offset of size ``delta`` along the other surfaces' pull.
+def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
+    """Slip direction σ̂ and growth λ of a parcel leaving its stick to ``surf``.
+
+    At vanishing slip the kinetic wrench of ``surf`` depends only on the direction
+    σ̂ of the generalized slip (ẋ - v_sx, ẏ - v_sy, ρ φ̇), so the parcel leaves
+    along the σ̂ that its own acceleration reproduces: M⁻¹(W_other + W_surf(σ̂)) =
+    λ σ̂ with λ >= 0. Found by damped fixed-point iteration from the other
+    surfaces' pull. Returns (σx, σy, σw, λ) with λ in m/s² (generalized units).
+
+    The iteration follows the slip's own relaxation, σ <- σ + γ a(σ̂): the map
+    σ̂ <- a/|a| would be unstable (a rotation δ of σ̂ turns a by -δ F_s/(F_o - F_s)),
+    while γ = m / (2 max(F_s, T_s/ρ)) halves the direction error per iteration.
+    """
+    mass = parcel[P_MASS]
+    rho = math.sqrt(parcel[P_INERTIA] / mass)
+    rot = parcel[P_ROTATION] > 0.5
+    kin = np.empty((nsurf, 3))
+    stat = np.empty((nsurf, 2))
+    area = np.empty(nsurf)
+    slip = np.empty(nsurf)
+    vsx, vsy = surface_velocity(strips, surf)
+    yp = y.copy()
+    yp[3] = vsx
+    yp[4] = vsy
+    yp[5] = 0.0
+    evaluate_surfaces(yp, strips, parcel, nodes, weights, surf, True, kin, stat, area, slip)
+    limit = max(stat[surf, 0], stat[surf, 1] / rho if rot else 0.0)
+    gain = mass / (2.0 * limit) if limit > 0.0 else 0.0
+    ox = 0.0
+    oy = 0.0
+    ow = 0.0
+    for k in range(nsurf):
+        if k != surf:
+            ox += kin[k, 0] / mass
+            oy += kin[k, 1] / mass
+            ow += kin[k, 2] / (mass * rho) if rot else 0.0
+    norm = math.sqrt(ox * ox + oy * oy + ow * ow)
+    if norm == 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    sx = ox / norm
+    sy = oy / norm
+    sw = ow / norm
+    eps = 1e-6 * max(1.0, math.hypot(vsx, vsy))
+    lam = 0.0
+    for _ in range(100):
+        yp[3] = vsx + eps * sx
+        yp[4] = vsy + eps * sy
+        yp[5] = eps * sw / rho
+        evaluate_surfaces(yp, strips, parcel, nodes, weights, -2, False, kin, stat, area, slip)
+        ax = ox + kin[surf, 0] / mass
+        ay = oy + kin[surf, 1] / mass
+        aw = ow + (kin[surf, 2] / (mass * rho) if rot else 0.0)
+        lam = ax * sx + ay * sy + aw * sw
+        if gain == 0.0:
+            break
+        nx = sx + gain * ax
+        ny = sy + gain * ay
+        nw = sw + gain * aw
+        nn = math.sqrt(nx * nx + ny * ny + nw * nw)
+        if nn == 0.0:
+            break
+        nx /= nn
+        ny /= nn
+        nw /= nn
+        change = abs(nx - sx) + abs(ny - sy) + abs(nw - sw)
+        sx = nx
+        sy = ny
+        sw = nw
+        if change < 1e-13:
+            break
+    return sx, sy, sw, max(lam, 0.0)
+
+
+@njit(cache=True)
+def _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, surf, s_layer, nudge):
+    """Leave a stick to ``surf`` at time t; returns the time the sliding integration starts.
 
     At break-away the slip on the stuck surface is exactly zero, where kinetic
-    friction has no direction; the offset picks the direction the parcel leaves
-    in (the limit of the slip as t -> t_break+).
+    friction has no direction, and a slip direction off the self-consistent one
+    relaxes onto it at a rate F/(m |slip|): an arbitrarily stiff boundary layer.
+    It is solved in closed form along σ̂ of ``_leave_direction``. Where the slip
+    grows linearly (λ > 0: μ_s > μ_k, or a torque or geometric jump) the parcel
+    starts on that direction with a tiny offset ``nudge``. Where λ grows from zero
+    at rate j (constant μ, force balance just passed) the slip is ½ j τ² and the
+    offset from the stuck motion j τ³/6; the parcel is advanced so until the slip
+    reaches ``s_layer``.
     """
-    _, _, fx, fy, t = stick_margin(y, strips, parcel, nodes, weights, nsurf, surf)
-    m = parcel[P_MASS]
-    rho = math.sqrt(parcel[P_INERTIA] / m)
-    gx = fx / m
-    gy = fy / m
-    gw = t / (m * rho) if parcel[P_ROTATION] > 0.5 else 0.0
-    norm = math.sqrt(gx * gx + gy * gy + gw * gw)
-    if norm == 0.0:
-        return
-    y[3] += delta * gx / norm
-    y[4] += delta * gy / norm
-    y[5] += delta * gw / norm / rho
+    mass = parcel[P_MASS]
+    rho = math.sqrt(parcel[P_INERTIA] / mass)
+    sx, sy, sw, lam = _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf)
+    if sx == 0.0 and sy == 0.0 and sw == 0.0:
+        return t
+    vsx, vsy = surface_velocity(strips, surf)
+    speed = math.hypot(vsx, vsy)
+    jerk = 0.0
+    if speed > 0.0:
+        dt_probe = 1e-5 * min(parcel[P_HALF_A], parcel[P_HALF_B]) / speed
+        yp = y.copy()
+        yp[0] += vsx * dt_probe
+        yp[1] += vsy * dt_probe
+        _, _, _, lam1 = _leave_direction(yp, strips, parcel, nodes, weights, nsurf, surf)
+        jerk = (lam1 - lam) / dt_probe
+    tau = math.sqrt(2.0 * s_layer / jerk) if jerk > 0.0 else math.inf
+    if jerk <= 0.0 or lam * tau > 0.5 * jerk * tau * tau or t + tau >= t_end:
+        y[3] = vsx + nudge * sx
+        y[4] = vsy + nudge * sy
+        y[5] = nudge * sw / rho
+        return t
+    dv = 0.5 * jerk * tau * tau
+    dx = jerk * tau * tau * tau / 6.0
+    y[0] += vsx * tau + dx * sx
+    y[1] += vsy * tau + dx * sy
+    y[2] += dx * sw / rho
+    y[3] = vsx + dv * sx
+    y[4] = vsy + dv * sy
+    y[5] = dv * sw / rho
+    return t + tau
 
 
 @njit(cache=True)
@@ -440,6 +538,10 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
     stick_counters = np.zeros(2, dtype=np.int64)
+    # After breaking away from a surface its slip starts at zero: re-sticking to it is
+    # armed only once the slip has grown past 10 stick tolerances, or the parcel would
+    # chatter between stick and slip at the force balance (a Zeno loop).
+    armed = np.ones(nsurf, dtype=np.bool_)
     h = min(h_max, 1e-3)
     fresh = True
     status = ST_END
@@ -459,9 +561,14 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
                 break
             if reason == 2 or reason == 3:
                 n_ev = _log_event(ev, n_ev, t, EV_BREAK if reason == 2 else EV_LEAVE, mode)
-                if reason == 2:
-                    _break_nudge(y, strips, parcel, nodes, weights, nsurf, mode, nudge)
+                broke_from = mode
                 mode = MODE_SLIDE
+                if reason == 2:
+                    # the layer ends where explicit steps can follow the slip direction:
+                    # its growth needs the direction error below sqrt(2 margin/F)
+                    t = _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, broke_from,
+                                    max(100.0 * stick_tol, 1e-4 * vscale), nudge)
+                    armed[broke_from] = False
                 fresh = True
                 n_out = _record(ts, ys, ms, n_out, t, y, mode)
             continue
@@ -519,7 +626,9 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
         if nb > 0:
             _corner_event_values(y_new, parcel, borders, ev1)
             for q in range(4 * nb):
-                if ev0[q] != 0.0 and ev0[q] * ev1[q] < 0.0:
+                # a corner within round-off of a border has crossed it already (two
+                # corners of an aligned box cross together)
+                if abs(ev0[q]) > 1e-12 and ev0[q] * ev1[q] < 0.0:
                     lo = 0.0
                     hi = 1.0
                     for _ in range(80):
@@ -540,6 +649,11 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
         # slip of a surface reaching zero
         stick_surf = -1
         for s in range(nsurf):
+            if not armed[s]:
+                vsx, vsy = surface_velocity(strips, s)
+                if _gen_slip(y_new, vsx, vsy, rho, rot, sig) > 10.0 * stick_tol:
+                    armed[s] = True
+                continue
             if area[s] <= 0.0 or sig0n[s] <= 0.0:
                 continue
             vsx, vsy = surface_velocity(strips, s)
@@ -569,8 +683,13 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
                 theta_ev = th
                 ev_kind = EV_STICK
                 stick_surf = s
+        if enorm == 0.0:
+            h_next = 5.0 * h
+        else:
+            h_next = h * min(5.0, max(0.2, 0.9 * enorm ** -0.2))
         if theta_ev <= 1.0 and theta_ev < 1.0 - 1e-12:
             # redo the step to the event, so no stage sees past it
+            h_next = h
             h = theta_ev * h
             _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err)
             n_rhs += 6
@@ -602,12 +721,8 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
                     y[5] = 0.0
                     fresh = True
         n_out = _record(ts, ys, ms, n_out, t, y, mode)
-        if enorm == 0.0:
-            fac = 5.0
-        else:
-            fac = min(5.0, max(0.2, 0.9 * enorm ** -0.2))
-        if theta_ev > 1.0:
-            h *= fac
+        # after a step cut at an event, resume with the size the controller had
+        h = h_next
     counters[0] = n_steps
     counters[1] = n_rhs + stick_counters[0]
     counters[2] = n_rej
@@ -836,7 +951,7 @@ def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_
 
 
 @njit(cache=True)
-def run_implicit(y0, t0, t_end, y_target, strips, parcel, nodes, weights, h,
+def run_implicit(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights, h,
                  ts, ys, ms, ev, counters):
     """Fixed-step implicit integration; the scrap line is located by linear interpolation."""
     nsurf = n_surf_of(strips)
@@ -851,7 +966,7 @@ def run_implicit(y0, t0, t_end, y_target, strips, parcel, nodes, weights, h,
     y = y0.copy()
     y_new = np.empty(6)
     t = t0
-    mode = MODE_SLIDE
+    mode = mode0
     n_out = _record(ts, ys, ms, 0, t, y, mode)
     n_ev = 0
     n_steps = 0
@@ -954,7 +1069,7 @@ def rhs_threshold(state, strips, parcel, nodes, weights, nsurf, v_min, out, mode
 
 
 @njit(cache=True)
-def run_threshold(y0, t0, t_end, y_target, strips, parcel, nodes, weights, h, v_min,
+def run_threshold(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights, h, v_min,
                   ts, ys, ms, ev, counters):
     """Classic RK4 at a fixed step on the seed's threshold model."""
     nsurf = n_surf_of(strips)
@@ -967,9 +1082,9 @@ def run_threshold(y0, t0, t_end, y_target, strips, parcel, nodes, weights, h, v_
     y_new = np.empty(6)
     mo = np.zeros(nsurf, dtype=np.int64)
     t = t0
-    mode_code = 0
-    rec_mode = MODE_SLIDE
-    n_out = _record(ts, ys, ms, 0, t, y, MODE_SLIDE)
+    mode_code = 0 if mode0 < 0 else (1 << mode0)
+    rec_mode = mode0
+    n_out = _record(ts, ys, ms, 0, t, y, mode0)
     n_ev = 0
     n_steps = 0
     status = ST_END

@@ -344,10 +344,10 @@ def simulate(parcel: Parcel, strips: list[Strip], y0, t_span, method: str = "acc
                                                weights, borders, rtol, atol, h_max, reductions,
                                                ts, ys, ms, ev, counters)
     elif method == "implicit":
-        status, t_fin, mode = _ig.run_implicit(y0, t0, t_end, y_target_eff, arr, par, nodes,
+        status, t_fin, mode = _ig.run_implicit(y0, mode0, t0, t_end, y_target_eff, arr, par, nodes,
                                                weights, dt, ts, ys, ms, ev, counters)
     else:
-        status, t_fin, mode = _ig.run_threshold(y0, t0, t_end, y_target_eff, arr, par, nodes,
+        status, t_fin, mode = _ig.run_threshold(y0, mode0, t0, t_end, y_target_eff, arr, par, nodes,
                                                 weights, dt, v_min, ts, ys, ms, ev, counters)
     wall = time.perf_counter() - wall
     n_out = min(int(counters[3]), max_points)

@@ -1,0 +1,125 @@
+"""The ``sorter`` command line: ``sorter run | paper | sweep | bench | demo``.
+
+Each verb lives in its own module exposing ``add_arguments(parser)`` and
+``run(args) -> int | str | None`` (ros2cli style: a returned string is an error
+message, printed as one line with exit code 2). This module only dispatches, so a
+verb whose module is missing from an installation does not break the others.
+Bad input never ends in a traceback: ``SceneError``/``ValueError`` raised by a
+verb become one line on stderr and exit code 2.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import sys
+
+from .ros_env import apply_ros_env_defaults
+from .scene import SceneError, apply_overrides, load_scene, run_scene
+
+# verb -> (module, one-line help)
+VERBS = {
+    "run": (__name__, "run one parcel through one scene and print the result"),
+    "paper": ("sorter_sim.analysis.paper", "regenerate the seed's figures (data + PNG)"),
+    "sweep": ("sorter_sim.analysis.sweep", "run a design study over scene keys"),
+    "bench": ("sorter_sim.analysis.bench", "benchmarks and the work-precision report"),
+    "demo": ("sorter_control.demo", "run the sorter cell: simulation + controller nodes"),
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that exits with code 2 and one line, as usage errors should."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", help="scene YAML file (see config/scenes/)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE", help="override a scene key, e.g. --set parcel.A=0.4")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _fmt(value, unit="", digits=6):
+    if value is None:
+        return "never"
+    return f"{value:.{digits}g}{unit}"
+
+
+def _json_safe(obj):
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
+def run(args) -> int | str:
+    """``sorter run``."""
+    scene = load_scene(args.scene)
+    if args.overrides:
+        scene = apply_overrides(scene, args.overrides)
+    _, summary = run_scene(scene)
+    if args.json:
+        print(json.dumps(_json_safe(summary), sort_keys=True))
+        return 0 if summary["success"] else 1
+    p, b, d = scene["parcel"], scene["belt"], scene["diverter"]
+    print(f"scene: {args.scene}  parcel {p['A']} x {p['B']} m, {p['m']} kg, phi0 {p['phi0_deg']} deg; "
+          f"belt {b['v']} m/s, width {b['s']} m; alpha {d['alpha_deg']} deg; b = {scene['zones']['b']} m")
+    print(f"  t_scrap        {_fmt(summary['t_scrap'], ' s')}")
+    print(f"  x_scrap (x_o)  {_fmt(summary['x_scrap'], ' m')}")
+    print(f"  phi at scrap   {_fmt(summary['phi_scrap_deg'], ' deg', 4)}")
+    print(f"  capacity       {_fmt(summary['capacity_pcs_h'], ' pcs/h', 5)}")
+    st = summary["stages"]
+    print(f"  stages start   E1 {_fmt(st['E1'], ' s', 5)}, E2 {_fmt(st['E2'], ' s', 5)}, "
+          f"E3 {_fmt(st['E3'], ' s', 5)}")
+    print(f"  solver         {summary['method']}: {summary['message']}; {summary['n_steps']} steps, "
+          f"{summary['n_rhs']} rhs, {summary['n_events']} events, {summary['wall_s'] * 1e3:.2f} ms")
+    print(f"  reductions     {', '.join(summary['reductions']) or 'none'}")
+    return 0 if summary["success"] else 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="sorter", description="Parcel sorter cell: model, studies and the running cell.")
+    sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
+    for verb, (module, help_text) in VERBS.items():
+        try:
+            mod = importlib.import_module(module) if module != __name__ else sys.modules[__name__]
+        except ImportError:
+            continue
+        p = sub.add_parser(verb, help=help_text, description=help_text)
+        mod.add_arguments(p)
+        p.set_defaults(_verb_main=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    apply_ros_env_defaults()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_verb_main", None):
+        parser.print_help()
+        return 2
+    try:
+        rc = args._verb_main(args)
+    except (SceneError, ValueError) as exc:
+        print(f"sorter {args.verb}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        # the reader went away (e.g. `| head`); nothing left to say
+        sys.stderr.close()
+        return 0
+    if isinstance(rc, str):
+        print(f"sorter {args.verb}: error: {rc}", file=sys.stderr)
+        return 2
+    return int(rc or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
