@@ -14,6 +14,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/config/scenes', glob('config/scenes/*.yaml')),
+        ('share/' + package_name + '/config/sweeps', glob('config/sweeps/*.yaml')),
     ],
     python_requires='>=3.11',
     install_requires=[
@@ -23,6 +24,13 @@ setup(
         'numba>=0.60',
         'PyYAML>=6.0',
         'matplotlib>=3.8',
+        # sorter sweep: Dask runs a study on a cluster given --scheduler (and can
+        # stand in for the local process pool); no home-made job distribution
+        'dask[distributed]>=2024.1',
+        # sorter sweep: results written as Parquet when the output ends in .parquet
+        'pyarrow>=14.0',
+        # sorter sweep / sorter paper: the progress bar over the points of a study
+        'tqdm>=4.66',
         'ros-jazzy-rclpy[fastrtps]>=7.1',
         'ros-jazzy-common-interfaces>=5.3',
     ],
