@@ -972,8 +972,11 @@ def run_implicit(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
     n_steps = 0
     n_newton = 0
     status = ST_END
-    while t < t_end - 1e-12 * h:
-        hh = min(h, t_end - t)
+    # step times as t0 + i h, so round-off never adds a sliver of a last step
+    n_total = max(1, int(math.ceil((t_end - t0) / h - 1e-9)))
+    for i_step in range(n_total):
+        t_next = t_end if i_step == n_total - 1 else t0 + (i_step + 1) * h
+        hh = t_next - t
         new_mode, its = implicit_step(y, hh, strips, parcel, nodes, weights, nsurf, px, py, ck,
                                       surf_of, svx, svy, stat, y_new)
         n_newton += its
@@ -996,7 +999,7 @@ def run_implicit(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
             n_ev = _log_event(ev, n_ev, t, EV_TARGET, -1)
             status = ST_TARGET
             break
-        t += hh
+        t = t_next
         mode = new_mode
         for j in range(6):
             y[j] = y_new[j]
@@ -1088,8 +1091,10 @@ def run_threshold(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights
     n_ev = 0
     n_steps = 0
     status = ST_END
-    while t < t_end - 1e-12 * h:
-        hh = min(h, t_end - t)
+    n_total = max(1, int(math.ceil((t_end - t0) / h - 1e-9)))
+    for i_step in range(n_total):
+        t_next = t_end if i_step == n_total - 1 else t0 + (i_step + 1) * h
+        hh = t_next - t
         rhs_threshold(y, strips, parcel, nodes, weights, nsurf, v_min, k1, mo)
         code = 0
         for s in range(nsurf):
@@ -1126,7 +1131,7 @@ def run_threshold(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights
             n_ev = _log_event(ev, n_ev, t, EV_TARGET, -1)
             status = ST_TARGET
             break
-        t += hh
+        t = t_next
         for j in range(6):
             y[j] = y_new[j]
         n_out = _record(ts, ys, ms, n_out, t, y, rec_mode)

@@ -16,8 +16,9 @@ the quadrature below is used instead (see ``SMALL_ROTATION``).
 
 A speed-dependent μ needs quadrature. The fan of triangles from c with a Duffy
 map p = c + s (e_i + t (e_{i+1} - e_i)) puts the kink of û at s = 0, where the
-Jacobian s vanishes, so Gauss-Legendre in (s, t) converges fast; when c is far
-the fan starts at the centroid and the integrand is smooth anyway.
+Jacobian s vanishes, so Gauss-Legendre in (s, t) converges fast (with a sinh
+map along edges that pass close to c); when c is far the fan starts at the
+centroid and the integrand is smooth anyway.
 """
 from __future__ import annotations
 
@@ -122,8 +123,23 @@ def strip_wrench_quad(poly, n, qx, qy, gx, gy, ux_q, uy_q, omega, law, params,
         det = e0x * dey - e0y * dex
         if det == 0.0:
             continue
+        # Along the edge, e(t)/|e(t)| is nearly singular at t = t_f ± i a, where t_f is
+        # the foot of the perpendicular from c and a its distance in units of t; the
+        # sinh map t = t_f + a sinh(u) moves that singularity far from the real axis.
+        d2 = dex * dex + dey * dey
+        t_f = -(e0x * dex + e0y * dey) / d2
+        a_t = abs(det) / d2
+        use_map = a_t < 0.5
+        u_lo = math.asinh((0.0 - t_f) / a_t) if use_map else 0.0
+        u_hi = math.asinh((1.0 - t_f) / a_t) if use_map else 0.0
         for a in range(nq):
-            tt = nodes[a]
+            if use_map:
+                u = u_lo + (u_hi - u_lo) * nodes[a]
+                tt = t_f + a_t * math.sinh(u)
+                jac_t = (u_hi - u_lo) * a_t * math.cosh(u)
+            else:
+                tt = nodes[a]
+                jac_t = 1.0
             ex = e0x + tt * dex
             ey = e0y + tt * dey
             for b in range(nq):
@@ -135,7 +151,7 @@ def strip_wrench_quad(poly, n, qx, qy, gx, gy, ux_q, uy_q, omega, law, params,
                 sp = math.hypot(ux, uy)
                 if sp == 0.0:
                     continue
-                wgt = weights[a] * weights[b] * s * det * pressure * mu_kinetic(law, params, sp) / sp
+                wgt = weights[a] * jac_t * weights[b] * s * det * pressure * mu_kinetic(law, params, sp) / sp
                 dfx = -wgt * ux
                 dfy = -wgt * uy
                 fx += dfx

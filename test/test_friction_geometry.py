@@ -1,0 +1,188 @@
+"""Friction laws (Fig. 3), footprint geometry and the friction wrench, against closed forms
+and independent brute-force integrals."""
+import math
+
+import numpy as np
+import pytest
+
+from sorter_sim.core import friction as fr
+from sorter_sim.core.geometry import (
+    clip_to_strip,
+    distance_integrals,
+    footprint,
+    polygon_area_centroid,
+)
+from sorter_sim.core.simulate import FrictionLaw
+from sorter_sim.core.wrench import gauss_legendre_01, strip_wrench_closed, strip_wrench_quad
+
+
+# ---------------------------------------------------------------- friction laws
+def test_constant_laws():
+    two = fr.law_row(fr.LAW_CONST2, [0.65, 0.46])
+    assert fr.mu_static(fr.LAW_CONST2, two) == 0.65
+    for v in (1e-9, 0.3, 2.5):
+        assert fr.mu_kinetic(fr.LAW_CONST2, two, v) == 0.46
+    one = fr.law_row(fr.LAW_CONST1, [0.6])
+    assert fr.mu_static(fr.LAW_CONST1, one) == fr.mu_kinetic(fr.LAW_CONST1, one, 1.7) == 0.6
+
+
+def test_linear_and_polynomial_laws():
+    lin = fr.law_row(fr.LAW_LINEAR, [0.65, -0.15])
+    assert fr.mu_kinetic(fr.LAW_LINEAR, lin, 1.0) == pytest.approx(0.5)
+    assert fr.mu_kinetic(fr.LAW_LINEAR, lin, 10.0) == 0.0  # clipped, never negative
+    poly = fr.law_row(fr.LAW_POLY, [0.65, -1.0, 0.0, 2.0])
+    for v in (0.1, 0.5, 1.0):
+        assert fr.mu_kinetic(fr.LAW_POLY, poly, v) == pytest.approx(0.65 - v + 2 * v ** 3)
+
+
+def test_stribeck_formula_of_the_seed():
+    mu0, mu_min, b1, b2, b3, vk = 0.65, 0.3, 10.0, 5.0, 1.5, 0.1
+    row = fr.law_row(fr.LAW_STRIBECK, [mu0, mu_min, b1, b2, b3, vk])
+    for v in (0.02, 0.09, 0.5, 1.0):
+        expect = mu_min + (mu0 - mu_min) * math.exp(-b1 * v)
+        if v > vk:
+            expect += b2 * b3 * (v - vk) / (1 + b2 * (v - vk))
+        assert fr.mu_kinetic(fr.LAW_STRIBECK, row, v) == pytest.approx(expect, rel=1e-14)
+    assert fr.mu_static(fr.LAW_STRIBECK, row) == mu0
+
+
+def test_bspline_law_follows_its_curve():
+    vals = [0.0, 0.1, 0.25, 0.6, 1.5, 2.5, 0.65, 0.45, 0.42, 0.47, 0.50, 0.52]
+    row = fr.law_row(fr.LAW_BSPLINE, vals)
+    t = np.linspace(0.0, 1.0, 501)
+    v, mu = fr.bspline_curve(vals[:6], vals[6:], t)
+    # a clamped b-spline interpolates its end control points
+    assert v[0] == 0.0 and mu[0] == pytest.approx(0.65) and mu[-1] == pytest.approx(0.52)
+    got = fr.mu_kinetic_array(fr.LAW_BSPLINE, row, v)
+    assert np.max(np.abs(got - mu)) < 1e-12
+    assert fr.mu_kinetic(fr.LAW_BSPLINE, row, 9.0) == pytest.approx(0.52)  # constant beyond
+
+
+@pytest.mark.parametrize("model,values", [
+    ("const2", [0.65, -0.1]), ("bspline", [0, 0.2, 0.1, 0.6, 1.5, 2.5, 0.6, 0.5, 0.4, 0.4, 0.5, 0.5]),
+    ("const1", [math.nan]), ("stribeck", [0.6, 0.3]), ("unknown", [1.0]),
+])
+def test_bad_laws_are_refused_with_a_reason(model, values):
+    with pytest.raises(ValueError, match="friction"):
+        FrictionLaw(model, tuple(values))
+
+
+# ---------------------------------------------------------------- geometry
+def _clip(corners, lo, hi):
+    out = np.empty((8, 2))
+    work = np.empty((8, 2))
+    n = clip_to_strip(corners, lo, hi, out, work)
+    return out, n
+
+
+def test_clip_of_an_aligned_box_straddling_the_border():
+    c = footprint(0.1, 0.0, 0.0, 0.4, 0.2)  # spans x in [-0.1, 0.3]
+    poly, n = _clip(c, 0.0, math.inf)
+    area, cx, cy = polygon_area_centroid(poly, n)
+    assert area == pytest.approx(0.3 * 0.2)
+    assert cx == pytest.approx(0.15) and cy == pytest.approx(0.0, abs=1e-15)
+    poly, n = _clip(c, -math.inf, 0.0)
+    assert polygon_area_centroid(poly, n)[0] == pytest.approx(0.1 * 0.2)
+
+
+def test_clip_of_a_rotated_square_by_a_line_through_its_centre():
+    # a square at 45 degrees cut through its centre leaves a triangle of half its area
+    c = footprint(0.0, 0.0, math.pi / 4, 0.3, 0.3)
+    poly, n = _clip(c, 0.0, math.inf)
+    area, cx, _ = polygon_area_centroid(poly, n)
+    assert area == pytest.approx(0.045)
+    # centroid of that right triangle: one third of the half-diagonal from the cut
+    assert cx == pytest.approx(0.3 * math.sqrt(2) / 2 / 3)
+
+
+def _brute_distance_integrals(corners, lo, hi, cx, cy, A, B, phi, x, y, n=1200):
+    s = (np.arange(n) + 0.5) / n
+    lx, ly = np.meshgrid((s - 0.5) * A, (s - 0.5) * B)
+    px = x + math.cos(phi) * lx - math.sin(phi) * ly
+    py = y + math.sin(phi) * lx + math.cos(phi) * ly
+    m = (px >= lo) & (px <= hi)
+    r = np.hypot(px - cx, py - cy)
+    dA = A * B / n / n
+    return (r[m].sum() * dA, ((px - cx) / r)[m].sum() * dA, ((py - cy) / r)[m].sum() * dA)
+
+
+@pytest.mark.parametrize("c", [(0.05, 0.02), (0.5, -0.3), (0.12, 0.0)])
+def test_exact_distance_integrals_against_a_fine_grid(c):
+    A, B, phi, x, y = 0.4, 0.2, 0.3, 0.1, 0.05
+    corners = footprint(x, y, phi, A, B)
+    poly, n = _clip(corners, 0.0, math.inf)
+    exact = distance_integrals(poly, n, c[0], c[1])
+    brute = _brute_distance_integrals(corners, 0.0, math.inf, c[0], c[1], A, B, phi, x, y)
+    # the grid's own error is O(h²) ~ 1e-7 relative here
+    assert np.allclose(exact, brute, rtol=2e-5, atol=2e-7)
+
+
+def test_distance_integral_of_a_square_about_its_centre():
+    # ∫|p| dA over a square of side a centred at 0: a³ (√2 + asinh 1)/6
+    a = 0.5
+    poly, n = _clip(footprint(0.0, 0.0, 0.0, a, a), -math.inf, math.inf)
+    i_r, gx, gy = distance_integrals(poly, n, 0.0, 0.0)
+    assert i_r == pytest.approx(a ** 3 * (math.sqrt(2) + math.asinh(1.0)) / 6, rel=1e-13)
+    assert abs(gx) < 1e-15 and abs(gy) < 1e-15  # symmetry
+
+
+# ---------------------------------------------------------------- wrench
+def _brute_wrench(A, B, phi, x, y, V, omega, vs, mu_of, lo=0.0, n=1500):
+    s = (np.arange(n) + 0.5) / n
+    lx, ly = np.meshgrid((s - 0.5) * A, (s - 0.5) * B)
+    px = x + math.cos(phi) * lx - math.sin(phi) * ly
+    py = y + math.sin(phi) * lx + math.cos(phi) * ly
+    m = px >= lo
+    ux = V[0] - omega * (py - y) - vs[0]
+    uy = V[1] + omega * (px - x) - vs[1]
+    sp = np.hypot(ux, uy)
+    mu = mu_of(sp)
+    dA = A * B / n / n
+    fx = -(mu * ux / sp)[m].sum() * dA
+    fy = -(mu * uy / sp)[m].sum() * dA
+    t = ((px - x) * (-mu * uy / sp) - (py - y) * (-mu * ux / sp))[m].sum() * dA
+    return np.array([fx, fy, t])
+
+
+CASES = [((1.0, 0.2), 0.0), ((1.0, 0.2), 0.5), ((1.0, 0.2), 30.0), ((0.0, 1.0), 3.0),
+         ((0.0, 1.0 + 1e-9), -8.0)]
+
+
+@pytest.mark.parametrize("V,omega", CASES)
+def test_closed_form_and_quadrature_wrench_against_a_fine_grid(V, omega):
+    A, B, phi, x, y = 0.4, 0.2, 0.4, 0.1, 0.05
+    vs = (0.0, 1.0)
+    poly, n = _clip(footprint(x, y, phi, A, B), 0.0, math.inf)
+    area, qx, qy = polygon_area_centroid(poly, n)
+    ux_q = V[0] - omega * (qy - y) - vs[0]
+    uy_q = V[1] + omega * (qx - x) - vs[1]
+    brute = _brute_wrench(A, B, phi, x, y, V, omega, vs, lambda s: 0.6 + 0 * s)
+    closed = np.array(strip_wrench_closed(poly, n, area, qx, qy, x, y, ux_q, uy_q, omega, 0.6, 1.0))
+    nodes, weights = gauss_legendre_01(12)
+    quad = np.array(strip_wrench_quad(poly, n, qx, qy, x, y, ux_q, uy_q, omega, fr.LAW_CONST1,
+                                      fr.law_row(fr.LAW_CONST1, [0.6]), 1.0, nodes, weights))
+    scale = 0.6 * area
+    assert np.max(np.abs(closed - brute)) < 1e-6 * scale * 10
+    assert np.max(np.abs(quad - closed)) < 1e-5 * scale
+
+
+def test_quadrature_of_a_speed_dependent_law_converges_to_the_fine_grid():
+    vals = [0.0, 0.1, 0.25, 0.6, 1.5, 2.5, 0.65, 0.45, 0.42, 0.47, 0.50, 0.52]
+    row = fr.law_row(fr.LAW_BSPLINE, vals)
+    A, B, phi, x, y = 0.4, 0.2, 0.4, 0.1, 0.05
+    V, omega, vs = (1.0, 0.2), 2.0, (0.0, 1.0)
+    poly, n = _clip(footprint(x, y, phi, A, B), 0.0, math.inf)
+    _, qx, qy = polygon_area_centroid(poly, n)
+    ux_q = V[0] - omega * (qy - y) - vs[0]
+    uy_q = V[1] + omega * (qx - x) - vs[1]
+    brute = _brute_wrench(A, B, phi, x, y, V, omega, vs,
+                          lambda s: fr.mu_kinetic_array(fr.LAW_BSPLINE, row, s.ravel()).reshape(s.shape),
+                          n=700)
+    errs = []
+    for nq in (4, 8, 16):
+        nodes, weights = gauss_legendre_01(nq)
+        q = np.array(strip_wrench_quad(poly, n, qx, qy, x, y, ux_q, uy_q, omega, fr.LAW_BSPLINE,
+                                       row, 1.0, nodes, weights))
+        errs.append(np.max(np.abs(q - brute)))
+    assert errs[2] < errs[0]
+    assert errs[2] < 2e-6
