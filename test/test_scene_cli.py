@@ -1,0 +1,132 @@
+"""Scenes and the `sorter run` command line: validation, output and exit codes."""
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from sorter_sim.scene import DEFAULTS, SceneError, apply_overrides, load_scene, validate
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = sorted((ROOT / "config" / "scenes").glob("*.yaml"))
+
+
+def sorter(*args, timeout=300):
+    env = dict(os.environ)
+    return subprocess.run([sys.executable, "-m", "sorter_sim", *args], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
+def test_every_shipped_scene_is_valid(path):
+    scene = load_scene(path)
+    assert set(scene) == set(DEFAULTS)
+
+
+def test_run_json_has_the_documented_keys():
+    r = sorter("run", "config/scenes/fig9a.yaml", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    for key in ("t_scrap", "x_scrap", "phi_scrap_deg", "capacity_pcs_h", "stages", "final_state",
+                "method", "n_steps", "n_rhs", "n_events", "reductions", "wall_s"):
+        assert key in out
+    assert set(out["stages"]) == {"E1", "E2", "E3"}
+    assert out["capacity_pcs_h"] == pytest.approx(3600.0 / out["t_scrap"])
+    assert out["method"] == "accurate" and out["n_steps"] > 0
+
+
+def test_run_with_overrides_and_other_methods():
+    r = sorter("run", "config/scenes/fig7.yaml", "--set", "solver.method=implicit",
+               "--set", "solver.dt=1e-3", "--set", "model.rotation=false", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["method"] == "implicit" and "no_rotation" in out["reductions"]
+    assert out["phi_scrap_deg"] == 0.0
+
+
+def test_negative_alpha_diverts_to_the_other_side():
+    plus = json.loads(sorter("run", "config/scenes/fig7.yaml", "--json").stdout)
+    minus = json.loads(sorter("run", "config/scenes/fig7.yaml", "--set", "diverter.alpha_deg=-90",
+                              "--json").stdout)
+    assert minus["t_scrap"] == pytest.approx(plus["t_scrap"], rel=1e-9)
+    assert minus["final_state"]["y"] == pytest.approx(-plus["final_state"]["y"], rel=1e-9)
+    assert minus["phi_scrap_deg"] == pytest.approx(-plus["phi_scrap_deg"], rel=1e-7)
+
+
+BAD_SETS = [
+    ("parcel.A=-0.4", "parcel.A"),
+    ("parcel.m=0", "parcel.m"),
+    ("parcel.B=.nan", "parcel.B"),
+    ("belt.v=.inf", "belt.v"),
+    ("diverter.alpha_deg=91", "diverter.alpha_deg"),
+    ("zones.mu_b=-0.1", "zones.mu_b"),
+    ("model.v_min=0", "model.v_min"),
+    ("model.v_min=-1e-6", "model.v_min"),
+    ("solver.method=euler", "solver.method"),
+    ("model.rotation=maybe", "model.rotation"),
+    ("zones.nonsense=1", "zones.nonsense"),
+    ("friction.model=coulomb", "friction.model"),
+    ("friction.const2=[0.5]", "friction.const2"),
+    ("parcel.A", "key=value"),
+]
+
+
+@pytest.mark.parametrize("override,named", BAD_SETS, ids=[b[0] for b in BAD_SETS])
+def test_bad_overrides_exit_2_with_one_line_naming_the_key(override, named):
+    r = sorter("run", "config/scenes/fig9a.yaml", "--set", override)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and named in lines[0]
+    assert r.stdout == ""
+
+
+@pytest.mark.parametrize("content,named", [
+    ("", "empty"),
+    ("parcel: [1, 2\n", "not valid YAML"),
+    ("- just\n- a list\n", "mapping"),
+    ("parcel: {A: 0.4}\nwheels: {n: 3}\n", "wheels"),
+    ("parcel: 3\n", "parcel"),
+])
+def test_bad_scene_files_exit_2(tmp_path, content, named):
+    f = tmp_path / "scene.yaml"
+    f.write_text(content)
+    r = sorter("run", str(f))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert named in r.stderr
+
+
+def test_missing_file_and_usage_errors_exit_2():
+    r = sorter("run", "no/such/scene.yaml")
+    assert r.returncode == 2 and "cannot read scene file" in r.stderr
+    r = sorter("run")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    r = sorter("nonsense-verb")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+
+
+def test_validation_changes_nothing_on_error():
+    scene = load_scene(ROOT / "config" / "scenes" / "fig9a.yaml")
+    before = json.dumps(scene, sort_keys=True, default=str)
+    with pytest.raises(SceneError):
+        apply_overrides(scene, ["parcel.A=0.3", "parcel.B=-1"])
+    assert json.dumps(scene, sort_keys=True, default=str) == before
+
+
+def test_numbers_written_without_a_dot_are_numbers():
+    # YAML 1.1 reads 1e-6 as a string; a user writing it means the number
+    scene = validate({"model": {"v_min": "1e-6"}, "solver": {"rtol": "1e-9"}})
+    assert scene["model"]["v_min"] == 1e-6 and scene["solver"]["rtol"] == 1e-9
+    assert math.isinf(validate({"zones": {"b": float("inf")}})["zones"]["b"])
+
+
+def test_numba_kernels_are_cached_on_disk():
+    # a second process must load compiled kernels instead of compiling again
+    r = sorter("run", "config/scenes/fig7.yaml", "--json")
+    assert r.returncode == 0
+    cache = list((ROOT / "sorter_sim" / "core" / "__pycache__").glob("*.nbi"))
+    assert any("integrators" in p.name for p in cache)
+    assert any("wrench" in p.name for p in cache)
