@@ -176,7 +176,7 @@ def _monotone(values, increasing=True, tol=0.0) -> bool:
     return bool(np.all(d > -tol) if increasing else np.all(d < tol))
 
 
-def _disk_surface(res, v: float, alpha: float) -> int | None:
+def disk_surface(res, v: float, alpha: float) -> int | None:
     """Surface id of the disks (velocity v(cos α, sin α)) in a run's surface list."""
     want = (v * math.cos(alpha), v * math.sin(alpha))
     for k, (vx, vy) in enumerate(res.surfaces):
@@ -658,7 +658,7 @@ def scrapes_without_sliding(res, v: float, alpha_deg: float) -> bool:
     belt zone c behind the field takes part, as it drags a parcel that is not yet
     held by the disks (or, at α < 90°, drifts into it) out of the field.
     """
-    disk = _disk_surface(res, v, math.radians(alpha_deg))
+    disk = disk_surface(res, v, math.radians(alpha_deg))
     return res.t_target is not None and disk is not None and int(res.mode[-1]) == disk
 
 
@@ -673,24 +673,19 @@ class MinimalWidth:
     flag: str = ""
 
 
-def minimal_disk_width(*, A=0.7, B=0.2, v=1.5, alpha_deg=90.0, mu=SEED_MU, xtol=1e-3,
-                       b_hi=2.0, b_lo=0.005, **scene_kw) -> MinimalWidth:
-    """Smallest disk-field width b that still scrapes (``scrapes_without_sliding``).
+def step_root(scrapes, b_lo: float, b_hi: float, xtol: float) -> MinimalWidth:
+    """Smallest b in (b_lo, ...) with ``scrapes(b)`` true, for a yes/no criterion monotone in b.
 
-    Finite b, zone c present (μ_c = μ_a = μ_b = μ, the seed's Fig. 11 data). The
-    criterion is a yes/no step in b, so it is turned into a sign (+1 scrapes,
-    -1 does not) and handed to scipy's brentq, which keeps a sign-changing bracket
-    and converges to the step within ``xtol`` (on a step its interpolation steps
-    fall back to bisection). The upper end is doubled until it scrapes.
+    The criterion becomes a sign (+1 yes, -1 no) for scipy's brentq, which keeps a
+    sign-changing bracket and converges to the step within ``xtol`` (on a step its
+    interpolation steps fall back to bisection). The upper end is doubled until
+    the criterion holds.
     """
     n = [0]
 
     def sign(b):
         n[0] += 1
-        scene = sorting_scene(A=A, B=B, v=v, alpha_deg=alpha_deg, b=b, mu_a=mu, mu_b=mu, mu_c=mu,
-                              t_max=max(4.0, 8.0 * SEED_S / max(v, 1e-3)), **scene_kw)
-        res, _ = run_scene(scene)
-        return 1.0 if scrapes_without_sliding(res, v, alpha_deg) else -1.0
+        return 1.0 if scrapes(b) else -1.0
 
     if sign(b_lo) > 0:
         return MinimalWidth(b_lo, n[0], (0.0, b_lo), False, "scrapes already at the lower bound")
@@ -704,6 +699,22 @@ def minimal_disk_width(*, A=0.7, B=0.2, v=1.5, alpha_deg=90.0, mu=SEED_MU, xtol=
     if sign(b_min) < 0:
         b_min = b_min + xtol
     return MinimalWidth(float(b_min), n[0], (b_lo, hi), True)
+
+
+def minimal_disk_width(*, A=0.7, B=0.2, v=1.5, alpha_deg=90.0, mu=SEED_MU, xtol=1e-3,
+                       b_hi=2.0, b_lo=0.005, **scene_kw) -> MinimalWidth:
+    """Smallest disk-field width b that still scrapes (``scrapes_without_sliding``).
+
+    Finite b, zone c present (μ_c = μ_a = μ_b = μ, the seed's Fig. 11 data); found
+    by ``step_root`` (scipy brentq), not by a scan.
+    """
+    def scrapes(b):
+        scene = sorting_scene(A=A, B=B, v=v, alpha_deg=alpha_deg, b=b, mu_a=mu, mu_b=mu, mu_c=mu,
+                              t_max=max(4.0, 8.0 * SEED_S / max(v, 1e-3)), **scene_kw)
+        res, _ = run_scene(scene)
+        return scrapes_without_sliding(res, v, alpha_deg)
+
+    return step_root(scrapes, b_lo, b_hi, xtol)
 
 
 def fig11(out: Path | None = None, quick: bool = False) -> FigureResult:
