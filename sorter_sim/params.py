@@ -1,0 +1,444 @@
+"""The simulation node's parameters: a declared schema, read once into a frozen dataclass.
+
+This module owns the cell's configuration and knows nothing of ROS: ``SCHEMA``
+lists every parameter with its type, default, allowed range, units, whether it
+is structural (read-only once the node runs) and a description; the node turns
+each entry into a ``ParameterDescriptor``. ``CellParams.from_values`` checks a
+complete set of values (ranges, array lengths, and the cross-checks a range
+cannot express: the scanner's photo-eye on the scanner line, parcels that fit
+on the belt, ...) and raises ``ParamError`` naming the parameter and what is
+allowed. The same check guards run-time changes (``with_changes``), so a bad
+value is refused and nothing changes.
+
+Geometry follows the seed's Fig. 6 frame ``conveyor``: x along belt travel from
+the upstream edge of the disk field (zone a/b border), y across the belt toward
+the chute that α > 0 diverts to. SI units, except names ending in ``_deg``.
+The defaults are the seed's cell (belt width s = 0.7 m, v = 1.5 m/s within the
+seed's 0.5-1.5 m/s, μ = 0.6) and equal config/cell.yaml.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from dataclasses import dataclass
+from typing import Any
+
+from .core.friction import LAW_NAMES
+
+DOUBLE = 'double'
+INTEGER = 'integer'
+STRING = 'string'
+BOOL = 'bool'
+DOUBLE_ARRAY = 'double_array'
+STRING_ARRAY = 'string_array'
+
+TIME_MODES = ('realtime', 'fast', 'lockstep')
+ARRIVAL_MODES = ('gap', 'rate', 'none')
+INTEGRATORS = ('accurate', 'implicit')
+# topic names the photo-eyes may not take (other sensors/ topics of the node)
+RESERVED_SENSOR_NAMES = ('edges', 'chute_left', 'chute_right')
+_SENSOR_NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
+_FORMAT_FIELD = re.compile(r'\{([^{}:!]*)')
+LABEL_FIELDS = ('id', 'n', 'label')
+
+
+class ParamError(ValueError):
+    """A parameter value is of the wrong type, out of range, or inconsistent with another."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One declared parameter: name, type, default, allowed range and meaning."""
+
+    name: str
+    type: str
+    default: Any
+    description: str
+    units: str = ''
+    lo: float | None = None          # inclusive bounds for numbers and array entries
+    hi: float | None = None
+    choices: tuple = ()
+    read_only: bool = True
+    length: tuple[int, int] | None = None   # allowed array length (min, max)
+
+    @property
+    def allowed(self) -> str:
+        """What is allowed, in words, for error messages and the README table."""
+        unit = f' {self.units}' if self.units else ''
+        if self.choices:
+            return 'one of ' + ', '.join(self.choices)
+        if self.type == BOOL:
+            return 'true or false'
+        if self.type in (DOUBLE, INTEGER):
+            kind = 'an integer' if self.type == INTEGER else 'a finite number'
+            return f'{kind} in [{self.lo:g}, {self.hi:g}]{unit}'
+        if self.type == DOUBLE_ARRAY:
+            n = self.length
+            count = f'{n[0]}' if n[0] == n[1] else f'{n[0]} to {n[1]}'
+            return f'{count} finite numbers in [{self.lo:g}, {self.hi:g}]{unit}'
+        if self.type == STRING_ARRAY:
+            return f'a list of {self.length[0]} to {self.length[1]} strings'
+        return 'a string'
+
+
+def _p(name, type_, default, description, units='', lo=None, hi=None, choices=(),
+       read_only=True, length=None):
+    return ParamSpec(name, type_, default, description, units, lo, hi, tuple(choices), read_only,
+                     length)
+
+
+# The order here is the order of the README table.
+SCHEMA: tuple[ParamSpec, ...] = (
+    # -- time
+    _p('control_period', DOUBLE, 0.001, 'physics and actuator update period; events are located '
+       'inside it', 's', 1e-4, 0.02),
+    _p('time_mode', STRING, 'realtime', 'realtime: follow the wall clock times real_time_factor; '
+       'fast: as fast as possible; lockstep: one control period per call of the step service',
+       choices=TIME_MODES),
+    _p('real_time_factor', DOUBLE, 1.0, 'simulated seconds per wall second in realtime mode', '',
+       0.01, 100.0, read_only=False),
+    _p('wall_tick', DOUBLE, 0.002, 'wall-clock period of the realtime-mode timer (outputs are '
+       'published at most this late)', 's', 0.0005, 0.1),
+    # -- cell geometry (conveyor frame)
+    _p('belt_speed', DOUBLE, 1.5, 'belt speed v (the disks turn at the same surface speed)', 'm/s',
+       0.5, 1.5),
+    _p('belt_width', DOUBLE, 0.7, 'belt width s; the belt spans y in [-s/2, s/2]', 'm', 0.3, 2.0),
+    _p('disk_field_length', DOUBLE, 1.2, 'length b of the disk field (zone b, 0 <= x <= b)', 'm',
+       0.1, 5.0),
+    _p('chute_margin', DOUBLE, 0.1, 'the chute openings in both side walls reach this far beyond '
+       'the disk field, upstream and downstream', 'm', 0.0, 1.0),
+    _p('induct_x', DOUBLE, -3.0, 'x of a new parcel\'s leading edge when it appears', 'm',
+       -500.0, -0.01),
+    _p('exit_x', DOUBLE, 3.0, 'a parcel whose centre of gravity passes this x has left straight',
+       'm', 0.2, 50.0),
+    _p('scanner_x', DOUBLE, -2.0, 'x of the barcode scanner line (a label is read when the '
+       'leading edge crosses it)', 'm', -500.0, 0.0),
+    _p('photo_eyes.names', STRING_ARRAY, ['pe_scan', 'pe_divert', 'pe_exit'], 'photo-eye names '
+       '(topics sensors/<name>); must include pe_scan (at scanner_x) and pe_divert (upstream of '
+       'the disk field)', length=(2, 32)),
+    _p('photo_eyes.x', DOUBLE_ARRAY, [-2.0, -0.3, 2.0], 'photo-eye beam positions, one per name; '
+       'each beam spans the belt', 'm', -500.0, 50.0, length=(2, 32)),
+    # -- diverter
+    _p('alpha_deg', DOUBLE, 90.0, 'commanded disk angle α (> 0 diverts to the left chute, +y); '
+       'the physical angle follows at alpha_slew_rate_deg_s', 'deg', -90.0, 90.0, read_only=False),
+    _p('alpha_slew_rate_deg_s', DOUBLE, 360.0, 'slew rate of the physical disk angle', 'deg/s',
+       1.0, 36000.0),
+    _p('popup_stroke_time', DOUBLE, 0.1, 'time for a full pop-up stroke (0 = instantaneous)', 's',
+       0.0, 5.0),
+    # -- friction (seed Fig. 3 laws, scaled to these coefficients at 1 m/s)
+    _p('friction_model', STRING, 'const1', 'friction characteristic of Fig. 3 (shape parameters '
+       'as in config/scenes; const1 is the seed\'s sorting runs)', choices=tuple(LAW_NAMES)),
+    _p('mu_belt', DOUBLE, 0.6, 'friction coefficient parcel/belt (zones a and c) at 1 m/s', '',
+       0.0, 3.0),
+    _p('mu_disks', DOUBLE, 0.6, 'friction coefficient parcel/disks (zone b) at 1 m/s', '', 0.0,
+       3.0),
+    _p('integrator', STRING, 'accurate', 'method for parcels off the belt\'s closed form: '
+       'accurate (event-located Dormand-Prince per control period) or implicit (one '
+       'backward-Euler step per control period)', choices=INTEGRATORS),
+    _p('integrator_rtol', DOUBLE, 1e-6, 'relative tolerance of the accurate method', '', 1e-12,
+       1e-2),
+    _p('integrator_atol', DOUBLE, 1e-8, 'absolute tolerance of the accurate method', '', 1e-14,
+       1e-2),
+    # -- parcel stream
+    _p('arrival', STRING, 'gap', 'parcel stream: gap (belt gap drawn from arrival_gap), rate '
+       '(Poisson arrivals at arrival_rate, never closer than arrival_gap[0]) or none (only '
+       'parcels/induct)', choices=ARRIVAL_MODES, read_only=False),
+    _p('arrival_gap', DOUBLE_ARRAY, [0.6, 1.2], 'belt gap between consecutive parcels [min, max], '
+       'drawn uniformly', 'm', 0.0, 100.0, read_only=False, length=(2, 2)),
+    _p('arrival_rate', DOUBLE, 1.0, 'mean arrival rate in rate mode', '1/s', 0.001, 50.0,
+       read_only=False),
+    _p('parcel_A', DOUBLE_ARRAY, [0.3, 0.7], 'parcel length A (along x at φ = 0) [min, max]', 'm',
+       0.05, 2.0, read_only=False, length=(2, 2)),
+    _p('parcel_B', DOUBLE_ARRAY, [0.2, 0.4], 'parcel width B [min, max]', 'm', 0.05, 2.0,
+       read_only=False, length=(2, 2)),
+    _p('parcel_m', DOUBLE_ARRAY, [1.0, 10.0], 'parcel mass [min, max]', 'kg', 0.01, 1000.0,
+       read_only=False, length=(2, 2)),
+    _p('parcel_phi0_deg', DOUBLE_ARRAY, [-3.0, 3.0], 'initial skew φ0 [min, max]', 'deg', -90.0,
+       90.0, read_only=False, length=(2, 2)),
+    _p('parcel_y0', DOUBLE_ARRAY, [-0.03, 0.03], 'lateral offset of the centre of gravity at '
+       'induct [min, max]', 'm', -1.0, 1.0, read_only=False, length=(2, 2)),
+    _p('labels', STRING_ARRAY, ['A', 'B', 'C'], 'labels cycled over the stream (field {label} of '
+       'label_pattern)', read_only=False, length=(1, 10000)),
+    _p('label_pattern', STRING, '{label}{id:05d}', 'a parcel\'s label: a Python format string '
+       'with fields {id} (parcel id), {n} (stream index) and {label}', read_only=False),
+    _p('seed', INTEGER, 1, 'seed of the parcel stream (same seed, same stream)', '', 0,
+       2 ** 31 - 1),
+    _p('max_parcels', INTEGER, 200, 'capacity of the cell; inducts wait while it is full', '', 1,
+       5000),
+    # -- outputs
+    _p('pose_rate_hz', DOUBLE, 100.0, 'rate of parcels/poses, parcels/ids and diverter/state '
+       '(simulated time)', 'Hz', 1.0, 1000.0),
+    _p('marker_rate_hz', DOUBLE, 10.0, 'rate of parcels/markers while someone subscribes '
+       '(simulated time)', 'Hz', 0.1, 1000.0),
+    _p('sensor_heartbeat_s', DOUBLE, 0.5, 'every sensor republishes its state this often '
+       '(simulated time)', 's', 0.01, 3600.0),
+)
+
+SPECS: dict[str, ParamSpec] = {s.name: s for s in SCHEMA}
+RUNTIME_NAMES = frozenset(s.name for s in SCHEMA if not s.read_only)
+
+
+def _field(name: str) -> str:
+    return name.replace('.', '_')
+
+
+def _check_value(spec: ParamSpec, value: Any) -> Any:
+    """Type and range of one value; returns it normalised (tuples for arrays)."""
+    bad = ParamError(f'parameter {spec.name!r} must be {spec.allowed}, got {value!r}')
+    if spec.type == BOOL:
+        if not isinstance(value, bool):
+            raise bad
+        return value
+    if spec.type == STRING:
+        if not isinstance(value, str) or (spec.choices and value not in spec.choices):
+            raise bad
+        return value
+    if spec.type == INTEGER:
+        if isinstance(value, bool) or not isinstance(value, int) or not spec.lo <= value <= spec.hi:
+            raise bad
+        return int(value)
+    if spec.type == DOUBLE:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise bad
+        v = float(value)
+        if not (math.isfinite(v) and spec.lo <= v <= spec.hi):
+            raise bad
+        return v
+    if not isinstance(value, (list, tuple)) or not spec.length[0] <= len(value) <= spec.length[1]:
+        raise bad
+    if spec.type == STRING_ARRAY:
+        if not all(isinstance(v, str) for v in value):
+            raise bad
+        return tuple(value)
+    out = []
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise bad
+        v = float(v)
+        if not (math.isfinite(v) and spec.lo <= v <= spec.hi):
+            raise bad
+        out.append(v)
+    return tuple(out)
+
+
+def _range_pair(name: str, pair: tuple) -> None:
+    if pair[0] > pair[1]:
+        raise ParamError(f'parameter {name!r} is a range [min, max]: min must not exceed max, '
+                         f'got {list(pair)}')
+
+
+def format_label(pattern: str, *, id: int, n: int, label: str) -> str:
+    """A parcel's label from ``label_pattern``."""
+    return pattern.format(id=id, n=n, label=label)
+
+
+def check_label_pattern(pattern: str) -> None:
+    fields = {f.split('.')[0].split('[')[0] for f in _FORMAT_FIELD.findall(pattern)}
+    unknown = sorted(fields - set(LABEL_FIELDS))
+    if unknown:
+        raise ParamError(f'parameter \'label_pattern\' may use only the fields {{id}}, {{n}} and '
+                         f'{{label}}, got {pattern!r} (unknown: {", ".join(unknown)})')
+    try:
+        text = format_label(pattern, id=1, n=0, label='A')
+    except (ValueError, IndexError, KeyError, AttributeError, TypeError) as exc:
+        raise ParamError(f'parameter \'label_pattern\' is not a valid format string: {pattern!r} '
+                         f'({exc})') from None
+    if not text:
+        raise ParamError('parameter \'label_pattern\' gives empty labels')
+
+
+def parcel_half_extents(A: float, B: float, phi: float) -> tuple[float, float]:
+    """Half extents (along x, along y) of the A x B footprint turned by φ [m]."""
+    c = abs(math.cos(phi))
+    s = abs(math.sin(phi))
+    return 0.5 * (A * c + B * s), 0.5 * (A * s + B * c)
+
+
+def max_half_width(A_max: float, B_max: float, phi_lo_deg: float, phi_hi_deg: float) -> float:
+    """Largest half extent across the belt over the skew range (it is maximal at an end or
+    where tan φ = A/B)."""
+    lo, hi = math.radians(phi_lo_deg), math.radians(phi_hi_deg)
+    cands = [lo, hi, 0.0]
+    crit = math.atan2(A_max, B_max)
+    cands += [p for p in (crit, -crit) if lo <= p <= hi]
+    return max(parcel_half_extents(A_max, B_max, p)[1] for p in cands if lo <= p <= hi)
+
+
+@dataclass(frozen=True)
+class CellParams:
+    """Every parameter of the simulation node, checked (see ``SCHEMA`` for meaning and units).
+
+    Field names are the parameter names with '.' replaced by '_'.
+    """
+
+    control_period: float
+    time_mode: str
+    real_time_factor: float
+    wall_tick: float
+    belt_speed: float
+    belt_width: float
+    disk_field_length: float
+    chute_margin: float
+    induct_x: float
+    exit_x: float
+    scanner_x: float
+    photo_eyes_names: tuple
+    photo_eyes_x: tuple
+    alpha_deg: float
+    alpha_slew_rate_deg_s: float
+    popup_stroke_time: float
+    friction_model: str
+    mu_belt: float
+    mu_disks: float
+    integrator: str
+    integrator_rtol: float
+    integrator_atol: float
+    arrival: str
+    arrival_gap: tuple
+    arrival_rate: float
+    parcel_A: tuple
+    parcel_B: tuple
+    parcel_m: tuple
+    parcel_phi0_deg: tuple
+    parcel_y0: tuple
+    labels: tuple
+    label_pattern: str
+    seed: int
+    max_parcels: int
+    pose_rate_hz: float
+    marker_rate_hz: float
+    sensor_heartbeat_s: float
+
+    # -- construction ------------------------------------------------------
+    @classmethod
+    def defaults(cls) -> 'CellParams':
+        return cls.from_values({})
+
+    @classmethod
+    def from_values(cls, values: dict[str, Any]) -> 'CellParams':
+        """Check a mapping {parameter name: value}; missing names take their defaults."""
+        unknown = sorted(set(values) - set(SPECS))
+        if unknown:
+            raise ParamError(f'unknown parameter(s) {", ".join(map(repr, unknown))}; see the '
+                             f'README table for the allowed names')
+        kw = {}
+        for spec in SCHEMA:
+            kw[_field(spec.name)] = _check_value(spec, values.get(spec.name, spec.default))
+        params = cls(**kw)
+        params._cross_check()
+        return params
+
+    def value(self, name: str) -> Any:
+        """The value of parameter ``name`` (lists for arrays, as ROS holds them)."""
+        v = getattr(self, _field(name))
+        return list(v) if isinstance(v, tuple) else v
+
+    def as_values(self) -> dict[str, Any]:
+        return {spec.name: self.value(spec.name) for spec in SCHEMA}
+
+    def with_changes(self, changes: dict[str, Any], *, runtime: bool = True) -> 'CellParams':
+        """A new, checked parameter set with ``changes`` applied; raises ParamError otherwise.
+
+        runtime: refuse changes to structural (read-only) parameters.
+        """
+        if runtime:
+            fixed = sorted(n for n in changes if n in SPECS and n not in RUNTIME_NAMES)
+            if fixed:
+                raise ParamError(f'parameter(s) {", ".join(map(repr, fixed))} are structural '
+                                 f'(read-only) and cannot change while the cell runs')
+        values = self.as_values()
+        values.update(changes)
+        return CellParams.from_values(values)
+
+    # -- derived -----------------------------------------------------------
+    @property
+    def alpha_rad(self) -> float:
+        return math.radians(self.alpha_deg)
+
+    @property
+    def chute_x_range(self) -> tuple[float, float]:
+        """x range of the chute openings (and of the chute-entry sensors) [m]."""
+        return -self.chute_margin, self.disk_field_length + self.chute_margin
+
+    @property
+    def pose_stride(self) -> int:
+        """Control periods between pose publications."""
+        return max(1, round(1.0 / (self.pose_rate_hz * self.control_period)))
+
+    @property
+    def marker_stride(self) -> int:
+        return max(1, round(1.0 / (self.marker_rate_hz * self.control_period)))
+
+    @property
+    def heartbeat_stride(self) -> int:
+        return max(1, round(self.sensor_heartbeat_s / self.control_period))
+
+    @property
+    def control_period_ns(self) -> int:
+        return round(self.control_period * 1e9)
+
+    def photo_eye(self, name: str) -> float:
+        return self.photo_eyes_x[self.photo_eyes_names.index(name)]
+
+    # -- cross-checks --------------------------------------------------------
+    def _cross_check(self) -> None:
+        names, xs = self.photo_eyes_names, self.photo_eyes_x
+        if len(names) != len(xs):
+            raise ParamError(f'parameters \'photo_eyes.names\' and \'photo_eyes.x\' must have the '
+                             f'same length, got {len(names)} names and {len(xs)} positions')
+        for n in names:
+            if not _SENSOR_NAME.match(n) or n in RESERVED_SENSOR_NAMES:
+                raise ParamError(f'parameter \'photo_eyes.names\': {n!r} is not allowed; a name '
+                                 f'starts with a letter, has only letters, digits and _, and is '
+                                 f'none of {", ".join(RESERVED_SENSOR_NAMES)}')
+        if len(set(names)) != len(names):
+            raise ParamError(f'parameter \'photo_eyes.names\' has duplicates: {list(names)}')
+        for need in ('pe_scan', 'pe_divert'):
+            if need not in names:
+                raise ParamError(f'parameter \'photo_eyes.names\' must include {need!r}, got '
+                                 f'{list(names)}')
+        if self.photo_eye('pe_scan') != self.scanner_x:
+            raise ParamError(f'photo-eye pe_scan sits on the scanner line: \'photo_eyes.x\' of '
+                             f'pe_scan must equal scanner_x = {self.scanner_x:g} m, got '
+                             f'{self.photo_eye("pe_scan"):g} m')
+        if not self.photo_eye('pe_divert') < 0.0:
+            raise ParamError(f'photo-eye pe_divert must lie upstream of the disk field (x < 0), '
+                             f'got {self.photo_eye("pe_divert"):g} m')
+        if not self.induct_x < self.scanner_x:
+            raise ParamError(f'parameter \'induct_x\' ({self.induct_x:g} m) must lie upstream of '
+                             f'scanner_x ({self.scanner_x:g} m), or parcels are never scanned')
+        lo_open, hi_open = self.chute_x_range
+        if not self.exit_x > hi_open:
+            raise ParamError(f'parameter \'exit_x\' must lie beyond the chute openings (> '
+                             f'disk_field_length + chute_margin = {hi_open:g} m), got '
+                             f'{self.exit_x:g} m')
+        for n, x in zip(names, xs):
+            if not self.induct_x <= x < self.exit_x:
+                raise ParamError(f'photo-eye {n} at x = {x:g} m must lie on the cell, in '
+                                 f'[induct_x, exit_x) = [{self.induct_x:g}, {self.exit_x:g}) m')
+        for name in ('arrival_gap', 'parcel_A', 'parcel_B', 'parcel_m', 'parcel_phi0_deg',
+                     'parcel_y0'):
+            _range_pair(name, getattr(self, name))
+        half_w = 0.5 * self.belt_width
+        hy = max_half_width(self.parcel_A[1], self.parcel_B[1], *self.parcel_phi0_deg)
+        worst = max(abs(self.parcel_y0[0]), abs(self.parcel_y0[1])) + hy
+        if worst > half_w:
+            raise ParamError(f'parcels from parcel_A, parcel_B, parcel_phi0_deg and parcel_y0 can '
+                             f'reach {worst:g} m from the belt axis, beyond belt_width/2 = '
+                             f'{half_w:g} m; narrow the ranges')
+        if self.pose_rate_hz * self.control_period > 1.0 + 1e-9:
+            raise ParamError(f'parameter \'pose_rate_hz\' ({self.pose_rate_hz:g} Hz) cannot exceed '
+                             f'the control rate 1/control_period = {1 / self.control_period:g} Hz')
+        if abs(self.control_period * 1e9 - self.control_period_ns) > 1e-6:
+            raise ParamError(f'parameter \'control_period\' must be a whole number of nanoseconds, '
+                             f'got {self.control_period!r}')
+        check_label_pattern(self.label_pattern)
+
+
+def field_names() -> list[str]:
+    return [f.name for f in dataclasses.fields(CellParams)]
+
+
+__all__ = ['CellParams', 'ParamError', 'ParamSpec', 'SCHEMA', 'SPECS', 'RUNTIME_NAMES',
+           'TIME_MODES', 'ARRIVAL_MODES', 'format_label', 'parcel_half_extents']
