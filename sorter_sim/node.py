@@ -1,0 +1,447 @@
+"""The simulation node ``sorter_sim``: the sorter cell on ROS 2, driven like hardware.
+
+A thin shell around ``sorter_sim.cell.Cell``: parameters (declared from
+``params.SCHEMA``) become a ``CellParams``, services and the ``alpha_deg``
+parameter become actuator commands, and what the cell reports (sensor edges,
+scanner reads, outcomes, poses, actuator state) becomes messages on the topics
+of the interface contract (README, "Simulation node"). Time runs in one of
+three modes: ``realtime`` (a wall timer, scaled by ``real_time_factor``),
+``fast`` (as fast as possible, in slices that hand the executor back so
+services and parameters are served) and ``lockstep`` (one control period per
+``step`` call). The node publishes ``/clock``; it must not itself run on
+``use_sim_time``.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+import rclpy
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseArray
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType, SetParametersResult)
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState, TimeReference
+from std_msgs.msg import Bool, String, UInt32MultiArray
+from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import Marker, MarkerArray
+
+from .cdr import pose_array_cdr, stamp
+from .cell import STATE_NAMES, Cell, LabelRead, Outcome, ParcelSpec, SensorEdge
+from .params import (BOOL, DOUBLE, DOUBLE_ARRAY, INTEGER, SCHEMA, SPECS, STRING, STRING_ARRAY,
+                     CellParams, ParamError)
+from .ros_env import apply_ros_env_defaults
+
+NODE_NAME = 'sorter_sim'
+FRAME_ID = 'conveyor'
+PARCEL_HEIGHT = 0.2          # m, only for the marker boxes (the model is planar)
+FAST_SLICE_S = 0.005         # wall time one fast-mode callback may take before yielding
+MAX_CATCH_UP_S = 0.25        # realtime mode: simulated time one tick may catch up
+
+SENSOR_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+_ROS_TYPES = {
+    DOUBLE: ParameterType.PARAMETER_DOUBLE,
+    INTEGER: ParameterType.PARAMETER_INTEGER,
+    STRING: ParameterType.PARAMETER_STRING,
+    BOOL: ParameterType.PARAMETER_BOOL,
+    DOUBLE_ARRAY: ParameterType.PARAMETER_DOUBLE_ARRAY,
+    STRING_ARRAY: ParameterType.PARAMETER_STRING_ARRAY,
+}
+
+# colour (r, g, b) per parcel state, in the order of cell.STATE_NAMES
+STATE_COLOURS = {
+    'on_belt': (0.6, 0.6, 0.6),
+    'on_disks': (0.1, 0.4, 1.0),
+    'sliding': (1.0, 0.75, 0.0),
+    'diverted': (0.1, 0.8, 0.2),
+    'straight': (0.55, 0.35, 0.15),
+    'jammed': (1.0, 0.0, 0.0),
+}
+
+# induct message keys -> (ParcelSpec field, conversion)
+INDUCT_KEYS = ('label', 'A', 'B', 'm', 'phi0_deg', 'y')
+
+
+def descriptor(spec) -> ParameterDescriptor:
+    """The ROS descriptor of a schema entry: type, description, range, read-only."""
+    units = f' [{spec.units}]' if spec.units else ''
+    d = ParameterDescriptor(
+        name=spec.name, type=_ROS_TYPES[spec.type], description=spec.description + units,
+        additional_constraints=f'{spec.allowed}', read_only=spec.read_only)
+    if spec.type == DOUBLE:
+        d.floating_point_range = [FloatingPointRange(from_value=float(spec.lo),
+                                                     to_value=float(spec.hi), step=0.0)]
+    elif spec.type == INTEGER:
+        d.integer_range = [IntegerRange(from_value=int(spec.lo), to_value=int(spec.hi), step=0)]
+    return d
+
+
+def _plain(value):
+    """Parameter values as Python lists (rclpy may hold arrays as array.array)."""
+    if isinstance(value, (str, bool, int, float)) or value is None:
+        return value
+    return list(value)
+
+
+def _time_msg(t_ns: int) -> Time:
+    sec, nsec = stamp(t_ns)
+    return Time(sec=sec, nanosec=nsec)
+
+
+class SimNode(Node):
+    """The cell's ROS face; see the module docstring and the README interface table."""
+
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        self.params = self._declare_parameters()
+        self.cell = Cell(self.params)
+        p = self.params
+        self._pub_poses = self.create_publisher(PoseArray, 'parcels/poses', STREAM_QOS)
+        self._pub_ids = self.create_publisher(UInt32MultiArray, 'parcels/ids', STREAM_QOS)
+        self._pub_markers = self.create_publisher(MarkerArray, 'parcels/markers', STREAM_QOS)
+        self._pub_sensor = {name: self.create_publisher(Bool, f'sensors/{name}', SENSOR_QOS)
+                            for name in self.cell.sensor_names}
+        self._pub_edges = self.create_publisher(TimeReference, 'sensors/edges', EVENT_QOS)
+        self._pub_label = self.create_publisher(String, 'scanner/label', EVENT_QOS)
+        self._pub_diverter = self.create_publisher(JointState, 'diverter/state', STREAM_QOS)
+        self._pub_outcomes = self.create_publisher(DiagnosticStatus, 'sort/outcomes', EVENT_QOS)
+        self._pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', STREAM_QOS)
+        self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
+        self.create_service(SetBool, 'diverter/popup', self._srv_popup)
+        self.create_service(SetBool, 'estop', self._srv_estop)
+        self.create_service(Trigger, 'reset', self._srv_reset)
+        self.create_service(Trigger, 'step', self._srv_step)
+        self.create_subscription(DiagnosticStatus, 'parcels/induct', self._on_induct, EVENT_QOS)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._post_set_parameters)
+        # bookkeeping for diagnostics
+        self._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
+        self._diag_ref = (time.perf_counter(), self.cell.k)
+        self.n_messages = 0
+        self.publish_wall_s = 0.0
+        # the initial state: every sensor clear, actuators where they are, t = 0
+        self._publish_sensors()
+        self._publish_diverter()
+        self._publish_clock()
+        self._wall_ref = (time.monotonic(), self.cell.k)
+        if p.time_mode == 'realtime':
+            self._timer = self.create_timer(p.wall_tick, self._tick_realtime)
+        elif p.time_mode == 'fast':
+            # a zero-period timer is ready at every executor pass: each call runs a slice
+            # of simulated time, and services wait at most one slice
+            self._timer = self.create_timer(0.0, self._tick_fast)
+        else:
+            self._timer = None
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(
+            f'sorter cell ready: {p.time_mode} mode, control period {p.control_period * 1e3:g} '
+            f'ms, belt {p.belt_speed:g} m/s x {p.belt_width:g} m, disk field '
+            f'{p.disk_field_length:g} m, sensors {", ".join(self.cell.sensor_names)}')
+
+    # ------------------------------------------------------------------ parameters
+    def _declare_parameters(self) -> CellParams:
+        values = {}
+        for spec in SCHEMA:
+            try:
+                param = self.declare_parameter(spec.name, spec.default, descriptor(spec))
+            except Exception as exc:  # rclpy's InvalidParameter*Exception family
+                raise ParamError(f'parameter {spec.name!r} must be {spec.allowed} ({exc})') from None
+            values[spec.name] = _plain(param.value)
+        if self.get_parameter('use_sim_time').value:
+            raise ParamError('parameter \'use_sim_time\' must be false: this node is the '
+                             'simulation clock (it publishes /clock)')
+        return CellParams.from_values(values)
+
+    def _changes(self, parameters) -> dict:
+        return {p.name: _plain(p.value) for p in parameters if p.name in SPECS}
+
+    def _on_set_parameters(self, parameters) -> SetParametersResult:
+        """Validate a run-time change as a whole; nothing changes unless all of it is valid."""
+        for p in parameters:
+            if p.name == 'use_sim_time' and p.value:
+                return SetParametersResult(successful=False, reason='use_sim_time must stay '
+                                           'false: this node is the simulation clock')
+        changes = self._changes(parameters)
+        if not changes:
+            return SetParametersResult(successful=True)
+        if 'alpha_deg' in changes and self.cell.estop:
+            return SetParametersResult(successful=False,
+                                       reason='refused: e-stop engaged (call reset first)')
+        try:
+            self.params.with_changes(changes)
+        except ParamError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _post_set_parameters(self, parameters) -> None:
+        changes = self._changes(parameters)
+        if not changes:
+            return
+        self.params = self.params.with_changes(changes)
+        self.cell.update_params(self.params)
+        if 'real_time_factor' in changes:
+            self._wall_ref = (time.monotonic(), self.cell.k)
+
+    # ------------------------------------------------------------------ time
+    def _tick_realtime(self) -> None:
+        p = self.params
+        now = time.monotonic()
+        wall0, k0 = self._wall_ref
+        target = k0 + int((now - wall0) * p.real_time_factor / self.cell.dt)
+        n = target - self.cell.k
+        limit = max(1, int(MAX_CATCH_UP_S / self.cell.dt))
+        if n > limit:
+            # too slow for this real-time factor: run what we can and re-anchor, rather
+            # than trying to catch up without end
+            self.get_logger().warning(
+                f'cannot keep real_time_factor {p.real_time_factor:g}: dropping '
+                f'{(n - limit) * self.cell.dt:.3f} s of simulated time', throttle_duration_sec=5.0)
+            n = limit
+            self._wall_ref = (now, self.cell.k + n)
+        if n > 0:
+            self.advance(n)
+
+    def _tick_fast(self) -> None:
+        deadline = time.perf_counter() + FAST_SLICE_S
+        stride = self.params.pose_stride
+        while time.perf_counter() < deadline:
+            self.advance(stride - self.cell.k % stride)
+
+    def advance(self, n: int) -> None:
+        """Advance ``n`` control periods, publishing everything that falls due on the way."""
+        p = self.params
+        strides = (p.pose_stride, p.marker_stride, p.heartbeat_stride)
+        while n > 0:
+            k = self.cell.k
+            m = min([n] + [s - k % s for s in strides])
+            t0 = time.perf_counter()
+            events = self.cell.advance(m)
+            t1 = time.perf_counter()
+            self._cost['step_s'] += t1 - t0
+            self._cost['periods'] += m
+            n -= m
+            k = self.cell.k
+            self._publish_events(events)
+            if k % p.pose_stride == 0:
+                self._publish_poses()
+                self._publish_diverter()
+            if k % p.marker_stride == 0 and self._pub_markers.get_subscription_count() > 0:
+                self._publish_markers()
+            if k % p.heartbeat_stride == 0:
+                self._publish_sensors()
+            self._publish_clock()
+            self._cost['publish_s'] += time.perf_counter() - t1
+
+    # ------------------------------------------------------------------ publishing
+    def _publish(self, publisher, msg) -> None:
+        publisher.publish(msg)
+        self._cost['messages'] += 1
+        self.n_messages += 1
+
+    def _publish_events(self, events) -> None:
+        for e in events:
+            if isinstance(e, SensorEdge):
+                self._publish(self._pub_sensor[e.sensor], Bool(data=e.blocked))
+                ref = TimeReference(source='rising' if e.blocked else 'falling')
+                ref.header.stamp = _time_msg(e.t_ns)
+                ref.header.frame_id = e.sensor
+                ref.time_ref = _time_msg(e.t_ns)
+                self._publish(self._pub_edges, ref)
+            elif isinstance(e, LabelRead):
+                self._publish(self._pub_label, String(data=e.label))
+            elif isinstance(e, Outcome):
+                self._publish(self._pub_outcomes, self._outcome_msg(e))
+                if e.jammed:
+                    self.get_logger().warning(f'jam: parcel {e.parcel_id} ({e.label}) stopped at '
+                                              f'x = {e.x:.3f} m, y = {e.y:.3f} m ({e.cause})')
+
+    def _outcome_msg(self, e: Outcome) -> DiagnosticStatus:
+        values = [('id', str(e.parcel_id)), ('label', e.label), ('exit', e.exit),
+                  ('t', f'{e.t_ns * 1e-9:.9f}'), ('jammed', 'true' if e.jammed else 'false'),
+                  ('x_exit', f'{e.x:.6f}'), ('y_exit', f'{e.y:.6f}')]
+        if e.cause:
+            values.append(('cause', e.cause))
+        return DiagnosticStatus(
+            level=DiagnosticStatus.WARN if e.jammed else DiagnosticStatus.OK,
+            name=f'parcel/{e.parcel_id}', message=e.exit, hardware_id=self.get_fully_qualified_name(),
+            values=[KeyValue(key=k, value=v) for k, v in values])
+
+    def _publish_sensors(self) -> None:
+        for name, blocked in self.cell.sensor_states().items():
+            self._publish(self._pub_sensor[name], Bool(data=blocked))
+
+    def _publish_poses(self) -> None:
+        parcels = self.cell.parcels()
+        ids = UInt32MultiArray()
+        ids.data = parcels['id'].astype('uint32')
+        self._publish(self._pub_ids, ids)
+        self._publish(self._pub_poses, pose_array_cdr(self.cell.t_ns, FRAME_ID, parcels['x'],
+                                                      parcels['y'], parcels['phi']))
+
+    def _publish_diverter(self) -> None:
+        c = self.cell
+        msg = JointState(name=['disk_angle', 'popup_stroke'], position=[c.alpha, c.stroke],
+                         velocity=[c.alpha_rate, c.stroke_rate])
+        msg.header.stamp = _time_msg(c.t_ns)
+        msg.header.frame_id = FRAME_ID
+        self._publish(self._pub_diverter, msg)
+
+    def _publish_markers(self) -> None:
+        parcels = self.cell.parcels()
+        stamp_msg = _time_msg(self.cell.t_ns)
+        clear = Marker(action=Marker.DELETEALL, ns='parcels')
+        clear.header.frame_id = FRAME_ID
+        markers = [clear]
+        for pid, x, y, phi, A, B, code in zip(*(parcels[k].tolist() for k in
+                                                 ('id', 'x', 'y', 'phi', 'A', 'B', 'state'))):
+            m = Marker(ns='parcels', id=int(pid), type=Marker.CUBE, action=Marker.ADD)
+            m.header.frame_id = FRAME_ID
+            m.header.stamp = stamp_msg
+            m.pose.position.x = x
+            m.pose.position.y = y
+            m.pose.position.z = 0.5 * PARCEL_HEIGHT
+            m.pose.orientation.z = math.sin(0.5 * phi)
+            m.pose.orientation.w = math.cos(0.5 * phi)
+            m.scale.x, m.scale.y, m.scale.z = A, B, PARCEL_HEIGHT
+            r, g, b = STATE_COLOURS[STATE_NAMES[code]]
+            m.color.r, m.color.g, m.color.b, m.color.a = r, g, b, 1.0
+            m.text = STATE_NAMES[code]
+            markers.append(m)
+        self._publish(self._pub_markers, MarkerArray(markers=markers))
+
+    def _publish_clock(self) -> None:
+        self._publish(self._pub_clock, Clock(clock=_time_msg(self.cell.t_ns)))
+
+    def _publish_diagnostics(self) -> None:
+        now = time.perf_counter()
+        wall0, k0 = self._diag_ref
+        self._diag_ref = (now, self.cell.k)
+        c = self._cost
+        rtf = (self.cell.k - k0) * self.cell.dt / max(now - wall0, 1e-9)
+        step_us = 1e6 * c['step_s'] / c['periods'] if c['periods'] else 0.0
+        pub_us = 1e6 * c['publish_s'] / c['messages'] if c['messages'] else 0.0
+        self._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
+        faults = self.cell.faults
+        level = (DiagnosticStatus.ERROR if 'jam' in faults else
+                 DiagnosticStatus.WARN if faults else DiagnosticStatus.OK)
+        counts = self.cell.outcome_counts
+        values = {
+            'real_time_factor': f'{rtf:.3f}', 'step_cost_us': f'{step_us:.2f}',
+            'publish_cost_us': f'{pub_us:.2f}', 'parcels_in_cell': str(self.cell.n_parcels),
+            'faults': ','.join(faults) or 'none', 'estop': str(self.cell.estop).lower(),
+            'jam': str(self.cell.jam).lower(), 'sim_time': f'{self.cell.t:.6f}',
+            'time_mode': self.params.time_mode, 'inducted': str(self.cell.n_inducted),
+            'pending_inducts': str(self.cell.pending_inducts),
+            **{f'exits_{k}': str(v) for k, v in counts.items()},
+        }
+        status = DiagnosticStatus(
+            level=level, name=f'{self.get_fully_qualified_name()}: cell',
+            message=('faults: ' + ', '.join(faults)) if faults else 'running',
+            hardware_id=self.get_fully_qualified_name(),
+            values=[KeyValue(key=k, value=v) for k, v in values.items()])
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = _time_msg(self.cell.t_ns)
+        self._pub_diag.publish(msg)
+
+    # ------------------------------------------------------------------ services
+    def _srv_popup(self, request, response):
+        response.success, response.message = self.cell.popup(bool(request.data))
+        return response
+
+    def _srv_estop(self, request, response):
+        if not request.data:
+            response.success = False
+            response.message = 'refused: an e-stop is released with the reset service (use reset)'
+            return response
+        self.cell.engage_estop()
+        self.get_logger().warning('e-stop engaged: belt stopped, disks dropping')
+        response.success = True
+        response.message = 'e-stop engaged: belt stopped, disks dropping; reset to resume'
+        return response
+
+    def _srv_reset(self, request, response):
+        cleared = self.cell.faults
+        self._publish_events(self.cell.reset())
+        response.success = True
+        response.message = ('cleared ' + ', '.join(cleared)) if cleared else 'nothing to clear'
+        return response
+
+    def _srv_step(self, request, response):
+        if self.params.time_mode != 'lockstep':
+            response.success = False
+            response.message = (f'refused: step works in time_mode lockstep; this cell runs in '
+                                f'{self.params.time_mode}')
+            return response
+        self.advance(1)
+        response.success = True
+        response.message = f't = {self.cell.t:.9f} s'
+        return response
+
+    # ------------------------------------------------------------------ induct
+    def _on_induct(self, msg: DiagnosticStatus) -> None:
+        """An external induct request; bad values are logged and the message dropped."""
+        try:
+            spec = self._induct_spec(msg)
+            self.cell.induct(spec)
+        except ParamError as exc:
+            self.get_logger().warning(f'parcels/induct dropped: {exc}')
+
+    def _induct_spec(self, msg: DiagnosticStatus) -> ParcelSpec:
+        p = self.params
+        given = {}
+        for kv in msg.values:
+            if kv.key not in INDUCT_KEYS:
+                raise ParamError(f'unknown key {kv.key!r}; allowed: {", ".join(INDUCT_KEYS)}')
+            if kv.key in given:
+                raise ParamError(f'key {kv.key!r} given twice')
+            given[kv.key] = kv.value
+        numbers = {}
+        for key in ('A', 'B', 'm', 'phi0_deg', 'y'):
+            if key in given:
+                try:
+                    numbers[key] = float(given[key])
+                except ValueError:
+                    raise ParamError(f'{key} must be a number, got {given[key]!r}') from None
+                if not math.isfinite(numbers[key]):
+                    raise ParamError(f'{key} must be finite, got {given[key]!r}')
+        # missing sizes take the middle of the configured stream's ranges
+        return ParcelSpec(
+            A=numbers.get('A', 0.5 * sum(p.parcel_A)), B=numbers.get('B', 0.5 * sum(p.parcel_B)),
+            m=numbers.get('m', 0.5 * sum(p.parcel_m)),
+            phi0=math.radians(numbers.get('phi0_deg', 0.0)), y0=numbers.get('y', 0.0),
+            label=given.get('label', ''))
+
+
+def main(args=None):
+    apply_ros_env_defaults()
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = SimNode()
+        rclpy.spin(node)
+    except ParamError as exc:
+        print(f'sim_node: {exc}', file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if code:
+        sys.exit(code)
+
+
+if __name__ == '__main__':
+    main()

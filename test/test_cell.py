@@ -1,0 +1,326 @@
+"""The sorter cell without ROS: parameters, the per-period kernels, sensors, exits, jams.
+
+Expected values come from closed forms (a parcel stuck to the belt moves at v; a
+parcel sliding on a stopped belt stops after v²/(2μg)), from the model core run
+on its own for one parcel (the reference for a diversion), and from invariants
+(mirror symmetry, no overlap beyond one period's travel, same seed same stream).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from sorter_sim.cell import Cell, LabelRead, Outcome, ParcelSpec, SensorEdge, check_parcel
+from sorter_sim.core import cell_kernels as ck
+from sorter_sim.core.simulate import (FrictionLaw, Parcel, simulate, strip_array,
+                                      three_zone_strips)
+from sorter_sim.params import SCHEMA, SPECS, CellParams, ParamError
+
+REPO = Path(__file__).resolve().parents[1]
+G = 9.81
+MU = 0.6
+
+
+def make_cell(**changes) -> Cell:
+    """A default cell with no parcel stream unless asked, and the changes applied."""
+    values = {'arrival': 'none', **changes}
+    return Cell(CellParams.defaults().with_changes(values, runtime=False))
+
+
+def edges_of(events, sensor=None):
+    return [e for e in events if isinstance(e, SensorEdge) and (sensor is None or e.sensor == sensor)]
+
+
+def outcomes_of(events):
+    return [e for e in events if isinstance(e, Outcome)]
+
+
+# ---------------------------------------------------------------- parameters
+def test_schema_and_dataclass_agree():
+    fields = [f for f in CellParams.__dataclass_fields__]
+    assert fields == [s.name.replace('.', '_') for s in SCHEMA]
+    for spec in SCHEMA:
+        assert spec.description and spec.allowed
+
+
+def test_cell_yaml_is_the_declared_default():
+    data = yaml.safe_load((REPO / 'config' / 'cell.yaml').read_text())
+    (key, body), = data.items()
+    assert key.endswith('sorter_sim')
+    flat = {}
+    for name, value in body['ros__parameters'].items():
+        if isinstance(value, dict):
+            flat.update({f'{name}.{k}': v for k, v in value.items()})
+        else:
+            flat[name] = value
+    assert set(flat) == set(SPECS)
+    params = CellParams.from_values(flat)
+    assert params == CellParams.defaults()
+
+
+@pytest.mark.parametrize('name, value', [
+    ('belt_speed', math.nan), ('belt_speed', math.inf), ('belt_speed', 2.0),
+    ('belt_speed', 'fast'), ('belt_speed', True), ('alpha_deg', 91.0), ('alpha_deg', -math.inf),
+    ('control_period', 0.0), ('time_mode', 'slow'), ('seed', 1.5), ('seed', -1),
+    ('parcel_A', [0.3]), ('parcel_A', [0.3, math.nan]), ('parcel_A', [0.7, 0.3]),
+    ('labels', []), ('labels', [1, 2]), ('photo_eyes.x', [-2.0, -0.3]),
+])
+def test_bad_values_are_refused_naming_the_parameter(name, value):
+    with pytest.raises(ParamError, match=name.split('.')[0]):
+        CellParams.defaults().with_changes({name: value}, runtime=False)
+
+
+@pytest.mark.parametrize('changes, match', [
+    ({'scanner_x': -2.5}, 'pe_scan'),
+    ({'photo_eyes.names': ['pe_scan', 'pe_x', 'pe_exit']}, 'pe_divert'),
+    ({'photo_eyes.names': ['pe_scan', 'pe_divert', 'edges']}, 'edges'),
+    ({'photo_eyes.x': [-2.0, 0.5, 2.0]}, 'upstream'),
+    ({'exit_x': 1.0}, 'exit_x'),
+    ({'induct_x': -1.0}, 'induct_x'),
+    ({'parcel_B': [0.2, 0.7]}, 'belt_width'),
+    ({'label_pattern': '{label}{serial}'}, 'label_pattern'),
+    ({'label_pattern': '{id:q}'}, 'label_pattern'),
+    ({'pose_rate_hz': 1000.0, 'control_period': 0.002}, 'pose_rate_hz'),
+])
+def test_inconsistent_values_are_refused(changes, match):
+    with pytest.raises(ParamError, match=match):
+        CellParams.defaults().with_changes(changes, runtime=False)
+
+
+def test_structural_parameters_cannot_change_at_run_time():
+    p = CellParams.defaults()
+    with pytest.raises(ParamError, match='read-only'):
+        p.with_changes({'belt_speed': 1.0})
+    assert p.with_changes({'alpha_deg': 45.0}).alpha_deg == 45.0
+    assert p.alpha_deg == 90.0
+
+
+@pytest.mark.parametrize('spec, match', [
+    (ParcelSpec(math.nan, 0.2, 5.0), 'A'), (ParcelSpec(0.4, 0.0, 5.0), 'B'),
+    (ParcelSpec(0.4, 0.2, -1.0), 'm'), (ParcelSpec(0.4, 0.2, 5.0, 2.0), 'phi0'),
+    (ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.3), 'fit'), (ParcelSpec(0.4, 0.2, 5.0, 0.0, math.inf), 'y'),
+])
+def test_bad_parcels_are_refused(spec, match):
+    with pytest.raises(ParamError, match=match):
+        check_parcel(spec, 0.7)
+
+
+# ---------------------------------------------------------------- kernels
+@pytest.mark.parametrize('v', [1.5, 0.0])
+@pytest.mark.parametrize('alpha', [math.pi / 2, -math.pi / 4, 0.0, 1e-12])
+@pytest.mark.parametrize('stroke', [0.0, 0.3, 1.0])
+def test_cell_strips_match_the_core_builder(v, alpha, stroke):
+    law_a = FrictionLaw('const1', (0.6,))
+    law_b = FrictionLaw('linear', (0.65, -0.1))
+    ref = strip_array(three_zone_strips(v, alpha, 1.2, law_a, law_b, stroke=stroke))
+    out = np.zeros((4, ref.shape[1]))
+    n, disk_sid = ck.cell_strips(v, alpha, 1.2, stroke, law_a.law_id, law_a.row(), law_b.law_id,
+                                 law_b.row(), out)
+    assert n == ref.shape[0]
+    np.testing.assert_array_equal(out[:n], ref)
+    assert disk_sid == (-1 if stroke == 0.0 else int(ref[1, 5]))
+
+
+def test_separating_axis_overlap():
+    s = np.array([0.0, 0.0, 0.0])
+    ov = ck.rectangles_overlap
+    assert ov(s, 0.2, 0.1, np.array([0.39, 0.0, 0.0]), 0.2, 0.1, 1e-9)
+    assert not ov(s, 0.2, 0.1, np.array([0.40, 0.0, 0.0]), 0.2, 0.1, 1e-9)   # touching
+    # a diamond beside the box corner: their bounding boxes overlap, the shapes do not
+    # (its lower-left edge lies on x + y = cx + cy - 0.1 sqrt(2); the box corner has x + y = 0.3)
+    assert not ov(s, 0.2, 0.1, np.array([0.3, 0.2, math.pi / 4]), 0.1, 0.1, 1e-9)
+    assert ov(s, 0.2, 0.1, np.array([0.25, 0.15, math.pi / 4]), 0.1, 0.1, 1e-9)
+
+
+def test_crossing_time_is_exact_for_linear_motion_and_located_for_curved():
+    s0 = np.array([-0.5, 0.0, 0.0, 1.5, 0.0, 0.0])
+    s1 = s0 + np.array([1.5e-3, 0, 0, 0, 0, 0])
+    tau = ck.crossing_time(ck.F_XMAX, -0.2, s0, s1, 1e-3, 0.3, 0.1)
+    assert tau == pytest.approx((-0.2 - (-0.5 + 0.3)) / 1.5, abs=1e-15)
+    # uniformly decelerated motion: x(t) = x0 + v t - a t²/2 is reproduced by the Hermite cubic
+    a, h = 5.0, 1e-3
+    s1 = np.array([-0.5 + 1.5 * h - 0.5 * a * h * h, 0.0, 0.0, 1.5 - a * h, 0.0, 0.0])
+    level = -0.5 + 0.3 + 1.5 * 4e-4 - 0.5 * a * 4e-4 ** 2
+    s0[5] = s1[5] = 0.0
+    s0b = s0.copy()
+    s0b[5] = 1e-30  # force the interpolating branch
+    tau = ck.crossing_time(ck.F_XMAX, level, s0b, s1, h, 0.3, 0.1)
+    assert tau == pytest.approx(4e-4, abs=1e-12)
+
+
+# ---------------------------------------------------------------- a parcel on the belt
+def test_sensors_switch_when_the_geometry_says():
+    """Belt-stuck parcel: edge at x_e when x_lead(t) = x_lead0 + v t (closed form)."""
+    cell = make_cell(parcel_phi0_deg=[0.0, 0.0])
+    p = cell.params
+    A, B = 0.5, 0.3
+    cell.induct(ParcelSpec(A, B, 4.0, 0.0, 0.1, 'P1'))
+    events = cell.advance(4500)
+    v = p.belt_speed
+    for name, x_e in zip(p.photo_eyes_names, p.photo_eyes_x):
+        rise, fall = edges_of(events, name)
+        assert rise.blocked and not fall.blocked
+        assert rise.t_ns * 1e-9 == pytest.approx((x_e - p.induct_x) / v, abs=2e-9)
+        assert fall.t_ns * 1e-9 == pytest.approx((x_e - p.induct_x + A) / v, abs=2e-9)
+    read, = [e for e in events if isinstance(e, LabelRead)]
+    assert read.label == 'P1' and read.parcel_id == 1
+    assert read.t_ns * 1e-9 == pytest.approx((p.scanner_x - p.induct_x) / v, abs=2e-9)
+    # with the disks down it goes straight on, unturned
+    out, = outcomes_of(events)
+    assert out.exit == 'straight' and out.label == 'P1'
+    assert out.t_ns * 1e-9 == pytest.approx((p.exit_x - (p.induct_x - A / 2)) / v, abs=2e-9)
+    assert out.y == pytest.approx(0.1, abs=1e-15)
+    assert not edges_of(events, 'chute_left') and not edges_of(events, 'chute_right')
+    assert cell.n_parcels == 0 and cell.sensor_states() == dict.fromkeys(cell.sensor_names, False)
+
+
+def _diversion_reference(A, B, m, alpha, b):
+    """The model core on one parcel: leading edge on the a/b border, disks up, to y = w/2."""
+    law = FrictionLaw('const1', (MU,))
+    res = simulate(Parcel(A, B, m), three_zone_strips(1.5, alpha, b, law, law),
+                   [-A / 2, 0.0, 0.0, 1.5, 0.0, 0.0], (0.0, 5.0), 'accurate', rtol=1e-10,
+                   atol=1e-12, y_target=0.35)
+    return res.t_target, res.y[-1]
+
+
+@pytest.mark.parametrize('alpha_deg, chute', [(90.0, 'left'), (-90.0, 'right'), (45.0, 'left')])
+def test_raised_disks_divert_as_the_model_core_predicts(alpha_deg, chute):
+    A, B, m = 0.6, 0.3, 5.0
+    cell = make_cell(alpha_deg=alpha_deg, popup_stroke_time=0.0)
+    p = cell.params
+    assert cell.popup(True)[0]
+    cell.induct(ParcelSpec(A, B, m, 0.0, 0.0, 'D'))
+    events = cell.advance(4000)
+    out, = outcomes_of(events)
+    assert out.exit == chute
+    t_ref, y_ref = _diversion_reference(A, B, m, math.radians(abs(alpha_deg)), p.disk_field_length)
+    t_at_field = -p.induct_x / p.belt_speed    # leading edge from induct_x to the disk field
+    assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=1e-6)
+    assert out.x == pytest.approx(y_ref[0], abs=1e-6)
+    # the chute-entry sensor of that side was blocked around the crossing, the other never
+    side = f'chute_{chute}'
+    rise, fall = edges_of(events, side)
+    assert rise.blocked and rise.t_ns < out.t_ns < fall.t_ns and not fall.blocked
+    other = 'chute_right' if chute == 'left' else 'chute_left'
+    assert not edges_of(events, other)
+    assert cell.n_parcels == 0 and not cell.faults
+
+
+def test_actuators_move_at_their_rates():
+    cell = make_cell(alpha_deg=0.0, alpha_slew_rate_deg_s=180.0, popup_stroke_time=0.2)
+    dt = cell.dt
+    cell.set_alpha(math.radians(90.0))
+    cell.popup(True)
+    cell.advance(100)
+    assert cell.stroke == pytest.approx(0.5, abs=1e-12)
+    assert cell.stroke_rate == pytest.approx(5.0)
+    assert cell.alpha == pytest.approx(math.radians(18.0 * 100 * dt / 0.1), abs=1e-12)
+    assert cell.alpha_rate == pytest.approx(math.radians(180.0))
+    cell.advance(500)
+    assert cell.stroke == 1.0 and cell.alpha == pytest.approx(math.pi / 2)
+    assert cell.stroke_rate == 0.0 and cell.alpha_rate == 0.0
+
+
+# ---------------------------------------------------------------- e-stop and reset
+def test_estop_stops_the_belt_and_parcels_slide_to_rest():
+    """On a belt stopped at once a parcel slides v²/(2μg) and stops after v/(μg)."""
+    cell = make_cell()
+    cell.induct(ParcelSpec(0.5, 0.3, 5.0, 0.0, 0.0, 'E'))
+    cell.advance(400)
+    x0 = cell.parcels()['x'][0]
+    cell.engage_estop()
+    assert not cell.popup(True)[0] and not cell.set_alpha(0.0)[0]
+    v = cell.params.belt_speed
+    t_stop = v / (MU * G)
+    n_stop = math.floor(t_stop / cell.dt)
+    cell.advance(n_stop)
+    assert cell.state[0, 3] == pytest.approx(v - MU * G * n_stop * cell.dt, abs=1e-9)
+    cell.advance(1000)
+    assert cell.parcels()['x'][0] - x0 == pytest.approx(v * v / (2 * MU * G), abs=1e-9)
+    assert cell.state[0, 3] == 0.0 and cell.faults == ['estop']
+    # the stream waits while the belt stands
+    cell.induct(ParcelSpec(0.3, 0.3, 5.0))
+    cell.advance(100)
+    assert cell.n_parcels == 1 and cell.pending_inducts == 1
+    # reset: the belt restarts and drags the parcel up to speed over v/(μg)
+    cell.reset()
+    assert cell.faults == [] and cell.popup(True)[0]
+    x1 = cell.parcels()['x'][0]
+    cell.advance(1000)
+    assert cell.parcels()['x'][0] == pytest.approx(x1 + v * 1.0 - v * v / (2 * MU * G), abs=1e-9)
+
+
+# ---------------------------------------------------------------- jams
+def test_wall_and_parcel_jams_stop_the_parcels_until_reset():
+    # a short disk field with no margin: the disks push a parcel riding near the left
+    # edge into the wall downstream of the opening
+    cell = make_cell(disk_field_length=0.3, chute_margin=0.0, popup_stroke_time=0.0)
+    cell.popup(True)
+    cell.induct(ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.2, 'W'))
+    events = cell.advance(3000)
+    jam, = outcomes_of(events)
+    assert jam.exit == 'jammed' and jam.jammed and jam.cause == 'side wall'
+    assert cell.faults == ['jam']
+    parked = cell.parcels()
+    assert parked['state'][0] == 5  # jammed
+    # it stays put, and the next parcel in its lane runs into it on the belt
+    cell.popup(False)
+    cell.induct(ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.2, 'N'))
+    events = cell.advance(3000)
+    hit, = outcomes_of(events)
+    assert hit.exit == 'jammed' and hit.cause == 'parcel 1' and hit.label == 'N'
+    now = cell.parcels()
+    np.testing.assert_array_equal(now['x'][:1], parked['x'])
+    # never overlapped by more than one period's travel
+    i, j = np.flatnonzero(cell.phase == ck.PH_JAMMED)
+    s_i, s_j = cell.state[i].copy(), cell.state[j].copy()
+    s_j[0] -= cell.params.belt_speed * cell.dt
+    assert not ck.rectangles_overlap(s_i, *cell.par[i, :2], s_j, *cell.par[j, :2], 1e-9)
+    # reset takes them off and clears the fault; the sensors they blocked clear
+    edges = cell.reset()
+    assert cell.n_parcels == 0 and cell.faults == []
+    assert all(not e.blocked for e in edges)
+    assert not any(cell.sensor_states().values())
+
+
+# ---------------------------------------------------------------- the parcel stream
+def test_gap_stream_keeps_its_gaps_and_is_reproducible():
+    def run(seed):
+        cell = make_cell(arrival='gap', seed=seed, parcel_phi0_deg=[0.0, 0.0],
+                         arrival_gap=[0.4, 0.8], induct_x=-10.0)
+        cell.popup(True)
+        events = cell.advance(12000)
+        return cell, events
+
+    cell, events = run(7)
+    p = cell.params
+    parcels = cell.parcels()
+    upstream = parcels['x'] < -0.5      # still on the belt, before the disk field
+    x, A = parcels['x'][upstream], parcels['A'][upstream]
+    gaps = (x[:-1] - A[:-1] / 2) - (x[1:] + A[1:] / 2)
+    assert len(gaps) >= 5
+    assert np.all(gaps >= 0.4 - 1e-12) and np.all(gaps <= 0.8 + p.belt_speed * cell.dt + 1e-12)
+    assert all(0.3 <= a <= 0.7 for a in parcels['A'])
+    labels = [e.label for e in events if isinstance(e, LabelRead)]
+    assert labels[:4] == ['A00001', 'B00002', 'C00003', 'A00004']
+    again_cell, again = run(7)
+    assert again == events
+    np.testing.assert_array_equal(again_cell.state, cell.state)
+    _, other = run(8)
+    assert other != events
+
+
+def test_rate_stream_never_inducts_closer_than_the_minimum_gap():
+    cell = make_cell(arrival='rate', arrival_rate=3.0, arrival_gap=[0.2, 0.2],
+                     parcel_phi0_deg=[0.0, 0.0])
+    cell.advance(8000)
+    parcels = cell.parcels()
+    on_belt = parcels['x'] < -0.5
+    x, A = parcels['x'][on_belt], parcels['A'][on_belt]
+    gaps = (x[:-1] - A[:-1] / 2) - (x[1:] + A[1:] / 2)
+    assert len(gaps) >= 3 and np.all(gaps >= 0.2 - 1e-12)
+    assert cell.n_inducted >= 8
