@@ -357,6 +357,7 @@ class SorterLogic:
         self.bits: dict[str, bool | None] = {s: None for s in self.sensors}
         self.eyes = {s: EyeState() for s in self.sensors}
         self.parcels: list[Tracked] = []
+        self.last_decided: Tracked | None = None
         self.pending_labels: deque = deque()
         self.seq = 0
         self.flush_until: float = self.flush_distance()     # encoder reading
@@ -490,6 +491,7 @@ class SorterLogic:
             if not p.done:
                 self._finish(out, p, "unknown", R_ABORTED)
         self.parcels = []
+        self.last_decided = None
         self.pending_labels.clear()
         for e in self.eyes.values():
             e.by = None
@@ -776,11 +778,13 @@ class SorterLogic:
                 target.label = label
             else:
                 self.pending_labels.append((t_l, label))
-        # labels that found no photo-eye edge within the window: the scanner eye saw nothing
+        # labels that found no photo-eye edge within the window: the eye on the scanner's line
+        # should be blocked by the parcel just read (a parcel blocking it since before the
+        # controller started has no edge, and is not the eye's fault)
         while self.pending_labels and self.t - self.pending_labels[0][0] > self.config.label_window:
             t_l, label = self.pending_labels.popleft()
             self.counts["labels_without_parcel"] += 1
-            if self.state == "running" and self.encoder >= self.flush_until:
+            if self.state == "running" and not self.eyes[self.config.scan_eye].blocked:
                 self._enter_fault(out, "stuck_off", f"{self.config.scan_eye}: the scanner read {label!r} at "
                                   f"{t_l:.3f} s but the photo-eye never blocked", self.config.scan_eye)
 
@@ -922,12 +926,6 @@ class SorterLogic:
                                       f"{chute} by {deadline:.3f} s", chute)
 
     # --- decisions -------------------------------------------------------------------------------
-    def _last_committed(self) -> Tracked | None:
-        for p in reversed(self.parcels):
-            if p.committed:
-                return p
-        return None
-
     def _alpha_end(self) -> float | None:
         """The disk angle the committed plan ends with [deg]."""
         for p in reversed(self.parcels):
@@ -936,13 +934,26 @@ class SorterLogic:
         return self.commanded_alpha
 
     def _lead_needed(self, dest: str) -> float:
-        if side_of(dest) == 0:
-            return 0.0
+        """How long before its entry a parcel for ``dest`` must be decided [s].
+
+        The stroke only: the disk angle is set ahead for the next divert in line
+        whenever no committed divert holds it (see ``desired_outputs``), so it does
+        not force decisions early; ``_alpha_ready`` checks it made it in time.
+        """
+        return 0.0 if side_of(dest) == 0 else self.gaps.act.stroke_total
+
+    def _alpha_ready(self, dest: str) -> float:
+        """When the disks can be at the angle for ``dest`` if nothing committed holds them [s]."""
         act = self.gaps.act
-        a_from = self._alpha_end()
-        a_to = self.gaps.alpha_for(dest)
-        slew = act.slew_total(a_from, a_to) if a_from is not None else act.slew_total(0.0, a_to)
-        return max(act.stroke_total, slew)
+        target = self.gaps.alpha_for(dest)
+        if self.commanded_alpha == target:
+            if self.diverter is None:
+                return self.t
+            return self.t + abs(math.degrees(self.diverter.alpha) - target) / act.alpha_slew_rate_deg_s
+        start = self.commanded_alpha
+        if start is None:
+            start = math.degrees(self.diverter.alpha) if self.diverter is not None else 0.0
+        return self.t + act.slew_total(start, target)
 
     def _decide(self, out) -> None:
         pending = [p for p in self.parcels if not p.committed and not p.done]
@@ -967,6 +978,7 @@ class SorterLogic:
                 p.plan = "straight"
                 p.asked = self.routing.lookup(p.label)[0]
                 p.result = R_FAULT
+                self.last_decided = p
 
     def _commit(self, out, p: Tracked) -> None:
         """Decide parcel p for good: its destination and whether the disks can serve it."""
@@ -977,6 +989,9 @@ class SorterLogic:
             self.counts["no_read"] += 1
         p.committed = True
         p.plan, p.result = "straight", None
+        # decisions are taken in belt order, so the last one is the parcel ahead (it may
+        # have left the tracking list already, its disks not)
+        prev, self.last_decided = self.last_decided, p
         if p.bound is not None:
             # the parcel ahead keeps the disks up for this one: it goes with them
             if asked != p.bound:
@@ -989,7 +1004,6 @@ class SorterLogic:
             self.counts["late"] += 1
             self._log(out, "warn", f"parcel {p.seq} ({p.label}): length unknown at decision time; straight")
             return
-        prev = self._last_committed_before(p)
         if side_of(asked) == 0:
             if prev is not None and prev.length is not None and side_of(prev.plan) != 0:
                 headway = self.t_enter(p) - self.t_enter(prev)
@@ -1004,11 +1018,6 @@ class SorterLogic:
             self._log(out, "warn", f"parcel {p.seq} ({p.label}): the model cannot bring a {p.length:.2f} m parcel "
                       f"to the {asked} chute within the disk field; straight")
             return
-        if self.t + self._lead_needed(asked) > self.t_enter(p) + 1e-9:
-            p.result = R_LATE
-            self.counts["late"] += 1
-            self._log(out, "warn", f"parcel {p.seq} ({p.label}): decided too late to divert; straight")
-            return
         if prev is not None and prev.length is not None:
             headway = self.t_enter(p) - self.t_enter(prev)
             need = self.gaps.headway(prev.length, prev.plan, p.length, asked, v,
@@ -1017,6 +1026,15 @@ class SorterLogic:
                 self._refuse(out, p, asked, f"{(headway * v - prev.length):.3f} m behind parcel {prev.seq} "
                              f"({prev.plan}); {(need * v - prev.length):.3f} m needed")
                 return
+        late = self.t + self._lead_needed(asked) > self.t_enter(p) + 1e-9
+        if not late and not self._alpha_held():
+            late = self._alpha_ready(asked) > self.t_enter(p) + 1e-9
+        if late:
+            p.result = R_LATE
+            self.counts["late"] += 1
+            self._log(out, "warn", f"parcel {p.seq} ({p.label}): decided too late to divert (stroke or disk "
+                      "angle); straight")
+            return
         self._divert(out, p, asked, forced=False)
 
     def _divert(self, out, p: Tracked, dest: str, forced: bool) -> None:
@@ -1073,15 +1091,6 @@ class SorterLogic:
         self.counts["gap_too_short"] += 1
         self._log(out, "warn", f"parcel {p.seq} ({p.label}) for {asked}: gap too short, sent straight: {why}")
 
-    def _last_committed_before(self, p: Tracked) -> Tracked | None:
-        prev = None
-        for q in self.parcels:
-            if q is p:
-                break
-            if q.committed:
-                prev = q
-        return prev
-
     def _next_after(self, p: Tracked) -> Tracked | None:
         seen = False
         for q in self.parcels:
@@ -1090,9 +1099,22 @@ class SorterLogic:
             seen = seen or q is p
         return None
 
+    def _alpha_held(self) -> bool:
+        """Whether a committed divert still needs the disk angle it set."""
+        for p in self.parcels:
+            if (p.committed and side_of(p.plan) != 0 and p.prediction is not None
+                    and self.t < self.t_enter(p) + p.prediction.t_commit):
+                return True
+        return False
+
     # --- outputs ---------------------------------------------------------------------------------
     def desired_outputs(self) -> tuple[bool, float | None]:
-        """(disks up, disk angle in deg or None to keep) as the committed plan wants them now."""
+        """(disks up, disk angle in deg or None to keep) as the committed plan wants them now.
+
+        The disk angle follows the first committed divert not yet handed to its chute;
+        with none, it is set ahead for the next parcel in line that routing sends to a
+        chute (swinging the lowered disks moves nothing).
+        """
         act = self.gaps.act
         up = False
         alpha = None
@@ -1109,6 +1131,14 @@ class SorterLogic:
                 alpha = p.alpha
             if alpha == p.alpha and self.t >= te - act.popup_stroke_time - act.latency - act.scan_period:
                 up = True
+        if alpha is None:
+            for p in self.parcels:
+                if p.committed or p.done:
+                    continue
+                dest = p.bound or self.routing.lookup(p.label)[0]
+                if side_of(dest) != 0:
+                    alpha = self.gaps.alpha_for(dest)
+                    break
         return up, alpha
 
     def _write_outputs(self, out) -> None:

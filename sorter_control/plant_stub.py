@@ -10,7 +10,7 @@ time and a disk angle with a slew rate. Parcels that touch stop (a jam).
 
 It serves the controller's commands the way the simulation node's services
 would (e-stop refuses diverter commands), and can be told to misbehave: force a
-sensor's bit, withhold a service's answers, hold a parcel where it is.
+sensor's bit, withhold or refuse a service's answers, hold a parcel where it is.
 
 ``run_cell(plant, logic, until)`` is the scan loop the node would run: advance
 the plant one scan period, hand the logic its input image, carry out the
@@ -70,6 +70,7 @@ class PlantStub:
         self.estop = False
         self.forced: dict[str, bool] = {}
         self.withheld: set[str] = set()
+        self.refused: dict[str, str] = {}
         self.pending: list[tuple[float, Reply]] = []
         self.calls: list[tuple[float, str, object]] = []
         self.edges: list[Edge] = []
@@ -197,6 +198,9 @@ class PlantStub:
             self.pending.append((self.t + self.service_timeout, Reply(cmd.id, False, "", timed_out=True)))
             return
         ok, msg = True, ""
+        if cmd.kind in self.refused:
+            self.pending.append((self.t, Reply(cmd.id, False, self.refused[cmd.kind])))
+            return
         if cmd.kind == "popup":
             if self.estop:
                 ok, msg = False, "e-stop active: use reset"
@@ -232,15 +236,18 @@ class CellRun:
 
 def run_cell(plant: PlantStub, logic: SorterLogic, until: float, run: CellRun | None = None,
              on_scan=None) -> CellRun:
-    """Scan the logic against the plant until plant time ``until``; returns (and extends) ``run``."""
+    """Scan the logic against the plant until plant time ``until``; returns (and extends) ``run``.
+
+    on_scan(plant, logic), if given, runs after every scan (to watch, or to make trouble).
+    """
     run = run or CellRun()
     period = logic.config.scan_period
     while plant.t < until - 1e-9:
         plant.advance(period)
-        if on_scan is not None:
-            on_scan(plant, logic)
         img = plant.image()
         out = logic.scan(img)
+        if on_scan is not None:
+            on_scan(plant, logic)
         for cmd in out.commands:
             plant.handle(cmd)
         run.commands.extend((plant.t, c.kind, c.value) for c in out.commands)

@@ -78,11 +78,12 @@ class CellModel:
     length_step: float = 0.01
 
     def __post_init__(self):
-        for name, lo in (("belt_width", 0.0), ("disk_field_length", 0.0), ("parcel_width", 0.0),
-                         ("parcel_mass", 0.0), ("length_step", 0.0)):
+        for name in ("belt_width", "disk_field_length", "parcel_width", "parcel_mass", "length_step"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > lo):
-                raise ValueError(f"{name} must be a finite number > {lo}, got {v!r}")
+            finite = math.isfinite(v) or (name == "disk_field_length" and v == math.inf)
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and finite and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0{' (or inf)' if name == 'disk_field_length' else ''}, "
+                                 f"got {v!r}")
         for name in ("chute_margin", "commit_margin"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
