@@ -83,6 +83,11 @@ class Study:
         return ["point"] + list(self.keys) + list(self.outputs)
 
 
+def _one_line(exc) -> str:
+    """A (YAML) error message, whose text spans several lines, as one line."""
+    return " ".join(str(exc).split())
+
+
 def _split_key(key) -> tuple[str, str]:
     if not isinstance(key, str) or key.count(".") != 1:
         raise SpecError(f"parameters: keys have the form section.key (e.g. belt.v), got {key!r}")
@@ -132,6 +137,8 @@ def _grid_values(key: str, spec) -> list:
             values = list(np.geomspace(lo, hi, int(num)))
         else:
             values = list(np.linspace(lo, hi, int(num)))
+        # 12 significant digits: 0.6, not linspace's 0.6000000000000001, in tables and keys
+        values = [float(f"{v:.12g}") for v in values]
         if _is_int_key(key):
             values = sorted({int(round(v)) for v in values})
     else:
@@ -178,7 +185,7 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
     except OSError as exc:
         raise SpecError(f"cannot read study spec {str(p)!r}: {exc.strerror or exc}") from None
     except yaml.YAMLError as exc:
-        raise SpecError(f"study spec {str(p)!r} is not valid YAML: {exc}") from None
+        raise SpecError(f"study spec {str(p)!r} is not valid YAML: {_one_line(exc)}") from None
     if not isinstance(raw, dict):
         raise SpecError(f"study spec {str(p)!r} must be a mapping with keys {', '.join(SPEC_KEYS)}")
     for k in raw:
@@ -476,7 +483,7 @@ class SweepResult:
     computed: list = field(default_factory=list)    # keys run in this call
 
 
-def _executor(workers: int, scheduler: str | None):
+def _executor(workers: int, scheduler: str | None, timeout_s: float = 10.0):
     """(submit, as_completed, close) for the engine: a Dask cluster or local processes;
     (None, None, close) to run in this process."""
     if scheduler:
@@ -485,7 +492,7 @@ def _executor(workers: int, scheduler: str | None):
         except ImportError:     # pragma: no cover - a declared dependency
             raise SpecError("--scheduler needs dask[distributed] installed") from None
         try:
-            client = Client(scheduler, timeout="10s")
+            client = Client(scheduler, timeout=f"{timeout_s}s")
         except Exception as exc:   # noqa: BLE001 - OSError, TimeoutError, ValueError by address kind
             raise SpecError(f"--scheduler: cannot reach a Dask scheduler at {scheduler!r}: {exc}") from None
         return (lambda scene: client.submit(run_point, scene, pure=False)), as_completed, client.close
@@ -497,7 +504,8 @@ def _executor(workers: int, scheduler: str | None):
 
 
 def run_study(study: Study, *, workers: int | None = None, scheduler: str | None = None,
-              max_points: int | None = None, progress: bool = True) -> SweepResult:
+              max_points: int | None = None, progress: bool = True,
+              scheduler_timeout: float = 10.0) -> SweepResult:
     """Run the study's unfinished points, appending each row as it finishes."""
     t0 = time.perf_counter()
     out = study.out
@@ -531,7 +539,7 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
         computed.append(key)
         bar.update(1)
 
-    submit, completed, close = (_executor(workers, scheduler) if pending
+    submit, completed, close = (_executor(workers, scheduler, scheduler_timeout) if pending
                                 else (None, None, lambda: None))
     interrupted = False
     try:
@@ -567,6 +575,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="local worker processes (default: one per core; 1 runs in this process)")
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="run on the Dask cluster at ADDRESS (e.g. tcp://10.0.0.5:8786)")
+    parser.add_argument("--scheduler-timeout", type=float, default=10.0, metavar="SECONDS",
+                        help="how long to try reaching the scheduler (default 10 s)")
     parser.add_argument("--max-points", type=int, default=None, metavar="N",
                         help="stop after N newly finished points (the rest on the next run)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -576,14 +586,17 @@ def run(args) -> int | str:
     """``sorter sweep``."""
     if args.workers is not None and args.workers < 1:
         return f"--workers must be >= 1, got {args.workers}"
+    if not args.scheduler_timeout > 0:
+        return f"--scheduler-timeout must be > 0 s, got {args.scheduler_timeout}"
     if args.max_points is not None and args.max_points < 0:
         return f"--max-points must be >= 0, got {args.max_points}"
     try:
         study = load_study(args.spec, args.out)
         res = run_study(study, workers=args.workers, scheduler=args.scheduler,
-                        max_points=args.max_points, progress=not args.no_progress)
-    except SpecError as exc:
-        return str(exc)
+                        max_points=args.max_points, progress=not args.no_progress,
+                        scheduler_timeout=args.scheduler_timeout)
+    except (SpecError, SceneError) as exc:
+        return _one_line(exc)
     state = "complete" if res.n_left == 0 else f"{res.n_left} left (run again to resume)"
     print(f"sweep: {res.n_points} points, {res.n_resumed} already done, {res.n_run} run now; "
           f"{state}; {res.out} ({res.wall_s:.1f} s)")
