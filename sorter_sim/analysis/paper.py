@@ -171,6 +171,23 @@ def _save(fig, out: Path | None, name: str, files: list) -> None:
     files.append(path)
 
 
+def _alpha_v_A_table(out: Path, fig_no: str, vs, As, arr, column: str, ylabel: str, files: list):
+    """CSV and three panels (α = 90°, 45°, 30°) of a quantity arr[α, v, A], lines per v."""
+    kk, ii, jj = np.meshgrid(range(3), range(len(vs)), range(len(As)), indexing="ij")
+    files.append(_write_csv(out / f"fig{fig_no}.csv", {
+        "alpha_deg": [ALPHAS[k] for k in kk.ravel()], "v_m_s": [vs[i] for i in ii.ravel()],
+        "A_m": [As[j] for j in jj.ravel()], column: arr.ravel()}))
+    fig, ax = _figure(1, 3, (13, 4.2))
+    for k, al in enumerate(ALPHAS):
+        a = ax[0, k]
+        for i, v in enumerate(vs):
+            a.plot(As, arr[k, i], "o-", ms=3, label=f"v = {v:.2f} m/s")
+        a.set(xlabel="A [m]", ylabel=ylabel, title=f"Fig. {fig_no}{'abc'[k]}: α = {al:.0f}°",
+              ylim=(0, 1.05 * np.nanmax(arr)))
+        a.legend(fontsize=7)
+    return fig, ax
+
+
 def _monotone(values, increasing=True, tol=0.0) -> bool:
     d = np.diff(np.asarray(values, float))
     return bool(np.all(d > -tol) if increasing else np.all(d < tol))
@@ -498,20 +515,9 @@ def fig9(out: Path | None = None, quick: bool = False) -> FigureResult:
     }
     r.data = {"A": As, "v": vs, "alpha": ALPHAS, "W": W, "ref_full": ref_full, "ref_simple": ref_simple}
     if out is not None:
-        kk, ii, jj = np.meshgrid(range(3), range(len(vs)), range(len(As)), indexing="ij")
-        r.files.append(_write_csv(out / "fig9.csv", {
-            "alpha_deg": [ALPHAS[k] for k in kk.ravel()], "v_m_s": [vs[i] for i in ii.ravel()],
-            "A_m": [As[j] for j in jj.ravel()], "W_t_pcs_h": W.ravel()}))
-        fig, ax = _figure(1, 3, (13, 4.2))
-        for k, al in enumerate(ALPHAS):
-            a = ax[0, k]
-            for i, v in enumerate(vs):
-                a.plot(As, W[k, i], "o-", ms=3, label=f"v = {v:.2f} m/s")
-            a.set(xlabel="A [m]", ylabel="W_t [pcs/h]", title=f"Fig. 9{'abc'[k]}: α = {al:.0f}°",
-                  ylim=(0, 1.05 * W.max()))
-            if k == 0:
-                a.plot([0.7], [3600], "k*", ms=10, label="seed: ≈ 3600")
-            a.legend(fontsize=7)
+        fig, ax = _alpha_v_A_table(out, "9", vs, As, W, "W_t_pcs_h", "W_t [pcs/h]", r.files)
+        ax[0, 0].plot([0.7], [3600], "k*", ms=10, label="seed: ≈ 3600")
+        ax[0, 0].legend(fontsize=7)
         _save(fig, out, "fig9.png", r.files)
     r.wall_s = time.perf_counter() - t0
     return r
@@ -751,18 +757,7 @@ def fig11(out: Path | None = None, quick: bool = False) -> FigureResult:
             np.nanargmax(gap) == 0)
     r.data = {"A": As, "v": vs, "alpha": ALPHAS, "b_min": bmin, "excess_30_over_90": gap}
     if out is not None:
-        kk, ii, jj = np.meshgrid(range(3), range(len(vs)), range(len(As)), indexing="ij")
-        r.files.append(_write_csv(out / "fig11.csv", {
-            "alpha_deg": [ALPHAS[k] for k in kk.ravel()], "v_m_s": [vs[i] for i in ii.ravel()],
-            "A_m": [As[j] for j in jj.ravel()], "b_min_m": bmin.ravel()}))
-        fig, ax = _figure(1, 3, (13, 4.2))
-        for k, al in enumerate(ALPHAS):
-            a = ax[0, k]
-            for i, v in enumerate(vs):
-                a.plot(As, bmin[k, i], "o-", ms=3, label=f"v = {v:.1f} m/s")
-            a.set(xlabel="A [m]", ylabel="minimal b [m]", title=f"Fig. 11{'abc'[k]}: α = {al:.0f}°",
-                  ylim=(0, 1.05 * np.nanmax(bmin)))
-            a.legend(fontsize=7)
+        fig, _ = _alpha_v_A_table(out, "11", vs, As, bmin, "b_min_m", "minimal b [m]", r.files)
         _save(fig, out, "fig11.png", r.files)
     r.wall_s = time.perf_counter() - t0
     return r
