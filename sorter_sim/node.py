@@ -128,7 +128,7 @@ class SimNode(Node):
         self._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
         self._diag_ref = (time.perf_counter(), self.cell.k)
         self.n_messages = 0
-        self.publish_wall_s = 0.0
+        self.n_marker_arrays = 0
         # the initial state: every sensor clear, actuators where they are, t = 0
         self._publish_sensors()
         self._publish_diverter()
@@ -318,6 +318,7 @@ class SimNode(Node):
             m.text = STATE_NAMES[code]
             markers.append(m)
         self._publish(self._pub_markers, MarkerArray(markers=markers))
+        self.n_marker_arrays += 1
 
     def _publish_clock(self) -> None:
         self._publish(self._pub_clock, Clock(clock=_time_msg(self.cell.t_ns)))

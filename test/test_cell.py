@@ -324,3 +324,11 @@ def test_rate_stream_never_inducts_closer_than_the_minimum_gap():
     gaps = (x[:-1] - A[:-1] / 2) - (x[1:] + A[1:] / 2)
     assert len(gaps) >= 3 and np.all(gaps >= 0.2 - 1e-12)
     assert cell.n_inducted >= 8
+
+
+@pytest.mark.parametrize('module', ['cell.py', 'params.py', 'cdr.py', 'core/cell_kernels.py'])
+def test_the_cell_imports_no_ros(module):
+    from test_core_has_no_ros import ros_imports
+
+    path = REPO / 'sorter_sim' / module
+    assert ros_imports(path.read_text(), str(path)) == []
