@@ -324,14 +324,8 @@ class Cell:
     def _upstream_room(self) -> tuple[float, int]:
         """Free belt length in front of the induct point [m], and the slot whose trailing
         edge limits it (-1: none)."""
-        on = np.flatnonzero((self.phase == ck.PH_CELL) | (self.phase == ck.PH_JAMMED))
-        if on.size == 0:
-            return math.inf, -1
-        phi = self.state[on, 2]
-        hx = self.par[on, 0] * np.abs(np.cos(phi)) + self.par[on, 1] * np.abs(np.sin(phi))
-        x_min = self.state[on, 0] - hx
-        j = int(np.argmin(x_min))
-        return float(x_min[j] - self.params.induct_x), int(on[j])
+        room, slot = ck.upstream_room(self.state, self.phase, self.par, self.params.induct_x)
+        return float(room), int(slot)
 
     def _place_pending(self) -> list[SensorEdge]:
         edges: list[SensorEdge] = []

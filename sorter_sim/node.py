@@ -41,7 +41,6 @@ from .ros_env import apply_ros_env_defaults
 NODE_NAME = 'sorter_sim'
 FRAME_ID = 'conveyor'
 PARCEL_HEIGHT = 0.2          # m, only for the marker boxes (the model is planar)
-FAST_SLICE_S = 0.005         # wall time one fast-mode callback may take before yielding
 MAX_CATCH_UP_S = 0.25        # realtime mode: simulated time one tick may catch up
 
 SENSOR_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -138,7 +137,8 @@ class SimNode(Node):
             self._timer = self.create_timer(p.wall_tick, self._tick_realtime)
         elif p.time_mode == 'fast':
             # a zero-period timer is ready at every executor pass: each call runs a slice
-            # of simulated time, and services wait at most one slice
+            # of simulated time (fast_slice), then services, parameter changes and other
+            # callbacks of the executor get their turn
             self._timer = self.create_timer(0.0, self._tick_fast)
         else:
             self._timer = None
@@ -212,10 +212,7 @@ class SimNode(Node):
             self.advance(n)
 
     def _tick_fast(self) -> None:
-        deadline = time.perf_counter() + FAST_SLICE_S
-        stride = self.params.pose_stride
-        while time.perf_counter() < deadline:
-            self.advance(stride - self.cell.k % stride)
+        self.advance(self.params.fast_slice_periods)
 
     def advance(self, n: int) -> None:
         """Advance ``n`` control periods, publishing everything that falls due on the way."""

@@ -98,6 +98,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
        choices=TIME_MODES),
     _p('real_time_factor', DOUBLE, 1.0, 'simulated seconds per wall second in realtime mode', '',
        0.01, 100.0, read_only=False),
+    _p('fast_slice', DOUBLE, 0.05, 'fast mode: simulated time run per executor callback before '
+       'services, parameters and in-process subscribers get their turn (smaller: they react '
+       'sooner in simulated time; larger: less overhead)', 's', 1e-4, 10.0, read_only=False),
     _p('wall_tick', DOUBLE, 0.002, 'wall-clock period of the realtime-mode timer (outputs are '
        'published at most this late)', 's', 0.0005, 0.1),
     # -- cell geometry (conveyor frame)
@@ -275,6 +278,7 @@ class CellParams:
     control_period: float
     time_mode: str
     real_time_factor: float
+    fast_slice: float
     wall_tick: float
     belt_speed: float
     belt_width: float
@@ -365,6 +369,10 @@ class CellParams:
     def pose_stride(self) -> int:
         """Control periods between pose publications."""
         return max(1, round(1.0 / (self.pose_rate_hz * self.control_period)))
+
+    @property
+    def fast_slice_periods(self) -> int:
+        return max(1, round(self.fast_slice / self.control_period))
 
     @property
     def marker_stride(self) -> int:

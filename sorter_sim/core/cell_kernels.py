@@ -291,17 +291,16 @@ def _phase_counts(sensor, n_eyes, phase):
 
 @njit(cache=True)
 def sensor_blocked(sensor, n_eyes, eye_x, cfg, s, phase, half_a, half_b):
-    """Whether a parcel in pose ``s`` and ``phase`` blocks ``sensor``."""
+    """Whether a parcel in pose ``s`` and ``phase`` blocks ``sensor`` (the conditions of
+    ``_conditions``, written out: this runs for every parcel and period)."""
     if not _phase_counts(sensor, n_eyes, phase):
         return False
-    kinds = np.empty(4, np.int64)
-    levels = np.empty(4)
-    signs = np.empty(4)
-    nc = _conditions(sensor, n_eyes, eye_x, cfg, kinds, levels, signs)
-    for c in range(nc):
-        if signs[c] * (_feature(kinds[c], s[0], s[1], s[2], half_a, half_b) - levels[c]) <= 0.0:
-            return False
-    return True
+    hx, hy = half_extents(s[2], half_a, half_b)
+    if sensor < n_eyes:
+        return s[0] + hx > eye_x[sensor] and s[0] - hx < eye_x[sensor]
+    line = cfg[C_HALF_W] if sensor == n_eyes else -cfg[C_HALF_W]
+    return (s[1] + hy > line and s[1] - hy < line and s[0] + hx > cfg[C_OPEN_LO]
+            and s[0] - hx < cfg[C_OPEN_HI])
 
 
 @njit(cache=True)
@@ -368,6 +367,22 @@ def crosses_wall(s, half_a, half_b, half_w, open_lo, open_hi, tol):
                 if xc < open_lo or xc > open_hi:
                     return True
     return False
+
+
+@njit(cache=True)
+def upstream_room(state, phase, par, induct_x):
+    """Free belt length in front of the induct point [m] and the slot whose trailing edge
+    bounds it (-1 and inf when no parcel is on the cell)."""
+    room = math.inf
+    slot = -1
+    for i in range(state.shape[0]):
+        if phase[i] == PH_CELL or phase[i] == PH_JAMMED:
+            hx, _ = half_extents(state[i, 2], par[i, P_HALF_A], par[i, P_HALF_B])
+            r = state[i, 0] - hx - induct_x
+            if r < room:
+                room = r
+                slot = i
+    return room, slot
 
 
 @njit(cache=True)
@@ -536,8 +551,18 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
                     new_phase = PH_FREE
                     tau_phase = h
                     n_ev = _emit(ev_i, ev_f, n_ev, k, EV_GONE, i, 0, h, s1[0], s1[1])
-            # this parcel's own sensor transitions
+            # this parcel's own sensor transitions. Moving rigidly along x on the cell it
+            # can change only a photo-eye that one of its x edges passes in this period.
+            along_x_only = rigid[i] and new_phase == PH_CELL
+            if along_x_only:
+                hx, _ = half_extents(s0[2], ha, hb)
             for s in range(n_sens):
+                if along_x_only:
+                    if s >= n_eyes:
+                        break
+                    xe = eye_x[s]
+                    if not (s0[0] + hx <= xe <= s1[0] + hx or s0[0] - hx <= xe <= s1[0] - hx):
+                        continue
                 b0 = blocked[i, s]
                 b1 = sensor_blocked(s, n_eyes, eye_x, cfg, s1, new_phase, ha, hb)
                 if b0 != b1:

@@ -1,0 +1,164 @@
+"""Benchmark of the simulation node: real-time factor with 100 parcels, cost per message.
+
+Not a test: it prints figures. The cell is the default one (config/cell.yaml)
+with the induct point moved 150 m upstream so that about a hundred parcels of
+the default stream are on the belt at once, the disks permanently up at
+α = 90°, so every parcel is diverted (the costly case: each one slides over
+the disk field), 1 ms physics, poses at 100 Hz, sensors on change.
+
+Three measurements after a warm-up that fills the cell (not timed):
+  cell    the ROS-free core alone (``Cell.advance``), no messages;
+  node    the node in fast mode, spun by a single-threaded executor, nobody
+          subscribed (rmw still serializes every message);
+  node+sub  the same with one subscriber per output topic in the same process
+          and executor, so delivery and the subscriber's callbacks count too.
+Real-time factor = simulated time / wall time over the measured span; cost per
+message = the node's wall time spent building and publishing messages divided
+by the number published.
+
+    .venv/bin/python benchmarks/bench_cell.py [--sim-s 20] [--parcels 100]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from sorter_sim.ros_env import apply_ros_env_defaults  # noqa: E402
+
+apply_ros_env_defaults()
+os.environ.setdefault('ROS_DOMAIN_ID', str(100 + os.getpid() % 100))
+
+import rclpy  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+
+from sorter_sim.cell import Cell  # noqa: E402
+from sorter_sim.params import CellParams  # noqa: E402
+
+BENCH_CELL = {'induct_x': -150.0, 'max_parcels': 256, 'alpha_deg': 90.0}
+
+
+def warm_up(cell: Cell, parcels: int) -> float:
+    """Run the cell until it holds ``parcels`` parcels and the first ones have been
+    diverted for a few seconds (a steady state); returns the simulated time [s]."""
+    cell.popup(True)
+    t_full = -cell.params.induct_x / cell.params.belt_speed + 5.0
+    while cell.n_parcels < parcels or cell.t < t_full:
+        cell.advance(1000)
+        if cell.t > 600.0:
+            raise RuntimeError(f'the cell never held {parcels} parcels (has {cell.n_parcels})')
+    return cell.t
+
+
+def bench_cell(sim_s: float, parcels: int) -> dict:
+    cell = Cell(CellParams.defaults().with_changes(BENCH_CELL, runtime=False))
+    warm_up(cell, parcels)
+    n = round(sim_s / cell.dt)
+    stats0 = cell.stats.copy()
+    n_in = []
+    t0 = time.perf_counter()
+    for _ in range(n // 10):
+        cell.advance(10)
+        n_in.append(cell.n_parcels)
+    wall = time.perf_counter() - t0
+    d = cell.stats - stats0
+    return {'rtf': sim_s / wall, 'us_per_period': 1e6 * wall / n,
+            'parcels_mean': sum(n_in) / len(n_in), 'integrated_share': d[1] / max(1, d[0] + d[1]),
+            'jams': cell.outcome_counts['jammed'],
+            'exits': dict(cell.outcome_counts)}
+
+
+def bench_node(sim_s: float, parcels: int, subscribe: bool) -> dict:
+    from sorter_sim.node import EVENT_QOS, SENSOR_QOS, STREAM_QOS, SimNode
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from geometry_msgs.msg import PoseArray
+    from sensor_msgs.msg import JointState, TimeReference
+    from std_msgs.msg import Bool, String, UInt32MultiArray
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        values = {**BENCH_CELL, 'time_mode': 'fast'}
+        node = SimNode(context=ctx,
+                       parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        received = {'n': 0}
+        if subscribe:
+            sub = rclpy.create_node('bench_subscriber', context=ctx)
+            topics = {'parcels/poses': (PoseArray, STREAM_QOS),
+                      'parcels/ids': (UInt32MultiArray, STREAM_QOS),
+                      'diverter/state': (JointState, STREAM_QOS),
+                      'sensors/edges': (TimeReference, EVENT_QOS),
+                      'scanner/label': (String, EVENT_QOS),
+                      'sort/outcomes': (DiagnosticStatus, EVENT_QOS),
+                      **{f'sensors/{s}': (Bool, SENSOR_QOS) for s in node.cell.sensor_names}}
+            for topic, (msg_type, qos) in topics.items():
+                sub.create_subscription(msg_type, topic,
+                                        lambda m: received.__setitem__('n', received['n'] + 1), qos)
+            executor.add_node(sub)
+            deadline = time.monotonic() + 10.0
+            while node._pub_poses.get_subscription_count() == 0 and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.01)
+        warm_up(node.cell, parcels)
+        k0, msgs0 = node.cell.k, node.n_messages
+        node._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
+        t_end = node.cell.t + sim_s
+        t0 = time.perf_counter()
+        while node.cell.t < t_end:
+            executor.spin_once(timeout_sec=0.0)
+        wall = time.perf_counter() - t0
+        sim = (node.cell.k - k0) * node.cell.dt
+        c = node._cost
+        out = {'rtf': sim / wall, 'us_per_period': 1e6 * c['step_s'] / c['periods'],
+               'us_per_message': 1e6 * c['publish_s'] / c['messages'],
+               'messages_per_sim_s': (node.n_messages - msgs0) / sim,
+               'parcels': node.cell.n_parcels, 'jams': node.cell.outcome_counts['jammed'],
+               'received': received['n']}
+        executor.shutdown()
+        node.destroy_node()
+        return out
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def best_of(runs: list[dict]) -> dict:
+    """The run with the highest real-time factor (the least disturbed by other load)."""
+    return max(runs, key=lambda r: r['rtf'])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--sim-s', type=float, default=20.0, help='simulated seconds measured')
+    ap.add_argument('--parcels', type=int, default=100, help='parcels in the cell')
+    ap.add_argument('--repeat', type=int, default=3, help='runs per measurement; the best is shown')
+    args = ap.parse_args()
+    print(f'# sorter cell benchmark: {args.parcels} parcels, 1 ms physics, poses at 100 Hz, '
+          f'disks up at 90 deg, {args.sim_s:g} s simulated, best of {args.repeat}')
+    print(f'# {platform.processor() or platform.machine()}, {os.cpu_count()} cpus, Python '
+          f'{platform.python_version()}, RMW {os.environ.get("RMW_IMPLEMENTATION", "default")}, '
+          f'load average before {os.getloadavg()[0]:.2f}')
+    c = best_of([bench_cell(args.sim_s, args.parcels) for _ in range(args.repeat)])
+    print(f'cell      real-time factor {c["rtf"]:7.1f}   {c["us_per_period"]:6.1f} us/period   '
+          f'{c["parcels_mean"]:.0f} parcels   integrated parcel-periods '
+          f'{100 * c["integrated_share"]:.2f} %   jams {c["jams"]}')
+    for subscribe in (False, True):
+        n = best_of([bench_node(args.sim_s, args.parcels, subscribe) for _ in range(args.repeat)])
+        name = 'node+sub' if subscribe else 'node'
+        print(f'{name:9s} real-time factor {n["rtf"]:7.1f}   {n["us_per_period"]:6.1f} us/period '
+              f'(physics)   {n["us_per_message"]:6.1f} us/message   '
+              f'{n["messages_per_sim_s"]:.0f} messages per simulated s   {n["parcels"]} parcels   '
+              f'jams {n["jams"]}' + (f'   received {n["received"]}' if subscribe else ''))
+    print(f'# load average after {os.getloadavg()[0]:.2f}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
