@@ -188,7 +188,11 @@ def load_scene(path: str | Path) -> dict:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise SceneError(f"scene file {str(p)!r} is not valid YAML: {exc}") from None
+        # PyYAML's message spans lines; keep the problem and its position on one line
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise SceneError(f"scene file {str(p)!r} is not valid YAML{where}: {problem}") from None
     if data is None:
         raise SceneError(f"scene file {str(p)!r} is empty")
     return validate(data)

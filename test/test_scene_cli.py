@@ -97,6 +97,7 @@ def test_bad_scene_files_exit_2(tmp_path, content, named):
     r = sorter("run", str(f))
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert named in r.stderr
+    assert len([ln for ln in r.stderr.splitlines() if ln.strip()]) == 1
 
 
 def test_missing_file_and_usage_errors_exit_2():
