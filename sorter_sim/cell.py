@@ -27,8 +27,8 @@ from .params import SPECS, CellParams, ParamError, format_label, parcel_half_ext
 from .scene import scene_strips, validate as validate_scene
 
 EXIT_NAMES = {ck.EV_LEFT: 'left', ck.EV_RIGHT: 'right', ck.EV_STRAIGHT: 'straight'}
+# parcel states for markers, indexed by the kernels' S_* codes
 STATE_NAMES = ('on_belt', 'on_disks', 'sliding', 'diverted', 'straight', 'jammed')
-ON_BELT, ON_DISKS, SLIDING, DIVERTED, STRAIGHT, JAMMED = range(6)
 CHUTE_SENSORS = ('chute_left', 'chute_right')
 N_QUAD = 8
 
@@ -147,6 +147,7 @@ class Cell:
         self.ev_i = np.zeros((2 * self._ev_reserve + 1024, 4), dtype=np.int64)
         self.ev_f = np.zeros((2 * self._ev_reserve + 1024, 3))
         self.stats = np.zeros(4, dtype=np.int64)
+        self._snapshot = np.zeros((cap, 7))
         self._kernel(0)  # compile (or load from numba's cache) now, not in a callback
 
     # ------------------------------------------------------------------ set-up
@@ -446,21 +447,12 @@ class Cell:
     def parcels(self) -> dict[str, np.ndarray]:
         """Parcels in the cell (on it, jammed, or sliding onto a chute), in id order:
         id, x, y, phi, A, B, state (index into STATE_NAMES)."""
-        on = np.flatnonzero(self.phase != ck.PH_FREE)
-        on = on[np.argsort(self.ids[on], kind='stable')]
-        ph = self.phase[on]
-        md = self.mode[on]
-        st = self.state[on]
-        hx = self.par[on, 0] * np.abs(np.cos(st[:, 2])) + self.par[on, 1] * np.abs(np.sin(st[:, 2]))
-        code = np.full(on.size, ON_BELT, dtype=np.int64)
-        code[(md == ck.MODE_BELT) & (st[:, 0] - hx > self.params.disk_field_length)] = STRAIGHT
-        code[md == ck.MODE_DISKS] = ON_DISKS
-        code[md == ck.MODE_SLIDE] = SLIDING
-        code[(ph == ck.PH_CHUTE_LEFT) | (ph == ck.PH_CHUTE_RIGHT)] = DIVERTED
-        code[ph == ck.PH_JAMMED] = JAMMED
-        return {'id': self.ids[on].copy(), 'x': st[:, 0].copy(), 'y': st[:, 1].copy(),
-                'phi': st[:, 2].copy(), 'A': self.dims[on, 0].copy(), 'B': self.dims[on, 1].copy(),
-                'state': code}
+        n = ck.cell_snapshot(self.phase, self.mode, self.ids, self.state, self.par,
+                             self.params.disk_field_length, self._snapshot)
+        rows = self._snapshot[:n]
+        return {'id': rows[:, 0].astype(np.int64), 'x': rows[:, 1].copy(), 'y': rows[:, 2].copy(),
+                'phi': rows[:, 3].copy(), 'A': rows[:, 4].copy(), 'B': rows[:, 5].copy(),
+                'state': rows[:, 6].astype(np.int64)}
 
     @property
     def n_parcels(self) -> int:

@@ -123,6 +123,8 @@ class SimNode(Node):
         self.create_subscription(DiagnosticStatus, 'parcels/induct', self._on_induct, EVENT_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._post_set_parameters)
+        self._joint_state = JointState(name=['disk_angle', 'popup_stroke'])
+        self._joint_state.header.frame_id = FRAME_ID
         # bookkeeping for diagnostics
         self._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
         self._diag_ref = (time.perf_counter(), self.cell.k)
@@ -287,10 +289,10 @@ class SimNode(Node):
 
     def _publish_diverter(self) -> None:
         c = self.cell
-        msg = JointState(name=['disk_angle', 'popup_stroke'], position=[c.alpha, c.stroke],
-                         velocity=[c.alpha_rate, c.stroke_rate])
+        msg = self._joint_state
         msg.header.stamp = _time_msg(c.t_ns)
-        msg.header.frame_id = FRAME_ID
+        msg.position = [c.alpha, c.stroke]
+        msg.velocity = [c.alpha_rate, c.stroke_rate]
         self._publish(self._pub_diverter, msg)
 
     def _publish_markers(self) -> None:

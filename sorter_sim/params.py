@@ -18,10 +18,10 @@ seed's 0.5-1.5 m/s, μ = 0.6) and equal config/cell.yaml.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 from .core.friction import LAW_NAMES
@@ -355,34 +355,34 @@ class CellParams:
         values.update(changes)
         return CellParams.from_values(values)
 
-    # -- derived -----------------------------------------------------------
-    @property
+    # -- derived (computed once: a CellParams never changes) -----------------
+    @cached_property
     def alpha_rad(self) -> float:
         return math.radians(self.alpha_deg)
 
-    @property
+    @cached_property
     def chute_x_range(self) -> tuple[float, float]:
         """x range of the chute openings (and of the chute-entry sensors) [m]."""
         return -self.chute_margin, self.disk_field_length + self.chute_margin
 
-    @property
+    @cached_property
     def pose_stride(self) -> int:
         """Control periods between pose publications."""
         return max(1, round(1.0 / (self.pose_rate_hz * self.control_period)))
 
-    @property
+    @cached_property
     def fast_slice_periods(self) -> int:
         return max(1, round(self.fast_slice / self.control_period))
 
-    @property
+    @cached_property
     def marker_stride(self) -> int:
         return max(1, round(1.0 / (self.marker_rate_hz * self.control_period)))
 
-    @property
+    @cached_property
     def heartbeat_stride(self) -> int:
         return max(1, round(self.sensor_heartbeat_s / self.control_period))
 
-    @property
+    @cached_property
     def control_period_ns(self) -> int:
         return round(self.control_period * 1e9)
 
@@ -442,10 +442,6 @@ class CellParams:
             raise ParamError(f'parameter \'control_period\' must be a whole number of nanoseconds, '
                              f'got {self.control_period!r}')
         check_label_pattern(self.label_pattern)
-
-
-def field_names() -> list[str]:
-    return [f.name for f in dataclasses.fields(CellParams)]
 
 
 __all__ = ['CellParams', 'ParamError', 'ParamSpec', 'SCHEMA', 'SPECS', 'RUNTIME_NAMES',

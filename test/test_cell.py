@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 import yaml
 
-from sorter_sim.cell import Cell, LabelRead, Outcome, ParcelSpec, SensorEdge, check_parcel
+from sorter_sim.cell import (STATE_NAMES, Cell, LabelRead, Outcome, ParcelSpec, SensorEdge,
+                             check_parcel)
 from sorter_sim.core import cell_kernels as ck
 from sorter_sim.core.simulate import (FrictionLaw, Parcel, simulate, strip_array,
                                       three_zone_strips)
@@ -266,7 +267,7 @@ def test_wall_and_parcel_jams_stop_the_parcels_until_reset():
     assert jam.exit == 'jammed' and jam.jammed and jam.cause == 'side wall'
     assert cell.faults == ['jam']
     parked = cell.parcels()
-    assert parked['state'][0] == 5  # jammed
+    assert STATE_NAMES[parked['state'][0]] == 'jammed'
     # it stays put, and the next parcel in its lane runs into it on the belt
     cell.popup(False)
     cell.induct(ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.2, 'N'))

@@ -12,7 +12,8 @@ Per parcel and period:
 
 * A parcel stuck to the belt and clear of the popped-up disks for the whole
   period is advanced in closed form, x += v dt: nothing can break that stick.
-  This is most parcels most of the time, and it costs nothing.
+  This is most parcels most of the time, and it costs nothing. Likewise a
+  parcel stuck to fully raised disks and wholly over them moves with them.
 * Any other parcel (touching raised disks, sliding, stuck to the disks) is
   integrated by the model core over the period with the strips of that period
   (α and stroke at the period's midpoint, the actuators moving at their rate).
@@ -99,6 +100,14 @@ PH_JAMMED = 4        # stopped by a jam until reset
 MODE_SLIDE = -1
 MODE_BELT = 0
 MODE_DISKS = 1
+
+# what a parcel is doing, for markers: codes into cell.STATE_NAMES
+S_ON_BELT = 0
+S_ON_DISKS = 1
+S_SLIDING = 2
+S_DIVERTED = 3
+S_STRAIGHT = 4
+S_JAMMED = 5
 
 # ---- events: ev_i rows [period index, kind, a, b], ev_f rows [tau, x, y] ------------
 EV_EDGE = 1      # a sensor changed: a = sensor index, b = 1 rising (blocked) / 0 falling
@@ -386,6 +395,40 @@ def upstream_room(state, phase, par, induct_x):
 
 
 @njit(cache=True)
+def cell_snapshot(phase, mode, ids, state, par, b, out):
+    """Rows (id, x, y, φ, A, B, state code) of the parcels in the cell, in id order, into
+    ``out``; returns their number. Past the disk field on the belt counts as straight."""
+    n = 0
+    for i in range(phase.shape[0]):
+        if phase[i] == PH_FREE:
+            continue
+        hx, _ = half_extents(state[i, 2], par[i, P_HALF_A], par[i, P_HALF_B])
+        if phase[i] == PH_JAMMED:
+            code = S_JAMMED
+        elif phase[i] != PH_CELL:
+            code = S_DIVERTED
+        elif mode[i] == MODE_SLIDE:
+            code = S_SLIDING
+        elif mode[i] == MODE_DISKS:
+            code = S_ON_DISKS
+        elif state[i, 0] - hx > b:
+            code = S_STRAIGHT
+        else:
+            code = S_ON_BELT
+        out[n, 0] = ids[i]
+        out[n, 1] = state[i, 0]
+        out[n, 2] = state[i, 1]
+        out[n, 3] = state[i, 2]
+        out[n, 4] = 2.0 * par[i, P_HALF_A]
+        out[n, 5] = 2.0 * par[i, P_HALF_B]
+        out[n, 6] = code
+        n += 1
+    order = np.argsort(out[:n, 0], kind='mergesort')
+    out[:n] = out[:n][order]
+    return n
+
+
+@njit(cache=True)
 def _emit(ev_i, ev_f, n_ev, k, kind, a, b, tau, x, y):
     if n_ev < ev_i.shape[0]:
         ev_i[n_ev, 0] = k
@@ -475,13 +518,25 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
                     if disk_sid >= 0 and s0[3] == strips[1, S_VX] and s0[4] == strips[1, S_VY] \
                             and s0[5] == 0.0:
                         m = disk_sid
+                on_disks_alone = False
                 if m == MODE_BELT:
                     hx, _ = half_extents(s0[2], ha, hb)
                     if disk_sid <= 0 or s0[0] + hx + v * h <= 0.0 or s0[0] - hx >= b:
                         rigid[i] = True
+                elif m == MODE_DISKS and disk_sid == MODE_DISKS and strips[1, S_WEIGHT] == 1.0:
+                    # stuck to fully raised disks and over nothing else for the whole period:
+                    # as on the belt, no force can break this stick
+                    hx, _ = half_extents(s0[2], ha, hb)
+                    x_end = s0[0] + strips[1, S_VX] * h
+                    on_disks_alone = (min(s0[0], x_end) - hx >= 0.0
+                                      and max(s0[0], x_end) + hx <= b)
                 if rigid[i]:
                     state[i, 0] = s0[0] + v * h
                     mode[i] = MODE_BELT
+                    stats[0] += 1
+                elif on_disks_alone:
+                    state[i, 0] = s0[0] + strips[1, S_VX] * h
+                    state[i, 1] = s0[1] + strips[1, S_VY] * h
                     stats[0] += 1
                 else:
                     counters[:] = 0
