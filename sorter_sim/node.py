@@ -134,7 +134,7 @@ class SimNode(Node):
         self._publish_sensors()
         self._publish_diverter()
         self._publish_clock()
-        self._wall_ref = (time.monotonic(), self.cell.k)
+        self._wall_ref = None  # (wall time, period index) of the realtime anchor: first tick
         if p.time_mode == 'realtime':
             self._timer = self.create_timer(p.wall_tick, self._tick_realtime)
         elif p.time_mode == 'fast':
@@ -192,12 +192,14 @@ class SimNode(Node):
         self.params = self.params.with_changes(changes)
         self.cell.update_params(self.params)
         if 'real_time_factor' in changes:
-            self._wall_ref = (time.monotonic(), self.cell.k)
+            self._wall_ref = None
 
     # ------------------------------------------------------------------ time
     def _tick_realtime(self) -> None:
         p = self.params
         now = time.monotonic()
+        if self._wall_ref is None:
+            self._wall_ref = (now, self.cell.k)
         wall0, k0 = self._wall_ref
         target = k0 + int((now - wall0) * p.real_time_factor / self.cell.dt)
         n = target - self.cell.k

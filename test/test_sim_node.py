@@ -357,6 +357,23 @@ def test_step_is_refused_outside_lockstep_and_fast_mode_keeps_serving(ros):
     assert probe.msgs['scanner/label']
 
 
+def test_realtime_mode_never_runs_ahead_of_the_wall_clock(ros):
+    import time
+
+    t_wall0 = time.monotonic()
+    sim = make_sim(ros, time_mode='realtime', real_time_factor=4.0)
+    probe = Probe(ros)
+    probe.wait_connected(sim)
+    ros.spin_until(lambda: sim.cell.t > 0.2, 10.0, 'the realtime clock to run')
+    assert sim.cell.t <= 4.0 * (time.monotonic() - t_wall0) + sim.cell.dt
+    result, = _set_params(ros, probe, 'sorter_sim', _double('real_time_factor', 0.5))
+    assert result.successful
+    t_sim1, t_wall1 = sim.cell.t, time.monotonic()
+    ros.spin_for(0.3)
+    assert sim.cell.t - t_sim1 <= 0.5 * (time.monotonic() - t_wall1) + sim.cell.dt
+    assert probe.msgs['/clock'][-1].clock.nanosec % 1_000_000 == 0
+
+
 def test_induct_messages_are_validated(ros):
     sim = make_sim(ros)
     probe = Probe(ros)

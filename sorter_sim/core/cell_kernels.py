@@ -258,32 +258,26 @@ def crossing_time(kind, level, s0, s1, h, half_a, half_b):
 
 
 @njit(cache=True)
+def _condition(kinds, levels, signs, c, kind, level, sign):
+    kinds[c] = kind
+    levels[c] = level
+    signs[c] = sign
+
+
+@njit(cache=True)
 def _conditions(sensor, n_eyes, eye_x, cfg, kinds, levels, signs):
     """A sensor is blocked when every condition sign*(feature - level) > 0 holds."""
-    hw = cfg[C_HALF_W]
     if sensor < n_eyes:
-        kinds[0] = F_XMAX
-        levels[0] = eye_x[sensor]
-        signs[0] = 1.0
-        kinds[1] = F_XMIN
-        levels[1] = eye_x[sensor]
-        signs[1] = -1.0
+        # the footprint spans the beam's x
+        _condition(kinds, levels, signs, 0, F_XMAX, eye_x[sensor], 1.0)
+        _condition(kinds, levels, signs, 1, F_XMIN, eye_x[sensor], -1.0)
         return 2
-    side = 1.0 if sensor == n_eyes else -1.0
-    # the footprint spans the entry line y = ±w/2 ...
-    kinds[0] = F_YMAX
-    levels[0] = side * hw
-    signs[0] = 1.0
-    kinds[1] = F_YMIN
-    levels[1] = side * hw
-    signs[1] = -1.0
-    # ... inside the opening's x range
-    kinds[2] = F_XMAX
-    levels[2] = cfg[C_OPEN_LO]
-    signs[2] = 1.0
-    kinds[3] = F_XMIN
-    levels[3] = cfg[C_OPEN_HI]
-    signs[3] = -1.0
+    # the footprint spans the entry line y = ±w/2, inside the opening's x range
+    line = cfg[C_HALF_W] if sensor == n_eyes else -cfg[C_HALF_W]
+    _condition(kinds, levels, signs, 0, F_YMAX, line, 1.0)
+    _condition(kinds, levels, signs, 1, F_YMIN, line, -1.0)
+    _condition(kinds, levels, signs, 2, F_XMAX, cfg[C_OPEN_LO], 1.0)
+    _condition(kinds, levels, signs, 3, F_XMIN, cfg[C_OPEN_HI], -1.0)
     return 4
 
 
