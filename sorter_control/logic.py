@@ -172,11 +172,12 @@ class ControllerConfig:
     popup_stroke_time: float = 0.1
     alpha_slew_rate_deg_s: float = 360.0
     service_latency: float = 0.005
+    timing_margin: float = 0.02
     routing_rules: tuple = ()
     routing_default: str = ""
     reject_destination: str = "straight"
     tracking_tolerance: float = 0.05
-    label_window: float = 0.05
+    label_window: float = 0.1
     jam_margin: float = 0.5
     max_parcel_length: float = 1.2
     missed_divert_margin: float = 0.3
@@ -194,7 +195,7 @@ class ControllerConfig:
                      "tracking_tolerance", "label_window", "jam_margin", "max_parcel_length",
                      "missed_divert_margin"):
             positive(name)
-        for name in ("service_latency", "clearance"):
+        for name in ("service_latency", "clearance", "timing_margin"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
@@ -229,7 +230,7 @@ class ControllerConfig:
 
     def actuators(self) -> Actuators:
         return Actuators(self.popup_stroke_time, self.alpha_slew_rate_deg_s, self.scan_period,
-                         self.service_latency)
+                         self.service_latency, self.timing_margin)
 
 
 # ----------------------------------------------------------------------------- input image
@@ -365,6 +366,7 @@ class SorterLogic:
         self.in_flight: dict[int, Command] = {}
         self.commanded_up: bool | None = None
         self.commanded_alpha: float | None = None
+        self.alpha_ready_at: float | None = None     # when the commanded angle should be reached [s]
         self.diverter: DiverterState | None = None
         self._reset_requested = False
         self._estop_requested = False
@@ -947,13 +949,13 @@ class SorterLogic:
         act = self.gaps.act
         target = self.gaps.alpha_for(dest)
         if self.commanded_alpha == target:
-            if self.diverter is None:
-                return self.t
-            return self.t + abs(math.degrees(self.diverter.alpha) - target) / act.alpha_slew_rate_deg_s
-        start = self.commanded_alpha
+            # under way since the command: the reported angle may be a scan or two old
+            return self.alpha_ready_at if self.alpha_ready_at is not None else self.t
+        # not commanded yet: this scan's outputs will
+        start = math.degrees(self.diverter.alpha) if self.diverter is not None else self.commanded_alpha
         if start is None:
-            start = math.degrees(self.diverter.alpha) if self.diverter is not None else 0.0
-        return self.t + act.slew_total(start, target)
+            start = -target
+        return self.t + act.latency + act.slew_time(start, target)
 
     def _decide(self, out) -> None:
         pending = [p for p in self.parcels if not p.committed and not p.done]
@@ -1026,7 +1028,9 @@ class SorterLogic:
                 self._refuse(out, p, asked, f"{(headway * v - prev.length):.3f} m behind parcel {prev.seq} "
                              f"({prev.plan}); {(need * v - prev.length):.3f} m needed")
                 return
-        late = self.t + self._lead_needed(asked) > self.t_enter(p) + 1e-9
+        # late only if even without the margins the stroke cannot end before the entry
+        act = self.gaps.act
+        late = self.t + act.popup_stroke_time + act.latency > self.t_enter(p) + 1e-9
         if not late and not self._alpha_held():
             late = self._alpha_ready(asked) > self.t_enter(p) + 1e-9
         if late:
@@ -1129,7 +1133,7 @@ class SorterLogic:
                 continue
             if alpha is None:
                 alpha = p.alpha
-            if alpha == p.alpha and self.t >= te - act.popup_stroke_time - act.latency - act.scan_period:
+            if alpha == p.alpha and self.t >= te - act.stroke_total:
                 up = True
         if alpha is None:
             for p in self.parcels:
@@ -1154,6 +1158,11 @@ class SorterLogic:
             up, alpha = self.desired_outputs()
         if alpha is not None and alpha != self.commanded_alpha and not self._busy("alpha"):
             self._command(out, "alpha", alpha)
+            start = self.commanded_alpha
+            if self.diverter is not None:
+                start = math.degrees(self.diverter.alpha)
+            act = self.gaps.act
+            self.alpha_ready_at = self.t + act.latency + act.slew_time(-alpha if start is None else start, alpha)
             self.commanded_alpha = alpha
         if up != self.commanded_up and not self._busy("popup"):
             self._command(out, "popup", up)

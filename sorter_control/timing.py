@@ -298,25 +298,30 @@ class DivertPredictor:
 
 @dataclass(frozen=True)
 class Actuators:
-    """Actuator and scan timing the spacing rules must leave room for [s]."""
+    """Actuator and scan timing the spacing rules must leave room for [s].
+
+    A command is written at the scan after it falls due (one scan period), reaches
+    the cell after ``latency``, and ``margin`` more covers a scan that comes late.
+    """
 
     popup_stroke_time: float = 0.1
     alpha_slew_rate_deg_s: float = 360.0
     scan_period: float = 0.01
     latency: float = 0.005
+    margin: float = 0.02
 
     def slew_time(self, alpha_from_deg: float, alpha_to_deg: float) -> float:
         return abs(alpha_to_deg - alpha_from_deg) / self.alpha_slew_rate_deg_s
 
     @property
     def stroke_total(self) -> float:
-        """From the decision to the stroke's end: one scan, the service latency, the stroke."""
-        return self.popup_stroke_time + self.scan_period + self.latency
+        """From the decision to the stroke's end: one scan, latency, margin, the stroke."""
+        return self.popup_stroke_time + self.scan_period + self.latency + self.margin
 
     def slew_total(self, alpha_from_deg: float, alpha_to_deg: float) -> float:
         if alpha_from_deg == alpha_to_deg:
             return 0.0
-        return self.slew_time(alpha_from_deg, alpha_to_deg) + self.scan_period + self.latency
+        return self.slew_time(alpha_from_deg, alpha_to_deg) + self.scan_period + self.latency + self.margin
 
 
 class GapModel:

@@ -148,17 +148,18 @@ def test_boxes_overlap_separating_axes():
 
 
 def test_spacing_rules_closed_forms():
-    act = Actuators(popup_stroke_time=0.1, alpha_slew_rate_deg_s=360.0, scan_period=0.01, latency=0.005)
+    act = Actuators(popup_stroke_time=0.1, alpha_slew_rate_deg_s=360.0, scan_period=0.01, latency=0.005,
+                    margin=0.02)
     gm = GapModel(PREDICTOR, act, divert_alpha_deg=90.0, clearance=0.02)
     A, v, b = 0.4, 1.5, CellModel().disk_field_length
     pr = PREDICTOR.predict(A, v, 90.0)
     gaps = gm.min_gap(A, v)
     # straight, then divert: the leader must clear the field before the stroke
-    assert gaps["straight->left"] == pytest.approx(b + v * (0.1 + 0.01 + 0.005), abs=1e-9)
+    assert gaps["straight->left"] == pytest.approx(b + v * (0.1 + 0.01 + 0.005 + 0.02), abs=1e-9)
     # divert, then straight: down only after the commit, then the stroke
-    assert gaps["left->straight"] >= v * (pr.t_commit + 0.115) - A - 1e-9
+    assert gaps["left->straight"] >= v * (pr.t_commit + 0.135) - A - 1e-9
     # the other side: swing 180 deg at 360 deg/s after the commit
-    assert gaps["left->right"] >= v * (pr.t_commit + 0.5 + 0.015) - A - 1e-9
+    assert gaps["left->right"] >= v * (pr.t_commit + 0.5 + 0.035) - A - 1e-9
     # the same side: only the footprints matter, and a parcel pushed across lingers
     assert 0.02 < gaps["left->left"] < gaps["left->straight"]
     assert gaps["straight->straight"] == pytest.approx(0.02)
@@ -248,8 +249,11 @@ def test_raise_and_lower_times_compensate_stroke_and_scan():
     p = plant.parcels[0]
     t_enter = next(t for t, x, _ in p.path if x + 0.2 >= 0.0)
     pr = PREDICTOR.predict(0.4, 1.5, 90.0)
-    lead = cfg.popup_stroke_time + cfg.service_latency
-    assert t_enter - lead - cfg.scan_period - 1e-9 <= t_raise <= t_enter - lead + 1e-9
+    # written at the first scan after the stroke, a scan period, the latency and the margin
+    # ahead of the entry: even from the last possible scan the stroke ends before it
+    lead = cfg.popup_stroke_time + cfg.scan_period + cfg.service_latency + cfg.timing_margin
+    assert t_enter - lead - 1e-9 <= t_raise <= t_enter - lead + cfg.scan_period + 1e-9
+    assert t_raise + cfg.popup_stroke_time + cfg.service_latency <= t_enter - cfg.timing_margin + 1e-9
     assert t_enter + pr.t_commit - 1e-9 <= t_lower <= t_enter + pr.t_commit + cfg.scan_period + 2 * plant.dt
 
 
