@@ -333,3 +333,10 @@ def test_the_cell_imports_no_ros(module):
 
     path = REPO / 'sorter_sim' / module
     assert ros_imports(path.read_text(), str(path)) == []
+
+
+def test_the_readme_documents_every_parameter():
+    text = (REPO / 'README.md').read_text()
+    section = text.split('## Simulation node', 1)[1].split('\n## ', 1)[0]
+    for spec in SCHEMA:
+        assert f'| `{spec.name}` |' in section, spec.name

@@ -129,7 +129,7 @@ F_YCOG = 5
 # overlaps and wall crossings below this are contact, not a jam [m]
 CONTACT_TOL = 1e-9
 _MAX_STRIPS = 4
-_INT_BUF = 64
+_INT_BUF = 512   # integrator output rows per parcel-period (a few are used)
 
 
 @njit(cache=True)
@@ -545,8 +545,8 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
                     stats[1] += 1
                     stats[2] += counters[0]
                     stats[3] += counters[1]
-                    last = min(counters[3], _INT_BUF) - 1
-                    if (status != ST_END and status != ST_TARGET) or last < 0:
+                    last = counters[3] - 1
+                    if (status != ST_END and status != ST_TARGET) or not 0 <= last < _INT_BUF:
                         # the physics failed for this parcel: stop it and say so
                         phase[i] = PH_JAMMED
                         mode[i] = MODE_SLIDE
