@@ -23,6 +23,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -156,9 +157,17 @@ class SimNode(Node):
         for spec in SCHEMA:
             try:
                 param = self.declare_parameter(spec.name, spec.default, descriptor(spec))
-            except Exception as exc:  # rclpy's InvalidParameter*Exception family
+            except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
                 raise ParamError(f'parameter {spec.name!r} must be {spec.allowed} ({exc})') from None
             values[spec.name] = _plain(param.value)
+        # rclpy ignores values given for names nobody declares: a misspelt parameter in a
+        # params file would silently keep its default, so name it instead
+        given = getattr(self, '_parameter_overrides', {})
+        unknown = sorted(n for n in given if not self.has_parameter(n)
+                         and not n.startswith('qos_overrides.'))
+        if unknown:
+            raise ParamError(f'unknown parameter(s) {", ".join(map(repr, unknown))} for '
+                             f'{NODE_NAME}; the README table lists the allowed names')
         if self.get_parameter('use_sim_time').value:
             raise ParamError('parameter \'use_sim_time\' must be false: this node is the '
                              'simulation clock (it publishes /clock)')

@@ -456,7 +456,7 @@ def test_a_namespaced_second_cell_does_not_see_the_first(ros):
     ('belt_speed', math.nan, 'belt_speed'), ('belt_speed', 3.0, 'belt_speed'),
     ('alpha_deg', 'ninety', 'alpha_deg'), ('alpha_deg', 45, 'alpha_deg'),
     ('scanner_x', -1.2, 'pe_scan'), ('parcel_A', [0.9, 0.3], 'parcel_A'),
-    ('time_mode', 'slow', 'time_mode'),
+    ('time_mode', 'slow', 'time_mode'), ('belt_sped', 1.0, 'belt_sped'),
 ])
 def test_bad_start_up_values_stop_the_node_with_a_clear_error(ros, name, value, match):
     with pytest.raises(ParamError, match=match):
