@@ -1,0 +1,441 @@
+"""``sorter demo``: the running cell, simulation node and controller, talking over ROS 2.
+
+Starts the simulation node (config/cell.yaml) and the controller (config/controller.yaml)
+in this process, in one rclpy context and executor, plus an observer node that
+watches what a warehouse would: the cell's outcomes, the controller's sort
+confirmations and diagnostics, the parcels' poses. The two nodes talk only over
+topics and services. The cell runs on a real-time clock scaled by a real-time
+factor: the controller is a PLC that must answer within its scan, so "as fast as
+possible" means the largest factor at which it still does. With ``--rtf auto``
+(the default) a governor raises the cell's ``real_time_factor`` (through its
+``set_parameters`` service) while the controller's scans come on time and lowers
+it when they do not.
+
+The parcel stream is the cell's, with a cycle of labels the routing table sends
+left, right, straight and (label D, unknown) to the reject destination, and belt
+gaps just above the least gap the controller reports for the longest parcel in
+a mixed stream, so every divert is feasible. At the end: a summary table
+(``--json``: one JSON object) and a PNG of the parcels' paths over the cell.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
+ROUTING = ["A*=left", "B*=right", "C*=straight"]
+RTF_START, RTF_MIN, RTF_MAX = 3.0, 0.5, 16.0
+# outcome colours on the plot
+EXIT_COLOURS = {"left": "tab:green", "right": "tab:blue", "straight": "0.45", "jammed": "tab:red"}
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--sim-time", type=float, default=60.0, metavar="S",
+                        help="simulated seconds to run (default 60)")
+    parser.add_argument("--rtf", default="auto", metavar="F|auto",
+                        help="real-time factor of the cell, or auto (the largest the controller keeps up with)")
+    parser.add_argument("--gap", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
+                        help="belt gap range of the stream [m] (default: just above the controller's "
+                             "least gap for a mixed stream)")
+    parser.add_argument("--seed", type=int, default=1, help="seed of the parcel stream (default 1)")
+    parser.add_argument("--out", default="out/demo_paths.png", help="PNG of the parcels' paths "
+                        "(default out/demo_paths.png)")
+    parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+
+
+def _check_args(args) -> str | None:
+    if not (math.isfinite(args.sim_time) and 0.0 < args.sim_time <= 3600.0):
+        return f"--sim-time must be in (0, 3600] s, got {args.sim_time}"
+    if args.rtf != "auto":
+        try:
+            value = float(args.rtf)
+        except ValueError:
+            return f"--rtf must be a number in [0.01, 100] or auto, got {args.rtf!r}"
+        if not (math.isfinite(value) and 0.01 <= value <= 100.0):
+            return f"--rtf must be a number in [0.01, 100] or auto, got {args.rtf!r}"
+    if args.gap is not None:
+        lo, hi = args.gap
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 <= lo <= hi <= 100.0):
+            return f"--gap must be 0 <= MIN <= MAX <= 100 m, got {lo} {hi}"
+    if not 0 <= args.seed < 2 ** 31:
+        return f"--seed must be in [0, 2^31), got {args.seed}"
+    out = Path(args.out)
+    if out.suffix.lower() != ".png":
+        return f"--out must name a .png file, got {args.out!r}"
+    return None
+
+
+def _controller_values(config_dir: Path) -> dict:
+    """The controller's parameter values as controller.yaml sets them (for planning the stream)."""
+    import yaml
+
+    from .node import SCHEMA
+
+    values = {s.name: s.default for s in SCHEMA}
+    doc = yaml.safe_load((config_dir / "controller.yaml").read_text())
+    params = next(iter(doc.values()))["ros__parameters"]
+
+    def flat(prefix, d):
+        for k, v in d.items():
+            if isinstance(v, dict):
+                yield from flat(f"{prefix}{k}.", v)
+            else:
+                yield f"{prefix}{k}", v
+    values.update({k: v for k, v in flat("", params) if k in values})
+    values["routing.rules"] = list(ROUTING)
+    return values
+
+
+def stream_plan(parcel_lengths: tuple[float, float], config_dir: Path) -> dict:
+    """Least gap for a mixed stream of these lengths, and the seed's capacity, from the model core."""
+    from .node import config_from_values
+    from .logic import SorterLogic
+    from .timing import seed_capacity
+
+    cfg = config_from_values(_controller_values(config_dir))
+    logic = SorterLogic(cfg)
+    lo, hi = parcel_lengths
+    lengths = sorted({lo, 0.5 * (lo + hi), hi})
+    worst = max(logic.min_gap(a)["worst"] for a in lengths)
+    mean = 0.5 * (lo + hi)
+    return {"min_gap_m": worst, "mean_length_m": mean,
+            "seed_capacity_pcs_h": seed_capacity(cfg.cell, mean, cfg.belt_speed, abs(cfg.divert_alpha_deg)),
+            "belt_speed": cfg.belt_speed}
+
+
+class _Observer:
+    """What the demo watches, from an ordinary node: outcomes, confirmations, poses, diagnostics."""
+
+    def __init__(self, node, want_paths: bool):
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+        from geometry_msgs.msg import PoseArray
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from rosgraph_msgs.msg import Clock
+        from std_msgs.msg import UInt32MultiArray
+
+        events = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        stream = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.node = node
+        self.t_sim = 0.0
+        self.outcomes: dict[str, dict] = {}        # label -> values
+        self.confirmations: dict[str, dict] = {}
+        self.ctl_diag: dict = {}
+        self.cell_diag: dict = {}
+        self.ids_seen: set[int] = set()
+        self.paths: dict[int, list] = {}
+        self._ids = None
+        node.create_subscription(Clock, "/clock", self._on_clock, stream)
+        node.create_subscription(DiagnosticStatus, "sort/outcomes", self._on_outcome, events)
+        node.create_subscription(DiagnosticStatus, "sort/confirmations", self._on_confirmation, events)
+        node.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, stream)
+        node.create_subscription(UInt32MultiArray, "parcels/ids", self._on_ids, stream)
+        if want_paths:
+            node.create_subscription(PoseArray, "parcels/poses", self._on_poses, stream)
+
+    def _on_clock(self, msg):
+        self.t_sim = msg.clock.sec + 1e-9 * msg.clock.nanosec
+
+    def _on_outcome(self, msg):
+        values = {kv.key: kv.value for kv in msg.values}
+        self.outcomes[values.get("label") or msg.name] = values
+
+    def _on_confirmation(self, msg):
+        values = {kv.key: kv.value for kv in msg.values}
+        self.confirmations[values.get("label", msg.name)] = values
+
+    def _on_diag(self, msg):
+        for st in msg.status:
+            values = {kv.key: kv.value for kv in st.values}
+            if st.name.endswith(": controller"):
+                self.ctl_diag = values
+            elif st.name.endswith(": cell"):
+                self.cell_diag = values
+
+    def _on_ids(self, msg):
+        self._ids = list(msg.data)
+        self.ids_seen.update(self._ids)
+
+    def _on_poses(self, msg):
+        ids = self._ids
+        if ids is None or len(ids) != len(msg.poses):
+            return
+        for pid, pose in zip(ids, msg.poses):
+            self.paths.setdefault(int(pid), []).append((pose.position.x, pose.position.y))
+
+
+class _Governor:
+    """Keeps the cell's real-time factor as high as the controller's scans allow."""
+
+    def __init__(self, node, observer: _Observer, rtf: float, fixed: bool):
+        from rcl_interfaces.srv import SetParameters
+
+        self.client = node.create_client(SetParameters, "sorter_sim/set_parameters")
+        self.observer = observer
+        self.rtf = rtf
+        self.fixed = fixed
+        self.last = None
+        self.history = [rtf]
+        self.pending = None
+
+    def step(self) -> None:
+        """Once per diagnostics period: compare the controller's scans with the last look."""
+        if self.fixed or self.pending is not None and not self.pending.done():
+            return
+        d = self.observer.ctl_diag
+        if "scans" not in d:
+            return
+        now = (int(d["scans"]), int(d["late_scans"]), int(d["late"]), int(d.get("overruns", 0)))
+        if self.last is None or now[0] - self.last[0] < 50:
+            self.last = self.last or now
+            return
+        scans, late_scans, late, _ = (a - b for a, b in zip(now, self.last))
+        self.last = now
+        frac = late_scans / max(scans, 1)
+        if late > 0 or frac > 0.03:
+            new = max(RTF_MIN, self.rtf * 0.7)
+        elif frac < 0.01:
+            new = min(RTF_MAX, self.rtf * 1.2)
+        else:
+            return
+        if abs(new - self.rtf) > 1e-9:
+            self._set(new)
+
+    def _set(self, rtf: float) -> None:
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+
+        if not self.client.service_is_ready():
+            return
+        self.rtf = rtf
+        self.history.append(rtf)
+        self.pending = self.client.call_async(SetParameters.Request(parameters=[Parameter(
+            name="real_time_factor", value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
+                                                          double_value=float(rtf)))]))
+
+
+def summarize(obs: _Observer, plan: dict, sim_time: float, wall: float, governor: _Governor) -> dict:
+    exits = {"left": 0, "right": 0, "straight": 0, "jammed": 0}
+    mis_sorted, untracked = [], 0
+    flagged = {"gap_too_short": 0, "late": 0, "cannot_divert": 0, "fault": 0}
+    rejected = 0
+    for label, o in obs.outcomes.items():
+        exits[o["exit"]] = exits.get(o["exit"], 0) + 1
+        c = obs.confirmations.get(label)
+        if c is None:
+            untracked += 1          # on the belt before the controller was tracking
+            continue
+        result = c["result"]
+        if result in flagged:
+            flagged[result] += 1
+        if result == "rejected":
+            rejected += 1
+        intended = c["destination_asked"] if result in ("sorted", "rejected", "mis-sorted", "missed") \
+            else "straight"
+        if o["exit"] != "jammed" and o["exit"] != intended:
+            mis_sorted.append(label)
+    left_cell = exits["left"] + exits["right"] + exits["straight"]
+    d = obs.ctl_diag
+    mean = plan["mean_length_m"]
+    cell_capacity = 3600.0 * plan["belt_speed"] / (mean + plan["min_gap_m"])
+    return {
+        "sim_time_s": round(sim_time, 3),
+        "wall_s": round(wall, 3),
+        "real_time_factor": round(sim_time / wall, 3) if wall > 0 else None,
+        "rtf_final": round(governor.rtf, 3),
+        "inducted": len(obs.ids_seen),
+        "sorted_left": exits["left"],
+        "sorted_right": exits["right"],
+        "straight": exits["straight"],
+        "straight_flagged": sum(flagged.values()),
+        "flagged": flagged,
+        "rejected": rejected,
+        "mis_sorted": len(mis_sorted),
+        "mis_sorted_labels": mis_sorted[:20],
+        "jams": exits["jammed"],
+        "untracked": untracked,
+        "in_cell_at_end": len(obs.ids_seen) - sum(exits.values()),
+        "throughput_pcs_h": round(3600.0 * left_cell / sim_time, 1) if sim_time > 0 else 0.0,
+        "diverted_pcs_h": round(3600.0 * (exits["left"] + exits["right"]) / sim_time, 1) if sim_time > 0 else 0.0,
+        "model_capacity_pcs_h": round(plan["seed_capacity_pcs_h"], 1),
+        "cell_capacity_pcs_h": round(cell_capacity, 1),
+        "min_gap_m": round(plan["min_gap_m"], 3),
+        "stream_gap_m": plan["stream_gap_m"],
+        "mean_parcel_length_m": mean,
+        "controller_state": d.get("state", "unknown"),
+        "controller_faults": {k[6:]: int(v) for k, v in d.items() if k.startswith("fault_") and v != "0"},
+        "late_decisions": int(d.get("late", 0)),
+        "scan_wall_p99_ms": float(d.get("scan_wall_p99_ms", "nan")),
+    }
+
+
+def print_table(s: dict) -> None:
+    rows = [
+        ("simulated time", f"{s['sim_time_s']:.1f} s in {s['wall_s']:.1f} s wall "
+                           f"(real-time factor {s['real_time_factor']:.2f}, last {s['rtf_final']:g})"),
+        ("inducted", s["inducted"]),
+        ("sorted left", s["sorted_left"]),
+        ("sorted right", s["sorted_right"]),
+        ("straight", f"{s['straight']}  (of which sent straight by the controller: "
+                     f"{s['straight_flagged']}; rejected: {s['rejected']})"),
+        ("mis-sorted", s["mis_sorted"]),
+        ("jams", s["jams"]),
+        ("still in the cell", s["in_cell_at_end"]),
+        ("throughput", f"{s['throughput_pcs_h']:.0f} pcs/h ({s['diverted_pcs_h']:.0f} pcs/h diverted)"),
+        ("model capacity", f"{s['model_capacity_pcs_h']:.0f} pcs/h (seed W_t = 3600/t_scrap, "
+                           f"A = {s['mean_parcel_length_m']:g} m)"),
+        ("cell capacity", f"{s['cell_capacity_pcs_h']:.0f} pcs/h at the least mixed-stream gap "
+                          f"{s['min_gap_m']:.3f} m"),
+        ("stream gap", f"{s['stream_gap_m'][0]:.3f} .. {s['stream_gap_m'][1]:.3f} m"),
+        ("controller", f"{s['controller_state']}; late decisions {s['late_decisions']}; "
+                       f"scan p99 {s['scan_wall_p99_ms']:.2f} ms wall"),
+    ]
+    width = max(len(r[0]) for r in rows)
+    print("sorter demo: the cell and its controller over ROS 2")
+    for name, value in rows:
+        print(f"  {name:<{width}}  {value}")
+
+
+def plot_paths(obs: _Observer, params: dict, summary: dict, out: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    w, b, margin = params["belt_width"], params["disk_field_length"], params["chute_margin"]
+    x0, x1 = params["induct_x"] - 0.2, params["exit_x"] + 0.3
+    exit_of = {}
+    for o in obs.outcomes.values():
+        try:
+            exit_of[int(o["id"])] = o["exit"]
+        except (KeyError, ValueError):
+            pass
+    fig, ax = plt.subplots(figsize=(11, 4.2))
+    ax.add_patch(Rectangle((x0, -w / 2), x1 - x0, w, color="0.93", zorder=0))
+    ax.add_patch(Rectangle((0.0, -w / 2), b, w, color="tab:orange", alpha=0.18, zorder=0, label="disk field"))
+    for side in (1, -1):
+        ax.plot([x0, -margin], [side * w / 2] * 2, color="k", lw=2)
+        ax.plot([b + margin, x1], [side * w / 2] * 2, color="k", lw=2)
+    for name, x in zip(params["photo_eyes.names"], params["photo_eyes.x"]):
+        ax.plot([x, x], [-w / 2, w / 2], color="tab:purple", lw=0.8, ls="--")
+        ax.text(x, -w / 2 - 0.08, name, ha="center", va="top", fontsize=7, color="tab:purple")
+    seen = set()
+    for pid, pts in obs.paths.items():
+        if len(pts) < 2:
+            continue
+        ex = exit_of.get(pid, "in cell")
+        colour = EXIT_COLOURS.get(ex, "k")
+        xs, ys = zip(*pts)
+        ax.plot(xs, ys, color=colour, lw=0.8, alpha=0.7, label=None if ex in seen else ex)
+        seen.add(ex)
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(-w / 2 - 0.45, w / 2 + 0.45)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x along the belt [m] (conveyor frame)")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"sorter demo: {summary['inducted']} parcels in {summary['sim_time_s']:g} s, "
+                 f"{summary['throughput_pcs_h']:.0f} pcs/h, mis-sorted {summary['mis_sorted']}, "
+                 f"jams {summary['jams']}", fontsize=10)
+    ax.legend(loc="upper left", fontsize=7, ncol=6, frameon=False)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=130)
+    plt.close(fig)
+
+
+def run(args) -> int | str:
+    """``sorter demo``."""
+    err = _check_args(args)
+    if err:
+        return err
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    from sorter_sim.node import SimNode
+    from sorter_sim.ros_env import apply_ros_env_defaults, find_config_dir
+
+    from .node import ControllerNode
+
+    apply_ros_env_defaults()
+    config_dir = find_config_dir()
+    import yaml
+    cell_doc = yaml.safe_load((config_dir / "cell.yaml").read_text())
+    cell = next(iter(cell_doc.values()))["ros__parameters"]
+    lengths = tuple(cell.get("parcel_A", [0.3, 0.7]))
+    plan = stream_plan(lengths, config_dir)
+    gap = tuple(args.gap) if args.gap is not None else (round(plan["min_gap_m"] + 0.02, 3),
+                                                         round(plan["min_gap_m"] + 0.4, 3))
+    plan["stream_gap_m"] = list(gap)
+    fixed = args.rtf != "auto"
+    rtf = float(args.rtf) if fixed else RTF_START
+
+    ctx = Context()
+    rclpy.init(context=ctx, args=["--ros-args", "--params-file", str(config_dir / "cell.yaml"),
+                                  "--params-file", str(config_dir / "controller.yaml")])
+    nodes = []
+    try:
+        sim = SimNode(context=ctx, parameter_overrides=[
+            Parameter("time_mode", value="realtime"), Parameter("real_time_factor", value=rtf),
+            Parameter("arrival", value="gap"), Parameter("arrival_gap", value=list(gap)),
+            Parameter("labels", value=list(LABEL_CYCLE)), Parameter("seed", value=int(args.seed)),
+            Parameter("pose_rate_hz", value=50.0), Parameter("wall_tick", value=0.001)])
+        nodes.append(sim)
+        ctl = ControllerNode(context=ctx, parameter_overrides=[
+            Parameter("use_sim_time", value=True), Parameter("routing.rules", value=list(ROUTING)),
+            Parameter("diagnostics_period", value=0.5)])
+        nodes.append(ctl)
+        watcher = rclpy.create_node("sorter_demo", context=ctx)
+        nodes.append(watcher)
+        obs = _Observer(watcher, want_paths=True)
+        governor = _Governor(watcher, obs, rtf, fixed)
+        watcher.create_timer(0.5, governor.step, clock=rclpy.clock.Clock(
+            clock_type=rclpy.clock.ClockType.STEADY_TIME))
+        executor = _executor(ctx)
+        for n in nodes:
+            executor.add_node(n)
+        wall0 = time.monotonic()
+        while obs.t_sim < args.sim_time:
+            executor.spin_once(timeout_sec=0.05)
+        wall = time.monotonic() - wall0
+        t_end = obs.t_sim
+        # stop the cell's clock, then let the last confirmations and diagnostics arrive
+        executor.remove_node(sim)
+        deadline = time.monotonic() + 0.6
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        cell_params = {k: sim.get_parameter(k).value for k in
+                       ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")}
+        cell_params["photo_eyes.names"] = list(sim.get_parameter("photo_eyes.names").value)
+        cell_params["photo_eyes.x"] = list(sim.get_parameter("photo_eyes.x").value)
+        obs.ctl_diag = {**obs.ctl_diag, **{k: str(v) for k, v in _diag_values(ctl).items()}}
+        summary = summarize(obs, plan, t_end, wall, governor)
+        summary["png"] = str(args.out)
+        plot_paths(obs, cell_params, summary, Path(args.out))
+    finally:
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    if args.json:
+        print(json.dumps(summary, sort_keys=True))
+    else:
+        print_table(summary)
+        print(f"  paths                      {args.out}")
+    return 0 if summary["mis_sorted"] == 0 and summary["jams"] == 0 else 1
+
+
+def _executor(ctx):
+    """rclpy's events executor where there is one: its callbacks cost a fraction of the
+    wait-set executor's, and a faster executor is a higher real-time factor here."""
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:
+        from rclpy.executors import SingleThreadedExecutor
+        return SingleThreadedExecutor(context=ctx)
+    return EventsExecutor(context=ctx)
+
+
+def _diag_values(ctl) -> dict:
+    """The controller's final diagnostic values (the same the diagnostics topic carries)."""
+    return {kv.key: kv.value for kv in ctl.diagnostic_status().values}
