@@ -1,0 +1,321 @@
+"""The controller node against the real simulation node, in-process over real DDS.
+
+Each test gets a fresh rclpy Context (fixture ``ros``) holding the simulation
+node (``sorter_sim``, real time at a small real-time factor), the controller
+(``sorter_controller`` on the simulation clock, reading the cell's geometry from
+the simulation node's parameters) and a watcher node that plays the warehouse
+and the maintenance engineer: it inducts parcels, sends routing updates, forces
+sensors (the controller's sensor topic remapped to one the watcher drives) and
+withholds a service (a stand-in server that stops answering). Outcomes are the
+cell's ground truth on ``sort/outcomes``; the controller's state and diagnostics
+come from its ``diagnostics`` topic.
+"""
+from __future__ import annotations
+
+import math
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState, TimeReference
+from std_msgs.msg import Bool, String
+from std_srvs.srv import SetBool, Trigger
+
+from sorter_control.node import EVENT_QOS, SENSOR_QOS, STREAM_QOS, ControllerNode
+from sorter_sim.node import SimNode
+
+pytestmark = pytest.mark.ros
+
+RTF = 2.0
+CELL = {"time_mode": "realtime", "real_time_factor": RTF, "arrival": "none", "induct_x": -2.4,
+        "pose_rate_hz": 50.0, "wall_tick": 0.002, "parcel_phi0_deg": [0.0, 0.0], "parcel_y0": [0.0, 0.0]}
+ROUTING = ["A*=left", "B*=right", "C*=straight"]
+CONTROLLER = {"use_sim_time": True, "routing.rules": ROUTING, "diagnostics_period": 0.2,
+              "service_timeout": 0.3, "timing_margin": 0.03}
+
+
+def routed(label: str) -> str:
+    return {"A": "left", "B": "right", "C": "straight"}.get(label[:1], "straight")
+
+
+class Cell:
+    """The simulation node, the controller and a watcher in one context."""
+
+    def __init__(self, ros, sim=None, ctl=None, remaps=()):
+        self.ros = ros
+        self.sim = ros.add(SimNode(context=ros.context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in {**CELL, **(sim or {})}.items()]))
+        cli = ["--ros-args"] + [a for r in remaps for a in ("-r", r)] if remaps else None
+        self.ctl = ros.add(ControllerNode(context=ros.context, cli_args=cli, parameter_overrides=[
+            Parameter(k, value=v) for k, v in {**CONTROLLER, **(ctl or {})}.items()]))
+        self.w = ros.make_node("watcher")
+        self.outcomes: list[dict] = []
+        self.confirmations: list[dict] = []
+        self.labels: list[str] = []
+        self.status = None          # the controller's latest DiagnosticStatus
+        self.cell_status = None
+        w = self.w
+        w.create_subscription(DiagnosticStatus, "sort/outcomes",
+                              lambda m: self.outcomes.append(_values(m)), EVENT_QOS)
+        w.create_subscription(DiagnosticStatus, "sort/confirmations",
+                              lambda m: self.confirmations.append(_values(m)), EVENT_QOS)
+        w.create_subscription(String, "scanner/label", lambda m: self.labels.append(m.data), EVENT_QOS)
+        w.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, STREAM_QOS)
+        self.induct_pub = w.create_publisher(DiagnosticStatus, "parcels/induct", EVENT_QOS)
+        self.route_pub = w.create_publisher(KeyValue, "routing/updates", EVENT_QOS)
+        ros.spin_until(lambda: self.ctl.logic is not None, 15.0, "the controller to read the cell and start")
+        ros.spin_until(lambda: self.status is not None and self.status.message == "running", 10.0,
+                       "the controller's diagnostics")
+
+    def _on_diag(self, msg):
+        for st in msg.status:
+            if st.name.endswith(": controller"):
+                self.status = st
+            elif st.name.endswith(": cell"):
+                self.cell_status = st
+
+    @property
+    def state(self) -> str:
+        return _values(self.status)["state"] if self.status is not None else "none"
+
+    def value(self, key: str) -> str:
+        return _values(self.status)[key]
+
+    def induct(self, label: str, A: float = 0.4, B: float = 0.3) -> None:
+        self.induct_pub.publish(DiagnosticStatus(values=[
+            KeyValue(key="label", value=label), KeyValue(key="A", value=str(A)), KeyValue(key="B", value=str(B))]))
+
+    def outcome(self, label: str):
+        return next((o for o in self.outcomes if o["label"] == label), None)
+
+    def confirmation(self, label: str):
+        return next((c for c in self.confirmations if c["label"] == label), None)
+
+    def wait_state(self, state: str, timeout: float = 10.0) -> None:
+        self.ros.spin_until(lambda: self.state == state, timeout, f"controller state {state} (now {self.state})")
+
+    def start_stream(self) -> None:
+        """Switch the cell's parcel stream on (over its set_parameters service)."""
+        r = self.call(SetParameters, "sorter_sim/set_parameters", SetParameters.Request(parameters=[
+            ParameterMsg(name="arrival", value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                                              string_value="gap"))]))
+        assert r.results[0].successful, r.results[0].reason
+
+    def call(self, srv_type, name: str, request):
+        client = self.w.create_client(srv_type, name)
+        return self.ros.call(client, request)
+
+
+def _values(msg) -> dict:
+    return {kv.key: kv.value for kv in msg.values}
+
+
+def _popups(ctl):
+    return [e for e in ctl.command_log if e[0] == "popup"]
+
+
+# --------------------------------------------------------------------------- sorting
+
+def test_mixed_stream_with_routing_table_has_zero_mis_sorts(ros):
+    labels = ["A", "B", "C", "A", "D", "B", "A", "A", "C", "B"]
+    cell = Cell(ros, sim={"arrival_gap": [1.6, 1.9], "labels": labels,
+                          "parcel_A": [0.3, 0.5], "parcel_B": [0.2, 0.35], "induct_x": -2.2})
+    cell.start_stream()
+    n = 8
+    ros.spin_until(lambda: len(cell.outcomes) >= n, 40.0, f"{n} parcels to leave the cell")
+    for o in cell.outcomes[:n]:
+        assert o["exit"] == routed(o["label"]), o
+    ros.spin_until(lambda: all(cell.confirmation(o["label"]) for o in cell.outcomes[:n]), 5.0,
+                   "a confirmation for every parcel out")
+    for o in cell.outcomes[:n]:
+        c = cell.confirmation(o["label"])
+        assert c["destination_reached"] == o["exit"] == c["destination_asked"]
+        assert c["result"] == ("rejected" if o["label"].startswith("D") else "sorted")
+    assert {o["exit"] for o in cell.outcomes[:n]} == {"left", "right", "straight"}
+    assert cell.state == "running" and cell.value("mis_sorted") == "0"
+
+
+def test_routing_update_after_the_scan_changes_the_destination(ros):
+    cell = Cell(ros)
+    cell.induct("Q17")                          # no rule: the reject destination, straight
+    ros.spin_until(lambda: "Q17" in cell.labels, 10.0, "the scanner to read Q17")
+    cell.route_pub.publish(KeyValue(key="Q17", value="left"))
+    ros.spin_until(lambda: cell.outcome("Q17") is not None, 10.0, "Q17 to leave the cell")
+    assert cell.outcome("Q17")["exit"] == "left"
+    ros.spin_until(lambda: cell.confirmation("Q17") is not None, 5.0, "Q17's confirmation")
+    c = cell.confirmation("Q17")
+    assert (c["destination_asked"], c["destination_reached"], c["result"]) == ("left", "left", "sorted")
+
+
+def test_too_short_gap_is_sent_straight_and_flagged(ros):
+    cell = Cell(ros, sim={"arrival_gap": [0.5, 0.5], "labels": ["A", "B"],
+                          "parcel_A": [0.4, 0.4], "parcel_B": [0.3, 0.3]})
+    cell.start_stream()
+    ros.spin_until(lambda: len(cell.outcomes) >= 6, 30.0, "6 parcels to leave the cell")
+    ros.spin_until(lambda: all(cell.confirmation(o["label"]) for o in cell.outcomes[:6]), 5.0,
+                   "their confirmations")
+    flagged = 0
+    for o in cell.outcomes[:6]:
+        c = cell.confirmation(o["label"])
+        if c["result"] == "gap_too_short":
+            flagged += 1
+            assert o["exit"] == "straight" and c["destination_reached"] == "straight"
+            assert c["destination_asked"] == routed(o["label"])
+        else:
+            assert o["exit"] == c["destination_asked"] == routed(o["label"])
+    assert flagged >= 4
+    assert all(o["exit"] != "jammed" for o in cell.outcomes)
+    assert int(cell.value("gap_too_short")) >= 4 and cell.value("mis_sorted") == "0"
+
+
+# --------------------------------------------------------------------------- faults
+
+def test_jam_photo_eye_blocked_too_long(ros):
+    cell = Cell(ros, remaps=["sensors/pe_divert:=forced/pe_divert"])
+    forced = cell.w.create_publisher(Bool, "forced/pe_divert", SENSOR_QOS)
+    held = []
+
+    def relay(msg):               # pass the eye through until it blocks, then hold it blocked
+        if held:
+            return
+        forced.publish(Bool(data=msg.data))
+        if msg.data:
+            held.append(True)
+    cell.w.create_subscription(Bool, "sensors/pe_divert", relay, SENSOR_QOS)
+    cell.induct("C1")
+    cell.wait_state("jam", 15.0)
+    assert "pe_divert" in cell.status.message and "blocked for" in cell.status.message
+    assert cell.status.level == DiagnosticStatus.ERROR and cell.value("fault_jam") == "1"
+    # the controller stopped the belt through the cell's e-stop
+    ros.spin_until(lambda: cell.cell_status is not None and _values(cell.cell_status)["estop"] == "true",
+                   5.0, "the cell's e-stop")
+    assert not any(e[1] is True for e in _popups(cell.ctl))
+
+
+def test_stuck_on_photo_eye(ros):
+    cell = Cell(ros, remaps=["sensors/pe_divert:=forced/pe_divert"])
+    forced = cell.w.create_publisher(Bool, "forced/pe_divert", SENSOR_QOS)
+    forced.publish(Bool(data=True))
+    cell.wait_state("stuck_on", 10.0)
+    assert "no parcel due" in cell.status.message and cell.value("fault_stuck_on") == "1"
+
+
+def test_stuck_off_photo_eye(ros):
+    cell = Cell(ros, remaps=["sensors/pe_divert:=forced/pe_divert"])
+    forced = cell.w.create_publisher(Bool, "forced/pe_divert", SENSOR_QOS)
+    forced.publish(Bool(data=False))
+    cell.induct("C2")
+    cell.wait_state("stuck_off", 15.0)
+    assert "pe_divert" in cell.status.message and "should have blocked" in cell.status.message
+
+
+def test_missed_divert_without_chute_sensor(ros):
+    cell = Cell(ros, remaps=["sensors/chute_left:=forced/chute_left"])
+    forced = cell.w.create_publisher(Bool, "forced/chute_left", SENSOR_QOS)
+    forced.publish(Bool(data=False))
+    cell.induct("A3")
+    cell.wait_state("missed_divert", 15.0)
+    assert "chute_left" in cell.status.message
+    ros.spin_until(lambda: cell.confirmation("A3") is not None, 5.0, "A3's confirmation")
+    assert cell.confirmation("A3")["result"] == "missed"
+
+
+def test_diverter_service_withheld_times_out_without_retry(ros):
+    cell_kw = dict(remaps=["diverter/popup:=withheld/popup"])
+    # a stand-in for the pop-up service that answers once, then is no longer served
+    stand_in = ros.make_node("stand_in")
+    answered = []
+
+    def serve(request, response):
+        answered.append(request.data)
+        response.success, response.message = True, "ok"
+        return response
+    stand_in.create_service(SetBool, "withheld/popup", serve)
+    cell = Cell(ros, **cell_kw)
+    ros.spin_until(lambda: answered, 5.0, "the controller's first pop-up command")
+    ros.executor.remove_node(stand_in)          # from now on nobody answers
+    cell.induct("A4")
+    cell.wait_state("diverter_timeout", 15.0)
+    assert "not retried" in cell.status.message
+    ros.spin_for(1.0)
+    popups = _popups(cell.ctl)
+    assert [e[1] for e in popups] == [False, True]          # the raise went out once
+    assert popups[1][3] is None                              # and was never answered
+    assert cell.value("timeouts") == "1"
+
+
+def test_estop_and_reset_through_the_controller(ros):
+    cell = Cell(ros)
+    ok = cell.call(SetBool, "/sorter_controller/estop", SetBool.Request(data=True))
+    assert ok.success
+    cell.wait_state("estop", 5.0)
+    ros.spin_until(lambda: cell.cell_status is not None and _values(cell.cell_status)["estop"] == "true",
+                   5.0, "the cell's e-stop")
+    refused = cell.call(SetBool, "/sorter_controller/estop", SetBool.Request(data=False))
+    assert not refused.success and "reset" in refused.message
+    ok = cell.call(Trigger, "/sorter_controller/reset", Trigger.Request())
+    assert ok.success
+    cell.wait_state("running", 5.0)
+    ros.spin_until(lambda: _values(cell.cell_status)["estop"] == "false", 5.0, "the cell to reset")
+    # and it sorts again
+    cell.induct("B5")
+    ros.spin_until(lambda: cell.outcome("B5") is not None, 10.0, "B5 to leave")
+    assert cell.outcome("B5")["exit"] == "right"
+
+
+def test_estop_engaged_at_the_cell_is_seen(ros):
+    cell = Cell(ros)
+    assert cell.call(SetBool, "estop", SetBool.Request(data=True)).success   # the operator's button
+    cell.wait_state("estop", 5.0)
+    assert cell.status.level == DiagnosticStatus.ERROR
+
+
+# --------------------------------------------------------------------------- bad input
+
+def test_bad_messages_change_nothing_and_the_node_survives(ros):
+    cell = Cell(ros)
+    w = cell.w
+    edges = w.create_publisher(TimeReference, "sensors/edges", EVENT_QOS)
+    joints = w.create_publisher(JointState, "diverter/state", STREAM_QOS)
+    bad = TimeReference(source="sideways")
+    bad.header.frame_id = "pe_divert"
+    edges.publish(bad)
+    joints.publish(JointState(name=["disk_angle"], position=[math.nan]))
+    cell.route_pub.publish(KeyValue(key="A*", value="up"))
+    cell.route_pub.publish(KeyValue(key="", value="left"))
+    ros.spin_until(lambda: int(cell.value("bad_messages")) >= 2 and int(cell.value("routing_rejected")) >= 2,
+                   5.0, "the bad messages to be counted")
+    assert cell.state == "running"
+    assert cell.value("routing") == ";".join(ROUTING)
+    cell.induct("A6")
+    ros.spin_until(lambda: cell.outcome("A6") is not None, 10.0, "A6 to leave")
+    assert cell.outcome("A6")["exit"] == "left"
+
+
+def test_parameters_validated_at_start_and_at_run_time(ros):
+    with pytest.raises(ValueError, match="routing"):
+        ControllerNode(context=ros.context, parameter_overrides=[
+            Parameter("routing.rules", value=["A=up"]), Parameter("cell_node", value="")])
+    with pytest.raises(ValueError, match="photo_eyes"):
+        ControllerNode(context=ros.context, parameter_overrides=[
+            Parameter("photo_eyes.x", value=[-2.0]), Parameter("cell_node", value="")])
+    ctl = ros.add(ControllerNode(context=ros.context, parameter_overrides=[Parameter("cell_node", value="")]))
+    w = ros.make_node("setter")
+    client = w.create_client(SetParameters, "/sorter_controller/set_parameters")
+
+    def set_param(name, pv):
+        return ros.call(client, SetParameters.Request(parameters=[ParameterMsg(name=name, value=pv)])).results[0]
+    before = ctl.logic.routing.rules()
+    r = set_param("routing.rules", ParameterValue(type=ParameterType.PARAMETER_STRING_ARRAY,
+                                                   string_array_value=["A=sideways"]))
+    assert not r.successful and "sideways" in r.reason
+    r = set_param("scan_period", ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.02))
+    assert not r.successful and "read-only" in r.reason
+    assert ctl.logic.routing.rules() == before
+    r = set_param("routing.rules", ParameterValue(type=ParameterType.PARAMETER_STRING_ARRAY,
+                                                   string_array_value=["Z*=right"]))
+    assert r.successful
+    assert ctl.logic.routing.lookup("Z1") == ("right", "prefix")
