@@ -446,6 +446,12 @@ def main(args=None):
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # SIGINT/SIGTERM shut the context down between bytecodes, possibly in the
+        # middle of a callback; what that callback raises then (publishing on a
+        # context that is gone) is part of shutting down, not a fault
+        if node is None or node.context.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
