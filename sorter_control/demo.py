@@ -43,6 +43,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", default="out/demo_paths.png", help="PNG of the parcels' paths "
                         "(default out/demo_paths.png)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    parser.add_argument("--verbose", action="store_true", help="show the nodes' informational log lines")
 
 
 def _check_args(args) -> str | None:
@@ -344,23 +345,143 @@ def plot_paths(obs: _Observer, params: dict, summary: dict, out: Path) -> None:
     plt.close(fig)
 
 
+class RunningCell:
+    """The simulation node, the controller and an observer in one context and executor.
+
+    Parameters come from config/cell.yaml and config/controller.yaml, then
+    ``sim_params`` / ``controller_params`` override them. ``rtf`` is the cell's
+    real-time factor, or "auto" for the governor. Use as a context manager:
+    ``run_until(t)`` spins until the simulation clock reaches t, ``finish()``
+    stops the cell's clock and lets the last messages arrive.
+    """
+
+    def __init__(self, *, sim_params: dict, controller_params: dict, rtf="auto", want_paths: bool = True,
+                 executor: str = "events", log_level: str = "warn"):
+        self.log_level = log_level
+        self.sim_params = sim_params
+        self.controller_params = controller_params
+        self.fixed = rtf != "auto"
+        self.rtf = float(rtf) if self.fixed else RTF_START
+        self.want_paths = want_paths
+        self.executor_kind = executor
+        self.nodes = []
+        self.ctx = None
+
+    def __enter__(self) -> "RunningCell":
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.parameter import Parameter
+
+        from sorter_sim.node import SimNode
+        from sorter_sim.ros_env import apply_ros_env_defaults, find_config_dir
+
+        from .node import ControllerNode
+
+        apply_ros_env_defaults()
+        config_dir = find_config_dir()
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, args=["--ros-args", "--params-file", str(config_dir / "cell.yaml"),
+                                           "--params-file", str(config_dir / "controller.yaml"),
+                                           "--log-level", self.log_level])
+        try:
+            sim_values = {"time_mode": "realtime", "real_time_factor": self.rtf, "pose_rate_hz": 50.0,
+                          "wall_tick": 0.001, **self.sim_params}
+            # the stream starts once the controller runs (no parcel passes it untracked)
+            self.arrival = sim_values.get("arrival", "none")
+            sim_values["arrival"] = "none"
+            self.sim = SimNode(context=self.ctx, parameter_overrides=[
+                Parameter(k, value=v) for k, v in sim_values.items()])
+            self.nodes.append(self.sim)
+            ctl_values = {"use_sim_time": True, "diagnostics_period": 0.5, **self.controller_params}
+            self.ctl = ControllerNode(context=self.ctx, parameter_overrides=[
+                Parameter(k, value=v) for k, v in ctl_values.items()])
+            self.nodes.append(self.ctl)
+            self.watcher = rclpy.create_node("sorter_demo", context=self.ctx)
+            self.nodes.append(self.watcher)
+            self.obs = _Observer(self.watcher, want_paths=self.want_paths)
+            self.governor = _Governor(self.watcher, self.obs, self.rtf, self.fixed)
+            self.watcher.create_timer(0.5, self.governor.step, clock=rclpy.clock.Clock(
+                clock_type=rclpy.clock.ClockType.STEADY_TIME))
+            self.executor = _executor(self.ctx, self.executor_kind)
+            for n in self.nodes:
+                self.executor.add_node(n)
+            if not self.spin_until(lambda: self.obs.ctl_diag.get("state") == "running", 60.0):
+                raise RuntimeError("the controller did not start within 60 s")
+            self.t_start = self.obs.t_sim
+            if self.arrival != "none":
+                self._set_sim("arrival", self.arrival)
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+        return self
+
+    def _set_sim(self, name: str, value: str) -> None:
+        """Set a string parameter of the cell over its set_parameters service."""
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+
+        client = self.watcher.create_client(SetParameters, "sorter_sim/set_parameters")
+        if not self.spin_until(client.service_is_ready, 10.0):
+            raise RuntimeError("the cell's set_parameters service is not there")
+        future = client.call_async(SetParameters.Request(parameters=[Parameter(
+            name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))]))
+        self.spin_until(future.done, 10.0)
+        result = future.result().results[0] if future.done() else None
+        if result is None or not result.successful:
+            raise RuntimeError(f"the cell refused {name} = {value}: {result.reason if result else 'no answer'}")
+
+    def spin_until(self, predicate, timeout_wall: float = math.inf) -> bool:
+        deadline = time.monotonic() + timeout_wall
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def run_for(self, sim_time: float) -> float:
+        """Spin until ``sim_time`` simulated seconds after the stream started; returns the wall time."""
+        wall0 = time.monotonic()
+        self.spin_until(lambda: self.obs.t_sim >= self.t_start + sim_time)
+        return time.monotonic() - wall0
+
+    def finish(self) -> float:
+        """Stop the cell's clock, let the last confirmations arrive; returns the simulated time
+        since the stream started."""
+        t_end = self.obs.t_sim - self.t_start
+        self.executor.remove_node(self.sim)
+        deadline = time.monotonic() + 0.6
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+        self.obs.ctl_diag = {**self.obs.ctl_diag, **{k: str(v) for k, v in _diag_values(self.ctl).items()}}
+        return t_end
+
+    def cell_params(self) -> dict:
+        sim = self.sim
+        out = {k: sim.get_parameter(k).value for k in
+               ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")}
+        out["photo_eyes.names"] = list(sim.get_parameter("photo_eyes.names").value)
+        out["photo_eyes.x"] = list(sim.get_parameter("photo_eyes.x").value)
+        return out
+
+    def __exit__(self, *exc) -> None:
+        import rclpy
+        for n in self.nodes:
+            n.destroy_node()
+        self.nodes = []
+        if self.ctx is not None:
+            rclpy.try_shutdown(context=self.ctx)
+
+
 def run(args) -> int | str:
     """``sorter demo``."""
     err = _check_args(args)
     if err:
         return err
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
-
-    from sorter_sim.node import SimNode
-    from sorter_sim.ros_env import apply_ros_env_defaults, find_config_dir
-
-    from .node import ControllerNode
-
-    apply_ros_env_defaults()
-    config_dir = find_config_dir()
     import yaml
+
+    from sorter_sim.ros_env import find_config_dir
+
+    config_dir = find_config_dir()
     cell_doc = yaml.safe_load((config_dir / "cell.yaml").read_text())
     cell = next(iter(cell_doc.values()))["ros__parameters"]
     lengths = tuple(cell.get("parcel_A", [0.3, 0.7]))
@@ -368,55 +489,15 @@ def run(args) -> int | str:
     gap = tuple(args.gap) if args.gap is not None else (round(plan["min_gap_m"] + 0.02, 3),
                                                          round(plan["min_gap_m"] + 0.4, 3))
     plan["stream_gap_m"] = list(gap)
-    fixed = args.rtf != "auto"
-    rtf = float(args.rtf) if fixed else RTF_START
-
-    ctx = Context()
-    rclpy.init(context=ctx, args=["--ros-args", "--params-file", str(config_dir / "cell.yaml"),
-                                  "--params-file", str(config_dir / "controller.yaml")])
-    nodes = []
-    try:
-        sim = SimNode(context=ctx, parameter_overrides=[
-            Parameter("time_mode", value="realtime"), Parameter("real_time_factor", value=rtf),
-            Parameter("arrival", value="gap"), Parameter("arrival_gap", value=list(gap)),
-            Parameter("labels", value=list(LABEL_CYCLE)), Parameter("seed", value=int(args.seed)),
-            Parameter("pose_rate_hz", value=50.0), Parameter("wall_tick", value=0.001)])
-        nodes.append(sim)
-        ctl = ControllerNode(context=ctx, parameter_overrides=[
-            Parameter("use_sim_time", value=True), Parameter("routing.rules", value=list(ROUTING)),
-            Parameter("diagnostics_period", value=0.5)])
-        nodes.append(ctl)
-        watcher = rclpy.create_node("sorter_demo", context=ctx)
-        nodes.append(watcher)
-        obs = _Observer(watcher, want_paths=True)
-        governor = _Governor(watcher, obs, rtf, fixed)
-        watcher.create_timer(0.5, governor.step, clock=rclpy.clock.Clock(
-            clock_type=rclpy.clock.ClockType.STEADY_TIME))
-        executor = _executor(ctx)
-        for n in nodes:
-            executor.add_node(n)
-        wall0 = time.monotonic()
-        while obs.t_sim < args.sim_time:
-            executor.spin_once(timeout_sec=0.05)
-        wall = time.monotonic() - wall0
-        t_end = obs.t_sim
-        # stop the cell's clock, then let the last confirmations and diagnostics arrive
-        executor.remove_node(sim)
-        deadline = time.monotonic() + 0.6
-        while time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-        cell_params = {k: sim.get_parameter(k).value for k in
-                       ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")}
-        cell_params["photo_eyes.names"] = list(sim.get_parameter("photo_eyes.names").value)
-        cell_params["photo_eyes.x"] = list(sim.get_parameter("photo_eyes.x").value)
-        obs.ctl_diag = {**obs.ctl_diag, **{k: str(v) for k, v in _diag_values(ctl).items()}}
-        summary = summarize(obs, plan, t_end, wall, governor)
+    sim_params = {"arrival": "gap", "arrival_gap": list(gap), "labels": list(LABEL_CYCLE),
+                  "seed": int(args.seed)}
+    with RunningCell(sim_params=sim_params, controller_params={"routing.rules": list(ROUTING)},
+                     rtf=args.rtf, log_level="info" if args.verbose else "warn") as rc:
+        wall = rc.run_for(args.sim_time)
+        t_end = rc.finish()
+        summary = summarize(rc.obs, plan, t_end, wall, rc.governor)
         summary["png"] = str(args.out)
-        plot_paths(obs, cell_params, summary, Path(args.out))
-    finally:
-        for n in nodes:
-            n.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+        plot_paths(rc.obs, rc.cell_params(), summary, Path(args.out))
     if args.json:
         print(json.dumps(summary, sort_keys=True))
     else:
@@ -425,15 +506,19 @@ def run(args) -> int | str:
     return 0 if summary["mis_sorted"] == 0 and summary["jams"] == 0 else 1
 
 
-def _executor(ctx):
-    """rclpy's events executor where there is one: its callbacks cost a fraction of the
-    wait-set executor's, and a faster executor is a higher real-time factor here."""
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:
-        from rclpy.executors import SingleThreadedExecutor
-        return SingleThreadedExecutor(context=ctx)
-    return EventsExecutor(context=ctx)
+def _executor(ctx, kind: str = "events"):
+    """rclpy's events executor where there is one (kind "events"): its callbacks cost a
+    fraction of the wait-set executor's, and a faster executor is a higher real-time factor
+    here; kind "single" is the SingleThreadedExecutor."""
+    if kind == "events":
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            pass
+        else:
+            return EventsExecutor(context=ctx)
+    from rclpy.executors import SingleThreadedExecutor
+    return SingleThreadedExecutor(context=ctx)
 
 
 def _diag_values(ctl) -> dict:

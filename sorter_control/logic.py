@@ -334,6 +334,7 @@ class EyeState:
     by: int | None = None            # seq of the tracked parcel blocking it
     unexpected: bool = False
     labels_while_blocked: int = 0
+    cleared_at: float | None = None  # time of the last falling edge
 
 
 class SorterLogic:
@@ -390,6 +391,16 @@ class SorterLogic:
         """Encoder travel after which nothing untracked can remain between scanner and field end."""
         return (self.encoder + (self.config.cell.disk_field_length - self.x_scan)
                 + self.config.max_parcel_length + self.config.tracking_tolerance)
+
+    def warm_lengths(self, lo: float, hi: float) -> list[float]:
+        """The prediction grid's lengths in [lo, hi] m."""
+        step = self.predictor.cell.length_step
+        n = int(math.floor((hi - lo) / step + 1e-9)) + 1
+        return [lo + i * step for i in range(max(n, 1))]
+
+    def warm_up(self, lengths) -> None:
+        """Predict ahead for these lengths [m] (outside the scan), so scans find them ready."""
+        self.gaps.warm(lengths, self.v)
 
     def min_gap(self, length: float) -> dict:
         """The least gap [m] for parcels of ``length`` m at the configured belt speed (all pairs)."""
@@ -706,6 +717,8 @@ class SorterLogic:
         eye = self.eyes[s]
         eye.blocked = edge.rising
         eye.since = edge.t
+        if not edge.rising:
+            eye.cleared_at = edge.t
         if s in self.side_of_sensor:
             eye.unexpected = False
             if edge.rising:
@@ -782,12 +795,15 @@ class SorterLogic:
             else:
                 self.pending_labels.append((t_l, label))
         # labels that found no photo-eye edge within the window: the eye on the scanner's line
-        # should be blocked by the parcel just read (a parcel blocking it since before the
-        # controller started has no edge, and is not the eye's fault)
+        # should have been blocked by the parcel just read (one blocking it since before the
+        # controller started has no rising edge, and is not the eye's fault)
+        eye = self.eyes[self.config.scan_eye]
         while self.pending_labels and self.t - self.pending_labels[0][0] > self.config.label_window:
             t_l, label = self.pending_labels.popleft()
             self.counts["labels_without_parcel"] += 1
-            if self.state == "running" and not self.eyes[self.config.scan_eye].blocked:
+            seen = eye.blocked or (eye.cleared_at is not None
+                                   and eye.cleared_at >= t_l - self.config.label_window)
+            if self.state == "running" and not seen:
                 self._enter_fault(out, "stuck_off", f"{self.config.scan_eye}: the scanner read {label!r} at "
                                   f"{t_l:.3f} s but the photo-eye never blocked", self.config.scan_eye)
 
@@ -969,8 +985,14 @@ class SorterLogic:
             deadlines.append(self.t_enter(p) - self._lead_needed(dest) - self.config.scan_period)
         for i in range(len(deadlines) - 2, -1, -1):
             deadlines[i] = min(deadlines[i], deadlines[i + 1])
+        act = self.gaps.act
         for p, dl in zip(pending, deadlines):
             if self.t < dl:
+                break
+            if p.length is None and self.t + act.popup_stroke_time + act.latency + act.scan_period \
+                    <= self.t_enter(p):
+                # its trailing edge is still at the scanner: wait for the length while the
+                # stroke can still make it (the margin is spent first)
                 break
             self._commit(out, p)
 

@@ -104,6 +104,8 @@ SCHEMA = (
     Spec("nominal_parcel_width", D, 0.4, "parcel width B assumed by the prediction (the photo-eyes "
          "measure only the length) [m]", 0.01, 3.0),
     Spec("nominal_parcel_length", D, 0.4, "parcel length the minimum gap is reported for [m]", 0.01, 5.0),
+    Spec("warm_lengths", DA, [0.2, 0.8], "[min, max] parcel lengths to predict at start-up, so scans "
+         "find the model's answers ready [m]", 0.0, 10.0),
     Spec("divert_alpha_deg", D, 90.0, "disk angle for a divert (+ to left, - to right) [deg]", 1.0, 90.0),
     Spec("commit_margin", D, 0.05, "the centre of gravity must be this far past the chute entry line "
          "before the disks drop [m]", 0.0, 1.0),
@@ -192,6 +194,9 @@ def config_from_values(values: dict) -> ControllerConfig:
         elif spec.type == SA:
             if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
                 raise ValueError(f"parameter {name!r} must be a list of strings, got {v!r}")
+    warm = list(values["warm_lengths"])
+    if len(warm) != 2 or not 0.0 <= warm[0] <= warm[1]:
+        raise ValueError(f"parameter 'warm_lengths' must be [min, max] with 0 <= min <= max, got {warm!r}")
     names, xs = list(values["photo_eyes.names"]), list(values["photo_eyes.x"])
     if len(names) != len(xs):
         raise ValueError(f"parameters 'photo_eyes.names' and 'photo_eyes.x' must have the same length, "
@@ -268,9 +273,9 @@ class ControllerNode(Node):
         self._replies: list[Reply] = []
         self._cell_estop: bool | None = None
         self._cell_jam: bool | None = None
-        self._cell_hw = None
         self._in_flight: dict[int, tuple] = {}     # command id -> (future, client, wall deadline, cmd)
-        self.command_log: deque = deque(maxlen=10000)   # (kind, value, wall issued, wall answered, accepted)
+        # [kind, value, wall at the scan's start, wall answered, accepted, wall sent]
+        self.command_log: deque = deque(maxlen=10000)
         self.confirmations: deque = deque(maxlen=10000)
         self.n_bad_messages = 0
         steady = rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME)
@@ -291,6 +296,13 @@ class ControllerNode(Node):
         # warm the model core (numba) and the nominal spacing rules before the first parcel
         nominal = min(self.values["nominal_parcel_length"], config.max_parcel_length)
         gaps = self.logic.min_gap(nominal)
+        lo, hi = (list(values["warm_lengths"]) + [0.0, 0.0])[:2]
+        # predicted a length at a time between scans, so no callback holds the executor long
+        self._warm = deque(self.logic.warm_lengths(lo, hi) if 0.0 < lo <= hi else [])
+        n_warm = len(self._warm)
+        if self._warm:
+            steady = rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME)
+            self._warm_timer = self.create_timer(0.02, self._warm_step, clock=steady)
         for name in config.eyes:
             self._subscribe_sensor(name)
         for name in config.chutes.values():
@@ -305,11 +317,17 @@ class ControllerNode(Node):
             f"sorter controller running: scan {config.scan_period * 1e3:g} ms, belt {config.belt_speed:g} m/s, "
             f"disk field {config.cell.disk_field_length:g} m; {nominal:g} m parcels need a gap of "
             f"{gaps['worst']:.3f} m in a mixed stream ({gaps['capacity_pcs_h']:.0f} pcs/h), "
-            f"{gaps['left->left']:.3f} m behind one to the same side")
+            f"{gaps['left->left']:.3f} m behind one to the same side; predicting {n_warm} lengths ahead")
         if not self.logic.lookahead_ok(nominal):
-            self.get_logger().warning(
+            self.get_logger().info(
                 f"the scanner eye at x = {self.logic.x_scan:g} m is too close to the disk field to see a "
                 f"follower before deciding a {nominal:g} m parcel: close same-side pairs will be refused")
+
+    def _warm_step(self) -> None:
+        if self._warm:
+            self.logic.warm_up([self._warm.popleft()])
+        else:
+            self._warm_timer.cancel()
 
     def _subscribe_sensor(self, name: str) -> None:
         self.create_subscription(Bool, f"sensors/{name}", lambda msg, n=name: self._on_bit(n, msg), SENSOR_QOS)
@@ -437,7 +455,7 @@ class ControllerNode(Node):
                                                        double_value=float(cmd.value)))])
         future = client.call_async(req)
         deadline = time.monotonic() + self.values["service_timeout"]
-        entry = [cmd.kind, cmd.value, wall0, None, None]
+        entry = [cmd.kind, cmd.value, wall0, None, None, time.perf_counter()]
         self.command_log.append(entry)
         self._in_flight[cmd.id] = (future, client, deadline, cmd, entry)
         future.add_done_callback(lambda f, cid=cmd.id: self._on_answer(cid, f))

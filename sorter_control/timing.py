@@ -195,10 +195,13 @@ def boxes_overlap(p, q, A1, B1, A2, B2, clearance=0.0) -> np.ndarray:
 class DivertPredictor:
     """Model-core predictions of a divert, cached per (A rounded up, v, α)."""
 
-    def __init__(self, cell: CellModel, *, method: str = "accurate", t_max: float = 10.0):
+    def __init__(self, cell: CellModel, *, method: str = "accurate", t_max: float = 10.0,
+                 rtol: float = 1e-6, atol: float = 1e-8):
         self.cell = cell
         self.method = method
         self.t_max = t_max
+        self.rtol = rtol
+        self.atol = atol
         self._cache: dict[tuple, Prediction] = {}
         self.n_runs = 0
         self.wall_s = 0.0
@@ -248,7 +251,7 @@ class DivertPredictor:
         # run until the whole footprint is off the belt, and at least to the commit line
         y_run = max(cell.commit_distance, 0.5 * cell.belt_width + half_diag) + 0.01
         res = simulate(scene_parcel(scene), scene_strips(scene), y0, (0.0, self.t_max), self.method,
-                       y_target=y_run, h_max=0.01)
+                       y_target=y_run, h_max=0.01, rtol=self.rtol, atol=self.atol)
         self.n_runs += 1
         self.wall_s += res.wall_s
         t = res.t
@@ -328,12 +331,13 @@ class GapModel:
     """Spacing rules for consecutive parcels, from predictions and actuator timing."""
 
     def __init__(self, predictor: DivertPredictor, actuators: Actuators, *, divert_alpha_deg: float = 90.0,
-                 clearance: float = 0.02, dt: float = 0.002):
+                 clearance: float = 0.02, dt: float = 0.002, geometry_step: float = 0.05):
         self.predictor = predictor
         self.act = actuators
         self.divert_alpha_deg = float(divert_alpha_deg)
         self.clearance = clearance
         self.dt = dt
+        self.geometry_step = geometry_step
         self._geo_cache: dict[tuple, float] = {}
 
     @property
@@ -353,10 +357,14 @@ class GapModel:
         """Least time between the leading edges reaching x = 0 so the footprints stay apart [s].
 
         Only a diverted leader can be caught up (it slows down along x); a straight
-        leader moves on at belt speed and needs just the clearance.
+        leader moves on at belt speed and needs just the clearance. Lengths are
+        rounded up to ``geometry_step`` (a longer pair needs more room), so a stream
+        of similar parcels costs a handful of these searches.
         """
-        k = self.predictor.key_length
-        key = (k(A1), dest1, k(A2), dest2, round(v, 6))
+        step = self.geometry_step
+        A1 = round(math.ceil(A1 / step - 1e-9) * step, 6)
+        A2 = round(math.ceil(A2 / step - 1e-9) * step, 6)
+        key = (A1, dest1, A2, dest2, round(v, 6))
         hit = self._geo_cache.get(key)
         if hit is not None:
             return hit
@@ -430,6 +438,14 @@ class GapModel:
                 alpha_before_deg: float | None = None) -> float:
         return max(self.geometric_headway(A1, dest1, A2, dest2, v),
                    self.actuator_headway(A1, dest1, A2, dest2, v, alpha_before_deg))
+
+    def warm(self, lengths, v: float) -> None:
+        """Fill the caches for parcels of these lengths [m] so that scans find them ready."""
+        for A in lengths:
+            for d1 in ("left", "right"):
+                self.predictor.predict(A, v, self.alpha_for(d1))
+            for d1, d2 in (("left", "left"), ("left", "straight"), ("left", "right")):
+                self.geometric_headway(A, d1, A, d2, v)
 
     def min_gap(self, A: float, v: float, dest1: str | None = None, dest2: str | None = None) -> dict:
         """The least gap [m] (trailing edge to leading edge) at which parcels of length A sort.
