@@ -951,6 +951,20 @@ def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_
 
 
 @njit(cache=True)
+def _take_fixed_step(y, y_new, t, t_next, y_target):
+    """Move y to the step's end, or to where the scrap line is crossed inside it
+    (linear in the step); returns (t, crossed)."""
+    if y_target < math.inf and y[1] < y_target <= y_new[1]:
+        th = (y_target - y[1]) / (y_new[1] - y[1])
+        for j in range(6):
+            y[j] = y[j] + th * (y_new[j] - y[j])
+        return t + th * (t_next - t), True
+    for j in range(6):
+        y[j] = y_new[j]
+    return t_next, False
+
+
+@njit(cache=True)
 def run_implicit(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights, h,
                  ts, ys, ms, ev, counters):
     """Fixed-step implicit integration; the scrap line is located by linear interpolation."""
@@ -987,23 +1001,13 @@ def run_implicit(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
         if not np.all(np.isfinite(y_new)):
             status = ST_NONFINITE
             break
-        if y_target < math.inf and y[1] < y_target <= y_new[1]:
-            th = (y_target - y[1]) / (y_new[1] - y[1])
-            for j in range(6):
-                y_new[j] = y[j] + th * (y_new[j] - y[j])
-            t += th * hh
-            mode = new_mode
-            for j in range(6):
-                y[j] = y_new[j]
-            n_out = _record(ts, ys, ms, n_out, t, y, mode)
+        mode = new_mode
+        t, crossed = _take_fixed_step(y, y_new, t, t_next, y_target)
+        n_out = _record(ts, ys, ms, n_out, t, y, mode)
+        if crossed:
             n_ev = _log_event(ev, n_ev, t, EV_TARGET, -1)
             status = ST_TARGET
             break
-        t = t_next
-        mode = new_mode
-        for j in range(6):
-            y[j] = y_new[j]
-        n_out = _record(ts, ys, ms, n_out, t, y, mode)
         if n_out >= ts.shape[0]:
             status = ST_MAX_STEPS
             break
@@ -1122,19 +1126,12 @@ def run_threshold(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights
         if not np.all(np.isfinite(y_new)):
             status = ST_NONFINITE
             break
-        if y_target < math.inf and y[1] < y_target <= y_new[1]:
-            th = (y_target - y[1]) / (y_new[1] - y[1])
-            for j in range(6):
-                y[j] = y[j] + th * (y_new[j] - y[j])
-            t += th * hh
-            n_out = _record(ts, ys, ms, n_out, t, y, rec_mode)
+        t, crossed = _take_fixed_step(y, y_new, t, t_next, y_target)
+        n_out = _record(ts, ys, ms, n_out, t, y, rec_mode)
+        if crossed:
             n_ev = _log_event(ev, n_ev, t, EV_TARGET, -1)
             status = ST_TARGET
             break
-        t = t_next
-        for j in range(6):
-            y[j] = y_new[j]
-        n_out = _record(ts, ys, ms, n_out, t, y, rec_mode)
         if n_out >= ts.shape[0]:
             status = ST_MAX_STEPS
             break

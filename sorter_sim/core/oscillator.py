@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from .integrators import _A, _B, _C, _E  # the Dormand-Prince 5(4) tableau
+
 # rows of eq. (3.1), as the seed numbers them
 ROW_KINETIC = 1   # F(1): |v| > v_min, F = F_kin sgn(v)
 ROW_HOLD = 2      # F(2): |P| < F_stat, F = P (held)
@@ -177,19 +179,6 @@ def _accel(x, v, t, p, sigma):
     return (k * (vd * t - x) - sigma * f_kin) / m
 
 
-_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])
-_A = np.array([
-    [0.0, 0.0, 0.0, 0.0, 0.0],
-    [1 / 5, 0.0, 0.0, 0.0, 0.0],
-    [3 / 40, 9 / 40, 0.0, 0.0, 0.0],
-    [44 / 45, -56 / 15, 32 / 9, 0.0, 0.0],
-    [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0.0],
-    [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656],
-])
-_B = np.array([35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84])
-_BH = np.array([5179 / 57600, 0.0, 7571 / 16695, 393 / 640, -92097 / 339200, 187 / 2100, 1 / 40])
-
-
 @njit(cache=True)
 def _run_accurate(p, t_end, rtol, atol, h_max, ts, xs, vs, rows, ev_t, ev_k, counters):
     m, f_kin, f_stat, k, vd = p[0], p[1], p[2], p[3], p[4]
@@ -256,16 +245,16 @@ def _run_accurate(p, t_end, rtol, atol, h_max, ts, xs, vs, rows, ev_t, ev_k, cou
         nrhs += 7
         x_new = x
         v_new = v
-        xh = x
-        vh = v
+        x_err = 0.0
+        v_err = 0.0
         for j in range(6):
             x_new += h * _B[j] * kx[j]
             v_new += h * _B[j] * kv[j]
         for j in range(7):
-            xh += h * _BH[j] * kx[j]
-            vh += h * _BH[j] * kv[j]
-        ex = (x_new - xh) / (atol + rtol * max(abs(x), abs(x_new)))
-        ev = (v_new - vh) / (atol + rtol * max(abs(v), abs(v_new)))
+            x_err += h * _E[j] * kx[j]
+            v_err += h * _E[j] * kv[j]
+        ex = x_err / (atol + rtol * max(abs(x), abs(x_new)))
+        ev = v_err / (atol + rtol * max(abs(v), abs(v_new)))
         err = math.sqrt(0.5 * (ex * ex + ev * ev))
         if err > 1.0:
             h *= max(0.2, 0.9 * err ** -0.2)
