@@ -1,15 +1,18 @@
 """``sorter demo``: the running cell, simulation node and controller, talking over ROS 2.
 
 Starts the simulation node (config/cell.yaml) and the controller (config/controller.yaml)
-in this process, in one rclpy context and executor, plus an observer node that
-watches what a warehouse would: the cell's outcomes, the controller's sort
-confirmations and diagnostics, the parcels' poses. The two nodes talk only over
-topics and services. The cell runs on a real-time clock scaled by a real-time
-factor: the controller is a PLC that must answer within its scan, so "as fast as
-possible" means the largest factor at which it still does. With ``--rtf auto``
-(the default) a governor raises the cell's ``real_time_factor`` (through its
-``set_parameters`` service) while the controller's scans come on time and lowers
-it when they do not.
+in this process, in one rclpy context and one single-threaded executor, plus an
+observer node that watches what a warehouse would: the cell's outcomes, the
+controller's sort confirmations and diagnostics, the parcels' poses. The two
+nodes talk only over topics and services.
+
+By default the cell runs as fast as possible (``time_mode: fast``) in slices of
+5 ms of simulated time; between two slices the executor serves every other
+callback, so the controller sees each sensor edge, runs its 10 ms scan and has
+its service calls answered within a slice or two of simulated time however
+fast or slow the machine is: a PLC that is never late, at whatever real-time
+factor the machine allows. ``--rtf F`` runs the cell on the wall clock at factor
+F instead (as a real cell would run with F = 1).
 
 The parcel stream is the cell's, with a cycle of labels the routing table sends
 left, right, straight and (label D, unknown) to the reject destination, and belt
@@ -26,7 +29,7 @@ from pathlib import Path
 
 LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
-RTF_START, RTF_MIN, RTF_MAX = 3.0, 0.5, 16.0
+FAST_SLICE = 0.005     # s of simulated time per executor pass of the cell in fast mode
 # outcome colours on the plot
 EXIT_COLOURS = {"left": "tab:green", "right": "tab:blue", "straight": "0.45", "jammed": "tab:red"}
 
@@ -34,8 +37,9 @@ EXIT_COLOURS = {"left": "tab:green", "right": "tab:blue", "straight": "0.45", "j
 def add_arguments(parser) -> None:
     parser.add_argument("--sim-time", type=float, default=60.0, metavar="S",
                         help="simulated seconds to run (default 60)")
-    parser.add_argument("--rtf", default="auto", metavar="F|auto",
-                        help="real-time factor of the cell, or auto (the largest the controller keeps up with)")
+    parser.add_argument("--rtf", default="fast", metavar="F|fast",
+                        help="run the cell on the wall clock at real-time factor F, or as fast as possible "
+                             "(fast, the default)")
     parser.add_argument("--gap", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
                         help="belt gap range of the stream [m] (default: just above the controller's "
                              "least gap for a mixed stream)")
@@ -49,13 +53,13 @@ def add_arguments(parser) -> None:
 def _check_args(args) -> str | None:
     if not (math.isfinite(args.sim_time) and 0.0 < args.sim_time <= 3600.0):
         return f"--sim-time must be in (0, 3600] s, got {args.sim_time}"
-    if args.rtf != "auto":
+    if args.rtf != "fast":
         try:
             value = float(args.rtf)
         except ValueError:
-            return f"--rtf must be a number in [0.01, 100] or auto, got {args.rtf!r}"
+            return f"--rtf must be a number in [0.01, 100] or fast, got {args.rtf!r}"
         if not (math.isfinite(value) and 0.01 <= value <= 100.0):
-            return f"--rtf must be a number in [0.01, 100] or auto, got {args.rtf!r}"
+            return f"--rtf must be a number in [0.01, 100] or fast, got {args.rtf!r}"
     if args.gap is not None:
         lo, hi = args.gap
         if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 <= lo <= hi <= 100.0):
@@ -166,57 +170,7 @@ class _Observer:
             self.paths.setdefault(int(pid), []).append((pose.position.x, pose.position.y))
 
 
-class _Governor:
-    """Keeps the cell's real-time factor as high as the controller's scans allow."""
-
-    def __init__(self, node, observer: _Observer, rtf: float, fixed: bool):
-        from rcl_interfaces.srv import SetParameters
-
-        self.client = node.create_client(SetParameters, "sorter_sim/set_parameters")
-        self.observer = observer
-        self.rtf = rtf
-        self.fixed = fixed
-        self.last = None
-        self.history = [rtf]
-        self.pending = None
-
-    def step(self) -> None:
-        """Once per diagnostics period: compare the controller's scans with the last look."""
-        if self.fixed or self.pending is not None and not self.pending.done():
-            return
-        d = self.observer.ctl_diag
-        if "scans" not in d:
-            return
-        now = (int(d["scans"]), int(d["late_scans"]), int(d["late"]), int(d.get("overruns", 0)))
-        if self.last is None or now[0] - self.last[0] < 50:
-            self.last = self.last or now
-            return
-        scans, late_scans, late, _ = (a - b for a, b in zip(now, self.last))
-        self.last = now
-        frac = late_scans / max(scans, 1)
-        if late > 0 or frac > 0.03:
-            new = max(RTF_MIN, self.rtf * 0.7)
-        elif frac < 0.01:
-            new = min(RTF_MAX, self.rtf * 1.2)
-        else:
-            return
-        if abs(new - self.rtf) > 1e-9:
-            self._set(new)
-
-    def _set(self, rtf: float) -> None:
-        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-        from rcl_interfaces.srv import SetParameters
-
-        if not self.client.service_is_ready():
-            return
-        self.rtf = rtf
-        self.history.append(rtf)
-        self.pending = self.client.call_async(SetParameters.Request(parameters=[Parameter(
-            name="real_time_factor", value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
-                                                          double_value=float(rtf)))]))
-
-
-def summarize(obs: _Observer, plan: dict, sim_time: float, wall: float, governor: _Governor) -> dict:
+def summarize(obs: _Observer, plan: dict, sim_time: float, wall: float, time_mode: str) -> dict:
     exits = {"left": 0, "right": 0, "straight": 0, "jammed": 0}
     mis_sorted, untracked = [], 0
     flagged = {"gap_too_short": 0, "late": 0, "cannot_divert": 0, "fault": 0}
@@ -244,7 +198,7 @@ def summarize(obs: _Observer, plan: dict, sim_time: float, wall: float, governor
         "sim_time_s": round(sim_time, 3),
         "wall_s": round(wall, 3),
         "real_time_factor": round(sim_time / wall, 3) if wall > 0 else None,
-        "rtf_final": round(governor.rtf, 3),
+        "time_mode": time_mode,
         "inducted": len(obs.ids_seen),
         "sorted_left": exits["left"],
         "sorted_right": exits["right"],
@@ -274,7 +228,7 @@ def summarize(obs: _Observer, plan: dict, sim_time: float, wall: float, governor
 def print_table(s: dict) -> None:
     rows = [
         ("simulated time", f"{s['sim_time_s']:.1f} s in {s['wall_s']:.1f} s wall "
-                           f"(real-time factor {s['real_time_factor']:.2f}, last {s['rtf_final']:g})"),
+                           f"(real-time factor {s['real_time_factor']:.2f}, {s['time_mode']})"),
         ("inducted", s["inducted"]),
         ("sorted left", s["sorted_left"]),
         ("sorted right", s["sorted_right"]),
@@ -350,18 +304,19 @@ class RunningCell:
 
     Parameters come from config/cell.yaml and config/controller.yaml, then
     ``sim_params`` / ``controller_params`` override them. ``rtf`` is the cell's
-    real-time factor, or "auto" for the governor. Use as a context manager:
+    real-time factor on the wall clock, or "fast" (as fast as possible, in slices
+    the executor interleaves with the controller). Use as a context manager:
     ``run_until(t)`` spins until the simulation clock reaches t, ``finish()``
     stops the cell's clock and lets the last messages arrive.
     """
 
-    def __init__(self, *, sim_params: dict, controller_params: dict, rtf="auto", want_paths: bool = True,
-                 executor: str = "events", log_level: str = "warn"):
+    def __init__(self, *, sim_params: dict, controller_params: dict, rtf="fast", want_paths: bool = True,
+                 executor: str = "single", log_level: str = "warn"):
         self.log_level = log_level
         self.sim_params = sim_params
         self.controller_params = controller_params
-        self.fixed = rtf != "auto"
-        self.rtf = float(rtf) if self.fixed else RTF_START
+        self.time_mode = "fast" if rtf == "fast" else "realtime"
+        self.rtf = None if rtf == "fast" else float(rtf)
         self.want_paths = want_paths
         self.executor_kind = executor
         self.nodes = []
@@ -384,8 +339,9 @@ class RunningCell:
                                            "--params-file", str(config_dir / "controller.yaml"),
                                            "--log-level", self.log_level])
         try:
-            sim_values = {"time_mode": "realtime", "real_time_factor": self.rtf, "pose_rate_hz": 50.0,
-                          "wall_tick": 0.001, **self.sim_params}
+            timing = ({"time_mode": "fast", "fast_slice": FAST_SLICE} if self.rtf is None else
+                      {"time_mode": "realtime", "real_time_factor": self.rtf, "wall_tick": 0.001})
+            sim_values = {**timing, "pose_rate_hz": 50.0, **self.sim_params}
             # the stream starts once the controller runs (no parcel passes it untracked)
             self.arrival = sim_values.get("arrival", "none")
             sim_values["arrival"] = "none"
@@ -399,9 +355,6 @@ class RunningCell:
             self.watcher = rclpy.create_node("sorter_demo", context=self.ctx)
             self.nodes.append(self.watcher)
             self.obs = _Observer(self.watcher, want_paths=self.want_paths)
-            self.governor = _Governor(self.watcher, self.obs, self.rtf, self.fixed)
-            self.watcher.create_timer(0.5, self.governor.step, clock=rclpy.clock.Clock(
-                clock_type=rclpy.clock.ClockType.STEADY_TIME))
             self.executor = _executor(self.ctx, self.executor_kind)
             for n in self.nodes:
                 self.executor.add_node(n)
@@ -495,7 +448,7 @@ def run(args) -> int | str:
                      rtf=args.rtf, log_level="info" if args.verbose else "warn") as rc:
         wall = rc.run_for(args.sim_time)
         t_end = rc.finish()
-        summary = summarize(rc.obs, plan, t_end, wall, rc.governor)
+        summary = summarize(rc.obs, plan, t_end, wall, rc.time_mode)
         summary["png"] = str(args.out)
         plot_paths(rc.obs, rc.cell_params(), summary, Path(args.out))
     if args.json:
@@ -506,10 +459,10 @@ def run(args) -> int | str:
     return 0 if summary["mis_sorted"] == 0 and summary["jams"] == 0 else 1
 
 
-def _executor(ctx, kind: str = "events"):
-    """rclpy's events executor where there is one (kind "events"): its callbacks cost a
-    fraction of the wait-set executor's, and a faster executor is a higher real-time factor
-    here; kind "single" is the SingleThreadedExecutor."""
+def _executor(ctx, kind: str = "single"):
+    """The SingleThreadedExecutor ("single"), or rclpy's experimental events executor
+    ("events", where there is one: cheaper callbacks, but its timers on the simulation
+    clock fire late when the cell runs fast, so it suits only real-time runs)."""
     if kind == "events":
         try:
             from rclpy.experimental import EventsExecutor

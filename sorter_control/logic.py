@@ -368,6 +368,7 @@ class SorterLogic:
         self.commanded_up: bool | None = None
         self.commanded_alpha: float | None = None
         self.alpha_ready_at: float | None = None     # when the commanded angle should be reached [s]
+        self.diverter_silent = False                 # a diverter call timed out (until reset)
         self.diverter: DiverterState | None = None
         self._reset_requested = False
         self._estop_requested = False
@@ -591,6 +592,7 @@ class SorterLogic:
                     # would actuate twice; the diverter's state is unknown until reset
                     self.commanded_up = None if cmd.kind == "popup" else self.commanded_up
                     self.commanded_alpha = None if cmd.kind == "alpha" else self.commanded_alpha
+                    self.diverter_silent = True
                     self._enter_fault(out, "diverter_timeout", f"{what}: no answer from the cell in time; "
                                       "not retried")
                 elif cmd.kind == "reset":
@@ -669,10 +671,11 @@ class SorterLogic:
         self.state = "running"
         self.fault = None
         self.belt_running = True
-        if was in ("diverter_timeout", "diverter_refused"):
+        if was in ("diverter_timeout", "diverter_refused") or self.diverter_silent:
             # the operator has looked at the diverter: its state is unknown, so write it afresh
             self.commanded_up = None
             self.commanded_alpha = None
+        self.diverter_silent = False
         self._drop_tracking(out, f"reset after {was}")
         for name, e in self.eyes.items():
             e.since = self.t
@@ -1169,8 +1172,8 @@ class SorterLogic:
         return up, alpha
 
     def _write_outputs(self, out) -> None:
-        if self.state == "diverter_timeout":
-            return          # the diverter does not answer: leave it alone until reset
+        if self.diverter_silent:
+            return          # the diverter did not answer: leave it alone until reset, whatever the state
         if self.state == "resetting":
             return
         if self.state != "running":

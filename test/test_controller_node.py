@@ -1,7 +1,7 @@
 """The controller node against the real simulation node, in-process over real DDS.
 
 Each test gets a fresh rclpy Context (fixture ``ros``) holding the simulation
-node (``sorter_sim``, real time at a small real-time factor), the controller
+node (``sorter_sim``, as fast as possible in small slices), the controller
 (``sorter_controller`` on the simulation clock, reading the cell's geometry from
 the simulation node's parameters) and a watcher node that plays the warehouse
 and the maintenance engineer: it inducts parcels, sends routing updates, forces
@@ -29,9 +29,10 @@ from sorter_sim.node import SimNode
 
 pytestmark = pytest.mark.ros
 
-RTF = 2.0
-CELL = {"time_mode": "realtime", "real_time_factor": RTF, "arrival": "none", "induct_x": -2.4,
-        "pose_rate_hz": 50.0, "wall_tick": 0.002, "parcel_phi0_deg": [0.0, 0.0], "parcel_y0": [0.0, 0.0]}
+# as fast as possible, in 5 ms slices the executor interleaves with the controller: it sees
+# the cell within a slice of simulated time however loaded the machine is
+CELL = {"time_mode": "fast", "fast_slice": 0.005, "arrival": "none", "induct_x": -2.4,
+        "pose_rate_hz": 50.0, "parcel_phi0_deg": [0.0, 0.0], "parcel_y0": [0.0, 0.0]}
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
 CONTROLLER = {"use_sim_time": True, "routing.rules": ROUTING, "diagnostics_period": 0.2,
               "service_timeout": 0.3, "timing_margin": 0.03}
@@ -234,7 +235,9 @@ def test_diverter_service_withheld_times_out_without_retry(ros):
         response.success, response.message = True, "ok"
         return response
     stand_in.create_service(SetBool, "withheld/popup", serve)
-    cell = Cell(ros, **cell_kw)
+    # on the wall clock: the call's timeout is wall time, and a cell running as fast as possible
+    # would let the parcel miss its chute (another fault) before the timeout
+    cell = Cell(ros, sim={"time_mode": "realtime", "real_time_factor": 1.0}, **cell_kw)
     ros.spin_until(lambda: answered, 5.0, "the controller's first pop-up command")
     ros.executor.remove_node(stand_in)          # from now on nobody answers
     cell.induct("A4")

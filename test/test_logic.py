@@ -406,6 +406,26 @@ def test_diverter_timeout_is_not_retried():
     assert "not retried" in logic.fault["message"]
 
 
+def test_diverter_timeout_during_another_fault_stops_all_diverter_calls():
+    cfg, logic, plant = make()
+    run = run_cell(plant, logic, 0.2)
+    plant.force("pe_divert", True)
+    run = run_cell(plant, logic, 2.0, run)
+    assert logic.state == "stuck_on"
+    plant.withheld.add("popup")
+    logic.commanded_up = True              # as if a raise had been the last word
+    run = run_cell(plant, logic, 4.0, run)
+    # the lowering timed out: one call, then silence, though the state still wants the disks down
+    assert [v for t, k, v in run.commands if k == "popup" and t > 2.0] == [False]
+    assert logic.state == "stuck_on" and logic.counts["timeouts"] == 1
+    plant.withheld.clear()
+    plant.force("pe_divert", None)
+    logic.request_reset()
+    run = run_cell(plant, logic, 4.2, run)
+    assert logic.state == "running"
+    assert [v for t, k, v in run.commands if k == "popup" and t > 4.0] == [False]   # written afresh
+
+
 def test_diverter_refused():
     cfg, logic, plant = make()
     plant.refused["alpha"] = "alpha_deg must be in [-45, 45]"
