@@ -1,8 +1,11 @@
 """Benchmark of the controller with the simulation node: decision latency and sortable throughput.
 
-Not a test: it prints figures. Both nodes run in one process, in one
-single-threaded executor as in ``sorter demo`` (``--executor events`` for rclpy's
-experimental events executor), talking over DDS on this host.
+Not a test: it prints figures. Both nodes run in one process and one executor,
+talking over DDS on this host: for the latency run on the wall clock rclpy's
+experimental events executor (``--executor single`` for the SingleThreadedExecutor;
+``--processes 2`` puts the cell in a sim_node process of its own), for the
+throughput runs the SingleThreadedExecutor with the cell as fast as possible, as
+``sorter demo`` runs it.
 
 latency     sensor edge -> controller decision -> service accepted, wall time, at
             real-time factor 1. The cell is the default one with the scanner
@@ -12,8 +15,9 @@ latency     sensor edge -> controller decision -> service accepted, wall time, a
             known only then, and the decision is already due): that edge starts
             the clock. It stops when the cell's answer to the raise command
             arrives. The edge's wall time is the physical one: its simulation
-            time mapped through the cell's real-time anchor (so the cell's own
-            tick and DDS delivery count). Target: p99 below one scan period + 2 ms.
+            time mapped to the wall clock through the cell's /clock (so the
+            cell's own tick and DDS delivery count). Target: p99 below one scan
+            period + 2 ms.
 throughput  the default cell and controller, 0.4 x 0.3 m parcels at 1.5 m/s,
             a stream at a fixed belt gap, labels cycling through left, right and
             straight (a mixed stream) or all left (one side); for each gap, the
@@ -23,7 +27,7 @@ throughput  the default cell and controller, 0.4 x 0.3 m parcels at 1.5 m/s,
             demo (``--rtf F`` for real time at factor F).
 
     .venv/bin/python benchmarks/bench_controller.py [--parcels 60] [--sim-s 40] [--rtf fast]
-        [--skip-latency] [--skip-throughput] [--executor single|events]
+        [--skip-latency] [--skip-throughput] [--executor events|single] [--processes 1|2]
 """
 from __future__ import annotations
 
@@ -52,29 +56,118 @@ MIXED = ["A", "B", "C", "A", "A", "B", "C", "B", "B", "A", "C", "A"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
 
 
-def bench_latency(parcels: int, executor: str) -> dict:
-    sim = {"arrival": "gap", "arrival_gap": [1.6, 1.6], "labels": ["A"], "parcel_A": [0.25, 0.25],
-           "parcel_B": [0.25, 0.25], "induct_x": -0.7, "scanner_x": -0.45,
-           "photo_eyes.names": ["pe_scan", "pe_divert", "pe_exit"], "photo_eyes.x": [-0.45, -0.3, 2.0]}
-    # the scanner is too close to see a follower before deciding: allow the divert anyway
-    ctl = {"routing.rules": ROUTING, "open_chains": True}
-    edges = []          # (edge wall time from the cell's anchor, wall time received)
-    with RunningCell(sim_params=sim, controller_params=ctl, rtf=1.0, want_paths=False,
-                     executor=executor) as rc:
-        dt = rc.sim.cell.dt
+LATENCY_CELL = {"arrival": "gap", "arrival_gap": [1.6, 1.6], "labels": ["A"], "parcel_A": [0.25, 0.25],
+                "parcel_B": [0.25, 0.25], "induct_x": -0.7, "scanner_x": -0.45,
+                "photo_eyes.names": ["pe_scan", "pe_divert", "pe_exit"], "photo_eyes.x": [-0.45, -0.3, 2.0]}
+# the scanner is too close to see a follower before deciding: allow the divert anyway
+LATENCY_CONTROLLER = {"routing.rules": ROUTING, "open_chains": True}
 
-        def on_edge(msg):
-            if msg.header.frame_id != "pe_scan" or msg.source != "falling":
-                return
-            t_sim = msg.time_ref.sec + 1e-9 * msg.time_ref.nanosec
-            wall0, k0 = rc.sim._wall_ref           # the cell's wall <-> simulation-time anchor
-            edges.append((wall0 + (t_sim - k0 * dt) / rc.sim.params.real_time_factor, time.monotonic()))
-        rc.watcher.create_subscription(TimeReference, "sensors/edges", on_edge, EVENT_QOS)
-        t_sim = 0.6 + parcels * (0.25 + 1.6) / 1.5 + 1.0
-        wall = rc.run_for(t_sim)
-        rc.finish()
-        raises = [e for e in rc.ctl.command_log if e[0] == "popup" and e[1] is True and e[3] is not None]
-        results = list(rc.ctl.confirmations)
+
+class _EdgeClock:
+    """Edge times on the wall clock, from the cell's own clock: every /clock message received
+    at wall time w for simulation time t says the cell's anchor (wall time of t = 0 at factor
+    1) is at most w - t; the smallest such bound over the last second is the anchor."""
+
+    def __init__(self, node):
+        from rosgraph_msgs.msg import Clock
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        self.clock = []            # (wall received, sim time)
+        self.edges = []            # (sim time, wall received) of the scanner eye's falling edges
+        node.create_subscription(Clock, "/clock", self._on_clock,
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        node.create_subscription(TimeReference, "sensors/edges", self._on_edge, EVENT_QOS)
+
+    def _on_clock(self, msg):
+        self.clock.append((time.monotonic(), msg.clock.sec + 1e-9 * msg.clock.nanosec))
+
+    def _on_edge(self, msg):
+        if msg.header.frame_id == "pe_scan" and msg.source == "falling":
+            self.edges.append((msg.time_ref.sec + 1e-9 * msg.time_ref.nanosec, time.monotonic()))
+
+    def edge_walls(self) -> list[tuple[float, float]]:
+        """(physical edge wall time, wall time received) per edge."""
+        c = np.array(self.clock)
+        out = []
+        for t_sim, rx in self.edges:
+            recent = c[(c[:, 0] <= rx) & (c[:, 0] >= rx - 1.0)]
+            if len(recent):
+                out.append((float(np.min(recent[:, 0] - recent[:, 1])) + t_sim, rx))
+        return out
+
+
+def bench_latency(parcels: int, executor: str, processes: int) -> dict:
+    t_run = 0.6 + parcels * (0.25 + 1.6) / 1.5 + 1.0
+    if processes == 1:
+        with RunningCell(sim_params=LATENCY_CELL, controller_params=LATENCY_CONTROLLER, rtf=1.0,
+                         want_paths=False, executor=executor) as rc:
+            probe = _EdgeClock(rc.watcher)
+            wall = rc.run_for(t_run)
+            rc.finish()
+            log, results = list(rc.ctl.command_log), list(rc.ctl.confirmations)
+    else:
+        log, results, probe, wall = _latency_two_processes(t_run, executor)
+    return _latency_figures(log, results, probe.edge_walls(), wall)
+
+
+def _latency_two_processes(t_run: float, executor: str):
+    """The cell in a process of its own (sim_node), the controller and the probe in this one."""
+    import signal
+    import subprocess
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    from sorter_control.demo import _executor
+    from sorter_control.node import ControllerNode
+    from sorter_sim.ros_env import find_config_dir
+
+    config = find_config_dir()
+    args = [str(Path(sys.executable).with_name("sim_node")), "--ros-args", "--params-file",
+            str(config / "cell.yaml"), "--log-level", "warn",
+            "-p", "time_mode:=realtime", "-p", "real_time_factor:=1.0", "-p", "wall_tick:=0.001"]
+    for k, v in LATENCY_CELL.items():
+        args += ["-p", f"{k}:={json.dumps(v) if isinstance(v, list) else v}"]
+    sim = subprocess.Popen(args)
+    ctx = Context()
+    rclpy.init(context=ctx, args=["--ros-args", "--params-file", str(config / "controller.yaml"),
+                                  "--log-level", "warn"])
+    nodes = []
+    try:
+        ctl = ControllerNode(context=ctx, parameter_overrides=[
+            Parameter(k, value=v) for k, v in {"use_sim_time": True, **LATENCY_CONTROLLER}.items()])
+        nodes.append(ctl)
+        watcher = rclpy.create_node("latency_probe", context=ctx)
+        nodes.append(watcher)
+        probe = _EdgeClock(watcher)
+        ex = _executor(ctx, executor)
+        for n in nodes:
+            ex.add_node(n)
+        deadline = time.monotonic() + 60.0
+        while ctl.logic is None and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.05)
+        if ctl.logic is None:
+            raise RuntimeError("the controller did not get the cell's parameters within 60 s")
+        wall0 = time.monotonic()
+        t0 = ctl._now()
+        while ctl._now() < t0 + t_run:
+            ex.spin_once(timeout_sec=0.05)
+        wall = time.monotonic() - wall0
+        return list(ctl.command_log), list(ctl.confirmations), probe, wall
+    finally:
+        sim.send_signal(signal.SIGINT)
+        try:
+            sim.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            sim.kill()
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def _latency_figures(log, results, edges, wall) -> dict:
+    raises = [e for e in log if e[0] == "popup" and e[1] is True and e[3] is not None]
     decision, accepted, via_rx, round_trip, in_scan = [], [], [], [], []
     for kind, value, scan_wall, answered, ok, sent in raises:
         before = [e for e in edges if e[0] <= scan_wall]
@@ -152,7 +245,10 @@ def main() -> int:
     ap.add_argument("--parcels", type=int, default=60, help="parcels for the latency run")
     ap.add_argument("--sim-s", type=float, default=40.0, help="simulated seconds per throughput run")
     ap.add_argument("--rtf", default="fast", help="real-time factor of the throughput runs, or fast")
-    ap.add_argument("--executor", choices=("single", "events"), default="single")
+    ap.add_argument("--executor", choices=("events", "single"), default="events",
+                    help="executor of the latency run (the throughput runs use the single-threaded one)")
+    ap.add_argument("--processes", type=int, choices=(1, 2), default=1,
+                    help="latency run: the cell in this process (1) or in a sim_node process of its own (2)")
     ap.add_argument("--skip-latency", action="store_true")
     ap.add_argument("--skip-throughput", action="store_true")
     ap.add_argument("--json", action="store_true")
@@ -163,17 +259,19 @@ def main() -> int:
                          f"load average before {os.getloadavg()[0]:.2f}",
               "executor": args.executor}
     if not args.skip_latency:
-        report["latency"] = bench_latency(args.parcels, args.executor)
+        report["latency"] = bench_latency(args.parcels, args.executor, args.processes)
     if not args.skip_throughput:
-        report["throughput"] = bench_throughput(args.sim_s, args.rtf, args.executor)
+        report["throughput"] = bench_throughput(args.sim_s, args.rtf, "single")
     del rclpy
     if args.json:
         print(json.dumps(report))
         return 0
-    print(f"machine: {report['machine']}; executor: {args.executor}")
+    print(f"machine: {report['machine']}")
     if "latency" in report:
         lat = report["latency"]
-        print(f"latency at real-time factor 1 ({lat['samples']} edge-triggered raises, scan period 10 ms):")
+        where = "one process" if args.processes == 1 else "the cell in a process of its own"
+        print(f"latency at real-time factor 1, {where}, {args.executor} executor ({lat['samples']} "
+              f"edge-triggered raises, scan period 10 ms):")
         for key, what in (("edge_to_decision_ms", "edge -> decision (scan)"),
                           ("edge_to_accepted_ms", "edge -> service accepted"),
                           ("received_edge_to_accepted_ms", "edge received -> accepted"),

@@ -278,6 +278,7 @@ class ControllerNode(Node):
         self.command_log: deque = deque(maxlen=10000)
         self.confirmations: deque = deque(maxlen=10000)
         self.n_bad_messages = 0
+        self._clock_warned = False
         steady = rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME)
         self._scan_timer = self.create_timer(self.values["scan_period"], self._scan)
         self.create_timer(self.values["diagnostics_period"], self._publish_diagnostics, clock=steady)
@@ -380,6 +381,12 @@ class ControllerNode(Node):
             self.n_bad_messages += 1
             return
         self._edges.append(Edge(name, t, msg.source == "rising"))
+        if abs(t - self._now()) > 5.0 and not self._clock_warned:
+            # sensor stamps on another clock: a cell on simulated time with this node on wall time
+            self._clock_warned = True
+            self.get_logger().warning(
+                f"sensor edges are stamped {t - self._now():+.1f} s from this node's clock; with sim_node, "
+                "run the controller with use_sim_time:=true (config/controller.yaml does)")
 
     def _on_label(self, msg: String) -> None:
         self._labels.append((self._now(), msg.data))
