@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from .timing import (
     DESTINATIONS,
@@ -273,6 +273,7 @@ class InputImage:
     routing_updates: list = field(default_factory=list)  # (pattern, destination)
     cell_estop: bool | None = None                       # as the cell reports it, if known
     cell_jam: bool | None = None
+    cell_status_t: float | None = None                   # the report's time stamp [s]
 
 
 @dataclass(frozen=True)
@@ -369,6 +370,7 @@ class SorterLogic:
         self.commanded_alpha: float | None = None
         self.alpha_ready_at: float | None = None     # when the commanded angle should be reached [s]
         self.diverter_silent = False                 # a diverter call timed out (until reset)
+        self.reset_t = -math.inf                     # when the last reset cleared a fault [s]
         self.diverter: DiverterState | None = None
         self._reset_requested = False
         self._estop_requested = False
@@ -639,6 +641,8 @@ class SorterLogic:
         self._drop_tracking(out, "e-stop")
 
     def _apply_cell_status(self, out, image: InputImage) -> None:
+        if image.cell_status_t is not None and image.cell_status_t < self.reset_t:
+            return      # reported before the last reset: stale
         if image.cell_estop:
             # a jam the controller stopped the belt for stays a jam; anything else becomes an e-stop
             self.belt_running = False
@@ -676,6 +680,7 @@ class SorterLogic:
             self.commanded_up = None
             self.commanded_alpha = None
         self.diverter_silent = False
+        self.reset_t = self.t
         self._drop_tracking(out, f"reset after {was}")
         for name, e in self.eyes.items():
             e.since = self.t

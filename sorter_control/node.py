@@ -273,6 +273,7 @@ class ControllerNode(Node):
         self._replies: list[Reply] = []
         self._cell_estop: bool | None = None
         self._cell_jam: bool | None = None
+        self._cell_status_t: float | None = None
         self._in_flight: dict[int, tuple] = {}     # command id -> (future, client, wall deadline, cmd)
         # [kind, value, wall at the scan's start, wall answered, accepted, wall sent]
         self.command_log: deque = deque(maxlen=10000)
@@ -413,6 +414,8 @@ class ControllerNode(Node):
             if "estop" in values and "jam" in values:
                 self._cell_estop = values["estop"] == "true"
                 self._cell_jam = values["jam"] == "true"
+                stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+                self._cell_status_t = stamp if stamp > 0.0 else None     # unstamped: take as current
 
     def _on_routing(self, msg: KeyValue) -> None:
         self._routing.append((msg.key, msg.value))
@@ -428,9 +431,10 @@ class ControllerNode(Node):
         self._expire_calls()
         image = InputImage(t=self._now(), bits=dict(self._bits), edges=self._edges, labels=self._labels,
                            diverter=self._diverter, replies=self._replies, routing_updates=self._routing,
-                           cell_estop=self._cell_estop, cell_jam=self._cell_jam)
+                           cell_estop=self._cell_estop, cell_jam=self._cell_jam,
+                           cell_status_t=self._cell_status_t)
         self._edges, self._labels, self._replies, self._routing = [], [], [], []
-        self._cell_estop = self._cell_jam = None
+        self._cell_estop = self._cell_jam = self._cell_status_t = None
         out = self.logic.scan(image)
         for cmd in out.commands:
             self._call(cmd, wall0)

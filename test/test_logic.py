@@ -468,6 +468,21 @@ def test_estop_reported_by_the_cell_and_refusal_reasons():
     assert logic2.state == "estop"
 
 
+def test_cell_status_older_than_the_last_reset_is_ignored():
+    cfg, logic, _ = make()
+    logic.scan(InputImage(t=1.0, cell_estop=True, cell_status_t=0.99))
+    assert logic.state == "estop"
+    logic.request_reset()
+    out = logic.scan(InputImage(t=1.01))
+    (cmd,) = [c for c in out.commands if c.kind == "reset"]
+    logic.scan(InputImage(t=1.02, replies=[Reply(cmd.id, True, "cleared estop")]))
+    assert logic.state == "running"
+    logic.scan(InputImage(t=1.03, cell_estop=True, cell_status_t=1.0))     # sent before the reset
+    assert logic.state == "running"
+    logic.scan(InputImage(t=1.04, cell_estop=True, cell_status_t=1.035))   # a new e-stop
+    assert logic.state == "estop"
+
+
 def test_reset_clears_a_local_fault_without_the_cell():
     cfg, logic, plant = make()
     run = run_cell(plant, logic, 0.2)
