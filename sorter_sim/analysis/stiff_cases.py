@@ -196,7 +196,7 @@ def matrix(quick: bool = False) -> list[StiffCase]:
         add(f"alpha={alpha:g}", "disk angle α", sorting_case(alpha_deg=alpha), alpha in (0.0, 1.0, 89.9))
     for b, label in ((0.0, "0"), (0.05, "0.05 (<< A = 0.7)"), (math.inf, "inf")):
         add(f"b={label.split()[0]}", "disk field width b", sorting_case(b=b), b in (0.0, 0.05),
-            note=f"b = {label} m")
+            note=f"b = {label} m", converge=("accurate", "implicit") if b == math.inf else ("accurate",))
     add("long_thin", "parcel shape", sorting_case(A=1.2, B=0.05), True, note="1.2 x 0.05 m")
     add("square", "parcel shape", sorting_case(A=0.4, B=0.4), note="0.4 x 0.4 m")
     for phi in (0.0, 45.0, 90.0):
