@@ -322,3 +322,36 @@ def test_parameters_validated_at_start_and_at_run_time(ros):
                                                    string_array_value=["Z*=right"]))
     assert r.successful
     assert ctl.logic.routing.lookup("Z1") == ("right", "prefix")
+
+
+# --------------------------------------------------------------------------- the main job
+
+def test_sorter_demo_sorts_and_reports(tmp_path, capsys):
+    import json
+
+    from sorter_sim.cli import main
+
+    png = tmp_path / "paths.png"
+    assert main(["demo", "--sim-time", "12", "--json", "--out", str(png)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["mis_sorted"] == 0 and summary["jams"] == 0 and summary["untracked"] == 0
+    assert summary["sorted_left"] >= 2 and summary["sorted_right"] >= 2
+    out = summary["sorted_left"] + summary["sorted_right"] + summary["straight"]
+    assert summary["inducted"] == out + summary["in_cell_at_end"]
+    assert summary["throughput_pcs_h"] == pytest.approx(3600.0 * out / summary["sim_time_s"], rel=1e-3)
+    assert summary["controller_state"] == "running" and summary["late_decisions"] == 0
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--sim-time", "0"], "--sim-time"),
+    (["--rtf", "warp"], "--rtf"),
+    (["--gap", "1.0", "0.5"], "--gap"),
+    (["--out", "paths.svg"], "--out"),
+])
+def test_sorter_demo_bad_arguments_exit_2(argv, words, capsys):
+    from sorter_sim.cli import main
+
+    assert main(["demo", *argv]) == 2
+    err = capsys.readouterr().err
+    assert words in err and len(err.strip().splitlines()) == 1
