@@ -911,10 +911,9 @@ class SorterLogic:
         if not self.belt_running:
             return
         for p in self.parcels:
-            if p.done:
-                continue
             x_lead = self.lead_x(p)
-            # transit windows at the checkpoints
+            # transit windows at the checkpoints (a straight parcel is done before the eyes
+            # downstream of the field see it, and still checked there)
             for name, x_e in self.eye_x.items():
                 if name in p.confirmed or not self._checkpoint(p, name):
                     continue
@@ -928,6 +927,8 @@ class SorterLogic:
                         if self.state == "running":
                             self._enter_fault(out, "stuck_off", f"{name}: parcel {p.seq} ({p.label}) should have "
                                               f"blocked it {(x_lead - x_e) / v:.2f} s ago", name)
+            if p.done:
+                continue
             # outcomes the controller infers from time
             length = p.length if p.length is not None else cfg.max_parcel_length
             if not p.committed:

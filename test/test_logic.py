@@ -374,6 +374,16 @@ def test_stuck_off_photo_eye_misses_a_tracked_parcel():
     assert run.confirmations[0].result == "fault"
 
 
+def test_stuck_off_exit_eye_misses_a_straight_parcel():
+    cfg, logic, plant = make()
+    plant.force("pe_exit", False)
+    plant.add_stream([("S1", 0.4, 0.0)])
+    run = run_cell(plant, logic, 4.0)
+    assert logic.state == "stuck_off" and logic.fault["sensor"] == "pe_exit"
+    # the parcel itself had already been confirmed straight
+    assert [(c.destination_reached, c.result) for c in run.confirmations] == [("straight", "sorted")]
+
+
 def test_stuck_off_scanner_eye_label_without_blocking():
     cfg, logic, plant = make()
     plant.force("pe_scan", False)
