@@ -25,7 +25,6 @@ publishes ``sort/confirmations`` (diagnostic_msgs/DiagnosticStatus) and
 from __future__ import annotations
 
 import math
-import sys
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -35,14 +34,13 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, Parameter, ParameterDescriptor, ParameterType,
                                 ParameterValue, SetParametersResult)
 from rcl_interfaces.srv import GetParameters, SetParameters
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Bool, String
 from std_srvs.srv import SetBool, Trigger
 
-from sorter_sim.ros_env import apply_ros_env_defaults
+from sorter_sim.ros_env import run_node
 
 from .logic import (
     ControllerConfig,
@@ -591,24 +589,7 @@ class ControllerNode(Node):
 
 
 def main(args=None):
-    apply_ros_env_defaults()
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = ControllerNode()
-        rclpy.spin(node)
-    except ValueError as exc:
-        print(f"controller_node: {exc}", file=sys.stderr)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if code:
-        sys.exit(code)
+    run_node(ControllerNode, "controller_node", (ValueError,), args)
 
 
 if __name__ == "__main__":

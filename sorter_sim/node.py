@@ -14,17 +14,14 @@ services and parameters are served) and ``lockstep`` (one control period per
 from __future__ import annotations
 
 import math
-import sys
 import time
 
-import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -37,7 +34,7 @@ from .cdr import pose_array_cdr, stamp
 from .cell import STATE_NAMES, Cell, LabelRead, Outcome, ParcelSpec, SensorEdge
 from .params import (BOOL, DOUBLE, DOUBLE_ARRAY, INTEGER, SCHEMA, SPECS, STRING, STRING_ARRAY,
                      CellParams, ParamError)
-from .ros_env import apply_ros_env_defaults
+from .ros_env import run_node
 
 NODE_NAME = 'sorter_sim'
 FRAME_ID = 'conveyor'
@@ -434,30 +431,7 @@ class SimNode(Node):
 
 
 def main(args=None):
-    apply_ros_env_defaults()
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = SimNode()
-        rclpy.spin(node)
-    except ParamError as exc:
-        print(f'sim_node: {exc}', file=sys.stderr)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # SIGINT/SIGTERM shut the context down between bytecodes, possibly in the
-        # middle of a callback; what that callback raises then (publishing on a
-        # context that is gone) is part of shutting down, not a fault
-        if node is None or node.context.ok():
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if code:
-        sys.exit(code)
+    run_node(SimNode, 'sim_node', (ParamError,), args)
 
 
 if __name__ == '__main__':

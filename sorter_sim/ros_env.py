@@ -71,3 +71,43 @@ def find_config_dir() -> Path:
         f'and {share_where}. Run from a checkout of the repository, or build '
         f'and source the ROS 2 workspace that installs sorter_cell.'
     )
+
+
+def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=None) -> None:
+    """Run a node as every executable of this package does (ros2/demos talker style).
+
+    Applies the discovery default, initialises rclpy, spins ``make_node()`` and
+    tears down in ``finally``. A configuration error raised while the node is
+    built (one of ``config_errors``) is printed as one line and exits with code 2.
+    """
+    import sys
+
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    apply_ros_env_defaults()
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = make_node()
+        rclpy.spin(node)
+    except config_errors as exc:
+        if node is not None:
+            raise
+        print(f'{prog}: {exc}', file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:
+        # SIGINT/SIGTERM shut the context down between bytecodes, possibly in the
+        # middle of a callback; what that callback raises then (publishing on a
+        # context that is gone) is part of shutting down, not a fault
+        if node is None or node.context.ok():
+            raise
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if code:
+        sys.exit(code)
