@@ -419,11 +419,14 @@ def _run_threshold(p, t_end, dt, v_min, ts, xs, vs, rows, ev_t, ev_k, counters):
 
 def run_oscillator(osc: Oscillator, t_end: float, method: str = "accurate", *, dt: float = 1e-3,
                    v_min: float = 1e-3, rtol: float = 1e-8, atol: float = 1e-10,
-                   h_max: float = math.inf, max_points: int = 2_000_000) -> OscResult:
+                   h_max: float = math.inf, max_points: int | None = None) -> OscResult:
     """Integrate the Fig. 4 body with one of the three methods (see the module docstring).
 
     h_max caps the accurate method's steps (a denser output; rests are still one record).
-    Output beyond ``max_points`` records is dropped (the run itself completes).
+    The fixed-step methods record every step (``max_points`` defaults to that count);
+    the accurate method records up to 2 000 000 steps by default. Records beyond
+    ``max_points`` are dropped (the run itself completes) and ``extra['truncated']``
+    says so.
     Events: 'slip' (leaves rest) and 'stick' (comes to rest). For the threshold method
     the event log records every change of the active row of eq. (3.1) as 'row<N>'.
     """
@@ -438,6 +441,8 @@ def run_oscillator(osc: Oscillator, t_end: float, method: str = "accurate", *, d
         if not (math.isfinite(val) and lo < val <= hi):
             raise ValueError(f"{name} must be in ({lo}, {hi}], got {val}")
     p = osc.params()
+    if max_points is None:
+        max_points = 2_000_000 if method == "accurate" else int(math.ceil(t_end / dt)) + 10
     cap = int(min(max_points, (t_end / dt + 10) if method != "accurate" else max_points))
     ts = np.empty(cap)
     xs = np.empty(cap)
@@ -466,7 +471,8 @@ def run_oscillator(osc: Oscillator, t_end: float, method: str = "accurate", *, d
         F = np.where(row == ROW_KINETIC, osc.F_kin * np.sign(v), P)
         events = [(float(ev_t[i]), "slip" if ev_k[i] == 1 else "stick") for i in range(ne)]
     return OscResult(t, x, v, x_spring, P, F, row, events, method, n_steps=int(counters[2]),
-                     n_rhs=int(counters[3]), wall_s=wall)
+                     n_rhs=int(counters[3]), wall_s=wall,
+                     extra={"truncated": bool(t[-1] < t_end - 1e-9 * max(1.0, t_end))})
 
 
 def static_stage_durations(res: OscResult, n_cycles: int = 3) -> list[float]:
