@@ -35,7 +35,9 @@ setup(
         'ros-jazzy-common-interfaces>=5.3',
     ],
     extras_require={
-        'test': ['pytest', 'pytest-timeout'],
+        # pytest-xdist: the suite runs in a worker process, so that a test ended by its
+        # time limit (test/suite_timeout.py) is an ordinary failure and the suite goes on
+        'test': ['pytest>=8', 'pytest-xdist>=3.5'],
     },
     zip_safe=True,
     maintainer='sorter_cell maintainers',

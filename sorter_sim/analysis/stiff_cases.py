@@ -510,17 +510,24 @@ class LongRun:
         return all(c.passed for c in self.checks)
 
 
-def two_belt_long(t_end: float = 600.0, methods: dict | None = None) -> list[LongRun]:
+LONG_CASES = (("const μ = 0.6, rotation off", const_law(0.6), False),
+              ("B-spline, rotation off", bspline_law(), False),
+              ("const μ = 0.6, rotation on", const_law(0.6), True),
+              ("B-spline, rotation on", bspline_law(), True))
+
+
+def two_belt_long(t_end: float = 600.0, methods: dict | None = None,
+                  cases: tuple | None = None) -> list[LongRun]:
     """10 minutes of two-belt positioning: energy drift per cycle (constant μ), decay
-    (B-spline), and the matrix checks with rotation on."""
+    (B-spline), and the matrix checks with rotation on. ``cases``: labels of
+    ``LONG_CASES`` to run (default all)."""
     methods = methods or {"accurate": dict(DEFAULT_SETTINGS["accurate"], max_points=400_000),
                           "implicit": {"dt": 1e-3}, "threshold": {"dt": 1e-3, "v_min": 1e-6}}
     out = []
     mu = 0.6
-    for label, law, rotation in (("const μ = 0.6, rotation off", const_law(mu), False),
-                                 ("B-spline, rotation off", bspline_law(), False),
-                                 ("const μ = 0.6, rotation on", const_law(mu), True),
-                                 ("B-spline, rotation on", bspline_law(), True)):
+    for label, law, rotation in LONG_CASES:
+        if cases is not None and label not in cases:
+            continue
         case = two_belt_case(law, t_end, rotation=rotation)
         sc = StiffCase(label, "two-belt 10 min", case, mu_range=_law_range(law))
         for method, settings in methods.items():

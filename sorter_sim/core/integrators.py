@@ -783,7 +783,7 @@ def _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of,
                     wk = weights[aa] * weights[bb] * s * det
                     ux = y[3] - y[5] * (yk - y[1]) - strips[k, S_VX]
                     uy = y[4] + y[5] * (xk - y[0]) - strips[k, S_VY]
-                    sp = math.hypot(ux, uy)
+                    sp = math.sqrt(ux * ux + uy * uy)
                     mu = mu_kinetic(law, params, max(sp, 1e-12))
                     px[npt] = xk
                     py[npt] = yk
@@ -792,7 +792,7 @@ def _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of,
                     svx[npt] = strips[k, S_VX]
                     svy[npt] = strips[k, S_VY]
                     npt += 1
-                    rr = math.hypot(xk - y[0], yk - y[1])
+                    rr = math.sqrt((xk - y[0]) ** 2 + (yk - y[1]) ** 2)
                     stat[s_id, 0] += wk * mus * pressure
                     stat[s_id, 1] += wk * mus * pressure * rr
     return npt
@@ -815,7 +815,8 @@ def _friction_at(W, y, npt, px, py, ck, surf_of, svx, svy, skip, out):
         ry = py[k] - y[1]
         ux = W[0] - W[2] * ry - svx[k]
         uy = W[1] + W[2] * rx - svy[k]
-        sp = math.hypot(ux, uy)
+        # sqrt, not hypot: speeds are O(1) m/s, and libm's hypot costs several times more
+        sp = math.sqrt(ux * ux + uy * uy)
         d += ck[k] * sp
         if sp > 0.0:
             fx = -ck[k] * ux / sp
@@ -888,14 +889,22 @@ def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_
     # no stick: damped Newton on f(W) = ½ (W-W0)ᵀM(W-W0)/h + D(W)
     W = W0.copy()
     its = 0
+    Wt = np.empty(3)
     grad = np.empty(3)
     H = np.empty((3, 3))
     nvar = 3 if rot else 2
+    fval = 0.0
+    have_f = False      # f and the wrench at W are known from the last line search
     for its in range(1, 60):
-        fval = _friction_at(W, y, npt, px, py, ck, surf_of, svx, svy, -1, wr)
+        if not have_f:
+            fval = _friction_at(W, y, npt, px, py, ck, surf_of, svx, svy, -1, wr)
+            for i in range(3):
+                fval += 0.5 * mass[i] * (W[i] - W0[i]) ** 2 / h
         for i in range(3):
-            fval += 0.5 * mass[i] * (W[i] - W0[i]) ** 2 / h
             grad[i] = mass[i] * (W[i] - W0[i]) / h - wr[i]
+        gn = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + (grad[2] ** 2 if rot else 0.0))
+        if gn <= 1e-12 * (m / h) * 1e-3:
+            break
         H[:, :] = 0.0
         for i in range(3):
             H[i, i] = mass[i] / h
@@ -904,7 +913,7 @@ def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_
             ry = py[k] - y[1]
             ux = W[0] - W[2] * ry - svx[k]
             uy = W[1] + W[2] * rx - svy[k]
-            sp = max(math.hypot(ux, uy), 1e-12)
+            sp = max(math.sqrt(ux * ux + uy * uy), 1e-12)
             hx = ux / sp
             hy = uy / sp
             c = ck[k] / sp
@@ -921,13 +930,9 @@ def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_
         H[1, 0] = H[0, 1]
         H[2, 0] = H[0, 2]
         H[2, 1] = H[1, 2]
-        gn = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + (grad[2] ** 2 if rot else 0.0))
-        if gn <= 1e-12 * (m / h) * 1e-3:
-            break
         dW = _solve_spd(H, grad, nvar)
         # backtracking line search on f
         step = 1.0
-        Wt = np.empty(3)
         for _ in range(40):
             for i in range(3):
                 Wt[i] = W[i] + step * dW[i]
@@ -939,6 +944,9 @@ def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_
             step *= 0.5
         for i in range(3):
             W[i] = Wt[i]
+        # wr now holds the wrench at the accepted point: the next iteration reuses it
+        fval = ft
+        have_f = True
         if step * math.sqrt(dW[0] ** 2 + dW[1] ** 2 + dW[2] ** 2) <= 1e-15 * (1.0 + math.sqrt(W[0] ** 2 + W[1] ** 2)):
             break
     y_out[3] = W[0]

@@ -1,0 +1,56 @@
+"""The suite's own guard: a test that overruns is an ordinary failure and the run goes on.
+
+A deliberately over-running test (a loop inside numba-compiled code, where a timeout
+signal could not be handled) is run by pytest in a subprocess with this project's
+pytest.ini and a short timeout. It must be reported as one failed test that names the
+timeout, the tests before and after it must pass, and pytest must end normally
+(exit code 1, no INTERNALERROR).
+"""
+import os
+from pathlib import Path
+import subprocess
+import sys
+import textwrap
+
+ROOT = Path(__file__).resolve().parents[1]
+
+OVERRUNNING = textwrap.dedent('''
+    from numba import njit
+
+
+    def test_before():
+        pass
+
+
+    @njit
+    def _spin(n):
+        acc = 0.0
+        for i in range(n):
+            acc += (i % 7) * 1e-9
+        return acc
+
+
+    def test_overruns_inside_compiled_code():
+        # about 10^12 iterations: hours, far past the timeout below
+        assert _spin(10 ** 12) > 0.0
+
+
+    def test_after():
+        pass
+''')
+
+
+def test_an_overrunning_test_fails_alone_and_the_suite_goes_on(tmp_path):
+    (tmp_path / 'test_overrun.py').write_text(OVERRUNNING)
+    env = dict(os.environ, PYTHONPATH=str(ROOT / 'test'))
+    out = subprocess.run(
+        [sys.executable, '-m', 'pytest', '-c', str(ROOT / 'pytest.ini'), '--rootdir', str(tmp_path),
+         '-o', 'test_timeout=4', '-p', 'no:cacheprovider', '-rA', str(tmp_path / 'test_overrun.py')],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    text = out.stdout + out.stderr
+    assert out.returncode == 1, text[-3000:]
+    assert 'INTERNALERROR' not in text, text[-3000:]
+    assert '1 failed, 2 passed' in text, text[-3000:]
+    assert 'FAILED test_overrun.py::test_overruns_inside_compiled_code' in text, text[-3000:]
+    assert 'PASSED test_overrun.py::test_after' in text, text[-3000:]
+    assert 'ran past the per-test time limit of 4 s' in text, text[-3000:]
