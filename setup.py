@@ -37,7 +37,8 @@ setup(
     extras_require={
         # pytest-xdist: the suite runs in a worker process, so that a test ended by its
         # time limit (test/suite_timeout.py) is an ordinary failure and the suite goes on
-        'test': ['pytest>=8', 'pytest-xdist>=3.5'],
+        # import-linter: the layer contracts in setup.cfg, checked by test/test_layers.py
+        'test': ['pytest>=8', 'pytest-xdist>=3.5', 'import-linter>=2.1'],
     },
     zip_safe=True,
     maintainer='sorter_cell maintainers',
@@ -49,7 +50,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'sorter = sorter_sim.cli:main',
+            'sorter = sorter_cell.cli:main',
             'sim_node = sorter_sim.node:main',
             'controller_node = sorter_control.node:main',
         ],

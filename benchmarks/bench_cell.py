@@ -29,7 +29,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from sorter_sim.ros_env import apply_ros_env_defaults  # noqa: E402
+from sorter_ros.env import apply_ros_env_defaults  # noqa: E402
 
 apply_ros_env_defaults()
 os.environ.setdefault('ROS_DOMAIN_ID', str(100 + os.getpid() % 100))

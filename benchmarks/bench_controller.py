@@ -41,7 +41,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from sorter_sim.ros_env import apply_ros_env_defaults  # noqa: E402
+from sorter_ros.env import apply_ros_env_defaults  # noqa: E402
 
 apply_ros_env_defaults()
 os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
@@ -49,7 +49,7 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
 import numpy as np  # noqa: E402
 from sensor_msgs.msg import TimeReference  # noqa: E402
 
-from sorter_control.demo import RunningCell  # noqa: E402
+from sorter_cell.demo import RunningCell  # noqa: E402
 from sorter_control.node import EVENT_QOS  # noqa: E402
 
 MIXED = ["A", "B", "C", "A", "A", "B", "C", "B", "B", "A", "C", "A"]
@@ -119,9 +119,9 @@ def _latency_two_processes(t_run: float, executor: str):
     from rclpy.context import Context
     from rclpy.parameter import Parameter
 
-    from sorter_control.demo import _executor
+    from sorter_cell.demo import _executor
     from sorter_control.node import ControllerNode
-    from sorter_sim.ros_env import find_config_dir
+    from sorter_ros.env import find_config_dir
 
     config = find_config_dir()
     args = [str(Path(sys.executable).with_name("sim_node")), "--ros-args", "--params-file",

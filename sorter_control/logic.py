@@ -880,7 +880,6 @@ class SorterLogic:
         v = self.v
         tol_x = cfg.tracking_tolerance + v * cfg.scan_period
         b = cfg.cell.disk_field_length
-        flushing = self.encoder < self.flush_until
         # photo-eyes blocked too long: jam (a parcel that should have passed) or stuck on
         for name in self.eye_x:
             eye = self.eyes[name]

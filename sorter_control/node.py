@@ -5,7 +5,7 @@ the cell's own structural parameters (read from the simulation node over its
 standard ``get_parameters`` service when ``cell_node`` names it) configure
 ``sorter_control.logic.SorterLogic``. Subscriptions only buffer what arrives
 (sensor bits, latched edges, labels, the diverter's state, the cell's e-stop and
-jam flags from its diagnostics, routing updates); a timer at the scan period, on
+jam bits, routing updates); a timer at the scan period, on
 the simulation clock, hands the buffer to the logic as one input image and turns
 what the logic returns into asynchronous service calls (pop-up, disk angle via
 the cell's ``set_parameters``, e-stop, reset), sort confirmations, diagnostics
@@ -15,8 +15,8 @@ reported to the logic as timed out, which it does not retry.
 
 Interface (all names relative): subscribes ``sensors/<name>`` (std_msgs/Bool),
 ``sensors/edges`` (sensor_msgs/TimeReference), ``scanner/label``
-(std_msgs/String), ``diverter/state`` (sensor_msgs/JointState), ``diagnostics``
-(the cell's status), ``routing/updates`` (diagnostic_msgs/KeyValue: key = label,
+(std_msgs/String), ``diverter/state`` (sensor_msgs/JointState), ``status/estop``
+and ``status/jam`` (std_msgs/Bool, the cell's state bits), ``routing/updates`` (diagnostic_msgs/KeyValue: key = label,
 ``prefix*`` or ``*``, value = left | right | straight, or empty to remove);
 publishes ``sort/confirmations`` (diagnostic_msgs/DiagnosticStatus) and
 ``diagnostics`` (diagnostic_msgs/DiagnosticArray); serves ``~/reset``
@@ -40,7 +40,7 @@ from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Bool, String
 from std_srvs.srv import SetBool, Trigger
 
-from sorter_sim.ros_env import run_node
+from sorter_ros.env import run_node
 
 from .logic import (
     ControllerConfig,
@@ -310,7 +310,9 @@ class ControllerNode(Node):
         self.create_subscription(TimeReference, "sensors/edges", self._on_edge, EVENT_QOS)
         self.create_subscription(String, "scanner/label", self._on_label, EVENT_QOS)
         self.create_subscription(JointState, "diverter/state", self._on_diverter, STREAM_QOS)
-        self.create_subscription(DiagnosticArray, "diagnostics", self._on_cell_diagnostics, STREAM_QOS)
+        # the cell's state bits (latched, sent on change); its diagnostics are for humans
+        self.create_subscription(Bool, "status/estop", self._on_cell_estop, SENSOR_QOS)
+        self.create_subscription(Bool, "status/jam", self._on_cell_jam, SENSOR_QOS)
         self.create_subscription(KeyValue, "routing/updates", self._on_routing, EVENT_QOS)
         self.min_gaps = gaps
         self.get_logger().info(
@@ -404,16 +406,13 @@ class ControllerNode(Node):
         self._diverter = DiverterState(alpha, stroke, float(vel.get("disk_angle", 0.0)),
                                        float(vel.get("popup_stroke", 0.0)))
 
-    def _on_cell_diagnostics(self, msg: DiagnosticArray) -> None:
-        for st in msg.status:
-            if st.hardware_id == self.get_fully_qualified_name():
-                continue            # our own
-            values = {kv.key: kv.value for kv in st.values}
-            if "estop" in values and "jam" in values:
-                self._cell_estop = values["estop"] == "true"
-                self._cell_jam = values["jam"] == "true"
-                stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-                self._cell_status_t = stamp if stamp > 0.0 else None     # unstamped: take as current
+    # The bits are sent when they change (a reset sends the cleared bits before it
+    # answers), so each one received is current: no stamp to check against the last reset.
+    def _on_cell_estop(self, msg: Bool) -> None:
+        self._cell_estop = bool(msg.data)
+
+    def _on_cell_jam(self, msg: Bool) -> None:
+        self._cell_jam = bool(msg.data)
 
     def _on_routing(self, msg: KeyValue) -> None:
         self._routing.append((msg.key, msg.value))

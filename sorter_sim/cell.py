@@ -231,10 +231,6 @@ class Cell:
         self.act[ck.A_STROKE_TARGET] = 1.0 if up else 0.0
         return True, 'raising the disks' if up else 'lowering the disks'
 
-    @property
-    def popup_commanded_up(self) -> bool:
-        return self.act[ck.A_STROKE_TARGET] > 0.5
-
     def set_alpha(self, alpha_rad: float) -> tuple[bool, str]:
         if self.estop:
             return False, 'refused: e-stop engaged (call reset first)'

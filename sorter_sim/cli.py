@@ -1,6 +1,7 @@
-"""The ``sorter`` command line: ``sorter run | paper | sweep | bench | demo``.
+"""The model's command line: ``run | paper | sweep | bench`` (``python -m sorter_sim``).
 
-Each verb lives in its own module exposing ``add_arguments(parser)`` and
+The ``sorter`` command (``sorter_cell.cli``) is this plus ``demo``, which starts
+the controller too and so lives above both packages. Each verb lives in its own module exposing ``add_arguments(parser)`` and
 ``run(args) -> int | str | None`` (ros2cli style: a returned string is an error
 message, printed as one line with exit code 2). This module only dispatches, so a
 verb whose module is missing from an installation does not break the others.
@@ -15,16 +16,15 @@ import json
 import math
 import sys
 
-from .ros_env import apply_ros_env_defaults
+from sorter_ros.env import apply_ros_env_defaults
 from .scene import SceneError, apply_overrides, load_scene, run_scene
 
 # verb -> (module, one-line help)
 VERBS = {
     "run": (__name__, "run one parcel through one scene and print the result"),
-    "paper": ("sorter_sim.analysis.paper", "regenerate the seed's figures (data + PNG)"),
+    "paper": ("sorter_sim.analysis.paper_cli", "regenerate the seed's figures (data + PNG)"),
     "sweep": ("sorter_sim.analysis.sweep", "run a design study over scene keys"),
     "bench": ("sorter_sim.analysis.bench", "benchmarks and the work-precision report"),
-    "demo": ("sorter_control.demo", "run the sorter cell: simulation + controller nodes"),
 }
 
 
@@ -83,10 +83,11 @@ def run(args) -> int | str:
     return 0 if summary["success"] else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(verbs: dict | None = None) -> argparse.ArgumentParser:
+    """The parser of ``verbs`` (verb -> (module, help); default: this package's)."""
     parser = _Parser(prog="sorter", description="Parcel sorter cell: model, studies and the running cell.")
     sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
-    for verb, (module, help_text) in VERBS.items():
+    for verb, (module, help_text) in (verbs or VERBS).items():
         try:
             mod = importlib.import_module(module) if module != __name__ else sys.modules[__name__]
         except ImportError:
@@ -97,9 +98,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, verbs: dict | None = None) -> int:
+    """Parse ``argv``, run the verb, turn its result into an exit code."""
     apply_ros_env_defaults()
-    parser = build_parser()
+    parser = build_parser(verbs)
     args = parser.parse_args(argv)
     if not getattr(args, "_verb_main", None):
         parser.print_help()

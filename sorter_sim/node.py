@@ -34,13 +34,15 @@ from .cdr import pose_array_cdr, stamp
 from .cell import STATE_NAMES, Cell, LabelRead, Outcome, ParcelSpec, SensorEdge
 from .params import (BOOL, DOUBLE, DOUBLE_ARRAY, INTEGER, SCHEMA, SPECS, STRING, STRING_ARRAY,
                      CellParams, ParamError)
-from .ros_env import run_node
+from sorter_ros.env import run_node
 
 NODE_NAME = 'sorter_sim'
 FRAME_ID = 'conveyor'
 PARCEL_HEIGHT = 0.2          # m, only for the marker boxes (the model is planar)
 MAX_CATCH_UP_S = 0.25        # realtime mode: simulated time one tick may catch up
 
+# status/<bit>: std_msgs/Bool each; fault = estop or jam
+STATUS_BITS = ('estop', 'jam', 'fault')
 SENSOR_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -113,6 +115,10 @@ class SimNode(Node):
         self._pub_diverter = self.create_publisher(JointState, 'diverter/state', STREAM_QOS)
         self._pub_outcomes = self.create_publisher(DiagnosticStatus, 'sort/outcomes', EVENT_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', STREAM_QOS)
+        # the cell's state bits, as a PLC reads them: latched, published when they change
+        self._pub_status = {name: self.create_publisher(Bool, f'status/{name}', SENSOR_QOS)
+                            for name in STATUS_BITS}
+        self._status_sent = None
         self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
         self.create_service(SetBool, 'diverter/popup', self._srv_popup)
         self.create_service(SetBool, 'estop', self._srv_estop)
@@ -129,6 +135,7 @@ class SimNode(Node):
         self.n_messages = 0
         self.n_marker_arrays = 0
         # the initial state: every sensor clear, actuators where they are, t = 0
+        self._publish_status()
         self._publish_sensors()
         self._publish_diverter()
         self._publish_clock()
@@ -255,7 +262,21 @@ class SimNode(Node):
         self._cost['messages'] += 1
         self.n_messages += 1
 
+    def _publish_status(self) -> None:
+        """Publish the state bits (status/estop, status/jam, status/fault) if one changed.
+
+        Only on change: a reset publishes the cleared bits before its reply, and no
+        periodic copy of an old value can follow it.
+        """
+        bits = {'estop': self.cell.estop, 'jam': self.cell.jam}
+        bits['fault'] = bits['estop'] or bits['jam']
+        if bits != self._status_sent:
+            for name in STATUS_BITS:
+                self._publish(self._pub_status[name], Bool(data=bool(bits[name])))
+            self._status_sent = bits
+
     def _publish_events(self, events) -> None:
+        self._publish_status()
         for e in events:
             if isinstance(e, SensorEdge):
                 self._publish(self._pub_sensor[e.sensor], Bool(data=e.blocked))
@@ -372,6 +393,7 @@ class SimNode(Node):
             response.message = 'refused: an e-stop is released with the reset service (use reset)'
             return response
         self.cell.engage_estop()
+        self._publish_status()
         self.get_logger().warning('e-stop engaged: belt stopped, disks dropping')
         response.success = True
         response.message = 'e-stop engaged: belt stopped, disks dropping; reset to resume'

@@ -5,7 +5,9 @@ import os
 # Before anything can initialise rclpy: keep DDS discovery on this host, and
 # use a domain of our own so concurrent runs (and any ROS graph already on this
 # machine) stay apart. Domain ids above 232 break Fast DDS, so stay in 100-199.
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+from sorter_ros.env import apply_ros_env_defaults  # noqa: E402 (imports no ROS)
+
+apply_ros_env_defaults()
 os.environ['ROS_DOMAIN_ID'] = (
     os.environ.get('SORTER_TEST_DOMAIN_ID') or str(100 + os.getpid() % 100)
 )

@@ -329,7 +329,7 @@ def test_parameters_validated_at_start_and_at_run_time(ros):
 def test_sorter_demo_sorts_and_reports(tmp_path, capsys):
     import json
 
-    from sorter_sim.cli import main
+    from sorter_cell.cli import main
 
     png = tmp_path / "paths.png"
     assert main(["demo", "--sim-time", "12", "--json", "--out", str(png)]) == 0
@@ -350,7 +350,7 @@ def test_sorter_demo_sorts_and_reports(tmp_path, capsys):
     (["--out", "paths.svg"], "--out"),
 ])
 def test_sorter_demo_bad_arguments_exit_2(argv, words, capsys):
-    from sorter_sim.cli import main
+    from sorter_cell.cli import main
 
     assert main(["demo", *argv]) == 2
     err = capsys.readouterr().err

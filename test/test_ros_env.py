@@ -1,4 +1,4 @@
-"""sorter_sim.ros_env: discovery defaults and config lookup."""
+"""sorter_ros.env: discovery defaults and config lookup."""
 
 import os
 import subprocess
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from sorter_sim import ros_env
+from sorter_ros import env as ros_env
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -18,6 +18,13 @@ def test_discovery_defaults_to_localhost(monkeypatch):
     assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
 
 
+def test_an_empty_discovery_range_means_localhost(monkeypatch):
+    for empty in ('', '  '):
+        monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', empty)
+        ros_env.apply_ros_env_defaults()
+        assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+
+
 def test_user_discovery_range_wins(monkeypatch):
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SUBNET')
     ros_env.apply_ros_env_defaults()
@@ -25,7 +32,7 @@ def test_user_discovery_range_wins(monkeypatch):
 
 
 def test_module_does_not_import_rclpy():
-    code = 'import sys, sorter_sim.ros_env; assert "rclpy" not in sys.modules'
+    code = 'import sys, sorter_ros.env; assert "rclpy" not in sys.modules'
     subprocess.run([sys.executable, '-c', code], cwd=REPO, check=True)
 
 

@@ -48,6 +48,7 @@ TOPICS = {
     'sort/outcomes': (DiagnosticStatus, EVENT_QOS),
     'diagnostics': (DiagnosticArray, STREAM_QOS),
     **{f'sensors/{s}': (Bool, SENSOR_QOS) for s in SENSORS},
+    **{f'status/{b}': (Bool, SENSOR_QOS) for b in ('estop', 'jam', 'fault')},
 }
 
 
@@ -319,8 +320,14 @@ def test_estop_refuses_commands_until_reset(ros):
     probe.induct(A=0.4, B=0.3)
     probe.settle()
     probe.step(100)
+    # the latched state bits: all clear
+    ros.spin_until(lambda: all(probe.msgs[f'status/{b}'] for b in ('estop', 'jam', 'fault')),
+                   5.0, 'the latched state bits')
+    assert [probe.msgs[f'status/{b}'][-1].data for b in ('estop', 'jam', 'fault')] == [False] * 3
     reply = probe.call('estop', SetBool.Request(data=True))
     assert reply.success
+    ros.spin_until(lambda: probe.msgs['status/estop'][-1].data, 5.0, 'status/estop true')
+    assert probe.msgs['status/fault'][-1].data and not probe.msgs['status/jam'][-1].data
     for request in (True, False):
         reply = probe.call('diverter/popup', SetBool.Request(data=request))
         assert not reply.success and 'e-stop' in reply.message
@@ -336,8 +343,13 @@ def test_estop_refuses_commands_until_reset(ros):
     probe.settle()
     assert probe.msgs['parcels/poses'][-1].poses[0].position.x == x_stop
     assert probe.msgs['diverter/state'][-1].position[1] == 0.0
+    n_estop = len(probe.msgs['status/estop'])
     reply = probe.call('reset', Trigger.Request())
     assert reply.success and 'estop' in reply.message
+    ros.spin_until(lambda: not probe.msgs['status/estop'][-1].data, 5.0, 'status/estop false')
+    assert not probe.msgs['status/fault'][-1].data
+    # sent on change only: one message per change, none repeating an old value
+    assert [m.data for m in probe.msgs['status/estop'][n_estop - 1:]] == [True, False]
     assert probe.call('diverter/popup', SetBool.Request(data=True)).success
     assert _set_params(ros, probe, 'sorter_sim', _double('alpha_deg', 30.0))[0].successful
     probe.step(50)

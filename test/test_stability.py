@@ -1,4 +1,4 @@
-"""Stiff and extreme cases (issue 4): the quick subset of the matrix, plus the references
+"""Stiff and extreme cases: the quick subset of the matrix, plus the references
 the work-precision report stands on, checked against closed forms and independent solvers.
 
 The full matrix, 10 minutes of two-belt positioning and the quick report run behind the
@@ -6,7 +6,6 @@ The full matrix, 10 minutes of two-belt positioning and the quick report run beh
 """
 from __future__ import annotations
 
-import math
 import subprocess
 import sys
 

@@ -1,6 +1,6 @@
 """``sorter bench``: what accuracy each integration method buys for its run time.
 
-``sorter bench core`` prints issue 2's benchmark: the seed's Fig. 9a diversion with
+``sorter bench core`` prints the core benchmark: the seed's Fig. 9a diversion with
 rotation (0.7 x 0.2 m, v = 1.5 m/s, α = 90°, μ = 0.6, b -> ∞), for every method the
 wall time per diversion after compilation (minimum of several runs, one CPU) and its
 error against a reference, and whether the targets are met: accurate method within
@@ -26,7 +26,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 
 from ..core.oscillator import Oscillator
 from . import stiff_cases as sx
@@ -51,7 +50,7 @@ from .workprecision import (
     rows_markdown,
 )
 
-TARGET_ERROR = 1e-6      # m, CoG position at t_scrap (issue 2)
+TARGET_ERROR = 1e-6      # m, CoG position at t_scrap (the benchmark's accuracy target)
 TARGET_TIME = 5e-3       # s per diversion, one core
 TARGET_SPEEDUP = 20.0    # against the best scipy method at the same error
 SCIPY_METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA")
@@ -69,7 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true",
                    help="coarse sweeps, the matrix's quick subset, 20 s of two-belt positioning (under a minute)")
     p.add_argument("--out", default="docs", help="output directory (default: docs)")
-    c = sub.add_parser("core", help="issue 2's benchmark: Fig. 9a, every method, targets",
+    c = sub.add_parser("core", help="the core benchmark: Fig. 9a, every method, targets",
                        description="Fig. 9a diversion with rotation: time per diversion and error "
                                    "for every method, scipy's solve_ivp included.")
     c.add_argument("--repeats", type=int, default=7,
@@ -313,7 +312,7 @@ def implicit_quadrature_floor(quick: bool) -> list[tuple[int, float, float]]:
 
 # ---------------------------------------------------------------------------- bench core
 def bench_core(repeats: int = 7, quick: bool = False, log=None) -> tuple[str, dict]:
-    """Issue 2's benchmark on Fig. 9a; returns the printed text and the headline figures."""
+    """The core benchmark on Fig. 9a; returns the printed text and the headline figures."""
     log = log or (lambda s: None)
     case = fig9a_case()
     lines = []
@@ -509,7 +508,7 @@ def _report_markdown(cases, core_text, core_fig, matrix_runs, long_runs, red_row
             cells.append(f"{fmt_ms(best.wall_s)} ({best.setting})" if best else "not reached")
         L.append(f"| {fam} | " + " | ".join(cells) + " |")
     L.append("")
-    L.append("## Issue 2's benchmark: Fig. 9a")
+    L.append("## Core benchmark: Fig. 9a")
     L.append("")
     L.append("```")
     L.append(core_text)

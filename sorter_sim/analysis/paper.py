@@ -20,7 +20,6 @@ Figures: 4, 5 (stick-slip body), 7, 8 (a-d), 9, 10, 11, 13, 14 (covers 15 and
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import time
@@ -31,7 +30,6 @@ import numpy as np
 from scipy.optimize import brentq
 
 from ..core.oscillator import (
-    ROW_BREAK,
     Oscillator,
     exact_solution,
     run_oscillator,
@@ -951,43 +949,3 @@ def fig14(out: Path | None = None, quick: bool = False) -> FigureResult:
         _save(fig, out, "fig14_16.png", r.files)
     r.wall_s = time.perf_counter() - t0
     return r
-
-
-# ---------------------------------------------------------------------------- command
-def _two_stage(out=None, quick=False):
-    from .two_stage import two_stage_figure
-
-    return two_stage_figure(out, quick)
-
-
-FIGURES = {"4": fig4, "5": fig5, "7": fig7, "8": fig8, "9": fig9, "10": fig10, "11": fig11,
-           "13": fig13, "14": fig14, "two-stage": _two_stage}
-ALIASES = {"14-16": "14", "15": "14", "16": "14", "two_stage": "two-stage"}
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    choices = sorted(set(FIGURES) | set(ALIASES) | {"all"}, key=lambda s: (not s[0].isdigit(), len(s), s))
-    parser.add_argument("figure", metavar="FIG", choices=choices,
-                        help=f"which figure: {', '.join(choices)}")
-    parser.add_argument("--out", default="paper_figures", metavar="DIR",
-                        help="folder for the CSV and PNG files (default: ./paper_figures)")
-    parser.add_argument("--quick", action="store_true",
-                        help="coarse grids and shorter runs (seconds per figure)")
-
-
-def run(args) -> int | str:
-    """``sorter paper FIG``: compute, write and print one figure (or all of them)."""
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        return f"--out {str(out)!r} exists and is not a folder"
-    which = ALIASES.get(args.figure, args.figure)
-    names = list(FIGURES) if which == "all" else [which]
-    failed = []
-    for name in names:
-        res = FIGURES[name](out, quick=args.quick)
-        print(res.report(), flush=True)
-        if not res.success:
-            failed.append(name)
-    if failed:
-        print(f"seed statements not reproduced in: Fig. {', '.join(failed)} (see [FAILS] above)")
-    return 0

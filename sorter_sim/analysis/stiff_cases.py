@@ -175,7 +175,7 @@ class StiffCase:
 
 
 def matrix(quick: bool = False) -> list[StiffCase]:
-    """The extreme-case matrix (issue 4, item 2). ``quick`` keeps the suite's subset."""
+    """The extreme-case matrix. ``quick`` keeps the suite's subset."""
     cases: list[StiffCase] = []
 
     def add(name, group, case, quick_=False, **kw):
@@ -647,7 +647,7 @@ def _core_flags(case: ParcelCase, **settings):
 
 
 def reductions(repeats: int = 5, rtol: float = 1e-8) -> list[ReductionRow]:
-    """Speed-up and agreement of each reduction against the full model (issue 4, item 3)."""
+    """Speed-up and agreement of each reduction against the full model."""
     rows = []
     fig9a = sorting_case()
     placed = sorting_case(y0=[1.0, 0.0, 0.0, 0.0, 0.0, 0.0])

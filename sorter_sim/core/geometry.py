@@ -112,25 +112,6 @@ def polygon_area_centroid(poly, n):
 
 
 @njit(cache=True)
-def polygon_second_moments(poly, n, qx, qy):
-    """∫ ρρᵀ dA about (qx, qy): returns (Jxx, Jxy, Jyy) [m⁴]."""
-    jxx = 0.0
-    jxy = 0.0
-    jyy = 0.0
-    for i in range(n):
-        k = (i + 1) % n
-        xi = poly[i, 0] - qx
-        yi = poly[i, 1] - qy
-        xk = poly[k, 0] - qx
-        yk = poly[k, 1] - qy
-        cr = xi * yk - xk * yi
-        jxx += (xi * xi + xi * xk + xk * xk) * cr
-        jyy += (yi * yi + yi * yk + yk * yk) * cr
-        jxy += (xi * yk + 2.0 * xi * yi + 2.0 * xk * yk + xk * yi) * cr
-    return jxx / 12.0, jxy / 24.0, jyy / 12.0
-
-
-@njit(cache=True)
 def _sqrt_integral(t, h):
     """Antiderivative of sqrt(τ² + h²) at τ = t."""
     r = math.sqrt(t * t + h * h)

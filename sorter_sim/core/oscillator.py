@@ -82,9 +82,6 @@ class OscResult:
     wall_s: float = 0.0
     extra: dict = field(default_factory=dict)
 
-    def event_times(self, kind: str) -> np.ndarray:
-        return np.array([t for t, k in self.events if k == kind])
-
 
 def exact_phases(osc: Oscillator, t_end: float):
     """The exact sequence of phases up to t_end: list of (t_start, kind, x0, v0, sigma)."""
@@ -175,13 +172,13 @@ def exact_solution(osc: Oscillator, t_end: float, n: int = 2001, t_eval=None) ->
 @njit(cache=True)
 def _accel(x, v, t, p, sigma):
     """Sliding acceleration with friction sign σ (the sign of v while sliding)."""
-    m, f_kin, f_stat, k, vd = p[0], p[1], p[2], p[3], p[4]
+    m, f_kin, k, vd = p[0], p[1], p[3], p[4]
     return (k * (vd * t - x) - sigma * f_kin) / m
 
 
 @njit(cache=True)
 def _run_accurate(p, t_end, rtol, atol, h_max, ts, xs, vs, rows, ev_t, ev_k, counters):
-    m, f_kin, f_stat, k, vd = p[0], p[1], p[2], p[3], p[4]
+    f_stat, k, vd = p[2], p[3], p[4]
     t = 0.0
     x = 0.0
     v = 0.0

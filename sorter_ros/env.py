@@ -37,8 +37,11 @@ def apply_ros_env_defaults() -> None:
     """Restrict DDS discovery to this host unless the user set a range.
 
     Call before ``rclpy.init()``; the setting is read when the context starts.
+    A variable set but empty counts as unset: rmw would read an empty range as its
+    own default (discovery on every interface), which nobody chooses by leaving it empty.
     """
-    os.environ.setdefault(DISCOVERY_RANGE_VAR, DEFAULT_DISCOVERY_RANGE)
+    if not os.environ.get(DISCOVERY_RANGE_VAR, '').strip():
+        os.environ[DISCOVERY_RANGE_VAR] = DEFAULT_DISCOVERY_RANGE
 
 
 def find_config_dir() -> Path:

@@ -73,31 +73,35 @@ def _check_args(args) -> str | None:
 
 
 def _controller_values(config_dir: Path) -> dict:
-    """The controller's parameter values as controller.yaml sets them (for planning the stream)."""
-    import yaml
+    """The controller's parameter values as controller.yaml sets them (for planning the stream).
 
-    from .node import SCHEMA
+    The file is checked as the node checks it: unknown names and bad values are a
+    ValueError naming the file and the parameter.
+    """
+    from sorter_control.node import NODE_NAME, SCHEMA, config_from_values
+    from sorter_ros.params_file import read_params_file
 
+    path = config_dir / "controller.yaml"
     values = {s.name: s.default for s in SCHEMA}
-    doc = yaml.safe_load((config_dir / "controller.yaml").read_text())
-    params = next(iter(doc.values()))["ros__parameters"]
-
-    def flat(prefix, d):
-        for k, v in d.items():
-            if isinstance(v, dict):
-                yield from flat(f"{prefix}{k}.", v)
-            else:
-                yield f"{prefix}{k}", v
-    values.update({k: v for k, v in flat("", params) if k in values})
+    given = read_params_file(path, NODE_NAME)
+    given.pop("use_sim_time", None)      # rclpy's own parameter, not the controller's
+    unknown = sorted(set(given) - set(values))
+    if unknown:
+        raise ValueError(f"{path}: unknown controller parameter(s) {', '.join(map(repr, unknown))}")
+    values.update(given)
+    try:
+        config_from_values(values)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
     values["routing.rules"] = list(ROUTING)
     return values
 
 
 def stream_plan(parcel_lengths: tuple[float, float], config_dir: Path) -> dict:
     """Least gap for a mixed stream of these lengths, and the seed's capacity, from the model core."""
-    from .node import config_from_values
-    from .logic import SorterLogic
-    from .timing import seed_capacity
+    from sorter_control.node import config_from_values
+    from sorter_control.logic import SorterLogic
+    from sorter_control.timing import seed_capacity
 
     cfg = config_from_values(_controller_values(config_dir))
     logic = SorterLogic(cfg)
@@ -127,7 +131,6 @@ class _Observer:
         self.outcomes: dict[str, dict] = {}        # label -> values
         self.confirmations: dict[str, dict] = {}
         self.ctl_diag: dict = {}
-        self.cell_diag: dict = {}
         self.ids_seen: set[int] = set()
         self.paths: dict[int, list] = {}
         self._ids = None
@@ -155,8 +158,6 @@ class _Observer:
             values = {kv.key: kv.value for kv in st.values}
             if st.name.endswith(": controller"):
                 self.ctl_diag = values
-            elif st.name.endswith(": cell"):
-                self.cell_diag = values
 
     def _on_ids(self, msg):
         self._ids = list(msg.data)
@@ -328,9 +329,9 @@ class RunningCell:
         from rclpy.parameter import Parameter
 
         from sorter_sim.node import SimNode
-        from sorter_sim.ros_env import apply_ros_env_defaults, find_config_dir
+        from sorter_ros.env import apply_ros_env_defaults, find_config_dir
 
-        from .node import ControllerNode
+        from sorter_control.node import ControllerNode
 
         apply_ros_env_defaults()
         config_dir = find_config_dir()
@@ -432,7 +433,7 @@ def run(args) -> int | str:
         return err
     import yaml
 
-    from sorter_sim.ros_env import find_config_dir
+    from sorter_ros.env import find_config_dir
 
     config_dir = find_config_dir()
     cell_doc = yaml.safe_load((config_dir / "cell.yaml").read_text())

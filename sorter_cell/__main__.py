@@ -1,0 +1,6 @@
+"""``python -m sorter_cell VERB ...``: the same as the ``sorter`` command."""
+import sys
+
+from .cli import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""ROS 2 plumbing shared by the simulation node, the controller node and their tools."""
