@@ -9,8 +9,7 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
     data_files=[
-        ('share/ament_index/resource_index/packages',
-            ['resource/' + package_name]),
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/config/scenes', glob('config/scenes/*.yaml')),
@@ -37,8 +36,15 @@ setup(
     extras_require={
         # pytest-xdist: the suite runs in a worker process, so that a test ended by its
         # time limit (test/suite_timeout.py) is an ordinary failure and the suite goes on
-        # import-linter: the layer contracts in setup.cfg, checked by test/test_layers.py
-        'test': ['pytest>=8', 'pytest-xdist>=3.5', 'import-linter>=2.1'],
+        # import-linter: the layer contracts in setup.cfg (test/test_layers.py);
+        # ruff (flake8's checks) and ament-lint-pep257: lint as tests (test/test_lint.py)
+        'test': [
+            'pytest>=8',
+            'pytest-xdist>=3.5',
+            'import-linter>=2.1',
+            'ruff>=0.6',
+            'ament-lint-pep257>=0.14',
+        ],
     },
     zip_safe=True,
     maintainer='sorter_cell maintainers',

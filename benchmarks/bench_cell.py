@@ -1,4 +1,5 @@
-"""Benchmark of the simulation node: real-time factor with 100 parcels, cost per message.
+"""
+Benchmark of the simulation node: real-time factor with 100 parcels, cost per message.
 
 Not a test: it prints figures. The cell is the default one (config/cell.yaml)
 with the induct point moved 150 m upstream so that about a hundred parcels of
@@ -18,6 +19,7 @@ by the number published.
 
     .venv/bin/python benchmarks/bench_cell.py [--sim-s 20] [--parcels 100]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,8 +48,12 @@ BENCH_CELL = {'induct_x': -150.0, 'max_parcels': 256, 'alpha_deg': 90.0}
 
 
 def warm_up(cell: Cell, parcels: int) -> float:
-    """Run the cell until it holds ``parcels`` parcels and the first ones have been
-    diverted for a few seconds (a steady state); returns the simulated time [s]."""
+    """
+    Run the cell to a steady state.
+
+    Run the cell until it holds ``parcels`` parcels and the first ones have been
+    diverted for a few seconds (a steady state); returns the simulated time [s].
+    """
     cell.popup(True)
     t_full = -cell.params.induct_x / cell.params.belt_speed + 5.0
     while cell.n_parcels < parcels or cell.t < t_full:
@@ -69,10 +75,14 @@ def bench_cell(sim_s: float, parcels: int) -> dict:
         n_in.append(cell.n_parcels)
     wall = time.perf_counter() - t0
     d = cell.stats - stats0
-    return {'rtf': sim_s / wall, 'us_per_period': 1e6 * wall / n,
-            'parcels_mean': sum(n_in) / len(n_in), 'integrated_share': d[1] / max(1, d[0] + d[1]),
-            'jams': cell.outcome_counts['jammed'],
-            'exits': dict(cell.outcome_counts)}
+    return {
+        'rtf': sim_s / wall,
+        'us_per_period': 1e6 * wall / n,
+        'parcels_mean': sum(n_in) / len(n_in),
+        'integrated_share': d[1] / max(1, d[0] + d[1]),
+        'jams': cell.outcome_counts['jammed'],
+        'exits': dict(cell.outcome_counts),
+    }
 
 
 def bench_node(sim_s: float, parcels: int, subscribe: bool) -> dict:
@@ -86,23 +96,27 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool) -> dict:
     rclpy.init(context=ctx)
     try:
         values = {**BENCH_CELL, 'time_mode': 'fast'}
-        node = SimNode(context=ctx,
-                       parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+        node = SimNode(
+            context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in values.items()]
+        )
         executor = SingleThreadedExecutor(context=ctx)
         executor.add_node(node)
         received = {'n': 0}
         if subscribe:
             sub = rclpy.create_node('bench_subscriber', context=ctx)
-            topics = {'parcels/poses': (PoseArray, STREAM_QOS),
-                      'parcels/ids': (UInt32MultiArray, STREAM_QOS),
-                      'diverter/state': (JointState, STREAM_QOS),
-                      'sensors/edges': (TimeReference, EVENT_QOS),
-                      'scanner/label': (String, EVENT_QOS),
-                      'sort/outcomes': (DiagnosticStatus, EVENT_QOS),
-                      **{f'sensors/{s}': (Bool, SENSOR_QOS) for s in node.cell.sensor_names}}
+            topics = {
+                'parcels/poses': (PoseArray, STREAM_QOS),
+                'parcels/ids': (UInt32MultiArray, STREAM_QOS),
+                'diverter/state': (JointState, STREAM_QOS),
+                'sensors/edges': (TimeReference, EVENT_QOS),
+                'scanner/label': (String, EVENT_QOS),
+                'sort/outcomes': (DiagnosticStatus, EVENT_QOS),
+                **{f'sensors/{s}': (Bool, SENSOR_QOS) for s in node.cell.sensor_names},
+            }
             for topic, (msg_type, qos) in topics.items():
-                sub.create_subscription(msg_type, topic,
-                                        lambda m: received.__setitem__('n', received['n'] + 1), qos)
+                sub.create_subscription(
+                    msg_type, topic, lambda m: received.__setitem__('n', received['n'] + 1), qos
+                )
             executor.add_node(sub)
             deadline = time.monotonic() + 10.0
             while node._pub_poses.get_subscription_count() == 0 and time.monotonic() < deadline:
@@ -117,11 +131,15 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool) -> dict:
         wall = time.perf_counter() - t0
         sim = (node.cell.k - k0) * node.cell.dt
         c = node._cost
-        out = {'rtf': sim / wall, 'us_per_period': 1e6 * c['step_s'] / c['periods'],
-               'us_per_message': 1e6 * c['publish_s'] / c['messages'],
-               'messages_per_sim_s': (node.n_messages - msgs0) / sim,
-               'parcels': node.cell.n_parcels, 'jams': node.cell.outcome_counts['jammed'],
-               'received': received['n']}
+        out = {
+            'rtf': sim / wall,
+            'us_per_period': 1e6 * c['step_s'] / c['periods'],
+            'us_per_message': 1e6 * c['publish_s'] / c['messages'],
+            'messages_per_sim_s': (node.n_messages - msgs0) / sim,
+            'parcels': node.cell.n_parcels,
+            'jams': node.cell.outcome_counts['jammed'],
+            'received': received['n'],
+        }
         executor.shutdown()
         node.destroy_node()
         return out
@@ -130,7 +148,7 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool) -> dict:
 
 
 def best_of(runs: list[dict]) -> dict:
-    """The run with the highest real-time factor (the least disturbed by other load)."""
+    """Return the run with the highest real-time factor (the least disturbed by other load)."""
     return max(runs, key=lambda r: r['rtf'])
 
 
@@ -138,24 +156,34 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--sim-s', type=float, default=20.0, help='simulated seconds measured')
     ap.add_argument('--parcels', type=int, default=100, help='parcels in the cell')
-    ap.add_argument('--repeat', type=int, default=3, help='runs per measurement; the best is shown')
+    ap.add_argument(
+        '--repeat', type=int, default=3, help='runs per measurement; the best is shown'
+    )
     args = ap.parse_args()
-    print(f'# sorter cell benchmark: {args.parcels} parcels, 1 ms physics, poses at 100 Hz, '
-          f'disks up at 90 deg, {args.sim_s:g} s simulated, best of {args.repeat}')
-    print(f'# {platform.processor() or platform.machine()}, {os.cpu_count()} cpus, Python '
-          f'{platform.python_version()}, RMW {os.environ.get("RMW_IMPLEMENTATION", "default")}, '
-          f'load average before {os.getloadavg()[0]:.2f}')
+    print(
+        f'# sorter cell benchmark: {args.parcels} parcels, 1 ms physics, poses at 100 Hz, '
+        f'disks up at 90 deg, {args.sim_s:g} s simulated, best of {args.repeat}'
+    )
+    print(
+        f'# {platform.processor() or platform.machine()}, {os.cpu_count()} cpus, Python '
+        f'{platform.python_version()}, RMW {os.environ.get("RMW_IMPLEMENTATION", "default")}, '
+        f'load average before {os.getloadavg()[0]:.2f}'
+    )
     c = best_of([bench_cell(args.sim_s, args.parcels) for _ in range(args.repeat)])
-    print(f'cell      real-time factor {c["rtf"]:7.1f}   {c["us_per_period"]:6.1f} us/period   '
-          f'{c["parcels_mean"]:.0f} parcels   integrated parcel-periods '
-          f'{100 * c["integrated_share"]:.2f} %   jams {c["jams"]}')
+    print(
+        f'cell      real-time factor {c["rtf"]:7.1f}   {c["us_per_period"]:6.1f} us/period   '
+        f'{c["parcels_mean"]:.0f} parcels   integrated parcel-periods '
+        f'{100 * c["integrated_share"]:.2f} %   jams {c["jams"]}'
+    )
     for subscribe in (False, True):
         n = best_of([bench_node(args.sim_s, args.parcels, subscribe) for _ in range(args.repeat)])
         name = 'node+sub' if subscribe else 'node'
-        print(f'{name:9s} real-time factor {n["rtf"]:7.1f}   {n["us_per_period"]:6.1f} us/period '
-              f'(physics)   {n["us_per_message"]:6.1f} us/message   '
-              f'{n["messages_per_sim_s"]:.0f} messages per simulated s   {n["parcels"]} parcels   '
-              f'jams {n["jams"]}' + (f'   received {n["received"]}' if subscribe else ''))
+        print(
+            f'{name:9s} real-time factor {n["rtf"]:7.1f}   {n["us_per_period"]:6.1f} us/period '
+            f'(physics)   {n["us_per_message"]:6.1f} us/message   '
+            f'{n["messages_per_sim_s"]:.0f} messages per simulated s   {n["parcels"]} parcels   '
+            f'jams {n["jams"]}' + (f'   received {n["received"]}' if subscribe else '')
+        )
     print(f'# load average after {os.getloadavg()[0]:.2f}')
     return 0
 

@@ -1,4 +1,5 @@
-"""Benchmark of the controller with the simulation node: decision latency and sortable throughput.
+"""
+Benchmark of the controller with the simulation node: decision latency and sortable throughput.
 
 Not a test: it prints figures. Both nodes run in one process and one executor,
 talking over DDS on this host: for the latency run on the wall clock rclpy's
@@ -29,6 +30,7 @@ throughput  the default cell and controller, 0.4 x 0.3 m parcels at 1.5 m/s,
     .venv/bin/python benchmarks/bench_controller.py [--parcels 60] [--sim-s 40] [--rtf fast]
         [--skip-latency] [--skip-throughput] [--executor events|single] [--processes 1|2]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -56,26 +58,42 @@ MIXED = ["A", "B", "C", "A", "A", "B", "C", "B", "B", "A", "C", "A"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
 
 
-LATENCY_CELL = {"arrival": "gap", "arrival_gap": [1.6, 1.6], "labels": ["A"], "parcel_A": [0.25, 0.25],
-                "parcel_B": [0.25, 0.25], "induct_x": -0.7, "scanner_x": -0.45,
-                "photo_eyes.names": ["pe_scan", "pe_divert", "pe_exit"], "photo_eyes.x": [-0.45, -0.3, 2.0]}
+LATENCY_CELL = {
+    "arrival": "gap",
+    "arrival_gap": [1.6, 1.6],
+    "labels": ["A"],
+    "parcel_A": [0.25, 0.25],
+    "parcel_B": [0.25, 0.25],
+    "induct_x": -0.7,
+    "scanner_x": -0.45,
+    "photo_eyes.names": ["pe_scan", "pe_divert", "pe_exit"],
+    "photo_eyes.x": [-0.45, -0.3, 2.0],
+}
 # the scanner is too close to see a follower before deciding: allow the divert anyway
 LATENCY_CONTROLLER = {"routing.rules": ROUTING, "open_chains": True}
 
 
 class _EdgeClock:
-    """Edge times on the wall clock, from the cell's own clock: every /clock message received
+    """
+    Time sensor edges on the wall clock.
+
+    Edge times on the wall clock, from the cell's own clock: every /clock message received
     at wall time w for simulation time t says the cell's anchor (wall time of t = 0 at factor
-    1) is at most w - t; the smallest such bound over the last second is the anchor."""
+    1) is at most w - t; the smallest such bound over the last second is the anchor.
+    """
 
     def __init__(self, node):
         from rosgraph_msgs.msg import Clock
         from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-        self.clock = []            # (wall received, sim time)
-        self.edges = []            # (sim time, wall received) of the scanner eye's falling edges
-        node.create_subscription(Clock, "/clock", self._on_clock,
-                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self.clock = []  # (wall received, sim time)
+        self.edges = []  # (sim time, wall received) of the scanner eye's falling edges
+        node.create_subscription(
+            Clock,
+            "/clock",
+            self._on_clock,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE),
+        )
         node.create_subscription(TimeReference, "sensors/edges", self._on_edge, EVENT_QOS)
 
     def _on_clock(self, msg):
@@ -99,8 +117,13 @@ class _EdgeClock:
 def bench_latency(parcels: int, executor: str, processes: int) -> dict:
     t_run = 0.6 + parcels * (0.25 + 1.6) / 1.5 + 1.0
     if processes == 1:
-        with RunningCell(sim_params=LATENCY_CELL, controller_params=LATENCY_CONTROLLER, rtf=1.0,
-                         want_paths=False, executor=executor) as rc:
+        with RunningCell(
+            sim_params=LATENCY_CELL,
+            controller_params=LATENCY_CONTROLLER,
+            rtf=1.0,
+            want_paths=False,
+            executor=executor,
+        ) as rc:
             probe = _EdgeClock(rc.watcher)
             wall = rc.run_for(t_run)
             rc.finish()
@@ -111,7 +134,7 @@ def bench_latency(parcels: int, executor: str, processes: int) -> dict:
 
 
 def _latency_two_processes(t_run: float, executor: str):
-    """The cell in a process of its own (sim_node), the controller and the probe in this one."""
+    """Return the cell in a process of its own (sim_node), the controller and probe in this one."""
     import signal
     import subprocess
 
@@ -124,19 +147,43 @@ def _latency_two_processes(t_run: float, executor: str):
     from sorter_ros.env import find_config_dir
 
     config = find_config_dir()
-    args = [str(Path(sys.executable).with_name("sim_node")), "--ros-args", "--params-file",
-            str(config / "cell.yaml"), "--log-level", "warn",
-            "-p", "time_mode:=realtime", "-p", "real_time_factor:=1.0", "-p", "wall_tick:=0.001"]
+    args = [
+        str(Path(sys.executable).with_name("sim_node")),
+        "--ros-args",
+        "--params-file",
+        str(config / "cell.yaml"),
+        "--log-level",
+        "warn",
+        "-p",
+        "time_mode:=realtime",
+        "-p",
+        "real_time_factor:=1.0",
+        "-p",
+        "wall_tick:=0.001",
+    ]
     for k, v in LATENCY_CELL.items():
         args += ["-p", f"{k}:={json.dumps(v) if isinstance(v, list) else v}"]
     sim = subprocess.Popen(args)
     ctx = Context()
-    rclpy.init(context=ctx, args=["--ros-args", "--params-file", str(config / "controller.yaml"),
-                                  "--log-level", "warn"])
+    rclpy.init(
+        context=ctx,
+        args=[
+            "--ros-args",
+            "--params-file",
+            str(config / "controller.yaml"),
+            "--log-level",
+            "warn",
+        ],
+    )
     nodes = []
     try:
-        ctl = ControllerNode(context=ctx, parameter_overrides=[
-            Parameter(k, value=v) for k, v in {"use_sim_time": True, **LATENCY_CONTROLLER}.items()])
+        ctl = ControllerNode(
+            context=ctx,
+            parameter_overrides=[
+                Parameter(k, value=v)
+                for k, v in {"use_sim_time": True, **LATENCY_CONTROLLER}.items()
+            ],
+        )
         nodes.append(ctl)
         watcher = rclpy.create_node("latency_probe", context=ctx)
         nodes.append(watcher)
@@ -175,7 +222,7 @@ def _latency_figures(log, results, edges, wall) -> dict:
             continue
         edge_wall, rx_wall = before[-1]
         if scan_wall - edge_wall > 0.1:
-            continue       # not decided at this edge (a decision that was due later)
+            continue  # not decided at this edge (a decision that was due later)
         decision.append(scan_wall - edge_wall)
         accepted.append(answered - edge_wall)
         via_rx.append(answered - rx_wall)
@@ -184,27 +231,54 @@ def _latency_figures(log, results, edges, wall) -> dict:
 
     def pct(xs, q):
         return float(np.percentile(np.array(xs) * 1e3, q)) if xs else float("nan")
+
     sorted_ok = sum(1 for c in results if c.result == "sorted")
-    return {"samples": len(accepted), "parcels_confirmed": len(results), "sorted": sorted_ok, "wall_s": wall,
-            "edge_to_decision_ms": {"p50": pct(decision, 50), "p99": pct(decision, 99), "max": pct(decision, 100)},
-            "edge_to_accepted_ms": {"p50": pct(accepted, 50), "p99": pct(accepted, 99), "max": pct(accepted, 100)},
-            "received_edge_to_accepted_ms": {"p50": pct(via_rx, 50), "p99": pct(via_rx, 99)},
-            "scan_to_sent_ms": {"p50": pct(in_scan, 50), "p99": pct(in_scan, 99)},
-            "service_round_trip_ms": {"p50": pct(round_trip, 50), "p99": pct(round_trip, 99),
-                                      "max": pct(round_trip, 100)}}
+    return {
+        "samples": len(accepted),
+        "parcels_confirmed": len(results),
+        "sorted": sorted_ok,
+        "wall_s": wall,
+        "edge_to_decision_ms": {
+            "p50": pct(decision, 50),
+            "p99": pct(decision, 99),
+            "max": pct(decision, 100),
+        },
+        "edge_to_accepted_ms": {
+            "p50": pct(accepted, 50),
+            "p99": pct(accepted, 99),
+            "max": pct(accepted, 100),
+        },
+        "received_edge_to_accepted_ms": {"p50": pct(via_rx, 50), "p99": pct(via_rx, 99)},
+        "scan_to_sent_ms": {"p50": pct(in_scan, 50), "p99": pct(in_scan, 99)},
+        "service_round_trip_ms": {
+            "p50": pct(round_trip, 50),
+            "p99": pct(round_trip, 99),
+            "max": pct(round_trip, 100),
+        },
+    }
 
 
 def run_stream(gap: float, labels: list[str], sim_s: float, rtf, executor: str) -> dict:
-    sim = {"arrival": "gap", "arrival_gap": [gap, gap], "labels": labels, "parcel_A": [0.4, 0.4],
-           "parcel_B": [0.3, 0.3], "belt_speed": 1.5}
-    with RunningCell(sim_params=sim, controller_params={"routing.rules": ROUTING,
-                                                         "nominal_parcel_width": 0.3},
-                     rtf=rtf, want_paths=False, executor=executor) as rc:
+    sim = {
+        "arrival": "gap",
+        "arrival_gap": [gap, gap],
+        "labels": labels,
+        "parcel_A": [0.4, 0.4],
+        "parcel_B": [0.3, 0.3],
+        "belt_speed": 1.5,
+    }
+    with RunningCell(
+        sim_params=sim,
+        controller_params={"routing.rules": ROUTING, "nominal_parcel_width": 0.3},
+        rtf=rtf,
+        want_paths=False,
+        executor=executor,
+    ) as rc:
         wall = rc.run_for(sim_s)
         t_end = rc.finish()
         obs = rc.obs
         late = int(obs.ctl_diag.get("late", 0))
-    t0 = rc.t_start + 3.0      # the first parcel reaches the disk field ~2 s after the stream starts
+    t0 = rc.t_start + 3.0  # the first parcel reaches the disk field ~2 s after the stream starts
     ok = mis = jams = flagged = 0
     for label, o in obs.outcomes.items():
         if float(o["t"]) < t0:
@@ -215,8 +289,11 @@ def run_stream(gap: float, labels: list[str], sim_s: float, rtf, executor: str) 
         c = obs.confirmations.get(label)
         if c is None:
             continue
-        intended = c["destination_asked"] if c["result"] in ("sorted", "rejected", "mis-sorted", "missed") \
+        intended = (
+            c["destination_asked"]
+            if c["result"] in ("sorted", "rejected", "mis-sorted", "missed")
             else "straight"
+        )
         if o["exit"] != intended:
             mis += 1
         elif c["result"] == "sorted":
@@ -224,15 +301,25 @@ def run_stream(gap: float, labels: list[str], sim_s: float, rtf, executor: str) 
         else:
             flagged += 1
     span = rc.t_start + t_end - t0
-    return {"gap_m": gap, "offered_pcs_h": 3600.0 * 1.5 / (0.4 + gap), "sorted_pcs_h": 3600.0 * ok / span,
-            "sorted": ok, "flagged": flagged, "mis_sorted": mis, "jams": jams, "late_decisions": late,
-            "rtf": t_end / wall}
+    return {
+        "gap_m": gap,
+        "offered_pcs_h": 3600.0 * 1.5 / (0.4 + gap),
+        "sorted_pcs_h": 3600.0 * ok / span,
+        "sorted": ok,
+        "flagged": flagged,
+        "mis_sorted": mis,
+        "jams": jams,
+        "late_decisions": late,
+        "rtf": t_end / wall,
+    }
 
 
 def bench_throughput(sim_s: float, rtf, executor: str) -> dict:
     out = {}
-    for name, labels, gaps in (("mixed", MIXED, [1.6, 1.45, 1.42, 1.3, 1.0, 0.75]),
-                               ("one side", ["A"], [1.0, 0.8, 0.75, 0.7, 0.6, 0.45])):
+    for name, labels, gaps in (
+        ("mixed", MIXED, [1.6, 1.45, 1.42, 1.3, 1.0, 0.75]),
+        ("one side", ["A"], [1.0, 0.8, 0.75, 0.7, 0.6, 0.45]),
+    ):
         rows = [run_stream(g, labels, sim_s, rtf, executor) for g in gaps]
         clean = [r for r in rows if r["mis_sorted"] == 0 and r["jams"] == 0]
         best = max(clean, key=lambda r: r["sorted_pcs_h"]) if clean else None
@@ -243,21 +330,37 @@ def bench_throughput(sim_s: float, rtf, executor: str) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--parcels", type=int, default=60, help="parcels for the latency run")
-    ap.add_argument("--sim-s", type=float, default=40.0, help="simulated seconds per throughput run")
-    ap.add_argument("--rtf", default="fast", help="real-time factor of the throughput runs, or fast")
-    ap.add_argument("--executor", choices=("events", "single"), default="events",
-                    help="executor of the latency run (the throughput runs use the single-threaded one)")
-    ap.add_argument("--processes", type=int, choices=(1, 2), default=1,
-                    help="latency run: the cell in this process (1) or in a sim_node process of its own (2)")
+    ap.add_argument(
+        "--sim-s", type=float, default=40.0, help="simulated seconds per throughput run"
+    )
+    ap.add_argument(
+        "--rtf", default="fast", help="real-time factor of the throughput runs, or fast"
+    )
+    ap.add_argument(
+        "--executor",
+        choices=("events", "single"),
+        default="events",
+        help="executor of the latency run (the throughput runs use the single-threaded one)",
+    )
+    ap.add_argument(
+        "--processes",
+        type=int,
+        choices=(1, 2),
+        default=1,
+        help="latency run: the cell in this process (1) or in a sim_node process of its own (2)",
+    )
     ap.add_argument("--skip-latency", action="store_true")
     ap.add_argument("--skip-throughput", action="store_true")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     import rclpy
-    report = {"machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cpus, "
-                         f"Python {platform.python_version()}, rclpy {_version('ros-jazzy-rclpy')}, "
-                         f"load average before {os.getloadavg()[0]:.2f}",
-              "executor": args.executor}
+
+    report = {
+        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cpus, "
+        f"Python {platform.python_version()}, rclpy {_version('ros-jazzy-rclpy')}, "
+        f"load average before {os.getloadavg()[0]:.2f}",
+        "executor": args.executor,
+    }
     if not args.skip_latency:
         report["latency"] = bench_latency(args.parcels, args.executor, args.processes)
     if not args.skip_throughput:
@@ -270,34 +373,50 @@ def main() -> int:
     if "latency" in report:
         lat = report["latency"]
         where = "one process" if args.processes == 1 else "the cell in a process of its own"
-        print(f"latency at real-time factor 1, {where}, {args.executor} executor ({lat['samples']} "
-              f"edge-triggered raises, scan period 10 ms):")
-        for key, what in (("edge_to_decision_ms", "edge -> decision (scan)"),
-                          ("edge_to_accepted_ms", "edge -> service accepted"),
-                          ("received_edge_to_accepted_ms", "edge received -> accepted"),
-                          ("scan_to_sent_ms", "scan start -> call sent"),
-                          ("service_round_trip_ms", "call sent -> accepted")):
+        print(
+            f"latency at real-time factor 1, {where}, {args.executor} executor ({lat['samples']} "
+            f"edge-triggered raises, scan period 10 ms):"
+        )
+        for key, what in (
+            ("edge_to_decision_ms", "edge -> decision (scan)"),
+            ("edge_to_accepted_ms", "edge -> service accepted"),
+            ("received_edge_to_accepted_ms", "edge received -> accepted"),
+            ("scan_to_sent_ms", "scan start -> call sent"),
+            ("service_round_trip_ms", "call sent -> accepted"),
+        ):
             v = lat[key]
             extra = f", max {v['max']:.2f}" if "max" in v else ""
             print(f"  {what:<28} p50 {v['p50']:6.2f} ms, p99 {v['p99']:6.2f} ms{extra}")
     if "throughput" in report:
-        print(f"throughput, 0.4 x 0.3 m parcels at 1.5 m/s, {args.sim_s:g} s simulated per gap, "
-              f"cell time: {args.rtf}:")
+        print(
+            f"throughput, 0.4 x 0.3 m parcels at 1.5 m/s, {args.sim_s:g} s simulated per gap, "
+            f"cell time: {args.rtf}:"
+        )
         for name, res in report["throughput"].items():
             print(f"  {name} stream:")
-            print("    gap [m]  offered [pcs/h]  sorted [pcs/h]  sorted  flagged  mis-sorted  jams  late  rtf")
+            print(
+                "    gap [m]  offered [pcs/h]  sorted [pcs/h]  sorted  flagged  mis-sorted  jams  "
+                "late  rtf"
+            )
             for r in res["rows"]:
-                print(f"    {r['gap_m']:7.3f}  {r['offered_pcs_h']:15.0f}  {r['sorted_pcs_h']:14.0f}  "
-                      f"{r['sorted']:6d}  {r['flagged']:7d}  {r['mis_sorted']:10d}  {r['jams']:4d}  "
-                      f"{r['late_decisions']:4d}  {r['rtf']:4.1f}")
+                print(
+                    f"    {r['gap_m']:7.3f}  {r['offered_pcs_h']:15.0f}  "
+                    f"{r['sorted_pcs_h']:14.0f}  "
+                    f"{r['sorted']:6d}  {r['flagged']:7d}  {r['mis_sorted']:10d}  {r['jams']:4d}  "
+                    f"{r['late_decisions']:4d}  {r['rtf']:4.1f}"
+                )
             b = res["best"]
             if b:
-                print(f"    best with zero mis-sorts and jams: {b['sorted_pcs_h']:.0f} pcs/h at a {b['gap_m']:g} m gap")
+                print(
+                    f"    best with zero mis-sorts and jams: {b['sorted_pcs_h']:.0f} pcs/h at a "
+                    f"{b['gap_m']:g} m gap"
+                )
     return 0
 
 
 def _version(dist: str) -> str:
     from importlib import metadata
+
     try:
         return metadata.version(dist)
     except metadata.PackageNotFoundError:

@@ -1,4 +1,5 @@
 """``python -m sorter_cell VERB ...``: the same as the ``sorter`` command."""
+
 import sys
 
 from .cli import main

@@ -1,16 +1,20 @@
-"""The ``sorter`` command: ``sorter run | paper | sweep | bench | demo``.
+"""
+The ``sorter`` command: ``sorter run | paper | sweep | bench | demo``.
 
 The model's verbs come from ``sorter_sim.cli``; ``demo`` starts the simulation
 node and the controller together, so it sits here, above both packages.
 """
+
 from __future__ import annotations
 
 import sys
 
 from sorter_sim import cli as model_cli
 
-VERBS = dict(model_cli.VERBS,
-             demo=("sorter_cell.demo", "run the sorter cell: simulation + controller nodes"))
+VERBS = dict(
+    model_cli.VERBS,
+    demo=("sorter_cell.demo", "run the sorter cell: simulation + controller nodes"),
+)
 
 
 def main(argv: list[str] | None = None) -> int:

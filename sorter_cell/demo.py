@@ -1,4 +1,5 @@
-"""``sorter demo``: the running cell, simulation node and controller, talking over ROS 2.
+"""
+``sorter demo``: the running cell, simulation node and controller, talking over ROS 2.
 
 Starts the simulation node (config/cell.yaml) and the controller (config/controller.yaml)
 in this process, in one rclpy context and one single-threaded executor, plus an
@@ -20,6 +21,7 @@ gaps just above the least gap the controller reports for the longest parcel in
 a mixed stream, so every divert is feasible. At the end: a summary table
 (``--json``: one JSON object) and a PNG of the parcels' paths over the cell.
 """
+
 from __future__ import annotations
 
 import json
@@ -29,25 +31,47 @@ from pathlib import Path
 
 LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
-FAST_SLICE = 0.005     # s of simulated time per executor pass of the cell in fast mode
+FAST_SLICE = 0.005  # s of simulated time per executor pass of the cell in fast mode
 # outcome colours on the plot
 EXIT_COLOURS = {"left": "tab:green", "right": "tab:blue", "straight": "0.45", "jammed": "tab:red"}
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--sim-time", type=float, default=60.0, metavar="S",
-                        help="simulated seconds to run (default 60)")
-    parser.add_argument("--rtf", default="fast", metavar="F|fast",
-                        help="run the cell on the wall clock at real-time factor F, or as fast as possible "
-                             "(fast, the default)")
-    parser.add_argument("--gap", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
-                        help="belt gap range of the stream [m] (default: just above the controller's "
-                             "least gap for a mixed stream)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of the parcel stream (default 1)")
-    parser.add_argument("--out", default="out/demo_paths.png", help="PNG of the parcels' paths "
-                        "(default out/demo_paths.png)")
+    parser.add_argument(
+        "--sim-time",
+        type=float,
+        default=60.0,
+        metavar="S",
+        help="simulated seconds to run (default 60)",
+    )
+    parser.add_argument(
+        "--rtf",
+        default="fast",
+        metavar="F|fast",
+        help="run the cell on the wall clock at real-time factor F, or as fast as possible "
+        "(fast, the default)",
+    )
+    parser.add_argument(
+        "--gap",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("MIN", "MAX"),
+        help="belt gap range of the stream [m] (default: just above the controller's "
+        "least gap for a mixed stream)",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=1, help="seed of the parcel stream (default 1)"
+    )
+    parser.add_argument(
+        "--out",
+        default="out/demo_paths.png",
+        help="PNG of the parcels' paths (default out/demo_paths.png)",
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    parser.add_argument("--verbose", action="store_true", help="show the nodes' informational log lines")
+    parser.add_argument(
+        "--verbose", action="store_true", help="show the nodes' informational log lines"
+    )
 
 
 def _check_args(args) -> str | None:
@@ -64,7 +88,7 @@ def _check_args(args) -> str | None:
         lo, hi = args.gap
         if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 <= lo <= hi <= 100.0):
             return f"--gap must be 0 <= MIN <= MAX <= 100 m, got {lo} {hi}"
-    if not 0 <= args.seed < 2 ** 31:
+    if not 0 <= args.seed < 2**31:
         return f"--seed must be in [0, 2^31), got {args.seed}"
     out = Path(args.out)
     if out.suffix.lower() != ".png":
@@ -73,7 +97,8 @@ def _check_args(args) -> str | None:
 
 
 def _controller_values(config_dir: Path) -> dict:
-    """The controller's parameter values as controller.yaml sets them (for planning the stream).
+    """
+    Return the controller's parameter values as controller.yaml sets them.
 
     The file is checked as the node checks it: unknown names and bad values are a
     ValueError naming the file and the parameter.
@@ -84,10 +109,12 @@ def _controller_values(config_dir: Path) -> dict:
     path = config_dir / "controller.yaml"
     values = {s.name: s.default for s in SCHEMA}
     given = read_params_file(path, NODE_NAME)
-    given.pop("use_sim_time", None)      # rclpy's own parameter, not the controller's
+    given.pop("use_sim_time", None)  # rclpy's own parameter, not the controller's
     unknown = sorted(set(given) - set(values))
     if unknown:
-        raise ValueError(f"{path}: unknown controller parameter(s) {', '.join(map(repr, unknown))}")
+        raise ValueError(
+            f"{path}: unknown controller parameter(s) {', '.join(map(repr, unknown))}"
+        )
     values.update(given)
     try:
         config_from_values(values)
@@ -98,7 +125,7 @@ def _controller_values(config_dir: Path) -> dict:
 
 
 def stream_plan(parcel_lengths: tuple[float, float], config_dir: Path) -> dict:
-    """Least gap for a mixed stream of these lengths, and the seed's capacity, from the model core."""
+    """Return the least gap of a mixed stream of these lengths, and the seed's capacity."""
     from sorter_control.node import config_from_values
     from sorter_control.logic import SorterLogic
     from sorter_control.timing import seed_capacity
@@ -109,13 +136,18 @@ def stream_plan(parcel_lengths: tuple[float, float], config_dir: Path) -> dict:
     lengths = sorted({lo, 0.5 * (lo + hi), hi})
     worst = max(logic.min_gap(a)["worst"] for a in lengths)
     mean = 0.5 * (lo + hi)
-    return {"min_gap_m": worst, "mean_length_m": mean,
-            "seed_capacity_pcs_h": seed_capacity(cfg.cell, mean, cfg.belt_speed, abs(cfg.divert_alpha_deg)),
-            "belt_speed": cfg.belt_speed}
+    return {
+        "min_gap_m": worst,
+        "mean_length_m": mean,
+        "seed_capacity_pcs_h": seed_capacity(
+            cfg.cell, mean, cfg.belt_speed, abs(cfg.divert_alpha_deg)
+        ),
+        "belt_speed": cfg.belt_speed,
+    }
 
 
 class _Observer:
-    """What the demo watches, from an ordinary node: outcomes, confirmations, poses, diagnostics."""
+    """Watch what a warehouse would, from an ordinary node: outcomes, confirmations, poses."""
 
     def __init__(self, node, want_paths: bool):
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -128,7 +160,7 @@ class _Observer:
         stream = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.node = node
         self.t_sim = 0.0
-        self.outcomes: dict[str, dict] = {}        # label -> values
+        self.outcomes: dict[str, dict] = {}  # label -> values
         self.confirmations: dict[str, dict] = {}
         self.ctl_diag: dict = {}
         self.ids_seen: set[int] = set()
@@ -136,7 +168,9 @@ class _Observer:
         self._ids = None
         node.create_subscription(Clock, "/clock", self._on_clock, stream)
         node.create_subscription(DiagnosticStatus, "sort/outcomes", self._on_outcome, events)
-        node.create_subscription(DiagnosticStatus, "sort/confirmations", self._on_confirmation, events)
+        node.create_subscription(
+            DiagnosticStatus, "sort/confirmations", self._on_confirmation, events
+        )
         node.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, stream)
         node.create_subscription(UInt32MultiArray, "parcels/ids", self._on_ids, stream)
         if want_paths:
@@ -180,15 +214,18 @@ def summarize(obs: _Observer, plan: dict, sim_time: float, wall: float, time_mod
         exits[o["exit"]] = exits.get(o["exit"], 0) + 1
         c = obs.confirmations.get(label)
         if c is None:
-            untracked += 1          # on the belt before the controller was tracking
+            untracked += 1  # on the belt before the controller was tracking
             continue
         result = c["result"]
         if result in flagged:
             flagged[result] += 1
         if result == "rejected":
             rejected += 1
-        intended = c["destination_asked"] if result in ("sorted", "rejected", "mis-sorted", "missed") \
+        intended = (
+            c["destination_asked"]
+            if result in ("sorted", "rejected", "mis-sorted", "missed")
             else "straight"
+        )
         if o["exit"] != "jammed" and o["exit"] != intended:
             mis_sorted.append(label)
     left_cell = exits["left"] + exits["right"] + exits["straight"]
@@ -213,14 +250,18 @@ def summarize(obs: _Observer, plan: dict, sim_time: float, wall: float, time_mod
         "untracked": untracked,
         "in_cell_at_end": len(obs.ids_seen) - sum(exits.values()),
         "throughput_pcs_h": round(3600.0 * left_cell / sim_time, 1) if sim_time > 0 else 0.0,
-        "diverted_pcs_h": round(3600.0 * (exits["left"] + exits["right"]) / sim_time, 1) if sim_time > 0 else 0.0,
+        "diverted_pcs_h": round(3600.0 * (exits["left"] + exits["right"]) / sim_time, 1)
+        if sim_time > 0
+        else 0.0,
         "model_capacity_pcs_h": round(plan["seed_capacity_pcs_h"], 1),
         "cell_capacity_pcs_h": round(cell_capacity, 1),
         "min_gap_m": round(plan["min_gap_m"], 3),
         "stream_gap_m": plan["stream_gap_m"],
         "mean_parcel_length_m": mean,
         "controller_state": d.get("state", "unknown"),
-        "controller_faults": {k[6:]: int(v) for k, v in d.items() if k.startswith("fault_") and v != "0"},
+        "controller_faults": {
+            k[6:]: int(v) for k, v in d.items() if k.startswith("fault_") and v != "0"
+        },
         "late_decisions": int(d.get("late", 0)),
         "scan_wall_p99_ms": float(d.get("scan_wall_p99_ms", "nan")),
     }
@@ -228,24 +269,42 @@ def summarize(obs: _Observer, plan: dict, sim_time: float, wall: float, time_mod
 
 def print_table(s: dict) -> None:
     rows = [
-        ("simulated time", f"{s['sim_time_s']:.1f} s in {s['wall_s']:.1f} s wall "
-                           f"(real-time factor {s['real_time_factor']:.2f}, {s['time_mode']})"),
+        (
+            "simulated time",
+            f"{s['sim_time_s']:.1f} s in {s['wall_s']:.1f} s wall "
+            f"(real-time factor {s['real_time_factor']:.2f}, {s['time_mode']})",
+        ),
         ("inducted", s["inducted"]),
         ("sorted left", s["sorted_left"]),
         ("sorted right", s["sorted_right"]),
-        ("straight", f"{s['straight']}  (of which sent straight by the controller: "
-                     f"{s['straight_flagged']}; rejected: {s['rejected']})"),
+        (
+            "straight",
+            f"{s['straight']}  (of which sent straight by the controller: "
+            f"{s['straight_flagged']}; rejected: {s['rejected']})",
+        ),
         ("mis-sorted", s["mis_sorted"]),
         ("jams", s["jams"]),
         ("still in the cell", s["in_cell_at_end"]),
-        ("throughput", f"{s['throughput_pcs_h']:.0f} pcs/h ({s['diverted_pcs_h']:.0f} pcs/h diverted)"),
-        ("model capacity", f"{s['model_capacity_pcs_h']:.0f} pcs/h (seed W_t = 3600/t_scrap, "
-                           f"A = {s['mean_parcel_length_m']:g} m)"),
-        ("cell capacity", f"{s['cell_capacity_pcs_h']:.0f} pcs/h at the least mixed-stream gap "
-                          f"{s['min_gap_m']:.3f} m"),
+        (
+            "throughput",
+            f"{s['throughput_pcs_h']:.0f} pcs/h ({s['diverted_pcs_h']:.0f} pcs/h diverted)",
+        ),
+        (
+            "model capacity",
+            f"{s['model_capacity_pcs_h']:.0f} pcs/h (seed W_t = 3600/t_scrap, "
+            f"A = {s['mean_parcel_length_m']:g} m)",
+        ),
+        (
+            "cell capacity",
+            f"{s['cell_capacity_pcs_h']:.0f} pcs/h at the least mixed-stream gap "
+            f"{s['min_gap_m']:.3f} m",
+        ),
         ("stream gap", f"{s['stream_gap_m'][0]:.3f} .. {s['stream_gap_m'][1]:.3f} m"),
-        ("controller", f"{s['controller_state']}; late decisions {s['late_decisions']}; "
-                       f"scan p99 {s['scan_wall_p99_ms']:.2f} ms wall"),
+        (
+            "controller",
+            f"{s['controller_state']}; late decisions {s['late_decisions']}; "
+            f"scan p99 {s['scan_wall_p99_ms']:.2f} ms wall",
+        ),
     ]
     width = max(len(r[0]) for r in rows)
     print("sorter demo: the cell and its controller over ROS 2")
@@ -255,6 +314,7 @@ def print_table(s: dict) -> None:
 
 def plot_paths(obs: _Observer, params: dict, summary: dict, out: Path) -> None:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
@@ -269,7 +329,11 @@ def plot_paths(obs: _Observer, params: dict, summary: dict, out: Path) -> None:
             pass
     fig, ax = plt.subplots(figsize=(11, 4.2))
     ax.add_patch(Rectangle((x0, -w / 2), x1 - x0, w, color="0.93", zorder=0))
-    ax.add_patch(Rectangle((0.0, -w / 2), b, w, color="tab:orange", alpha=0.18, zorder=0, label="disk field"))
+    ax.add_patch(
+        Rectangle(
+            (0.0, -w / 2), b, w, color="tab:orange", alpha=0.18, zorder=0, label="disk field"
+        )
+    )
     for side in (1, -1):
         ax.plot([x0, -margin], [side * w / 2] * 2, color="k", lw=2)
         ax.plot([b + margin, x1], [side * w / 2] * 2, color="k", lw=2)
@@ -290,9 +354,12 @@ def plot_paths(obs: _Observer, params: dict, summary: dict, out: Path) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x along the belt [m] (conveyor frame)")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"sorter demo: {summary['inducted']} parcels in {summary['sim_time_s']:g} s, "
-                 f"{summary['throughput_pcs_h']:.0f} pcs/h, mis-sorted {summary['mis_sorted']}, "
-                 f"jams {summary['jams']}", fontsize=10)
+    ax.set_title(
+        f"sorter demo: {summary['inducted']} parcels in {summary['sim_time_s']:g} s, "
+        f"{summary['throughput_pcs_h']:.0f} pcs/h, mis-sorted {summary['mis_sorted']}, "
+        f"jams {summary['jams']}",
+        fontsize=10,
+    )
     ax.legend(loc="upper left", fontsize=7, ncol=6, frameon=False)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -301,7 +368,8 @@ def plot_paths(obs: _Observer, params: dict, summary: dict, out: Path) -> None:
 
 
 class RunningCell:
-    """The simulation node, the controller and an observer in one context and executor.
+    """
+    The simulation node, the controller and an observer in one context and executor.
 
     Parameters come from config/cell.yaml and config/controller.yaml, then
     ``sim_params`` / ``controller_params`` override them. ``rtf`` is the cell's
@@ -311,8 +379,16 @@ class RunningCell:
     stops the cell's clock and lets the last messages arrive.
     """
 
-    def __init__(self, *, sim_params: dict, controller_params: dict, rtf="fast", want_paths: bool = True,
-                 executor: str = "single", log_level: str = "warn"):
+    def __init__(
+        self,
+        *,
+        sim_params: dict,
+        controller_params: dict,
+        rtf="fast",
+        want_paths: bool = True,
+        executor: str = "single",
+        log_level: str = "warn",
+    ):
         self.log_level = log_level
         self.sim_params = sim_params
         self.controller_params = controller_params
@@ -336,22 +412,42 @@ class RunningCell:
         apply_ros_env_defaults()
         config_dir = find_config_dir()
         self.ctx = Context()
-        rclpy.init(context=self.ctx, args=["--ros-args", "--params-file", str(config_dir / "cell.yaml"),
-                                           "--params-file", str(config_dir / "controller.yaml"),
-                                           "--log-level", self.log_level])
+        rclpy.init(
+            context=self.ctx,
+            args=[
+                "--ros-args",
+                "--params-file",
+                str(config_dir / "cell.yaml"),
+                "--params-file",
+                str(config_dir / "controller.yaml"),
+                "--log-level",
+                self.log_level,
+            ],
+        )
         try:
-            timing = ({"time_mode": "fast", "fast_slice": FAST_SLICE} if self.rtf is None else
-                      {"time_mode": "realtime", "real_time_factor": self.rtf, "wall_tick": 0.001})
+            timing = (
+                {"time_mode": "fast", "fast_slice": FAST_SLICE}
+                if self.rtf is None
+                else {"time_mode": "realtime", "real_time_factor": self.rtf, "wall_tick": 0.001}
+            )
             sim_values = {**timing, "pose_rate_hz": 50.0, **self.sim_params}
             # the stream starts once the controller runs (no parcel passes it untracked)
             self.arrival = sim_values.get("arrival", "none")
             sim_values["arrival"] = "none"
-            self.sim = SimNode(context=self.ctx, parameter_overrides=[
-                Parameter(k, value=v) for k, v in sim_values.items()])
+            self.sim = SimNode(
+                context=self.ctx,
+                parameter_overrides=[Parameter(k, value=v) for k, v in sim_values.items()],
+            )
             self.nodes.append(self.sim)
-            ctl_values = {"use_sim_time": True, "diagnostics_period": 0.5, **self.controller_params}
-            self.ctl = ControllerNode(context=self.ctx, parameter_overrides=[
-                Parameter(k, value=v) for k, v in ctl_values.items()])
+            ctl_values = {
+                "use_sim_time": True,
+                "diagnostics_period": 0.5,
+                **self.controller_params,
+            }
+            self.ctl = ControllerNode(
+                context=self.ctx,
+                parameter_overrides=[Parameter(k, value=v) for k, v in ctl_values.items()],
+            )
             self.nodes.append(self.ctl)
             self.watcher = rclpy.create_node("sorter_demo", context=self.ctx)
             self.nodes.append(self.watcher)
@@ -377,12 +473,24 @@ class RunningCell:
         client = self.watcher.create_client(SetParameters, "sorter_sim/set_parameters")
         if not self.spin_until(client.service_is_ready, 10.0):
             raise RuntimeError("the cell's set_parameters service is not there")
-        future = client.call_async(SetParameters.Request(parameters=[Parameter(
-            name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))]))
+        future = client.call_async(
+            SetParameters.Request(
+                parameters=[
+                    Parameter(
+                        name=name,
+                        value=ParameterValue(
+                            type=ParameterType.PARAMETER_STRING, string_value=value
+                        ),
+                    )
+                ]
+            )
+        )
         self.spin_until(future.done, 10.0)
         result = future.result().results[0] if future.done() else None
         if result is None or not result.successful:
-            raise RuntimeError(f"the cell refused {name} = {value}: {result.reason if result else 'no answer'}")
+            raise RuntimeError(
+                f"the cell refused {name} = {value}: {result.reason if result else 'no answer'}"
+            )
 
     def spin_until(self, predicate, timeout_wall: float = math.inf) -> bool:
         deadline = time.monotonic() + timeout_wall
@@ -393,32 +501,46 @@ class RunningCell:
         return True
 
     def run_for(self, sim_time: float) -> float:
-        """Spin until ``sim_time`` simulated seconds after the stream started; returns the wall time."""
+        """
+        Spin until ``sim_time`` simulated seconds after the stream started.
+
+        Returns the wall time.
+        """
         wall0 = time.monotonic()
         self.spin_until(lambda: self.obs.t_sim >= self.t_start + sim_time)
         return time.monotonic() - wall0
 
     def finish(self) -> float:
-        """Stop the cell's clock, let the last confirmations arrive; returns the simulated time
-        since the stream started."""
+        """
+        Stop the cell's clock and return the simulated time of the stream.
+
+        Stop the cell's clock, let the last confirmations arrive; returns the simulated time
+        since the stream started.
+        """
         t_end = self.obs.t_sim - self.t_start
         self.executor.remove_node(self.sim)
         deadline = time.monotonic() + 0.6
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.05)
-        self.obs.ctl_diag = {**self.obs.ctl_diag, **{k: str(v) for k, v in _diag_values(self.ctl).items()}}
+        self.obs.ctl_diag = {
+            **self.obs.ctl_diag,
+            **{k: str(v) for k, v in _diag_values(self.ctl).items()},
+        }
         return t_end
 
     def cell_params(self) -> dict:
         sim = self.sim
-        out = {k: sim.get_parameter(k).value for k in
-               ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")}
+        out = {
+            k: sim.get_parameter(k).value
+            for k in ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")
+        }
         out["photo_eyes.names"] = list(sim.get_parameter("photo_eyes.names").value)
         out["photo_eyes.x"] = list(sim.get_parameter("photo_eyes.x").value)
         return out
 
     def __exit__(self, *exc) -> None:
         import rclpy
+
         for n in self.nodes:
             n.destroy_node()
         self.nodes = []
@@ -440,13 +562,24 @@ def run(args) -> int | str:
     cell = next(iter(cell_doc.values()))["ros__parameters"]
     lengths = tuple(cell.get("parcel_A", [0.3, 0.7]))
     plan = stream_plan(lengths, config_dir)
-    gap = tuple(args.gap) if args.gap is not None else (round(plan["min_gap_m"] + 0.02, 3),
-                                                         round(plan["min_gap_m"] + 0.4, 3))
+    gap = (
+        tuple(args.gap)
+        if args.gap is not None
+        else (round(plan["min_gap_m"] + 0.02, 3), round(plan["min_gap_m"] + 0.4, 3))
+    )
     plan["stream_gap_m"] = list(gap)
-    sim_params = {"arrival": "gap", "arrival_gap": list(gap), "labels": list(LABEL_CYCLE),
-                  "seed": int(args.seed)}
-    with RunningCell(sim_params=sim_params, controller_params={"routing.rules": list(ROUTING)},
-                     rtf=args.rtf, log_level="info" if args.verbose else "warn") as rc:
+    sim_params = {
+        "arrival": "gap",
+        "arrival_gap": list(gap),
+        "labels": list(LABEL_CYCLE),
+        "seed": int(args.seed),
+    }
+    with RunningCell(
+        sim_params=sim_params,
+        controller_params={"routing.rules": list(ROUTING)},
+        rtf=args.rtf,
+        log_level="info" if args.verbose else "warn",
+    ) as rc:
         wall = rc.run_for(args.sim_time)
         t_end = rc.finish()
         summary = summarize(rc.obs, plan, t_end, wall, rc.time_mode)
@@ -461,9 +594,13 @@ def run(args) -> int | str:
 
 
 def _executor(ctx, kind: str = "single"):
-    """The SingleThreadedExecutor ("single"), or rclpy's experimental events executor
+    """
+    Return the executor to run the demo's nodes in.
+
+    The SingleThreadedExecutor ("single"), or rclpy's experimental events executor
     ("events", where there is one: cheaper callbacks, but its timers on the simulation
-    clock fire late when the cell runs fast, so it suits only real-time runs)."""
+    clock fire late when the cell runs fast, so it suits only real-time runs).
+    """
     if kind == "events":
         try:
             from rclpy.experimental import EventsExecutor
@@ -472,9 +609,10 @@ def _executor(ctx, kind: str = "single"):
         else:
             return EventsExecutor(context=ctx)
     from rclpy.executors import SingleThreadedExecutor
+
     return SingleThreadedExecutor(context=ctx)
 
 
 def _diag_values(ctl) -> dict:
-    """The controller's final diagnostic values (the same the diagnostics topic carries)."""
+    """Return the controller's final diagnostic values (the same the diagnostics topic carries)."""
     return {kv.key: kv.value for kv in ctl.diagnostic_status().values}

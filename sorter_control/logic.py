@@ -1,4 +1,5 @@
-"""The sorter PLC: scan cycle, tracking, routing, divert timing and faults, with no ROS.
+"""
+The sorter PLC: scan cycle, tracking, routing, divert timing and faults, with no ROS.
 
 ``SorterLogic.scan(image)`` is one PLC scan. The input image holds what a PLC
 reads once per scan: the latest bit of every presence sensor, the time-stamped
@@ -37,6 +38,7 @@ service call unanswered: not retried, so nothing can actuate twice),
 ``diverter_refused`` and ``estop``. A reset clears tracking: parcels already on
 the belt are let through straight ("flush") until the belt has carried them out.
 """
+
 from __future__ import annotations
 
 import math
@@ -53,20 +55,29 @@ from .timing import (
     side_of,
 )
 
-STATES = ("running", "jam", "stuck_on", "stuck_off", "missed_divert", "diverter_timeout",
-          "diverter_refused", "estop", "resetting")
+STATES = (
+    "running",
+    "jam",
+    "stuck_on",
+    "stuck_off",
+    "missed_divert",
+    "diverter_timeout",
+    "diverter_refused",
+    "estop",
+    "resetting",
+)
 FAULT_STATES = STATES[1:8]
 
 # results in sort confirmations
-R_SORTED = "sorted"              # reached what the routing asked for
-R_REJECTED = "rejected"          # unknown label or no read: sent to the reject destination
-R_GAP = "gap_too_short"          # a divert refused for spacing: sent straight
-R_CANNOT = "cannot_divert"       # the model says the disks cannot bring it to the chute
-R_LATE = "late"                  # length not known in time to act: sent straight
-R_FAULT = "fault"                # the controller was in a fault state: sent straight
-R_MISSORT = "mis-sorted"         # reached somewhere else than planned
-R_MISSED = "missed"              # planned divert, no chute sensor in time
-R_ABORTED = "aborted"            # tracking dropped (e-stop or reset) before the outcome
+R_SORTED = "sorted"  # reached what the routing asked for
+R_REJECTED = "rejected"  # unknown label or no read: sent to the reject destination
+R_GAP = "gap_too_short"  # a divert refused for spacing: sent straight
+R_CANNOT = "cannot_divert"  # the model says the disks cannot bring it to the chute
+R_LATE = "late"  # length not known in time to act: sent straight
+R_FAULT = "fault"  # the controller was in a fault state: sent straight
+R_MISSORT = "mis-sorted"  # reached somewhere else than planned
+R_MISSED = "missed"  # planned divert, no chute sensor in time
+R_ABORTED = "aborted"  # tracking dropped (e-stop or reset) before the outcome
 
 
 class RoutingError(ValueError):
@@ -74,7 +85,8 @@ class RoutingError(ValueError):
 
 
 class RoutingTable:
-    """Destination per label: exact labels, prefixes (``ABC*``, longest wins), a default.
+    """
+    Destination per label: exact labels, prefixes (``ABC*``, longest wins), a default.
 
     Labels that match nothing (with no default) and missing reads go to the
     reject destination. Rules are ``pattern=destination`` strings; a pattern
@@ -94,7 +106,9 @@ class RoutingTable:
     @staticmethod
     def _dest(dest, what, allow_empty=False) -> str:
         if not isinstance(dest, str):
-            raise RoutingError(f"{what} must be a string, one of {', '.join(DESTINATIONS)}; got {dest!r}")
+            raise RoutingError(
+                f"{what} must be a string, one of {', '.join(DESTINATIONS)}; got {dest!r}"
+            )
         dest = dest.strip()
         if dest == "" and allow_empty:
             return ""
@@ -106,22 +120,30 @@ class RoutingTable:
     @staticmethod
     def parse_rule(rule) -> tuple[str, str]:
         if not isinstance(rule, str) or "=" not in rule:
-            raise RoutingError(f"routing rule {rule!r}: expected 'label=destination' or 'prefix*=destination'")
+            raise RoutingError(
+                f"routing rule {rule!r}: expected 'label=destination' or 'prefix*=destination'"
+            )
         pattern, _, dest = rule.rpartition("=")
         return pattern.strip(), dest.strip()
 
     def set(self, pattern: str, destination: str) -> str:
         """Add, change or (destination '') remove a rule; returns what was done."""
         if not isinstance(pattern, str) or pattern.strip() == "":
-            raise RoutingError(f"routing pattern must be a non-empty label, 'prefix*' or '*'; got {pattern!r}")
+            raise RoutingError(
+                f"routing pattern must be a non-empty label, 'prefix*' or '*'; got {pattern!r}"
+            )
         pattern = pattern.strip()
         if "*" in pattern[:-1]:
-            raise RoutingError(f"routing pattern {pattern!r}: '*' is allowed only at the end (a prefix)")
+            raise RoutingError(
+                f"routing pattern {pattern!r}: '*' is allowed only at the end (a prefix)"
+            )
         dest = self._dest(destination, f"destination for {pattern!r}", allow_empty=True)
         if pattern == "*":
             self.default = dest or None
             return f"default -> {dest or '(none: reject)'}"
-        table, key = ((self.prefixes, pattern[:-1]) if pattern.endswith("*") else (self.exact, pattern))
+        table, key = (
+            (self.prefixes, pattern[:-1]) if pattern.endswith("*") else (self.exact, pattern)
+        )
         if dest == "":
             table.pop(key, None)
             return f"{pattern} removed"
@@ -154,7 +176,8 @@ class RoutingTable:
 
 @dataclass(frozen=True)
 class ControllerConfig:
-    """Everything the PLC is configured with (SI units; angles in degrees).
+    """
+    Everything the PLC is configured with (SI units; angles in degrees).
 
     Photo-eyes: ``photo_eyes`` maps names to x [m] in the conveyor frame (origin on
     the upstream edge of the disk field); ``scan_eye`` is at the scanner line and
@@ -189,15 +212,34 @@ class ControllerConfig:
     def __post_init__(self):
         def positive(name):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float))
+                or not math.isfinite(v)
+                or v <= 0
+            ):
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
-        for name in ("scan_period", "belt_speed", "popup_stroke_time", "alpha_slew_rate_deg_s",
-                     "tracking_tolerance", "label_window", "jam_margin", "max_parcel_length",
-                     "missed_divert_margin"):
+
+        for name in (
+            "scan_period",
+            "belt_speed",
+            "popup_stroke_time",
+            "alpha_slew_rate_deg_s",
+            "tracking_tolerance",
+            "label_window",
+            "jam_margin",
+            "max_parcel_length",
+            "missed_divert_margin",
+        ):
             positive(name)
         for name in ("service_latency", "clearance", "timing_margin"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float))
+                or not math.isfinite(v)
+                or v < 0
+            ):
                 raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
         if not (0 < abs(self.divert_alpha_deg) <= 90):
             raise ValueError(f"divert_alpha_deg must be in (0, 90], got {self.divert_alpha_deg!r}")
@@ -206,14 +248,18 @@ class ControllerConfig:
             raise ValueError(f"photo_eyes: names must be unique, got {list(self.photo_eyes)}")
         for name, x in eyes.items():
             if not isinstance(name, str) or not name or not math.isfinite(x):
-                raise ValueError(f"photo_eyes: each needs a name and a finite x, got {name!r}: {x!r}")
+                raise ValueError(
+                    f"photo_eyes: each needs a name and a finite x, got {name!r}: {x!r}"
+                )
         for name in (self.scan_eye, self.divert_eye):
             if name not in eyes:
                 raise ValueError(f"photo-eye {name!r} is not among photo_eyes {sorted(eyes)}")
         if not eyes[self.scan_eye] < eyes[self.divert_eye] <= 0.0:
-            raise ValueError(f"photo-eyes must sit scanner < divert eye <= 0 (the disk field's upstream "
-                             f"edge); got {self.scan_eye} at {eyes[self.scan_eye]} m, "
-                             f"{self.divert_eye} at {eyes[self.divert_eye]} m")
+            raise ValueError(
+                f"photo-eyes must sit scanner < divert eye <= 0 (the disk field's upstream "
+                f"edge); got {self.scan_eye} at {eyes[self.scan_eye]} m, "
+                f"{self.divert_eye} at {eyes[self.divert_eye]} m"
+            )
         chutes = dict(self.chute_sensors)
         if set(chutes) - {"left", "right"}:
             raise ValueError(f"chute_sensors: sides must be left/right, got {sorted(chutes)}")
@@ -229,11 +275,17 @@ class ControllerConfig:
         return dict(self.chute_sensors)
 
     def actuators(self) -> Actuators:
-        return Actuators(self.popup_stroke_time, self.alpha_slew_rate_deg_s, self.scan_period,
-                         self.service_latency, self.timing_margin)
+        return Actuators(
+            self.popup_stroke_time,
+            self.alpha_slew_rate_deg_s,
+            self.scan_period,
+            self.service_latency,
+            self.timing_margin,
+        )
 
 
 # ----------------------------------------------------------------------------- input image
+
 
 @dataclass(frozen=True)
 class Edge:
@@ -246,8 +298,8 @@ class Edge:
 
 @dataclass(frozen=True)
 class DiverterState:
-    alpha: float          # disk angle [rad]
-    stroke: float         # pop-up position 0 (down) .. 1 (up)
+    alpha: float  # disk angle [rad]
+    stroke: float  # pop-up position 0 (down) .. 1 (up)
     alpha_rate: float = 0.0
     stroke_rate: float = 0.0
 
@@ -267,13 +319,13 @@ class InputImage:
     t: float
     bits: dict = field(default_factory=dict)
     edges: list = field(default_factory=list)
-    labels: list = field(default_factory=list)          # (t_received, label)
+    labels: list = field(default_factory=list)  # (t_received, label)
     diverter: DiverterState | None = None
     replies: list = field(default_factory=list)
     routing_updates: list = field(default_factory=list)  # (pattern, destination)
-    cell_estop: bool | None = None                       # as the cell reports it, if known
+    cell_estop: bool | None = None  # as the cell reports it, if known
     cell_jam: bool | None = None
-    cell_status_t: float | None = None                   # the report's time stamp [s]
+    cell_status_t: float | None = None  # the report's time stamp [s]
 
 
 @dataclass(frozen=True)
@@ -300,30 +352,31 @@ class Confirmation:
 class ScanOutput:
     commands: list = field(default_factory=list)
     confirmations: list = field(default_factory=list)
-    log: list = field(default_factory=list)      # (level, text) with level info | warn | error
+    log: list = field(default_factory=list)  # (level, text) with level info | warn | error
 
 
 # ----------------------------------------------------------------------------- tracking
+
 
 @dataclass
 class Tracked:
     """One parcel followed along the belt."""
 
     seq: int
-    enc_rise: float                  # encoder reading when the leading edge was at the scanner line
+    enc_rise: float  # encoder reading when the leading edge was at the scanner line
     t_scan: float
     label: str | None = None
     length: float | None = None
-    asked: str | None = None          # destination the routing gave at decision time
+    asked: str | None = None  # destination the routing gave at decision time
     how: str | None = None
-    plan: str | None = None           # where the controller sends it
-    result: str | None = None         # flag set at decision time (None: normal)
+    plan: str | None = None  # where the controller sends it
+    result: str | None = None  # flag set at decision time (None: normal)
     committed: bool = False
-    bound: str | None = None          # destination fixed early by the parcel ahead (disks kept up)
+    bound: str | None = None  # destination fixed early by the parcel ahead (disks kept up)
     prediction: Prediction | None = None
     alpha: float | None = None
-    confirmed: dict = field(default_factory=dict)   # eye -> t of its rising edge
-    cleared: dict = field(default_factory=dict)     # eye -> t of its falling edge
+    confirmed: dict = field(default_factory=dict)  # eye -> t of its rising edge
+    cleared: dict = field(default_factory=dict)  # eye -> t of its falling edge
     reached: str | None = None
     done: bool = False
 
@@ -332,7 +385,7 @@ class Tracked:
 class EyeState:
     blocked: bool | None = None
     since: float = 0.0
-    by: int | None = None            # seq of the tracked parcel blocking it
+    by: int | None = None  # seq of the tracked parcel blocking it
     unexpected: bool = False
     labels_while_blocked: int = 0
     cleared_at: float | None = None  # time of the last falling edge
@@ -343,13 +396,19 @@ class SorterLogic:
 
     def __init__(self, config: ControllerConfig, predictor: DivertPredictor | None = None):
         self.config = config
-        self.routing = RoutingTable(config.routing_rules, config.routing_default, config.reject_destination)
+        self.routing = RoutingTable(
+            config.routing_rules, config.routing_default, config.reject_destination
+        )
         self.predictor = predictor or DivertPredictor(config.cell)
-        self.gaps = GapModel(self.predictor, config.actuators(), divert_alpha_deg=abs(config.divert_alpha_deg),
-                             clearance=config.clearance)
+        self.gaps = GapModel(
+            self.predictor,
+            config.actuators(),
+            divert_alpha_deg=abs(config.divert_alpha_deg),
+            clearance=config.clearance,
+        )
         self.eye_x = config.eyes
         self.x_scan = self.eye_x[config.scan_eye]
-        self.chute_of = config.chutes                      # side -> sensor
+        self.chute_of = config.chutes  # side -> sensor
         self.side_of_sensor = {s: side for side, s in self.chute_of.items()}
         self.sensors = list(self.eye_x) + list(self.side_of_sensor)
         self.state = "running"
@@ -363,23 +422,41 @@ class SorterLogic:
         self.last_decided: Tracked | None = None
         self.pending_labels: deque = deque()
         self.seq = 0
-        self.flush_until: float = self.flush_distance()     # encoder reading
+        self.flush_until: float = self.flush_distance()  # encoder reading
         self.cmd_id = 0
         self.in_flight: dict[int, Command] = {}
         self.commanded_up: bool | None = None
         self.commanded_alpha: float | None = None
-        self.alpha_ready_at: float | None = None     # when the commanded angle should be reached [s]
-        self.diverter_silent = False                 # a diverter call timed out (until reset)
-        self.reset_t = -math.inf                     # when the last reset cleared a fault [s]
+        self.alpha_ready_at: float | None = None  # when the commanded angle should be reached [s]
+        self.diverter_silent = False  # a diverter call timed out (until reset)
+        self.reset_t = -math.inf  # when the last reset cleared a fault [s]
         self.diverter: DiverterState | None = None
         self._reset_requested = False
         self._estop_requested = False
         self.counts = {
-            "inducted": 0, "left": 0, "right": 0, "straight": 0, "rejected": 0, "no_read": 0,
-            "gap_too_short": 0, "cannot_divert": 0, "late": 0, "mis_sorted": 0, "missed": 0,
-            "aborted": 0, "untracked": 0, "unexpected_chute": 0, "labels_without_parcel": 0,
-            "scans": 0, "overruns": 0, "late_scans": 0, "routing_updates": 0, "routing_rejected": 0,
-            "commands": 0, "replies": 0, "timeouts": 0,
+            "inducted": 0,
+            "left": 0,
+            "right": 0,
+            "straight": 0,
+            "rejected": 0,
+            "no_read": 0,
+            "gap_too_short": 0,
+            "cannot_divert": 0,
+            "late": 0,
+            "mis_sorted": 0,
+            "missed": 0,
+            "aborted": 0,
+            "untracked": 0,
+            "unexpected_chute": 0,
+            "labels_without_parcel": 0,
+            "scans": 0,
+            "overruns": 0,
+            "late_scans": 0,
+            "routing_updates": 0,
+            "routing_rejected": 0,
+            "commands": 0,
+            "replies": 0,
+            "timeouts": 0,
         }
         self.fault_counts = {k: 0 for k in FAULT_STATES}
         self.scan_wall: deque = deque(maxlen=1000)
@@ -391,12 +468,16 @@ class SorterLogic:
         return self.config.belt_speed
 
     def flush_distance(self) -> float:
-        """Encoder travel after which nothing untracked can remain between scanner and field end."""
-        return (self.encoder + (self.config.cell.disk_field_length - self.x_scan)
-                + self.config.max_parcel_length + self.config.tracking_tolerance)
+        """Return the encoder travel after which nothing untracked is left before the field end."""
+        return (
+            self.encoder
+            + (self.config.cell.disk_field_length - self.x_scan)
+            + self.config.max_parcel_length
+            + self.config.tracking_tolerance
+        )
 
     def warm_lengths(self, lo: float, hi: float) -> list[float]:
-        """The prediction grid's lengths in [lo, hi] m."""
+        """Return the prediction grid's lengths in [lo, hi] m."""
         step = self.predictor.cell.length_step
         n = int(math.floor((hi - lo) / step + 1e-9)) + 1
         return [lo + i * step for i in range(max(n, 1))]
@@ -406,7 +487,7 @@ class SorterLogic:
         self.gaps.warm(lengths, self.v)
 
     def min_gap(self, length: float) -> dict:
-        """The least gap [m] for parcels of ``length`` m at the configured belt speed (all pairs)."""
+        """Return the least gap [m] for parcels of ``length`` m at the configured belt speed."""
         return self.gaps.min_gap(length, self.v)
 
     def lookahead_ok(self, length: float) -> bool:
@@ -426,13 +507,21 @@ class SorterLogic:
         return "e-stop requested"
 
     def record_scan_wall(self, seconds: float) -> None:
-        """The node reports how long a scan took in wall time; longer than a period is an overrun."""
+        """
+        Record how long a scan took in wall time, as the node measured it.
+
+        Longer than a period is an overrun.
+        """
         self.scan_wall.append(seconds)
         if seconds > self.config.scan_period:
             self.counts["overruns"] += 1
 
     def update_route(self, pattern: str, destination: str) -> str:
-        """A routing change from a warehouse controller; raises RoutingError if not allowed."""
+        """
+        Return a routing change from a warehouse controller.
+
+        Raises RoutingError if not allowed.
+        """
         done = self.routing.set(pattern, destination)
         self.counts["routing_updates"] += 1
         return done
@@ -454,7 +543,7 @@ class SorterLogic:
         return any(c.kind == kind for c in self.in_flight.values())
 
     def _enc_at(self, t: float) -> float:
-        """Encoder reading at an edge time inside (or just before) the current scan."""
+        """Return the encoder reading at an edge time inside (or just before) the current scan."""
         if not self.belt_running:
             return self.encoder
         return self.encoder - self.v * (self.t - t)
@@ -467,7 +556,9 @@ class SorterLogic:
         """When the leading edge reaches (reached) the disk field, x = 0 [s]."""
         return self.t + (0.0 - self.lead_x(p)) / self.v
 
-    def _enter_fault(self, out: ScanOutput, kind: str, message: str, sensor: str | None = None) -> None:
+    def _enter_fault(
+        self, out: ScanOutput, kind: str, message: str, sensor: str | None = None
+    ) -> None:
         if self.state in FAULT_STATES or self.state == "resetting":
             # the first fault defines the state; later ones are logged
             self._log(out, "error", f"{kind}: {message} (while in {self.state})")
@@ -479,7 +570,9 @@ class SorterLogic:
         if kind == "jam" and self.config.estop_on_jam:
             self._command(out, "estop", True)
 
-    def _finish(self, out: ScanOutput, p: Tracked, reached: str, result: str | None = None) -> None:
+    def _finish(
+        self, out: ScanOutput, p: Tracked, reached: str, result: str | None = None
+    ) -> None:
         if p.done:
             return
         p.done = True
@@ -500,7 +593,9 @@ class SorterLogic:
             self.counts["rejected"] += 1
         if result == R_ABORTED:
             self.counts["aborted"] += 1
-        out.confirmations.append(Confirmation(p.label or "", asked, reached, result, p.seq, self.t))
+        out.confirmations.append(
+            Confirmation(p.label or "", asked, reached, result, p.seq, self.t)
+        )
 
     def _drop_tracking(self, out: ScanOutput, why: str) -> None:
         for p in self.parcels:
@@ -560,8 +655,10 @@ class SorterLogic:
         if self.belt_running and p.reached == "straight" and p.plan == "straight":
             # still expected at the photo-eyes downstream of the field
             tol = self.config.tracking_tolerance + self.v * self.config.scan_period
-            if any(x > 0.0 and name not in p.confirmed and self.lead_x(p) <= x + tol
-                   for name, x in self.eye_x.items()):
+            if any(
+                x > 0.0 and name not in p.confirmed and self.lead_x(p) <= x + tol
+                for name, x in self.eye_x.items()
+            ):
                 return False
         if side_of(p.plan or "straight") != 0 and p.prediction is not None and p.reached == p.plan:
             if self.belt_running and self.t < self.t_enter(p) + p.prediction.t_commit:
@@ -595,8 +692,11 @@ class SorterLogic:
                     self.commanded_up = None if cmd.kind == "popup" else self.commanded_up
                     self.commanded_alpha = None if cmd.kind == "alpha" else self.commanded_alpha
                     self.diverter_silent = True
-                    self._enter_fault(out, "diverter_timeout", f"{what}: no answer from the cell in time; "
-                                      "not retried")
+                    self._enter_fault(
+                        out,
+                        "diverter_timeout",
+                        f"{what}: no answer from the cell in time; not retried",
+                    )
                 elif cmd.kind == "reset":
                     self._restore_fault_state(out, "reset: no answer from the cell in time")
                 else:
@@ -636,15 +736,16 @@ class SorterLogic:
         self.fault = {"kind": "estop", "sensor": None, "message": message, "t": self.t}
         self.fault_counts["estop"] += 1
         self.belt_running = False
-        self.commanded_up = False       # the cell drops the disks on e-stop
+        self.commanded_up = False  # the cell drops the disks on e-stop
         self._log(out, "error", f"estop: {message}; no diverts until reset")
         self._drop_tracking(out, "e-stop")
 
     def _apply_cell_status(self, out, image: InputImage) -> None:
         if image.cell_status_t is not None and image.cell_status_t < self.reset_t:
-            return      # reported before the last reset: stale
+            return  # reported before the last reset: stale
         if image.cell_estop:
-            # a jam the controller stopped the belt for stays a jam; anything else becomes an e-stop
+            # a jam the controller stopped the belt for stays a jam; anything else becomes an
+            # e-stop
             self.belt_running = False
             if self.state not in ("estop", "resetting", "jam"):
                 self._enter_estop(out, "the cell reports an e-stop")
@@ -691,8 +792,12 @@ class SorterLogic:
         """Edges of this scan in time order: bit changes, timed by the latched edges."""
         stamped: dict[str, list[Edge]] = {}
         for e in image.edges:
-            if (isinstance(e, Edge) and e.sensor in self.bits and isinstance(e.t, (int, float))
-                    and math.isfinite(e.t)):
+            if (
+                isinstance(e, Edge)
+                and e.sensor in self.bits
+                and isinstance(e.t, (int, float))
+                and math.isfinite(e.t)
+            ):
                 stamped.setdefault(e.sensor, []).append(e)
         found: list[Edge] = []
         for s in self.sensors:
@@ -708,8 +813,12 @@ class SorterLogic:
                 self.eyes[s].since = self.t
                 self.eyes[s].unexpected = cur
                 continue
-            alternating = (bool(marks) and marks[0].rising != prev and marks[-1].rising == cur
-                           and all(a.rising != b.rising for a, b in zip(marks, marks[1:])))
+            alternating = (
+                bool(marks)
+                and marks[0].rising != prev
+                and marks[-1].rising == cur
+                and all(a.rising != b.rising for a, b in zip(marks, marks[1:]))
+            )
             if alternating:
                 found.extend(Edge(s, min(e.t, self.t), e.rising) for e in marks)
             elif cur != prev:
@@ -806,14 +915,22 @@ class SorterLogic:
         # should have been blocked by the parcel just read (one blocking it since before the
         # controller started has no rising edge, and is not the eye's fault)
         eye = self.eyes[self.config.scan_eye]
-        while self.pending_labels and self.t - self.pending_labels[0][0] > self.config.label_window:
+        while (
+            self.pending_labels and self.t - self.pending_labels[0][0] > self.config.label_window
+        ):
             t_l, label = self.pending_labels.popleft()
             self.counts["labels_without_parcel"] += 1
-            seen = eye.blocked or (eye.cleared_at is not None
-                                   and eye.cleared_at >= t_l - self.config.label_window)
+            seen = eye.blocked or (
+                eye.cleared_at is not None and eye.cleared_at >= t_l - self.config.label_window
+            )
             if self.state == "running" and not seen:
-                self._enter_fault(out, "stuck_off", f"{self.config.scan_eye}: the scanner read {label!r} at "
-                                  f"{t_l:.3f} s but the photo-eye never blocked", self.config.scan_eye)
+                self._enter_fault(
+                    out,
+                    "stuck_off",
+                    f"{self.config.scan_eye}: the scanner read {label!r} at "
+                    f"{t_l:.3f} s but the photo-eye never blocked",
+                    self.config.scan_eye,
+                )
 
     def _by_seq(self, seq) -> Tracked | None:
         if seq is None:
@@ -824,7 +941,7 @@ class SorterLogic:
         return None
 
     def _checkpoint(self, p: Tracked, eye: str) -> bool:
-        """Whether the parcel should pass this photo-eye (diverted parcels never reach downstream eyes)."""
+        """Return whether the parcel should pass this photo-eye (diverted ones miss later eyes)."""
         x = self.eye_x[eye]
         if eye == self.config.scan_eye:
             return False
@@ -833,7 +950,7 @@ class SorterLogic:
         return p.committed and side_of(p.plan) == 0
 
     def _expected_at(self, eye: str, t: float) -> Tracked | None:
-        """The oldest parcel whose transit window at ``eye`` holds time t."""
+        """Return the oldest parcel whose transit window at ``eye`` holds time t."""
         enc = self._enc_at(t)
         tol = self.config.tracking_tolerance + self.v * self.config.scan_period
         for p in self.parcels:
@@ -848,7 +965,12 @@ class SorterLogic:
         b = self.config.cell.disk_field_length
         tol = self.config.tracking_tolerance / self.v + self.config.scan_period
         for p in self.parcels:
-            if not p.done and p.committed and side_of(p.plan) == side and self.t_enter(p) <= t + tol:
+            if (
+                not p.done
+                and p.committed
+                and side_of(p.plan) == side
+                and self.t_enter(p) <= t + tol
+            ):
                 self._finish(out, p, dest)
                 return
         # a parcel that was not meant for this chute: the one over the field
@@ -858,7 +980,11 @@ class SorterLogic:
             te = self.t_enter(p)
             if te - tol <= t <= te + (p.length + b) / self.v + tol:
                 self._finish(out, p, dest)
-                self._log(out, "error", f"parcel {p.seq} ({p.label}) entered the {dest} chute; planned {p.plan}")
+                self._log(
+                    out,
+                    "error",
+                    f"parcel {p.seq} ({p.label}) entered the {dest} chute; planned {p.plan}",
+                )
                 return
         self.counts["unexpected_chute"] += 1
         self._log(out, "warn", f"{self.chute_of[dest]}: a parcel entered with none tracked there")
@@ -871,7 +997,9 @@ class SorterLogic:
         if p.committed and p.prediction is not None and x_e < 0.0 and length > -x_e:
             # its tail is still over the eye when the disks take it: it slows along x and
             # leaves sideways (Fig. 7), as the prediction tells
-            rel = p.prediction.t_clear_of(x_e, self.config.cell.belt_width, self.config.cell.parcel_width)
+            rel = p.prediction.t_clear_of(
+                x_e, self.config.cell.belt_width, self.config.cell.parcel_width
+            )
             t_clear = max(t_clear, t_rise + (-x_e) / self.v + rel)
         return t_clear
 
@@ -891,22 +1019,47 @@ class SorterLogic:
                 limit = self._expected_clear(p, name, eye.since) - eye.since + cfg.jam_margin
                 if held > limit and self.state == "running":
                     if name == cfg.scan_eye and eye.labels_while_blocked >= 2:
-                        self._enter_fault(out, "stuck_on", f"{name}: blocked for {held:.2f} s while "
-                                          f"{eye.labels_while_blocked} labels were read", name)
+                        self._enter_fault(
+                            out,
+                            "stuck_on",
+                            f"{name}: blocked for {held:.2f} s while "
+                            f"{eye.labels_while_blocked} labels were read",
+                            name,
+                        )
                     else:
-                        self._enter_fault(out, "jam", f"{name}: blocked for {held:.2f} s by parcel "
-                                          f"{p.seq} ({p.label}), which should have cleared it after {limit - cfg.jam_margin:.2f} s", name)
+                        self._enter_fault(
+                            out,
+                            "jam",
+                            f"{name}: blocked for {held:.2f} s by parcel "
+                            f"{p.seq} ({p.label}), which should have cleared it after "
+                            f"{limit - cfg.jam_margin:.2f} s",
+                            name,
+                        )
             else:
                 limit = cfg.max_parcel_length / v + cfg.jam_margin
                 if held > limit and self.state == "running":
-                    self._enter_fault(out, "stuck_on", f"{name}: blocked for {held:.2f} s with no parcel due "
-                                      f"(longest parcel: {cfg.max_parcel_length / v:.2f} s)", name)
+                    self._enter_fault(
+                        out,
+                        "stuck_on",
+                        f"{name}: blocked for {held:.2f} s with no parcel due "
+                        f"(longest parcel: {cfg.max_parcel_length / v:.2f} s)",
+                        name,
+                    )
         for name in self.side_of_sensor:
             eye = self.eyes[name]
-            if eye.blocked and self.belt_running and self.t - eye.since > cfg.max_parcel_length / v + cfg.jam_margin \
-                    and self.state == "running":
-                self._enter_fault(out, "jam", f"{name}: blocked for {self.t - eye.since:.2f} s: a parcel stuck "
-                                  "at the chute entry", name)
+            if (
+                eye.blocked
+                and self.belt_running
+                and self.t - eye.since > cfg.max_parcel_length / v + cfg.jam_margin
+                and self.state == "running"
+            ):
+                self._enter_fault(
+                    out,
+                    "jam",
+                    f"{name}: blocked for {self.t - eye.since:.2f} s: a parcel stuck "
+                    "at the chute entry",
+                    name,
+                )
         if not self.belt_running:
             return
         for p in self.parcels:
@@ -919,21 +1072,30 @@ class SorterLogic:
                 if x_lead > x_e + tol_x:
                     eye = self.eyes[name]
                     if eye.blocked:
-                        # merged with the parcel ahead (or the eye is stuck on): the blocked-time check decides
+                        # merged with the parcel ahead (or the eye is stuck on): the blocked-time
+                        # check decides
                         p.confirmed[name] = None
                     else:
                         p.confirmed[name] = None
                         if self.state == "running":
-                            self._enter_fault(out, "stuck_off", f"{name}: parcel {p.seq} ({p.label}) should have "
-                                              f"blocked it {(x_lead - x_e) / v:.2f} s ago", name)
+                            self._enter_fault(
+                                out,
+                                "stuck_off",
+                                f"{name}: parcel {p.seq} ({p.label}) should have "
+                                f"blocked it {(x_lead - x_e) / v:.2f} s ago",
+                                name,
+                            )
             if p.done:
                 continue
             # outcomes the controller infers from time
             length = p.length if p.length is not None else cfg.max_parcel_length
             if not p.committed:
                 if x_lead > length + b + tol_x:
-                    # never decided (fault state or unknown length): it went through with the disks down
-                    self._finish(out, p, "straight", R_FAULT if self.state != "running" else R_LATE)
+                    # never decided (fault state or unknown length): it went through with the disks
+                    # down
+                    self._finish(
+                        out, p, "straight", R_FAULT if self.state != "running" else R_LATE
+                    )
                 continue
             side = side_of(p.plan)
             if side == 0:
@@ -949,19 +1111,24 @@ class SorterLogic:
                         continue
                     self._finish(out, p, "unknown", R_MISSED)
                     self.counts["missed"] += 1
-                    self._enter_fault(out, "missed_divert", f"parcel {p.seq} ({p.label}) did not reach "
-                                      f"{chute} by {deadline:.3f} s", chute)
+                    self._enter_fault(
+                        out,
+                        "missed_divert",
+                        f"parcel {p.seq} ({p.label}) did not reach {chute} by {deadline:.3f} s",
+                        chute,
+                    )
 
     # --- decisions -------------------------------------------------------------------------------
     def _alpha_end(self) -> float | None:
-        """The disk angle the committed plan ends with [deg]."""
+        """Return the disk angle the committed plan ends with [deg]."""
         for p in reversed(self.parcels):
             if p.committed and p.alpha is not None:
                 return p.alpha
         return self.commanded_alpha
 
     def _lead_needed(self, dest: str) -> float:
-        """How long before its entry a parcel for ``dest`` must be decided [s].
+        """
+        How long before its entry a parcel for ``dest`` must be decided [s].
 
         The stroke only: the disk angle is set ahead for the next divert in line
         whenever no committed divert holds it (see ``desired_outputs``), so it does
@@ -977,7 +1144,11 @@ class SorterLogic:
             # under way since the command: the reported angle may be a scan or two old
             return self.alpha_ready_at if self.alpha_ready_at is not None else self.t
         # not commanded yet: this scan's outputs will
-        start = math.degrees(self.diverter.alpha) if self.diverter is not None else self.commanded_alpha
+        start = (
+            math.degrees(self.diverter.alpha)
+            if self.diverter is not None
+            else self.commanded_alpha
+        )
         if start is None:
             start = -target
         return self.t + act.latency + act.slew_time(start, target)
@@ -997,8 +1168,11 @@ class SorterLogic:
         for p, dl in zip(pending, deadlines):
             if self.t < dl:
                 break
-            if p.length is None and self.t + act.popup_stroke_time + act.latency + act.scan_period \
-                    <= self.t_enter(p):
+            if (
+                p.length is None
+                and self.t + act.popup_stroke_time + act.latency + act.scan_period
+                <= self.t_enter(p)
+            ):
                 # its trailing edge is still at the scanner: wait for the length while the
                 # stroke can still make it (the margin is spent first)
                 break
@@ -1028,36 +1202,58 @@ class SorterLogic:
         if p.bound is not None:
             # the parcel ahead keeps the disks up for this one: it goes with them
             if asked != p.bound:
-                self._log(out, "warn", f"parcel {p.seq} ({p.label}): routing now says {asked}, but the disks "
-                          f"were already kept up for it to go {p.bound}")
+                self._log(
+                    out,
+                    "warn",
+                    f"parcel {p.seq} ({p.label}): routing now says {asked}, but the disks "
+                    f"were already kept up for it to go {p.bound}",
+                )
             self._divert(out, p, p.bound, forced=True)
             return
         if p.length is None:
             p.result = R_LATE
             self.counts["late"] += 1
-            self._log(out, "warn", f"parcel {p.seq} ({p.label}): length unknown at decision time; straight")
+            self._log(
+                out,
+                "warn",
+                f"parcel {p.seq} ({p.label}): length unknown at decision time; straight",
+            )
             return
         if side_of(asked) == 0:
             if prev is not None and prev.length is not None and side_of(prev.plan) != 0:
                 headway = self.t_enter(p) - self.t_enter(prev)
                 if headway < self.gaps.headway(prev.length, prev.plan, p.length, "straight", v):
-                    self._log(out, "error", f"parcel {p.seq} ({p.label}) follows parcel {prev.seq} too closely "
-                              f"to pass the raised disks straight")
+                    self._log(
+                        out,
+                        "error",
+                        f"parcel {p.seq} ({p.label}) follows parcel {prev.seq} too closely "
+                        f"to pass the raised disks straight",
+                    )
             return
         pred = self.gaps.prediction(p.length, v, asked)
         if not pred.feasible:
             p.result = R_CANNOT
             self.counts["cannot_divert"] += 1
-            self._log(out, "warn", f"parcel {p.seq} ({p.label}): the model cannot bring a {p.length:.2f} m parcel "
-                      f"to the {asked} chute within the disk field; straight")
+            self._log(
+                out,
+                "warn",
+                f"parcel {p.seq} ({p.label}): the model cannot bring a {p.length:.2f} m parcel "
+                f"to the {asked} chute within the disk field; straight",
+            )
             return
         if prev is not None and prev.length is not None:
             headway = self.t_enter(p) - self.t_enter(prev)
-            need = self.gaps.headway(prev.length, prev.plan, p.length, asked, v,
-                                     alpha_before_deg=self._alpha_end())
+            need = self.gaps.headway(
+                prev.length, prev.plan, p.length, asked, v, alpha_before_deg=self._alpha_end()
+            )
             if headway < need:
-                self._refuse(out, p, asked, f"{(headway * v - prev.length):.3f} m behind parcel {prev.seq} "
-                             f"({prev.plan}); {(need * v - prev.length):.3f} m needed")
+                self._refuse(
+                    out,
+                    p,
+                    asked,
+                    f"{(headway * v - prev.length):.3f} m behind parcel {prev.seq} "
+                    f"({prev.plan}); {(need * v - prev.length):.3f} m needed",
+                )
                 return
         # late only if even without the margins the stroke cannot end before the entry
         act = self.gaps.act
@@ -1067,13 +1263,18 @@ class SorterLogic:
         if late:
             p.result = R_LATE
             self.counts["late"] += 1
-            self._log(out, "warn", f"parcel {p.seq} ({p.label}): decided too late to divert (stroke or disk "
-                      "angle); straight")
+            self._log(
+                out,
+                "warn",
+                f"parcel {p.seq} ({p.label}): decided too late to divert (stroke or disk "
+                "angle); straight",
+            )
             return
         self._divert(out, p, asked, forced=False)
 
     def _divert(self, out, p: Tracked, dest: str, forced: bool) -> None:
-        """Divert p unless a parcel behind it could then neither pass straight nor follow.
+        """
+        Divert p unless a parcel behind it could then neither pass straight nor follow.
 
         Parcels too close behind to go straight past raised disks must follow p to
         the same side (a chain, each bound to it); a chain that breaks refuses p.
@@ -1090,12 +1291,20 @@ class SorterLogic:
                 # nobody seen behind: a parcel not yet at the scanner is at least this far back
                 tail = self.lead_x(cur) - (cur.length if cur.length is not None else math.inf)
                 open_gap = max(0.0, tail - self.x_scan) if math.isfinite(tail) else 0.0
-                need = self.gaps.headway(cur_len, dest, self.config.max_parcel_length, "straight", v)
+                need = self.gaps.headway(
+                    cur_len, dest, self.config.max_parcel_length, "straight", v
+                )
                 if (cur_len + open_gap) / v < need and not self.config.open_chains:
                     if not forced:
-                        self._refuse(out, p, dest, f"the scanner cannot see far enough behind parcel "
-                                     f"{cur.seq}: a parcel arriving {open_gap:.3f} m behind it could neither "
-                                     "pass the raised disks straight nor be refused")
+                        self._refuse(
+                            out,
+                            p,
+                            dest,
+                            f"the scanner cannot see far enough behind parcel "
+                            f"{cur.seq}: a parcel arriving {open_gap:.3f} m behind it could "
+                            "neither "
+                            "pass the raised disks straight nor be refused",
+                        )
                         return
                 break
             nxt_len = nxt.length if nxt.length is not None else self.config.max_parcel_length
@@ -1103,15 +1312,28 @@ class SorterLogic:
             if headway >= self.gaps.headway(cur_len, dest, nxt_len, "straight", v):
                 break
             follow = self.routing.lookup(nxt.label)[0]
-            if (follow != dest or nxt.length is None
-                    or headway < self.gaps.headway(cur_len, dest, nxt_len, dest, v)):
+            if (
+                follow != dest
+                or nxt.length is None
+                or headway < self.gaps.headway(cur_len, dest, nxt_len, dest, v)
+            ):
                 if not forced:
-                    self._refuse(out, p, dest, f"parcel {nxt.seq} ({nxt.label}, {follow}) follows "
-                                 f"{headway * v - cur_len:.3f} m behind parcel {cur.seq} and could neither pass "
-                                 "the raised disks straight nor follow to the same side")
+                    self._refuse(
+                        out,
+                        p,
+                        dest,
+                        f"parcel {nxt.seq} ({nxt.label}, {follow}) follows "
+                        f"{headway * v - cur_len:.3f} m behind parcel {cur.seq} and could neither "
+                        "pass "
+                        "the raised disks straight nor follow to the same side",
+                    )
                     return
-                self._log(out, "error", f"parcel {nxt.seq} ({nxt.label}) follows {headway * v - cur_len:.3f} m "
-                          f"behind a parcel the disks are already committed to; it goes {dest} with it")
+                self._log(
+                    out,
+                    "error",
+                    f"parcel {nxt.seq} ({nxt.label}) follows {headway * v - cur_len:.3f} m "
+                    f"behind a parcel the disks are already committed to; it goes {dest} with it",
+                )
             chain.append(nxt)
             cur, cur_len, cur_te = nxt, nxt_len, self.t_enter(nxt)
         for q in chain:
@@ -1124,7 +1346,11 @@ class SorterLogic:
         p.plan = "straight"
         p.result = R_GAP
         self.counts["gap_too_short"] += 1
-        self._log(out, "warn", f"parcel {p.seq} ({p.label}) for {asked}: gap too short, sent straight: {why}")
+        self._log(
+            out,
+            "warn",
+            f"parcel {p.seq} ({p.label}) for {asked}: gap too short, sent straight: {why}",
+        )
 
     def _next_after(self, p: Tracked) -> Tracked | None:
         seen = False
@@ -1137,14 +1363,19 @@ class SorterLogic:
     def _alpha_held(self) -> bool:
         """Whether a committed divert still needs the disk angle it set."""
         for p in self.parcels:
-            if (p.committed and side_of(p.plan) != 0 and p.prediction is not None
-                    and self.t < self.t_enter(p) + p.prediction.t_commit):
+            if (
+                p.committed
+                and side_of(p.plan) != 0
+                and p.prediction is not None
+                and self.t < self.t_enter(p) + p.prediction.t_commit
+            ):
                 return True
         return False
 
     # --- outputs ---------------------------------------------------------------------------------
     def desired_outputs(self) -> tuple[bool, float | None]:
-        """(disks up, disk angle in deg or None to keep) as the committed plan wants them now.
+        """
+        (disks up, disk angle in deg or None to keep) as the committed plan wants them now.
 
         The disk angle follows the first committed divert not yet handed to its chute;
         with none, it is set ahead for the next parcel in line that routing sends to a
@@ -1178,13 +1409,13 @@ class SorterLogic:
 
     def _write_outputs(self, out) -> None:
         if self.diverter_silent:
-            return          # the diverter did not answer: leave it alone until reset, whatever the state
+            return  # the diverter did not answer: leave it alone until reset, whatever the state
         if self.state == "resetting":
             return
         if self.state != "running":
             up, alpha = False, None
             if self.state == "estop":
-                return      # the cell has dropped the disks and refuses commands
+                return  # the cell has dropped the disks and refuses commands
         else:
             up, alpha = self.desired_outputs()
         if alpha is not None and alpha != self.commanded_alpha and not self._busy("alpha"):
@@ -1193,13 +1424,15 @@ class SorterLogic:
             if self.diverter is not None:
                 start = math.degrees(self.diverter.alpha)
             act = self.gaps.act
-            self.alpha_ready_at = self.t + act.latency + act.slew_time(-alpha if start is None else start, alpha)
+            self.alpha_ready_at = (
+                self.t + act.latency + act.slew_time(-alpha if start is None else start, alpha)
+            )
             self.commanded_alpha = alpha
         if up != self.commanded_up and not self._busy("popup"):
             self._command(out, "popup", up)
             self.commanded_up = up
 
-    # --- diagnostics -------------------------------------------------------------------------------
+    # --- diagnostics ---------------------------------------------------------------------------
     def status(self) -> dict:
         """Counters, state and scan statistics for the node's diagnostics."""
         walls = sorted(self.scan_wall)

@@ -1,4 +1,5 @@
-"""The controller node ``sorter_controller``: the sorter PLC on ROS 2, a thin shell around the logic.
+"""
+The controller node ``sorter_controller``: the sorter PLC on ROS 2, a thin shell around the logic.
 
 Parameters (declared with descriptors, read once into ``ControllerConfig``) and
 the cell's own structural parameters (read from the simulation node over its
@@ -16,12 +17,14 @@ reported to the logic as timed out, which it does not retry.
 Interface (all names relative): subscribes ``sensors/<name>`` (std_msgs/Bool),
 ``sensors/edges`` (sensor_msgs/TimeReference), ``scanner/label``
 (std_msgs/String), ``diverter/state`` (sensor_msgs/JointState), ``status/estop``
-and ``status/jam`` (std_msgs/Bool, the cell's state bits), ``routing/updates`` (diagnostic_msgs/KeyValue: key = label,
-``prefix*`` or ``*``, value = left | right | straight, or empty to remove);
+and ``status/jam`` (std_msgs/Bool, the cell's state bits), ``routing/updates``
+(diagnostic_msgs/KeyValue: key = label, ``prefix*`` or ``*``, value = left | right |
+straight, or empty to remove);
 publishes ``sort/confirmations`` (diagnostic_msgs/DiagnosticStatus) and
 ``diagnostics`` (diagnostic_msgs/DiagnosticArray); serves ``~/reset``
 (std_srvs/Trigger) and ``~/estop`` (std_srvs/SetBool).
 """
+
 from __future__ import annotations
 
 import math
@@ -31,8 +34,14 @@ from dataclasses import dataclass
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (FloatingPointRange, Parameter, ParameterDescriptor, ParameterType,
-                                ParameterValue, SetParametersResult)
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    Parameter,
+    ParameterDescriptor,
+    ParameterType,
+    ParameterValue,
+    SetParametersResult,
+)
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -55,15 +64,20 @@ from .logic import (
 from .timing import CellModel
 
 NODE_NAME = "sorter_controller"
-SENSOR_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+SENSOR_QOS = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
 EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 D, B, S, SA, DA = "double", "bool", "string", "string_array", "double_array"
-_TYPES = {D: ParameterType.PARAMETER_DOUBLE, B: ParameterType.PARAMETER_BOOL,
-          S: ParameterType.PARAMETER_STRING, SA: ParameterType.PARAMETER_STRING_ARRAY,
-          DA: ParameterType.PARAMETER_DOUBLE_ARRAY}
+_TYPES = {
+    D: ParameterType.PARAMETER_DOUBLE,
+    B: ParameterType.PARAMETER_BOOL,
+    S: ParameterType.PARAMETER_STRING,
+    SA: ParameterType.PARAMETER_STRING_ARRAY,
+    DA: ParameterType.PARAMETER_DOUBLE_ARRAY,
+}
 
 
 @dataclass(frozen=True)
@@ -81,16 +95,33 @@ class Spec:
 # with cell_node set it is taken from the simulation node instead (names there match).
 SCHEMA = (
     Spec("scan_period", D, 0.01, "PLC scan period on the simulation clock [s]", 0.001, 0.1),
-    Spec("cell_node", S, "sorter_sim", "node whose get_parameters gives the cell's geometry and "
-         "actuator times (same namespace); empty: use this node's cell parameters"),
-    Spec("cell_timeout", D, 10.0, "how long to wait for cell_node's parameters at start-up, wall [s]",
-         0.1, 600.0),
+    Spec(
+        "cell_node",
+        S,
+        "sorter_sim",
+        "node whose get_parameters gives the cell's geometry and "
+        "actuator times (same namespace); empty: use this node's cell parameters",
+    ),
+    Spec(
+        "cell_timeout",
+        D,
+        10.0,
+        "how long to wait for cell_node's parameters at start-up, wall [s]",
+        0.1,
+        600.0,
+    ),
     Spec("belt_speed", D, 1.5, "belt speed v: the encoder scale [m/s]", 0.05, 10.0),
     Spec("belt_width", D, 0.7, "belt width w (the seed's s) [m]", 0.1, 5.0),
     Spec("disk_field_length", D, 1.2, "disk field length b (zone b) [m]", 0.05, 10.0),
-    Spec("chute_margin", D, 0.1, "chute openings reach this far beyond the disk field [m]", 0.0, 2.0),
-    Spec("photo_eyes.names", SA, ["pe_scan", "pe_divert", "pe_exit"], "photo-eye names (topics "
-         "sensors/<name>)"),
+    Spec(
+        "chute_margin", D, 0.1, "chute openings reach this far beyond the disk field [m]", 0.0, 2.0
+    ),
+    Spec(
+        "photo_eyes.names",
+        SA,
+        ["pe_scan", "pe_divert", "pe_exit"],
+        "photo-eye names (topics sensors/<name>)",
+    ),
     Spec("photo_eyes.x", DA, [-2.0, -0.3, 2.0], "photo-eye x, one per name [m]", -500.0, 50.0),
     Spec("scan_eye", S, "pe_scan", "the photo-eye on the scanner line (tracking starts there)"),
     Spec("divert_eye", S, "pe_divert", "the photo-eye just upstream of the disk field"),
@@ -99,53 +130,152 @@ SCHEMA = (
     Spec("friction_model", S, "const1", "friction law for the divert prediction (Fig. 3)"),
     Spec("mu_belt", D, 0.6, "friction coefficient parcel/belt for the prediction", 0.0, 3.0),
     Spec("mu_disks", D, 0.6, "friction coefficient parcel/disks for the prediction", 0.0, 3.0),
-    Spec("nominal_parcel_width", D, 0.4, "parcel width B assumed by the prediction (the photo-eyes "
-         "measure only the length) [m]", 0.01, 3.0),
-    Spec("nominal_parcel_length", D, 0.4, "parcel length the minimum gap is reported for [m]", 0.01, 5.0),
-    Spec("warm_lengths", DA, [0.2, 0.8], "[min, max] parcel lengths to predict at start-up, so scans "
-         "find the model's answers ready [m]", 0.0, 10.0),
-    Spec("divert_alpha_deg", D, 90.0, "disk angle for a divert (+ to left, - to right) [deg]", 1.0, 90.0),
-    Spec("commit_margin", D, 0.05, "the centre of gravity must be this far past the chute entry line "
-         "before the disks drop [m]", 0.0, 1.0),
-    Spec("routing.rules", SA, ["A*=left", "B*=right", "C*=straight"], "routing table: "
-         "'label=destination' or 'prefix*=destination' (destinations left, right, straight)",
-         read_only=False),
-    Spec("routing.default", S, "", "destination of labels no rule matches; empty: the reject "
-         "destination", read_only=False),
-    Spec("reject_destination", S, "straight", "destination of unknown labels and no-reads",
-         read_only=False),
-    Spec("service_timeout", D, 0.5, "a service call without an answer after this long fails "
-         "(not retried), wall [s]", 0.005, 60.0),
-    Spec("service_latency", D, 0.005, "allowance for a command to reach the cell, sim [s]", 0.0, 1.0),
+    Spec(
+        "nominal_parcel_width",
+        D,
+        0.4,
+        "parcel width B assumed by the prediction (the photo-eyes measure only the length) [m]",
+        0.01,
+        3.0,
+    ),
+    Spec(
+        "nominal_parcel_length",
+        D,
+        0.4,
+        "parcel length the minimum gap is reported for [m]",
+        0.01,
+        5.0,
+    ),
+    Spec(
+        "warm_lengths",
+        DA,
+        [0.2, 0.8],
+        "[min, max] parcel lengths to predict at start-up, so scans "
+        "find the model's answers ready [m]",
+        0.0,
+        10.0,
+    ),
+    Spec(
+        "divert_alpha_deg",
+        D,
+        90.0,
+        "disk angle for a divert (+ to left, - to right) [deg]",
+        1.0,
+        90.0,
+    ),
+    Spec(
+        "commit_margin",
+        D,
+        0.05,
+        "the centre of gravity must be this far past the chute entry line "
+        "before the disks drop [m]",
+        0.0,
+        1.0,
+    ),
+    Spec(
+        "routing.rules",
+        SA,
+        ["A*=left", "B*=right", "C*=straight"],
+        "routing table: "
+        "'label=destination' or 'prefix*=destination' (destinations left, right, straight)",
+        read_only=False,
+    ),
+    Spec(
+        "routing.default",
+        S,
+        "",
+        "destination of labels no rule matches; empty: the reject destination",
+        read_only=False,
+    ),
+    Spec(
+        "reject_destination",
+        S,
+        "straight",
+        "destination of unknown labels and no-reads",
+        read_only=False,
+    ),
+    Spec(
+        "service_timeout",
+        D,
+        0.5,
+        "a service call without an answer after this long fails (not retried), wall [s]",
+        0.005,
+        60.0,
+    ),
+    Spec(
+        "service_latency", D, 0.005, "allowance for a command to reach the cell, sim [s]", 0.0, 1.0
+    ),
     Spec("timing_margin", D, 0.02, "extra lead for a scan that comes late, sim [s]", 0.0, 1.0),
-    Spec("tracking_tolerance", D, 0.05, "half width of a photo-eye's transit window [m]", 0.001, 2.0),
-    Spec("label_window", D, 0.1, "a label belongs to the scanner eye's edge this close in time [s]",
-         0.001, 2.0),
-    Spec("jam_margin", D, 0.5, "an eye may stay blocked this much longer than its parcel explains [s]",
-         0.01, 60.0),
+    Spec(
+        "tracking_tolerance", D, 0.05, "half width of a photo-eye's transit window [m]", 0.001, 2.0
+    ),
+    Spec(
+        "label_window",
+        D,
+        0.1,
+        "a label belongs to the scanner eye's edge this close in time [s]",
+        0.001,
+        2.0,
+    ),
+    Spec(
+        "jam_margin",
+        D,
+        0.5,
+        "an eye may stay blocked this much longer than its parcel explains [s]",
+        0.01,
+        60.0,
+    ),
     Spec("max_parcel_length", D, 1.2, "the longest parcel the cell takes [m]", 0.05, 10.0),
-    Spec("missed_divert_margin", D, 0.3, "a diverted parcel must reach its chute sensor this soon "
-         "after the predicted time [s]", 0.01, 60.0),
-    Spec("clearance", D, 0.02, "least distance between parcels the spacing rules keep [m]", 0.0, 1.0),
+    Spec(
+        "missed_divert_margin",
+        D,
+        0.3,
+        "a diverted parcel must reach its chute sensor this soon after the predicted time [s]",
+        0.01,
+        60.0,
+    ),
+    Spec(
+        "clearance", D, 0.02, "least distance between parcels the spacing rules keep [m]", 0.0, 1.0
+    ),
     Spec("estop_on_jam", B, True, "stop the belt (the cell's e-stop) on a jam"),
-    Spec("open_chains", B, False, "divert a same-side chain even when the scanner cannot see what "
-         "follows it (more throughput, risk of a forced divert)"),
+    Spec(
+        "open_chains",
+        B,
+        False,
+        "divert a same-side chain even when the scanner cannot see what "
+        "follows it (more throughput, risk of a forced divert)",
+    ),
     Spec("diagnostics_period", D, 1.0, "period of the diagnostics message, wall [s]", 0.05, 60.0),
 )
 SPECS = {s.name: s for s in SCHEMA}
 # the cell's parameters as the simulation node names them
-CELL_KEYS = ("belt_speed", "belt_width", "disk_field_length", "chute_margin", "photo_eyes.names",
-             "photo_eyes.x", "popup_stroke_time", "alpha_slew_rate_deg_s", "friction_model",
-             "mu_belt", "mu_disks")
+CELL_KEYS = (
+    "belt_speed",
+    "belt_width",
+    "disk_field_length",
+    "chute_margin",
+    "photo_eyes.names",
+    "photo_eyes.x",
+    "popup_stroke_time",
+    "alpha_slew_rate_deg_s",
+    "friction_model",
+    "mu_belt",
+    "mu_disks",
+)
 ROUTING_KEYS = ("routing.rules", "routing.default", "reject_destination")
 
 
 def descriptor(spec: Spec) -> ParameterDescriptor:
-    d = ParameterDescriptor(name=spec.name, type=_TYPES[spec.type], description=spec.description,
-                            read_only=spec.read_only)
+    d = ParameterDescriptor(
+        name=spec.name,
+        type=_TYPES[spec.type],
+        description=spec.description,
+        read_only=spec.read_only,
+    )
     if spec.type == D and spec.lo is not None:
-        d.floating_point_range = [FloatingPointRange(from_value=float(spec.lo), to_value=float(spec.hi),
-                                                     step=0.0)]
+        d.floating_point_range = [
+            FloatingPointRange(from_value=float(spec.lo), to_value=float(spec.hi), step=0.0)
+        ]
         d.additional_constraints = f"a finite number in [{spec.lo:g}, {spec.hi:g}]"
     return d
 
@@ -175,60 +305,97 @@ def _value(pv: ParameterValue):
 
 
 def config_from_values(values: dict) -> ControllerConfig:
-    """A ControllerConfig from parameter values; ValueError names the parameter that is wrong."""
+    """
+    Return a ControllerConfig from parameter values.
+
+    ValueError names the parameter that is wrong.
+    """
     for name, v in values.items():
         spec = SPECS.get(name)
         if spec is None:
             continue
         if spec.type == D:
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or \
-                    (spec.lo is not None and not spec.lo <= v <= spec.hi):
-                raise ValueError(f"parameter {name!r} must be a finite number in [{spec.lo:g}, {spec.hi:g}], "
-                                 f"got {v!r}")
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float))
+                or not math.isfinite(v)
+                or (spec.lo is not None and not spec.lo <= v <= spec.hi)
+            ):
+                raise ValueError(
+                    f"parameter {name!r} must be a finite number in [{spec.lo:g}, {spec.hi:g}], "
+                    f"got {v!r}"
+                )
         elif spec.type == DA:
             if not isinstance(v, (list, tuple)) or not all(
-                    isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v):
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                for x in v
+            ):
                 raise ValueError(f"parameter {name!r} must be a list of finite numbers, got {v!r}")
         elif spec.type == SA:
             if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
                 raise ValueError(f"parameter {name!r} must be a list of strings, got {v!r}")
     warm = list(values["warm_lengths"])
     if len(warm) != 2 or not 0.0 <= warm[0] <= warm[1]:
-        raise ValueError(f"parameter 'warm_lengths' must be [min, max] with 0 <= min <= max, got {warm!r}")
+        raise ValueError(
+            f"parameter 'warm_lengths' must be [min, max] with 0 <= min <= max, got {warm!r}"
+        )
     names, xs = list(values["photo_eyes.names"]), list(values["photo_eyes.x"])
     if len(names) != len(xs):
-        raise ValueError(f"parameters 'photo_eyes.names' and 'photo_eyes.x' must have the same length, "
-                         f"got {len(names)} names and {len(xs)} positions")
+        raise ValueError(
+            f"parameters 'photo_eyes.names' and 'photo_eyes.x' must have the same length, "
+            f"got {len(names)} names and {len(xs)} positions"
+        )
     try:
-        RoutingTable(values["routing.rules"], values["routing.default"], values["reject_destination"])
+        RoutingTable(
+            values["routing.rules"], values["routing.default"], values["reject_destination"]
+        )
     except RoutingError as exc:
         raise ValueError(f"parameter 'routing.*' / 'reject_destination': {exc}") from None
     try:
         cell = CellModel(
-            belt_width=values["belt_width"], disk_field_length=values["disk_field_length"],
-            chute_margin=values["chute_margin"], mu_belt=values["mu_belt"], mu_disks=values["mu_disks"],
-            friction_model=values["friction_model"], parcel_width=values["nominal_parcel_width"],
-            commit_margin=values["commit_margin"])
+            belt_width=values["belt_width"],
+            disk_field_length=values["disk_field_length"],
+            chute_margin=values["chute_margin"],
+            mu_belt=values["mu_belt"],
+            mu_disks=values["mu_disks"],
+            friction_model=values["friction_model"],
+            parcel_width=values["nominal_parcel_width"],
+            commit_margin=values["commit_margin"],
+        )
         return ControllerConfig(
-            scan_period=values["scan_period"], belt_speed=values["belt_speed"],
+            scan_period=values["scan_period"],
+            belt_speed=values["belt_speed"],
             photo_eyes=tuple(zip(names, (float(x) for x in xs))),
-            scan_eye=values["scan_eye"], divert_eye=values["divert_eye"],
+            scan_eye=values["scan_eye"],
+            divert_eye=values["divert_eye"],
             divert_alpha_deg=values["divert_alpha_deg"],
             popup_stroke_time=max(values["popup_stroke_time"], 1e-6),
             alpha_slew_rate_deg_s=values["alpha_slew_rate_deg_s"],
-            service_latency=values["service_latency"], timing_margin=values["timing_margin"],
-            routing_rules=tuple(values["routing.rules"]), routing_default=values["routing.default"],
+            service_latency=values["service_latency"],
+            timing_margin=values["timing_margin"],
+            routing_rules=tuple(values["routing.rules"]),
+            routing_default=values["routing.default"],
             reject_destination=values["reject_destination"],
-            tracking_tolerance=values["tracking_tolerance"], label_window=values["label_window"],
-            jam_margin=values["jam_margin"], max_parcel_length=values["max_parcel_length"],
-            missed_divert_margin=values["missed_divert_margin"], clearance=values["clearance"],
-            estop_on_jam=values["estop_on_jam"], open_chains=values["open_chains"], cell=cell)
+            tracking_tolerance=values["tracking_tolerance"],
+            label_window=values["label_window"],
+            jam_margin=values["jam_margin"],
+            max_parcel_length=values["max_parcel_length"],
+            missed_divert_margin=values["missed_divert_margin"],
+            clearance=values["clearance"],
+            estop_on_jam=values["estop_on_jam"],
+            open_chains=values["open_chains"],
+            cell=cell,
+        )
     except ValueError as exc:
         raise ValueError(f"controller parameters: {exc}") from None
 
 
-LEVELS = {"sorted": DiagnosticStatus.OK, "rejected": DiagnosticStatus.OK,
-          "mis-sorted": DiagnosticStatus.ERROR, "missed": DiagnosticStatus.ERROR}
+LEVELS = {
+    "sorted": DiagnosticStatus.OK,
+    "rejected": DiagnosticStatus.OK,
+    "mis-sorted": DiagnosticStatus.ERROR,
+    "missed": DiagnosticStatus.ERROR,
+}
 
 
 class ControllerNode(Node):
@@ -241,10 +408,10 @@ class ControllerNode(Node):
         for spec in SCHEMA:
             try:
                 p = self.declare_parameter(spec.name, spec.default, descriptor(spec))
-            except Exception as exc:   # rclpy's InvalidParameter*Exception family
+            except Exception as exc:  # rclpy's InvalidParameter*Exception family
                 raise ValueError(f"parameter {spec.name!r}: {exc}") from None
             self.values[spec.name] = _plain(p.value)
-        config_from_values(self.values)           # fail now, naming the parameter
+        config_from_values(self.values)  # fail now, naming the parameter
         self.logic: SorterLogic | None = None
         self._svc = {
             "popup": self.create_client(SetBool, "diverter/popup"),
@@ -252,11 +419,17 @@ class ControllerNode(Node):
             "reset": self.create_client(Trigger, "reset"),
         }
         cell = self.values["cell_node"]
-        self._cell_params_client = self.create_client(GetParameters, f"{cell}/get_parameters") if cell else None
-        self._svc["alpha"] = self.create_client(SetParameters, f"{cell or 'sorter_sim'}/set_parameters")
+        self._cell_params_client = (
+            self.create_client(GetParameters, f"{cell}/get_parameters") if cell else None
+        )
+        self._svc["alpha"] = self.create_client(
+            SetParameters, f"{cell or 'sorter_sim'}/set_parameters"
+        )
         self._cell_request = None
         self._cell_wait_start = time.monotonic()
-        self._pub_confirm = self.create_publisher(DiagnosticStatus, "sort/confirmations", EVENT_QOS)
+        self._pub_confirm = self.create_publisher(
+            DiagnosticStatus, "sort/confirmations", EVENT_QOS
+        )
         self._pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
         self.create_service(Trigger, "~/reset", self._srv_reset)
         self.create_service(SetBool, "~/estop", self._srv_estop)
@@ -272,7 +445,9 @@ class ControllerNode(Node):
         self._cell_estop: bool | None = None
         self._cell_jam: bool | None = None
         self._cell_status_t: float | None = None
-        self._in_flight: dict[int, tuple] = {}     # command id -> (future, client, wall deadline, cmd)
+        self._in_flight: dict[
+            int, tuple
+        ] = {}  # command id -> (future, client, wall deadline, cmd)
         # [kind, value, wall at the scan's start, wall answered, accepted, wall sent]
         self.command_log: deque = deque(maxlen=10000)
         self.confirmations: deque = deque(maxlen=10000)
@@ -280,11 +455,15 @@ class ControllerNode(Node):
         self._clock_warned = False
         steady = rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME)
         self._scan_timer = self.create_timer(self.values["scan_period"], self._scan)
-        self.create_timer(self.values["diagnostics_period"], self._publish_diagnostics, clock=steady)
+        self.create_timer(
+            self.values["diagnostics_period"], self._publish_diagnostics, clock=steady
+        )
         if cell:
             # the simulation clock may not run before the cell does: poll on the wall clock
             self._startup_timer = self.create_timer(0.05, self._poll_cell_parameters, clock=steady)
-            self.get_logger().info(f"waiting for the cell's parameters from {self._cell_params_client.srv_name}")
+            self.get_logger().info(
+                f"waiting for the cell's parameters from {self._cell_params_client.srv_name}"
+            )
         else:
             self._start(dict(self.values))
 
@@ -316,14 +495,20 @@ class ControllerNode(Node):
         self.create_subscription(KeyValue, "routing/updates", self._on_routing, EVENT_QOS)
         self.min_gaps = gaps
         self.get_logger().info(
-            f"sorter controller running: scan {config.scan_period * 1e3:g} ms, belt {config.belt_speed:g} m/s, "
+            f"sorter controller running: scan {config.scan_period * 1e3:g} ms, belt "
+            f"{config.belt_speed:g} m/s, "
             f"disk field {config.cell.disk_field_length:g} m; {nominal:g} m parcels need a gap of "
             f"{gaps['worst']:.3f} m in a mixed stream ({gaps['capacity_pcs_h']:.0f} pcs/h), "
-            f"{gaps['left->left']:.3f} m behind one to the same side; predicting {n_warm} lengths ahead")
+            f"{gaps['left->left']:.3f} m behind one to the same side; predicting {n_warm} lengths "
+            "ahead"
+        )
         if not self.logic.lookahead_ok(nominal):
             self.get_logger().info(
-                f"the scanner eye at x = {self.logic.x_scan:g} m is too close to the disk field to see a "
-                f"follower before deciding a {nominal:g} m parcel: close same-side pairs will be refused")
+                f"the scanner eye at x = {self.logic.x_scan:g} m is too close to the disk field "
+                "to see a "
+                f"follower before deciding a {nominal:g} m parcel: close same-side pairs will be "
+                "refused"
+            )
 
     def _warm_step(self) -> None:
         if self._warm:
@@ -332,7 +517,9 @@ class ControllerNode(Node):
             self._warm_timer.cancel()
 
     def _subscribe_sensor(self, name: str) -> None:
-        self.create_subscription(Bool, f"sensors/{name}", lambda msg, n=name: self._on_bit(n, msg), SENSOR_QOS)
+        self.create_subscription(
+            Bool, f"sensors/{name}", lambda msg, n=name: self._on_bit(n, msg), SENSOR_QOS
+        )
 
     def _poll_cell_parameters(self) -> None:
         """Ask the cell for its structural parameters (once it serves them), without waiting."""
@@ -343,13 +530,17 @@ class ControllerNode(Node):
         if self._cell_request is None:
             if time.monotonic() - self._cell_wait_start > self.values["cell_timeout"]:
                 self.get_logger().error(
-                    f"no answer from {client.srv_name} after {self.values['cell_timeout']:g} s; using this "
-                    "node's cell parameters")
+                    f"no answer from {client.srv_name} after {self.values['cell_timeout']:g} s; "
+                    "using this "
+                    "node's cell parameters"
+                )
                 self._cell_params_client = None
                 self._start(dict(self.values))
                 return
             if client.service_is_ready():
-                self._cell_request = client.call_async(GetParameters.Request(names=list(CELL_KEYS)))
+                self._cell_request = client.call_async(
+                    GetParameters.Request(names=list(CELL_KEYS))
+                )
             return
         if not self._cell_request.done():
             return
@@ -386,8 +577,10 @@ class ControllerNode(Node):
             # sensor stamps on another clock: a cell on simulated time with this node on wall time
             self._clock_warned = True
             self.get_logger().warning(
-                f"sensor edges are stamped {t - self._now():+.1f} s from this node's clock; with sim_node, "
-                "run the controller with use_sim_time:=true (config/controller.yaml does)")
+                f"sensor edges are stamped {t - self._now():+.1f} s from this node's clock; with "
+                "sim_node, "
+                "run the controller with use_sim_time:=true (config/controller.yaml does)"
+            )
 
     def _on_label(self, msg: String) -> None:
         self._labels.append((self._now(), msg.data))
@@ -403,8 +596,9 @@ class ControllerNode(Node):
         if not (math.isfinite(alpha) and math.isfinite(stroke)):
             self.n_bad_messages += 1
             return
-        self._diverter = DiverterState(alpha, stroke, float(vel.get("disk_angle", 0.0)),
-                                       float(vel.get("popup_stroke", 0.0)))
+        self._diverter = DiverterState(
+            alpha, stroke, float(vel.get("disk_angle", 0.0)), float(vel.get("popup_stroke", 0.0))
+        )
 
     # The bits are sent when they change (a reset sends the cleared bits before it
     # answers), so each one received is current: no stamp to check against the last reset.
@@ -426,10 +620,18 @@ class ControllerNode(Node):
             return
         wall0 = time.perf_counter()
         self._expire_calls()
-        image = InputImage(t=self._now(), bits=dict(self._bits), edges=self._edges, labels=self._labels,
-                           diverter=self._diverter, replies=self._replies, routing_updates=self._routing,
-                           cell_estop=self._cell_estop, cell_jam=self._cell_jam,
-                           cell_status_t=self._cell_status_t)
+        image = InputImage(
+            t=self._now(),
+            bits=dict(self._bits),
+            edges=self._edges,
+            labels=self._labels,
+            diverter=self._diverter,
+            replies=self._replies,
+            routing_updates=self._routing,
+            cell_estop=self._cell_estop,
+            cell_jam=self._cell_jam,
+            cell_status_t=self._cell_status_t,
+        )
         self._edges, self._labels, self._replies, self._routing = [], [], [], []
         self._cell_estop = self._cell_jam = self._cell_status_t = None
         out = self.logic.scan(image)
@@ -458,9 +660,16 @@ class ControllerNode(Node):
         elif cmd.kind == "reset":
             req = Trigger.Request()
         else:
-            req = SetParameters.Request(parameters=[Parameter(
-                name="alpha_deg", value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
-                                                       double_value=float(cmd.value)))])
+            req = SetParameters.Request(
+                parameters=[
+                    Parameter(
+                        name="alpha_deg",
+                        value=ParameterValue(
+                            type=ParameterType.PARAMETER_DOUBLE, double_value=float(cmd.value)
+                        ),
+                    )
+                ]
+            )
         future = client.call_async(req)
         deadline = time.monotonic() + self.values["service_timeout"]
         entry = [cmd.kind, cmd.value, wall0, None, None, time.perf_counter()]
@@ -471,7 +680,7 @@ class ControllerNode(Node):
     def _on_answer(self, cid: int, future) -> None:
         item = self._in_flight.pop(cid, None)
         if item is None:
-            return                      # already timed out
+            return  # already timed out
         _, _, _, cmd, entry = item
         entry[3] = time.perf_counter()
         try:
@@ -496,44 +705,70 @@ class ControllerNode(Node):
                 client.remove_pending_request(future)
                 del self._in_flight[cid]
                 entry[4] = None
-                self._replies.append(Reply(cid, False, f"no answer from {client.srv_name}", timed_out=True))
+                self._replies.append(
+                    Reply(cid, False, f"no answer from {client.srv_name}", timed_out=True)
+                )
 
     # ------------------------------------------------------------------ outputs
     def _publish_confirmation(self, c) -> None:
         self.confirmations.append(c)
-        values = [("label", c.label), ("destination_asked", c.destination_asked),
-                  ("destination_reached", c.destination_reached), ("result", c.result),
-                  ("seq", str(c.seq)), ("t", f"{c.t:.6f}")]
+        values = [
+            ("label", c.label),
+            ("destination_asked", c.destination_asked),
+            ("destination_reached", c.destination_reached),
+            ("result", c.result),
+            ("seq", str(c.seq)),
+            ("t", f"{c.t:.6f}"),
+        ]
         level = LEVELS.get(c.result, DiagnosticStatus.WARN)
-        self._pub_confirm.publish(DiagnosticStatus(
-            level=level, name=c.label, message=c.result, hardware_id=self.get_fully_qualified_name(),
-            values=[KeyValue(key=k, value=v) for k, v in values]))
+        self._pub_confirm.publish(
+            DiagnosticStatus(
+                level=level,
+                name=c.label,
+                message=c.result,
+                hardware_id=self.get_fully_qualified_name(),
+                values=[KeyValue(key=k, value=v) for k, v in values],
+            )
+        )
 
     def diagnostic_status(self) -> DiagnosticStatus:
         name = f"{self.get_fully_qualified_name()}: controller"
         if self.logic is None:
-            return DiagnosticStatus(level=DiagnosticStatus.STALE, name=name,
-                                    message="waiting for the cell's parameters",
-                                    hardware_id=self.get_fully_qualified_name())
+            return DiagnosticStatus(
+                level=DiagnosticStatus.STALE,
+                name=name,
+                message="waiting for the cell's parameters",
+                hardware_id=self.get_fully_qualified_name(),
+            )
         st = self.logic.status()
-        level = (DiagnosticStatus.OK if st["state"] == "running" else DiagnosticStatus.ERROR)
-        message = st["state"] if st["fault"] is None else f"{st['state']}: {st['fault']['message']}"
+        level = DiagnosticStatus.OK if st["state"] == "running" else DiagnosticStatus.ERROR
+        message = (
+            st["state"] if st["fault"] is None else f"{st['state']}: {st['fault']['message']}"
+        )
         values = {"state": st["state"], "tracked": st["tracked"]}
         values.update(st["counts"])
         values.update({f"fault_{k}": v for k, v in st["faults"].items()})
-        values.update({
-            "scan_wall_p50_ms": f"{st['scan_wall_p50_ms']:.3f}",
-            "scan_wall_p99_ms": f"{st['scan_wall_p99_ms']:.3f}",
-            "scan_wall_max_ms": f"{st['scan_wall_max_ms']:.3f}",
-            "predictions": st["predictions"], "prediction_wall_s": f"{st['prediction_wall_s']:.3f}",
-            "min_gap_m": f"{self.min_gaps['worst']:.3f}",
-            "min_gap_same_side_m": f"{self.min_gaps['left->left']:.3f}",
-            "nominal_parcel_length_m": f"{self.values['nominal_parcel_length']:g}",
-            "routing": ";".join(st["routing"]), "bad_messages": self.n_bad_messages,
-        })
-        return DiagnosticStatus(level=level, name=name, message=message,
-                                hardware_id=self.get_fully_qualified_name(),
-                                values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        values.update(
+            {
+                "scan_wall_p50_ms": f"{st['scan_wall_p50_ms']:.3f}",
+                "scan_wall_p99_ms": f"{st['scan_wall_p99_ms']:.3f}",
+                "scan_wall_max_ms": f"{st['scan_wall_max_ms']:.3f}",
+                "predictions": st["predictions"],
+                "prediction_wall_s": f"{st['prediction_wall_s']:.3f}",
+                "min_gap_m": f"{self.min_gaps['worst']:.3f}",
+                "min_gap_same_side_m": f"{self.min_gaps['left->left']:.3f}",
+                "nominal_parcel_length_m": f"{self.values['nominal_parcel_length']:g}",
+                "routing": ";".join(st["routing"]),
+                "bad_messages": self.n_bad_messages,
+            }
+        )
+        return DiagnosticStatus(
+            level=level,
+            name=name,
+            message=message,
+            hardware_id=self.get_fully_qualified_name(),
+            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
+        )
 
     def _publish_diagnostics(self) -> None:
         msg = DiagnosticArray(status=[self.diagnostic_status()])
@@ -543,7 +778,10 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ services and parameters
     def _srv_reset(self, request, response):
         if self.logic is None:
-            response.success, response.message = False, "not running yet: waiting for the cell's parameters"
+            response.success, response.message = (
+                False,
+                "not running yet: waiting for the cell's parameters",
+            )
             return response
         response.success, response.message = True, self.logic.request_reset()
         return response
@@ -553,7 +791,10 @@ class ControllerNode(Node):
             response.success, response.message = False, "refused: release an e-stop with ~/reset"
             return response
         if self.logic is None:
-            response.success, response.message = False, "not running yet: waiting for the cell's parameters"
+            response.success, response.message = (
+                False,
+                "not running yet: waiting for the cell's parameters",
+            )
             return response
         response.success, response.message = True, self.logic.request_estop()
         return response
@@ -562,14 +803,18 @@ class ControllerNode(Node):
         changes = {p.name: _plain(p.value) for p in parameters if p.name in SPECS}
         for name in changes:
             if name not in ROUTING_KEYS:
-                return SetParametersResult(successful=False, reason=f"parameter {name!r} is read-only")
+                return SetParametersResult(
+                    successful=False, reason=f"parameter {name!r} is read-only"
+                )
         if not changes:
             return SetParametersResult(successful=True)
         merged = {k: changes.get(k, self.values[k]) for k in ROUTING_KEYS}
         try:
             if not isinstance(merged["routing.rules"], list):
                 raise RoutingError("routing.rules must be a list of strings")
-            RoutingTable(merged["routing.rules"], merged["routing.default"], merged["reject_destination"])
+            RoutingTable(
+                merged["routing.rules"], merged["routing.default"], merged["reject_destination"]
+            )
         except (RoutingError, TypeError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
@@ -582,8 +827,11 @@ class ControllerNode(Node):
                 changed = True
         if changed and self.logic is not None:
             # a new table replaces the old one, run-time updates included
-            self.logic.routing = RoutingTable(self.values["routing.rules"], self.values["routing.default"],
-                                              self.values["reject_destination"])
+            self.logic.routing = RoutingTable(
+                self.values["routing.rules"],
+                self.values["routing.default"],
+                self.values["reject_destination"],
+            )
             self.get_logger().info(f"routing table: {'; '.join(self.logic.routing.rules())}")
 
 

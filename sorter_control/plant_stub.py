@@ -1,4 +1,5 @@
-"""A kinematic stand-in for the sorter cell, for testing the PLC logic without ROS.
+"""
+A kinematic stand-in for the sorter cell, for testing the PLC logic without ROS.
 
 ``PlantStub`` moves rectangular parcels (φ = 0) along a belt at speed v and,
 while the pop-up is more than half up and a parcel's centre of gravity is over
@@ -16,6 +17,7 @@ sensor's bit, withhold or refuse a service's answers, hold a parcel where it is.
 the plant one scan period, hand the logic its input image, carry out the
 commands; it returns everything the logic said.
 """
+
 from __future__ import annotations
 
 import math
@@ -30,13 +32,13 @@ class StubParcel:
     label: str | None
     A: float
     B: float
-    x: float           # centre of gravity [m]
+    x: float  # centre of gravity [m]
     y: float = 0.0
     held: bool = False
     jammed: bool = False
     exit: str | None = None
     t_exit: float | None = None
-    gone: bool = False                 # on a chute: slid past the entry line
+    gone: bool = False  # on a chute: slid past the entry line
     vx: float = 0.0
     vy: float = 0.0
     scanned: bool = False
@@ -46,8 +48,14 @@ class StubParcel:
 class PlantStub:
     """Kinematic belt + pop-up diverter + sensors; times in seconds of its own clock."""
 
-    def __init__(self, config: ControllerConfig, *, dt: float = 0.0005, service_timeout: float = 0.2,
-                 end_x: float | None = None):
+    def __init__(
+        self,
+        config: ControllerConfig,
+        *,
+        dt: float = 0.0005,
+        service_timeout: float = 0.2,
+        end_x: float | None = None,
+    ):
         cell = config.cell
         self.v = config.belt_speed
         self.w = cell.belt_width
@@ -55,7 +63,7 @@ class PlantStub:
         self.opening = cell.opening
         self.eyes = dict(config.photo_eyes)
         self.scan_eye = config.scan_eye
-        self.chutes = dict(config.chute_sensors)      # side -> sensor
+        self.chutes = dict(config.chute_sensors)  # side -> sensor
         self.stroke_time = config.popup_stroke_time
         self.slew_rate = config.alpha_slew_rate_deg_s
         self.dt = dt
@@ -81,13 +89,17 @@ class PlantStub:
         self.stroke_at_entry: dict[int, float] = {}
 
     # --- set-up ---------------------------------------------------------------------------
-    def add_parcel(self, label: str | None, A: float, lead_x: float, B: float = 0.3, y: float = 0.0) -> StubParcel:
+    def add_parcel(
+        self, label: str | None, A: float, lead_x: float, B: float = 0.3, y: float = 0.0
+    ) -> StubParcel:
         self._next_id += 1
         p = StubParcel(self._next_id, label, A, B, lead_x - 0.5 * A, y)
         self.parcels.append(p)
         return p
 
-    def add_stream(self, items, first_lead_x: float | None = None, B: float = 0.3) -> list[StubParcel]:
+    def add_stream(
+        self, items, first_lead_x: float | None = None, B: float = 0.3
+    ) -> list[StubParcel]:
         """items: (label, A, gap before it [m]); placed upstream of the scanner, nose to tail."""
         lead = first_lead_x if first_lead_x is not None else self.eyes[self.scan_eye] - 0.05
         out = []
@@ -104,13 +116,20 @@ class PlantStub:
     def _sense(self) -> dict[str, bool]:
         bits = {}
         for name, x in self.eyes.items():
-            bits[name] = any(self._on_belt(p) and p.x - 0.5 * p.A <= x <= p.x + 0.5 * p.A for p in self.parcels)
+            bits[name] = any(
+                self._on_belt(p) and p.x - 0.5 * p.A <= x <= p.x + 0.5 * p.A for p in self.parcels
+            )
         lo, hi = self.opening
         for side, name in self.chutes.items():
             line = 0.5 * self.w * (1 if side == "left" else -1)
-            bits[name] = any(p.exit in (None, side) and not p.gone
-                             and p.y - 0.5 * p.B <= line <= p.y + 0.5 * p.B
-                             and p.x + 0.5 * p.A >= lo and p.x - 0.5 * p.A <= hi for p in self.parcels)
+            bits[name] = any(
+                p.exit in (None, side)
+                and not p.gone
+                and p.y - 0.5 * p.B <= line <= p.y + 0.5 * p.B
+                and p.x + 0.5 * p.A >= lo
+                and p.x - 0.5 * p.A <= hi
+                for p in self.parcels
+            )
         for name, value in self.forced.items():
             bits[name] = value
         return bits
@@ -126,11 +145,17 @@ class PlantStub:
     def _step(self) -> None:
         dt = self.dt
         rate = dt / self.stroke_time
-        self.stroke = (min(self.stroke_target, self.stroke + rate) if self.stroke_target > self.stroke
-                       else max(self.stroke_target, self.stroke - rate))
+        self.stroke = (
+            min(self.stroke_target, self.stroke + rate)
+            if self.stroke_target > self.stroke
+            else max(self.stroke_target, self.stroke - rate)
+        )
         d = self.slew_rate * dt
-        self.alpha_deg = (min(self.alpha_target, self.alpha_deg + d) if self.alpha_target > self.alpha_deg
-                          else max(self.alpha_target, self.alpha_deg - d))
+        self.alpha_deg = (
+            min(self.alpha_target, self.alpha_deg + d)
+            if self.alpha_target > self.alpha_deg
+            else max(self.alpha_target, self.alpha_deg - d)
+        )
         if not self.estop:
             a = math.radians(self.alpha_deg)
             for p in self.parcels:
@@ -161,9 +186,12 @@ class PlantStub:
                     p.exit, p.t_exit = "straight", self.t + dt
             live = [p for p in self.parcels if p.exit is None]
             for i, p in enumerate(live):
-                for q in live[i + 1:]:
-                    if (abs(p.x - q.x) < 0.5 * (p.A + q.A) and abs(p.y - q.y) < 0.5 * (p.B + q.B)
-                            and not (p.jammed and q.jammed)):
+                for q in live[i + 1 :]:
+                    if (
+                        abs(p.x - q.x) < 0.5 * (p.A + q.A)
+                        and abs(p.y - q.y) < 0.5 * (p.B + q.B)
+                        and not (p.jammed and q.jammed)
+                    ):
                         p.jammed = q.jammed = True
                         self.collisions += 1
         self.t += dt
@@ -185,9 +213,15 @@ class PlantStub:
     def image(self) -> InputImage:
         replies = [r for t, r in self.pending if t <= self.t + 1e-12]
         self.pending = [(t, r) for t, r in self.pending if t > self.t + 1e-12]
-        img = InputImage(t=self.t, bits=dict(self._bits), edges=self.edges, labels=self.labels,
-                         diverter=DiverterState(math.radians(self.alpha_deg), self.stroke),
-                         replies=replies, cell_estop=self.estop)
+        img = InputImage(
+            t=self.t,
+            bits=dict(self._bits),
+            edges=self.edges,
+            labels=self.labels,
+            diverter=DiverterState(math.radians(self.alpha_deg), self.stroke),
+            replies=replies,
+            cell_estop=self.estop,
+        )
         self.edges, self.labels = [], []
         return img
 
@@ -195,7 +229,9 @@ class PlantStub:
         """Serve a command as the simulation node's services would (answered by the next scan)."""
         self.calls.append((self.t, cmd.kind, cmd.value))
         if cmd.kind in self.withheld:
-            self.pending.append((self.t + self.service_timeout, Reply(cmd.id, False, "", timed_out=True)))
+            self.pending.append(
+                (self.t + self.service_timeout, Reply(cmd.id, False, "", timed_out=True))
+            )
             return
         ok, msg = True, ""
         if cmd.kind in self.refused:
@@ -231,12 +267,14 @@ class CellRun:
     confirmations: list = field(default_factory=list)
     commands: list = field(default_factory=list)
     log: list = field(default_factory=list)
-    states: list = field(default_factory=list)     # (t, state) on every change
+    states: list = field(default_factory=list)  # (t, state) on every change
 
 
-def run_cell(plant: PlantStub, logic: SorterLogic, until: float, run: CellRun | None = None,
-             on_scan=None) -> CellRun:
-    """Scan the logic against the plant until plant time ``until``; returns (and extends) ``run``.
+def run_cell(
+    plant: PlantStub, logic: SorterLogic, until: float, run: CellRun | None = None, on_scan=None
+) -> CellRun:
+    """
+    Scan the logic against the plant until plant time ``until``; returns (and extends) ``run``.
 
     on_scan(plant, logic), if given, runs after every scan (to watch, or to make trouble).
     """

@@ -1,4 +1,7 @@
-"""Divert timing from the model core: when a parcel is committed to its chute, and how close parcels may follow.
+"""
+Divert timing from the model core.
+
+When a parcel is committed to its chute, and how close parcels may follow.
 
 The controller cannot see a parcel's motion over the disk field; it predicts it.
 ``DivertPredictor`` runs the model core (``sorter_sim.core.simulate``, the seed's
@@ -38,6 +41,7 @@ or raise them only after a straight parcel has cleared the field, each plus one
 scan period (an output is written at the next scan at the latest) and a
 service latency allowance. ``min_gap`` reports the result as a gap in metres.
 """
+
 from __future__ import annotations
 
 import math
@@ -58,7 +62,8 @@ def side_of(destination: str) -> int:
 
 @dataclass(frozen=True)
 class CellModel:
-    """What the controller knows of the cell's mechanics (SI units, angles in degrees).
+    """
+    What the controller knows of the cell's mechanics (SI units, angles in degrees).
 
     belt_width is the seed's s at the same time as w; disk_field_length is the
     seed's zone b; mu_belt/mu_disks are μ_a(=μ_c)/μ_b at the scene's reference
@@ -78,15 +83,26 @@ class CellModel:
     length_step: float = 0.01
 
     def __post_init__(self):
-        for name in ("belt_width", "disk_field_length", "parcel_width", "parcel_mass", "length_step"):
+        for name in (
+            "belt_width",
+            "disk_field_length",
+            "parcel_width",
+            "parcel_mass",
+            "length_step",
+        ):
             v = getattr(self, name)
             finite = math.isfinite(v) or (name == "disk_field_length" and v == math.inf)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and finite and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0{' (or inf)' if name == 'disk_field_length' else ''}, "
-                                 f"got {v!r}")
+                raise ValueError(
+                    f"{name} must be a finite number > "
+                    f"0{' (or inf)' if name == 'disk_field_length' else ''}, "
+                    f"got {v!r}"
+                )
         for name in ("chute_margin", "commit_margin"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            if isinstance(v, bool) or not (
+                isinstance(v, (int, float)) and math.isfinite(v) and v >= 0
+            ):
                 raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
         for name in ("mu_belt", "mu_disks"):
             v = getattr(self, name)
@@ -100,13 +116,14 @@ class CellModel:
 
     @property
     def opening(self) -> tuple[float, float]:
-        """x range of the chute openings in the side walls [m]."""
+        """X range of the chute openings in the side walls [m]."""
         return -self.chute_margin, self.disk_field_length + self.chute_margin
 
 
 @dataclass(frozen=True)
 class Prediction:
-    """One predicted divert, times relative to the leading edge reaching x = 0 [s].
+    """
+    One predicted divert, times relative to the leading edge reaching x = 0 [s].
 
     trajectory: (n, 4) array of t, x, y, φ of the centre of gravity in the conveyor
     frame, from t = 0 until the parcel is off the belt (or the run ended); x starts
@@ -130,11 +147,12 @@ class Prediction:
 
     @property
     def capacity_pcs_h(self) -> float:
-        """The seed's technical capacity W_t = 3600 / t_scrap (Fig. 9) [pcs/h]."""
+        """Return the seed's technical capacity W_t = 3600 / t_scrap (Fig. 9) [pcs/h]."""
         return 3600.0 / self.t_commit if self.feasible and self.t_commit > 0 else 0.0
 
     def t_clear_of(self, x_eye: float, belt_width: float, parcel_width: float) -> float:
-        """When the parcel stops blocking a photo-eye at x_eye (beam across the belt) [s].
+        """
+        When the parcel stops blocking a photo-eye at x_eye (beam across the belt) [s].
 
         Either its rear has passed the eye, or its centre of gravity has crossed the
         chute entry line and the parcel has gone onto the chute.
@@ -145,7 +163,11 @@ class Prediction:
         return float(tr[idx[0], 0]) if idx.size else self.t_off
 
     def pose(self, t: np.ndarray) -> np.ndarray:
-        """(len(t), 3) poses x, y, φ at relative times t (belt motion before 0; the last pose after the end)."""
+        """
+        (len(t), 3) poses x, y, φ at relative times t (belt motion before 0.
+
+        The last pose after the end).
+        """
         t = np.asarray(t, dtype=float)
         tr = self.trajectory
         out = np.empty((t.size, 3))
@@ -168,7 +190,8 @@ def _corner_extents(x, y, phi, A, B):
 
 
 def boxes_overlap(p, q, A1, B1, A2, B2, clearance=0.0) -> np.ndarray:
-    """Separating-axis test of two rectangles per row of poses p, q (n x 3: x, y, φ).
+    """
+    Separating-axis test of two rectangles per row of poses p, q (n x 3: x, y, φ).
 
     Each box is inflated by clearance/2 on every side; True where they overlap.
     """
@@ -177,17 +200,28 @@ def boxes_overlap(p, q, A1, B1, A2, B2, clearance=0.0) -> np.ndarray:
     h1 = np.array([0.5 * A1 + 0.5 * clearance, 0.5 * B1 + 0.5 * clearance])
     h2 = np.array([0.5 * A2 + 0.5 * clearance, 0.5 * B2 + 0.5 * clearance])
     d = q[:, :2] - p[:, :2]
-    axes1 = np.stack([np.stack([np.cos(p[:, 2]), np.sin(p[:, 2])], 1),
-                      np.stack([-np.sin(p[:, 2]), np.cos(p[:, 2])], 1)], 1)   # (n, 2, 2)
-    axes2 = np.stack([np.stack([np.cos(q[:, 2]), np.sin(q[:, 2])], 1),
-                      np.stack([-np.sin(q[:, 2]), np.cos(q[:, 2])], 1)], 1)
+    axes1 = np.stack(
+        [
+            np.stack([np.cos(p[:, 2]), np.sin(p[:, 2])], 1),
+            np.stack([-np.sin(p[:, 2]), np.cos(p[:, 2])], 1),
+        ],
+        1,
+    )  # (n, 2, 2)
+    axes2 = np.stack(
+        [
+            np.stack([np.cos(q[:, 2]), np.sin(q[:, 2])], 1),
+            np.stack([-np.sin(q[:, 2]), np.cos(q[:, 2])], 1),
+        ],
+        1,
+    )
     separated = np.zeros(p.shape[0], dtype=bool)
     for axes_own, axes_other, h_own, h_other in ((axes1, axes2, h1, h2), (axes2, axes1, h2, h1)):
         for k in range(2):
             axis = axes_own[:, k, :]
             dist = np.abs(np.sum(d * axis, 1))
-            proj_other = (h_other[0] * np.abs(np.sum(axes_other[:, 0, :] * axis, 1))
-                          + h_other[1] * np.abs(np.sum(axes_other[:, 1, :] * axis, 1)))
+            proj_other = h_other[0] * np.abs(np.sum(axes_other[:, 0, :] * axis, 1)) + h_other[
+                1
+            ] * np.abs(np.sum(axes_other[:, 1, :] * axis, 1))
             separated |= dist > h_own[k] + proj_other
     return ~separated
 
@@ -195,8 +229,15 @@ def boxes_overlap(p, q, A1, B1, A2, B2, clearance=0.0) -> np.ndarray:
 class DivertPredictor:
     """Model-core predictions of a divert, cached per (A rounded up, v, α)."""
 
-    def __init__(self, cell: CellModel, *, method: str = "accurate", t_max: float = 10.0,
-                 rtol: float = 1e-6, atol: float = 1e-8):
+    def __init__(
+        self,
+        cell: CellModel,
+        *,
+        method: str = "accurate",
+        t_max: float = 10.0,
+        rtol: float = 1e-6,
+        atol: float = 1e-8,
+    ):
         self.cell = cell
         self.method = method
         self.t_max = t_max
@@ -211,7 +252,8 @@ class DivertPredictor:
         return round(math.ceil(A / step - 1e-9) * step, 6)
 
     def predict(self, A: float, v: float, alpha_deg: float) -> Prediction:
-        """The divert of a parcel of length A [m] at belt speed v [m/s] by disks at α [deg].
+        """
+        Return the divert of a parcel of length A [m] at belt speed v [m/s] by disks at α [deg].
 
         A negative α is the mirror image of the positive one (the model is
         symmetric), so both share one run.
@@ -229,29 +271,61 @@ class DivertPredictor:
             self._cache[key] = pred
         if alpha_deg < 0:
             tr = pred.trajectory * np.array([1.0, 1.0, -1.0, -1.0])
-            return Prediction(pred.A, pred.v, alpha_deg, pred.feasible, pred.t_chute, pred.t_commit,
-                              pred.t_off, pred.x_o, -pred.phi_commit_deg, tr, pred.wall_s, pred.why)
+            return Prediction(
+                pred.A,
+                pred.v,
+                alpha_deg,
+                pred.feasible,
+                pred.t_chute,
+                pred.t_commit,
+                pred.t_off,
+                pred.x_o,
+                -pred.phi_commit_deg,
+                tr,
+                pred.wall_s,
+                pred.why,
+            )
         return pred
 
     def _run(self, A: float, v: float, alpha_deg: float) -> Prediction:
         cell = self.cell
         try:
-            scene = validate({
-                "parcel": {"A": A, "B": cell.parcel_width, "m": cell.parcel_mass, "phi0_deg": 0.0},
-                "belt": {"v": v, "s": cell.belt_width},
-                "zones": {"b": cell.disk_field_length, "mu_a": cell.mu_belt, "mu_b": cell.mu_disks,
-                          "mu_c": cell.mu_belt},
-                "diverter": {"alpha_deg": alpha_deg, "stroke": 1.0},
-                "friction": {"model": cell.friction_model},
-            })
+            scene = validate(
+                {
+                    "parcel": {
+                        "A": A,
+                        "B": cell.parcel_width,
+                        "m": cell.parcel_mass,
+                        "phi0_deg": 0.0,
+                    },
+                    "belt": {"v": v, "s": cell.belt_width},
+                    "zones": {
+                        "b": cell.disk_field_length,
+                        "mu_a": cell.mu_belt,
+                        "mu_b": cell.mu_disks,
+                        "mu_c": cell.mu_belt,
+                    },
+                    "diverter": {"alpha_deg": alpha_deg, "stroke": 1.0},
+                    "friction": {"model": cell.friction_model},
+                }
+            )
         except SceneError as exc:
             raise ValueError(f"cannot predict a divert: {exc}") from None
         y0 = scene_initial_state(scene)
         half_diag = 0.5 * math.hypot(A, cell.parcel_width)
         # run until the whole footprint is off the belt, and at least to the commit line
         y_run = max(cell.commit_distance, 0.5 * cell.belt_width + half_diag) + 0.01
-        res = simulate(scene_parcel(scene), scene_strips(scene), y0, (0.0, self.t_max), self.method,
-                       y_target=y_run, h_max=0.01, rtol=self.rtol, atol=self.atol)
+        res = simulate(
+            scene_parcel(scene),
+            scene_strips(scene),
+            y0,
+            (0.0, self.t_max),
+            self.method,
+            y_target=y_run,
+            h_max=0.01,
+            rtol=self.rtol,
+            atol=self.atol,
+        )
         self.n_runs += 1
         self.wall_s += res.wall_s
         t = res.t
@@ -274,7 +348,11 @@ class DivertPredictor:
         t_commit = first_cross(y, cell.commit_distance)
         t_off = first_cross(ymin, edge)
         feasible = math.isfinite(t_commit)
-        why = "" if feasible else f"the centre of gravity never reaches y = {cell.commit_distance:.3f} m"
+        why = (
+            ""
+            if feasible
+            else f"the centre of gravity never reaches y = {cell.commit_distance:.3f} m"
+        )
         if feasible:
             x_o = float(np.interp(t_commit, t, x) - x[0])
             phi_c = math.degrees(float(np.interp(t_commit, t, phi)))
@@ -290,18 +368,33 @@ class DivertPredictor:
                 if np.any(bad):
                     feasible = False
                     k = int(np.argmax(bad))
-                    why = (f"a corner passes the side wall at x = {cx[k]:.3f} m, outside the chute "
-                           f"opening [{lo:.2f}, {hi:.2f}] m")
+                    why = (
+                        f"a corner passes the side wall at x = {cx[k]:.3f} m, outside the chute "
+                        f"opening [{lo:.2f}, {hi:.2f}] m"
+                    )
                     break
         else:
             x_o, phi_c = math.nan, math.nan
-        return Prediction(A, v, alpha_deg, feasible, t_chute, t_commit,
-                          t_off if math.isfinite(t_off) else float(t[-1]), x_o, phi_c, traj, res.wall_s, why)
+        return Prediction(
+            A,
+            v,
+            alpha_deg,
+            feasible,
+            t_chute,
+            t_commit,
+            t_off if math.isfinite(t_off) else float(t[-1]),
+            x_o,
+            phi_c,
+            traj,
+            res.wall_s,
+            why,
+        )
 
 
 @dataclass(frozen=True)
 class Actuators:
-    """Actuator and scan timing the spacing rules must leave room for [s].
+    """
+    Actuator and scan timing the spacing rules must leave room for [s].
 
     A command is written at the scan after it falls due (one scan period), reaches
     the cell after ``latency``, and ``margin`` more covers a scan that comes late.
@@ -324,14 +417,27 @@ class Actuators:
     def slew_total(self, alpha_from_deg: float, alpha_to_deg: float) -> float:
         if alpha_from_deg == alpha_to_deg:
             return 0.0
-        return self.slew_time(alpha_from_deg, alpha_to_deg) + self.scan_period + self.latency + self.margin
+        return (
+            self.slew_time(alpha_from_deg, alpha_to_deg)
+            + self.scan_period
+            + self.latency
+            + self.margin
+        )
 
 
 class GapModel:
     """Spacing rules for consecutive parcels, from predictions and actuator timing."""
 
-    def __init__(self, predictor: DivertPredictor, actuators: Actuators, *, divert_alpha_deg: float = 90.0,
-                 clearance: float = 0.02, dt: float = 0.002, geometry_step: float = 0.05):
+    def __init__(
+        self,
+        predictor: DivertPredictor,
+        actuators: Actuators,
+        *,
+        divert_alpha_deg: float = 90.0,
+        clearance: float = 0.02,
+        dt: float = 0.002,
+        geometry_step: float = 0.05,
+    ):
         self.predictor = predictor
         self.act = actuators
         self.divert_alpha_deg = float(divert_alpha_deg)
@@ -354,7 +460,8 @@ class GapModel:
 
     # --- (1) footprints never touch -------------------------------------------------
     def geometric_headway(self, A1: float, dest1: str, A2: float, dest2: str, v: float) -> float:
-        """Least time between the leading edges reaching x = 0 so the footprints stay apart [s].
+        """
+        Least time between the leading edges reaching x = 0 so the footprints stay apart [s].
 
         Only a diverted leader can be caught up (it slows down along x); a straight
         leader moves on at belt speed and needs just the clearance. Lengths are
@@ -368,7 +475,7 @@ class GapModel:
         hit = self._geo_cache.get(key)
         if hit is not None:
             return hit
-        base = (A1 + self.clearance) / v        # touching at belt speed
+        base = (A1 + self.clearance) / v  # touching at belt speed
         first = self.prediction(A1, v, dest1)
         if first is None:
             self._geo_cache[key] = base
@@ -407,9 +514,17 @@ class GapModel:
         return hi
 
     # --- (2) the actuators can follow ----------------------------------------------
-    def actuator_headway(self, A1: float, dest1: str, A2: float, dest2: str, v: float,
-                         alpha_before_deg: float | None = None) -> float:
-        """Least time between the leading edges reaching x = 0 for the disks to serve both [s].
+    def actuator_headway(
+        self,
+        A1: float,
+        dest1: str,
+        A2: float,
+        dest2: str,
+        v: float,
+        alpha_before_deg: float | None = None,
+    ) -> float:
+        """
+        Least time between the leading edges reaching x = 0 for the disks to serve both [s].
 
         alpha_before_deg: the disk angle before the leader (only matters when the
         leader goes straight and the follower is diverted: the disks may swing
@@ -434,10 +549,19 @@ class GapModel:
             return 0.0
         return first.t_commit + act.slew_total(self.alpha_for(dest1), self.alpha_for(dest2))
 
-    def headway(self, A1: float, dest1: str, A2: float, dest2: str, v: float,
-                alpha_before_deg: float | None = None) -> float:
-        return max(self.geometric_headway(A1, dest1, A2, dest2, v),
-                   self.actuator_headway(A1, dest1, A2, dest2, v, alpha_before_deg))
+    def headway(
+        self,
+        A1: float,
+        dest1: str,
+        A2: float,
+        dest2: str,
+        v: float,
+        alpha_before_deg: float | None = None,
+    ) -> float:
+        return max(
+            self.geometric_headway(A1, dest1, A2, dest2, v),
+            self.actuator_headway(A1, dest1, A2, dest2, v, alpha_before_deg),
+        )
 
     def warm(self, lengths, v: float) -> None:
         """Fill the caches for parcels of these lengths [m] so that scans find them ready."""
@@ -447,15 +571,21 @@ class GapModel:
             for d1, d2 in (("left", "left"), ("left", "straight"), ("left", "right")):
                 self.geometric_headway(A, d1, A, d2, v)
 
-    def min_gap(self, A: float, v: float, dest1: str | None = None, dest2: str | None = None) -> dict:
-        """The least gap [m] (trailing edge to leading edge) at which parcels of length A sort.
+    def min_gap(
+        self, A: float, v: float, dest1: str | None = None, dest2: str | None = None
+    ) -> dict:
+        """
+        Return the least gap [m] (trailing edge to leading edge) at which parcels of length A sort.
 
         With dest1/dest2 given, for that pair; otherwise for every pair of
         destinations, with the worst case (the gap a mixed stream needs) under
         "worst" and the matching capacity in pcs/h.
         """
-        pairs = ([(dest1, dest2)] if dest1 is not None else
-                 [(d1, d2) for d1 in DESTINATIONS for d2 in DESTINATIONS])
+        pairs = (
+            [(dest1, dest2)]
+            if dest1 is not None
+            else [(d1, d2) for d1 in DESTINATIONS for d2 in DESTINATIONS]
+        )
         out = {}
         for d1, d2 in pairs:
             out[f"{d1}->{d2}"] = max(0.0, self.headway(A, d1, A, d2, v) * v - A)
@@ -465,20 +595,34 @@ class GapModel:
         return out
 
 
-def seed_capacity(cell: CellModel, A: float, v: float, alpha_deg: float = 90.0, B: float | None = None) -> float:
-    """The seed's technical capacity W_t = 3600 / t_scrap [pcs/h] (Fig. 9).
+def seed_capacity(
+    cell: CellModel, A: float, v: float, alpha_deg: float = 90.0, B: float | None = None
+) -> float:
+    """
+    Return the seed's technical capacity W_t = 3600 / t_scrap [pcs/h] (Fig. 9).
 
     t_scrap: from the leading edge on the zone a/b border until the centre of gravity
     has covered the belt width s, on this cell's disk field and friction.
     """
-    scene = validate({
-        "parcel": {"A": A, "B": B if B is not None else cell.parcel_width, "m": cell.parcel_mass},
-        "belt": {"v": v, "s": cell.belt_width},
-        "zones": {"b": cell.disk_field_length, "mu_a": cell.mu_belt, "mu_b": cell.mu_disks,
-                  "mu_c": cell.mu_belt},
-        "diverter": {"alpha_deg": alpha_deg},
-        "friction": {"model": cell.friction_model},
-    })
+    scene = validate(
+        {
+            "parcel": {
+                "A": A,
+                "B": B if B is not None else cell.parcel_width,
+                "m": cell.parcel_mass,
+            },
+            "belt": {"v": v, "s": cell.belt_width},
+            "zones": {
+                "b": cell.disk_field_length,
+                "mu_a": cell.mu_belt,
+                "mu_b": cell.mu_disks,
+                "mu_c": cell.mu_belt,
+            },
+            "diverter": {"alpha_deg": alpha_deg},
+            "friction": {"model": cell.friction_model},
+        }
+    )
     from sorter_sim.scene import run_scene
+
     _, summary = run_scene(scene)
     return summary["capacity_pcs_h"] or 0.0

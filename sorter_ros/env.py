@@ -1,4 +1,5 @@
-"""ROS environment defaults and config lookup shared by the entry points.
+"""
+ROS environment defaults and config lookup shared by the entry points.
 
 This module imports nothing from ROS at module level, so the ROS-free parts of
 the project (and their tests) can use it freely.
@@ -34,7 +35,8 @@ SOURCE_CONFIG_DIR = Path(__file__).resolve().parents[1] / 'config'
 
 
 def apply_ros_env_defaults() -> None:
-    """Restrict DDS discovery to this host unless the user set a range.
+    """
+    Restrict DDS discovery to this host unless the user set a range.
 
     Call before ``rclpy.init()``; the setting is read when the context starts.
     A variable set but empty counts as unset: rmw would read an empty range as its
@@ -45,7 +47,8 @@ def apply_ros_env_defaults() -> None:
 
 
 def find_config_dir() -> Path:
-    """Return the directory holding ``cell.yaml`` and ``scenes/``.
+    """
+    Return the directory holding ``cell.yaml`` and ``scenes/``.
 
     Looks first for ``config/`` in the source tree next to this package (a
     checkout or an editable install), then in the installed package share
@@ -77,7 +80,8 @@ def find_config_dir() -> Path:
 
 
 def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=None) -> None:
-    """Run a node as every executable of this package does (ros2/demos talker style).
+    """
+    Run a node as every executable of this package does (ros2/demos talker style).
 
     Applies the discovery default, initialises rclpy, spins ``make_node()`` and
     tears down in ``finally``. A configuration error raised while the node is

@@ -1,4 +1,5 @@
 """``python -m sorter_sim`` is the ``sorter`` command."""
+
 import sys
 
 from .cli import main

@@ -1,4 +1,5 @@
-"""geometry_msgs/PoseArray serialized straight from numpy arrays, for the pose stream.
+"""
+geometry_msgs/PoseArray serialized straight from numpy arrays, for the pose stream.
 
 Building a PoseArray of a hundred rosidl Pose objects and converting them to C
 costs about 0.7 ms per message in Python (most of it one attribute access per
@@ -15,6 +16,7 @@ header.stamp.sec int32, header.stamp.nanosec uint32, header.frame_id string
 count aligned to 4, and count x 7 float64 (position x y z, orientation x y z w)
 aligned to 8.
 """
+
 from __future__ import annotations
 
 import struct
@@ -29,9 +31,10 @@ def stamp(t_ns: int) -> tuple[int, int]:
     return t_ns // 1_000_000_000, t_ns % 1_000_000_000
 
 
-def pose_array_cdr(t_ns: int, frame_id: str, x: np.ndarray, y: np.ndarray,
-                   phi: np.ndarray, z: float = 0.0) -> bytes:
-    """Serialized PoseArray of planar poses (x, y [m], yaw φ [rad]) at height z [m]."""
+def pose_array_cdr(
+    t_ns: int, frame_id: str, x: np.ndarray, y: np.ndarray, phi: np.ndarray, z: float = 0.0
+) -> bytes:
+    """Serialize PoseArray of planar poses (x, y [m], yaw φ [rad]) at height z [m]."""
     sec, nsec = stamp(t_ns)
     fid = frame_id.encode('utf-8') + b'\x00'
     body = bytearray(struct.pack('<iII', sec, nsec, len(fid)))

@@ -1,4 +1,5 @@
-"""The sorter cell as hardware, without ROS: parcels, actuators, sensors, and the stream.
+"""
+The sorter cell as hardware, without ROS: parcels, actuators, sensors, and the stream.
 
 ``Cell`` holds every parcel's state and advances them all a control period at a
 time with ``core.cell_kernels.advance_cell``; it inducts the configured parcel
@@ -11,6 +12,7 @@ The node (``sorter_sim/node.py``) turns these into messages.
 Time is an integer count of control periods, so stamps are exact nanoseconds.
 Parameters come checked from ``params.CellParams``.
 """
+
 from __future__ import annotations
 
 import math
@@ -53,7 +55,8 @@ class LabelRead:
 
 @dataclass(frozen=True)
 class Outcome:
-    """Where a parcel left the cell: exit in left | right | straight | jammed.
+    """
+    Where a parcel left the cell: exit in left | right | straight | jammed.
 
     (x, y): the centre of gravity where it crossed the chute entry line or the exit,
     or where it stopped when jammed [m]; cause says what jammed it.
@@ -74,8 +77,12 @@ class Outcome:
 
 @dataclass(frozen=True)
 class ParcelSpec:
-    """A parcel to induct: A x B [m] (A along the belt at φ = 0), mass m [kg], skew φ0
-    [rad], lateral offset y0 [m] of its centre of gravity, and its label ('' = generated)."""
+    """
+    Describe a parcel to induct.
+
+    A parcel to induct: A x B [m] (A along the belt at φ = 0), mass m [kg], skew φ0
+    [rad], lateral offset y0 [m] of its centre of gravity, and its label ('' = generated).
+    """
 
     A: float
     B: float
@@ -91,16 +98,19 @@ def check_parcel(spec: ParcelSpec, belt_width: float) -> ParcelSpec:
     for key, ps in limits.items():
         v = getattr(spec, key)
         if not (isinstance(v, (int, float)) and math.isfinite(v) and ps.lo <= v <= ps.hi):
-            raise ParamError(f'{key} must be a finite number in [{ps.lo:g}, {ps.hi:g}] {ps.units}, '
-                             f'got {v!r}')
+            raise ParamError(
+                f'{key} must be a finite number in [{ps.lo:g}, {ps.hi:g}] {ps.units}, got {v!r}'
+            )
     if not (math.isfinite(spec.phi0) and abs(spec.phi0) <= math.pi / 2):
         raise ParamError(f'phi0_deg must be in [-90, 90] deg, got {math.degrees(spec.phi0)!r}')
     if not math.isfinite(spec.y0):
         raise ParamError(f'y must be finite, got {spec.y0!r}')
     _, hy = parcel_half_extents(spec.A, spec.B, spec.phi0)
     if abs(spec.y0) + hy > 0.5 * belt_width + 1e-12:
-        raise ParamError(f'the parcel must fit on the belt: |y| + half its width across the belt '
-                         f'= {abs(spec.y0) + hy:.4g} m exceeds belt_width/2 = {0.5 * belt_width:g} m')
+        raise ParamError(
+            f'the parcel must fit on the belt: |y| + half its width across the belt '
+            f'= {abs(spec.y0) + hy:.4g} m exceeds belt_width/2 = {0.5 * belt_width:g} m'
+        )
     if len(spec.label) > 256:
         raise ParamError(f'label must be at most 256 characters, got {len(spec.label)}')
     return spec
@@ -152,11 +162,17 @@ class Cell:
 
     # ------------------------------------------------------------------ set-up
     def _configure(self, p: CellParams) -> None:
-        scene = validate_scene({
-            'friction': {'model': p.friction_model},
-            'zones': {'b': p.disk_field_length, 'mu_a': p.mu_belt, 'mu_b': p.mu_disks,
-                      'mu_c': p.mu_belt},
-        })
+        scene = validate_scene(
+            {
+                'friction': {'model': p.friction_model},
+                'zones': {
+                    'b': p.disk_field_length,
+                    'mu_a': p.mu_belt,
+                    'mu_b': p.mu_disks,
+                    'mu_c': p.mu_belt,
+                },
+            }
+        )
         laws = {s.name: s.law for s in scene_strips(scene)}
         law_a, law_b = laws['a'], laws['b']
         self.law_belt, self.law_disks = law_a, law_b
@@ -295,7 +311,7 @@ class Cell:
         return ParcelSpec(A, B, m, phi0, y0)
 
     def _next_candidate(self) -> tuple[str, ParcelSpec, float] | None:
-        """The parcel waiting to be placed next, with the belt gap it needs [m]."""
+        """Return the parcel waiting to be placed next, with the belt gap it needs [m]."""
         p = self.params
         if self._external:
             return 'external', self._external[0], p.arrival_gap[0]
@@ -319,8 +335,12 @@ class Cell:
         return max(1, math.ceil(dt_s / self.dt))
 
     def _upstream_room(self) -> tuple[float, int]:
-        """Free belt length in front of the induct point [m], and the slot whose trailing
-        edge limits it (-1: none)."""
+        """
+        Return the free belt length in front of the induct point.
+
+        Free belt length in front of the induct point [m], and the slot whose trailing
+        edge limits it (-1: none).
+        """
         room, slot = ck.upstream_room(self.state, self.phase, self.par, self.params.induct_x)
         return float(room), int(slot)
 
@@ -346,8 +366,11 @@ class Cell:
         self.n_inducted += 1
         pid = self.n_inducted
         label = spec.label or format_label(
-            self.params.label_pattern, id=pid, n=pid - 1,
-            label=self.params.labels[(pid - 1) % len(self.params.labels)])
+            self.params.label_pattern,
+            id=pid,
+            n=pid - 1,
+            label=self.params.labels[(pid - 1) % len(self.params.labels)],
+        )
         hx, _ = parcel_half_extents(spec.A, spec.B, spec.phi0)
         v = self.belt_velocity
         self.state[i] = (self.params.induct_x - hx, spec.y0, spec.phi0, v, 0.0, 0.0)
@@ -360,8 +383,16 @@ class Cell:
         self.labels[i] = label
         self.jam_cause[i] = ''
         for s in range(len(self.sensor_names)):
-            on = ck.sensor_blocked(s, len(self.eye_x), self.eye_x, self.cfg, self.state[i],
-                                   ck.PH_CELL, self.par[i, 0], self.par[i, 1])
+            on = ck.sensor_blocked(
+                s,
+                len(self.eye_x),
+                self.eye_x,
+                self.cfg,
+                self.state[i],
+                ck.PH_CELL,
+                self.par[i, 0],
+                self.par[i, 1],
+            )
             self.blocked[i, s] = on
             if on:
                 self.counts[s] += 1
@@ -370,7 +401,7 @@ class Cell:
         return edges
 
     def _periods_until_placement(self) -> int:
-        """A lower bound on the periods before the next induct can happen (>= 1)."""
+        """Return a lower bound on the periods before the next induct can happen (>= 1)."""
         if self.estop:
             return 1 << 40
         p = self.params
@@ -384,8 +415,12 @@ class Cell:
             return 1
         gap = cand[2]
         v = self.belt_velocity
-        moving_with_belt = (self.phase[j] == ck.PH_CELL and self.mode[j] == ck.MODE_BELT
-                            and self.state[j, 3] == v and v > 0.0)
+        moving_with_belt = (
+            self.phase[j] == ck.PH_CELL
+            and self.mode[j] == ck.MODE_BELT
+            and self.state[j, 3] == v
+            and v > 0.0
+        )
         if not moving_with_belt:
             return 1
         # the limiting parcel moves at v: room grows by v dt per period
@@ -393,14 +428,35 @@ class Cell:
 
     # ------------------------------------------------------------------ stepping
     def _kernel(self, n: int) -> tuple[int, int]:
-        return ck.advance_cell(n, self.k, self.cfg, self.laws, self.act, self.state, self.mode,
-                               self.phase, self.par, self.scanned, self.eye_x, self.blocked,
-                               self.counts, self.nodes, self.weights, self.ev_i, self.ev_f,
-                               self._ev_reserve, self.stats)
+        return ck.advance_cell(
+            n,
+            self.k,
+            self.cfg,
+            self.laws,
+            self.act,
+            self.state,
+            self.mode,
+            self.phase,
+            self.par,
+            self.scanned,
+            self.eye_x,
+            self.blocked,
+            self.counts,
+            self.nodes,
+            self.weights,
+            self.ev_i,
+            self.ev_f,
+            self._ev_reserve,
+            self.stats,
+        )
 
     def advance(self, n: int = 1) -> list:
-        """Advance ``n`` control periods; returns what happened, in time order
-        (SensorEdge, LabelRead, Outcome)."""
+        """
+        Advance ``n`` control periods and return what happened.
+
+        Advance ``n`` control periods; returns what happened, in time order
+        (SensorEdge, LabelRead, Outcome).
+        """
         if n < 0:
             raise ValueError(f'n must be >= 0, got {n}')
         events: list = []
@@ -433,27 +489,56 @@ class Cell:
             elif kind == ck.EV_JAM:
                 self.jam = True
                 self.outcome_counts['jammed'] += 1
-                cause = ('side wall' if b == -1 else 'integration failed' if b == -2
-                         else f'parcel {int(self.ids[b])}')
+                cause = (
+                    'side wall'
+                    if b == -1
+                    else 'integration failed'
+                    if b == -2
+                    else f'parcel {int(self.ids[b])}'
+                )
                 self.jam_cause[a] = cause
                 out.append(Outcome(t_ns, int(self.ids[a]), self.labels[a], 'jammed', x, y, cause))
         return out
 
     # ------------------------------------------------------------------ observation
     def parcels(self) -> dict[str, np.ndarray]:
-        """Parcels in the cell (on it, jammed, or sliding onto a chute), in id order:
-        id, x, y, phi, A, B, state (index into STATE_NAMES)."""
-        n = ck.cell_snapshot(self.phase, self.mode, self.ids, self.state, self.par,
-                             self.params.disk_field_length, self._snapshot)
+        """
+        Return the parcels in the cell.
+
+        Parcels in the cell (on it, jammed, or sliding onto a chute), in id order:
+        id, x, y, phi, A, B, state (index into STATE_NAMES).
+        """
+        n = ck.cell_snapshot(
+            self.phase,
+            self.mode,
+            self.ids,
+            self.state,
+            self.par,
+            self.params.disk_field_length,
+            self._snapshot,
+        )
         rows = self._snapshot[:n]
-        return {'id': rows[:, 0].astype(np.int64), 'x': rows[:, 1].copy(), 'y': rows[:, 2].copy(),
-                'phi': rows[:, 3].copy(), 'A': rows[:, 4].copy(), 'B': rows[:, 5].copy(),
-                'state': rows[:, 6].astype(np.int64)}
+        return {
+            'id': rows[:, 0].astype(np.int64),
+            'x': rows[:, 1].copy(),
+            'y': rows[:, 2].copy(),
+            'phi': rows[:, 3].copy(),
+            'A': rows[:, 4].copy(),
+            'B': rows[:, 5].copy(),
+            'state': rows[:, 6].astype(np.int64),
+        }
 
     @property
     def n_parcels(self) -> int:
         return int(np.count_nonzero(self.phase != ck.PH_FREE))
 
 
-__all__ = ['Cell', 'ParcelSpec', 'SensorEdge', 'LabelRead', 'Outcome', 'STATE_NAMES',
-           'check_parcel']
+__all__ = [
+    'Cell',
+    'ParcelSpec',
+    'SensorEdge',
+    'LabelRead',
+    'Outcome',
+    'STATE_NAMES',
+    'check_parcel',
+]

@@ -1,13 +1,16 @@
-"""The model's command line: ``run | paper | sweep | bench`` (``python -m sorter_sim``).
+"""
+The model's command line: ``run | paper | sweep | bench`` (``python -m sorter_sim``).
 
 The ``sorter`` command (``sorter_cell.cli``) is this plus ``demo``, which starts
-the controller too and so lives above both packages. Each verb lives in its own module exposing ``add_arguments(parser)`` and
+the controller too and so lives above both packages. Each verb lives in its own
+module exposing ``add_arguments(parser)`` and
 ``run(args) -> int | str | None`` (ros2cli style: a returned string is an error
 message, printed as one line with exit code 2). This module only dispatches, so a
 verb whose module is missing from an installation does not break the others.
 Bad input never ends in a traceback: ``SceneError``/``ValueError`` raised by a
 verb become one line on stderr and exit code 2.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,8 +40,14 @@ class _Parser(argparse.ArgumentParser):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scene", help="scene YAML file (see config/scenes/)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE", help="override a scene key, e.g. --set parcel.A=0.4")
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a scene key, e.g. --set parcel.A=0.4",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -68,24 +77,34 @@ def run(args) -> int | str:
         print(json.dumps(_json_safe(summary), sort_keys=True))
         return 0 if summary["success"] else 1
     p, b, d = scene["parcel"], scene["belt"], scene["diverter"]
-    print(f"scene: {args.scene}  parcel {p['A']} x {p['B']} m, {p['m']} kg, phi0 {p['phi0_deg']} deg; "
-          f"belt {b['v']} m/s, width {b['s']} m; alpha {d['alpha_deg']} deg; b = {scene['zones']['b']} m")
+    print(
+        f"scene: {args.scene}  parcel {p['A']} x {p['B']} m, {p['m']} kg, phi0 {p['phi0_deg']} "
+        "deg; "
+        f"belt {b['v']} m/s, width {b['s']} m; alpha {d['alpha_deg']} deg; b = "
+        f"{scene['zones']['b']} m"
+    )
     print(f"  t_scrap        {_fmt(summary['t_scrap'], ' s')}")
     print(f"  x_scrap (x_o)  {_fmt(summary['x_scrap'], ' m')}")
     print(f"  phi at scrap   {_fmt(summary['phi_scrap_deg'], ' deg', 4)}")
     print(f"  capacity       {_fmt(summary['capacity_pcs_h'], ' pcs/h', 5)}")
     st = summary["stages"]
-    print(f"  stages start   E1 {_fmt(st['E1'], ' s', 5)}, E2 {_fmt(st['E2'], ' s', 5)}, "
-          f"E3 {_fmt(st['E3'], ' s', 5)}")
-    print(f"  solver         {summary['method']}: {summary['message']}; {summary['n_steps']} steps, "
-          f"{summary['n_rhs']} rhs, {summary['n_events']} events, {summary['wall_s'] * 1e3:.2f} ms")
+    print(
+        f"  stages start   E1 {_fmt(st['E1'], ' s', 5)}, E2 {_fmt(st['E2'], ' s', 5)}, "
+        f"E3 {_fmt(st['E3'], ' s', 5)}"
+    )
+    print(
+        f"  solver         {summary['method']}: {summary['message']}; {summary['n_steps']} steps, "
+        f"{summary['n_rhs']} rhs, {summary['n_events']} events, {summary['wall_s'] * 1e3:.2f} ms"
+    )
     print(f"  reductions     {', '.join(summary['reductions']) or 'none'}")
     return 0 if summary["success"] else 1
 
 
 def build_parser(verbs: dict | None = None) -> argparse.ArgumentParser:
-    """The parser of ``verbs`` (verb -> (module, help); default: this package's)."""
-    parser = _Parser(prog="sorter", description="Parcel sorter cell: model, studies and the running cell.")
+    """Return the parser of ``verbs`` (verb -> (module, help); default: this package's)."""
+    parser = _Parser(
+        prog="sorter", description="Parcel sorter cell: model, studies and the running cell."
+    )
     sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
     for verb, (module, help_text) in (verbs or VERBS).items():
         try:

@@ -1,4 +1,5 @@
-"""The simulation node ``sorter_sim``: the sorter cell on ROS 2, driven like hardware.
+"""
+The simulation node ``sorter_sim``: the sorter cell on ROS 2, driven like hardware.
 
 A thin shell around ``sorter_sim.cell.Cell``: parameters (declared from
 ``params.SCHEMA``) become a ``CellParams``, services and the ``alpha_deg``
@@ -11,6 +12,7 @@ services and parameters are served) and ``lockstep`` (one control period per
 ``step`` call). The node publishes ``/clock``; it must not itself run on
 ``use_sim_time``.
 """
+
 from __future__ import annotations
 
 import math
@@ -19,8 +21,13 @@ import time
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -32,19 +39,30 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from .cdr import pose_array_cdr, stamp
 from .cell import STATE_NAMES, Cell, LabelRead, Outcome, ParcelSpec, SensorEdge
-from .params import (BOOL, DOUBLE, DOUBLE_ARRAY, INTEGER, SCHEMA, SPECS, STRING, STRING_ARRAY,
-                     CellParams, ParamError)
+from .params import (
+    BOOL,
+    DOUBLE,
+    DOUBLE_ARRAY,
+    INTEGER,
+    SCHEMA,
+    SPECS,
+    STRING,
+    STRING_ARRAY,
+    CellParams,
+    ParamError,
+)
 from sorter_ros.env import run_node
 
 NODE_NAME = 'sorter_sim'
 FRAME_ID = 'conveyor'
-PARCEL_HEIGHT = 0.2          # m, only for the marker boxes (the model is planar)
-MAX_CATCH_UP_S = 0.25        # realtime mode: simulated time one tick may catch up
+PARCEL_HEIGHT = 0.2  # m, only for the marker boxes (the model is planar)
+MAX_CATCH_UP_S = 0.25  # realtime mode: simulated time one tick may catch up
 
 # status/<bit>: std_msgs/Bool each; fault = estop or jam
 STATUS_BITS = ('estop', 'jam', 'fault')
-SENSOR_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+SENSOR_QOS = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
 EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -72,14 +90,19 @@ INDUCT_KEYS = ('label', 'A', 'B', 'm', 'phi0_deg', 'y')
 
 
 def descriptor(spec) -> ParameterDescriptor:
-    """The ROS descriptor of a schema entry: type, description, range, read-only."""
+    """Return the ROS descriptor of a schema entry: type, description, range, read-only."""
     units = f' [{spec.units}]' if spec.units else ''
     d = ParameterDescriptor(
-        name=spec.name, type=_ROS_TYPES[spec.type], description=spec.description + units,
-        additional_constraints=f'{spec.allowed}', read_only=spec.read_only)
+        name=spec.name,
+        type=_ROS_TYPES[spec.type],
+        description=spec.description + units,
+        additional_constraints=f'{spec.allowed}',
+        read_only=spec.read_only,
+    )
     if spec.type == DOUBLE:
-        d.floating_point_range = [FloatingPointRange(from_value=float(spec.lo),
-                                                     to_value=float(spec.hi), step=0.0)]
+        d.floating_point_range = [
+            FloatingPointRange(from_value=float(spec.lo), to_value=float(spec.hi), step=0.0)
+        ]
     elif spec.type == INTEGER:
         d.integer_range = [IntegerRange(from_value=int(spec.lo), to_value=int(spec.hi), step=0)]
     return d
@@ -108,16 +131,19 @@ class SimNode(Node):
         self._pub_poses = self.create_publisher(PoseArray, 'parcels/poses', STREAM_QOS)
         self._pub_ids = self.create_publisher(UInt32MultiArray, 'parcels/ids', STREAM_QOS)
         self._pub_markers = self.create_publisher(MarkerArray, 'parcels/markers', STREAM_QOS)
-        self._pub_sensor = {name: self.create_publisher(Bool, f'sensors/{name}', SENSOR_QOS)
-                            for name in self.cell.sensor_names}
+        self._pub_sensor = {
+            name: self.create_publisher(Bool, f'sensors/{name}', SENSOR_QOS)
+            for name in self.cell.sensor_names
+        }
         self._pub_edges = self.create_publisher(TimeReference, 'sensors/edges', EVENT_QOS)
         self._pub_label = self.create_publisher(String, 'scanner/label', EVENT_QOS)
         self._pub_diverter = self.create_publisher(JointState, 'diverter/state', STREAM_QOS)
         self._pub_outcomes = self.create_publisher(DiagnosticStatus, 'sort/outcomes', EVENT_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', STREAM_QOS)
         # the cell's state bits, as a PLC reads them: latched, published when they change
-        self._pub_status = {name: self.create_publisher(Bool, f'status/{name}', SENSOR_QOS)
-                            for name in STATUS_BITS}
+        self._pub_status = {
+            name: self.create_publisher(Bool, f'status/{name}', SENSOR_QOS) for name in STATUS_BITS
+        }
         self._status_sent = None
         self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
         self.create_service(SetBool, 'diverter/popup', self._srv_popup)
@@ -153,7 +179,8 @@ class SimNode(Node):
         self.get_logger().info(
             f'sorter cell ready: {p.time_mode} mode, control period {p.control_period * 1e3:g} '
             f'ms, belt {p.belt_speed:g} m/s x {p.belt_width:g} m, disk field '
-            f'{p.disk_field_length:g} m, sensors {", ".join(self.cell.sensor_names)}')
+            f'{p.disk_field_length:g} m, sensors {", ".join(self.cell.sensor_names)}'
+        )
 
     # ------------------------------------------------------------------ parameters
     def _declare_parameters(self) -> CellParams:
@@ -162,19 +189,26 @@ class SimNode(Node):
             try:
                 param = self.declare_parameter(spec.name, spec.default, descriptor(spec))
             except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
-                raise ParamError(f'parameter {spec.name!r} must be {spec.allowed} ({exc})') from None
+                raise ParamError(
+                    f'parameter {spec.name!r} must be {spec.allowed} ({exc})'
+                ) from None
             values[spec.name] = _plain(param.value)
         # rclpy ignores values given for names nobody declares: a misspelt parameter in a
         # params file would silently keep its default, so name it instead
         given = getattr(self, '_parameter_overrides', {})
-        unknown = sorted(n for n in given if not self.has_parameter(n)
-                         and not n.startswith('qos_overrides.'))
+        unknown = sorted(
+            n for n in given if not self.has_parameter(n) and not n.startswith('qos_overrides.')
+        )
         if unknown:
-            raise ParamError(f'unknown parameter(s) {", ".join(map(repr, unknown))} for '
-                             f'{NODE_NAME}; the README table lists the allowed names')
+            raise ParamError(
+                f'unknown parameter(s) {", ".join(map(repr, unknown))} for '
+                f'{NODE_NAME}; the README table lists the allowed names'
+            )
         if self.get_parameter('use_sim_time').value:
-            raise ParamError('parameter \'use_sim_time\' must be false: this node is the '
-                             'simulation clock (it publishes /clock)')
+            raise ParamError(
+                'parameter \'use_sim_time\' must be false: this node is the '
+                'simulation clock (it publishes /clock)'
+            )
         return CellParams.from_values(values)
 
     def _changes(self, parameters) -> dict:
@@ -184,14 +218,17 @@ class SimNode(Node):
         """Validate a run-time change as a whole; nothing changes unless all of it is valid."""
         for p in parameters:
             if p.name == 'use_sim_time' and p.value:
-                return SetParametersResult(successful=False, reason='use_sim_time must stay '
-                                           'false: this node is the simulation clock')
+                return SetParametersResult(
+                    successful=False,
+                    reason='use_sim_time must stay false: this node is the simulation clock',
+                )
         changes = self._changes(parameters)
         if not changes:
             return SetParametersResult(successful=True)
         if 'alpha_deg' in changes and self.cell.estop:
-            return SetParametersResult(successful=False,
-                                       reason='refused: e-stop engaged (call reset first)')
+            return SetParametersResult(
+                successful=False, reason='refused: e-stop engaged (call reset first)'
+            )
         try:
             self.params.with_changes(changes)
         except ParamError as exc:
@@ -222,7 +259,9 @@ class SimNode(Node):
             # than trying to catch up without end
             self.get_logger().warning(
                 f'cannot keep real_time_factor {p.real_time_factor:g}: dropping '
-                f'{(n - limit) * self.cell.dt:.3f} s of simulated time', throttle_duration_sec=5.0)
+                f'{(n - limit) * self.cell.dt:.3f} s of simulated time',
+                throttle_duration_sec=5.0,
+            )
             n = limit
             self._wall_ref = (now, self.cell.k + n)
         if n > 0:
@@ -263,7 +302,8 @@ class SimNode(Node):
         self.n_messages += 1
 
     def _publish_status(self) -> None:
-        """Publish the state bits (status/estop, status/jam, status/fault) if one changed.
+        """
+        Publish the state bits (status/estop, status/jam, status/fault) if one changed.
 
         Only on change: a reset publishes the cleared bits before its reply, and no
         periodic copy of an old value can follow it.
@@ -290,19 +330,30 @@ class SimNode(Node):
             elif isinstance(e, Outcome):
                 self._publish(self._pub_outcomes, self._outcome_msg(e))
                 if e.jammed:
-                    self.get_logger().warning(f'jam: parcel {e.parcel_id} ({e.label}) stopped at '
-                                              f'x = {e.x:.3f} m, y = {e.y:.3f} m ({e.cause})')
+                    self.get_logger().warning(
+                        f'jam: parcel {e.parcel_id} ({e.label}) stopped at '
+                        f'x = {e.x:.3f} m, y = {e.y:.3f} m ({e.cause})'
+                    )
 
     def _outcome_msg(self, e: Outcome) -> DiagnosticStatus:
-        values = [('id', str(e.parcel_id)), ('label', e.label), ('exit', e.exit),
-                  ('t', f'{e.t_ns * 1e-9:.9f}'), ('jammed', 'true' if e.jammed else 'false'),
-                  ('x_exit', f'{e.x:.6f}'), ('y_exit', f'{e.y:.6f}')]
+        values = [
+            ('id', str(e.parcel_id)),
+            ('label', e.label),
+            ('exit', e.exit),
+            ('t', f'{e.t_ns * 1e-9:.9f}'),
+            ('jammed', 'true' if e.jammed else 'false'),
+            ('x_exit', f'{e.x:.6f}'),
+            ('y_exit', f'{e.y:.6f}'),
+        ]
         if e.cause:
             values.append(('cause', e.cause))
         return DiagnosticStatus(
             level=DiagnosticStatus.WARN if e.jammed else DiagnosticStatus.OK,
-            name=f'parcel/{e.parcel_id}', message=e.exit, hardware_id=self.get_fully_qualified_name(),
-            values=[KeyValue(key=k, value=v) for k, v in values])
+            name=f'parcel/{e.parcel_id}',
+            message=e.exit,
+            hardware_id=self.get_fully_qualified_name(),
+            values=[KeyValue(key=k, value=v) for k, v in values],
+        )
 
     def _publish_sensors(self) -> None:
         for name, blocked in self.cell.sensor_states().items():
@@ -313,8 +364,10 @@ class SimNode(Node):
         ids = UInt32MultiArray()
         ids.data = parcels['id'].astype('uint32')
         self._publish(self._pub_ids, ids)
-        self._publish(self._pub_poses, pose_array_cdr(self.cell.t_ns, FRAME_ID, parcels['x'],
-                                                      parcels['y'], parcels['phi']))
+        self._publish(
+            self._pub_poses,
+            pose_array_cdr(self.cell.t_ns, FRAME_ID, parcels['x'], parcels['y'], parcels['phi']),
+        )
 
     def _publish_diverter(self) -> None:
         c = self.cell
@@ -330,8 +383,9 @@ class SimNode(Node):
         clear = Marker(action=Marker.DELETEALL, ns='parcels')
         clear.header.frame_id = FRAME_ID
         markers = [clear]
-        for pid, x, y, phi, A, B, code in zip(*(parcels[k].tolist() for k in
-                                                 ('id', 'x', 'y', 'phi', 'A', 'B', 'state'))):
+        for pid, x, y, phi, A, B, code in zip(
+            *(parcels[k].tolist() for k in ('id', 'x', 'y', 'phi', 'A', 'B', 'state'))
+        ):
             m = Marker(ns='parcels', id=int(pid), type=Marker.CUBE, action=Marker.ADD)
             m.header.frame_id = FRAME_ID
             m.header.stamp = stamp_msg
@@ -361,23 +415,35 @@ class SimNode(Node):
         pub_us = 1e6 * c['publish_s'] / c['messages'] if c['messages'] else 0.0
         self._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
         faults = self.cell.faults
-        level = (DiagnosticStatus.ERROR if 'jam' in faults else
-                 DiagnosticStatus.WARN if faults else DiagnosticStatus.OK)
+        level = (
+            DiagnosticStatus.ERROR
+            if 'jam' in faults
+            else DiagnosticStatus.WARN
+            if faults
+            else DiagnosticStatus.OK
+        )
         counts = self.cell.outcome_counts
         values = {
-            'real_time_factor': f'{rtf:.3f}', 'step_cost_us': f'{step_us:.2f}',
-            'publish_cost_us': f'{pub_us:.2f}', 'parcels_in_cell': str(self.cell.n_parcels),
-            'faults': ','.join(faults) or 'none', 'estop': str(self.cell.estop).lower(),
-            'jam': str(self.cell.jam).lower(), 'sim_time': f'{self.cell.t:.6f}',
-            'time_mode': self.params.time_mode, 'inducted': str(self.cell.n_inducted),
+            'real_time_factor': f'{rtf:.3f}',
+            'step_cost_us': f'{step_us:.2f}',
+            'publish_cost_us': f'{pub_us:.2f}',
+            'parcels_in_cell': str(self.cell.n_parcels),
+            'faults': ','.join(faults) or 'none',
+            'estop': str(self.cell.estop).lower(),
+            'jam': str(self.cell.jam).lower(),
+            'sim_time': f'{self.cell.t:.6f}',
+            'time_mode': self.params.time_mode,
+            'inducted': str(self.cell.n_inducted),
             'pending_inducts': str(self.cell.pending_inducts),
             **{f'exits_{k}': str(v) for k, v in counts.items()},
         }
         status = DiagnosticStatus(
-            level=level, name=f'{self.get_fully_qualified_name()}: cell',
+            level=level,
+            name=f'{self.get_fully_qualified_name()}: cell',
             message=('faults: ' + ', '.join(faults)) if faults else 'running',
             hardware_id=self.get_fully_qualified_name(),
-            values=[KeyValue(key=k, value=v) for k, v in values.items()])
+            values=[KeyValue(key=k, value=v) for k, v in values.items()],
+        )
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = _time_msg(self.cell.t_ns)
         self._pub_diag.publish(msg)
@@ -409,8 +475,10 @@ class SimNode(Node):
     def _srv_step(self, request, response):
         if self.params.time_mode != 'lockstep':
             response.success = False
-            response.message = (f'refused: step works in time_mode lockstep; this cell runs in '
-                                f'{self.params.time_mode}')
+            response.message = (
+                f'refused: step works in time_mode lockstep; this cell runs in '
+                f'{self.params.time_mode}'
+            )
             return response
         self.advance(1)
         response.success = True
@@ -419,7 +487,7 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ induct
     def _on_induct(self, msg: DiagnosticStatus) -> None:
-        """An external induct request; bad values are logged and the message dropped."""
+        """Return an external induct request; bad values are logged and the message dropped."""
         try:
             spec = self._induct_spec(msg)
             self.cell.induct(spec)
@@ -446,10 +514,13 @@ class SimNode(Node):
                     raise ParamError(f'{key} must be finite, got {given[key]!r}')
         # missing sizes take the middle of the configured stream's ranges
         return ParcelSpec(
-            A=numbers.get('A', 0.5 * sum(p.parcel_A)), B=numbers.get('B', 0.5 * sum(p.parcel_B)),
+            A=numbers.get('A', 0.5 * sum(p.parcel_A)),
+            B=numbers.get('B', 0.5 * sum(p.parcel_B)),
             m=numbers.get('m', 0.5 * sum(p.parcel_m)),
-            phi0=math.radians(numbers.get('phi0_deg', 0.0)), y0=numbers.get('y', 0.0),
-            label=given.get('label', ''))
+            phi0=math.radians(numbers.get('phi0_deg', 0.0)),
+            y0=numbers.get('y', 0.0),
+            label=given.get('label', ''),
+        )
 
 
 def main(args=None):

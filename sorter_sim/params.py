@@ -1,4 +1,5 @@
-"""The simulation node's parameters: a declared schema, read once into a frozen dataclass.
+"""
+The simulation node's parameters: a declared schema, read once into a frozen dataclass.
 
 This module owns the cell's configuration and knows nothing of ROS: ``SCHEMA``
 lists every parameter with its type, default, allowed range, units, whether it
@@ -16,6 +17,7 @@ the chute that α > 0 diverts to. SI units, except names ending in ``_deg``.
 The defaults are the seed's cell (belt width s = 0.7 m, v = 1.5 m/s within the
 seed's 0.5-1.5 m/s, μ = 0.6) and equal config/cell.yaml.
 """
+
 from __future__ import annotations
 
 import math
@@ -56,15 +58,15 @@ class ParamSpec:
     default: Any
     description: str
     units: str = ''
-    lo: float | None = None          # inclusive bounds for numbers and array entries
+    lo: float | None = None  # inclusive bounds for numbers and array entries
     hi: float | None = None
     choices: tuple = ()
     read_only: bool = True
-    length: tuple[int, int] | None = None   # allowed array length (min, max)
+    length: tuple[int, int] | None = None  # allowed array length (min, max)
 
     @property
     def allowed(self) -> str:
-        """What is allowed, in words, for error messages and the README table."""
+        """Return what is allowed, in words, for error messages and the README table."""
         unit = f' {self.units}' if self.units else ''
         if self.choices:
             return 'one of ' + ', '.join(self.choices)
@@ -82,100 +84,375 @@ class ParamSpec:
         return 'a string'
 
 
-def _p(name, type_, default, description, units='', lo=None, hi=None, choices=(),
-       read_only=True, length=None):
-    return ParamSpec(name, type_, default, description, units, lo, hi, tuple(choices), read_only,
-                     length)
+def _p(
+    name,
+    type_,
+    default,
+    description,
+    units='',
+    lo=None,
+    hi=None,
+    choices=(),
+    read_only=True,
+    length=None,
+):
+    return ParamSpec(
+        name, type_, default, description, units, lo, hi, tuple(choices), read_only, length
+    )
 
 
 # The order here is the order of the README table.
 SCHEMA: tuple[ParamSpec, ...] = (
     # -- time
-    _p('control_period', DOUBLE, 0.001, 'physics and actuator update period; events are located '
-       'inside it', 's', 1e-4, 0.02),
-    _p('time_mode', STRING, 'realtime', 'realtime: follow the wall clock times real_time_factor; '
-       'fast: as fast as possible; lockstep: one control period per call of the step service',
-       choices=TIME_MODES),
-    _p('real_time_factor', DOUBLE, 1.0, 'simulated seconds per wall second in realtime mode', '',
-       0.01, 100.0, read_only=False),
-    _p('fast_slice', DOUBLE, 0.05, 'fast mode: simulated time run per executor callback before '
-       'services, parameters and in-process subscribers get their turn (smaller: they react '
-       'sooner in simulated time; larger: less overhead)', 's', 1e-4, 10.0, read_only=False),
-    _p('wall_tick', DOUBLE, 0.002, 'wall-clock period of the realtime-mode timer (outputs are '
-       'published at most this late)', 's', 0.0005, 0.1),
+    _p(
+        'control_period',
+        DOUBLE,
+        0.001,
+        'physics and actuator update period; events are located inside it',
+        's',
+        1e-4,
+        0.02,
+    ),
+    _p(
+        'time_mode',
+        STRING,
+        'realtime',
+        'realtime: follow the wall clock times real_time_factor; '
+        'fast: as fast as possible; lockstep: one control period per call of the step service',
+        choices=TIME_MODES,
+    ),
+    _p(
+        'real_time_factor',
+        DOUBLE,
+        1.0,
+        'simulated seconds per wall second in realtime mode',
+        '',
+        0.01,
+        100.0,
+        read_only=False,
+    ),
+    _p(
+        'fast_slice',
+        DOUBLE,
+        0.05,
+        'fast mode: simulated time run per executor callback before '
+        'services, parameters and in-process subscribers get their turn (smaller: they react '
+        'sooner in simulated time; larger: less overhead)',
+        's',
+        1e-4,
+        10.0,
+        read_only=False,
+    ),
+    _p(
+        'wall_tick',
+        DOUBLE,
+        0.002,
+        'wall-clock period of the realtime-mode timer (outputs are published at most this late)',
+        's',
+        0.0005,
+        0.1,
+    ),
     # -- cell geometry (conveyor frame)
-    _p('belt_speed', DOUBLE, 1.5, 'belt speed v (the disks turn at the same surface speed)', 'm/s',
-       0.5, 1.5),
+    _p(
+        'belt_speed',
+        DOUBLE,
+        1.5,
+        'belt speed v (the disks turn at the same surface speed)',
+        'm/s',
+        0.5,
+        1.5,
+    ),
     _p('belt_width', DOUBLE, 0.7, 'belt width s; the belt spans y in [-s/2, s/2]', 'm', 0.3, 2.0),
-    _p('disk_field_length', DOUBLE, 1.2, 'length b of the disk field (zone b, 0 <= x <= b)', 'm',
-       0.1, 5.0),
-    _p('chute_margin', DOUBLE, 0.1, 'the chute openings in both side walls reach this far beyond '
-       'the disk field, upstream and downstream', 'm', 0.0, 1.0),
-    _p('induct_x', DOUBLE, -3.0, 'x of a new parcel\'s leading edge when it appears', 'm',
-       -500.0, -0.01),
-    _p('exit_x', DOUBLE, 3.0, 'a parcel whose centre of gravity passes this x has left straight',
-       'm', 0.2, 50.0),
-    _p('scanner_x', DOUBLE, -2.0, 'x of the barcode scanner line (a label is read when the '
-       'leading edge crosses it)', 'm', -500.0, 0.0),
-    _p('photo_eyes.names', STRING_ARRAY, ['pe_scan', 'pe_divert', 'pe_exit'], 'photo-eye names '
-       '(topics sensors/<name>); must include pe_scan (at scanner_x) and pe_divert (upstream of '
-       'the disk field)', length=(2, 32)),
-    _p('photo_eyes.x', DOUBLE_ARRAY, [-2.0, -0.3, 2.0], 'photo-eye beam positions, one per name; '
-       'each beam spans the belt', 'm', -500.0, 50.0, length=(2, 32)),
+    _p(
+        'disk_field_length',
+        DOUBLE,
+        1.2,
+        'length b of the disk field (zone b, 0 <= x <= b)',
+        'm',
+        0.1,
+        5.0,
+    ),
+    _p(
+        'chute_margin',
+        DOUBLE,
+        0.1,
+        'the chute openings in both side walls reach this far beyond '
+        'the disk field, upstream and downstream',
+        'm',
+        0.0,
+        1.0,
+    ),
+    _p(
+        'induct_x',
+        DOUBLE,
+        -3.0,
+        'x of a new parcel\'s leading edge when it appears',
+        'm',
+        -500.0,
+        -0.01,
+    ),
+    _p(
+        'exit_x',
+        DOUBLE,
+        3.0,
+        'a parcel whose centre of gravity passes this x has left straight',
+        'm',
+        0.2,
+        50.0,
+    ),
+    _p(
+        'scanner_x',
+        DOUBLE,
+        -2.0,
+        'x of the barcode scanner line (a label is read when the leading edge crosses it)',
+        'm',
+        -500.0,
+        0.0,
+    ),
+    _p(
+        'photo_eyes.names',
+        STRING_ARRAY,
+        ['pe_scan', 'pe_divert', 'pe_exit'],
+        'photo-eye names '
+        '(topics sensors/<name>); must include pe_scan (at scanner_x) and pe_divert (upstream of '
+        'the disk field)',
+        length=(2, 32),
+    ),
+    _p(
+        'photo_eyes.x',
+        DOUBLE_ARRAY,
+        [-2.0, -0.3, 2.0],
+        'photo-eye beam positions, one per name; each beam spans the belt',
+        'm',
+        -500.0,
+        50.0,
+        length=(2, 32),
+    ),
     # -- diverter
-    _p('alpha_deg', DOUBLE, 90.0, 'commanded disk angle α (> 0 diverts to the left chute, +y); '
-       'the physical angle follows at alpha_slew_rate_deg_s', 'deg', -90.0, 90.0, read_only=False),
-    _p('alpha_slew_rate_deg_s', DOUBLE, 360.0, 'slew rate of the physical disk angle', 'deg/s',
-       1.0, 36000.0),
-    _p('popup_stroke_time', DOUBLE, 0.1, 'time for a full pop-up stroke (0 = instantaneous)', 's',
-       0.0, 5.0),
+    _p(
+        'alpha_deg',
+        DOUBLE,
+        90.0,
+        'commanded disk angle α (> 0 diverts to the left chute, +y); '
+        'the physical angle follows at alpha_slew_rate_deg_s',
+        'deg',
+        -90.0,
+        90.0,
+        read_only=False,
+    ),
+    _p(
+        'alpha_slew_rate_deg_s',
+        DOUBLE,
+        360.0,
+        'slew rate of the physical disk angle',
+        'deg/s',
+        1.0,
+        36000.0,
+    ),
+    _p(
+        'popup_stroke_time',
+        DOUBLE,
+        0.1,
+        'time for a full pop-up stroke (0 = instantaneous)',
+        's',
+        0.0,
+        5.0,
+    ),
     # -- friction (seed Fig. 3 laws, scaled to these coefficients at 1 m/s)
-    _p('friction_model', STRING, 'const1', 'friction characteristic of Fig. 3 (shape parameters '
-       'as in config/scenes; const1 is the seed\'s sorting runs)', choices=tuple(LAW_NAMES)),
-    _p('mu_belt', DOUBLE, 0.6, 'friction coefficient parcel/belt (zones a and c) at 1 m/s', '',
-       0.0, 3.0),
-    _p('mu_disks', DOUBLE, 0.6, 'friction coefficient parcel/disks (zone b) at 1 m/s', '', 0.0,
-       3.0),
-    _p('integrator', STRING, 'accurate', 'method for parcels off the belt\'s closed form: '
-       'accurate (event-located Dormand-Prince per control period) or implicit (one '
-       'backward-Euler step per control period)', choices=INTEGRATORS),
-    _p('integrator_rtol', DOUBLE, 1e-6, 'relative tolerance of the accurate method', '', 1e-12,
-       1e-2),
-    _p('integrator_atol', DOUBLE, 1e-8, 'absolute tolerance of the accurate method', '', 1e-14,
-       1e-2),
+    _p(
+        'friction_model',
+        STRING,
+        'const1',
+        'friction characteristic of Fig. 3 (shape parameters '
+        'as in config/scenes; const1 is the seed\'s sorting runs)',
+        choices=tuple(LAW_NAMES),
+    ),
+    _p(
+        'mu_belt',
+        DOUBLE,
+        0.6,
+        'friction coefficient parcel/belt (zones a and c) at 1 m/s',
+        '',
+        0.0,
+        3.0,
+    ),
+    _p(
+        'mu_disks',
+        DOUBLE,
+        0.6,
+        'friction coefficient parcel/disks (zone b) at 1 m/s',
+        '',
+        0.0,
+        3.0,
+    ),
+    _p(
+        'integrator',
+        STRING,
+        'accurate',
+        'method for parcels off the belt\'s closed form: '
+        'accurate (event-located Dormand-Prince per control period) or implicit (one '
+        'backward-Euler step per control period)',
+        choices=INTEGRATORS,
+    ),
+    _p(
+        'integrator_rtol',
+        DOUBLE,
+        1e-6,
+        'relative tolerance of the accurate method',
+        '',
+        1e-12,
+        1e-2,
+    ),
+    _p(
+        'integrator_atol',
+        DOUBLE,
+        1e-8,
+        'absolute tolerance of the accurate method',
+        '',
+        1e-14,
+        1e-2,
+    ),
     # -- parcel stream
-    _p('arrival', STRING, 'gap', 'parcel stream: gap (belt gap drawn from arrival_gap), rate '
-       '(Poisson arrivals at arrival_rate, never closer than arrival_gap[0]) or none (only '
-       'parcels/induct)', choices=ARRIVAL_MODES, read_only=False),
-    _p('arrival_gap', DOUBLE_ARRAY, [0.6, 1.2], 'belt gap between consecutive parcels [min, max], '
-       'drawn uniformly', 'm', 0.0, 100.0, read_only=False, length=(2, 2)),
-    _p('arrival_rate', DOUBLE, 1.0, 'mean arrival rate in rate mode', '1/s', 0.001, 50.0,
-       read_only=False),
-    _p('parcel_A', DOUBLE_ARRAY, [0.3, 0.7], 'parcel length A (along x at φ = 0) [min, max]', 'm',
-       0.05, 2.0, read_only=False, length=(2, 2)),
-    _p('parcel_B', DOUBLE_ARRAY, [0.2, 0.4], 'parcel width B [min, max]', 'm', 0.05, 2.0,
-       read_only=False, length=(2, 2)),
-    _p('parcel_m', DOUBLE_ARRAY, [1.0, 10.0], 'parcel mass [min, max]', 'kg', 0.01, 1000.0,
-       read_only=False, length=(2, 2)),
-    _p('parcel_phi0_deg', DOUBLE_ARRAY, [-3.0, 3.0], 'initial skew φ0 [min, max]', 'deg', -90.0,
-       90.0, read_only=False, length=(2, 2)),
-    _p('parcel_y0', DOUBLE_ARRAY, [-0.03, 0.03], 'lateral offset of the centre of gravity at '
-       'induct [min, max]', 'm', -1.0, 1.0, read_only=False, length=(2, 2)),
-    _p('labels', STRING_ARRAY, ['A', 'B', 'C'], 'labels cycled over the stream (field {label} of '
-       'label_pattern)', read_only=False, length=(1, 10000)),
-    _p('label_pattern', STRING, '{label}{id:05d}', 'a parcel\'s label: a Python format string '
-       'with fields {id} (parcel id), {n} (stream index) and {label}', read_only=False),
-    _p('seed', INTEGER, 1, 'seed of the parcel stream (same seed, same stream)', '', 0,
-       2 ** 31 - 1),
-    _p('max_parcels', INTEGER, 200, 'capacity of the cell; inducts wait while it is full', '', 1,
-       5000),
+    _p(
+        'arrival',
+        STRING,
+        'gap',
+        'parcel stream: gap (belt gap drawn from arrival_gap), rate '
+        '(Poisson arrivals at arrival_rate, never closer than arrival_gap[0]) or none (only '
+        'parcels/induct)',
+        choices=ARRIVAL_MODES,
+        read_only=False,
+    ),
+    _p(
+        'arrival_gap',
+        DOUBLE_ARRAY,
+        [0.6, 1.2],
+        'belt gap between consecutive parcels [min, max], drawn uniformly',
+        'm',
+        0.0,
+        100.0,
+        read_only=False,
+        length=(2, 2),
+    ),
+    _p(
+        'arrival_rate',
+        DOUBLE,
+        1.0,
+        'mean arrival rate in rate mode',
+        '1/s',
+        0.001,
+        50.0,
+        read_only=False,
+    ),
+    _p(
+        'parcel_A',
+        DOUBLE_ARRAY,
+        [0.3, 0.7],
+        'parcel length A (along x at φ = 0) [min, max]',
+        'm',
+        0.05,
+        2.0,
+        read_only=False,
+        length=(2, 2),
+    ),
+    _p(
+        'parcel_B',
+        DOUBLE_ARRAY,
+        [0.2, 0.4],
+        'parcel width B [min, max]',
+        'm',
+        0.05,
+        2.0,
+        read_only=False,
+        length=(2, 2),
+    ),
+    _p(
+        'parcel_m',
+        DOUBLE_ARRAY,
+        [1.0, 10.0],
+        'parcel mass [min, max]',
+        'kg',
+        0.01,
+        1000.0,
+        read_only=False,
+        length=(2, 2),
+    ),
+    _p(
+        'parcel_phi0_deg',
+        DOUBLE_ARRAY,
+        [-3.0, 3.0],
+        'initial skew φ0 [min, max]',
+        'deg',
+        -90.0,
+        90.0,
+        read_only=False,
+        length=(2, 2),
+    ),
+    _p(
+        'parcel_y0',
+        DOUBLE_ARRAY,
+        [-0.03, 0.03],
+        'lateral offset of the centre of gravity at induct [min, max]',
+        'm',
+        -1.0,
+        1.0,
+        read_only=False,
+        length=(2, 2),
+    ),
+    _p(
+        'labels',
+        STRING_ARRAY,
+        ['A', 'B', 'C'],
+        'labels cycled over the stream (field {label} of label_pattern)',
+        read_only=False,
+        length=(1, 10000),
+    ),
+    _p(
+        'label_pattern',
+        STRING,
+        '{label}{id:05d}',
+        'a parcel\'s label: a Python format string '
+        'with fields {id} (parcel id), {n} (stream index) and {label}',
+        read_only=False,
+    ),
+    _p('seed', INTEGER, 1, 'seed of the parcel stream (same seed, same stream)', '', 0, 2**31 - 1),
+    _p(
+        'max_parcels',
+        INTEGER,
+        200,
+        'capacity of the cell; inducts wait while it is full',
+        '',
+        1,
+        5000,
+    ),
     # -- outputs
-    _p('pose_rate_hz', DOUBLE, 100.0, 'rate of parcels/poses, parcels/ids and diverter/state '
-       '(simulated time)', 'Hz', 1.0, 1000.0),
-    _p('marker_rate_hz', DOUBLE, 10.0, 'rate of parcels/markers while someone subscribes '
-       '(simulated time)', 'Hz', 0.1, 1000.0),
-    _p('sensor_heartbeat_s', DOUBLE, 0.5, 'every sensor republishes its state this often '
-       '(simulated time)', 's', 0.01, 3600.0),
+    _p(
+        'pose_rate_hz',
+        DOUBLE,
+        100.0,
+        'rate of parcels/poses, parcels/ids and diverter/state (simulated time)',
+        'Hz',
+        1.0,
+        1000.0,
+    ),
+    _p(
+        'marker_rate_hz',
+        DOUBLE,
+        10.0,
+        'rate of parcels/markers while someone subscribes (simulated time)',
+        'Hz',
+        0.1,
+        1000.0,
+    ),
+    _p(
+        'sensor_heartbeat_s',
+        DOUBLE,
+        0.5,
+        'every sensor republishes its state this often (simulated time)',
+        's',
+        0.01,
+        3600.0,
+    ),
 )
 
 SPECS: dict[str, ParamSpec] = {s.name: s for s in SCHEMA}
@@ -198,7 +475,11 @@ def _check_value(spec: ParamSpec, value: Any) -> Any:
             raise bad
         return value
     if spec.type == INTEGER:
-        if isinstance(value, bool) or not isinstance(value, int) or not spec.lo <= value <= spec.hi:
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int)
+            or not spec.lo <= value <= spec.hi
+        ):
             raise bad
         return int(value)
     if spec.type == DOUBLE:
@@ -227,12 +508,13 @@ def _check_value(spec: ParamSpec, value: Any) -> Any:
 
 def _range_pair(name: str, pair: tuple) -> None:
     if pair[0] > pair[1]:
-        raise ParamError(f'parameter {name!r} is a range [min, max]: min must not exceed max, '
-                         f'got {list(pair)}')
+        raise ParamError(
+            f'parameter {name!r} is a range [min, max]: min must not exceed max, got {list(pair)}'
+        )
 
 
 def format_label(pattern: str, *, id: int, n: int, label: str) -> str:
-    """A parcel's label from ``label_pattern``."""
+    """Return a parcel's label from ``label_pattern``."""
     return pattern.format(id=id, n=n, label=label)
 
 
@@ -240,13 +522,16 @@ def check_label_pattern(pattern: str) -> None:
     fields = {f.split('.')[0].split('[')[0] for f in _FORMAT_FIELD.findall(pattern)}
     unknown = sorted(fields - set(LABEL_FIELDS))
     if unknown:
-        raise ParamError(f'parameter \'label_pattern\' may use only the fields {{id}}, {{n}} and '
-                         f'{{label}}, got {pattern!r} (unknown: {", ".join(unknown)})')
+        raise ParamError(
+            f'parameter \'label_pattern\' may use only the fields {{id}}, {{n}} and '
+            f'{{label}}, got {pattern!r} (unknown: {", ".join(unknown)})'
+        )
     try:
         text = format_label(pattern, id=1, n=0, label='A')
     except (ValueError, IndexError, KeyError, AttributeError, TypeError) as exc:
-        raise ParamError(f'parameter \'label_pattern\' is not a valid format string: {pattern!r} '
-                         f'({exc})') from None
+        raise ParamError(
+            f'parameter \'label_pattern\' is not a valid format string: {pattern!r} ({exc})'
+        ) from None
     if not text:
         raise ParamError('parameter \'label_pattern\' gives empty labels')
 
@@ -259,8 +544,12 @@ def parcel_half_extents(A: float, B: float, phi: float) -> tuple[float, float]:
 
 
 def max_half_width(A_max: float, B_max: float, phi_lo_deg: float, phi_hi_deg: float) -> float:
-    """Largest half extent across the belt over the skew range (it is maximal at an end or
-    where tan φ = A/B)."""
+    """
+    Return the largest half extent across the belt over the skew range.
+
+    Largest half extent across the belt over the skew range (it is maximal at an end or
+    where tan φ = A/B).
+    """
     lo, hi = math.radians(phi_lo_deg), math.radians(phi_hi_deg)
     cands = [lo, hi, 0.0]
     crit = math.atan2(A_max, B_max)
@@ -270,7 +559,8 @@ def max_half_width(A_max: float, B_max: float, phi_lo_deg: float, phi_hi_deg: fl
 
 @dataclass(frozen=True)
 class CellParams:
-    """Every parameter of the simulation node, checked (see ``SCHEMA`` for meaning and units).
+    """
+    Every parameter of the simulation node, checked (see ``SCHEMA`` for meaning and units).
 
     Field names are the parameter names with '.' replaced by '_'.
     """
@@ -324,8 +614,10 @@ class CellParams:
         """Check a mapping {parameter name: value}; missing names take their defaults."""
         unknown = sorted(set(values) - set(SPECS))
         if unknown:
-            raise ParamError(f'unknown parameter(s) {", ".join(map(repr, unknown))}; see the '
-                             f'README table for the allowed names')
+            raise ParamError(
+                f'unknown parameter(s) {", ".join(map(repr, unknown))}; see the '
+                f'README table for the allowed names'
+            )
         kw = {}
         for spec in SCHEMA:
             kw[_field(spec.name)] = _check_value(spec, values.get(spec.name, spec.default))
@@ -334,7 +626,7 @@ class CellParams:
         return params
 
     def value(self, name: str) -> Any:
-        """The value of parameter ``name`` (lists for arrays, as ROS holds them)."""
+        """Return the value of parameter ``name`` (lists for arrays, as ROS holds them)."""
         v = getattr(self, _field(name))
         return list(v) if isinstance(v, tuple) else v
 
@@ -342,15 +634,18 @@ class CellParams:
         return {spec.name: self.value(spec.name) for spec in SCHEMA}
 
     def with_changes(self, changes: dict[str, Any], *, runtime: bool = True) -> 'CellParams':
-        """A new, checked parameter set with ``changes`` applied; raises ParamError otherwise.
+        """
+        Return a new, checked parameter set with ``changes`` applied; raises ParamError otherwise.
 
         runtime: refuse changes to structural (read-only) parameters.
         """
         if runtime:
             fixed = sorted(n for n in changes if n in SPECS and n not in RUNTIME_NAMES)
             if fixed:
-                raise ParamError(f'parameter(s) {", ".join(map(repr, fixed))} are structural '
-                                 f'(read-only) and cannot change while the cell runs')
+                raise ParamError(
+                    f'parameter(s) {", ".join(map(repr, fixed))} are structural '
+                    f'(read-only) and cannot change while the cell runs'
+                )
         values = self.as_values()
         values.update(changes)
         return CellParams.from_values(values)
@@ -362,7 +657,7 @@ class CellParams:
 
     @cached_property
     def chute_x_range(self) -> tuple[float, float]:
-        """x range of the chute openings (and of the chute-entry sensors) [m]."""
+        """X range of the chute openings (and of the chute-entry sensors) [m]."""
         return -self.chute_margin, self.disk_field_length + self.chute_margin
 
     @cached_property
@@ -393,56 +688,93 @@ class CellParams:
     def _cross_check(self) -> None:
         names, xs = self.photo_eyes_names, self.photo_eyes_x
         if len(names) != len(xs):
-            raise ParamError(f'parameters \'photo_eyes.names\' and \'photo_eyes.x\' must have the '
-                             f'same length, got {len(names)} names and {len(xs)} positions')
+            raise ParamError(
+                f'parameters \'photo_eyes.names\' and \'photo_eyes.x\' must have the '
+                f'same length, got {len(names)} names and {len(xs)} positions'
+            )
         for n in names:
             if not _SENSOR_NAME.match(n) or n in RESERVED_SENSOR_NAMES:
-                raise ParamError(f'parameter \'photo_eyes.names\': {n!r} is not allowed; a name '
-                                 f'starts with a letter, has only letters, digits and _, and is '
-                                 f'none of {", ".join(RESERVED_SENSOR_NAMES)}')
+                raise ParamError(
+                    f'parameter \'photo_eyes.names\': {n!r} is not allowed; a name '
+                    f'starts with a letter, has only letters, digits and _, and is '
+                    f'none of {", ".join(RESERVED_SENSOR_NAMES)}'
+                )
         if len(set(names)) != len(names):
             raise ParamError(f'parameter \'photo_eyes.names\' has duplicates: {list(names)}')
         for need in ('pe_scan', 'pe_divert'):
             if need not in names:
-                raise ParamError(f'parameter \'photo_eyes.names\' must include {need!r}, got '
-                                 f'{list(names)}')
+                raise ParamError(
+                    f'parameter \'photo_eyes.names\' must include {need!r}, got {list(names)}'
+                )
         if self.photo_eye('pe_scan') != self.scanner_x:
-            raise ParamError(f'photo-eye pe_scan sits on the scanner line: \'photo_eyes.x\' of '
-                             f'pe_scan must equal scanner_x = {self.scanner_x:g} m, got '
-                             f'{self.photo_eye("pe_scan"):g} m')
+            raise ParamError(
+                f'photo-eye pe_scan sits on the scanner line: \'photo_eyes.x\' of '
+                f'pe_scan must equal scanner_x = {self.scanner_x:g} m, got '
+                f'{self.photo_eye("pe_scan"):g} m'
+            )
         if not self.photo_eye('pe_divert') < 0.0:
-            raise ParamError(f'photo-eye pe_divert must lie upstream of the disk field (x < 0), '
-                             f'got {self.photo_eye("pe_divert"):g} m')
+            raise ParamError(
+                f'photo-eye pe_divert must lie upstream of the disk field (x < 0), '
+                f'got {self.photo_eye("pe_divert"):g} m'
+            )
         if not self.induct_x < self.scanner_x:
-            raise ParamError(f'parameter \'induct_x\' ({self.induct_x:g} m) must lie upstream of '
-                             f'scanner_x ({self.scanner_x:g} m), or parcels are never scanned')
+            raise ParamError(
+                f'parameter \'induct_x\' ({self.induct_x:g} m) must lie upstream of '
+                f'scanner_x ({self.scanner_x:g} m), or parcels are never scanned'
+            )
         lo_open, hi_open = self.chute_x_range
         if not self.exit_x > hi_open:
-            raise ParamError(f'parameter \'exit_x\' must lie beyond the chute openings (> '
-                             f'disk_field_length + chute_margin = {hi_open:g} m), got '
-                             f'{self.exit_x:g} m')
+            raise ParamError(
+                f'parameter \'exit_x\' must lie beyond the chute openings (> '
+                f'disk_field_length + chute_margin = {hi_open:g} m), got '
+                f'{self.exit_x:g} m'
+            )
         for n, x in zip(names, xs):
             if not self.induct_x <= x < self.exit_x:
-                raise ParamError(f'photo-eye {n} at x = {x:g} m must lie on the cell, in '
-                                 f'[induct_x, exit_x) = [{self.induct_x:g}, {self.exit_x:g}) m')
-        for name in ('arrival_gap', 'parcel_A', 'parcel_B', 'parcel_m', 'parcel_phi0_deg',
-                     'parcel_y0'):
+                raise ParamError(
+                    f'photo-eye {n} at x = {x:g} m must lie on the cell, in '
+                    f'[induct_x, exit_x) = [{self.induct_x:g}, {self.exit_x:g}) m'
+                )
+        for name in (
+            'arrival_gap',
+            'parcel_A',
+            'parcel_B',
+            'parcel_m',
+            'parcel_phi0_deg',
+            'parcel_y0',
+        ):
             _range_pair(name, getattr(self, name))
         half_w = 0.5 * self.belt_width
         hy = max_half_width(self.parcel_A[1], self.parcel_B[1], *self.parcel_phi0_deg)
         worst = max(abs(self.parcel_y0[0]), abs(self.parcel_y0[1])) + hy
         if worst > half_w:
-            raise ParamError(f'parcels from parcel_A, parcel_B, parcel_phi0_deg and parcel_y0 can '
-                             f'reach {worst:g} m from the belt axis, beyond belt_width/2 = '
-                             f'{half_w:g} m; narrow the ranges')
+            raise ParamError(
+                f'parcels from parcel_A, parcel_B, parcel_phi0_deg and parcel_y0 can '
+                f'reach {worst:g} m from the belt axis, beyond belt_width/2 = '
+                f'{half_w:g} m; narrow the ranges'
+            )
         if self.pose_rate_hz * self.control_period > 1.0 + 1e-9:
-            raise ParamError(f'parameter \'pose_rate_hz\' ({self.pose_rate_hz:g} Hz) cannot exceed '
-                             f'the control rate 1/control_period = {1 / self.control_period:g} Hz')
+            raise ParamError(
+                f'parameter \'pose_rate_hz\' ({self.pose_rate_hz:g} Hz) cannot exceed '
+                f'the control rate 1/control_period = {1 / self.control_period:g} Hz'
+            )
         if abs(self.control_period * 1e9 - self.control_period_ns) > 1e-6:
-            raise ParamError(f'parameter \'control_period\' must be a whole number of nanoseconds, '
-                             f'got {self.control_period!r}')
+            raise ParamError(
+                f'parameter \'control_period\' must be a whole number of nanoseconds, '
+                f'got {self.control_period!r}'
+            )
         check_label_pattern(self.label_pattern)
 
 
-__all__ = ['CellParams', 'ParamError', 'ParamSpec', 'SCHEMA', 'SPECS', 'RUNTIME_NAMES',
-           'TIME_MODES', 'ARRIVAL_MODES', 'format_label', 'parcel_half_extents']
+__all__ = [
+    'CellParams',
+    'ParamError',
+    'ParamSpec',
+    'SCHEMA',
+    'SPECS',
+    'RUNTIME_NAMES',
+    'TIME_MODES',
+    'ARRIVAL_MODES',
+    'format_label',
+    'parcel_half_extents',
+]

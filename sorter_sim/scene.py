@@ -1,4 +1,5 @@
-"""Scenes: one parcel through one cell, as a validated, YAML-backed configuration.
+"""
+Scenes: one parcel through one cell, as a validated, YAML-backed configuration.
 
 A scene is a nested mapping with the sections below; every key has a default
 (``DEFAULTS``), so a scene file lists only what differs. ``load_scene`` reads a
@@ -13,6 +14,7 @@ For ``const1`` this is simply μ; for ``const2`` it is μ_G with μ_0/μ_G kept.
 
 Defaults that the seed does not state are assumptions, marked so below.
 """
+
 from __future__ import annotations
 
 import copy
@@ -39,23 +41,35 @@ class SceneError(ValueError):
 BSPLINE_DEFAULT = [0.0, 0.1, 0.25, 0.6, 1.5, 2.5, 0.65, 0.45, 0.42, 0.47, 0.50, 0.52]
 
 DEFAULTS: dict[str, dict[str, Any]] = {
-    "parcel": {"A": 0.7, "B": 0.2, "m": 5.0, "phi0_deg": 0.0},      # m: assumption (seed: 5 kg in Fig. 14)
+    "parcel": {
+        "A": 0.7,
+        "B": 0.2,
+        "m": 5.0,
+        "phi0_deg": 0.0,
+    },  # m: assumption (seed: 5 kg in Fig. 14)
     "belt": {"v": 1.5, "s": 0.7},
     "zones": {"b": math.inf, "mu_a": 0.6, "mu_b": 0.6, "mu_c": 0.6},
     "diverter": {"alpha_deg": 90.0, "stroke": 1.0},
     "friction": {
         "model": "const1",
         "v_ref": 1.0,
-        "const2": [0.65, 0.46],                  # the seed's μ_0, μ_G (models 2 and 3)
-        "const1": [0.6],                         # the seed's sorting runs
-        "linear": [0.65, -0.15],                 # assumption
-        "polynomial": [0.65, -1.0, 0.0, 2.0],    # assumption: Fig. 3d's rise at 1 m/s
+        "const2": [0.65, 0.46],  # the seed's μ_0, μ_G (models 2 and 3)
+        "const1": [0.6],  # the seed's sorting runs
+        "linear": [0.65, -0.15],  # assumption
+        "polynomial": [0.65, -1.0, 0.0, 2.0],  # assumption: Fig. 3d's rise at 1 m/s
         "stribeck": [0.65, 0.3, 10.0, 5.0, 1.5, 0.1],  # assumption: μ0, μmin, b1, b2, b3, v_knee
         "bspline": list(BSPLINE_DEFAULT),
     },
     "model": {"rotation": True, "v_min": 1e-6, "g": 9.81},
-    "solver": {"method": "accurate", "rtol": 1e-8, "atol": 1e-10, "dt": 1e-3, "n_quad": 8,
-               "reductions": True, "t_max": 20.0},
+    "solver": {
+        "method": "accurate",
+        "rtol": 1e-8,
+        "atol": 1e-10,
+        "dt": 1e-3,
+        "n_quad": 8,
+        "reductions": True,
+        "t_max": 20.0,
+    },
 }
 
 # key -> (kind, lo, hi, what is allowed); kind: float, bool, int, choice, list
@@ -72,8 +86,12 @@ _RULES: dict[str, tuple] = {
     "zones.mu_c": ("mu", 0.0, 3.0, "a coefficient in [0, 3], or null"),
     "diverter.alpha_deg": ("float", -90.0, 90.0, "a disk angle in [-90, 90] deg"),
     "diverter.stroke": ("float", 0.0, 1.0, "a pop-up position in [0, 1]"),
-    "friction.model": ("choice", ("const2", "const1", "linear", "polynomial", "stribeck", "bspline"),
-                       None, "one of const2, const1, linear, polynomial, stribeck, bspline"),
+    "friction.model": (
+        "choice",
+        ("const2", "const1", "linear", "polynomial", "stribeck", "bspline"),
+        None,
+        "one of const2, const1, linear, polynomial, stribeck, bspline",
+    ),
     "friction.v_ref": ("float", 0.0, 10.0, "a reference speed in (0, 10] m/s"),
     "friction.const2": ("list", 2, 2, "[mu0, muG]"),
     "friction.const1": ("list", 1, 1, "[mu]"),
@@ -84,8 +102,12 @@ _RULES: dict[str, tuple] = {
     "model.rotation": ("bool", None, None, "true or false"),
     "model.v_min": ("float", 0.0, 1.0, "a threshold speed in (0, 1] m/s"),
     "model.g": ("float", 0.0, 100.0, "gravity in (0, 100] m/s²"),
-    "solver.method": ("choice", ("accurate", "implicit", "threshold"), None,
-                      "one of accurate, implicit, threshold"),
+    "solver.method": (
+        "choice",
+        ("accurate", "implicit", "threshold"),
+        None,
+        "one of accurate, implicit, threshold",
+    ),
     "solver.rtol": ("float", 1e-14, 0.1, "a relative tolerance in [1e-14, 0.1]"),
     "solver.atol": ("float", 1e-16, 1.0, "an absolute tolerance in [1e-16, 1]"),
     "solver.dt": ("float", 1e-7, 0.1, "a step in [1e-7, 0.1] s"),
@@ -93,8 +115,16 @@ _RULES: dict[str, tuple] = {
     "solver.reductions": ("bool", None, None, "true or false"),
     "solver.t_max": ("float", 0.0, 3600.0, "a time limit in (0, 3600] s"),
 }
-_OPEN_LOW = {"parcel.A", "parcel.B", "parcel.m", "belt.s", "friction.v_ref", "model.v_min",
-             "model.g", "solver.t_max"}
+_OPEN_LOW = {
+    "parcel.A",
+    "parcel.B",
+    "parcel.m",
+    "belt.s",
+    "friction.v_ref",
+    "model.v_min",
+    "model.g",
+    "solver.t_max",
+}
 
 
 def _as_number(value: Any) -> Any:
@@ -127,7 +157,9 @@ def _check(key: str, value: Any) -> Any:
         out = []
         for v in value:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise SceneError(f"{key}: every entry must be a finite number ({allowed}), got {value!r}")
+                raise SceneError(
+                    f"{key}: every entry must be a finite number ({allowed}), got {value!r}"
+                )
             out.append(float(v))
         return out
     if kind == "mu" and value is None:
@@ -148,7 +180,7 @@ def _check(key: str, value: Any) -> Any:
 
 
 def validate(scene: dict) -> dict:
-    """A complete, checked copy of ``scene`` (defaults filled in)."""
+    """Return a complete, checked copy of ``scene`` (defaults filled in)."""
     if not isinstance(scene, dict):
         raise SceneError(f"a scene must be a mapping of sections, got {type(scene).__name__}")
     out = copy.deepcopy(DEFAULTS)
@@ -173,8 +205,10 @@ def validate(scene: dict) -> dict:
         raise SceneError(f"friction.{model}: {exc}") from None
     ref = mu_kinetic(law.law_id, law.row(), out["friction"]["v_ref"])
     if any(out["zones"][k] is not None for k in ("mu_a", "mu_b", "mu_c")) and not ref > 0.0:
-        raise SceneError(f"friction.{model}: the law is 0 at friction.v_ref, so zones.mu_* cannot "
-                         "scale it; set zones.mu_* to null or change the law")
+        raise SceneError(
+            f"friction.{model}: the law is 0 at friction.v_ref, so zones.mu_* cannot "
+            "scale it; set zones.mu_* to null or change the law"
+        )
     return out
 
 
@@ -235,9 +269,15 @@ def scene_parcel(scene: dict) -> Parcel:
 
 
 def scene_strips(scene: dict):
-    return three_zone_strips(scene["belt"]["v"], math.radians(scene["diverter"]["alpha_deg"]),
-                             scene["zones"]["b"], _zone_law(scene, "a"), _zone_law(scene, "b"),
-                             _zone_law(scene, "c"), scene["diverter"]["stroke"])
+    return three_zone_strips(
+        scene["belt"]["v"],
+        math.radians(scene["diverter"]["alpha_deg"]),
+        scene["zones"]["b"],
+        _zone_law(scene, "a"),
+        _zone_law(scene, "b"),
+        _zone_law(scene, "c"),
+        scene["diverter"]["stroke"],
+    )
 
 
 def scene_initial_state(scene: dict) -> np.ndarray:
@@ -258,19 +298,33 @@ def run_scene(scene: dict) -> tuple[SimResult, dict]:
     # watches +y, so a negative α is run mirrored (the model is mirror-symmetric)
     if sign < 0:
         y0 = y0 * np.array([1, -1, -1, 1, -1, -1])
-        strips = [type(st)(st.x_lo, st.x_hi, st.vx, -st.vy, st.law, st.weight, st.name) for st in strips]
-    res = simulate(scene_parcel(scene), strips, y0, (0.0, solver["t_max"]), solver["method"],
-                   rtol=solver["rtol"], atol=solver["atol"], dt=solver["dt"],
-                   v_min=scene["model"]["v_min"], y_target=y0[1] + s,
-                   rotation=scene["model"]["rotation"], reductions=solver["reductions"],
-                   n_quad=solver["n_quad"], g=scene["model"]["g"])
+        strips = [
+            type(st)(st.x_lo, st.x_hi, st.vx, -st.vy, st.law, st.weight, st.name) for st in strips
+        ]
+    res = simulate(
+        scene_parcel(scene),
+        strips,
+        y0,
+        (0.0, solver["t_max"]),
+        solver["method"],
+        rtol=solver["rtol"],
+        atol=solver["atol"],
+        dt=solver["dt"],
+        v_min=scene["model"]["v_min"],
+        y_target=y0[1] + s,
+        rotation=scene["model"]["rotation"],
+        reductions=solver["reductions"],
+        n_quad=solver["n_quad"],
+        g=scene["model"]["g"],
+    )
     if sign < 0:
         res.y = res.y * np.array([1, -1, -1, 1, -1, -1])
     return res, summarize(scene, res, y0)
 
 
 def stage_starts(res: SimResult, belt_surface: int = 0, disk_surface: int | None = 1) -> dict:
-    """Start times of the stages of Fig. 10 from the mode history.
+    """
+    Start times of the stages of Fig. 10 from the mode history.
 
     E1: steady motion I (stuck on the belt while the disks rub); E2: transient
     (sliding on both); E3: steady motion II (stuck on the disks).
@@ -293,7 +347,11 @@ def summarize(scene: dict, res: SimResult, y0) -> dict:
     alpha = math.radians(scene["diverter"]["alpha_deg"])
     v = scene["belt"]["v"]
     for k, (vx, vy) in enumerate(res.surfaces):
-        if math.isclose(vx, v * math.cos(alpha), abs_tol=1e-12) and math.isclose(abs(vy), abs(v * math.sin(alpha)), abs_tol=1e-12) and k != 0:
+        if (
+            math.isclose(vx, v * math.cos(alpha), abs_tol=1e-12)
+            and math.isclose(abs(vy), abs(v * math.sin(alpha)), abs_tol=1e-12)
+            and k != 0
+        ):
             disk = k
     return {
         "t_scrap": t_scrap,
@@ -301,9 +359,15 @@ def summarize(scene: dict, res: SimResult, y0) -> dict:
         "phi_scrap_deg": math.degrees(final[2]) if t_scrap is not None else None,
         "capacity_pcs_h": 3600.0 / t_scrap if t_scrap else None,
         "stages": stage_starts(res, 0, disk),
-        "final_state": {"t": float(res.t[-1]), "x": float(final[0]), "y": float(final[1]),
-                        "phi_deg": math.degrees(final[2]), "vx": float(final[3]),
-                        "vy": float(final[4]), "omega": float(final[5])},
+        "final_state": {
+            "t": float(res.t[-1]),
+            "x": float(final[0]),
+            "y": float(final[1]),
+            "phi_deg": math.degrees(final[2]),
+            "vx": float(final[3]),
+            "vy": float(final[4]),
+            "omega": float(final[5]),
+        },
         "status": res.status,
         "message": res.message,
         "success": res.success,

@@ -8,8 +8,8 @@ import os
 from sorter_ros.env import apply_ros_env_defaults  # noqa: E402 (imports no ROS)
 
 apply_ros_env_defaults()
-os.environ['ROS_DOMAIN_ID'] = (
-    os.environ.get('SORTER_TEST_DOMAIN_ID') or str(100 + os.getpid() % 100)
+os.environ['ROS_DOMAIN_ID'] = os.environ.get('SORTER_TEST_DOMAIN_ID') or str(
+    100 + os.getpid() % 100
 )
 
 import pytest  # noqa: E402
@@ -17,7 +17,7 @@ import pytest  # noqa: E402
 
 @pytest.fixture
 def ros_context():
-    """A fresh, initialised rclpy Context, shut down after the test."""
+    """Return a fresh, initialised rclpy Context, shut down after the test."""
     from ros_harness import ros_context_scope
 
     with ros_context_scope() as ctx:
@@ -26,7 +26,7 @@ def ros_context():
 
 @pytest.fixture
 def ros(ros_context):
-    """A RosHarness (nodes + SingleThreadedExecutor) bound to ``ros_context``."""
+    """Return a RosHarness (nodes + SingleThreadedExecutor) bound to ``ros_context``."""
     from ros_harness import ros_harness_scope
 
     with ros_harness_scope(ros_context) as harness:

@@ -1,4 +1,5 @@
-"""Launch-free, in-process ROS 2 test harness.
+"""
+Launch-free, in-process ROS 2 test harness.
 
 Modelled on rclpy's own tests (rclpy/test/test_executor.py): every test gets
 its own ``rclpy.context.Context``, the nodes under test are created in that

@@ -1,4 +1,5 @@
-"""A per-test time limit that holds inside compiled code, without losing the tests after it.
+"""
+A per-test time limit that holds inside compiled code, without losing the tests after it.
 
 numba-compiled code keeps the GIL, so neither a signal handler (pytest-timeout's
 ``signal`` method: it runs only when control is back in Python, and then may break
@@ -10,6 +11,7 @@ the worker process. pytest.ini runs the tests in one pytest-xdist worker, so xdi
 reports that test as an ordinary failure and goes on with the next test in a fresh
 worker; ``pytest_handlecrashitem`` below makes the failure say what happened.
 """
+
 import faulthandler
 import os
 
@@ -18,8 +20,9 @@ import pytest
 
 def pytest_addoption(parser):
     """Declare the ``test_timeout`` ini key (seconds; 0 turns the limit off)."""
-    parser.addini('test_timeout', 'per-test time limit [s] (set-up + call + teardown); 0: none',
-                  default='0')
+    parser.addini(
+        'test_timeout', 'per-test time limit [s] (set-up + call + teardown); 0: none', default='0'
+    )
 
 
 def _timeout(config) -> float:
@@ -27,7 +30,8 @@ def _timeout(config) -> float:
         value = float(config.getini('test_timeout'))
     except ValueError:
         raise pytest.UsageError(
-            f"test_timeout must be a number of seconds, got {config.getini('test_timeout')!r}")
+            f"test_timeout must be a number of seconds, got {config.getini('test_timeout')!r}"
+        )
     return value
 
 
@@ -61,4 +65,5 @@ def pytest_handlecrashitem(crashitem, report, sched):
         f'{report.longrepr}\n'
         f'{crashitem} ended its test worker: it ran past the per-test time limit of '
         f'{_timeout(sched.config):g} s (the stacks dumped on stderr show where), or its process '
-        f'died. The suite went on in a new worker.')
+        f'died. The suite went on in a new worker.'
+    )

@@ -1,10 +1,12 @@
-"""The sorter cell without ROS: parameters, the per-period kernels, sensors, exits, jams.
+"""
+The sorter cell without ROS: parameters, the per-period kernels, sensors, exits, jams.
 
 Expected values come from closed forms (a parcel stuck to the belt moves at v; a
 parcel sliding on a stopped belt stops after v²/(2μg)), from the model core run
 on its own for one parcel (the reference for a diversion), and from invariants
 (mirror symmetry, no overlap beyond one period's travel, same seed same stream).
 """
+
 from __future__ import annotations
 
 import math
@@ -14,11 +16,17 @@ import numpy as np
 import pytest
 import yaml
 
-from sorter_sim.cell import (STATE_NAMES, Cell, LabelRead, Outcome, ParcelSpec, SensorEdge,
-                             check_parcel)
+from sorter_sim.cell import (
+    STATE_NAMES,
+    Cell,
+    LabelRead,
+    Outcome,
+    ParcelSpec,
+    SensorEdge,
+    check_parcel,
+)
 from sorter_sim.core import cell_kernels as ck
-from sorter_sim.core.simulate import (FrictionLaw, Parcel, simulate, strip_array,
-                                      three_zone_strips)
+from sorter_sim.core.simulate import FrictionLaw, Parcel, simulate, strip_array, three_zone_strips
 from sorter_sim.params import SCHEMA, SPECS, CellParams, ParamError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -27,13 +35,15 @@ MU = 0.6
 
 
 def make_cell(**changes) -> Cell:
-    """A default cell with no parcel stream unless asked, and the changes applied."""
+    """Return a default cell with no parcel stream unless asked, and the changes applied."""
     values = {'arrival': 'none', **changes}
     return Cell(CellParams.defaults().with_changes(values, runtime=False))
 
 
 def edges_of(events, sensor=None):
-    return [e for e in events if isinstance(e, SensorEdge) and (sensor is None or e.sensor == sensor)]
+    return [
+        e for e in events if isinstance(e, SensorEdge) and (sensor is None or e.sensor == sensor)
+    ]
 
 
 def outcomes_of(events):
@@ -50,7 +60,7 @@ def test_schema_and_dataclass_agree():
 
 def test_cell_yaml_is_the_declared_default():
     data = yaml.safe_load((REPO / 'config' / 'cell.yaml').read_text())
-    (key, body), = data.items()
+    ((key, body),) = data.items()
     assert key.endswith('sorter_sim')
     flat = {}
     for name, value in body['ros__parameters'].items():
@@ -63,30 +73,48 @@ def test_cell_yaml_is_the_declared_default():
     assert params == CellParams.defaults()
 
 
-@pytest.mark.parametrize('name, value', [
-    ('belt_speed', math.nan), ('belt_speed', math.inf), ('belt_speed', 2.0),
-    ('belt_speed', 'fast'), ('belt_speed', True), ('alpha_deg', 91.0), ('alpha_deg', -math.inf),
-    ('control_period', 0.0), ('time_mode', 'slow'), ('seed', 1.5), ('seed', -1),
-    ('parcel_A', [0.3]), ('parcel_A', [0.3, math.nan]), ('parcel_A', [0.7, 0.3]),
-    ('labels', []), ('labels', [1, 2]), ('photo_eyes.x', [-2.0, -0.3]),
-])
+@pytest.mark.parametrize(
+    'name, value',
+    [
+        ('belt_speed', math.nan),
+        ('belt_speed', math.inf),
+        ('belt_speed', 2.0),
+        ('belt_speed', 'fast'),
+        ('belt_speed', True),
+        ('alpha_deg', 91.0),
+        ('alpha_deg', -math.inf),
+        ('control_period', 0.0),
+        ('time_mode', 'slow'),
+        ('seed', 1.5),
+        ('seed', -1),
+        ('parcel_A', [0.3]),
+        ('parcel_A', [0.3, math.nan]),
+        ('parcel_A', [0.7, 0.3]),
+        ('labels', []),
+        ('labels', [1, 2]),
+        ('photo_eyes.x', [-2.0, -0.3]),
+    ],
+)
 def test_bad_values_are_refused_naming_the_parameter(name, value):
     with pytest.raises(ParamError, match=name.split('.')[0]):
         CellParams.defaults().with_changes({name: value}, runtime=False)
 
 
-@pytest.mark.parametrize('changes, match', [
-    ({'scanner_x': -2.5}, 'pe_scan'),
-    ({'photo_eyes.names': ['pe_scan', 'pe_x', 'pe_exit']}, 'pe_divert'),
-    ({'photo_eyes.names': ['pe_scan', 'pe_divert', 'edges']}, 'edges'),
-    ({'photo_eyes.x': [-2.0, 0.5, 2.0]}, 'upstream'),
-    ({'exit_x': 1.0}, 'exit_x'),
-    ({'induct_x': -1.0}, 'induct_x'),
-    ({'parcel_B': [0.2, 0.7]}, 'belt_width'),
-    ({'label_pattern': '{label}{serial}'}, 'label_pattern'),
-    ({'label_pattern': '{id:q}'}, 'label_pattern'),
-    ({'pose_rate_hz': 1000.0, 'control_period': 0.002}, 'pose_rate_hz'),
-])
+@pytest.mark.parametrize(
+    'changes, match',
+    [
+        ({'scanner_x': -2.5}, 'pe_scan'),
+        ({'photo_eyes.names': ['pe_scan', 'pe_x', 'pe_exit']}, 'pe_divert'),
+        ({'photo_eyes.names': ['pe_scan', 'pe_divert', 'edges']}, 'edges'),
+        ({'photo_eyes.x': [-2.0, 0.5, 2.0]}, 'upstream'),
+        ({'exit_x': 1.0}, 'exit_x'),
+        ({'induct_x': -1.0}, 'induct_x'),
+        ({'parcel_B': [0.2, 0.7]}, 'belt_width'),
+        ({'label_pattern': '{label}{serial}'}, 'label_pattern'),
+        ({'label_pattern': '{id:q}'}, 'label_pattern'),
+        ({'pose_rate_hz': 1000.0, 'control_period': 0.002}, 'pose_rate_hz'),
+    ],
+)
 def test_inconsistent_values_are_refused(changes, match):
     with pytest.raises(ParamError, match=match):
         CellParams.defaults().with_changes(changes, runtime=False)
@@ -100,11 +128,17 @@ def test_structural_parameters_cannot_change_at_run_time():
     assert p.alpha_deg == 90.0
 
 
-@pytest.mark.parametrize('spec, match', [
-    (ParcelSpec(math.nan, 0.2, 5.0), 'A'), (ParcelSpec(0.4, 0.0, 5.0), 'B'),
-    (ParcelSpec(0.4, 0.2, -1.0), 'm'), (ParcelSpec(0.4, 0.2, 5.0, 2.0), 'phi0'),
-    (ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.3), 'fit'), (ParcelSpec(0.4, 0.2, 5.0, 0.0, math.inf), 'y'),
-])
+@pytest.mark.parametrize(
+    'spec, match',
+    [
+        (ParcelSpec(math.nan, 0.2, 5.0), 'A'),
+        (ParcelSpec(0.4, 0.0, 5.0), 'B'),
+        (ParcelSpec(0.4, 0.2, -1.0), 'm'),
+        (ParcelSpec(0.4, 0.2, 5.0, 2.0), 'phi0'),
+        (ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.3), 'fit'),
+        (ParcelSpec(0.4, 0.2, 5.0, 0.0, math.inf), 'y'),
+    ],
+)
 def test_bad_parcels_are_refused(spec, match):
     with pytest.raises(ParamError, match=match):
         check_parcel(spec, 0.7)
@@ -119,8 +153,9 @@ def test_cell_strips_match_the_core_builder(v, alpha, stroke):
     law_b = FrictionLaw('linear', (0.65, -0.1))
     ref = strip_array(three_zone_strips(v, alpha, 1.2, law_a, law_b, stroke=stroke))
     out = np.zeros((4, ref.shape[1]))
-    n, disk_sid = ck.cell_strips(v, alpha, 1.2, stroke, law_a.law_id, law_a.row(), law_b.law_id,
-                                 law_b.row(), out)
+    n, disk_sid = ck.cell_strips(
+        v, alpha, 1.2, stroke, law_a.law_id, law_a.row(), law_b.law_id, law_b.row(), out
+    )
     assert n == ref.shape[0]
     np.testing.assert_array_equal(out[:n], ref)
     assert disk_sid == (-1 if stroke == 0.0 else int(ref[1, 5]))
@@ -130,7 +165,7 @@ def test_separating_axis_overlap():
     s = np.array([0.0, 0.0, 0.0])
     ov = ck.rectangles_overlap
     assert ov(s, 0.2, 0.1, np.array([0.39, 0.0, 0.0]), 0.2, 0.1, 1e-9)
-    assert not ov(s, 0.2, 0.1, np.array([0.40, 0.0, 0.0]), 0.2, 0.1, 1e-9)   # touching
+    assert not ov(s, 0.2, 0.1, np.array([0.40, 0.0, 0.0]), 0.2, 0.1, 1e-9)  # touching
     # a diamond beside the box corner: their bounding boxes overlap, the shapes do not
     # (its lower-left edge lies on x + y = cx + cy - 0.1 sqrt(2); the box corner has x + y = 0.3)
     assert not ov(s, 0.2, 0.1, np.array([0.3, 0.2, math.pi / 4]), 0.1, 0.1, 1e-9)
@@ -145,7 +180,7 @@ def test_crossing_time_is_exact_for_linear_motion_and_located_for_curved():
     # uniformly decelerated motion: x(t) = x0 + v t - a t²/2 is reproduced by the Hermite cubic
     a, h = 5.0, 1e-3
     s1 = np.array([-0.5 + 1.5 * h - 0.5 * a * h * h, 0.0, 0.0, 1.5 - a * h, 0.0, 0.0])
-    level = -0.5 + 0.3 + 1.5 * 4e-4 - 0.5 * a * 4e-4 ** 2
+    level = -0.5 + 0.3 + 1.5 * 4e-4 - 0.5 * a * 4e-4**2
     s0[5] = s1[5] = 0.0
     s0b = s0.copy()
     s0b[5] = 1e-30  # force the interpolating branch
@@ -167,11 +202,11 @@ def test_sensors_switch_when_the_geometry_says():
         assert rise.blocked and not fall.blocked
         assert rise.t_ns * 1e-9 == pytest.approx((x_e - p.induct_x) / v, abs=2e-9)
         assert fall.t_ns * 1e-9 == pytest.approx((x_e - p.induct_x + A) / v, abs=2e-9)
-    read, = [e for e in events if isinstance(e, LabelRead)]
+    (read,) = [e for e in events if isinstance(e, LabelRead)]
     assert read.label == 'P1' and read.parcel_id == 1
     assert read.t_ns * 1e-9 == pytest.approx((p.scanner_x - p.induct_x) / v, abs=2e-9)
     # with the disks down it goes straight on, unturned
-    out, = outcomes_of(events)
+    (out,) = outcomes_of(events)
     assert out.exit == 'straight' and out.label == 'P1'
     assert out.t_ns * 1e-9 == pytest.approx((p.exit_x - (p.induct_x - A / 2)) / v, abs=2e-9)
     assert out.y == pytest.approx(0.1, abs=1e-15)
@@ -180,16 +215,25 @@ def test_sensors_switch_when_the_geometry_says():
 
 
 def _diversion_reference(A, B, m, alpha, b):
-    """The model core on one parcel: leading edge on the a/b border, disks up, to y = w/2.
+    """
+    Return the model core on one parcel: leading edge on the a/b border, disks up, to y = w/2.
 
     Returns the time the centre of gravity reaches y = w/2, the state there, and the time
     the footprint first reaches past y = w/2 (from the trajectory at 0.1 ms steps, linearly
     interpolated: the reference for the chute-entry sensor's rising edge).
     """
     law = FrictionLaw('const1', (MU,))
-    res = simulate(Parcel(A, B, m), three_zone_strips(1.5, alpha, b, law, law),
-                   [-A / 2, 0.0, 0.0, 1.5, 0.0, 0.0], (0.0, 5.0), 'accurate', rtol=1e-10,
-                   atol=1e-12, y_target=0.35, h_max=1e-4)
+    res = simulate(
+        Parcel(A, B, m),
+        three_zone_strips(1.5, alpha, b, law, law),
+        [-A / 2, 0.0, 0.0, 1.5, 0.0, 0.0],
+        (0.0, 5.0),
+        'accurate',
+        rtol=1e-10,
+        atol=1e-12,
+        y_target=0.35,
+        h_max=1e-4,
+    )
     phi = res.y[:, 2]
     reach = res.y[:, 1] + 0.5 * (A * np.abs(np.sin(phi)) + B * np.abs(np.cos(phi))) - 0.35
     j = int(np.argmax(reach > 0.0))
@@ -205,11 +249,12 @@ def test_raised_disks_divert_as_the_model_core_predicts(alpha_deg, chute):
     assert cell.popup(True)[0]
     cell.induct(ParcelSpec(A, B, m, 0.0, 0.0, 'D'))
     events = cell.advance(4000)
-    out, = outcomes_of(events)
+    (out,) = outcomes_of(events)
     assert out.exit == chute
-    t_ref, y_ref, t_corner = _diversion_reference(A, B, m, math.radians(abs(alpha_deg)),
-                                                  p.disk_field_length)
-    t_at_field = -p.induct_x / p.belt_speed    # leading edge from induct_x to the disk field
+    t_ref, y_ref, t_corner = _diversion_reference(
+        A, B, m, math.radians(abs(alpha_deg)), p.disk_field_length
+    )
+    t_at_field = -p.induct_x / p.belt_speed  # leading edge from induct_x to the disk field
     assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=1e-8)
     assert out.x == pytest.approx(y_ref[0], abs=1e-8)
     # the chute-entry sensor of that side: blocked when the footprint first reaches past the
@@ -275,7 +320,7 @@ def test_wall_and_parcel_jams_stop_the_parcels_until_reset():
     cell.popup(True)
     cell.induct(ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.2, 'W'))
     events = cell.advance(3000)
-    jam, = outcomes_of(events)
+    (jam,) = outcomes_of(events)
     assert jam.exit == 'jammed' and jam.jammed and jam.cause == 'side wall'
     assert cell.faults == ['jam']
     parked = cell.parcels()
@@ -284,7 +329,7 @@ def test_wall_and_parcel_jams_stop_the_parcels_until_reset():
     cell.popup(False)
     cell.induct(ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.2, 'N'))
     events = cell.advance(3000)
-    hit, = outcomes_of(events)
+    (hit,) = outcomes_of(events)
     assert hit.exit == 'jammed' and hit.cause == 'parcel 1' and hit.label == 'N'
     now = cell.parcels()
     np.testing.assert_array_equal(now['x'][:1], parked['x'])
@@ -303,8 +348,13 @@ def test_wall_and_parcel_jams_stop_the_parcels_until_reset():
 # ---------------------------------------------------------------- the parcel stream
 def test_gap_stream_keeps_its_gaps_and_is_reproducible():
     def run(seed):
-        cell = make_cell(arrival='gap', seed=seed, parcel_phi0_deg=[0.0, 0.0],
-                         arrival_gap=[0.4, 0.8], induct_x=-10.0)
+        cell = make_cell(
+            arrival='gap',
+            seed=seed,
+            parcel_phi0_deg=[0.0, 0.0],
+            arrival_gap=[0.4, 0.8],
+            induct_x=-10.0,
+        )
         cell.popup(True)
         events = cell.advance(12000)
         return cell, events
@@ -312,7 +362,7 @@ def test_gap_stream_keeps_its_gaps_and_is_reproducible():
     cell, events = run(7)
     p = cell.params
     parcels = cell.parcels()
-    upstream = parcels['x'] < -0.5      # still on the belt, before the disk field
+    upstream = parcels['x'] < -0.5  # still on the belt, before the disk field
     x, A = parcels['x'][upstream], parcels['A'][upstream]
     gaps = (x[:-1] - A[:-1] / 2) - (x[1:] + A[1:] / 2)
     assert len(gaps) >= 5
@@ -328,8 +378,9 @@ def test_gap_stream_keeps_its_gaps_and_is_reproducible():
 
 
 def test_rate_stream_never_inducts_closer_than_the_minimum_gap():
-    cell = make_cell(arrival='rate', arrival_rate=3.0, arrival_gap=[0.2, 0.2],
-                     parcel_phi0_deg=[0.0, 0.0])
+    cell = make_cell(
+        arrival='rate', arrival_rate=3.0, arrival_gap=[0.2, 0.2], parcel_phi0_deg=[0.0, 0.0]
+    )
     cell.advance(8000)
     parcels = cell.parcels()
     on_belt = parcels['x'] < -0.5

@@ -1,4 +1,5 @@
-"""The controller node against the real simulation node, in-process over real DDS.
+"""
+The controller node against the real simulation node, in-process over real DDS.
 
 Each test gets a fresh rclpy Context (fixture ``ros``) holding the simulation
 node (``sorter_sim``, as fast as possible in small slices), the controller
@@ -10,6 +11,7 @@ withholds a service (a stand-in server that stops answering). Outcomes are the
 cell's ground truth on ``sort/outcomes``; the controller's state and diagnostics
 come from its ``diagnostics`` topic.
 """
+
 from __future__ import annotations
 
 import math
@@ -31,11 +33,23 @@ pytestmark = pytest.mark.ros
 
 # as fast as possible, in 5 ms slices the executor interleaves with the controller: it sees
 # the cell within a slice of simulated time however loaded the machine is
-CELL = {"time_mode": "fast", "fast_slice": 0.005, "arrival": "none", "induct_x": -2.4,
-        "pose_rate_hz": 50.0, "parcel_phi0_deg": [0.0, 0.0], "parcel_y0": [0.0, 0.0]}
+CELL = {
+    "time_mode": "fast",
+    "fast_slice": 0.005,
+    "arrival": "none",
+    "induct_x": -2.4,
+    "pose_rate_hz": 50.0,
+    "parcel_phi0_deg": [0.0, 0.0],
+    "parcel_y0": [0.0, 0.0],
+}
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
-CONTROLLER = {"use_sim_time": True, "routing.rules": ROUTING, "diagnostics_period": 0.2,
-              "service_timeout": 0.3, "timing_margin": 0.03}
+CONTROLLER = {
+    "use_sim_time": True,
+    "routing.rules": ROUTING,
+    "diagnostics_period": 0.2,
+    "service_timeout": 0.3,
+    "timing_margin": 0.03,
+}
 
 
 def routed(label: str) -> str:
@@ -47,29 +61,57 @@ class Cell:
 
     def __init__(self, ros, sim=None, ctl=None, remaps=()):
         self.ros = ros
-        self.sim = ros.add(SimNode(context=ros.context, parameter_overrides=[
-            Parameter(k, value=v) for k, v in {**CELL, **(sim or {})}.items()]))
+        self.sim = ros.add(
+            SimNode(
+                context=ros.context,
+                parameter_overrides=[
+                    Parameter(k, value=v) for k, v in {**CELL, **(sim or {})}.items()
+                ],
+            )
+        )
         cli = ["--ros-args"] + [a for r in remaps for a in ("-r", r)] if remaps else None
-        self.ctl = ros.add(ControllerNode(context=ros.context, cli_args=cli, parameter_overrides=[
-            Parameter(k, value=v) for k, v in {**CONTROLLER, **(ctl or {})}.items()]))
+        self.ctl = ros.add(
+            ControllerNode(
+                context=ros.context,
+                cli_args=cli,
+                parameter_overrides=[
+                    Parameter(k, value=v) for k, v in {**CONTROLLER, **(ctl or {})}.items()
+                ],
+            )
+        )
         self.w = ros.make_node("watcher")
         self.outcomes: list[dict] = []
         self.confirmations: list[dict] = []
         self.labels: list[str] = []
-        self.status = None          # the controller's latest DiagnosticStatus
+        self.status = None  # the controller's latest DiagnosticStatus
         self.cell_status = None
         w = self.w
-        w.create_subscription(DiagnosticStatus, "sort/outcomes",
-                              lambda m: self.outcomes.append(_values(m)), EVENT_QOS)
-        w.create_subscription(DiagnosticStatus, "sort/confirmations",
-                              lambda m: self.confirmations.append(_values(m)), EVENT_QOS)
-        w.create_subscription(String, "scanner/label", lambda m: self.labels.append(m.data), EVENT_QOS)
+        w.create_subscription(
+            DiagnosticStatus,
+            "sort/outcomes",
+            lambda m: self.outcomes.append(_values(m)),
+            EVENT_QOS,
+        )
+        w.create_subscription(
+            DiagnosticStatus,
+            "sort/confirmations",
+            lambda m: self.confirmations.append(_values(m)),
+            EVENT_QOS,
+        )
+        w.create_subscription(
+            String, "scanner/label", lambda m: self.labels.append(m.data), EVENT_QOS
+        )
         w.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, STREAM_QOS)
         self.induct_pub = w.create_publisher(DiagnosticStatus, "parcels/induct", EVENT_QOS)
         self.route_pub = w.create_publisher(KeyValue, "routing/updates", EVENT_QOS)
-        ros.spin_until(lambda: self.ctl.logic is not None, 15.0, "the controller to read the cell and start")
-        ros.spin_until(lambda: self.status is not None and self.status.message == "running", 10.0,
-                       "the controller's diagnostics")
+        ros.spin_until(
+            lambda: self.ctl.logic is not None, 15.0, "the controller to read the cell and start"
+        )
+        ros.spin_until(
+            lambda: self.status is not None and self.status.message == "running",
+            10.0,
+            "the controller's diagnostics",
+        )
 
     def _on_diag(self, msg):
         for st in msg.status:
@@ -86,8 +128,15 @@ class Cell:
         return _values(self.status)[key]
 
     def induct(self, label: str, A: float = 0.4, B: float = 0.3) -> None:
-        self.induct_pub.publish(DiagnosticStatus(values=[
-            KeyValue(key="label", value=label), KeyValue(key="A", value=str(A)), KeyValue(key="B", value=str(B))]))
+        self.induct_pub.publish(
+            DiagnosticStatus(
+                values=[
+                    KeyValue(key="label", value=label),
+                    KeyValue(key="A", value=str(A)),
+                    KeyValue(key="B", value=str(B)),
+                ]
+            )
+        )
 
     def outcome(self, label: str):
         return next((o for o in self.outcomes if o["label"] == label), None)
@@ -96,13 +145,26 @@ class Cell:
         return next((c for c in self.confirmations if c["label"] == label), None)
 
     def wait_state(self, state: str, timeout: float = 10.0) -> None:
-        self.ros.spin_until(lambda: self.state == state, timeout, f"controller state {state} (now {self.state})")
+        self.ros.spin_until(
+            lambda: self.state == state, timeout, f"controller state {state} (now {self.state})"
+        )
 
     def start_stream(self) -> None:
         """Switch the cell's parcel stream on (over its set_parameters service)."""
-        r = self.call(SetParameters, "sorter_sim/set_parameters", SetParameters.Request(parameters=[
-            ParameterMsg(name="arrival", value=ParameterValue(type=ParameterType.PARAMETER_STRING,
-                                                              string_value="gap"))]))
+        r = self.call(
+            SetParameters,
+            "sorter_sim/set_parameters",
+            SetParameters.Request(
+                parameters=[
+                    ParameterMsg(
+                        name="arrival",
+                        value=ParameterValue(
+                            type=ParameterType.PARAMETER_STRING, string_value="gap"
+                        ),
+                    )
+                ]
+            ),
+        )
         assert r.results[0].successful, r.results[0].reason
 
     def call(self, srv_type, name: str, request):
@@ -120,17 +182,29 @@ def _popups(ctl):
 
 # --------------------------------------------------------------------------- sorting
 
+
 def test_mixed_stream_with_routing_table_has_zero_mis_sorts(ros):
     labels = ["A", "B", "C", "A", "D", "B", "A", "A", "C", "B"]
-    cell = Cell(ros, sim={"arrival_gap": [1.6, 1.9], "labels": labels,
-                          "parcel_A": [0.3, 0.5], "parcel_B": [0.2, 0.35], "induct_x": -2.2})
+    cell = Cell(
+        ros,
+        sim={
+            "arrival_gap": [1.6, 1.9],
+            "labels": labels,
+            "parcel_A": [0.3, 0.5],
+            "parcel_B": [0.2, 0.35],
+            "induct_x": -2.2,
+        },
+    )
     cell.start_stream()
     n = 8
     ros.spin_until(lambda: len(cell.outcomes) >= n, 40.0, f"{n} parcels to leave the cell")
     for o in cell.outcomes[:n]:
         assert o["exit"] == routed(o["label"]), o
-    ros.spin_until(lambda: all(cell.confirmation(o["label"]) for o in cell.outcomes[:n]), 5.0,
-                   "a confirmation for every parcel out")
+    ros.spin_until(
+        lambda: all(cell.confirmation(o["label"]) for o in cell.outcomes[:n]),
+        5.0,
+        "a confirmation for every parcel out",
+    )
     for o in cell.outcomes[:n]:
         c = cell.confirmation(o["label"])
         assert c["destination_reached"] == o["exit"] == c["destination_asked"]
@@ -141,23 +215,37 @@ def test_mixed_stream_with_routing_table_has_zero_mis_sorts(ros):
 
 def test_routing_update_after_the_scan_changes_the_destination(ros):
     cell = Cell(ros)
-    cell.induct("Q17")                          # no rule: the reject destination, straight
+    cell.induct("Q17")  # no rule: the reject destination, straight
     ros.spin_until(lambda: "Q17" in cell.labels, 10.0, "the scanner to read Q17")
     cell.route_pub.publish(KeyValue(key="Q17", value="left"))
     ros.spin_until(lambda: cell.outcome("Q17") is not None, 10.0, "Q17 to leave the cell")
     assert cell.outcome("Q17")["exit"] == "left"
     ros.spin_until(lambda: cell.confirmation("Q17") is not None, 5.0, "Q17's confirmation")
     c = cell.confirmation("Q17")
-    assert (c["destination_asked"], c["destination_reached"], c["result"]) == ("left", "left", "sorted")
+    assert (c["destination_asked"], c["destination_reached"], c["result"]) == (
+        "left",
+        "left",
+        "sorted",
+    )
 
 
 def test_too_short_gap_is_sent_straight_and_flagged(ros):
-    cell = Cell(ros, sim={"arrival_gap": [0.5, 0.5], "labels": ["A", "B"],
-                          "parcel_A": [0.4, 0.4], "parcel_B": [0.3, 0.3]})
+    cell = Cell(
+        ros,
+        sim={
+            "arrival_gap": [0.5, 0.5],
+            "labels": ["A", "B"],
+            "parcel_A": [0.4, 0.4],
+            "parcel_B": [0.3, 0.3],
+        },
+    )
     cell.start_stream()
     ros.spin_until(lambda: len(cell.outcomes) >= 6, 30.0, "6 parcels to leave the cell")
-    ros.spin_until(lambda: all(cell.confirmation(o["label"]) for o in cell.outcomes[:6]), 5.0,
-                   "their confirmations")
+    ros.spin_until(
+        lambda: all(cell.confirmation(o["label"]) for o in cell.outcomes[:6]),
+        5.0,
+        "their confirmations",
+    )
     flagged = 0
     for o in cell.outcomes[:6]:
         c = cell.confirmation(o["label"])
@@ -174,25 +262,30 @@ def test_too_short_gap_is_sent_straight_and_flagged(ros):
 
 # --------------------------------------------------------------------------- faults
 
+
 def test_jam_photo_eye_blocked_too_long(ros):
     cell = Cell(ros, remaps=["sensors/pe_divert:=forced/pe_divert"])
     forced = cell.w.create_publisher(Bool, "forced/pe_divert", SENSOR_QOS)
     held = []
 
-    def relay(msg):               # pass the eye through until it blocks, then hold it blocked
+    def relay(msg):  # pass the eye through until it blocks, then hold it blocked
         if held:
             return
         forced.publish(Bool(data=msg.data))
         if msg.data:
             held.append(True)
+
     cell.w.create_subscription(Bool, "sensors/pe_divert", relay, SENSOR_QOS)
     cell.induct("C1")
     cell.wait_state("jam", 15.0)
     assert "pe_divert" in cell.status.message and "blocked for" in cell.status.message
     assert cell.status.level == DiagnosticStatus.ERROR and cell.value("fault_jam") == "1"
     # the controller stopped the belt through the cell's e-stop
-    ros.spin_until(lambda: cell.cell_status is not None and _values(cell.cell_status)["estop"] == "true",
-                   5.0, "the cell's e-stop")
+    ros.spin_until(
+        lambda: cell.cell_status is not None and _values(cell.cell_status)["estop"] == "true",
+        5.0,
+        "the cell's e-stop",
+    )
     assert not any(e[1] is True for e in _popups(cell.ctl))
 
 
@@ -234,19 +327,20 @@ def test_diverter_service_withheld_times_out_without_retry(ros):
         answered.append(request.data)
         response.success, response.message = True, "ok"
         return response
+
     stand_in.create_service(SetBool, "withheld/popup", serve)
     # on the wall clock: the call's timeout is wall time, and a cell running as fast as possible
     # would let the parcel miss its chute (another fault) before the timeout
     cell = Cell(ros, sim={"time_mode": "realtime", "real_time_factor": 1.0}, **cell_kw)
     ros.spin_until(lambda: answered, 5.0, "the controller's first pop-up command")
-    ros.executor.remove_node(stand_in)          # from now on nobody answers
+    ros.executor.remove_node(stand_in)  # from now on nobody answers
     cell.induct("A4")
     cell.wait_state("diverter_timeout", 15.0)
     assert "not retried" in cell.status.message
     ros.spin_for(1.0)
     popups = _popups(cell.ctl)
-    assert [e[1] for e in popups] == [False, True]          # the raise went out once
-    assert popups[1][3] is None                              # and was never answered
+    assert [e[1] for e in popups] == [False, True]  # the raise went out once
+    assert popups[1][3] is None  # and was never answered
     assert cell.value("timeouts") == "1"
 
 
@@ -255,8 +349,11 @@ def test_estop_and_reset_through_the_controller(ros):
     ok = cell.call(SetBool, "/sorter_controller/estop", SetBool.Request(data=True))
     assert ok.success
     cell.wait_state("estop", 5.0)
-    ros.spin_until(lambda: cell.cell_status is not None and _values(cell.cell_status)["estop"] == "true",
-                   5.0, "the cell's e-stop")
+    ros.spin_until(
+        lambda: cell.cell_status is not None and _values(cell.cell_status)["estop"] == "true",
+        5.0,
+        "the cell's e-stop",
+    )
     refused = cell.call(SetBool, "/sorter_controller/estop", SetBool.Request(data=False))
     assert not refused.success and "reset" in refused.message
     ok = cell.call(Trigger, "/sorter_controller/reset", Trigger.Request())
@@ -271,12 +368,13 @@ def test_estop_and_reset_through_the_controller(ros):
 
 def test_estop_engaged_at_the_cell_is_seen(ros):
     cell = Cell(ros)
-    assert cell.call(SetBool, "estop", SetBool.Request(data=True)).success   # the operator's button
+    assert cell.call(SetBool, "estop", SetBool.Request(data=True)).success  # the operator's button
     cell.wait_state("estop", 5.0)
     assert cell.status.level == DiagnosticStatus.ERROR
 
 
 # --------------------------------------------------------------------------- bad input
+
 
 def test_bad_messages_change_nothing_and_the_node_survives(ros):
     cell = Cell(ros)
@@ -289,8 +387,11 @@ def test_bad_messages_change_nothing_and_the_node_survives(ros):
     joints.publish(JointState(name=["disk_angle"], position=[math.nan]))
     cell.route_pub.publish(KeyValue(key="A*", value="up"))
     cell.route_pub.publish(KeyValue(key="", value="left"))
-    ros.spin_until(lambda: int(cell.value("bad_messages")) >= 2 and int(cell.value("routing_rejected")) >= 2,
-                   5.0, "the bad messages to be counted")
+    ros.spin_until(
+        lambda: int(cell.value("bad_messages")) >= 2 and int(cell.value("routing_rejected")) >= 2,
+        5.0,
+        "the bad messages to be counted",
+    )
     assert cell.state == "running"
     assert cell.value("routing") == ";".join(ROUTING)
     cell.induct("A6")
@@ -300,31 +401,55 @@ def test_bad_messages_change_nothing_and_the_node_survives(ros):
 
 def test_parameters_validated_at_start_and_at_run_time(ros):
     with pytest.raises(ValueError, match="routing"):
-        ControllerNode(context=ros.context, parameter_overrides=[
-            Parameter("routing.rules", value=["A=up"]), Parameter("cell_node", value="")])
+        ControllerNode(
+            context=ros.context,
+            parameter_overrides=[
+                Parameter("routing.rules", value=["A=up"]),
+                Parameter("cell_node", value=""),
+            ],
+        )
     with pytest.raises(ValueError, match="photo_eyes"):
-        ControllerNode(context=ros.context, parameter_overrides=[
-            Parameter("photo_eyes.x", value=[-2.0]), Parameter("cell_node", value="")])
-    ctl = ros.add(ControllerNode(context=ros.context, parameter_overrides=[Parameter("cell_node", value="")]))
+        ControllerNode(
+            context=ros.context,
+            parameter_overrides=[
+                Parameter("photo_eyes.x", value=[-2.0]),
+                Parameter("cell_node", value=""),
+            ],
+        )
+    ctl = ros.add(
+        ControllerNode(context=ros.context, parameter_overrides=[Parameter("cell_node", value="")])
+    )
     w = ros.make_node("setter")
     client = w.create_client(SetParameters, "/sorter_controller/set_parameters")
 
     def set_param(name, pv):
-        return ros.call(client, SetParameters.Request(parameters=[ParameterMsg(name=name, value=pv)])).results[0]
+        return ros.call(
+            client, SetParameters.Request(parameters=[ParameterMsg(name=name, value=pv)])
+        ).results[0]
+
     before = ctl.logic.routing.rules()
-    r = set_param("routing.rules", ParameterValue(type=ParameterType.PARAMETER_STRING_ARRAY,
-                                                   string_array_value=["A=sideways"]))
+    r = set_param(
+        "routing.rules",
+        ParameterValue(
+            type=ParameterType.PARAMETER_STRING_ARRAY, string_array_value=["A=sideways"]
+        ),
+    )
     assert not r.successful and "sideways" in r.reason
-    r = set_param("scan_period", ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.02))
+    r = set_param(
+        "scan_period", ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.02)
+    )
     assert not r.successful and "read-only" in r.reason
     assert ctl.logic.routing.rules() == before
-    r = set_param("routing.rules", ParameterValue(type=ParameterType.PARAMETER_STRING_ARRAY,
-                                                   string_array_value=["Z*=right"]))
+    r = set_param(
+        "routing.rules",
+        ParameterValue(type=ParameterType.PARAMETER_STRING_ARRAY, string_array_value=["Z*=right"]),
+    )
     assert r.successful
     assert ctl.logic.routing.lookup("Z1") == ("right", "prefix")
 
 
 # --------------------------------------------------------------------------- the main job
+
 
 def test_sorter_demo_sorts_and_reports(tmp_path, capsys):
     import json
@@ -338,17 +463,22 @@ def test_sorter_demo_sorts_and_reports(tmp_path, capsys):
     assert summary["sorted_left"] >= 2 and summary["sorted_right"] >= 2
     out = summary["sorted_left"] + summary["sorted_right"] + summary["straight"]
     assert summary["inducted"] == out + summary["in_cell_at_end"]
-    assert summary["throughput_pcs_h"] == pytest.approx(3600.0 * out / summary["sim_time_s"], rel=1e-3)
+    assert summary["throughput_pcs_h"] == pytest.approx(
+        3600.0 * out / summary["sim_time_s"], rel=1e-3
+    )
     assert summary["controller_state"] == "running" and summary["late_decisions"] == 0
     assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.parametrize("argv, words", [
-    (["--sim-time", "0"], "--sim-time"),
-    (["--rtf", "warp"], "--rtf"),
-    (["--gap", "1.0", "0.5"], "--gap"),
-    (["--out", "paths.svg"], "--out"),
-])
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["--sim-time", "0"], "--sim-time"),
+        (["--rtf", "warp"], "--rtf"),
+        (["--gap", "1.0", "0.5"], "--gap"),
+        (["--out", "paths.svg"], "--out"),
+    ],
+)
 def test_sorter_demo_bad_arguments_exit_2(argv, words, capsys):
     from sorter_cell.cli import main
 

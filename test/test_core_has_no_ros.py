@@ -1,4 +1,5 @@
-"""The model core and the controller logic stay free of ROS.
+"""
+The model core and the controller logic stay free of ROS.
 
 sorter_sim/core/ and sorter_control/logic.py must be usable (and testable)
 without rclpy or any message package; the ROS nodes wrap them.
@@ -76,7 +77,8 @@ def test_checker_passes_ros_free_imports(source):
 
 
 @pytest.mark.parametrize(
-    'path', [p for p in ROS_FREE_FILES if p.exists()] or [None],
+    'path',
+    [p for p in ROS_FREE_FILES if p.exists()] or [None],
     ids=lambda p: 'no-files-yet' if p is None else str(p.relative_to(REPO)),
 )
 def test_ros_free_files_import_no_ros(path):
@@ -87,18 +89,24 @@ def test_ros_free_files_import_no_ros(path):
 
 
 def test_importing_all_of_core_loads_no_rclpy():
-    code = '\n'.join([
-        'import pkgutil, sys',
-        'import sorter_sim.core as core',
-        'names = [m.name for m in pkgutil.walk_packages(core.__path__, core.__name__ + ".")]',
-        'for name in names:',
-        '    __import__(name)',
-        'ros = sorted(m for m in sys.modules if m.split(".")[0] == "rclpy"',
-        '             or m.split(".")[0].endswith(("_msgs", "_srvs")))',
-        'assert not ros, f"importing sorter_sim.core loaded ROS modules: {ros}"',
-        'print(len(names))',
-    ])
+    code = '\n'.join(
+        [
+            'import pkgutil, sys',
+            'import sorter_sim.core as core',
+            'names = [m.name for m in pkgutil.walk_packages(core.__path__, core.__name__ + ".")]',
+            'for name in names:',
+            '    __import__(name)',
+            'ros = sorted(m for m in sys.modules if m.split(".")[0] == "rclpy"',
+            '             or m.split(".")[0].endswith(("_msgs", "_srvs")))',
+            'assert not ros, f"importing sorter_sim.core loaded ROS modules: {ros}"',
+            'print(len(names))',
+        ]
+    )
     result = subprocess.run(
-        [sys.executable, '-c', code], cwd=REPO, capture_output=True, text=True, timeout=300,
+        [sys.executable, '-c', code],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert result.returncode == 0, result.stderr

@@ -1,5 +1,10 @@
-"""Friction laws (Fig. 3), footprint geometry and the friction wrench, against closed forms
-and independent brute-force integrals."""
+"""
+Friction laws, footprint geometry and the friction wrench.
+
+Friction laws (Fig. 3), footprint geometry and the friction wrench, against closed forms
+and independent brute-force integrals.
+"""
+
 import math
 
 import numpy as np
@@ -32,7 +37,7 @@ def test_linear_and_polynomial_laws():
     assert fr.mu_kinetic(fr.LAW_LINEAR, lin, 10.0) == 0.0  # clipped, never negative
     poly = fr.law_row(fr.LAW_POLY, [0.65, -1.0, 0.0, 2.0])
     for v in (0.1, 0.5, 1.0):
-        assert fr.mu_kinetic(fr.LAW_POLY, poly, v) == pytest.approx(0.65 - v + 2 * v ** 3)
+        assert fr.mu_kinetic(fr.LAW_POLY, poly, v) == pytest.approx(0.65 - v + 2 * v**3)
 
 
 def test_stribeck_formula_of_the_seed():
@@ -58,10 +63,16 @@ def test_bspline_law_follows_its_curve():
     assert fr.mu_kinetic(fr.LAW_BSPLINE, row, 9.0) == pytest.approx(0.52)  # constant beyond
 
 
-@pytest.mark.parametrize("model,values", [
-    ("const2", [0.65, -0.1]), ("bspline", [0, 0.2, 0.1, 0.6, 1.5, 2.5, 0.6, 0.5, 0.4, 0.4, 0.5, 0.5]),
-    ("const1", [math.nan]), ("stribeck", [0.6, 0.3]), ("unknown", [1.0]),
-])
+@pytest.mark.parametrize(
+    "model,values",
+    [
+        ("const2", [0.65, -0.1]),
+        ("bspline", [0, 0.2, 0.1, 0.6, 1.5, 2.5, 0.6, 0.5, 0.4, 0.4, 0.5, 0.5]),
+        ("const1", [math.nan]),
+        ("stribeck", [0.6, 0.3]),
+        ("unknown", [1.0]),
+    ],
+)
 def test_bad_laws_are_refused_with_a_reason(model, values):
     with pytest.raises(ValueError, match="friction"):
         FrictionLaw(model, tuple(values))
@@ -122,7 +133,7 @@ def test_distance_integral_of_a_square_about_its_centre():
     a = 0.5
     poly, n = _clip(footprint(0.0, 0.0, 0.0, a, a), -math.inf, math.inf)
     i_r, gx, gy = distance_integrals(poly, n, 0.0, 0.0)
-    assert i_r == pytest.approx(a ** 3 * (math.sqrt(2) + math.asinh(1.0)) / 6, rel=1e-13)
+    assert i_r == pytest.approx(a**3 * (math.sqrt(2) + math.asinh(1.0)) / 6, rel=1e-13)
     assert abs(gx) < 1e-15 and abs(gy) < 1e-15  # symmetry
 
 
@@ -144,8 +155,13 @@ def _brute_wrench(A, B, phi, x, y, V, omega, vs, mu_of, lo=0.0, n=1500):
     return np.array([fx, fy, t])
 
 
-CASES = [((1.0, 0.2), 0.0), ((1.0, 0.2), 0.5), ((1.0, 0.2), 30.0), ((0.0, 1.0), 3.0),
-         ((0.0, 1.0 + 1e-9), -8.0)]
+CASES = [
+    ((1.0, 0.2), 0.0),
+    ((1.0, 0.2), 0.5),
+    ((1.0, 0.2), 30.0),
+    ((0.0, 1.0), 3.0),
+    ((0.0, 1.0 + 1e-9), -8.0),
+]
 
 
 @pytest.mark.parametrize("V,omega", CASES)
@@ -157,10 +173,28 @@ def test_closed_form_and_quadrature_wrench_against_a_fine_grid(V, omega):
     ux_q = V[0] - omega * (qy - y) - vs[0]
     uy_q = V[1] + omega * (qx - x) - vs[1]
     brute = _brute_wrench(A, B, phi, x, y, V, omega, vs, lambda s: 0.6 + 0 * s)
-    closed = np.array(strip_wrench_closed(poly, n, area, qx, qy, x, y, ux_q, uy_q, omega, 0.6, 1.0))
+    closed = np.array(
+        strip_wrench_closed(poly, n, area, qx, qy, x, y, ux_q, uy_q, omega, 0.6, 1.0)
+    )
     nodes, weights = gauss_legendre_01(12)
-    quad = np.array(strip_wrench_quad(poly, n, qx, qy, x, y, ux_q, uy_q, omega, fr.LAW_CONST1,
-                                      fr.law_row(fr.LAW_CONST1, [0.6]), 1.0, nodes, weights))
+    quad = np.array(
+        strip_wrench_quad(
+            poly,
+            n,
+            qx,
+            qy,
+            x,
+            y,
+            ux_q,
+            uy_q,
+            omega,
+            fr.LAW_CONST1,
+            fr.law_row(fr.LAW_CONST1, [0.6]),
+            1.0,
+            nodes,
+            weights,
+        )
+    )
     scale = 0.6 * area
     assert np.max(np.abs(closed - brute)) < 1e-6 * scale * 10
     assert np.max(np.abs(quad - closed)) < 1e-5 * scale
@@ -175,14 +209,26 @@ def test_quadrature_of_a_speed_dependent_law_converges_to_the_fine_grid():
     _, qx, qy = polygon_area_centroid(poly, n)
     ux_q = V[0] - omega * (qy - y) - vs[0]
     uy_q = V[1] + omega * (qx - x) - vs[1]
-    brute = _brute_wrench(A, B, phi, x, y, V, omega, vs,
-                          lambda s: fr.mu_kinetic_array(fr.LAW_BSPLINE, row, s.ravel()).reshape(s.shape),
-                          n=700)
+    brute = _brute_wrench(
+        A,
+        B,
+        phi,
+        x,
+        y,
+        V,
+        omega,
+        vs,
+        lambda s: fr.mu_kinetic_array(fr.LAW_BSPLINE, row, s.ravel()).reshape(s.shape),
+        n=700,
+    )
     errs = []
     for nq in (4, 8, 16):
         nodes, weights = gauss_legendre_01(nq)
-        q = np.array(strip_wrench_quad(poly, n, qx, qy, x, y, ux_q, uy_q, omega, fr.LAW_BSPLINE,
-                                       row, 1.0, nodes, weights))
+        q = np.array(
+            strip_wrench_quad(
+                poly, n, qx, qy, x, y, ux_q, uy_q, omega, fr.LAW_BSPLINE, row, 1.0, nodes, weights
+            )
+        )
         errs.append(np.max(np.abs(q - brute)))
     assert errs[2] < errs[0]
     assert errs[2] < 2e-6

@@ -1,9 +1,11 @@
-"""The layers of the code, as declared in setup.cfg's import-linter contracts.
+"""
+The layers of the code, as declared in setup.cfg's import-linter contracts.
 
 The first test checks the project as it is. The second proves the contracts can fail:
 a copy of the packages with one deliberate ``import rclpy`` in the model core must
 break the core's contract, and the PLC logic's too, which imports the core.
 """
+
 import os
 from pathlib import Path
 import shutil
@@ -17,8 +19,14 @@ LINT_IMPORTS = Path(sys.executable).parent / 'lint-imports'
 
 def _lint_imports(tree: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(tree))
-    return subprocess.run([str(LINT_IMPORTS), '--config', str(tree / 'setup.cfg'), '--no-cache'],
-                          cwd=tree, env=env, capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [str(LINT_IMPORTS), '--config', str(tree / 'setup.cfg'), '--no-cache'],
+        cwd=tree,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def test_every_layer_contract_is_kept():
@@ -29,16 +37,18 @@ def test_every_layer_contract_is_kept():
 
 def test_an_rclpy_import_in_the_core_breaks_its_contract(tmp_path):
     for pkg in PACKAGES:
-        shutil.copytree(ROOT / pkg, tmp_path / pkg,
-                        ignore=shutil.ignore_patterns('__pycache__'))
+        shutil.copytree(ROOT / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns('__pycache__'))
     shutil.copy(ROOT / 'setup.cfg', tmp_path / 'setup.cfg')
     friction = tmp_path / 'sorter_sim' / 'core' / 'friction.py'
     friction.write_text('import rclpy  # noqa: F401\n' + friction.read_text())
     out = _lint_imports(tmp_path)
     assert out.returncode == 1, out.stdout[-4000:]
     assert 'Contracts: 4 kept, 2 broken.' in out.stdout, out.stdout[-2000:]
-    assert 'The model core imports no ROS, no messages, no YAML and no node plumbing BROKEN' \
+    assert (
+        'The model core imports no ROS, no messages, no YAML and no node plumbing BROKEN'
         in out.stdout
-    assert "The controller's PLC logic and timing import no ROS and no messages BROKEN" \
-        in out.stdout
+    )
+    assert (
+        "The controller's PLC logic and timing import no ROS and no messages BROKEN" in out.stdout
+    )
     assert 'sorter_sim.core.friction -> rclpy' in out.stdout, out.stdout[-2000:]

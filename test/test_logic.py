@@ -1,9 +1,11 @@
-"""The sorter PLC logic without ROS: routing, timing from the model core, tracking, decisions, faults.
+"""
+The sorter PLC logic without ROS: routing, timing from the model core, tracking, decisions, faults.
 
 The plant is ``sorter_control.plant_stub.PlantStub`` (kinematic belt and disks);
 the divert timing comes from the real model core, checked here against the
 seed's Fig. 9 capacity and against closed forms of the spacing rules.
 """
+
 import math
 
 import numpy as np
@@ -19,7 +21,14 @@ from sorter_control.logic import (
     SorterLogic,
 )
 from sorter_control.plant_stub import PlantStub, run_cell
-from sorter_control.timing import Actuators, CellModel, DivertPredictor, GapModel, boxes_overlap, seed_capacity
+from sorter_control.timing import (
+    Actuators,
+    CellModel,
+    DivertPredictor,
+    GapModel,
+    boxes_overlap,
+    seed_capacity,
+)
 
 RULES = ("L*=left", "R*=right", "S*=straight", "VIP-1=right")
 # one predictor for the module: its cache is what a running controller keeps too
@@ -39,12 +48,13 @@ def safe_gap(logic, A=0.4):
 
 # --------------------------------------------------------------------------- routing
 
+
 def test_routing_exact_beats_prefix_and_longest_prefix_wins():
     rt = RoutingTable(["A*=left", "AB*=right", "ABC7=straight"], default="", reject="right")
     assert rt.lookup("ABC7") == ("straight", "exact")
     assert rt.lookup("ABX") == ("right", "prefix")
     assert rt.lookup("AX") == ("left", "prefix")
-    assert rt.lookup("Q1") == ("right", "unknown")        # to the reject destination
+    assert rt.lookup("Q1") == ("right", "unknown")  # to the reject destination
     assert rt.lookup(None) == ("right", "no_read")
     assert rt.lookup("") == ("right", "no_read")
 
@@ -54,22 +64,25 @@ def test_routing_default_and_runtime_updates():
     assert rt.lookup("Z9") == ("straight", "default")
     rt.set("Z9", "right")
     assert rt.lookup("Z9") == ("right", "exact")
-    rt.set("Z9", "")                                       # removed again
+    rt.set("Z9", "")  # removed again
     assert rt.lookup("Z9") == ("straight", "default")
-    rt.set("*", "")                                        # no default: unknown labels are rejected
+    rt.set("*", "")  # no default: unknown labels are rejected
     assert rt.lookup("Z9") == ("right", "unknown")
     rt.set("Z*", "left")
     assert rt.lookup("Z9") == ("left", "prefix")
     assert sorted(rt.rules()) == ["A*=left", "Z*=left"]
 
 
-@pytest.mark.parametrize("rule, words", [
-    ("A=up", "one of left, right, straight"),
-    ("no_equals", "label=destination"),
-    ("=left", "non-empty"),
-    ("A*B=left", "only at the end"),
-    (42, "label=destination"),
-])
+@pytest.mark.parametrize(
+    "rule, words",
+    [
+        ("A=up", "one of left, right, straight"),
+        ("no_equals", "label=destination"),
+        ("=left", "non-empty"),
+        ("A*B=left", "only at the end"),
+        (42, "label=destination"),
+    ],
+)
 def test_routing_rejects_bad_rules_with_a_reason(rule, words):
     with pytest.raises(RoutingError, match=words):
         RoutingTable([rule])
@@ -84,21 +97,25 @@ def test_routing_update_that_is_bad_changes_nothing():
     assert any("sideways" in text for _, text in out.log)
 
 
-@pytest.mark.parametrize("kw, words", [
-    ({"scan_period": 0.0}, "scan_period"),
-    ({"belt_speed": math.nan}, "belt_speed"),
-    ({"divert_alpha_deg": 120.0}, "divert_alpha_deg"),
-    ({"photo_eyes": (("pe_scan", -0.1), ("pe_divert", -0.3))}, "scanner < divert eye"),
-    ({"scan_eye": "nope"}, "not among photo_eyes"),
-    ({"routing_rules": ("A=up",)}, "one of left"),
-    ({"reject_destination": "bin"}, "reject destination"),
-])
+@pytest.mark.parametrize(
+    "kw, words",
+    [
+        ({"scan_period": 0.0}, "scan_period"),
+        ({"belt_speed": math.nan}, "belt_speed"),
+        ({"divert_alpha_deg": 120.0}, "divert_alpha_deg"),
+        ({"photo_eyes": (("pe_scan", -0.1), ("pe_divert", -0.3))}, "scanner < divert eye"),
+        ({"scan_eye": "nope"}, "not among photo_eyes"),
+        ({"routing_rules": ("A=up",)}, "one of left"),
+        ({"reject_destination": "bin"}, "reject destination"),
+    ],
+)
 def test_config_rejects_bad_values_naming_them(kw, words):
     with pytest.raises(ValueError, match=words):
         ControllerConfig(**kw)
 
 
-# --------------------------------------------------------------------------- timing from the model core
+# ------------------------------------------------------------------ timing from the model core
+
 
 def test_seed_capacity_fig9a():
     # seed section 5: v = 1.5 m/s, A = 0.7 m, alpha = 90 deg, B = 0.2 m, b -> inf: about 3600 pcs/h
@@ -125,7 +142,7 @@ def test_prediction_mirrors_for_the_other_chute_and_rounds_length_up():
     assert right.t_commit == left.t_commit
     np.testing.assert_allclose(right.trajectory[:, 2], -left.trajectory[:, 2])
     runs = PREDICTOR.n_runs
-    assert PREDICTOR.predict(0.3951, 1.5, 90.0) is left      # cached: 0.3951 m rounds up to 0.40
+    assert PREDICTOR.predict(0.3951, 1.5, 90.0) is left  # cached: 0.3951 m rounds up to 0.40
     assert PREDICTOR.n_runs == runs
     assert PREDICTOR.key_length(0.4001) == pytest.approx(0.41)
 
@@ -148,8 +165,13 @@ def test_boxes_overlap_separating_axes():
 
 
 def test_spacing_rules_closed_forms():
-    act = Actuators(popup_stroke_time=0.1, alpha_slew_rate_deg_s=360.0, scan_period=0.01, latency=0.005,
-                    margin=0.02)
+    act = Actuators(
+        popup_stroke_time=0.1,
+        alpha_slew_rate_deg_s=360.0,
+        scan_period=0.01,
+        latency=0.005,
+        margin=0.02,
+    )
     gm = GapModel(PREDICTOR, act, divert_alpha_deg=90.0, clearance=0.02)
     A, v, b = 0.4, 1.5, CellModel().disk_field_length
     pr = PREDICTOR.predict(A, v, 90.0)
@@ -168,39 +190,69 @@ def test_spacing_rules_closed_forms():
 
 # --------------------------------------------------------------------------- edge detection
 
+
 def test_edges_use_latched_stamps_and_catch_short_pulses():
     cfg, logic, _ = make()
     logic.scan(InputImage(t=0.0, bits={"pe_divert": False}))
     # a bit change with its latched stamp: the stamp is the edge time
     logic.t = 0.01
-    edges = logic._detect_edges(InputImage(t=0.01, bits={"pe_divert": True},
-                                           edges=[Edge("pe_divert", 0.0042, True)]))
+    edges = logic._detect_edges(
+        InputImage(t=0.01, bits={"pe_divert": True}, edges=[Edge("pe_divert", 0.0042, True)])
+    )
     assert edges == [Edge("pe_divert", 0.0042, True)]
     # no stamp (the latched edge has not arrived): the scan time
     logic.t = 0.02
-    assert logic._detect_edges(InputImage(t=0.02, bits={"pe_divert": False})) == [Edge("pe_divert", 0.02, False)]
+    assert logic._detect_edges(InputImage(t=0.02, bits={"pe_divert": False})) == [
+        Edge("pe_divert", 0.02, False)
+    ]
     # blocked and cleared inside one scan: the bits agree, the latched pair tells
     logic.t = 0.03
-    pulse = logic._detect_edges(InputImage(t=0.03, bits={"pe_divert": False},
-                                           edges=[Edge("pe_divert", 0.022, True), Edge("pe_divert", 0.027, False)]))
+    pulse = logic._detect_edges(
+        InputImage(
+            t=0.03,
+            bits={"pe_divert": False},
+            edges=[Edge("pe_divert", 0.022, True), Edge("pe_divert", 0.027, False)],
+        )
+    )
     assert [(e.t, e.rising) for e in pulse] == [(0.022, True), (0.027, False)]
     # a latched edge the bit does not show (a forced input) is not an edge
     logic.t = 0.04
-    assert logic._detect_edges(InputImage(t=0.04, bits={"pe_divert": False},
-                                          edges=[Edge("pe_divert", 0.035, True)])) == []
+    assert (
+        logic._detect_edges(
+            InputImage(t=0.04, bits={"pe_divert": False}, edges=[Edge("pe_divert", 0.035, True)])
+        )
+        == []
+    )
 
 
 # --------------------------------------------------------------------------- sorting a stream
 
+
 def test_mixed_stream_sorts_with_zero_mis_sorts():
     cfg, logic, plant = make()
     g = safe_gap(logic)
-    items = [("L1", 0.4, 0.0), ("R1", 0.5, g), ("S1", 0.3, g), ("X9", 0.4, g), ("L2", 0.6, g),
-             ("VIP-1", 0.4, g), (None, 0.4, g), ("R7", 0.35, g)]
+    items = [
+        ("L1", 0.4, 0.0),
+        ("R1", 0.5, g),
+        ("S1", 0.3, g),
+        ("X9", 0.4, g),
+        ("L2", 0.6, g),
+        ("VIP-1", 0.4, g),
+        (None, 0.4, g),
+        ("R7", 0.35, g),
+    ]
     parcels = plant.add_stream(items)
     run = run_cell(plant, logic, 14.0)
-    want = {"L1": "left", "R1": "right", "S1": "straight", "X9": "straight", "L2": "left",
-            "VIP-1": "right", None: "straight", "R7": "right"}
+    want = {
+        "L1": "left",
+        "R1": "right",
+        "S1": "straight",
+        "X9": "straight",
+        "L2": "left",
+        "VIP-1": "right",
+        None: "straight",
+        "R7": "right",
+    }
     assert plant.collisions == 0
     for p in parcels:
         assert p.exit == want[p.label], p
@@ -219,7 +271,11 @@ def test_disks_fully_up_at_entry_for_diverts_and_down_for_straight():
     parcels = plant.add_stream([("L1", 0.4, 0.0), ("S1", 0.4, g), ("R1", 0.4, g), ("L2", 0.4, g)])
     run_cell(plant, logic, 9.0)
     at_entry = plant.stroke_at_entry
-    assert at_entry[parcels[0].id] == 1.0 and at_entry[parcels[2].id] == 1.0 and at_entry[parcels[3].id] == 1.0
+    assert (
+        at_entry[parcels[0].id] == 1.0
+        and at_entry[parcels[2].id] == 1.0
+        and at_entry[parcels[3].id] == 1.0
+    )
     assert at_entry[parcels[1].id] == 0.0
 
 
@@ -235,6 +291,7 @@ def test_measured_length_and_resync_at_the_divert_eye():
             if "pe_divert" in p.confirmed and "lead" not in seen:
                 seen["lead"] = logic_.lead_x(p)
                 seen["true_lead"] = plant_.parcels[0].x + 0.5 * 0.437
+
     run_cell(plant, logic, 2.0, on_scan=watch)
     assert seen["length"] == pytest.approx(0.437, abs=plant.v * plant.dt)
     assert seen["lead"] == pytest.approx(seen["true_lead"], abs=plant.v * plant.dt)
@@ -253,14 +310,20 @@ def test_raise_and_lower_times_compensate_stroke_and_scan():
     # ahead of the entry: even from the last possible scan the stroke ends before it
     lead = cfg.popup_stroke_time + cfg.scan_period + cfg.service_latency + cfg.timing_margin
     assert t_enter - lead - 1e-9 <= t_raise <= t_enter - lead + cfg.scan_period + 1e-9
-    assert t_raise + cfg.popup_stroke_time + cfg.service_latency <= t_enter - cfg.timing_margin + 1e-9
-    assert t_enter + pr.t_commit - 1e-9 <= t_lower <= t_enter + pr.t_commit + cfg.scan_period + 2 * plant.dt
+    assert (
+        t_raise + cfg.popup_stroke_time + cfg.service_latency <= t_enter - cfg.timing_margin + 1e-9
+    )
+    assert (
+        t_enter + pr.t_commit - 1e-9
+        <= t_lower
+        <= t_enter + pr.t_commit + cfg.scan_period + 2 * plant.dt
+    )
 
 
 def test_routing_update_after_the_scan_changes_the_destination():
     cfg, logic, plant = make()
     plant.add_stream([("L5", 0.4, 0.0)])
-    run = run_cell(plant, logic, 0.5)               # scanned, tracked, not yet decided
+    run = run_cell(plant, logic, 0.5)  # scanned, tracked, not yet decided
     assert logic.parcels and logic.parcels[0].label == "L5" and not logic.parcels[0].committed
     logic.update_route("L5", "right")
     run = run_cell(plant, logic, 3.0, run)
@@ -296,7 +359,7 @@ def test_close_same_side_followers_ride_the_raised_disks():
 
 
 def test_same_side_pair_refused_when_the_scanner_cannot_see_behind_it():
-    cfg, logic, plant = make()        # scanner 2 m upstream of the field
+    cfg, logic, plant = make()  # scanner 2 m upstream of the field
     g = logic.min_gap(0.4)["left->left"] + 0.05
     parcels = plant.add_stream([("L1", 0.4, 0.0), ("L2", 0.4, g)])
     run = run_cell(plant, logic, 4.0)
@@ -319,14 +382,20 @@ def test_mis_sort_is_detected_at_the_chute():
     plant.add_stream([("S1", 0.4, 0.0)])
 
     def raise_disks(plant_, logic_):
-        plant_.stroke_target, plant_.alpha_target = 1.0, 90.0     # someone else raised them
+        plant_.stroke_target, plant_.alpha_target = 1.0, 90.0  # someone else raised them
+
     run = run_cell(plant, logic, 3.0, on_scan=raise_disks)
     (c,) = run.confirmations
-    assert (c.destination_asked, c.destination_reached, c.result) == ("straight", "left", "mis-sorted")
+    assert (c.destination_asked, c.destination_reached, c.result) == (
+        "straight",
+        "left",
+        "mis-sorted",
+    )
     assert logic.counts["mis_sorted"] == 1
 
 
 # --------------------------------------------------------------------------- faults
+
 
 def _no_raise_after(run, t0):
     return not any(k == "popup" and v is True and t > t0 for t, k, v in run.commands)
@@ -344,11 +413,12 @@ def test_jam_photo_eye_blocked_too_long():
     def hold(plant_, logic_):
         p = parcels[0]
         if p.x >= cfg.eyes["pe_divert"]:
-            p.held = True                          # stuck under the divert eye
+            p.held = True  # stuck under the divert eye
+
     run = run_cell(plant, logic, 6.0, on_scan=hold)
     assert logic.state == "jam" and logic.fault["sensor"] == "pe_divert"
     assert "blocked for" in logic.fault["message"]
-    assert ("estop" in [k for _, k, _ in run.commands])     # the belt is stopped
+    assert "estop" in [k for _, k, _ in run.commands]  # the belt is stopped
     assert _no_raise_after(run, _fault_time(run, "jam"))
     assert logic.status()["faults"]["jam"] == 1
 
@@ -369,7 +439,7 @@ def test_stuck_off_photo_eye_misses_a_tracked_parcel():
     run = run_cell(plant, logic, 4.0)
     assert logic.state == "stuck_off" and logic.fault["sensor"] == "pe_divert"
     assert "should have blocked" in logic.fault["message"]
-    assert _no_raise_after(run, 0.0)               # decided after the fault: no divert
+    assert _no_raise_after(run, 0.0)  # decided after the fault: no divert
     assert plant.parcels[0].exit == "straight"
     assert run.confirmations[0].result == "fault"
 
@@ -381,7 +451,9 @@ def test_stuck_off_exit_eye_misses_a_straight_parcel():
     run = run_cell(plant, logic, 4.0)
     assert logic.state == "stuck_off" and logic.fault["sensor"] == "pe_exit"
     # the parcel itself had already been confirmed straight
-    assert [(c.destination_reached, c.result) for c in run.confirmations] == [("straight", "sorted")]
+    assert [(c.destination_reached, c.result) for c in run.confirmations] == [
+        ("straight", "sorted")
+    ]
 
 
 def test_stuck_off_scanner_eye_label_without_blocking():
@@ -412,7 +484,7 @@ def test_diverter_timeout_is_not_retried():
     run = run_cell(plant, logic, 8.0)
     assert logic.state == "diverter_timeout"
     popups = [v for _, k, v in run.commands if k == "popup"]
-    assert len(popups) == 1                          # the first call only; nothing after it
+    assert len(popups) == 1  # the first call only; nothing after it
     assert "not retried" in logic.fault["message"]
 
 
@@ -423,7 +495,7 @@ def test_diverter_timeout_during_another_fault_stops_all_diverter_calls():
     run = run_cell(plant, logic, 2.0, run)
     assert logic.state == "stuck_on"
     plant.withheld.add("popup")
-    logic.commanded_up = True              # as if a raise had been the last word
+    logic.commanded_up = True  # as if a raise had been the last word
     run = run_cell(plant, logic, 4.0, run)
     # the lowering timed out: one call, then silence, though the state still wants the disks down
     assert [v for t, k, v in run.commands if k == "popup" and t > 2.0] == [False]
@@ -433,7 +505,7 @@ def test_diverter_timeout_during_another_fault_stops_all_diverter_calls():
     logic.request_reset()
     run = run_cell(plant, logic, 4.2, run)
     assert logic.state == "running"
-    assert [v for t, k, v in run.commands if k == "popup" and t > 4.0] == [False]   # written afresh
+    assert [v for t, k, v in run.commands if k == "popup" and t > 4.0] == [False]  # written afresh
 
 
 def test_diverter_refused():
@@ -471,7 +543,7 @@ def test_estop_reported_by_the_cell_and_refusal_reasons():
     run_cell(plant, logic, 0.2, run)
     assert logic.state == "estop"
     cfg2, logic2, _ = make()
-    out = logic2.scan(InputImage(t=0.0))            # the first scan writes the disks down
+    out = logic2.scan(InputImage(t=0.0))  # the first scan writes the disks down
     (cmd,) = [c for c in out.commands if c.kind == "popup"]
     assert cmd.value is False
     logic2.scan(InputImage(t=0.01, replies=[Reply(cmd.id, False, "e-stop active: use reset")]))
@@ -487,9 +559,9 @@ def test_cell_status_older_than_the_last_reset_is_ignored():
     (cmd,) = [c for c in out.commands if c.kind == "reset"]
     logic.scan(InputImage(t=1.02, replies=[Reply(cmd.id, True, "cleared estop")]))
     assert logic.state == "running"
-    logic.scan(InputImage(t=1.03, cell_estop=True, cell_status_t=1.0))     # sent before the reset
+    logic.scan(InputImage(t=1.03, cell_estop=True, cell_status_t=1.0))  # sent before the reset
     assert logic.state == "running"
-    logic.scan(InputImage(t=1.04, cell_estop=True, cell_status_t=1.035))   # a new e-stop
+    logic.scan(InputImage(t=1.04, cell_estop=True, cell_status_t=1.035))  # a new e-stop
     assert logic.state == "estop"
 
 
@@ -511,7 +583,7 @@ def test_no_diverts_while_faulted_parcels_go_straight():
     g = safe_gap(logic)
     parcels = plant.add_stream([("L1", 0.4, 0.0), ("R1", 0.4, g)])
     run = run_cell(plant, logic, 0.1)
-    plant.force("pe_exit", True)                    # stuck on: a fault unrelated to these parcels
+    plant.force("pe_exit", True)  # stuck on: a fault unrelated to these parcels
     run = run_cell(plant, logic, 6.0, run)
     assert logic.state == "stuck_on"
     assert [p.exit for p in parcels] == ["straight", "straight"]
@@ -522,10 +594,10 @@ def test_scan_statistics_and_overruns():
     cfg, logic, _ = make()
     logic.scan(InputImage(t=0.0))
     logic.scan(InputImage(t=0.01))
-    logic.scan(InputImage(t=0.03))                  # late, within the margin
-    logic.scan(InputImage(t=0.07))                  # later than the margin allows
+    logic.scan(InputImage(t=0.03))  # late, within the margin
+    logic.scan(InputImage(t=0.07))  # later than the margin allows
     logic.record_scan_wall(0.002)
-    logic.record_scan_wall(0.015)                   # longer than a scan period
+    logic.record_scan_wall(0.015)  # longer than a scan period
     st = logic.status()
     assert st["counts"]["late_scans"] == 1 and st["counts"]["overruns"] == 1
     assert st["counts"]["scans"] == 4

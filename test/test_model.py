@@ -1,4 +1,5 @@
 """The planar parcel model against closed forms, symmetries, invariants and the seed's results."""
+
 import math
 
 import numpy as np
@@ -20,7 +21,7 @@ METHODS = {
 
 
 def tol_scaled_error(y, y_ref, rtol, atol):
-    """scipy's test measure: error / (atol + rtol |y_ref|)."""
+    """Scipy's test measure: error / (atol + rtol |y_ref|)."""
     return np.max(np.abs(y - y_ref) / (atol + rtol * np.abs(y_ref)))
 
 
@@ -31,8 +32,8 @@ def test_parcel_on_the_disks_decelerates_at_mu_g_along_a_fixed_direction(method)
     disks = [Strip(-math.inf, math.inf, 0.0, v, CONST, 1.0, "b")]  # α = 90°, everywhere
     parcel = Parcel(0.5, 0.3, 4.0)
     y0 = np.array([0.0, 0.0, 0.3, v, 0.0, 0.0])
-    u0 = np.array([v, -v])                      # slip relative to the disks
-    t_stick = np.linalg.norm(u0) / (MU * G)     # uniform slip: |u| falls at μ g
+    u0 = np.array([v, -v])  # slip relative to the disks
+    t_stick = np.linalg.norm(u0) / (MU * G)  # uniform slip: |u| falls at μ g
     res = simulate(parcel, disks, y0, (0.0, 0.5), method, **METHODS[method])
     assert res.success, res.message
     a = -MU * G * u0 / np.linalg.norm(u0)
@@ -40,8 +41,8 @@ def test_parcel_on_the_disks_decelerates_at_mu_g_along_a_fixed_direction(method)
         i = int(np.argmin(np.abs(res.t - t_check)))
         t = res.t[i]
         tt = min(t, t_stick)
-        x_ref = v * tt + 0.5 * a[0] * tt ** 2 + 0.0 * (t - tt)
-        y_ref = 0.5 * a[1] * tt ** 2 + v * (t - tt)
+        x_ref = v * tt + 0.5 * a[0] * tt**2 + 0.0 * (t - tt)
+        y_ref = 0.5 * a[1] * tt**2 + v * (t - tt)
         tol = 1e-8 if method == "accurate" else 2e-4
         assert abs(res.y[i, 0] - x_ref) < tol, (method, t)
         assert abs(res.y[i, 1] - y_ref) < tol, (method, t)
@@ -60,7 +61,7 @@ def test_deceleration_converges_at_first_order_for_the_fixed_step_method():
     y0 = np.array([0.0, 0.0, 0.0, v, 0.0, 0.0])
     t_stick = math.sqrt(2) * v / (MU * G)
     a = MU * G / math.sqrt(2)
-    x_ref = v * t_stick - 0.5 * a * t_stick ** 2
+    x_ref = v * t_stick - 0.5 * a * t_stick**2
     errs = []
     for dt in (1e-2, 1e-3, 1e-4):
         r = simulate(parcel, disks, y0, (0.0, 0.4), "implicit", dt=dt)
@@ -108,9 +109,12 @@ def test_friction_never_adds_kinetic_energy_in_the_surface_frame(method):
     if method != "accurate":
         kw["dt"] = 1e-3
     res = simulate(parcel, belt, y0, (0.0, 0.4), method, **kw)
-    rel = 0.5 * parcel.m * ((res.y[:, 3] - v) ** 2 + res.y[:, 4] ** 2) + 0.5 * parcel.inertia * res.y[:, 5] ** 2
+    rel = (
+        0.5 * parcel.m * ((res.y[:, 3] - v) ** 2 + res.y[:, 4] ** 2)
+        + 0.5 * parcel.inertia * res.y[:, 5] ** 2
+    )
     assert np.all(np.diff(rel) <= 1e-12 * rel[0])
-    assert rel[-1] < 1e-12                       # and it comes to rest on the belt
+    assert rel[-1] < 1e-12  # and it comes to rest on the belt
     # the parcel never moves faster than what the surface can impart plus its start
     assert np.max(np.hypot(res.y[:, 3], res.y[:, 4])) <= np.hypot(y0[3], y0[4]) + 1e-12
 
@@ -188,7 +192,7 @@ def test_fig7_the_moment_shortens_the_distance_and_turns_the_parcel():
 def test_oscillator_first_stick_lasts_7_5_s_and_the_cycle_repeats():
     osc = Oscillator()
     phases = exact_phases(osc, 40.0)
-    assert phases[1][0] == pytest.approx(7.5)          # P = 0.2 t reaches F_stat = 1.5 N
+    assert phases[1][0] == pytest.approx(7.5)  # P = 0.2 t reaches F_stat = 1.5 N
     slides = [p[0] for p in phases if p[1] == "slide"]
     rests = [p[0] for p in phases if p[1] == "rest"]
     periods = np.diff(slides)
@@ -208,10 +212,19 @@ def test_oscillator_slide_against_an_independent_solver():
 
     def stops(t, y):
         return y[1]
+
     stops.terminal = True
     stops.direction = -1
-    sol = solve_ivp(f, (7.5, 20.0), [0.0, 0.0], method="DOP853", rtol=1e-12, atol=1e-14,
-                    events=stops, first_step=1e-6)
+    sol = solve_ivp(
+        f,
+        (7.5, 20.0),
+        [0.0, 0.0],
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-14,
+        events=stops,
+        first_step=1e-6,
+    )
     t_rest = sol.t_events[0][0]
     x_rest = sol.y_events[0][0][0]
     phases = exact_phases(osc, 20.0)
@@ -220,10 +233,13 @@ def test_oscillator_slide_against_an_independent_solver():
     assert phases[2][2] == pytest.approx(x_rest, abs=1e-9)
 
 
-@pytest.mark.parametrize("method,kw,tol", [
-    ("accurate", dict(rtol=1e-10, atol=1e-12), 1e-8),
-    ("implicit", dict(dt=1e-4), 2e-3),
-])
+@pytest.mark.parametrize(
+    "method,kw,tol",
+    [
+        ("accurate", dict(rtol=1e-10, atol=1e-12), 1e-8),
+        ("implicit", dict(dt=1e-4), 2e-3),
+    ],
+)
 def test_oscillator_methods_against_the_exact_solution(method, kw, tol):
     osc = Oscillator()
     ex = exact_solution(osc, 30.0, n=3001)
@@ -236,6 +252,7 @@ def test_oscillator_methods_against_the_exact_solution(method, kw, tol):
 def test_threshold_model_first_static_stage_depends_on_v_min():
     # the seed's Fig. 5: t_I (first F(3) stage) grows with v_min, later ones hardly
     from sorter_sim.core.oscillator import static_stage_durations
+
     osc = Oscillator()
     t1 = []
     later = []

@@ -1,7 +1,11 @@
-"""The seed's figures on coarse grids: its qualitative statements (sections 3, 5, 6, 7)
+"""
+The seed's figures on coarse grids.
+
+The seed's figures on coarse grids: its qualitative statements (sections 3, 5, 6, 7)
 and the closed forms some of them reduce to. Every number asserted here comes
 from the seed's text or from a closed form, never from an earlier run's output.
 """
+
 import math
 
 import numpy as np
@@ -26,7 +30,9 @@ def test_fig4_rows_of_eq_3_1_and_first_break_away():
     assert np.all(np.abs(v[row == 1]) > 0.0)
     # P = k v_s t reaches F_stat = 1.5 N at 7.5 s; then F(3) lasts until v = k v_s τ²/(2m) = v_min
     assert r.headline["first break-away (row 3 starts) [s]"] == pytest.approx(7.5, abs=2e-4)
-    assert r.data["durations"][0] == pytest.approx(math.sqrt(2 * 1.0 * 1e-3 / (2.0 * 0.1)), rel=0.01)
+    assert r.data["durations"][0] == pytest.approx(
+        math.sqrt(2 * 1.0 * 1e-3 / (2.0 * 0.1)), rel=0.01
+    )
 
 
 def test_fig5_first_static_stage_follows_v_min_later_ones_do_not():
@@ -70,10 +76,10 @@ def test_fig8_trends_of_x_o():
 
 def test_fig9_capacity_falls_with_alpha_and_length():
     r = paper.fig9(None, quick=True)
-    W = r.data["W"]            # [α = 90, 45, 30][v][A]
+    W = r.data["W"]  # [α = 90, 45, 30][v][A]
     assert np.all(W[0] > W[1]) and np.all(W[1] > W[2])
     assert np.all(np.diff(W, axis=2) < 0)
-    assert np.all(np.diff(W, axis=1) > 0)      # a faster belt scraps more per hour
+    assert np.all(np.diff(W, axis=1) > 0)  # a faster belt scraps more per hour
     # the seed reads about 3600 pcs/h at v = 1.5 m/s, A = 0.7 m, α = 90° off its plot
     assert r.data["ref_full"] == pytest.approx(3600, rel=0.05)
     assert r.data["ref_simple"] == pytest.approx(3600, rel=0.05)
@@ -109,12 +115,13 @@ def test_fig10_rubbing_components_and_stages():
 
 def test_fig11_minimal_width_falls_as_alpha_rises_and_is_a_sharp_threshold():
     r = paper.fig11(None, quick=True)
-    b = r.data["b_min"][:, 0, 0]          # α = 90, 45, 30 at v = 1.5, A = 0.4
+    b = r.data["b_min"][:, 0, 0]  # α = 90, 45, 30 at v = 1.5, A = 0.4
     assert b[0] < b[1] < b[2]
     # the root is where the criterion switches: just below it the field no longer scrapes
     for al, bm in zip(paper.ALPHAS, b):
         for width, expect in ((bm + 0.01, True), (bm - 0.02, False)):
             from sorter_sim.scene import run_scene
+
             res, _ = run_scene(paper.sorting_scene(A=0.4, v=1.5, alpha_deg=al, b=width, t_max=5.0))
             assert paper.scrapes_without_sliding(res, 1.5, al) is expect, (al, width)
 
@@ -177,15 +184,26 @@ def test_two_stage_shortens_the_final_field_at_30_degrees():
 
 def test_disk_fields_in_series_build_strips():
     law = paper.FrictionLaw("const1", (0.6,))
-    strips = two_stage.disk_field_strips(1.5, [two_stage.DiskField(1.0, 0.5, 30.0, "final"),
-                                               two_stage.DiskField(0.0, 0.3, 90.0, "pre")], law)
+    strips = two_stage.disk_field_strips(
+        1.5,
+        [two_stage.DiskField(1.0, 0.5, 30.0, "final"), two_stage.DiskField(0.0, 0.3, 90.0, "pre")],
+        law,
+    )
     assert [s.name for s in strips] == ["a", "pre", "belt", "final", "c"]
-    assert [(s.x_lo, s.x_hi) for s in strips] == [(-math.inf, 0.0), (0.0, 0.3), (0.3, 1.0),
-                                                  (1.0, 1.5), (1.5, math.inf)]
-    assert strips[1].vy == pytest.approx(1.5) and strips[3].vx == pytest.approx(1.5 * math.cos(math.pi / 6))
+    assert [(s.x_lo, s.x_hi) for s in strips] == [
+        (-math.inf, 0.0),
+        (0.0, 0.3),
+        (0.3, 1.0),
+        (1.0, 1.5),
+        (1.5, math.inf),
+    ]
+    assert strips[1].vy == pytest.approx(1.5) and strips[3].vx == pytest.approx(
+        1.5 * math.cos(math.pi / 6)
+    )
     with pytest.raises(ValueError, match="overlap"):
-        two_stage.disk_field_strips(1.5, [two_stage.DiskField(0.0, 1.0, 90.0),
-                                          two_stage.DiskField(0.5, 1.0, 30.0)], law)
+        two_stage.disk_field_strips(
+            1.5, [two_stage.DiskField(0.0, 1.0, 90.0), two_stage.DiskField(0.5, 1.0, 30.0)], law
+        )
 
 
 # ---------------------------------------------------------------- the command

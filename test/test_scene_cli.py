@@ -1,4 +1,5 @@
 """Scenes and the `sorter run` command line: validation, output and exit codes."""
+
 import json
 import math
 import os
@@ -16,8 +17,14 @@ SCENES = sorted((ROOT / "config" / "scenes").glob("*.yaml"))
 
 def sorter(*args, timeout=300):
     env = dict(os.environ)
-    return subprocess.run([sys.executable, "-m", "sorter_sim", *args], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "sorter_sim", *args],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 @pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
@@ -30,8 +37,20 @@ def test_run_json_has_the_documented_keys():
     r = sorter("run", "config/scenes/fig9a.yaml", "--json")
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
-    for key in ("t_scrap", "x_scrap", "phi_scrap_deg", "capacity_pcs_h", "stages", "final_state",
-                "method", "n_steps", "n_rhs", "n_events", "reductions", "wall_s"):
+    for key in (
+        "t_scrap",
+        "x_scrap",
+        "phi_scrap_deg",
+        "capacity_pcs_h",
+        "stages",
+        "final_state",
+        "method",
+        "n_steps",
+        "n_rhs",
+        "n_events",
+        "reductions",
+        "wall_s",
+    ):
         assert key in out
     assert set(out["stages"]) == {"E1", "E2", "E3"}
     assert out["capacity_pcs_h"] == pytest.approx(3600.0 / out["t_scrap"])
@@ -39,8 +58,17 @@ def test_run_json_has_the_documented_keys():
 
 
 def test_run_with_overrides_and_other_methods():
-    r = sorter("run", "config/scenes/fig7.yaml", "--set", "solver.method=implicit",
-               "--set", "solver.dt=1e-3", "--set", "model.rotation=false", "--json")
+    r = sorter(
+        "run",
+        "config/scenes/fig7.yaml",
+        "--set",
+        "solver.method=implicit",
+        "--set",
+        "solver.dt=1e-3",
+        "--set",
+        "model.rotation=false",
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert out["method"] == "implicit" and "no_rotation" in out["reductions"]
@@ -49,8 +77,11 @@ def test_run_with_overrides_and_other_methods():
 
 def test_negative_alpha_diverts_to_the_other_side():
     plus = json.loads(sorter("run", "config/scenes/fig7.yaml", "--json").stdout)
-    minus = json.loads(sorter("run", "config/scenes/fig7.yaml", "--set", "diverter.alpha_deg=-90",
-                              "--json").stdout)
+    minus = json.loads(
+        sorter(
+            "run", "config/scenes/fig7.yaml", "--set", "diverter.alpha_deg=-90", "--json"
+        ).stdout
+    )
     assert minus["t_scrap"] == pytest.approx(plus["t_scrap"], rel=1e-9)
     assert minus["final_state"]["y"] == pytest.approx(-plus["final_state"]["y"], rel=1e-9)
     assert minus["phi_scrap_deg"] == pytest.approx(-plus["phi_scrap_deg"], rel=1e-7)
@@ -84,13 +115,16 @@ def test_bad_overrides_exit_2_with_one_line_naming_the_key(override, named):
     assert r.stdout == ""
 
 
-@pytest.mark.parametrize("content,named", [
-    ("", "empty"),
-    ("parcel: [1, 2\n", "not valid YAML"),
-    ("- just\n- a list\n", "mapping"),
-    ("parcel: {A: 0.4}\nwheels: {n: 3}\n", "wheels"),
-    ("parcel: 3\n", "parcel"),
-])
+@pytest.mark.parametrize(
+    "content,named",
+    [
+        ("", "empty"),
+        ("parcel: [1, 2\n", "not valid YAML"),
+        ("- just\n- a list\n", "mapping"),
+        ("parcel: {A: 0.4}\nwheels: {n: 3}\n", "wheels"),
+        ("parcel: 3\n", "parcel"),
+    ],
+)
 def test_bad_scene_files_exit_2(tmp_path, content, named):
     f = tmp_path / "scene.yaml"
     f.write_text(content)

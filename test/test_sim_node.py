@@ -1,4 +1,5 @@
-"""The simulation node in-process: its interface, lock-step runs, commands, faults, namespaces.
+"""
+The simulation node in-process: its interface, lock-step runs, commands, faults, namespaces.
 
 Every test gets a fresh rclpy Context (fixture ``ros``), runs the cell in
 lock-step mode (one control period per ``step`` call) and talks to it only over
@@ -6,6 +7,7 @@ topics and services, as a controller would. Expected times are closed forms of
 the belt motion; the cell's physics is checked against the model core in
 test_cell.py.
 """
+
 from __future__ import annotations
 
 import math
@@ -34,9 +36,14 @@ pytestmark = pytest.mark.ros
 
 # a short cell so lock-step runs stay brief: induct 1.5 m before the disk field
 SHORT_CELL = {
-    'time_mode': 'lockstep', 'arrival': 'none', 'induct_x': -1.5, 'scanner_x': -1.0,
-    'photo_eyes.names': ['pe_scan', 'pe_divert', 'pe_exit'], 'photo_eyes.x': [-1.0, -0.3, 1.6],
-    'exit_x': 2.0, 'popup_stroke_time': 0.1,
+    'time_mode': 'lockstep',
+    'arrival': 'none',
+    'induct_x': -1.5,
+    'scanner_x': -1.0,
+    'photo_eyes.names': ['pe_scan', 'pe_divert', 'pe_exit'],
+    'photo_eyes.x': [-1.0, -0.3, 1.6],
+    'exit_x': 2.0,
+    'popup_stroke_time': 0.1,
 }
 SENSORS = ('pe_scan', 'pe_divert', 'pe_exit', 'chute_left', 'chute_right')
 TOPICS = {
@@ -55,9 +62,12 @@ TOPICS = {
 def make_sim(ros, namespace: str | None = None, cli_args=None, **overrides) -> SimNode:
     values = {**SHORT_CELL, **overrides}
     kwargs = {'namespace': namespace} if namespace else {}
-    node = SimNode(context=ros.context, cli_args=cli_args,
-                   parameter_overrides=[Parameter(k, value=v) for k, v in values.items()],
-                   **kwargs)
+    node = SimNode(
+        context=ros.context,
+        cli_args=cli_args,
+        parameter_overrides=[Parameter(k, value=v) for k, v in values.items()],
+        **kwargs,
+    )
     return ros.add(node)
 
 
@@ -71,19 +81,33 @@ class Probe:
         self.msgs = defaultdict(list)
         self.subs = []
         for topic, (msg_type, qos) in {**TOPICS, clock: (Clock, STREAM_QOS)}.items():
-            self.subs.append(self.node.create_subscription(
-                msg_type, topic, lambda m, t=topic: self.msgs[t].append(m), qos))
+            self.subs.append(
+                self.node.create_subscription(
+                    msg_type, topic, lambda m, t=topic: self.msgs[t].append(m), qos
+                )
+            )
         self.induct_pub = self.node.create_publisher(DiagnosticStatus, 'parcels/induct', EVENT_QOS)
-        self.clients = {name: self.node.create_client(srv, name) for name, srv in (
-            ('step', Trigger), ('reset', Trigger), ('estop', SetBool), ('diverter/popup', SetBool))}
+        self.clients = {
+            name: self.node.create_client(srv, name)
+            for name, srv in (
+                ('step', Trigger),
+                ('reset', Trigger),
+                ('estop', SetBool),
+                ('diverter/popup', SetBool),
+            )
+        }
         self.clock = clock
 
     def wait_connected(self, sim: SimNode) -> None:
         self.ros.spin_until(
-            lambda: all(s.get_publisher_count() > 0 for s in self.subs)
-            and self.induct_pub.get_subscription_count() > 0
-            and all(c.service_is_ready() for c in self.clients.values()),
-            10.0, 'the probe and the cell to discover each other')
+            lambda: (
+                all(s.get_publisher_count() > 0 for s in self.subs)
+                and self.induct_pub.get_subscription_count() > 0
+                and all(c.service_is_ready() for c in self.clients.values())
+            ),
+            10.0,
+            'the probe and the cell to discover each other',
+        )
 
     def call(self, name, request):
         return self.ros.call(self.clients[name], request)
@@ -106,15 +130,21 @@ class Probe:
         self.ros.spin_for(0.05)
 
     def induct(self, **values) -> None:
-        self.induct_pub.publish(DiagnosticStatus(
-            name='induct', values=[KeyValue(key=k, value=str(v)) for k, v in values.items()]))
+        self.induct_pub.publish(
+            DiagnosticStatus(
+                name='induct', values=[KeyValue(key=k, value=str(v)) for k, v in values.items()]
+            )
+        )
 
     def outcomes(self) -> list[dict]:
         return [{kv.key: kv.value for kv in m.values} for m in self.msgs['sort/outcomes']]
 
     def edges(self, sensor=None) -> list[tuple[str, float, str]]:
-        return [(m.header.frame_id, m.time_ref.sec + 1e-9 * m.time_ref.nanosec, m.source)
-                for m in self.msgs['sensors/edges'] if sensor in (None, m.header.frame_id)]
+        return [
+            (m.header.frame_id, m.time_ref.sec + 1e-9 * m.time_ref.nanosec, m.source)
+            for m in self.msgs['sensors/edges']
+            if sensor in (None, m.header.frame_id)
+        ]
 
 
 def _set_params(ros, probe, target: str, *params: ParameterMsg):
@@ -124,13 +154,14 @@ def _set_params(ros, probe, target: str, *params: ParameterMsg):
 
 def _get_param(ros, probe, target: str, name: str):
     client = probe.node.create_client(GetParameters, f'{target}/get_parameters')
-    value, = ros.call(client, GetParameters.Request(names=[name])).values
+    (value,) = ros.call(client, GetParameters.Request(names=[name])).values
     return value
 
 
 def _double(name, v):
-    return ParameterMsg(name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
-                                                        double_value=v))
+    return ParameterMsg(
+        name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=v)
+    )
 
 
 # ---------------------------------------------------------------- interface
@@ -139,26 +170,34 @@ def test_topics_services_and_types_are_as_documented(ros):
     probe = Probe(ros)
     probe.wait_connected(sim)
     topics = dict(probe.node.get_topic_names_and_types())
-    expected = {f'/{t}': f'{m.__module__.split(".")[0]}/msg/{m.__name__}'
-                for t, (m, _) in TOPICS.items()}
-    expected.update({'/parcels/markers': 'visualization_msgs/msg/MarkerArray',
-                     '/parcels/induct': 'diagnostic_msgs/msg/DiagnosticStatus',
-                     '/clock': 'rosgraph_msgs/msg/Clock'})
+    expected = {
+        f'/{t}': f'{m.__module__.split(".")[0]}/msg/{m.__name__}' for t, (m, _) in TOPICS.items()
+    }
+    expected.update(
+        {
+            '/parcels/markers': 'visualization_msgs/msg/MarkerArray',
+            '/parcels/induct': 'diagnostic_msgs/msg/DiagnosticStatus',
+            '/clock': 'rosgraph_msgs/msg/Clock',
+        }
+    )
     for name, type_name in expected.items():
         assert topics.get(name) == [type_name], name
     services = dict(probe.node.get_service_names_and_types())
-    for name, type_name in {'/diverter/popup': 'std_srvs/srv/SetBool',
-                            '/estop': 'std_srvs/srv/SetBool', '/reset': 'std_srvs/srv/Trigger',
-                            '/step': 'std_srvs/srv/Trigger',
-                            '/sorter_sim/set_parameters': 'rcl_interfaces/srv/SetParameters'
-                            }.items():
+    for name, type_name in {
+        '/diverter/popup': 'std_srvs/srv/SetBool',
+        '/estop': 'std_srvs/srv/SetBool',
+        '/reset': 'std_srvs/srv/Trigger',
+        '/step': 'std_srvs/srv/Trigger',
+        '/sorter_sim/set_parameters': 'rcl_interfaces/srv/SetParameters',
+    }.items():
         assert services.get(name) == [type_name], name
-    info, = probe.node.get_publishers_info_by_topic('/sensors/pe_divert')
+    (info,) = probe.node.get_publishers_info_by_topic('/sensors/pe_divert')
     assert info.qos_profile.durability == SENSOR_QOS.durability
     assert info.qos_profile.reliability == SENSOR_QOS.reliability
     # a late subscriber gets every sensor's current state (transient local)
-    ros.spin_until(lambda: all(probe.msgs[f'sensors/{s}'] for s in SENSORS), 5.0,
-                   'the latched sensor states')
+    ros.spin_until(
+        lambda: all(probe.msgs[f'sensors/{s}'] for s in SENSORS), 5.0, 'the latched sensor states'
+    )
     assert not any(probe.msgs[f'sensors/{s}'][-1].data for s in SENSORS)
     # ids right before each pose array, in the same order; diverter state at the pose rate
     probe.induct(label='T1', A=0.4, B=0.3)
@@ -178,7 +217,7 @@ def test_topics_services_and_types_are_as_documented(ros):
     assert (clock.sec, clock.nanosec) == (0, 20_000_000)
     # diagnostics once a second of wall time
     ros.spin_until(lambda: probe.msgs['diagnostics'], 3.0, 'diagnostics')
-    status, = probe.msgs['diagnostics'][-1].status
+    (status,) = probe.msgs['diagnostics'][-1].status
     values = {kv.key: kv.value for kv in status.values}
     assert values['parcels_in_cell'] == '1' and values['faults'] == 'none'
     assert {'real_time_factor', 'step_cost_us', 'publish_cost_us'} <= set(values)
@@ -223,7 +262,7 @@ def test_pose_stream_encoding_matches_the_ros_serializer():
     one.header.frame_id = 'cv'
     ref = serialize_message(one)
     mine = pose_array_cdr(0, 'cv', np.zeros(1), np.zeros(1), np.zeros(1))
-    assert len(mine) == len(ref) and mine[-56:] == ref[-56:]   # the pose, after padding
+    assert len(mine) == len(ref) and mine[-56:] == ref[-56:]  # the pose, after padding
 
 
 # ---------------------------------------------------------------- parcels through the cell
@@ -236,7 +275,7 @@ def test_lowered_disks_send_a_parcel_straight_and_sensors_switch_on_time(ros):
     probe.settle()
     probe.step(3000, until=lambda: probe.msgs['sort/outcomes'])
     probe.settle()
-    out, = probe.outcomes()
+    (out,) = probe.outcomes()
     assert out['exit'] == 'straight' and out['jammed'] == 'false' and out['label'] == 'STRAIGHT-1'
     assert probe.msgs['sort/outcomes'][0].level == DiagnosticStatus.OK
     assert probe.msgs['sort/outcomes'][0].name == 'parcel/1'
@@ -266,7 +305,7 @@ def test_disks_raised_at_the_right_time_divert_to_the_left_chute(ros):
     assert reply.success, reply.message
     probe.step(3000, until=lambda: probe.msgs['sort/outcomes'])
     probe.settle()
-    out, = probe.outcomes()
+    (out,) = probe.outcomes()
     assert out['exit'] == 'left', out
     assert float(out['y_exit']) == pytest.approx(0.35)
     assert 0.0 <= float(out['x_exit']) <= 1.3
@@ -282,28 +321,45 @@ def test_set_parameters_rejects_bad_disk_angles_and_changes_nothing(ros):
     probe = Probe(ros)
     probe.wait_connected(sim)
     bad = [
-        _double('alpha_deg', math.nan), _double('alpha_deg', math.inf),
-        _double('alpha_deg', -math.inf), _double('alpha_deg', 95.0), _double('alpha_deg', -90.5),
-        ParameterMsg(name='alpha_deg', value=ParameterValue(
-            type=ParameterType.PARAMETER_STRING, string_value='ninety')),
-        ParameterMsg(name='alpha_deg', value=ParameterValue(
-            type=ParameterType.PARAMETER_BOOL, bool_value=True)),
-        ParameterMsg(name='alpha_deg', value=ParameterValue(
-            type=ParameterType.PARAMETER_INTEGER, integer_value=45)),
+        _double('alpha_deg', math.nan),
+        _double('alpha_deg', math.inf),
+        _double('alpha_deg', -math.inf),
+        _double('alpha_deg', 95.0),
+        _double('alpha_deg', -90.5),
+        ParameterMsg(
+            name='alpha_deg',
+            value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value='ninety'),
+        ),
+        ParameterMsg(
+            name='alpha_deg',
+            value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=True),
+        ),
+        ParameterMsg(
+            name='alpha_deg',
+            value=ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=45),
+        ),
         _double('belt_speed', 1.0),
-        ParameterMsg(name='parcel_A', value=ParameterValue(
-            type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=[0.7, 0.3])),
-        ParameterMsg(name='parcel_A', value=ParameterValue(
-            type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=[0.3, math.nan])),
+        ParameterMsg(
+            name='parcel_A',
+            value=ParameterValue(
+                type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=[0.7, 0.3]
+            ),
+        ),
+        ParameterMsg(
+            name='parcel_A',
+            value=ParameterValue(
+                type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=[0.3, math.nan]
+            ),
+        ),
     ]
     for param in bad:
-        result, = _set_params(ros, probe, 'sorter_sim', param)
+        (result,) = _set_params(ros, probe, 'sorter_sim', param)
         assert not result.successful and result.reason, param
     assert _get_param(ros, probe, 'sorter_sim', 'alpha_deg').double_value == 90.0
     assert list(_get_param(ros, probe, 'sorter_sim', 'parcel_A').double_array_value) == [0.3, 0.7]
     assert sim.params.alpha_deg == 90.0 and sim.cell.act[1] == pytest.approx(math.pi / 2)
     # a good angle is taken, and the disks swing there at the slew rate
-    result, = _set_params(ros, probe, 'sorter_sim', _double('alpha_deg', 45.0))
+    (result,) = _set_params(ros, probe, 'sorter_sim', _double('alpha_deg', 45.0))
     assert result.successful
     probe.step(50)
     probe.settle()
@@ -321,8 +377,11 @@ def test_estop_refuses_commands_until_reset(ros):
     probe.settle()
     probe.step(100)
     # the latched state bits: all clear
-    ros.spin_until(lambda: all(probe.msgs[f'status/{b}'] for b in ('estop', 'jam', 'fault')),
-                   5.0, 'the latched state bits')
+    ros.spin_until(
+        lambda: all(probe.msgs[f'status/{b}'] for b in ('estop', 'jam', 'fault')),
+        5.0,
+        'the latched state bits',
+    )
     assert [probe.msgs[f'status/{b}'][-1].data for b in ('estop', 'jam', 'fault')] == [False] * 3
     reply = probe.call('estop', SetBool.Request(data=True))
     assert reply.success
@@ -331,7 +390,7 @@ def test_estop_refuses_commands_until_reset(ros):
     for request in (True, False):
         reply = probe.call('diverter/popup', SetBool.Request(data=request))
         assert not reply.success and 'e-stop' in reply.message
-    result, = _set_params(ros, probe, 'sorter_sim', _double('alpha_deg', 30.0))
+    (result,) = _set_params(ros, probe, 'sorter_sim', _double('alpha_deg', 30.0))
     assert not result.successful and 'e-stop' in result.reason
     reply = probe.call('estop', SetBool.Request(data=False))
     assert not reply.success and 'reset' in reply.message
@@ -349,7 +408,7 @@ def test_estop_refuses_commands_until_reset(ros):
     ros.spin_until(lambda: not probe.msgs['status/estop'][-1].data, 5.0, 'status/estop false')
     assert not probe.msgs['status/fault'][-1].data
     # sent on change only: one message per change, none repeating an old value
-    assert [m.data for m in probe.msgs['status/estop'][n_estop - 1:]] == [True, False]
+    assert [m.data for m in probe.msgs['status/estop'][n_estop - 1 :]] == [True, False]
     assert probe.call('diverter/popup', SetBool.Request(data=True)).success
     assert _set_params(ros, probe, 'sorter_sim', _double('alpha_deg', 30.0))[0].successful
     probe.step(50)
@@ -363,8 +422,11 @@ def test_step_is_refused_outside_lockstep_and_fast_mode_keeps_serving(ros):
     probe.wait_connected(sim)
     reply = probe.call('step', Trigger.Request())
     assert not reply.success and 'lockstep' in reply.message
-    ros.spin_until(lambda: probe.msgs['/clock'] and probe.msgs['/clock'][-1].clock.sec >= 2,
-                   30.0, 'two simulated seconds in fast mode')
+    ros.spin_until(
+        lambda: probe.msgs['/clock'] and probe.msgs['/clock'][-1].clock.sec >= 2,
+        30.0,
+        'two simulated seconds in fast mode',
+    )
     assert probe.call('diverter/popup', SetBool.Request(data=True)).success
     assert probe.msgs['scanner/label']
 
@@ -378,7 +440,7 @@ def test_realtime_mode_never_runs_ahead_of_the_wall_clock(ros):
     probe.wait_connected(sim)
     ros.spin_until(lambda: sim.cell.t > 0.2, 10.0, 'the realtime clock to run')
     assert sim.cell.t <= 4.0 * (time.monotonic() - t_wall0) + sim.cell.dt
-    result, = _set_params(ros, probe, 'sorter_sim', _double('real_time_factor', 0.5))
+    (result,) = _set_params(ros, probe, 'sorter_sim', _double('real_time_factor', 0.5))
     assert result.successful
     t_sim1, t_wall1 = sim.cell.t, time.monotonic()
     ros.spin_for(0.3)
@@ -390,8 +452,15 @@ def test_induct_messages_are_validated(ros):
     sim = make_sim(ros)
     probe = Probe(ros)
     probe.wait_connected(sim)
-    for values in ({'A': 'nan'}, {'colour': 'red'}, {'B': 'wide'}, {'y': '0.3', 'B': '0.3'},
-                   {'m': '-2'}, {'A': 'inf'}, {'phi0_deg': '120'}):
+    for values in (
+        {'A': 'nan'},
+        {'colour': 'red'},
+        {'B': 'wide'},
+        {'y': '0.3', 'B': '0.3'},
+        {'m': '-2'},
+        {'A': 'inf'},
+        {'phi0_deg': '120'},
+    ):
         probe.induct(**values)
     probe.settle()
     probe.step(10)
@@ -401,7 +470,7 @@ def test_induct_messages_are_validated(ros):
     probe.settle()
     probe.step(10)
     probe.settle()
-    pose, = probe.msgs['parcels/poses'][-1].poses
+    (pose,) = probe.msgs['parcels/poses'][-1].poses
     assert pose.position.y == pytest.approx(0.05)
     assert 2 * math.atan2(pose.orientation.z, pose.orientation.w) == pytest.approx(math.radians(5))
 
@@ -416,10 +485,13 @@ def _lockstep_run(ros, seed: int) -> dict:
     probe.step(1300)
     probe.settle()
     run = {
-        'edges': probe.edges(), 'labels': [m.data for m in probe.msgs['scanner/label']],
+        'edges': probe.edges(),
+        'labels': [m.data for m in probe.msgs['scanner/label']],
         'outcomes': probe.outcomes(),
-        'poses': [(p.position.x, p.position.y, p.orientation.z)
-                  for p in probe.msgs['parcels/poses'][-1].poses],
+        'poses': [
+            (p.position.x, p.position.y, p.orientation.z)
+            for p in probe.msgs['parcels/poses'][-1].poses
+        ],
     }
     for node in (probe.node, sim):
         ros.executor.remove_node(node)
@@ -464,12 +536,19 @@ def test_a_namespaced_second_cell_does_not_see_the_first(ros):
 
 
 # ---------------------------------------------------------------- start-up errors
-@pytest.mark.parametrize('name, value, match', [
-    ('belt_speed', math.nan, 'belt_speed'), ('belt_speed', 3.0, 'belt_speed'),
-    ('alpha_deg', 'ninety', 'alpha_deg'), ('alpha_deg', 45, 'alpha_deg'),
-    ('scanner_x', -1.2, 'pe_scan'), ('parcel_A', [0.9, 0.3], 'parcel_A'),
-    ('time_mode', 'slow', 'time_mode'), ('belt_sped', 1.0, 'belt_sped'),
-])
+@pytest.mark.parametrize(
+    'name, value, match',
+    [
+        ('belt_speed', math.nan, 'belt_speed'),
+        ('belt_speed', 3.0, 'belt_speed'),
+        ('alpha_deg', 'ninety', 'alpha_deg'),
+        ('alpha_deg', 45, 'alpha_deg'),
+        ('scanner_x', -1.2, 'pe_scan'),
+        ('parcel_A', [0.9, 0.3], 'parcel_A'),
+        ('time_mode', 'slow', 'time_mode'),
+        ('belt_sped', 1.0, 'belt_sped'),
+    ],
+)
 def test_bad_start_up_values_stop_the_node_with_a_clear_error(ros, name, value, match):
     with pytest.raises(ParamError, match=match):
         make_sim(ros, **{name: value})

@@ -1,9 +1,13 @@
-"""Stiff and extreme cases: the quick subset of the matrix, plus the references
+"""
+Stiff and extreme cases, and the references of the work-precision report.
+
+Stiff and extreme cases: the quick subset of the matrix, plus the references
 the work-precision report stands on, checked against closed forms and independent solvers.
 
 The full matrix, 10 minutes of two-belt positioning and the quick report run behind the
 ``slow`` marker. Bounds and tolerances are stated in ``sorter_sim.analysis.stiff_cases``.
 """
+
 from __future__ import annotations
 
 import subprocess
@@ -55,8 +59,9 @@ _QUICK = {(c.name, m) for c in sx.matrix(quick=True) for m in c.methods}
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name,method", [p for p in _matrix_params(quick=False)
-                                         if tuple(p.values) not in _QUICK])
+@pytest.mark.parametrize(
+    "name,method", [p for p in _matrix_params(quick=False) if tuple(p.values) not in _QUICK]
+)
 def test_full_matrix_case(name, method):
     _run_one(name, method, quick=False)
 
@@ -83,8 +88,12 @@ def test_two_belt_constant_mu_is_the_exact_harmonic_oscillator():
 
 
 def test_two_belt_bspline_against_the_independent_1d_ode():
-    """B-spline law: the planar model (clipping, quadrature wrench) against the 1-D ODE that
-    uses the friction law alone; and the oscillation decays."""
+    """
+    Check the B-spline two-belt case against the independent 1-D ODE.
+
+    B-spline law: the planar model (clipping, quadrature wrench) against the 1-D ODE that
+    uses the friction law alone; and the oscillation decays.
+    """
     case = sx.two_belt_case(sx.bspline_law(), 6.0)
     one_d = sx.two_belt_1d(case, sx.bspline_law())
     run = case.core("accurate", rtol=1e-10, atol=1e-12)
@@ -94,8 +103,12 @@ def test_two_belt_bspline_against_the_independent_1d_ode():
 
 
 def test_scipy_on_the_same_model_agrees_with_the_accurate_method():
-    """Fig. 9a: two independent integrators of the same hybrid model (the core's event-located
-    Dormand-Prince and solve_ivp with closed-form stick phases) agree far below 1e-6 m."""
+    """
+    Check two independent integrators of Fig. 9a against each other.
+
+    Fig. 9a: two independent integrators of the same hybrid model (the core's event-located
+    Dormand-Prince and solve_ivp with closed-form stick phases) agree far below 1e-6 m.
+    """
     case = sx.sorting_case()
     ref = case.core("accurate", rtol=1e-10, atol=1e-12)
     sp = ScipyParcel(case)
@@ -110,7 +123,9 @@ def test_scipy_oscillator_and_core_against_the_exact_fig4_solution():
     osc = Oscillator()
     ref = oscillator_exact(osc, 30.0)
     scipy_run = oscillator_scipy(osc, 30.0, "DOP853", 1e-10, 1e-12, dense=True)
-    core_run = oscillator_trajectory(osc, oscillator_core(osc, 30.0, "accurate", rtol=1e-10, atol=1e-12))
+    core_run = oscillator_trajectory(
+        osc, oscillator_core(osc, 30.0, "accurate", rtol=1e-10, atol=1e-12)
+    )
     for run in (scipy_run, core_run):
         e = compare(run, ref)
         assert e.grid_max < 1e-7 and max(e.events.values()) < 1e-6, e
@@ -118,19 +133,23 @@ def test_scipy_oscillator_and_core_against_the_exact_fig4_solution():
 
 def test_hermite_reading_is_exact_for_cubics_and_splits_at_velocity_jumps():
     t = np.array([0.0, 0.5, 1.0, 1.0, 2.0])
-    q = t ** 3 - t
-    dq = 3 * t ** 2 - 1
-    q[3:], dq[3:] = 5.0, 0.0        # a jump at t = 1: after it the body rests at 5
+    q = t**3 - t
+    dq = 3 * t**2 - 1
+    q[3:], dq[3:] = 5.0, 0.0  # a jump at t = 1: after it the body rests at 5
     tr = Trajectory(t, q, dq)
     tq = np.array([0.1, 0.3, 0.77, 1.0, 1.5, 2.5])
     got, _ = tr.at(tq)
-    want = np.where(tq < 1.0, tq ** 3 - tq, 5.0)
+    want = np.where(tq < 1.0, tq**3 - tq, 5.0)
     assert np.allclose(got[:, 0], want, atol=1e-14)
 
 
 def test_dense_output_pieces_reproduce_the_accurate_steps():
-    """Redoing each recorded Dormand-Prince step lands on the next record (the premise of
-    reading the accurate method through its own interpolant)."""
+    """
+    Check that dense-output pieces reproduce the accurate steps.
+
+    Redoing each recorded Dormand-Prince step lands on the next record (the premise of
+    reading the accurate method through its own interpolant).
+    """
     case = sx.sorting_case(y0=[1.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     res = case.run_core("accurate", rtol=1e-6, atol=1e-8)
     tr = case.trajectory(res)
@@ -145,43 +164,57 @@ def test_dense_output_pieces_reproduce_the_accurate_steps():
 
 def test_dp5_pieces_reject_intervals_that_are_not_steps():
     t = np.array([0.0, 1.0])
-    Y = np.array([[0.0, 1.0], [5.0, 1.0]])      # not where a step of y' = (y1, 0) lands
+    Y = np.array([[0.0, 1.0], [5.0, 1.0]])  # not where a step of y' = (y1, 0) lands
 
     def rhs(t0, y0):
         return lambda tt, y: np.array([y[1], 0.0])
+
     assert dp5_pieces(t, Y, rhs, 1) == []
     Y[1, 0] = 1.0
     assert len(dp5_pieces(t, Y, rhs, 1)) == 1
 
 
 def test_corners_outrun_every_surface_while_the_bound_holds():
-    """The physical finding the corner check states: at Fig. 9a the moment spins the parcel
-    and its corners move faster than any surface (all methods agree); the proven bound holds."""
+    """
+    Check that corners outrun every surface while the bound holds.
+
+    The physical finding the corner check states: at Fig. 9a the moment spins the parcel
+    and its corners move faster than any surface (all methods agree); the proven bound holds.
+    """
     sc = sx.StiffCase("fig9a", "t", sx.sorting_case())
     ratios = []
     for method in ("accurate", "implicit"):
         res = sc.case.run_core(method, **sx.DEFAULT_SETTINGS[method])
         traj = sc.case.trajectory(res)
         ratios.append(sx._corner_speeds(traj, 0.7, 0.2).max() / 1.5)
-        checks = {c.name: c for c in sx.check_run(sc, method, sx.DEFAULT_SETTINGS[method], res, traj)}
+        checks = {
+            c.name: c for c in sx.check_run(sc, method, sx.DEFAULT_SETTINGS[method], res, traj)
+        }
         assert checks["corner_speed"].passed and checks["cog_speed"].passed
     assert min(ratios) > 1.05 and abs(ratios[0] - ratios[1]) < 2e-3, ratios
 
 
 # ------------------------------------------------------------------ long runs and the report
-_LONG_METHODS = {"accurate": dict(sx.DEFAULT_SETTINGS["accurate"], max_points=400_000),
-                 "implicit": {"dt": 1e-3}}
+_LONG_METHODS = {
+    "accurate": dict(sx.DEFAULT_SETTINGS["accurate"], max_points=400_000),
+    "implicit": {"dt": 1e-3},
+}
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("method", sorted(_LONG_METHODS))
 @pytest.mark.parametrize("label", [c[0] for c in sx.LONG_CASES])
 def test_ten_minutes_of_two_belt_positioning(label, method):
-    """600 s of Fig. 13 per law, rotation setting and method (one run per test, so that each
-    stays well inside the suite's per-test budget; the report adds the threshold method)."""
+    """
+    Run 600 s of Fig. 13 for one law, rotation setting and method.
+
+    600 s of Fig. 13 per law, rotation setting and method (one run per test, so that each
+    stays well inside the suite's per-test budget; the report adds the threshold method).
+    """
     (run,) = sx.two_belt_long(600.0, {method: _LONG_METHODS[method]}, cases=(label,))
     assert run.passed, f"{run.case} / {run.method}: " + "; ".join(
-        c.detail for c in run.checks if not c.passed)
+        c.detail for c in run.checks if not c.passed
+    )
 
 
 @pytest.mark.slow
@@ -191,22 +224,66 @@ def test_reductions_agree_with_the_full_model():
     assert not bad, bad
 
 
+# the quick report in two halves, each well inside the suite's per-test budget
+_REPORT_HALVES = {
+    "cases,core": (
+        "## Fig. 4 stick-slip body",
+        "## Fig. 9a diversion",
+        "## Parcel straddling all three zones",
+        "## Fig. 13 two-belt positioning",
+        "## Core benchmark: Fig. 9a",
+    ),
+    "matrix,long,reductions,quadrature": (
+        "## Stiff and extreme cases",
+        "## Two-belt positioning, long runs",
+        "## Reductions",
+    ),
+}
+
+
 @pytest.mark.slow
-def test_quick_precision_report(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "sorter_sim", "bench", "precision", "--quick",
-                          "--out", str(tmp_path)], capture_output=True, text=True, timeout=600)
+@pytest.mark.parametrize("parts", sorted(_REPORT_HALVES))
+def test_quick_precision_report(tmp_path, parts):
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "sorter_sim",
+            "bench",
+            "precision",
+            "--quick",
+            "--parts",
+            parts,
+            "--out",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     text = (tmp_path / "accuracy.md").read_text()
-    for heading in ("## Fig. 4 stick-slip body", "## Fig. 9a diversion", "## Parcel straddling all "
-                    "three zones", "## Fig. 13 two-belt positioning", "## Stiff and extreme cases",
-                    "## Reductions", "Machine:"):
-        assert heading in text
-    assert len(list((tmp_path / "img").glob("accuracy_*.png"))) == 5
+    for heading in _REPORT_HALVES[parts] + ("## Failures and findings", "Machine:"):
+        assert heading in text, heading
+    for other, headings in _REPORT_HALVES.items():
+        if other != parts:
+            assert not any(h in text for h in headings), f"{other} ran with --parts {parts}"
+    n_png = 5 if "cases" in parts else 0
+    assert len(list((tmp_path / "img").glob("accuracy_*.png"))) == n_png
 
 
 def test_bench_command_line_errors_are_one_line_and_exit_2():
-    for argv in (["bench"], ["bench", "core", "--repeats", "0"], ["bench", "precision", "--bogus"]):
-        out = subprocess.run([sys.executable, "-m", "sorter_sim", *argv], capture_output=True,
-                             text=True, timeout=120)
+    for argv in (
+        ["bench", "precision", "--parts", "cases,nonsense"],
+        ["bench"],
+        ["bench", "core", "--repeats", "0"],
+        ["bench", "precision", "--bogus"],
+    ):
+        out = subprocess.run(
+            [sys.executable, "-m", "sorter_sim", *argv],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert out.returncode == 2, (argv, out.stderr)
         assert len(out.stderr.strip().splitlines()) <= 2 and "Traceback" not in out.stderr

@@ -1,4 +1,5 @@
-"""The suite's own guard: a test that overruns is an ordinary failure and the run goes on.
+"""
+The suite's own guard: a test that overruns is an ordinary failure and the run goes on.
 
 A deliberately over-running test (a loop inside numba-compiled code, where a timeout
 signal could not be handled) is run by pytest in a subprocess with this project's
@@ -6,6 +7,7 @@ pytest.ini and a short timeout. It must be reported as one failed test that name
 timeout, the tests before and after it must pass, and pytest must end normally
 (exit code 1, no INTERNALERROR).
 """
+
 import os
 from pathlib import Path
 import subprocess
@@ -44,9 +46,27 @@ def test_an_overrunning_test_fails_alone_and_the_suite_goes_on(tmp_path):
     (tmp_path / 'test_overrun.py').write_text(OVERRUNNING)
     env = dict(os.environ, PYTHONPATH=str(ROOT / 'test'))
     out = subprocess.run(
-        [sys.executable, '-m', 'pytest', '-c', str(ROOT / 'pytest.ini'), '--rootdir', str(tmp_path),
-         '-o', 'test_timeout=4', '-p', 'no:cacheprovider', '-rA', str(tmp_path / 'test_overrun.py')],
-        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+        [
+            sys.executable,
+            '-m',
+            'pytest',
+            '-c',
+            str(ROOT / 'pytest.ini'),
+            '--rootdir',
+            str(tmp_path),
+            '-o',
+            'test_timeout=4',
+            '-p',
+            'no:cacheprovider',
+            '-rA',
+            str(tmp_path / 'test_overrun.py'),
+        ],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     text = out.stdout + out.stderr
     assert out.returncode == 1, text[-3000:]
     assert 'INTERNALERROR' not in text, text[-3000:]

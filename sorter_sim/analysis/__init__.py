@@ -1,4 +1,5 @@
-"""Studies built on the model core: the seed's figures, design sweeps, two-stage sorting.
+"""
+Studies built on the model core: the seed's figures, design sweeps, two-stage sorting.
 
 Everything here calls the same core and scene code the nodes run
 (``sorter_sim.core.simulate``, ``sorter_sim.scene``); nothing here imports ROS.

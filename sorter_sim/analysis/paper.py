@@ -1,4 +1,5 @@
-"""The seed's numerical experiments as commands: ``sorter paper FIG [--out DIR]``.
+"""
+The seed's numerical experiments as commands: ``sorter paper FIG [--out DIR]``.
 
 One function per figure of Piątkowski (2009), sections 3, 5 and 6. Each computes
 its data from the model core (``sorter_sim.core``) through the same scene code
@@ -18,6 +19,7 @@ threshold speed of eq. (3.1).
 Figures: 4, 5 (stick-slip body), 7, 8 (a-d), 9, 10, 11, 13, 14 (covers 15 and
 16) and ``two-stage`` (the seed's conclusion, ``two_stage.py``).
 """
+
 from __future__ import annotations
 
 import csv
@@ -40,16 +42,17 @@ from ..core.wrench import evaluate_surfaces, gauss_legendre_01
 from ..core.geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
 from ..scene import BSPLINE_DEFAULT, run_scene, scene_parcel, scene_strips, validate
 
-SEED_S = 0.7          # m, conveyor width the centre of gravity must cross (seed: s)
-SEED_MU = 0.6         # the seed's μ_a = μ_b (= μ_c) of section 5
-SEED_MU0, SEED_MUG = 0.65, 0.46   # section 6: μ_0, μ_G of models 2 and 3
-ALPHAS = (90.0, 45.0, 30.0)       # the seed's disk angles, deg
+SEED_S = 0.7  # m, conveyor width the centre of gravity must cross (seed: s)
+SEED_MU = 0.6  # the seed's μ_a = μ_b (= μ_c) of section 5
+SEED_MU0, SEED_MUG = 0.65, 0.46  # section 6: μ_0, μ_G of models 2 and 3
+ALPHAS = (90.0, 45.0, 30.0)  # the seed's disk angles, deg
 
 
 # ---------------------------------------------------------------------------- results
 @dataclass
 class FigureResult:
-    """What one figure produced, scipy-result style.
+    """
+    What one figure produced, scipy-result style.
 
     headline: the figures to compare with the seed (name -> value);
     seed: the seed's statements this figure is about, verbatim in spirit;
@@ -68,7 +71,7 @@ class FigureResult:
 
     @property
     def success(self) -> bool:
-        """True when every qualitative claim of the seed holds on this run."""
+        """Return True when every qualitative claim of the seed holds on this run."""
         return all(self.claims.values())
 
     def report(self) -> str:
@@ -96,26 +99,51 @@ def _fmt(v) -> str:
 
 
 # ---------------------------------------------------------------------------- helpers
-def sorting_scene(*, A=0.7, B=0.2, m=5.0, v=1.5, alpha_deg=90.0, b=math.inf, mu_a=SEED_MU,
-                  mu_b=SEED_MU, mu_c="mu_a", model="const1", law=None, rotation=True,
-                  t_max=20.0, s=SEED_S) -> dict:
-    """A validated scene of the seed's sorting cell; zone c takes μ_a unless told."""
+def sorting_scene(
+    *,
+    A=0.7,
+    B=0.2,
+    m=5.0,
+    v=1.5,
+    alpha_deg=90.0,
+    b=math.inf,
+    mu_a=SEED_MU,
+    mu_b=SEED_MU,
+    mu_c="mu_a",
+    model="const1",
+    law=None,
+    rotation=True,
+    t_max=20.0,
+    s=SEED_S,
+) -> dict:
+    """Return a validated scene of the seed's sorting cell; zone c takes μ_a unless told."""
     fr = {"model": model}
     if law is not None:
         fr[model] = list(law)
-    return validate({
-        "parcel": {"A": A, "B": B, "m": m, "phi0_deg": 0.0},
-        "belt": {"v": v, "s": s},
-        "zones": {"b": b, "mu_a": mu_a, "mu_b": mu_b, "mu_c": mu_a if mu_c == "mu_a" else mu_c},
-        "diverter": {"alpha_deg": alpha_deg},
-        "friction": fr,
-        "model": {"rotation": rotation},
-        "solver": {"t_max": t_max},
-    })
+    return validate(
+        {
+            "parcel": {"A": A, "B": B, "m": m, "phi0_deg": 0.0},
+            "belt": {"v": v, "s": s},
+            "zones": {
+                "b": b,
+                "mu_a": mu_a,
+                "mu_b": mu_b,
+                "mu_c": mu_a if mu_c == "mu_a" else mu_c,
+            },
+            "diverter": {"alpha_deg": alpha_deg},
+            "friction": fr,
+            "model": {"rotation": rotation},
+            "solver": {"t_max": t_max},
+        }
+    )
 
 
 def sort_once(**kw) -> dict:
-    """Run one parcel through ``sorting_scene(**kw)``; the scene summary (t_scrap, x_scrap, ...)."""
+    """
+    Run one parcel through ``sorting_scene(**kw)``.
+
+    The scene summary (t_scrap, x_scrap, ...).
+    """
     _, summary = run_scene(sorting_scene(**kw))
     return summary
 
@@ -152,7 +180,7 @@ def _cell(v):
 
 
 def _figure(nrows=1, ncols=1, size=(7.0, 4.5)):
-    """A matplotlib Figure on the Agg canvas (no pyplot state, no display needed)."""
+    """Return a matplotlib Figure on the Agg canvas (no pyplot state, no display needed)."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=size, layout="constrained")
@@ -172,16 +200,28 @@ def _save(fig, out: Path | None, name: str, files: list) -> None:
 def _alpha_v_A_table(out: Path, fig_no: str, vs, As, arr, column: str, ylabel: str, files: list):
     """CSV and three panels (α = 90°, 45°, 30°) of a quantity arr[α, v, A], lines per v."""
     kk, ii, jj = np.meshgrid(range(3), range(len(vs)), range(len(As)), indexing="ij")
-    files.append(_write_csv(out / f"fig{fig_no}.csv", {
-        "alpha_deg": [ALPHAS[k] for k in kk.ravel()], "v_m_s": [vs[i] for i in ii.ravel()],
-        "A_m": [As[j] for j in jj.ravel()], column: arr.ravel()}))
+    files.append(
+        _write_csv(
+            out / f"fig{fig_no}.csv",
+            {
+                "alpha_deg": [ALPHAS[k] for k in kk.ravel()],
+                "v_m_s": [vs[i] for i in ii.ravel()],
+                "A_m": [As[j] for j in jj.ravel()],
+                column: arr.ravel(),
+            },
+        )
+    )
     fig, ax = _figure(1, 3, (13, 4.2))
     for k, al in enumerate(ALPHAS):
         a = ax[0, k]
         for i, v in enumerate(vs):
             a.plot(As, arr[k, i], "o-", ms=3, label=f"v = {v:.2f} m/s")
-        a.set(xlabel="A [m]", ylabel=ylabel, title=f"Fig. {fig_no}{'abc'[k]}: α = {al:.0f}°",
-              ylim=(0, 1.05 * np.nanmax(arr)))
+        a.set(
+            xlabel="A [m]",
+            ylabel=ylabel,
+            title=f"Fig. {fig_no}{'abc'[k]}: α = {al:.0f}°",
+            ylim=(0, 1.05 * np.nanmax(arr)),
+        )
         a.legend(fontsize=7)
     return fig, ax
 
@@ -195,21 +235,26 @@ def disk_surface(res, v: float, alpha: float) -> int | None:
     """Surface id of the disks (velocity v(cos α, sin α)) in a run's surface list."""
     want = (v * math.cos(alpha), v * math.sin(alpha))
     for k, (vx, vy) in enumerate(res.surfaces):
-        if k > 0 and math.isclose(vx, want[0], abs_tol=1e-12) and math.isclose(vy, want[1], abs_tol=1e-12):
+        if (
+            k > 0
+            and math.isclose(vx, want[0], abs_tol=1e-12)
+            and math.isclose(vy, want[1], abs_tol=1e-12)
+        ):
             return k
     return None
 
 
 # ---------------------------------------------------------------------------- Fig. 4
 def fig4(out: Path | None = None, quick: bool = False) -> FigureResult:
-    """Stick-slip of the mass-spring body with eq. (3.1) (threshold method, v_min = 1 mm/s).
+    """
+    Stick-slip of the mass-spring body with eq. (3.1) (threshold method, v_min = 1 mm/s).
 
     Trajectories of the body and of the spring end B, the friction force, the
     external force P_ext = k (x_s - x_p), the rubbing speed, and the active row
     of eq. (3.1) over time; compared with the exact Coulomb solution.
     """
     t0 = time.perf_counter()
-    osc = Oscillator()            # the seed's m = 1 kg, F_kin = 1 N, F_stat = 1.5 N, k = 2 N/m, 0.1 m/s
+    osc = Oscillator()  # the seed's m = 1 kg, F_kin = 1 N, F_stat = 1.5 N, k = 2 N/m, 0.1 m/s
     v_min = 1e-3
     t_end = 25.0
     dt = 1e-4 if quick else 1e-5
@@ -240,22 +285,44 @@ def fig4(out: Path | None = None, quick: bool = False) -> FigureResult:
         "max |x_p - x_p exact| up to the first stick [m]": err,
         "integration step dt [s]": dt,
     }
-    r.seed = ["rows F(1) kinetic, F(2) holding, F(3) breaking away take turns (Fig. 4b-d)",
-              "t_I: duration of F(3) in the first cycle"]
+    r.seed = [
+        "rows F(1) kinetic, F(2) holding, F(3) breaking away take turns (Fig. 4b-d)",
+        "t_I: duration of F(3) in the first cycle",
+    ]
     rows_seen = set(int(x) for x in np.unique(res.row))
     r.claims = {
         "all three rows of eq. (3.1) become active": rows_seen == {1, 2, 3},
         "first break-away where P_ext reaches F_stat (7.5 s)": bool(row3_starts)
         and abs(row3_starts[0] - t_first_exact) <= 2 * dt,
     }
-    r.data = {"t": res.t, "x": res.x, "x_spring": res.x_spring, "v": res.v, "F": res.F,
-              "P": res.P, "row": res.row, "x_exact": exact.x, "durations": durations}
+    r.data = {
+        "t": res.t,
+        "x": res.x,
+        "x_spring": res.x_spring,
+        "v": res.v,
+        "F": res.F,
+        "P": res.P,
+        "row": res.row,
+        "x_exact": exact.x,
+        "durations": durations,
+    }
     if out is not None:
         keep = _decimate(res.t, res.row, 6000)
-        r.files.append(_write_csv(out / "fig4.csv", {
-            "t_s": res.t[keep], "x_body_m": res.x[keep], "x_spring_end_m": res.x_spring[keep],
-            "v_rubbing_m_s": res.v[keep], "F_friction_N": res.F[keep], "P_ext_N": res.P[keep],
-            "row_eq_3_1": res.row[keep], "x_body_exact_m": exact.x[keep]}))
+        r.files.append(
+            _write_csv(
+                out / "fig4.csv",
+                {
+                    "t_s": res.t[keep],
+                    "x_body_m": res.x[keep],
+                    "x_spring_end_m": res.x_spring[keep],
+                    "v_rubbing_m_s": res.v[keep],
+                    "F_friction_N": res.F[keep],
+                    "P_ext_N": res.P[keep],
+                    "row_eq_3_1": res.row[keep],
+                    "x_body_exact_m": exact.x[keep],
+                },
+            )
+        )
         fig, ax = _figure(3, 1, (7.5, 8.5))
         a = ax[0, 0]
         a.plot(res.t, res.x, label="body x_p (eq. 3.1, threshold)")
@@ -276,7 +343,11 @@ def fig4(out: Path | None = None, quick: bool = False) -> FigureResult:
         w = (res.t > t_first_exact - 0.1) & (res.t < t_first_exact + 0.25)
         a.plot(res.t[w], res.F[w], label="F")
         a.plot(res.t[w], res.P[w], label="P_ext")
-        a.set(xlabel="t [s]", ylabel="force [N]", title="(d) detail A: leaving rest, row of eq. (3.1)")
+        a.set(
+            xlabel="t [s]",
+            ylabel="force [N]",
+            title="(d) detail A: leaving rest, row of eq. (3.1)",
+        )
         a3 = a.twinx()
         a3.step(res.t[w], res.row[w], "r", where="post", label="row F(1..3)")
         a3.set(ylabel="row", yticks=[1, 2, 3])
@@ -296,7 +367,7 @@ def _loglog_slope(x, y) -> float:
 
 
 def _decimate(t, row, n_max):
-    """Indices of ~n_max uniform samples plus every sample where ``row`` changes."""
+    """Return the indices of ~n_max uniform samples plus every sample where ``row`` changes."""
     n = len(t)
     keep = set(range(0, n, max(1, n // n_max)))
     ch = np.nonzero(np.diff(row) != 0)[0]
@@ -317,10 +388,11 @@ def fig5(out: Path | None = None, quick: bool = False) -> FigureResult:
     t_end = 40.0
     table = np.full((len(v_mins), 3), np.nan)
     for i, vm in enumerate(v_mins):
-        res = run_oscillator(osc, t_end, "threshold", dt=dt, v_min=float(vm),
-                             max_points=int(t_end / dt) + 10)
+        res = run_oscillator(
+            osc, t_end, "threshold", dt=dt, v_min=float(vm), max_points=int(t_end / dt) + 10
+        )
         d = static_stage_durations(res, 3)
-        table[i, :len(d)] = d
+        table[i, : len(d)] = d
     closed = np.sqrt(2 * osc.m * v_mins / (osc.k * osc.v_drive))
     slopes = [_loglog_slope(v_mins, table[:, j]) for j in range(3)]
     r = FigureResult("5", "duration of the static stage F(3) against the threshold speed v_min")
@@ -329,13 +401,18 @@ def fig5(out: Path | None = None, quick: bool = False) -> FigureResult:
         "t_I range [s]": f"{np.nanmin(table[:, 0]):.4g} .. {np.nanmax(table[:, 0]):.4g}",
         "t_II range [s]": f"{np.nanmin(table[:, 1]):.4g} .. {np.nanmax(table[:, 1]):.4g}",
         "t_III range [s]": f"{np.nanmin(table[:, 2]):.4g} .. {np.nanmax(table[:, 2]):.4g}",
-        "log-log slope d ln t / d ln v_min: t_I, t_II, t_III": ", ".join(f"{x:.3f}" for x in slopes),
-        "t_I vs sqrt(2 m v_min/(k v_s)), worst rel. dev.":
-            float(np.nanmax(np.abs(table[:, 0] / closed - 1)[v_mins <= 1e-2])),
+        "log-log slope d ln t / d ln v_min: t_I, t_II, t_III": ", ".join(
+            f"{x:.3f}" for x in slopes
+        ),
+        "t_I vs sqrt(2 m v_min/(k v_s)), worst rel. dev.": float(
+            np.nanmax(np.abs(table[:, 0] / closed - 1)[v_mins <= 1e-2])
+        ),
         "integration step dt [s]": dt,
     }
-    r.seed = ["t_I depends strictly on v_min; t_II and t_III do not show such a dependence",
-              "cause: cycle I leaves rest from ẋ_p = 0, later cycles from |ẋ_p| <= v_min"]
+    r.seed = [
+        "t_I depends strictly on v_min; t_II and t_III do not show such a dependence",
+        "cause: cycle I leaves rest from ẋ_p = 0, later cycles from |ẋ_p| <= v_min",
+    ]
     r.claims = {
         "t_I grows with v_min (as sqrt(v_min): slope 0.5)": _monotone(table[:, 0], True)
         and abs(slopes[0] - 0.5) < 0.05,
@@ -344,16 +421,28 @@ def fig5(out: Path | None = None, quick: bool = False) -> FigureResult:
     }
     r.data = {"v_min": v_mins, "durations": table, "t_I_closed": closed}
     if out is not None:
-        r.files.append(_write_csv(out / "fig5.csv", {
-            "v_min_m_s": v_mins, "t_I_s": table[:, 0], "t_II_s": table[:, 1], "t_III_s": table[:, 2],
-            "t_I_closed_form_s": closed}))
+        r.files.append(
+            _write_csv(
+                out / "fig5.csv",
+                {
+                    "v_min_m_s": v_mins,
+                    "t_I_s": table[:, 0],
+                    "t_II_s": table[:, 1],
+                    "t_III_s": table[:, 2],
+                    "t_I_closed_form_s": closed,
+                },
+            )
+        )
         fig, ax = _figure(1, 1, (6.5, 4.2))
         a = ax[0, 0]
         for j, lab in enumerate(("t_I", "t_II", "t_III")):
             a.loglog(v_mins, table[:, j], "o-", label=lab)
         a.loglog(v_mins, closed, "k:", label="sqrt(2 m v_min / (k ẋ_s))")
-        a.set(xlabel="v_min [m/s]", ylabel="duration of F(3) [s]",
-              title=f"Fig. 5: static stage F(3) against v_min (RK4, dt = {dt:g} s)")
+        a.set(
+            xlabel="v_min [m/s]",
+            ylabel="duration of F(3) [s]",
+            title=f"Fig. 5: static stage F(3) against v_min (RK4, dt = {dt:g} s)",
+        )
         a.legend(fontsize=8)
         _save(fig, out, "fig5.png", r.files)
     r.wall_s = time.perf_counter() - t0
@@ -362,7 +451,7 @@ def fig5(out: Path | None = None, quick: bool = False) -> FigureResult:
 
 # ---------------------------------------------------------------------------- Fig. 7
 def fig7(out: Path | None = None, quick: bool = False) -> FigureResult:
-    """CoG trajectory with (line 1) and without (line 2) the moment of friction forces."""
+    """Return the CoG path with (line 1) and without (line 2) the moment of friction forces."""
     t0 = time.perf_counter()
     kw = dict(A=0.4, B=0.2, v=1.0, alpha_deg=90.0, b=math.inf, mu_a=SEED_MU, mu_b=SEED_MU)
     runs = {}
@@ -370,8 +459,11 @@ def fig7(out: Path | None = None, quick: bool = False) -> FigureResult:
         res, summ = run_scene(sorting_scene(rotation=rot, **kw))
         runs[rot] = (res, summ)
     (r1, s1), (r2, s2) = runs[True], runs[False]
-    r = FigureResult("7", "CoG trajectory with / without the moment of friction forces "
-                          "(0.4 x 0.2 m, v = 1 m/s, α = 90°, b = ∞, μ_a = μ_b = 0.6)")
+    r = FigureResult(
+        "7",
+        "CoG trajectory with / without the moment of friction forces "
+        "(0.4 x 0.2 m, v = 1 m/s, α = 90°, b = ∞, μ_a = μ_b = 0.6)",
+    )
     r.headline = {
         "x_o with the moment (line 1) [m]": s1["x_scrap"],
         "x_o without the moment (line 2) [m]": s2["x_scrap"],
@@ -397,8 +489,10 @@ def fig7(out: Path | None = None, quick: bool = False) -> FigureResult:
         fig, ax = _figure(1, 1, (6.5, 5.0))
         a = ax[0, 0]
         x0 = r1.y[0, 0]
-        for res, lab, st in ((r1, "1: moment of friction forces on", "-"),
-                             (r2, "2: moment neglected", "--")):
+        for res, lab, st in (
+            (r1, "1: moment of friction forces on", "-"),
+            (r2, "2: moment neglected", "--"),
+        ):
             a.plot(res.y[:, 0] - x0, res.y[:, 1], st, label=lab)
         # outlines of the parcel at a few instants (line 1)
         for t in np.linspace(r1.t[0], r1.t[-1], 5):
@@ -407,9 +501,13 @@ def fig7(out: Path | None = None, quick: bool = False) -> FigureResult:
             box_corners(r1.y[k, 0] - x0, r1.y[k, 1], r1.y[k, 2], 0.2, 0.1, c)
             a.fill(c[:, 0], c[:, 1], alpha=0.12, color="C0")
         a.axhline(SEED_S, color="k", lw=0.8, ls=":")
-        a.set(xlabel="x_o [m] (along the belt)", ylabel="y_o [m] (towards the chute)",
-              title=f"Fig. 7: φ_k = {s1['phi_scrap_deg']:.1f}°, x_o {s1['x_scrap']:.3f} vs "
-                    f"{s2['x_scrap']:.3f} m", aspect="equal")
+        a.set(
+            xlabel="x_o [m] (along the belt)",
+            ylabel="y_o [m] (towards the chute)",
+            title=f"Fig. 7: φ_k = {s1['phi_scrap_deg']:.1f}°, x_o {s1['x_scrap']:.3f} vs "
+            f"{s2['x_scrap']:.3f} m",
+            aspect="equal",
+        )
         a.legend(fontsize=8)
         _save(fig, out, "fig7.png", r.files)
     r.wall_s = time.perf_counter() - t0
@@ -418,8 +516,12 @@ def fig7(out: Path | None = None, quick: bool = False) -> FigureResult:
 
 # ---------------------------------------------------------------------------- Fig. 8
 def fig8(out: Path | None = None, quick: bool = False) -> FigureResult:
-    """Distance x_o while the CoG is moved s = 0.7 m across, against (a) A, B; (b) v, A;
-    (c) α, A; (d) μ_a, μ_b. Defaults elsewhere: 0.7 x 0.2 m, v = 1.5 m/s, α = 90°, μ = 0.6."""
+    """
+    Compute Fig. 9: the scrap distance x_o against the cell's parameters.
+
+    Distance x_o while the CoG is moved s = 0.7 m across, against (a) A, B; (b) v, A;
+    (c) α, A; (d) μ_a, μ_b. Defaults elsewhere: 0.7 x 0.2 m, v = 1.5 m/s, α = 90°, μ = 0.6.
+    """
     t0 = time.perf_counter()
     if quick:
         As, Bs, vs, als, mus = [0.3, 0.9], [0.2, 0.6], [0.5, 1.5], [30.0, 90.0], [0.4, 0.8]
@@ -429,50 +531,79 @@ def fig8(out: Path | None = None, quick: bool = False) -> FigureResult:
         vs = [0.5, 0.75, 1.0, 1.25, 1.5]
         als = [30.0, 45.0, 60.0, 75.0, 90.0]
         mus = [0.3, 0.45, 0.6, 0.75, 0.9]
-    xa = np.array([[_x_o(A=A, B=B) for B in Bs] for A in As])                 # [A, B]
-    xb = np.array([[_x_o(A=A, v=v) for A in As] for v in vs])                 # [v, A]
-    xc = np.array([[_x_o(A=A, alpha_deg=al) for A in As] for al in als])      # [α, A]
-    xd = np.array([[_x_o(mu_a=ma, mu_b=mb) for mb in mus] for ma in mus])     # [μa, μb]
-    r = FigureResult("8", "distance x_o along the belt while scrapped across s = 0.7 m (b = ∞, φ = 0)")
+    xa = np.array([[_x_o(A=A, B=B) for B in Bs] for A in As])  # [A, B]
+    xb = np.array([[_x_o(A=A, v=v) for A in As] for v in vs])  # [v, A]
+    xc = np.array([[_x_o(A=A, alpha_deg=al) for A in As] for al in als])  # [α, A]
+    xd = np.array([[_x_o(mu_a=ma, mu_b=mb) for mb in mus] for ma in mus])  # [μa, μb]
+    r = FigureResult(
+        "8", "distance x_o along the belt while scrapped across s = 0.7 m (b = ∞, φ = 0)"
+    )
     rel = lambda arr, ax: float(np.max(np.ptp(arr, axis=ax) / np.mean(arr, axis=ax)))  # noqa: E731
     # sensitivity of x_o to μ_b vs μ_a over the same range, at the grid centre
     c = len(mus) // 2
+    mid = len(As) // 2
     r.headline = {
         "x_o range over A (B = 0.2) [m]": f"{xa[0, 0]:.3f} .. {xa[-1, 0]:.3f}",
         "largest relative change of x_o over B [%]": 100 * rel(xa, 1),
         "largest relative change of x_o over A [%]": 100 * rel(xa, 0),
-        "x_o at v = min / max (A = mid) [m]": f"{xb[0, len(As) // 2]:.3f} / {xb[-1, len(As) // 2]:.3f}",
-        "x_o at α = min / max (A = mid) [m]": f"{xc[0, len(As) // 2]:.3f} / {xc[-1, len(As) // 2]:.3f}",
+        "x_o at v = min / max (A = mid) [m]": f"{xb[0, mid]:.3f} / {xb[-1, mid]:.3f}",
+        "x_o at α = min / max (A = mid) [m]": f"{xc[0, mid]:.3f} / {xc[-1, mid]:.3f}",
         "x_o change over μ_b range (μ_a mid) [m]": float(xd[c, -1] - xd[c, 0]),
         "x_o change over μ_a range (μ_b mid) [m]": float(xd[-1, c] - xd[0, c]),
     }
-    r.seed = ["(a) x_o depends on A and is not sensitive to B",
-              "(b) the greater v, the greater x_o", "(c) the lower α, the greater x_o",
-              "(d) greater μ_b -> shorter x_o; lower μ_a -> shorter x_o; μ_b matters more"]
+    r.seed = [
+        "(a) x_o depends on A and is not sensitive to B",
+        "(b) the greater v, the greater x_o",
+        "(c) the lower α, the greater x_o",
+        "(d) greater μ_b -> shorter x_o; lower μ_a -> shorter x_o; μ_b matters more",
+    ]
     r.claims = {
         "x_o grows with A (every B)": all(_monotone(xa[:, j], True) for j in range(len(Bs))),
         "x_o hardly depends on B (far less than on A)": rel(xa, 1) < 0.25 * rel(xa, 0),
         "x_o grows with v (every A)": all(_monotone(xb[:, j], True) for j in range(len(As))),
         "x_o falls as α rises (every A)": all(_monotone(xc[:, j], False) for j in range(len(As))),
-        "x_o falls as μ_b rises (every μ_a)": all(_monotone(xd[i, :], False) for i in range(len(mus))),
+        "x_o falls as μ_b rises (every μ_a)": all(
+            _monotone(xd[i, :], False) for i in range(len(mus))
+        ),
         "x_o rises with μ_a (every μ_b)": all(_monotone(xd[:, j], True) for j in range(len(mus))),
         "μ_b matters more than μ_a": abs(xd[c, -1] - xd[c, 0]) > abs(xd[-1, c] - xd[0, c]),
     }
-    r.data = {"A": As, "B": Bs, "v": vs, "alpha": als, "mu": mus,
-              "a": xa, "b": xb, "c": xc, "d": xd}
+    r.data = {
+        "A": As,
+        "B": Bs,
+        "v": vs,
+        "alpha": als,
+        "mu": mus,
+        "a": xa,
+        "b": xb,
+        "c": xc,
+        "d": xd,
+    }
     if out is not None:
         for tag, rows, cols, rname, cname, arr in (
-                ("a", As, Bs, "A_m", "B_m", xa), ("b", vs, As, "v_m_s", "A_m", xb),
-                ("c", als, As, "alpha_deg", "A_m", xc), ("d", mus, mus, "mu_a", "mu_b", xd)):
+            ("a", As, Bs, "A_m", "B_m", xa),
+            ("b", vs, As, "v_m_s", "A_m", xb),
+            ("c", als, As, "alpha_deg", "A_m", xc),
+            ("d", mus, mus, "mu_a", "mu_b", xd),
+        ):
             ii, jj = np.meshgrid(range(len(rows)), range(len(cols)), indexing="ij")
-            r.files.append(_write_csv(out / f"fig8{tag}.csv", {
-                rname: [rows[i] for i in ii.ravel()], cname: [cols[j] for j in jj.ravel()],
-                "x_o_m": arr.ravel()}))
+            r.files.append(
+                _write_csv(
+                    out / f"fig8{tag}.csv",
+                    {
+                        rname: [rows[i] for i in ii.ravel()],
+                        cname: [cols[j] for j in jj.ravel()],
+                        "x_o_m": arr.ravel(),
+                    },
+                )
+            )
         fig, ax = _figure(2, 2, (10, 7.5))
-        panels = (("(a)", As, xa.T, Bs, "A [m]", "B = {:.1f} m"),
-                  ("(b)", As, xb, vs, "A [m]", "v = {:.2f} m/s"),
-                  ("(c)", As, xc, als, "A [m]", "α = {:.0f}°"),
-                  ("(d)", mus, xd.T, mus, "μ_a", "μ_b = {:.2f}"))
+        panels = (
+            ("(a)", As, xa.T, Bs, "A [m]", "B = {:.1f} m"),
+            ("(b)", As, xb, vs, "A [m]", "v = {:.2f} m/s"),
+            ("(c)", As, xc, als, "A [m]", "α = {:.0f}°"),
+            ("(d)", mus, xd.T, mus, "μ_a", "μ_b = {:.2f}"),
+        )
         for a, (tag, xs, arr, lines, xl, fmt) in zip(ax.ravel(), panels):
             for k, val in enumerate(lines):
                 a.plot(xs, arr[k], "o-", ms=3, label=fmt.format(val))
@@ -494,24 +625,42 @@ def fig9(out: Path | None = None, quick: bool = False) -> FigureResult:
     ref_simple = _capacity(A=0.7, v=1.5, alpha_deg=90.0, rotation=False)
     iv = vs.index(1.5)
     loss = lambda k: 100 * (1 - W[k, iv, :] / W[0, iv, :])  # noqa: E731  % below α = 90°
-    r = FigureResult("9", "sorting capacity W_t against v and A (μ_a = μ_b = 0.6, B = 0.2 m, b = ∞)")
+    r = FigureResult(
+        "9", "sorting capacity W_t against v and A (μ_a = μ_b = 0.6, B = 0.2 m, b = ∞)"
+    )
     r.headline = {
         "W_t at v = 1.5, A = 0.7, α = 90° [pcs/h]": ref_full,
         "  same, moment of friction neglected [pcs/h]": ref_simple,
         "seed reads [pcs/h]": 3600.0,
-        f"W_t loss α 90->45°, A = {As[0]} / {As[-1]} m (v 1.5) [%]": f"{loss(1)[0]:.1f} / {loss(1)[-1]:.1f}",
-        f"W_t loss α 90->30°, A = {As[0]} / {As[-1]} m (v 1.5) [%]": f"{loss(2)[0]:.1f} / {loss(2)[-1]:.1f}",
+        f"W_t loss α 90->45°, A = {As[0]} / {As[-1]} m (v 1.5) [%]": (
+            f"{loss(1)[0]:.1f} / {loss(1)[-1]:.1f}"
+        ),
+        f"W_t loss α 90->30°, A = {As[0]} / {As[-1]} m (v 1.5) [%]": (
+            f"{loss(2)[0]:.1f} / {loss(2)[-1]:.1f}"
+        ),
     }
-    r.seed = ["about 3600 pcs/h at v = 1.5 m/s, A = 0.7 m, α = 90°",
-              "α = 45°: capacity slightly deteriorates; α = 30°: the drop is larger for short loads"]
+    r.seed = [
+        "about 3600 pcs/h at v = 1.5 m/s, A = 0.7 m, α = 90°",
+        "α = 45°: capacity slightly deteriorates; α = 30°: the drop is larger for short loads",
+    ]
     r.claims = {
-        "capacity falls as α falls (every v, A)": bool(np.all(W[0] > W[1]) and np.all(W[1] > W[2])),
-        "capacity falls with A (every α, v)": all(_monotone(W[k, i, :], False)
-                                                  for k in range(3) for i in range(len(vs))),
+        "capacity falls as α falls (every v, A)": bool(
+            np.all(W[0] > W[1]) and np.all(W[1] > W[2])
+        ),
+        "capacity falls with A (every α, v)": all(
+            _monotone(W[k, i, :], False) for k in range(3) for i in range(len(vs))
+        ),
         "the α = 30° drop is larger for short loads": loss(2)[0] > loss(2)[-1],
         "reference within 10 % of the seed's 3600": abs(ref_full / 3600 - 1) < 0.10,
     }
-    r.data = {"A": As, "v": vs, "alpha": ALPHAS, "W": W, "ref_full": ref_full, "ref_simple": ref_simple}
+    r.data = {
+        "A": As,
+        "v": vs,
+        "alpha": ALPHAS,
+        "W": W,
+        "ref_full": ref_full,
+        "ref_simple": ref_simple,
+    }
     if out is not None:
         fig, ax = _alpha_v_A_table(out, "9", vs, As, W, "W_t_pcs_h", "W_t [pcs/h]", r.files)
         ax[0, 0].plot([0.7], [3600], "k*", ms=10, label="seed: ≈ 3600")
@@ -532,7 +681,8 @@ class Samples:
 
 
 def densify(res, dt: float = 0.005) -> Samples:
-    """Add samples inside the run's stuck stretches, every ``dt`` [s].
+    """
+    Add samples inside the run's stuck stretches, every ``dt`` [s].
 
     The accurate method advances a stick in closed form as one record pair; the
     parcel then moves rigidly with a surface (constant velocity, φ̇ = 0), so linear
@@ -547,14 +697,15 @@ def densify(res, dt: float = 0.005) -> Samples:
             ts.append(tt)
             ys.append(y0 + np.outer((tt - t0) / (t1 - t0), y1 - y0))
             ms.append(np.full(len(tt), res.mode[k]))
-        ts.append(res.t[k + 1:k + 2])
-        ys.append(res.y[k + 1:k + 2])
-        ms.append(res.mode[k + 1:k + 2])
+        ts.append(res.t[k + 1 : k + 2])
+        ys.append(res.y[k + 1 : k + 2])
+        ms.append(res.mode[k + 1 : k + 2])
     return Samples(np.concatenate(ts), np.vstack(ys), np.concatenate(ms))
 
 
 def zone_rubbing(res, strips: list[Strip], parcel: Parcel, names=("a", "b")) -> dict:
-    """Rubbing-speed components ξ_i, η_i of zone parts over a run (seed eq. 4.7).
+    """
+    Rubbing-speed components ξ_i, η_i of zone parts over a run (seed eq. 4.7).
 
     For zone i the footprint part over it (box ∩ strip) is taken at its centroid q;
     ξ_i = v_surface,x - v_q,x and η_i = v_q,y - v_surface,y with v_q the parcel's
@@ -605,22 +756,40 @@ def fig10(out: Path | None = None, quick: bool = False) -> FigureResult:
     r = FigureResult("10", "rubbing-speed components in zones a and b (0.7 x 0.2 m, v = 1.5 m/s)")
     for al in ALPHAS:
         st = runs[al][1]["stages"]
-        r.headline[f"α = {al:.0f}°: E2 from {st['E2']:.3f} s to E3 at {st['E3']:.3f} s, lasting [s]"] = e2[al]
+        r.headline[
+            f"α = {al:.0f}°: E2 from {st['E2']:.3f} s to E3 at {st['E3']:.3f} s, lasting [s]"
+        ] = e2[al]
     for al in ALPHAS:
-        r.headline[f"α = {al:.0f}°: median |η_b|/|ξ_b| in E1 ; in E2"] = \
+        r.headline[f"α = {al:.0f}°: median |η_b|/|ξ_b| in E1 ; in E2"] = (
             f"{ratio[al, 'E1']:.3f} ; {ratio[al, 'E2']:.3f}"
-    r.seed = ["α = 45°, 30°: the load stays in transient motion E2 much shorter than at α = 90°",
-              "α = 45°, 30°: η_b is much greater than ξ_b; α = 90°: ξ_b = η_b"]
+        )
+    r.seed = [
+        "α = 45°, 30°: the load stays in transient motion E2 much shorter than at α = 90°",
+        "α = 45°, 30°: η_b is much greater than ξ_b; α = 90°: ξ_b = η_b",
+    ]
     r.claims = {
         "E2 shorter at 45° and 30° than at 90°": e2[45.0] < e2[90.0] and e2[30.0] < e2[90.0],
-        "ξ_b = η_b at α = 90° (E1 exactly, E2 within 10 % in the median)":
-            abs(ratio[90.0, "E1"] - 1) < 1e-9 and abs(ratio[90.0, "E2"] - 1) < 0.10,
-        "η_b much greater than ξ_b at α = 45° and 30° (E1 and E2)":
-            min(ratio[a, e] for a in (45.0, 30.0) for e in ("E1", "E2")) > 1.5,
+        "ξ_b = η_b at α = 90° (E1 exactly, E2 within 10 % in the median)": abs(
+            ratio[90.0, "E1"] - 1
+        )
+        < 1e-9
+        and abs(ratio[90.0, "E2"] - 1) < 0.10,
+        "η_b much greater than ξ_b at α = 45° and 30° (E1 and E2)": min(
+            ratio[a, e] for a in (45.0, 30.0) for e in ("E1", "E2")
+        )
+        > 1.5,
     }
     r.data = {"runs": runs, "E2_duration": e2, "eta_over_xi_b": ratio}
     if out is not None:
-        cols = {"alpha_deg": [], "t_s": [], "xi_a": [], "eta_a": [], "xi_b": [], "eta_b": [], "stage": []}
+        cols = {
+            "alpha_deg": [],
+            "t_s": [],
+            "xi_a": [],
+            "eta_a": [],
+            "xi_b": [],
+            "eta_b": [],
+            "stage": [],
+        }
         for al, (res, summ, rub) in runs.items():
             st = summ["stages"]
             stage = np.where(res.t >= st["E3"], "E3", np.where(res.t >= st["E2"], "E2", "E1"))
@@ -642,10 +811,17 @@ def fig10(out: Path | None = None, quick: bool = False) -> FigureResult:
             for name in ("E2", "E3"):
                 a.axvline(st[name], color="k", lw=0.7, ls=":")
             ymax = a.get_ylim()[1]
-            for name, ta, tb in (("E1", st["E1"], st["E2"]), ("E2", st["E2"], st["E3"]),
-                                 ("E3", st["E3"], res.t[-1])):
+            for name, ta, tb in (
+                ("E1", st["E1"], st["E2"]),
+                ("E2", st["E2"], st["E3"]),
+                ("E3", st["E3"], res.t[-1]),
+            ):
                 a.text(0.5 * (ta + tb), 0.92 * ymax, name, ha="center", fontsize=9)
-            a.set(xlabel="t [s]", ylabel="rubbing speed [m/s]", title=f"Fig. 10{'abc'[k]}: α = {al:.0f}°")
+            a.set(
+                xlabel="t [s]",
+                ylabel="rubbing speed [m/s]",
+                title=f"Fig. 10{'abc'[k]}: α = {al:.0f}°",
+            )
             a.legend(fontsize=7, loc="lower right")
         _save(fig, out, "fig10.png", r.files)
     r.wall_s = time.perf_counter() - t0
@@ -654,7 +830,8 @@ def fig10(out: Path | None = None, quick: bool = False) -> FigureResult:
 
 # ---------------------------------------------------------------------------- Fig. 11
 def scrapes_without_sliding(res, v: float, alpha_deg: float) -> bool:
-    """The seed's criterion for a sufficient disk field (section 5, Fig. 11).
+    """
+    Return the seed's criterion for a sufficient disk field (section 5, Fig. 11).
 
     The disks must make the rubbing against them vanish (v_ob = 0) and keep it so
     until the parcel leaves zone b across the scrap line: the run reaches the
@@ -678,7 +855,8 @@ class MinimalWidth:
 
 
 def step_root(scrapes, b_lo: float, b_hi: float, xtol: float) -> MinimalWidth:
-    """Smallest b in (b_lo, ...) with ``scrapes(b)`` true, for a yes/no criterion monotone in b.
+    """
+    Smallest b in (b_lo, ...) with ``scrapes(b)`` true, for a yes/no criterion monotone in b.
 
     The criterion becomes a sign (+1 yes, -1 no) for scipy's brentq, which keeps a
     sign-changing bracket and converges to the step within ``xtol`` (on a step its
@@ -705,16 +883,29 @@ def step_root(scrapes, b_lo: float, b_hi: float, xtol: float) -> MinimalWidth:
     return MinimalWidth(float(b_min), n[0], (b_lo, hi), True)
 
 
-def minimal_disk_width(*, A=0.7, B=0.2, v=1.5, alpha_deg=90.0, mu=SEED_MU, xtol=1e-3,
-                       b_hi=2.0, b_lo=0.005, **scene_kw) -> MinimalWidth:
-    """Smallest disk-field width b that still scrapes (``scrapes_without_sliding``).
+def minimal_disk_width(
+    *, A=0.7, B=0.2, v=1.5, alpha_deg=90.0, mu=SEED_MU, xtol=1e-3, b_hi=2.0, b_lo=0.005, **scene_kw
+) -> MinimalWidth:
+    """
+    Smallest disk-field width b that still scrapes (``scrapes_without_sliding``).
 
     Finite b, zone c present (μ_c = μ_a = μ_b = μ, the seed's Fig. 11 data); found
     by ``step_root`` (scipy brentq), not by a scan.
     """
+
     def scrapes(b):
-        scene = sorting_scene(A=A, B=B, v=v, alpha_deg=alpha_deg, b=b, mu_a=mu, mu_b=mu, mu_c=mu,
-                              t_max=max(4.0, 8.0 * SEED_S / max(v, 1e-3)), **scene_kw)
+        scene = sorting_scene(
+            A=A,
+            B=B,
+            v=v,
+            alpha_deg=alpha_deg,
+            b=b,
+            mu_a=mu,
+            mu_b=mu,
+            mu_c=mu,
+            t_max=max(4.0, 8.0 * SEED_S / max(v, 1e-3)),
+            **scene_kw,
+        )
         res, _ = run_scene(scene)
         return scrapes_without_sliding(res, v, alpha_deg)
 
@@ -735,24 +926,35 @@ def fig11(out: Path | None = None, quick: bool = False) -> FigureResult:
                 mw = minimal_disk_width(A=A, v=v, alpha_deg=al, xtol=xtol)
                 bmin[k, i, j] = mw.b_min
                 evals += mw.n_evals
-    r = FigureResult("11", "minimal disk-field width b that still scrapes (μ_a = μ_b = μ_c = 0.6, "
-                           "φ = 0, B = 0.2 m)")
+    r = FigureResult(
+        "11",
+        "minimal disk-field width b that still scrapes (μ_a = μ_b = μ_c = 0.6, φ = 0, B = 0.2 m)",
+    )
     for k, al in enumerate(ALPHAS):
-        r.headline[f"b_min range at α = {al:.0f}° [m]"] = f"{np.nanmin(bmin[k]):.3f} .. {np.nanmax(bmin[k]):.3f}"
+        r.headline[f"b_min range at α = {al:.0f}° [m]"] = (
+            f"{np.nanmin(bmin[k]):.3f} .. {np.nanmax(bmin[k]):.3f}"
+        )
     iv, jA = len(vs) - 1, min(1, len(As) - 1)
     for k, al in enumerate(ALPHAS):
-        r.headline[f"b_min at v = {vs[iv]}, A = {As[jA]}, α = {al:.0f}° [m]"] = float(bmin[k, iv, jA])
+        r.headline[f"b_min at v = {vs[iv]}, A = {As[jA]}, α = {al:.0f}° [m]"] = float(
+            bmin[k, iv, jA]
+        )
     r.headline["criterion evaluations (runs) in total"] = evals
     r.headline["root finder"] = f"scipy brentq, xtol {xtol:g} m"
     gap = (bmin[2] - bmin[0]) / bmin[0]
-    r.seed = ["α = 90° needs a narrower field than α = 45° and 30°",
-              "the disadvantage of 45° and 30° is largest at low v and short A"]
+    r.seed = [
+        "α = 90° needs a narrower field than α = 45° and 30°",
+        "the disadvantage of 45° and 30° is largest at low v and short A",
+    ]
     r.claims = {
-        "b_min falls as α rises (every v, A)": bool(np.all(bmin[0] < bmin[1]) and np.all(bmin[1] < bmin[2])),
+        "b_min falls as α rises (every v, A)": bool(
+            np.all(bmin[0] < bmin[1]) and np.all(bmin[1] < bmin[2])
+        ),
     }
     if not quick:
         r.claims["the 30°-vs-90° excess is largest at low v and short A"] = bool(
-            np.nanargmax(gap) == 0)
+            np.nanargmax(gap) == 0
+        )
     r.data = {"A": As, "v": vs, "alpha": ALPHAS, "b_min": bmin, "excess_30_over_90": gap}
     if out is not None:
         fig, _ = _alpha_v_A_table(out, "11", vs, As, bmin, "b_min_m", "minimal b [m]", r.files)
@@ -769,17 +971,24 @@ FIG13_LAWS = {
 }
 
 
-def two_belt_positioning(law: FrictionLaw, *, v=0.37, A=0.4, B=0.3, m=5.0, x0=0.05,
-                         t_end=10.0, method="accurate"):
-    """The Fig. 12 stand: belt x < 0 runs at +v, belt x > 0 at -v; parcel released at rest
-    with its centre x0 off the border. Returns the core result."""
-    strips = [Strip(-math.inf, 0.0, +v, 0.0, law, name="forward"),
-              Strip(0.0, math.inf, -v, 0.0, law, name="backward")]
+def two_belt_positioning(
+    law: FrictionLaw, *, v=0.37, A=0.4, B=0.3, m=5.0, x0=0.05, t_end=10.0, method="accurate"
+):
+    """
+    Run a parcel on the Fig. 12 two-belt stand.
+
+    The Fig. 12 stand: belt x < 0 runs at +v, belt x > 0 at -v; parcel released at rest
+    with its centre x0 off the border. Returns the core result.
+    """
+    strips = [
+        Strip(-math.inf, 0.0, +v, 0.0, law, name="forward"),
+        Strip(0.0, math.inf, -v, 0.0, law, name="backward"),
+    ]
     return simulate(Parcel(A, B, m), strips, [x0, 0.0, 0.0, 0.0, 0.0, 0.0], (0.0, t_end), method)
 
 
 def swing_peaks(t, x):
-    """Times and heights |x| of the turning points of an oscillation about x = 0."""
+    """Return the times and heights |x| of the turning points of an oscillation about x = 0."""
     t = np.asarray(t)
     ax_ = np.abs(np.asarray(x))
     k = np.nonzero((ax_[1:-1] >= ax_[:-2]) & (ax_[1:-1] >= ax_[2:]) & (ax_[1:-1] > 1e-9))[0] + 1
@@ -787,7 +996,7 @@ def swing_peaks(t, x):
 
 
 def fig13(out: Path | None = None, quick: bool = False, laws: dict | None = None) -> FigureResult:
-    """Parcel positioned by two belts running in opposite directions (v = 0.37 m/s, 0.4 x 0.3 m)."""
+    """Position a parcel by two belts running against each other (v = 0.37 m/s, 0.4 x 0.3 m)."""
     t0 = time.perf_counter()
     laws = laws or FIG13_LAWS
     t_end = 6.0 if quick else 12.0
@@ -796,15 +1005,21 @@ def fig13(out: Path | None = None, quick: bool = False, laws: dict | None = None
     for name, res in runs.items():
         _, pk = swing_peaks(res.t, res.y[:, 0])
         decay[name] = float(pk[-1] / pk[0]) if len(pk) >= 2 else math.nan
-    r = FigureResult("13", "two opposite belts, v = 0.37 m/s, 0.4 x 0.3 m, released 0.05 m off the border")
+    r = FigureResult(
+        "13", "two opposite belts, v = 0.37 m/s, 0.4 x 0.3 m, released 0.05 m off the border"
+    )
     for name in runs:
         r.headline[f"{name}: last/first swing after {t_end:g} s"] = decay[name]
-    r.seed = ["model 1: damped oscillation about the border (Fig. 13a)",
-              "models 2 and 3: non-damped oscillation (Fig. 13b)"]
+    r.seed = [
+        "model 1: damped oscillation about the border (Fig. 13a)",
+        "models 2 and 3: non-damped oscillation (Fig. 13b)",
+    ]
     names = list(runs)
     r.claims = {
         "model 1 decays (last swing < half the first)": decay[names[0]] < 0.5,
-        "models 2 and 3 do not decay (within 1 %)": all(abs(decay[n] - 1) < 0.01 for n in names[1:]),
+        "models 2 and 3 do not decay (within 1 %)": all(
+            abs(decay[n] - 1) < 0.01 for n in names[1:]
+        ),
     }
     r.data = {"runs": runs, "decay": decay}
     if out is not None:
@@ -838,7 +1053,8 @@ FIG14_MODELS = {
 
 
 def friction_forces(res, strips: list[Strip], parcel: Parcel, rotation=True, g=9.81, n_quad=8):
-    """Friction force (Fx, Fy) [N] each surface exerts on the parcel along a run.
+    """
+    Friction force (Fx, Fy) [N] each surface exerts on the parcel along a run.
 
     Sliding surfaces give their kinetic force (eqs. 4.2-4.3 with μ(v_o)); the surface
     the parcel is stuck to holds it at constant velocity, so it carries minus the
@@ -863,7 +1079,8 @@ def friction_forces(res, strips: list[Strip], parcel: Parcel, rotation=True, g=9
 
 
 def fig14(out: Path | None = None, quick: bool = False) -> FigureResult:
-    """Friction forces for model 1 vs models 2, 3 (Fig. 14), t_c and L (Fig. 15), ratios (Fig. 16).
+    """
+    Friction forces for model 1 vs models 2, 3 (Fig. 14), t_c and L (Fig. 15), ratios (Fig. 16).
 
     α = 45°, v = 1.5 m/s, m = 5 kg, 0.4 x 0.26 m, s = 0.7 m, b = ∞; every zone takes the
     law as given. L is the length of belt the centre of gravity covers while scrapped
@@ -872,9 +1089,15 @@ def fig14(out: Path | None = None, quick: bool = False) -> FigureResult:
     t0 = time.perf_counter()
     runs = {}
     for j, (model, values) in FIG14_MODELS.items():
-        scene = validate({"parcel": {"A": 0.4, "B": 0.26, "m": 5.0}, "belt": {"v": 1.5, "s": SEED_S},
-                          "zones": {"b": math.inf, "mu_a": None, "mu_b": None, "mu_c": None},
-                          "diverter": {"alpha_deg": 45.0}, "friction": {"model": model, model: values}})
+        scene = validate(
+            {
+                "parcel": {"A": 0.4, "B": 0.26, "m": 5.0},
+                "belt": {"v": 1.5, "s": SEED_S},
+                "zones": {"b": math.inf, "mu_a": None, "mu_b": None, "mu_c": None},
+                "diverter": {"alpha_deg": 45.0},
+                "friction": {"model": model, model: values},
+            }
+        )
         res, summ = run_scene(scene)
         res = densify(res)
         forces = friction_forces(res, scene_strips(scene), scene_parcel(scene))
@@ -889,8 +1112,11 @@ def fig14(out: Path | None = None, quick: bool = False) -> FigureResult:
     mag_b = np.hypot(f1[:, 1, 0], f1[:, 1, 1])
     in_e2 = (res1.t >= st["E2"]) & (res1.t < st["E3"])
     rise = float(mag_b[in_e2][-1] / mag_b[in_e2].min()) if in_e2.any() else math.nan
-    r = FigureResult("14-16", "friction force, t_c and L: model 1 (b-spline) vs models 2, 3 "
-                              "(α = 45°, v = 1.5 m/s, 5 kg, 0.4 x 0.26 m)")
+    r = FigureResult(
+        "14-16",
+        "friction force, t_c and L: model 1 (b-spline) vs models 2, 3 "
+        "(α = 45°, v = 1.5 m/s, 5 kg, 0.4 x 0.26 m)",
+    )
     for j in runs:
         r.headline[f"model {j}: t_c [s] / L [m]"] = f"{tc[j]:.4f} / {L[j]:.4f}"
     for j in ("2", "3"):
@@ -899,8 +1125,10 @@ def fig14(out: Path | None = None, quick: bool = False) -> FigureResult:
     worst = max(worst, max(abs(rel_L[j] - 1) for j in ("2", "3")) * 100)
     r.headline["largest discrepancy vs model 1 [%]"] = worst
     r.headline["model 1: |F_b| at the end of E2 / its minimum in E2"] = rise
-    r.seed = ["model 1: F_b rises rapidly in the final interval of E2 (Fig. 14a)",
-              "t_c and L of models 2 and 3 differ from model 1 by under 1 % (Fig. 16)"]
+    r.seed = [
+        "model 1: F_b rises rapidly in the final interval of E2 (Fig. 14a)",
+        "t_c and L of models 2 and 3 differ from model 1 by under 1 % (Fig. 16)",
+    ]
     r.claims = {
         "model 1: F_b rises at the end of E2": rise > 1.1,
         "models 2, 3 within 1 % of model 1 (t_c and L)": worst < 1.0,
@@ -916,21 +1144,49 @@ def fig14(out: Path | None = None, quick: bool = False) -> FigureResult:
             cols["F_b_x_N"] += list(f[:, 1, 0])
             cols["F_b_y_N"] += list(f[:, 1, 1])
         r.files.append(_write_csv(out / "fig14.csv", cols))
-        r.files.append(_write_csv(out / "fig15_16.csv", {
-            "model": list(runs), "t_c_s": [tc[j] for j in runs], "L_m": [L[j] for j in runs],
-            "t_c1_over_t_cj": [rel_t[j] for j in runs], "L1_over_Lj": [rel_L[j] for j in runs]}))
+        r.files.append(
+            _write_csv(
+                out / "fig15_16.csv",
+                {
+                    "model": list(runs),
+                    "t_c_s": [tc[j] for j in runs],
+                    "L_m": [L[j] for j in runs],
+                    "t_c1_over_t_cj": [rel_t[j] for j in runs],
+                    "L1_over_Lj": [rel_L[j] for j in runs],
+                },
+            )
+        )
         fig, ax = _figure(2, 2, (11, 7.5))
-        for a, js, tag in ((ax[0, 0], ("1",), "a: model 1"), (ax[0, 1], ("2", "3"), "b: models 2 and 3")):
+        for a, js, tag in (
+            (ax[0, 0], ("1",), "a: model 1"),
+            (ax[0, 1], ("2", "3"), "b: models 2 and 3"),
+        ):
             for j, ls in zip(js, ("-", "--")):
                 res, summ, f = runs[j]
-                a.plot(res.t, np.hypot(f[:, 0, 0], f[:, 0, 1]), ls, color="C0", label=f"F_a, model {j}")
-                a.plot(res.t, np.hypot(f[:, 1, 0], f[:, 1, 1]), ls, color="C1", label=f"F_b, model {j}")
+                a.plot(
+                    res.t,
+                    np.hypot(f[:, 0, 0], f[:, 0, 1]),
+                    ls,
+                    color="C0",
+                    label=f"F_a, model {j}",
+                )
+                a.plot(
+                    res.t,
+                    np.hypot(f[:, 1, 0], f[:, 1, 1]),
+                    ls,
+                    color="C1",
+                    label=f"F_b, model {j}",
+                )
             stg = runs[js[0]][1]["stages"]
             for name in ("E2", "E3"):
                 a.axvline(stg[name], color="k", lw=0.7, ls=":")
                 a.text(stg[name], a.get_ylim()[1] * 0.95, " " + name, fontsize=8)
-            a.set(xlabel="t [s]", ylabel="|F| [N]", title=f"Fig. 14{tag}",
-                  xlim=(0.0, stg["E3"] + 0.15))
+            a.set(
+                xlabel="t [s]",
+                ylabel="|F| [N]",
+                title=f"Fig. 14{tag}",
+                xlim=(0.0, stg["E3"] + 0.15),
+            )
             a.legend(fontsize=7)
         js = list(runs)
         ax[1, 0].bar([f"t_c({j}) [s]" for j in js], [tc[j] for j in js], color="C0")
@@ -939,8 +1195,9 @@ def fig14(out: Path | None = None, quick: bool = False) -> FigureResult:
         labels = [f"t_c(1)/t_c({j})" for j in js] + [f"L(1)/L({j})" for j in js]
         ratios = [rel_t[j] for j in js] + [rel_L[j] for j in js]
         ax[1, 1].axhspan(0.99, 1.01, color="0.9", zorder=0, label="±1 % (seed)")
-        ax[1, 1].bar(labels, np.array(ratios) - 1.0, bottom=1.0, color=["C0"] * 3 + ["C2"] * 3,
-                     zorder=2)
+        ax[1, 1].bar(
+            labels, np.array(ratios) - 1.0, bottom=1.0, color=["C0"] * 3 + ["C2"] * 3, zorder=2
+        )
         ax[1, 1].plot(labels, ratios, "k_", ms=14, zorder=3)
         ax[1, 1].set(ylim=(0.98, 1.02), title="Fig. 16: relative to model 1")
         ax[1, 1].legend(fontsize=7)

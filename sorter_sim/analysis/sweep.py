@@ -1,4 +1,5 @@
-"""Design studies: ``sorter sweep SPEC.yaml`` runs one scene over many values of its keys.
+"""
+Design studies: ``sorter sweep SPEC.yaml`` runs one scene over many values of its keys.
 
 A study spec (YAML) names a base scene, the scene keys to vary and how to sample
 them; every point is one ``run_scene`` of the model core, exactly what ``sorter
@@ -34,6 +35,7 @@ Parallelism: local worker processes by default (``concurrent.futures``); with
 the workers need sorter_cell installed). Bad input: one line naming the key,
 exit code 2.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,8 +60,22 @@ from ..scene import DEFAULTS, SceneError, load_scene, run_scene, validate
 
 SPEC_KEYS = ("scene", "set", "parameters", "sampling", "samples", "seed", "outputs", "out")
 # what each point reports (from the scene summary)
-OUTPUTS = ("success", "status", "message", "t_scrap", "x_scrap", "phi_scrap_deg", "capacity_pcs_h",
-           "E1", "E2", "E3", "n_steps", "n_rhs", "n_events", "wall_s")
+OUTPUTS = (
+    "success",
+    "status",
+    "message",
+    "t_scrap",
+    "x_scrap",
+    "phi_scrap_deg",
+    "capacity_pcs_h",
+    "E1",
+    "E2",
+    "E3",
+    "n_steps",
+    "n_rhs",
+    "n_events",
+    "wall_s",
+)
 FORMATS = (".csv", ".parquet")
 
 
@@ -73,7 +89,7 @@ class Study:
     """A parsed spec: base scene, varied keys, the design points (validated scenes)."""
 
     keys: list
-    points: list            # [(values tuple, scene dict)]
+    points: list  # [(values tuple, scene dict)]
     outputs: list
     out: Path | None
     sampling: str
@@ -84,7 +100,7 @@ class Study:
 
 
 def _one_line(exc) -> str:
-    """A (YAML) error message, whose text spans several lines, as one line."""
+    """Return a (YAML) error message, whose text spans several lines, as one line."""
     return " ".join(str(exc).split())
 
 
@@ -107,7 +123,7 @@ def _is_int_key(key: str) -> bool:
 def _number(where: str, v, *, integer=False) -> float:
     if isinstance(v, str):
         try:
-            v = float(v)          # YAML 1.1 reads 1e-6 as a string
+            v = float(v)  # YAML 1.1 reads 1e-6 as a string
         except ValueError:
             pass
     if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
@@ -142,15 +158,17 @@ def _grid_values(key: str, spec) -> list:
         if _is_int_key(key):
             values = sorted({int(round(v)) for v in values})
     else:
-        raise SpecError(f"{where}: must be a list of values, {{values: [...]}} or "
-                        f"{{min: .., max: .., num: ..}}, got {spec!r}")
+        raise SpecError(
+            f"{where}: must be a list of values, {{values: [...]}} or "
+            f"{{min: .., max: .., num: ..}}, got {spec!r}"
+        )
     if not isinstance(values, list) or not values:
         raise SpecError(f"{where}: needs at least one value, got {values!r}")
     return [float(v) if isinstance(v, np.floating) else v for v in values]
 
 
 def _random_sampler(key: str, spec):
-    """A function rng -> one value of ``key``."""
+    """Return a function rng -> one value of ``key``."""
     where = f"parameters.{key}"
     if isinstance(spec, list) or (isinstance(spec, dict) and set(spec) == {"values"}):
         values = spec if isinstance(spec, list) else spec["values"]
@@ -168,8 +186,10 @@ def _random_sampler(key: str, spec):
                 raise SpecError(f"{where}: log sampling needs min and max > 0, got {lo:g}, {hi:g}")
             return lambda rng: float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
         return lambda rng: float(rng.uniform(lo, hi))
-    raise SpecError(f"{where}: must be a list of values, {{values: [...]}} or {{min: .., max: ..}}, "
-                    f"got {spec!r}")
+    raise SpecError(
+        f"{where}: must be a list of values, {{values: [...]}} or {{min: .., max: ..}}, "
+        f"got {spec!r}"
+    )
 
 
 def _set_key(scene: dict, key: str, value) -> None:
@@ -187,7 +207,9 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
     except yaml.YAMLError as exc:
         raise SpecError(f"study spec {str(p)!r} is not valid YAML: {_one_line(exc)}") from None
     if not isinstance(raw, dict):
-        raise SpecError(f"study spec {str(p)!r} must be a mapping with keys {', '.join(SPEC_KEYS)}")
+        raise SpecError(
+            f"study spec {str(p)!r} must be a mapping with keys {', '.join(SPEC_KEYS)}"
+        )
     for k in raw:
         if k not in SPEC_KEYS:
             raise SpecError(f"unknown spec key {k!r}; allowed: {', '.join(SPEC_KEYS)}")
@@ -203,7 +225,9 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
         except SceneError as exc:
             raise SpecError(f"scene: {exc}") from None
     else:
-        raise SpecError(f"scene: must be a path to a scene file or a scene mapping, got {base_spec!r}")
+        raise SpecError(
+            f"scene: must be a path to a scene file or a scene mapping, got {base_spec!r}"
+        )
     fixed = raw.get("set") or {}
     if not isinstance(fixed, dict):
         raise SpecError(f"set: must be a mapping of section.key: value, got {fixed!r}")
@@ -231,7 +255,9 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
         combos = list(itertools.product(*[_grid_values(k, params[k]) for k in keys]))
     else:
         if "samples" not in raw:
-            raise SpecError("samples: random sampling needs samples (how many points), e.g. samples: 100")
+            raise SpecError(
+                "samples: random sampling needs samples (how many points), e.g. samples: 100"
+            )
         n = _number("samples", raw["samples"], integer=True)
         if not 1 <= n <= 10_000_000:
             raise SpecError(f"samples: must be in [1, 10000000], got {n:g}")
@@ -262,13 +288,15 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
         values = tuple(scene[k.split(".")[0]][k.split(".")[1]] for k in keys)
         key = point_key(values)
         if key in seen:
-            continue                     # a grid may repeat a value; run it once
+            continue  # a grid may repeat a value; run it once
         seen[key] = i
         points.append((values, scene))
     out_path = out if out is not None else raw.get("out")
     if out_path is not None:
         if not isinstance(out_path, str):
-            raise SpecError(f"out: must be a file path ending in .csv or .parquet, got {out_path!r}")
+            raise SpecError(
+                f"out: must be a file path ending in .csv or .parquet, got {out_path!r}"
+            )
         out_path = Path(out_path) if out is not None else p.parent / out_path
     else:
         out_path = Path(p.stem + ".csv")
@@ -279,7 +307,7 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
 
 # ---------------------------------------------------------------------------- one point
 def param_text(v) -> str:
-    """A parameter value as written in the table and used in the resume key."""
+    """Return a parameter value as written in the table and used in the resume key."""
     if v is None:
         return "null"
     if isinstance(v, bool):
@@ -299,7 +327,7 @@ def run_point(scene: dict) -> dict:
     """One design point: run the scene; every output of OUTPUTS (a failed run is a row too)."""
     try:
         _, s = run_scene(scene)
-    except Exception as exc:     # noqa: BLE001 - a point that cannot run is a result, not a crash
+    except Exception as exc:  # noqa: BLE001 - a point that cannot run is a result, not a crash
         row = {k: None for k in OUTPUTS}
         row.update(success=False, status=-99, message=f"{type(exc).__name__}: {exc}")
         return row
@@ -341,9 +369,11 @@ class CsvStore:
             return []
         rows = list(csv.reader(io.StringIO(data.decode())))
         if rows[0] != self.columns:
-            raise SpecError(f"--out {str(self.path)!r} holds a table with other columns "
-                            f"({', '.join(rows[0])}); this study writes {', '.join(self.columns)}: "
-                            "choose another --out or remove the file")
+            raise SpecError(
+                f"--out {str(self.path)!r} holds a table with other columns "
+                f"({', '.join(rows[0])}); this study writes {', '.join(self.columns)}: "
+                "choose another --out or remove the file"
+            )
         return [dict(zip(self.columns, r)) for r in rows[1:] if len(r) == len(self.columns)]
 
     def open(self) -> None:
@@ -398,13 +428,20 @@ class ParquetStore:
         if self.path.exists():
             try:
                 table = pq.read_table(self.path)
-            except Exception as exc:   # noqa: BLE001 - any unreadable file is the same user error
-                raise SpecError(f"--out {str(self.path)!r} is not a readable Parquet file: {exc}") from None
+            except Exception as exc:  # noqa: BLE001 - any unreadable file is the same user error
+                raise SpecError(
+                    f"--out {str(self.path)!r} is not a readable Parquet file: {exc}"
+                ) from None
             if table.column_names != self.columns:
-                raise SpecError(f"--out {str(self.path)!r} holds a table with other columns "
-                                f"({', '.join(table.column_names)}); this study writes "
-                                f"{', '.join(self.columns)}: choose another --out or remove the file")
-            rows += [{c: _from_parquet(c, r[c], self.keys) for c in self.columns} for r in table.to_pylist()]
+                raise SpecError(
+                    f"--out {str(self.path)!r} holds a table with other columns "
+                    f"({', '.join(table.column_names)}); this study writes "
+                    f"{', '.join(self.columns)}: choose another --out or remove the file"
+                )
+            rows += [
+                {c: _from_parquet(c, r[c], self.keys) for c in self.columns}
+                for r in table.to_pylist()
+            ]
         if self.journal.exists():
             data = self.journal.read_bytes()
             if data and not data.endswith(b"\n"):
@@ -432,8 +469,11 @@ class ParquetStore:
             os.fsync(self.fd)
             os.close(self.fd)
             self.fd = None
-        rows = rows_in_order if rows_in_order is not None else sorted(
-            self.rows.values(), key=lambda r: int(r["point"]))
+        rows = (
+            rows_in_order
+            if rows_in_order is not None
+            else sorted(self.rows.values(), key=lambda r: int(r["point"]))
+        )
         arrays = {c: _parquet_column(c, [r[c] for r in rows], self.keys) for c in self.columns}
         tmp = self.path.with_name(self.path.name + ".tmp")
         pq.write_table(pa.table(arrays), tmp)
@@ -480,39 +520,63 @@ class SweepResult:
     out: Path
     wall_s: float
     interrupted: bool = False
-    computed: list = field(default_factory=list)    # keys run in this call
+    computed: list = field(default_factory=list)  # keys run in this call
 
 
 def _executor(workers: int, scheduler: str | None, timeout_s: float = 10.0):
-    """(submit, as_completed, close) for the engine: a Dask cluster or local processes;
-    (None, None, close) to run in this process."""
+    """
+    Return the engine's submit, as_completed and close.
+
+    (submit, as_completed, close) for the engine: a Dask cluster or local processes;
+    (None, None, close) to run in this process.
+    """
     if scheduler:
         try:
             from distributed import Client, as_completed
-        except ImportError:     # pragma: no cover - a declared dependency
+        except ImportError:  # pragma: no cover - a declared dependency
             raise SpecError("--scheduler needs dask[distributed] installed") from None
         try:
             client = Client(scheduler, timeout=f"{timeout_s}s")
-        except Exception as exc:   # noqa: BLE001 - OSError, TimeoutError, ValueError by address kind
-            raise SpecError(f"--scheduler: cannot reach a Dask scheduler at {scheduler!r}: {exc}") from None
-        return (lambda scene: client.submit(run_point, scene, pure=False)), as_completed, client.close
+        except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError by address kind
+            raise SpecError(
+                f"--scheduler: cannot reach a Dask scheduler at {scheduler!r}: {exc}"
+            ) from None
+        return (
+            (lambda scene: client.submit(run_point, scene, pure=False)),
+            as_completed,
+            client.close,
+        )
     if workers > 1:
         pool = ProcessPoolExecutor(max_workers=workers)
-        return ((lambda scene: pool.submit(run_point, scene)), futures_as_completed,
-                lambda: pool.shutdown(wait=True, cancel_futures=True))
+        return (
+            (lambda scene: pool.submit(run_point, scene)),
+            futures_as_completed,
+            lambda: pool.shutdown(wait=True, cancel_futures=True),
+        )
     return None, None, (lambda: None)
 
 
-def run_study(study: Study, *, workers: int | None = None, scheduler: str | None = None,
-              max_points: int | None = None, progress: bool = True,
-              scheduler_timeout: float = 10.0) -> SweepResult:
+def run_study(
+    study: Study,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    max_points: int | None = None,
+    progress: bool = True,
+    scheduler_timeout: float = 10.0,
+) -> SweepResult:
     """Run the study's unfinished points, appending each row as it finishes."""
     t0 = time.perf_counter()
     out = study.out
-    store = (ParquetStore(out, study.columns, study.keys) if out.suffix.lower() == ".parquet"
-             else CsvStore(out, study.columns))
+    store = (
+        ParquetStore(out, study.columns, study.keys)
+        if out.suffix.lower() == ".parquet"
+        else CsvStore(out, study.columns)
+    )
     done_rows = store.load()
-    design = {point_key(values): (i, values, scene) for i, (values, scene) in enumerate(study.points)}
+    design = {
+        point_key(values): (i, values, scene) for i, (values, scene) in enumerate(study.points)
+    }
     finished = {}
     for r in done_rows:
         k = tuple(r[c] for c in study.keys)
@@ -525,8 +589,14 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
     workers = workers or os.cpu_count() or 1
     from tqdm import tqdm
 
-    bar = tqdm(total=len(design), initial=n_resumed, unit="pt", disable=not progress,
-               desc=f"sweep {out.name}", file=sys.stderr)
+    bar = tqdm(
+        total=len(design),
+        initial=n_resumed,
+        unit="pt",
+        disable=not progress,
+        desc=f"sweep {out.name}",
+        file=sys.stderr,
+    )
     store.open()
     computed = []
 
@@ -539,8 +609,9 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
         computed.append(key)
         bar.update(1)
 
-    submit, completed, close = (_executor(workers, scheduler, scheduler_timeout) if pending
-                                else (None, None, lambda: None))
+    submit, completed, close = (
+        _executor(workers, scheduler, scheduler_timeout) if pending else (None, None, lambda: None)
+    )
     interrupted = False
     try:
         if submit is None:
@@ -562,23 +633,54 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
         if complete:
             ordered = [finished[k] for k in design]
         store.close(ordered)
-    return SweepResult(len(design), n_resumed, len(computed), len(design) - len(finished), out,
-                       time.perf_counter() - t0, interrupted, computed)
+    return SweepResult(
+        len(design),
+        n_resumed,
+        len(computed),
+        len(design) - len(finished),
+        out,
+        time.perf_counter() - t0,
+        interrupted,
+        computed,
+    )
 
 
 # ---------------------------------------------------------------------------- command
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("spec", metavar="SPEC.yaml", help="study spec (see config/sweeps/example.yaml)")
-    parser.add_argument("--out", metavar="PATH", help="result table, .csv or .parquet "
-                        "(default: the spec's out, else <spec name>.csv)")
-    parser.add_argument("--workers", type=int, default=None, metavar="N",
-                        help="local worker processes (default: one per core; 1 runs in this process)")
-    parser.add_argument("--scheduler", metavar="ADDRESS",
-                        help="run on the Dask cluster at ADDRESS (e.g. tcp://10.0.0.5:8786)")
-    parser.add_argument("--scheduler-timeout", type=float, default=10.0, metavar="SECONDS",
-                        help="how long to try reaching the scheduler (default 10 s)")
-    parser.add_argument("--max-points", type=int, default=None, metavar="N",
-                        help="stop after N newly finished points (the rest on the next run)")
+    parser.add_argument(
+        "spec", metavar="SPEC.yaml", help="study spec (see config/sweeps/example.yaml)"
+    )
+    parser.add_argument(
+        "--out",
+        metavar="PATH",
+        help="result table, .csv or .parquet (default: the spec's out, else <spec name>.csv)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="local worker processes (default: one per core; 1 runs in this process)",
+    )
+    parser.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on the Dask cluster at ADDRESS (e.g. tcp://10.0.0.5:8786)",
+    )
+    parser.add_argument(
+        "--scheduler-timeout",
+        type=float,
+        default=10.0,
+        metavar="SECONDS",
+        help="how long to try reaching the scheduler (default 10 s)",
+    )
+    parser.add_argument(
+        "--max-points",
+        type=int,
+        default=None,
+        metavar="N",
+        help="stop after N newly finished points (the rest on the next run)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -592,12 +694,19 @@ def run(args) -> int | str:
         return f"--max-points must be >= 0, got {args.max_points}"
     try:
         study = load_study(args.spec, args.out)
-        res = run_study(study, workers=args.workers, scheduler=args.scheduler,
-                        max_points=args.max_points, progress=not args.no_progress,
-                        scheduler_timeout=args.scheduler_timeout)
+        res = run_study(
+            study,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            max_points=args.max_points,
+            progress=not args.no_progress,
+            scheduler_timeout=args.scheduler_timeout,
+        )
     except (SpecError, SceneError) as exc:
         return _one_line(exc)
     state = "complete" if res.n_left == 0 else f"{res.n_left} left (run again to resume)"
-    print(f"sweep: {res.n_points} points, {res.n_resumed} already done, {res.n_run} run now; "
-          f"{state}; {res.out} ({res.wall_s:.1f} s)")
+    print(
+        f"sweep: {res.n_points} points, {res.n_resumed} already done, {res.n_run} run now; "
+        f"{state}; {res.out} ({res.wall_s:.1f} s)"
+    )
     return 0

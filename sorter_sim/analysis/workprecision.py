@@ -1,4 +1,5 @@
-"""Work-precision measurement: run a method at a setting, time it, and measure its error.
+"""
+Work-precision measurement: run a method at a setting, time it, and measure its error.
 
 This module owns the machinery behind ``sorter bench``, in the manner of SciML's
 work-precision diagrams (DiffEqDevTools ``benchmark.jl``): a stated reference, the
@@ -21,6 +22,7 @@ with their reason, and the machine and library versions printed with the figures
 
 Units: SI (m, s, rad); errors in m (positions) and s (event times).
 """
+
 from __future__ import annotations
 
 import math
@@ -32,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import integrators as _ig
+
 # the Dormand-Prince tableau and Shampine's dense-output coefficients the core steps with
 from ..core.integrators import _A as _DP_A, _B as _DP_B, _C as _DP_C, _P as _DP_P
 from ..core.oscillator import Oscillator, exact_phases, run_oscillator
@@ -64,11 +67,19 @@ def machine_info() -> dict:
         pass
     import numba
     import scipy
-    info = {"cpu": cpu, "cores": os.cpu_count(), "os": platform.platform(terse=True),
-            "python": platform.python_version(), "numpy": np.__version__,
-            "scipy": scipy.__version__, "numba": numba.__version__}
+
+    info = {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "os": platform.platform(terse=True),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "numba": numba.__version__,
+    }
     try:
         import matplotlib
+
         info["matplotlib"] = matplotlib.__version__
     except ImportError:
         pass
@@ -77,8 +88,9 @@ def machine_info() -> dict:
 
 def machine_line(info: dict | None = None) -> str:
     info = info or machine_info()
-    libs = ", ".join(f"{k} {info[k]}" for k in ("python", "numpy", "scipy", "numba", "matplotlib")
-                     if k in info)
+    libs = ", ".join(
+        f"{k} {info[k]}" for k in ("python", "numpy", "scipy", "numba", "matplotlib") if k in info
+    )
     return f"{info['cpu']}, {info['cores']} cores, {info['os']}; {libs}"
 
 
@@ -101,7 +113,8 @@ class one_core:
 # ------------------------------------------------------------------ trajectories
 @dataclass
 class Trajectory:
-    """Records of one run: t (n,), q (n, k) positions, dq (n, k) their rates.
+    """
+    Records of one run: t (n,), q (n, k) positions, dq (n, k) their rates.
 
     events: [(t, kind, key)] with kind in EVENT_KINDS; keys identify the same event
     in two runs (the surface for stick/break, (corner, border) for a zone entry).
@@ -115,8 +128,8 @@ class Trajectory:
     n_steps: int = 0
     n_rhs: int = 0
     status: str = "ok"
-    pieces: list = field(default_factory=list)   # [(t0, t1, fn(tq) -> (q, dq))], sorted
-    make_pieces: object = None                   # built on first use, outside any timing
+    pieces: list = field(default_factory=list)  # [(t0, t1, fn(tq) -> (q, dq))], sorted
+    make_pieces: object = None  # built on first use, outside any timing
 
     def __post_init__(self):
         self.t = np.asarray(self.t, float)
@@ -128,7 +141,10 @@ class Trajectory:
         return float(self.t[-1])
 
     def at(self, tq) -> tuple[np.ndarray, np.ndarray]:
-        """(q, q̇) at times tq: the method's own dense output where it has one
+        """
+        Return (q, q̇) at times tq.
+
+        (q, q̇) at times tq: the method's own dense output where it has one
         (``pieces``), else cubic Hermite interpolation on (q, q̇) between records.
 
         A record pair at one time (a velocity jump at an event) splits the pieces:
@@ -168,15 +184,21 @@ class Trajectory:
         s = np.where(ok, (tq - self.t[i]) / np.where(ok, h, 1.0), 0.0)[:, None]
         hh = np.where(ok, h, 0.0)[:, None]
         q0, q1, d0, d1 = self.q[i], self.q[i2], self.dq[i], self.dq[i2]
-        h00 = 2 * s ** 3 - 3 * s ** 2 + 1
-        h10 = s ** 3 - 2 * s ** 2 + s
-        h01 = -2 * s ** 3 + 3 * s ** 2
-        h11 = s ** 3 - s ** 2
+        h00 = 2 * s**3 - 3 * s**2 + 1
+        h10 = s**3 - 2 * s**2 + s
+        h01 = -2 * s**3 + 3 * s**2
+        h11 = s**3 - s**2
         q = h00 * q0 + h10 * hh * d0 + h01 * q1 + h11 * hh * d1
         with np.errstate(invalid="ignore", divide="ignore"):
-            dq = np.where(ok[:, None], ((6 * s ** 2 - 6 * s) * (q0 - q1) / np.where(hh > 0, hh, 1.0)
-                                        + (3 * s ** 2 - 4 * s + 1) * d0 + (3 * s ** 2 - 2 * s) * d1),
-                          self.dq[i])
+            dq = np.where(
+                ok[:, None],
+                (
+                    (6 * s**2 - 6 * s) * (q0 - q1) / np.where(hh > 0, hh, 1.0)
+                    + (3 * s**2 - 4 * s + 1) * d0
+                    + (3 * s**2 - 2 * s) * d1
+                ),
+                self.dq[i],
+            )
         beyond = tq > self.t[-1]
         if np.any(beyond):
             q[beyond] = self.q[-1] + self.dq[-1] * (tq[beyond] - self.t[-1])[:, None]
@@ -187,7 +209,8 @@ class Trajectory:
         return q, dq
 
     def with_zone_events(self, A: float, B: float, borders) -> "Trajectory":
-        """Add 'zone' events: each footprint corner crossing each strip border.
+        """
+        Add 'zone' events: each footprint corner crossing each strip border.
 
         Times come from the interpolated trajectory (a sign change of corner x -
         border between records, refined by bisection on the Hermite pieces), so
@@ -222,7 +245,9 @@ class Trajectory:
                         else:
                             hi = mid
                     found.append((float(hi), "zone", (c, b, n_cross)))
-        self.events = sorted([e for e in self.events if e[1] != "zone"] + found, key=lambda e: e[0])
+        self.events = sorted(
+            [e for e in self.events if e[1] != "zone"] + found, key=lambda e: e[0]
+        )
         return self
 
 
@@ -233,9 +258,9 @@ class Errors:
 
     final: float
     grid_max: float
-    events: dict          # kind -> max |Δt| over the reference's events of that kind
-    missing: dict         # kind -> count of reference events the run did not produce
-    extra: dict           # kind -> count of events beyond the reference's
+    events: dict  # kind -> max |Δt| over the reference's events of that kind
+    missing: dict  # kind -> count of reference events the run did not produce
+    extra: dict  # kind -> count of events beyond the reference's
 
     def event_text(self, kind: str) -> str:
         e = self.events.get(kind, math.nan)
@@ -246,12 +271,13 @@ class Errors:
 
 
 def _position(q: np.ndarray) -> np.ndarray:
-    """The positional part compared: CoG (x, y) for the parcel, x for the Fig. 4 body."""
+    """Return the positional part compared: CoG (x, y) for the parcel, x for the Fig. 4 body."""
     return q[:, :2] if q.shape[1] >= 3 else q[:, :1]
 
 
 def compare(run: Trajectory, ref: Trajectory, grid_hz: float = 1000.0) -> Errors:
-    """Errors of ``run`` against ``ref`` (see the module docstring).
+    """
+    Errors of ``run`` against ``ref`` (see the module docstring).
 
     final: |p(t_f) - p_ref(t_f)| at the reference's last time t_f (CoG position);
     grid_max: max of the same over t0, t0 + 1/grid_hz, ... up to the common end;
@@ -296,7 +322,8 @@ def compare(run: Trajectory, ref: Trajectory, grid_hz: float = 1000.0) -> Errors
 
 # ------------------------------------------------------------------ dense output of DP5 records
 def dp5_pieces(t: np.ndarray, Y: np.ndarray, rhs_for_step, n_pos: int) -> list:
-    """The dense output of Dormand-Prince 5(4) steps that ended at consecutive records.
+    """
+    Return the dense output of Dormand-Prince 5(4) steps that ended at consecutive records.
 
     The accurate methods record step ends only. Each interval between records is
     redone as one Dormand-Prince step from record i with h = t[i+1] - t[i] (same
@@ -332,15 +359,17 @@ def dp5_pieces(t: np.ndarray, Y: np.ndarray, rhs_for_step, n_pos: int) -> list:
 def _dp5_eval(t0, h, y0, K, n_pos):
     def fn(tq):
         th = (np.asarray(tq) - t0) / h
-        powers = np.vstack([th, th ** 2, th ** 3, th ** 4])      # (4, m)
+        powers = np.vstack([th, th**2, th**3, th**4])  # (4, m)
         y = y0[None, :] + h * (K.T @ (_DP_P @ powers)).T
-        return y[:, :n_pos], y[:, n_pos:2 * n_pos]
+        return y[:, :n_pos], y[:, n_pos : 2 * n_pos]
+
     return fn
 
 
 # ------------------------------------------------------------------ runners: the core model
 def core_trajectory(res, mode0: int | None = None) -> Trajectory:
-    """A ``SimResult`` as a Trajectory, its events named as ``compare`` matches them.
+    """
+    Return a ``SimResult`` as a Trajectory, its events named as ``compare`` matches them.
 
     The threshold method logs the set of 'static' surfaces as a bit mask; it is
     turned into per-surface stick (surface becomes static) and break events.
@@ -365,8 +394,15 @@ def core_trajectory(res, mode0: int | None = None) -> Trajectory:
                 events.append((t, kind, info))
             elif kind == "target":
                 events.append((t, "scrap", None))
-    return Trajectory(res.t, res.y[:, :3], res.y[:, 3:], events, n_steps=res.n_steps,
-                      n_rhs=res.n_rhs, status="ok" if res.success else res.message)
+    return Trajectory(
+        res.t,
+        res.y[:, :3],
+        res.y[:, 3:],
+        events,
+        n_steps=res.n_steps,
+        n_rhs=res.n_rhs,
+        status="ok" if res.success else res.message,
+    )
 
 
 @dataclass
@@ -388,13 +424,25 @@ class ParcelCase:
     def run_core(self, method: str, **settings):
         """One run of a core method (settings: rtol/atol, dt, v_min, reductions ...)."""
         settings.setdefault("max_points", _capacity(self.t_span, settings.get("dt")))
-        return simulate(self.parcel, self.strips, self.y0, self.t_span, method,
-                        y_target=self.y_target, rotation=self.rotation, n_quad=self.n_quad,
-                        **settings)
+        return simulate(
+            self.parcel,
+            self.strips,
+            self.y0,
+            self.t_span,
+            method,
+            y_target=self.y_target,
+            rotation=self.rotation,
+            n_quad=self.n_quad,
+            **settings,
+        )
 
     def trajectory(self, res) -> Trajectory:
-        """A core result as a Trajectory with zone events; the accurate method's records
-        are read through its own dense output (``dp5_pieces``)."""
+        """
+        Return a core result as a Trajectory with zone events.
+
+        A core result as a Trajectory with zone events; the accurate method's records
+        are read through its own dense output (``dp5_pieces``).
+        """
         par = parcel_array(self.parcel, self.rotation, self.n_quad)
         arr = strip_array(self.strips)
         traj = core_trajectory(res, initial_mode(np.asarray(self.y0, float), arr, par))
@@ -406,8 +454,10 @@ class ParcelCase:
                 out = np.empty(6)
                 _ig.rhs_slide(y, arr, par, nodes, weights, nsurf, out)
                 return out
-            traj.make_pieces = lambda tr: dp5_pieces(tr.t, np.hstack([tr.q, tr.dq]),
-                                                     lambda t0, y0: f, 3)
+
+            traj.make_pieces = lambda tr: dp5_pieces(
+                tr.t, np.hstack([tr.q, tr.dq]), lambda t0, y0: f, 3
+            )
         return traj.with_zone_events(self.parcel.A, self.parcel.B, self.borders)
 
     def core(self, method: str, **settings) -> Trajectory:
@@ -425,7 +475,8 @@ class BudgetExceeded(RuntimeError):
 
 
 class ScipyParcel:
-    """scipy's ``solve_ivp`` on the core's planar model, stick/slip handled around it.
+    """
+    scipy's ``solve_ivp`` on the core's planar model, stick/slip handled around it.
 
     solve_ivp integrates smooth ODEs; this model is a hybrid system. What scipy can
     do: the sliding phases, with the core's right-hand side ``rhs_slide`` (the same
@@ -464,8 +515,9 @@ class ScipyParcel:
         if self.n_rhs > self.max_rhs:
             raise BudgetExceeded(f"more than {self.max_rhs:.0f} right-hand-side evaluations")
         out = np.empty(6)
-        _ig.rhs_slide(np.asarray(y, float), self.arr, self.par, self.nodes, self.weights,
-                      self.nsurf, out)
+        _ig.rhs_slide(
+            np.asarray(y, float), self.arr, self.par, self.nodes, self.weights, self.nsurf, out
+        )
         return out
 
     def f_threshold(self, v_min):
@@ -476,9 +528,19 @@ class ScipyParcel:
             if self.n_rhs > self.max_rhs:
                 raise BudgetExceeded(f"more than {self.max_rhs:.0f} right-hand-side evaluations")
             out = np.empty(6)
-            _ig.rhs_threshold(np.asarray(y, float), self.arr, self.par, self.nodes, self.weights,
-                              self.nsurf, v_min, out, modes)
+            _ig.rhs_threshold(
+                np.asarray(y, float),
+                self.arr,
+                self.par,
+                self.nodes,
+                self.weights,
+                self.nsurf,
+                v_min,
+                out,
+                modes,
+            )
             return out
+
         return f
 
     def slip(self, y, s) -> np.ndarray:
@@ -486,8 +548,9 @@ class ScipyParcel:
         return np.array([y[3] - vx, y[4] - vy, self.rho * y[5] if self.case.rotation else 0.0])
 
     def margin(self, y, s) -> tuple[float, float]:
-        m, a, _, _, _ = _ig.stick_margin(np.asarray(y, float), self.arr, self.par, self.nodes,
-                                         self.weights, self.nsurf, s)
+        m, a, _, _, _ = _ig.stick_margin(
+            np.asarray(y, float), self.arr, self.par, self.nodes, self.weights, self.nsurf, s
+        )
         return m, a
 
     def _corner_offsets(self):
@@ -497,6 +560,7 @@ class ScipyParcel:
     # stuck: rigid translation with the surface until the stick fails
     def _stick_phase(self, t, y, s, t_end, y_target):
         from scipy.optimize import brentq
+
         vx, vy = self.vel[s]
         y = y.copy()
         y[3], y[4], y[5] = vx, vy, 0.0
@@ -537,20 +601,29 @@ class ScipyParcel:
         for ta, tb in zip(grid[:-1], grid[1:]):
             if fails(tb) > 0.0:
                 tr = brentq(fails, ta, tb, xtol=1e-15, rtol=1e-15)
-                while fails(tr) <= 0.0:      # take the first instant the stick has failed
+                while fails(tr) <= 0.0:  # take the first instant the stick has failed
                     tr = np.nextafter(tr, math.inf)
                 return tr, state(tr), "break"
         return t_stop, state(t_stop), reason
 
-    def run(self, method: str = "DOP853", rtol: float = 1e-8, atol: float = 1e-10,
-            eps: float | None = None, max_rhs: float = math.inf, max_segments: int = 20000,
-            dense: bool = False) -> Trajectory:
-        """Integrate the case; returns a Trajectory (raises on solver failure).
+    def run(
+        self,
+        method: str = "DOP853",
+        rtol: float = 1e-8,
+        atol: float = 1e-10,
+        eps: float | None = None,
+        max_rhs: float = math.inf,
+        max_segments: int = 20000,
+        dense: bool = False,
+    ) -> Trajectory:
+        """
+        Integrate the case; returns a Trajectory (raises on solver failure).
 
         dense: keep solve_ivp's own dense output of every sliding segment as the
         trajectory's pieces (what ``compare`` reads between steps).
         """
         from scipy.integrate import solve_ivp
+
         case = self.case
         self.n_rhs = 0
         self.max_rhs = max_rhs
@@ -580,15 +653,19 @@ class ScipyParcel:
                 continue
             evs, kinds = [], []
             if y_target < math.inf:
+
                 def e_target(tt, z):
                     return z[1] - y_target
+
                 e_target.terminal, e_target.direction = True, 1
                 evs.append(e_target)
                 kinds.append(("scrap", None))
             for c, (ox, oy) in enumerate(offs):
                 for b, xb in enumerate(self.borders):
+
                     def e_border(tt, z, ox=ox, oy=oy, xb=xb):
                         return z[0] + math.cos(z[2]) * ox - math.sin(z[2]) * oy - xb
+
                     e_border.terminal = True
                     # right after a crossing only a crossing back counts
                     e_border.direction = direction_next.get((c, b), 0)
@@ -605,14 +682,24 @@ class ScipyParcel:
                     def e_stick(tt, z, s=s, d=d):
                         return float(self.slip(z, s) @ d)
                 else:
+
                     def e_stick(tt, z, s=s):
                         return float(np.linalg.norm(self.slip(z, s))) - eps
+
                 e_stick.terminal, e_stick.direction = True, -1
                 evs.append(e_stick)
                 kinds.append(("stick", s))
             direction_next = {}
-            sol = solve_ivp(self.f, (t, t_end), y, method=method, rtol=rtol, atol=atol, events=evs,
-                            dense_output=dense)
+            sol = solve_ivp(
+                self.f,
+                (t, t_end),
+                y,
+                method=method,
+                rtol=rtol,
+                atol=atol,
+                events=evs,
+                dense_output=dense,
+            )
             if sol.status == -1:
                 raise RuntimeError(sol.message)
             if dense and sol.t[-1] > sol.t[0]:
@@ -635,7 +722,9 @@ class ScipyParcel:
             s = info
             # the projection also changes sign when the slip turns by more than 90 degrees
             # within one segment: that is no stick; restart aimed along the new slip
-            if np.linalg.norm(self.slip(y, s)) > 1e-2 * slip_start[s] + 10.0 * (atol + rtol * vscale):
+            if np.linalg.norm(self.slip(y, s)) > 1e-2 * slip_start[s] + 10.0 * (
+                atol + rtol * vscale
+            ):
                 continue
             z = y.copy()
             z[3], z[4], z[5] = self.vel[s][0], self.vel[s][1], 0.0
@@ -649,33 +738,67 @@ class ScipyParcel:
         else:
             raise RuntimeError(f"more than {max_segments} phases")
         Y = np.array(Y)
-        return Trajectory(np.array(T), Y[:, :3], Y[:, 3:], events, n_steps=n_steps,
-                          n_rhs=self.n_rhs, pieces=pieces)
+        return Trajectory(
+            np.array(T),
+            Y[:, :3],
+            Y[:, 3:],
+            events,
+            n_steps=n_steps,
+            n_rhs=self.n_rhs,
+            pieces=pieces,
+        )
 
-    def run_threshold(self, method: str = "RK45", rtol: float = 1e-6, atol: float = 1e-8,
-                      v_min: float = 1e-6, max_rhs: float = math.inf,
-                      dense: bool = False) -> Trajectory:
-        """solve_ivp straight on the seed's threshold model (eqs. 3.1/4.2/4.4): no events
-        but the scrap line; the switch at |slip| = v_min is left to step control."""
+    def run_threshold(
+        self,
+        method: str = "RK45",
+        rtol: float = 1e-6,
+        atol: float = 1e-8,
+        v_min: float = 1e-6,
+        max_rhs: float = math.inf,
+        dense: bool = False,
+    ) -> Trajectory:
+        """
+        Run solve_ivp on the seed's threshold model.
+
+        solve_ivp straight on the seed's threshold model (eqs. 3.1/4.2/4.4): no events
+        but the scrap line; the switch at |slip| = v_min is left to step control.
+        """
         from scipy.integrate import solve_ivp
+
         case = self.case
         self.n_rhs = 0
         self.max_rhs = max_rhs
         evs = []
         if case.y_target < math.inf:
+
             def e_target(tt, z):
                 return z[1] - case.y_target
+
             e_target.terminal, e_target.direction = True, 1
             evs.append(e_target)
-        sol = solve_ivp(self.f_threshold(v_min), case.t_span, np.array(case.y0, float),
-                        method=method, rtol=rtol, atol=atol, events=evs or None,
-                        dense_output=dense)
+        sol = solve_ivp(
+            self.f_threshold(v_min),
+            case.t_span,
+            np.array(case.y0, float),
+            method=method,
+            rtol=rtol,
+            atol=atol,
+            events=evs or None,
+            dense_output=dense,
+        )
         if sol.status == -1:
             raise RuntimeError(sol.message)
         events = [(float(sol.t[-1]), "scrap", None)] if sol.status == 1 else []
         pieces = [(float(sol.t[0]), float(sol.t[-1]), _ode_piece(sol.sol))] if dense else []
-        return Trajectory(sol.t, sol.y[:3].T, sol.y[3:].T, events, n_steps=len(sol.t) - 1,
-                          n_rhs=self.n_rhs, pieces=pieces)
+        return Trajectory(
+            sol.t,
+            sol.y[:3].T,
+            sol.y[3:].T,
+            events,
+            n_steps=len(sol.t) - 1,
+            n_rhs=self.n_rhs,
+            pieces=pieces,
+        )
 
     def finish(self, traj: Trajectory) -> Trajectory:
         """Zone events of a run (outside the timing)."""
@@ -683,53 +806,69 @@ class ScipyParcel:
 
 
 def _ode_piece(sol, n_pos: int = 3):
-    """A solve_ivp OdeSolution as a Trajectory piece (its own interpolant)."""
+    """Return a solve_ivp OdeSolution as a Trajectory piece (its own interpolant)."""
+
     def fn(tq):
         y = sol(tq)
-        return y[:n_pos].T, y[n_pos:2 * n_pos].T
+        return y[:n_pos].T, y[n_pos : 2 * n_pos].T
+
     return fn
 
 
 # ------------------------------------------------------------------ runners: the Fig. 4 body
 def oscillator_exact(osc: Oscillator, t_end: float) -> Trajectory:
-    """The exact piecewise Coulomb solution as a Trajectory, read exactly at any time."""
+    """Return the exact piecewise Coulomb solution as a Trajectory, read exactly at any time."""
     from ..core.oscillator import exact_solution
+
     phases = exact_phases(osc, t_end)
     starts = [p[0] for p in phases if 0.0 < p[0] < t_end]
     t = np.unique(np.concatenate([np.linspace(0.0, t_end, int(t_end * 100) + 1), starts]))
     ex = exact_solution(osc, t_end, t_eval=t)
-    events = [(p[0], "break" if p[1] == "slide" else "stick", 0) for p in phases[1:]
-              if p[0] < t_end]
+    events = [
+        (p[0], "break" if p[1] == "slide" else "stick", 0) for p in phases[1:] if p[0] < t_end
+    ]
 
     def exact(tq):
         e = exact_solution(osc, t_end, t_eval=tq)
         return e.x[:, None], e.v[:, None]
+
     return Trajectory(ex.t, ex.x, ex.v, events, pieces=[(0.0, t_end, exact)])
 
 
 def _oscillator_rhs(osc: Oscillator):
     """Sliding right-hand side of the Fig. 4 body for a step starting at (t0, y0)."""
+
     def for_step(t0, y0):
         p0 = osc.k * (osc.v_drive * t0 - y0[0])
         sigma = 1.0 if (y0[1] > 0 or (y0[1] == 0 and p0 > 0)) else -1.0
 
         def f(t, y):
             return np.array([y[1], (osc.k * (osc.v_drive * t - y[0]) - sigma * osc.F_kin) / osc.m])
+
         return f
+
     return for_step
 
 
 def oscillator_core(osc: Oscillator, t_end: float, method: str, **settings):
-    """One core run of the Fig. 4 body (``oscillator_trajectory`` reads it); room for every
-    fixed step's record (run_oscillator drops records beyond max_points)."""
+    """
+    Run the Fig. 4 body with a core method.
+
+    One core run of the Fig. 4 body (``oscillator_trajectory`` reads it); room for every
+    fixed step's record (run_oscillator drops records beyond max_points).
+    """
     if method != "accurate":
         settings.setdefault("max_points", int(t_end / settings.get("dt", 1e-3)) + 10)
     return run_oscillator(osc, t_end, method, **settings)
 
 
 def oscillator_trajectory(osc: Oscillator, res) -> Trajectory:
-    """A core oscillator run as a Trajectory; eq. 3.1 rows of the threshold method map to
-    events as the seed reads them: entering row 3 = leaving rest, entering row 2 = rest."""
+    """
+    Return a core oscillator run as a Trajectory.
+
+    A core oscillator run as a Trajectory; eq. 3.1 rows of the threshold method map to
+    events as the seed reads them: entering row 3 = leaving rest, entering row 2 = rest.
+    """
     events = []
     for t, kind in res.events:
         k = {"slip": "break", "row3": "break", "stick": "stick", "row2": "stick"}.get(kind)
@@ -737,16 +876,28 @@ def oscillator_trajectory(osc: Oscillator, res) -> Trajectory:
             events.append((t, k, 0))
     traj = Trajectory(res.t, res.x, res.v, events, n_steps=res.n_steps, n_rhs=res.n_rhs)
     if res.method == "accurate":
-        traj.make_pieces = lambda tr: dp5_pieces(tr.t, np.hstack([tr.q, tr.dq]),
-                                                 _oscillator_rhs(osc), 1)
+        traj.make_pieces = lambda tr: dp5_pieces(
+            tr.t, np.hstack([tr.q, tr.dq]), _oscillator_rhs(osc), 1
+        )
     return traj
 
 
-def oscillator_scipy(osc: Oscillator, t_end: float, method: str = "DOP853", rtol: float = 1e-8,
-                     atol: float = 1e-10, dense: bool = False) -> Trajectory:
-    """solve_ivp on each sliding phase (terminal event: speed back to zero); rests in
-    closed form (P = k (ẋ_s t - x) reaches F_stat at a known time)."""
+def oscillator_scipy(
+    osc: Oscillator,
+    t_end: float,
+    method: str = "DOP853",
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    dense: bool = False,
+) -> Trajectory:
+    """
+    Run solve_ivp on the Fig. 4 body, phase by phase.
+
+    solve_ivp on each sliding phase (terminal event: speed back to zero); rests in
+    closed form (P = k (ẋ_s t - x) reaches F_stat at a known time).
+    """
     from scipy.integrate import solve_ivp
+
     m, f_kin, f_stat, k, vd = osc.m, osc.F_kin, osc.F_stat, osc.k, osc.v_drive
     t, x, v = 0.0, 0.0, 0.0
     T, X, V, events, pieces = [0.0], [0.0], [0.0], [], []
@@ -771,10 +922,19 @@ def oscillator_scipy(osc: Oscillator, t_end: float, method: str = "DOP853", rtol
 
         def stop(tt, z, sigma=sigma):
             return z[1] * sigma
+
         stop.terminal, stop.direction = True, -1
         # the speed starts at 0: skip the start by looking for it only once it moved
-        sol = solve_ivp(f, (t, t_end), [x, v], method=method, rtol=rtol, atol=atol,
-                        events=stop if v != 0.0 else _after_start(stop, t), dense_output=dense)
+        sol = solve_ivp(
+            f,
+            (t, t_end),
+            [x, v],
+            method=method,
+            rtol=rtol,
+            atol=atol,
+            events=stop if v != 0.0 else _after_start(stop, t),
+            dense_output=dense,
+        )
         if sol.status == -1:
             raise RuntimeError(sol.message)
         if dense and sol.t[-1] > sol.t[0]:
@@ -794,9 +954,11 @@ def oscillator_scipy(osc: Oscillator, t_end: float, method: str = "DOP853", rtol
 
 
 def _after_start(event, t0, skip=1e-12):
-    """An event that cannot fire within ``skip`` of the segment start (where it is 0)."""
+    """Return an event that cannot fire within ``skip`` of the segment start (where it is 0)."""
+
     def e(tt, z):
         return event(tt, z) if tt > t0 + skip else 1.0
+
     e.terminal, e.direction = event.terminal, event.direction
     return e
 
@@ -822,7 +984,8 @@ class WPRow:
 
 
 def timed(fn, repeats: int = 3, budget_s: float = 2.0):
-    """Run ``fn`` repeatedly: returns (last result, min wall time, number of timed runs).
+    """
+    Run ``fn`` repeatedly: returns (last result, min wall time, number of timed runs).
 
     The caller discards a warm-up run per method beforehand (``measure`` does);
     repeats stop early once ``budget_s`` has been spent, after at least one run.
@@ -846,9 +1009,19 @@ def timed(fn, repeats: int = 3, budget_s: float = 2.0):
 _WARM: set = set()
 
 
-def measure(case_name: str, family: str, setting: str, run, ref: Trajectory | None,
-            finish=None, repeats: int = 3, budget_s: float = 2.0, warm_key=None) -> WPRow:
-    """Time ``run()`` and compare ``finish(result)`` (a Trajectory) with ``ref``.
+def measure(
+    case_name: str,
+    family: str,
+    setting: str,
+    run,
+    ref: Trajectory | None,
+    finish=None,
+    repeats: int = 3,
+    budget_s: float = 2.0,
+    warm_key=None,
+) -> WPRow:
+    """
+    Time ``run()`` and compare ``finish(result)`` (a Trajectory) with ``ref``.
 
     Only ``run`` is timed; ``finish`` turns its result into a Trajectory (dense
     output, zone events) afterwards. The first call for each ``warm_key`` (default:
@@ -876,14 +1049,16 @@ def measure(case_name: str, family: str, setting: str, run, ref: Trajectory | No
     if ref is not None:
         scrapped = any(k == "scrap" for _, k, _ in traj.events)
         if traj.t_end < ref.t_end - 1e-2 and not scrapped:
-            row.failure = f"output ends at t = {traj.t_end:.4g} s, before the reference's {ref.t_end:.4g} s"
+            row.failure = (
+                f"output ends at t = {traj.t_end:.4g} s, before the reference's {ref.t_end:.4g} s"
+            )
             return row
         row.errors = compare(traj, ref)
     return row
 
 
 def cheapest_within(rows: list[WPRow], error: float, attr: str = "final") -> WPRow | None:
-    """The fastest successful row whose error ``attr`` is at most ``error``."""
+    """Return the fastest successful row whose error ``attr`` is at most ``error``."""
     ok = [r for r in rows if r.ok and r.errors is not None and getattr(r.errors, attr) <= error]
     return min(ok, key=lambda r: r.wall_s) if ok else None
 
@@ -899,14 +1074,24 @@ def fmt_ms(x: float) -> str:
 
 
 def rows_markdown(rows: list[WPRow], kinds=EVENT_KINDS) -> str:
-    """A markdown table of rows: family, setting, time, errors, events, failures."""
-    head = ["method", "setting", "time [ms]", "runs", "rhs", "final CoG err [m]",
-            "max err 1 kHz [m]"] + [f"{k} Δt [s]" for k in kinds] + ["status"]
+    """Return a markdown table of rows: family, setting, time, errors, events, failures."""
+    head = (
+        ["method", "setting", "time [ms]", "runs", "rhs", "final CoG err [m]", "max err 1 kHz [m]"]
+        + [f"{k} Δt [s]" for k in kinds]
+        + ["status"]
+    )
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         e = r.errors
-        cells = [r.family, r.setting, fmt_ms(r.wall_s), str(r.n_runs or "–"), str(r.n_rhs or "–"),
-                 fmt_e(e.final) if e else "–", fmt_e(e.grid_max) if e else "–"]
+        cells = [
+            r.family,
+            r.setting,
+            fmt_ms(r.wall_s),
+            str(r.n_runs or "–"),
+            str(r.n_rhs or "–"),
+            fmt_e(e.final) if e else "–",
+            fmt_e(e.grid_max) if e else "–",
+        ]
         cells += [e.event_text(k) if e else "–" for k in kinds]
         status = r.failure or "ok"
         if e and e.extra:
@@ -917,11 +1102,17 @@ def rows_markdown(rows: list[WPRow], kinds=EVENT_KINDS) -> str:
 
 
 def plot_work_precision(rows: list[WPRow], path, title: str, attr: str = "final", ax=None) -> None:
-    """Error (log x) against wall time (log y), one line per family; failures left out.
-    Draws into ``ax`` when given, else writes a PNG to ``path``."""
+    """
+    Plot error against wall time.
+
+    Error (log x) against wall time (log y), one line per family; failures left out.
+    Draws into ``ax`` when given, else writes a PNG to ``path``.
+    """
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     own = ax is None
     if own:
         fig, ax = plt.subplots(figsize=(7.5, 5.0))
@@ -935,10 +1126,18 @@ def plot_work_precision(rows: list[WPRow], path, title: str, attr: str = "final"
     styles = ("-", "--", ":", "-.")
     for i, (fam, pts) in enumerate(families.items()):
         pts.sort()
-        ax.loglog([p[0] for p in pts], [p[1] for p in pts], marker=markers[i % len(markers)],
-                  ls=styles[(i // 10) % len(styles)], label=fam, lw=1.2, ms=4)
-    ax.set_xlabel("error [m]" + (" (max over 1 kHz grid)" if attr == "grid_max" else
-                                 " (final CoG position)"))
+        ax.loglog(
+            [p[0] for p in pts],
+            [p[1] for p in pts],
+            marker=markers[i % len(markers)],
+            ls=styles[(i // 10) % len(styles)],
+            label=fam,
+            lw=1.2,
+            ms=4,
+        )
+    ax.set_xlabel(
+        "error [m]" + (" (max over 1 kHz grid)" if attr == "grid_max" else " (final CoG position)")
+    )
     ax.set_ylabel("wall time [s]")
     ax.set_title(title, fontsize=10)
     ax.grid(True, which="both", alpha=0.3)

@@ -1,4 +1,5 @@
-"""Many parcels on one cell, advanced a control period at a time: the numba kernels.
+"""
+Many parcels on one cell, advanced a control period at a time: the numba kernels.
 
 The cell is the seed's three-zone conveyor (Fig. 6) seen as hardware: a belt
 moving at v, a disk field 0 <= x <= b whose surface moves at v(cos α, sin α) and
@@ -38,6 +39,7 @@ opening jam the parcels involved: they stop, never pass through each other.
 
 Units: SI (m, s, rad, kg); sensor edge offsets tau in s from the period start.
 """
+
 from __future__ import annotations
 
 import math
@@ -62,39 +64,39 @@ from .layout import (
 )
 
 # ---- configuration row (float64) ---------------------------------------------------
-C_V = 0            # belt speed v [m/s] while the belt runs
-C_HALF_W = 1       # w/2 [m]
-C_B = 2            # disk field length b [m]
-C_OPEN_LO = 3      # chute openings: x range [m]
+C_V = 0  # belt speed v [m/s] while the belt runs
+C_HALF_W = 1  # w/2 [m]
+C_B = 2  # disk field length b [m]
+C_OPEN_LO = 3  # chute openings: x range [m]
 C_OPEN_HI = 4
-C_EXIT_X = 5       # straight exit: CoG beyond this x [m]
-C_SCAN_X = 6       # scanner line x [m]
-C_DT = 7           # control period [s]
-C_ALPHA_RATE = 8   # disk-angle slew rate [rad/s]
+C_EXIT_X = 5  # straight exit: CoG beyond this x [m]
+C_SCAN_X = 6  # scanner line x [m]
+C_DT = 7  # control period [s]
+C_ALPHA_RATE = 8  # disk-angle slew rate [rad/s]
 C_STROKE_RATE = 9  # pop-up stroke rate [1/s] (inf: instantaneous)
 C_RTOL = 10
 C_ATOL = 11
-C_METHOD = 12      # 0 accurate, 1 implicit
-C_LAW_A = 13       # law ids of the belt and the disks
+C_METHOD = 12  # 0 accurate, 1 implicit
+C_LAW_A = 13  # law ids of the belt and the disks
 C_LAW_B = 14
 CFG_WIDTH = 15
 
 # ---- actuator state (float64) ------------------------------------------------------
-A_ALPHA = 0         # physical disk angle [rad]
-A_ALPHA_CMD = 1     # commanded disk angle [rad]
-A_STROKE = 2        # pop-up position 0 (down) .. 1 (up)
+A_ALPHA = 0  # physical disk angle [rad]
+A_ALPHA_CMD = 1  # commanded disk angle [rad]
+A_STROKE = 2  # pop-up position 0 (down) .. 1 (up)
 A_STROKE_TARGET = 3
-A_BELT_ON = 4       # 1 running, 0 stopped (e-stop)
-A_ALPHA_DOT = 5     # rates over the last period [rad/s], [1/s]
+A_BELT_ON = 4  # 1 running, 0 stopped (e-stop)
+A_ALPHA_DOT = 5  # rates over the last period [rad/s], [1/s]
 A_STROKE_DOT = 6
 ACT_WIDTH = 7
 
 # ---- parcel phases -----------------------------------------------------------------
-PH_FREE = 0          # empty slot
-PH_CELL = 1          # on the belt / disks
-PH_CHUTE_LEFT = 2    # centre of gravity past y = +w/2: sliding off onto the left chute
+PH_FREE = 0  # empty slot
+PH_CELL = 1  # on the belt / disks
+PH_CHUTE_LEFT = 2  # centre of gravity past y = +w/2: sliding off onto the left chute
 PH_CHUTE_RIGHT = 3
-PH_JAMMED = 4        # stopped by a jam until reset
+PH_JAMMED = 4  # stopped by a jam until reset
 
 # parcel modes (surface ids of the cell's strips: the belt is always surface 0)
 MODE_SLIDE = -1
@@ -110,13 +112,13 @@ S_STRAIGHT = 4
 S_JAMMED = 5
 
 # ---- events: ev_i rows [period index, kind, a, b], ev_f rows [tau, x, y] ------------
-EV_EDGE = 1      # a sensor changed: a = sensor index, b = 1 rising (blocked) / 0 falling
-EV_SCAN = 2      # leading edge crossed the scanner line: a = slot
-EV_LEFT = 3      # CoG crossed y = +w/2 in the opening: a = slot, (x, y) there
-EV_RIGHT = 4     # CoG crossed y = -w/2 in the opening
+EV_EDGE = 1  # a sensor changed: a = sensor index, b = 1 rising (blocked) / 0 falling
+EV_SCAN = 2  # leading edge crossed the scanner line: a = slot
+EV_LEFT = 3  # CoG crossed y = +w/2 in the opening: a = slot, (x, y) there
+EV_RIGHT = 4  # CoG crossed y = -w/2 in the opening
 EV_STRAIGHT = 5  # CoG passed exit_x: a = slot (now free), (x, y) there
-EV_JAM = 6       # a = slot jammed; b = other slot, -1 side wall, -2 integration failed
-EV_GONE = 7      # a parcel on a chute cleared the entry line: a = slot (now free)
+EV_JAM = 6  # a = slot jammed; b = other slot, -1 side wall, -2 integration failed
+EV_GONE = 7  # a parcel on a chute cleared the entry line: a = slot (now free)
 
 # geometric features a sensor condition looks at
 F_XMAX = 0
@@ -129,7 +131,7 @@ F_YCOG = 5
 # overlaps and wall crossings below this are contact, not a jam [m]
 CONTACT_TOL = 1e-9
 _MAX_STRIPS = 4
-_INT_BUF = 512   # integrator output rows per parcel-period (a few are used)
+_INT_BUF = 512  # integrator output rows per parcel-period (a few are used)
 
 
 @njit(cache=True)
@@ -153,7 +155,8 @@ def _set_strip(out, k, x_lo, x_hi, vx, vy, weight, surf, law_id, law):
 
 @njit(cache=True)
 def cell_strips(v, alpha, b, stroke, law_a_id, law_a, law_b_id, law_b, out):
-    """The cell's strips for one period, as ``strip_array(three_zone_strips(...))`` builds them.
+    """
+    Return the cell's strips for one period, as ``strip_array(three_zone_strips(...))``.
 
     Zone a (x < 0, belt), zone b (0..b: disks at v(cos α, sin α) carrying ``stroke`` of
     the load, the belt between them the rest), zone c (x > b, belt). Returns (number of
@@ -201,8 +204,12 @@ def _hermite(p0, v0, p1, v1, h, tau):
     s = tau / h
     s2 = s * s
     s3 = s2 * s
-    return ((2.0 * s3 - 3.0 * s2 + 1.0) * p0 + (s3 - 2.0 * s2 + s) * h * v0
-            + (-2.0 * s3 + 3.0 * s2) * p1 + (s3 - s2) * h * v1)
+    return (
+        (2.0 * s3 - 3.0 * s2 + 1.0) * p0
+        + (s3 - 2.0 * s2 + s) * h * v0
+        + (-2.0 * s3 + 3.0 * s2) * p1
+        + (s3 - s2) * h * v1
+    )
 
 
 @njit(cache=True)
@@ -231,7 +238,8 @@ def _feature_at(kind, s0, s1, h, tau, half_a, half_b):
 
 @njit(cache=True)
 def crossing_time(kind, level, s0, s1, h, half_a, half_b):
-    """When in [0, h] the feature crosses ``level`` (it must be on opposite sides at the ends).
+    """
+    When in [0, h] the feature crosses ``level`` (it must be on opposite sides at the ends).
 
     Motion at constant velocity without rotation (a parcel on the belt, or on a chute) makes
     every feature linear in time, solved exactly; otherwise bisection on the cubic Hermite
@@ -266,7 +274,7 @@ def _condition(kinds, levels, signs, c, kind, level, sign):
 
 @njit(cache=True)
 def _conditions(sensor, n_eyes, eye_x, cfg, kinds, levels, signs):
-    """A sensor is blocked when every condition sign*(feature - level) > 0 holds."""
+    """Return the conditions that block a sensor: every sign*(feature - level) > 0."""
     if sensor < n_eyes:
         # the footprint spans the beam's x
         _condition(kinds, levels, signs, 0, F_XMAX, eye_x[sensor], 1.0)
@@ -294,22 +302,32 @@ def _phase_counts(sensor, n_eyes, phase):
 
 @njit(cache=True)
 def sensor_blocked(sensor, n_eyes, eye_x, cfg, s, phase, half_a, half_b):
-    """Whether a parcel in pose ``s`` and ``phase`` blocks ``sensor`` (the conditions of
-    ``_conditions``, written out: this runs for every parcel and period)."""
+    """
+    Return whether a parcel blocks a sensor.
+
+    Whether a parcel in pose ``s`` and ``phase`` blocks ``sensor`` (the conditions of
+    ``_conditions``, written out: this runs for every parcel and period).
+    """
     if not _phase_counts(sensor, n_eyes, phase):
         return False
     hx, hy = half_extents(s[2], half_a, half_b)
     if sensor < n_eyes:
         return s[0] + hx > eye_x[sensor] and s[0] - hx < eye_x[sensor]
     line = cfg[C_HALF_W] if sensor == n_eyes else -cfg[C_HALF_W]
-    return (s[1] + hy > line and s[1] - hy < line and s[0] + hx > cfg[C_OPEN_LO]
-            and s[0] - hx < cfg[C_OPEN_HI])
+    return (
+        s[1] + hy > line
+        and s[1] - hy < line
+        and s[0] + hx > cfg[C_OPEN_LO]
+        and s[0] - hx < cfg[C_OPEN_HI]
+    )
 
 
 @njit(cache=True)
-def _edge_time(sensor, n_eyes, eye_x, cfg, s0, s1, h, half_a, half_b, rising, tau_phase,
-               kinds, levels, signs):
-    """Time of a parcel's own block/unblock of a sensor inside the period.
+def _edge_time(
+    sensor, n_eyes, eye_x, cfg, s0, s1, h, half_a, half_b, rising, tau_phase, kinds, levels, signs
+):
+    """
+    Time of a parcel's own block/unblock of a sensor inside the period.
 
     The blocked set is an intersection of half-lines in each feature, so it is entered when
     the last condition becomes true and left when the first becomes false. A parcel leaving
@@ -353,7 +371,7 @@ def rectangles_overlap(s1, ha1, hb1, s2, ha2, hb2, tol):
 
 @njit(cache=True)
 def crosses_wall(s, half_a, half_b, half_w, open_lo, open_hi, tol):
-    """True if the footprint reaches past a side wall y = ±w/2 outside the chute openings."""
+    """Return True if the footprint reaches past a side wall y = ±w/2 beside the chute openings."""
     corners = np.empty((4, 2))
     box_corners(s[0], s[1], s[2], half_a, half_b, corners)
     for side in (1.0, -1.0):
@@ -374,8 +392,12 @@ def crosses_wall(s, half_a, half_b, half_w, open_lo, open_hi, tol):
 
 @njit(cache=True)
 def upstream_room(state, phase, par, induct_x):
-    """Free belt length in front of the induct point [m] and the slot whose trailing edge
-    bounds it (-1 and inf when no parcel is on the cell)."""
+    """
+    Return the free belt length in front of the induct point.
+
+    Free belt length in front of the induct point [m] and the slot whose trailing edge
+    bounds it (-1 and inf when no parcel is on the cell).
+    """
     room = math.inf
     slot = -1
     for i in range(state.shape[0]):
@@ -390,8 +412,12 @@ def upstream_room(state, phase, par, induct_x):
 
 @njit(cache=True)
 def cell_snapshot(phase, mode, ids, state, par, b, out):
-    """Rows (id, x, y, φ, A, B, state code) of the parcels in the cell, in id order, into
-    ``out``; returns their number. Past the disk field on the belt counts as straight."""
+    """
+    Write the rows of the parcels in the cell into ``out``.
+
+    Rows (id, x, y, φ, A, B, state code) of the parcels in the cell, in id order, into
+    ``out``; returns their number. Past the disk field on the belt counts as straight.
+    """
     n = 0
     for i in range(phase.shape[0]):
         if phase[i] == PH_FREE:
@@ -436,9 +462,29 @@ def _emit(ev_i, ev_f, n_ev, k, kind, a, b, tau, x, y):
 
 
 @njit(cache=True)
-def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned, eye_x,
-                 blocked, counts, nodes, weights, ev_i, ev_f, ev_reserve, stats):
-    """Advance the cell over up to ``n_periods`` control periods from period index ``k0``.
+def advance_cell(
+    n_periods,
+    k0,
+    cfg,
+    laws,
+    act,
+    state,
+    mode,
+    phase,
+    par,
+    scanned,
+    eye_x,
+    blocked,
+    counts,
+    nodes,
+    weights,
+    ev_i,
+    ev_f,
+    ev_reserve,
+    stats,
+):
+    """
+    Advance the cell over up to ``n_periods`` control periods from period index ``k0``.
 
     cfg: configuration row (C_*); laws: (2, N) law parameter rows of belt and disks;
     act: actuator state (A_*), updated; state (cap, 6), mode, phase, par (cap,
@@ -486,8 +532,9 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
         a_mid = toward(a_start, act[A_ALPHA_CMD], 0.5 * da)
         st_mid = toward(st_start, act[A_STROKE_TARGET], 0.5 * ds)
         v = v_run if act[A_BELT_ON] > 0.5 else 0.0
-        n_strips, disk_sid = cell_strips(v, a_mid, b, st_mid, law_a_id, laws[0], law_b_id,
-                                         laws[1], strips)
+        n_strips, disk_sid = cell_strips(
+            v, a_mid, b, st_mid, law_a_id, laws[0], law_b_id, laws[1], strips
+        )
         strip_view = strips[:n_strips]
         ntr = 0
         for i in range(cap):
@@ -509,8 +556,12 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
                         m = MODE_SLIDE
                 elif m >= 0:
                     m = MODE_SLIDE
-                    if disk_sid >= 0 and s0[3] == strips[1, S_VX] and s0[4] == strips[1, S_VY] \
-                            and s0[5] == 0.0:
+                    if (
+                        disk_sid >= 0
+                        and s0[3] == strips[1, S_VX]
+                        and s0[4] == strips[1, S_VY]
+                        and s0[5] == 0.0
+                    ):
                         m = disk_sid
                 on_disks_alone = False
                 if m == MODE_BELT:
@@ -522,8 +573,7 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
                     # as on the belt, no force can break this stick
                     hx, _ = half_extents(s0[2], ha, hb)
                     x_end = s0[0] + strips[1, S_VX] * h
-                    on_disks_alone = (min(s0[0], x_end) - hx >= 0.0
-                                      and max(s0[0], x_end) + hx <= b)
+                    on_disks_alone = min(s0[0], x_end) - hx >= 0.0 and max(s0[0], x_end) + hx <= b
                 if rigid[i]:
                     state[i, 0] = s0[0] + v * h
                     mode[i] = MODE_BELT
@@ -536,12 +586,44 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
                     counters[:] = 0
                     if accurate:
                         status, _, m_new = run_accurate(
-                            s0, m, 0.0, h, math.inf, strip_view, par[i], nodes, weights, borders,
-                            cfg[C_RTOL], cfg[C_ATOL], h, True, ts, ys, ms, evb, counters)
+                            s0,
+                            m,
+                            0.0,
+                            h,
+                            math.inf,
+                            strip_view,
+                            par[i],
+                            nodes,
+                            weights,
+                            borders,
+                            cfg[C_RTOL],
+                            cfg[C_ATOL],
+                            h,
+                            True,
+                            ts,
+                            ys,
+                            ms,
+                            evb,
+                            counters,
+                        )
                     else:
                         status, _, m_new = run_implicit(
-                            s0, m, 0.0, h, math.inf, strip_view, par[i], nodes, weights, h,
-                            ts, ys, ms, evb, counters)
+                            s0,
+                            m,
+                            0.0,
+                            h,
+                            math.inf,
+                            strip_view,
+                            par[i],
+                            nodes,
+                            weights,
+                            h,
+                            ts,
+                            ys,
+                            ms,
+                            evb,
+                            counters,
+                        )
                     stats[1] += 1
                     stats[2] += counters[0]
                     stats[3] += counters[1]
@@ -577,16 +659,26 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
                         if cfg[C_OPEN_LO] <= x_at <= cfg[C_OPEN_HI]:
                             new_phase = PH_CHUTE_LEFT if side > 0.0 else PH_CHUTE_RIGHT
                             tau_phase = tau
-                            n_ev = _emit(ev_i, ev_f, n_ev, k,
-                                         EV_LEFT if side > 0.0 else EV_RIGHT, i, 0, tau, x_at,
-                                         side * half_w)
+                            n_ev = _emit(
+                                ev_i,
+                                ev_f,
+                                n_ev,
+                                k,
+                                EV_LEFT if side > 0.0 else EV_RIGHT,
+                                i,
+                                0,
+                                tau,
+                                x_at,
+                                side * half_w,
+                            )
                     elif s1[0] > cfg[C_EXIT_X]:
                         tau = crossing_time(F_XCOG, cfg[C_EXIT_X], s0, s1, h, ha, hb)
                         y_at = _hermite(s0[1], s0[4], s1[1], s1[4], h, tau)
                         new_phase = PH_FREE
                         tau_phase = tau
-                        n_ev = _emit(ev_i, ev_f, n_ev, k, EV_STRAIGHT, i, 0, tau, cfg[C_EXIT_X],
-                                     y_at)
+                        n_ev = _emit(
+                            ev_i, ev_f, n_ev, k, EV_STRAIGHT, i, 0, tau, cfg[C_EXIT_X], y_at
+                        )
             else:
                 # on a chute: it slides off at the velocity it left with (the chute is not
                 # modelled beyond its entry line), until the footprint has crossed the line
@@ -615,8 +707,22 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
                 b0 = blocked[i, s]
                 b1 = sensor_blocked(s, n_eyes, eye_x, cfg, s1, new_phase, ha, hb)
                 if b0 != b1:
-                    tr_tau[ntr] = _edge_time(s, n_eyes, eye_x, cfg, s0, s1, h, ha, hb, b1,
-                                             tau_phase, kinds, levels, signs)
+                    tr_tau[ntr] = _edge_time(
+                        s,
+                        n_eyes,
+                        eye_x,
+                        cfg,
+                        s0,
+                        s1,
+                        h,
+                        ha,
+                        hb,
+                        b1,
+                        tau_phase,
+                        kinds,
+                        levels,
+                        signs,
+                    )
                     tr_s[ntr] = s
                     tr_d[ntr] = 1 if b1 else -1
                     ntr += 1
@@ -644,10 +750,14 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
                 if j_starts and j < i:
                     continue  # this pair was checked from j
                 reach = r_i + math.hypot(par[j, P_HALF_A], par[j, P_HALF_B])
-                if abs(state[i, 0] - state[j, 0]) >= reach or abs(state[i, 1] - state[j, 1]) >= reach:
+                if (
+                    abs(state[i, 0] - state[j, 0]) >= reach
+                    or abs(state[i, 1] - state[j, 1]) >= reach
+                ):
                     continue
-                if rectangles_overlap(state[i], ha_i, hb_i, state[j], par[j, P_HALF_A],
-                                      par[j, P_HALF_B], CONTACT_TOL):
+                if rectangles_overlap(
+                    state[i], ha_i, hb_i, state[j], par[j, P_HALF_A], par[j, P_HALF_B], CONTACT_TOL
+                ):
                     for q, other in ((i, j), (j, i)):
                         if phase[q] == PH_CELL:
                             phase[q] = PH_JAMMED
@@ -655,14 +765,22 @@ def advance_cell(n_periods, k0, cfg, laws, act, state, mode, phase, par, scanned
                             state[q, 3] = 0.0
                             state[q, 4] = 0.0
                             state[q, 5] = 0.0
-                            n_ev = _emit(ev_i, ev_f, n_ev, k, EV_JAM, q, other, h, state[q, 0],
-                                         state[q, 1])
+                            n_ev = _emit(
+                                ev_i, ev_f, n_ev, k, EV_JAM, q, other, h, state[q, 0], state[q, 1]
+                            )
         # side walls outside the chute openings
         for i in range(cap):
             if phase[i] != PH_CELL or rigid[i]:
                 continue
-            if crosses_wall(state[i], par[i, P_HALF_A], par[i, P_HALF_B], half_w,
-                            cfg[C_OPEN_LO], cfg[C_OPEN_HI], CONTACT_TOL):
+            if crosses_wall(
+                state[i],
+                par[i, P_HALF_A],
+                par[i, P_HALF_B],
+                half_w,
+                cfg[C_OPEN_LO],
+                cfg[C_OPEN_HI],
+                CONTACT_TOL,
+            ):
                 phase[i] = PH_JAMMED
                 mode[i] = MODE_SLIDE
                 state[i, 3] = 0.0

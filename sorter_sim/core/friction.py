@@ -1,4 +1,5 @@
-"""Friction-coefficient characteristics μ(v_o) of the seed's Fig. 3, as numba kernels.
+"""
+Friction-coefficient characteristics μ(v_o) of the seed's Fig. 3, as numba kernels.
 
 A characteristic is a law id plus a row of float64 parameters, so that strips of
 the conveyor can carry their own law inside plain arrays that numba kernels read.
@@ -19,6 +20,7 @@ Laws (seed Fig. 3; parameter rows are documented on each ``LAW_*`` constant):
 
 Units: speeds in m/s, coefficients dimensionless.
 """
+
 from __future__ import annotations
 
 import math
@@ -26,12 +28,12 @@ import math
 import numpy as np
 from numba import njit
 
-LAW_CONST2 = 0    # params: [mu0, muG]
-LAW_CONST1 = 1    # params: [mu]
-LAW_LINEAR = 2    # params: [mu0, c]                 mu = mu0 + c v
-LAW_POLY = 3      # params: [c0, c1, c2, c3, c4, c5] mu = sum c_k v^k
+LAW_CONST2 = 0  # params: [mu0, muG]
+LAW_CONST1 = 1  # params: [mu]
+LAW_LINEAR = 2  # params: [mu0, c]                 mu = mu0 + c v
+LAW_POLY = 3  # params: [c0, c1, c2, c3, c4, c5] mu = sum c_k v^k
 LAW_STRIBECK = 4  # params: [mu0, mu_min, b1, b2, b3, v_knee]
-LAW_BSPLINE = 5   # params: [v0..v5, mu0..mu5]       control points
+LAW_BSPLINE = 5  # params: [v0..v5, mu0..mu5]       control points
 
 N_LAW_PARAMS = 38  # the b-spline keeps derived span coefficients after its 12 values
 
@@ -47,12 +49,12 @@ LAW_NAMES = {
 # Knots of a clamped cubic b-spline with six control points on t in [0, 1]; its three
 # spans [0,1/3], [1/3,2/3], [2/3,1] each hold one cubic in the local u = 3t - j.
 _BSPLINE_KNOTS = np.array([0.0, 0.0, 0.0, 0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0, 1.0, 1.0, 1.0])
-_BS_SPAN = 12       # per span j: 4 coefficients of v(u), then 4 of μ(u), ascending powers
-_BS_BOUNDS = 36     # v at the two inner knots
+_BS_SPAN = 12  # per span j: 4 coefficients of v(u), then 4 of μ(u), ascending powers
+_BS_BOUNDS = 36  # v at the two inner knots
 
 
 def _bspline_basis(t: float) -> np.ndarray:
-    """The six cubic basis functions of the clamped knot vector at t (Cox-de Boor)."""
+    """Return the six cubic basis functions of the clamped knot vector at t (Cox-de Boor)."""
     kn = _BSPLINE_KNOTS
     nb = np.zeros(9)
     if t >= 1.0:
@@ -85,10 +87,12 @@ def _bspline_row(values) -> np.ndarray:
         u = np.linspace(0.0, 1.0, 4)
         v, mu = bspline_curve(vals[:6], vals[6:12], (j + u) / 3.0)
         # four points fix a cubic exactly; ascending powers of u
-        row[_BS_SPAN + 8 * j: _BS_SPAN + 8 * j + 4] = np.polynomial.polynomial.polyfit(u, v, 3)
-        row[_BS_SPAN + 8 * j + 4: _BS_SPAN + 8 * j + 8] = np.polynomial.polynomial.polyfit(u, mu, 3)
+        row[_BS_SPAN + 8 * j : _BS_SPAN + 8 * j + 4] = np.polynomial.polynomial.polyfit(u, v, 3)
+        row[_BS_SPAN + 8 * j + 4 : _BS_SPAN + 8 * j + 8] = np.polynomial.polynomial.polyfit(
+            u, mu, 3
+        )
     inner_v, _ = bspline_curve(vals[:6], vals[6:12], [1.0 / 3.0, 2.0 / 3.0])
-    row[_BS_BOUNDS: _BS_BOUNDS + 2] = inner_v
+    row[_BS_BOUNDS : _BS_BOUNDS + 2] = inner_v
     return row
 
 
@@ -191,7 +195,7 @@ def mu_static(law, params):
 
 @njit(cache=True)
 def law_is_constant(law):
-    """True where μ does not depend on the rubbing speed while sliding (closed-form wrench)."""
+    """Return True where μ does not depend on the rubbing speed (closed-form wrench)."""
     return law == LAW_CONST1 or law == LAW_CONST2
 
 
@@ -201,7 +205,7 @@ def mu_kinetic_array(law: int, params: np.ndarray, speeds) -> np.ndarray:
 
 
 def law_row(law: int, values) -> np.ndarray:
-    """A parameter row of length N_LAW_PARAMS for ``law`` from its listed values."""
+    """Return a parameter row of length N_LAW_PARAMS for ``law`` from its listed values."""
     if law == LAW_BSPLINE:
         return _bspline_row(values)
     row = np.zeros(N_LAW_PARAMS)

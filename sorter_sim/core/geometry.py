@@ -1,4 +1,5 @@
-"""Footprint geometry: the parcel box, its part over one conveyor strip, and exact integrals.
+"""
+Footprint geometry: the parcel box, its part over one conveyor strip, and exact integrals.
 
 A zone's share of the footprint (the seed's S_i, eq. 4.3) is the convex polygon
 box ∩ {x_lo <= x <= x_hi}: at most six vertices, kept in fixed-size arrays so the
@@ -12,6 +13,7 @@ both by the divergence theorem reduced to the edge integral ∫ sqrt(τ² + h²)
 which has a closed form. They make the constant-μ friction wrench exact
 (see ``wrench.py``). Lengths in m, areas in m².
 """
+
 from __future__ import annotations
 
 import math
@@ -122,7 +124,8 @@ def _sqrt_integral(t, h):
 
 @njit(cache=True)
 def distance_integrals(poly, n, cx, cy):
-    """Exact (∫_P |p-c| dA, ∫_P (p-c)/|p-c| dA) for a counter-clockwise polygon.
+    """
+    Exact (∫_P |p-c| dA, ∫_P (p-c)/|p-c| dA) for a counter-clockwise polygon.
 
     Returns (I_r, Gx, Gy). Each edge contributes ∫ r ds = ∫ sqrt(τ² + h²) dτ with
     h its signed distance from c: ∫ r dA = (1/3) Σ h_e ∫_e r ds (since ∇·((p-c) r) = 3r)
@@ -145,8 +148,8 @@ def distance_integrals(poly, n, cx, cy):
         ny = -dx
         px = poly[i, 0] - cx
         py = poly[i, 1] - cy
-        t0 = px * dx + py * dy          # coordinate of the edge start along the edge
-        h = px * nx + py * ny           # signed distance of the edge line from c
+        t0 = px * dx + py * dy  # coordinate of the edge start along the edge
+        h = px * nx + py * ny  # signed distance of the edge line from c
         line = _sqrt_integral(t0 + length, h) - _sqrt_integral(t0, h)
         i_r += h * line / 3.0
         gx += nx * line

@@ -1,4 +1,5 @@
-"""Integrators of the planar parcel model: three methods behind one calling convention.
+"""
+Integrators of the planar parcel model: three methods behind one calling convention.
 
 All three advance one parcel from ``t0`` towards ``t_end`` over a fixed set of
 strips and write a trajectory (t, state, mode) into caller-owned arrays, stopping
@@ -35,6 +36,7 @@ and counters; ``simulate.py`` wraps them in a result object.
 
 Units: SI throughout (m, s, rad, kg, N).
 """
+
 from __future__ import annotations
 
 import math
@@ -68,8 +70,8 @@ METHOD_IMPLICIT = 1
 METHOD_THRESHOLD = 2
 
 # status codes
-ST_END = 0        # reached t_end
-ST_TARGET = 1     # reached the scrap line
+ST_END = 0  # reached t_end
+ST_TARGET = 1  # reached the scrap line
 ST_MAX_STEPS = 2  # ran out of output capacity / step budget
 ST_STEP_FAIL = 3  # step size underflow
 ST_NONFINITE = 4  # a NaN or inf appeared
@@ -83,25 +85,34 @@ EV_LEAVE = 5
 
 # Dormand-Prince 5(4) tableau (Dormand & Prince 1980) and dense output (Shampine 1986)
 _C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])
-_A = np.array([
-    [0.0, 0.0, 0.0, 0.0, 0.0],
-    [1 / 5, 0.0, 0.0, 0.0, 0.0],
-    [3 / 40, 9 / 40, 0.0, 0.0, 0.0],
-    [44 / 45, -56 / 15, 32 / 9, 0.0, 0.0],
-    [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0.0],
-    [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656],
-])
+_A = np.array(
+    [
+        [0.0, 0.0, 0.0, 0.0, 0.0],
+        [1 / 5, 0.0, 0.0, 0.0, 0.0],
+        [3 / 40, 9 / 40, 0.0, 0.0, 0.0],
+        [44 / 45, -56 / 15, 32 / 9, 0.0, 0.0],
+        [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0.0],
+        [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656],
+    ]
+)
 _B = np.array([35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84])
 _E = np.array([-71 / 57600, 0.0, 71 / 16695, -71 / 1920, 17253 / 339200, -22 / 525, 1 / 40])
-_P = np.array([
-    [1.0, -8048581381 / 2820520608, 8663915743 / 2820520608, -12715105075 / 11282082432],
-    [0.0, 0.0, 0.0, 0.0],
-    [0.0, 131558114200 / 32700410799, -68118460800 / 10900136933, 87487479700 / 32700410799],
-    [0.0, -1754552775 / 470086768, 14199869525 / 1410260304, -10690763975 / 1880347072],
-    [0.0, 127303824393 / 49829197408, -318862633887 / 49829197408, 701980252875 / 199316789632],
-    [0.0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844],
-    [0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423],
-])
+_P = np.array(
+    [
+        [1.0, -8048581381 / 2820520608, 8663915743 / 2820520608, -12715105075 / 11282082432],
+        [0.0, 0.0, 0.0, 0.0],
+        [0.0, 131558114200 / 32700410799, -68118460800 / 10900136933, 87487479700 / 32700410799],
+        [0.0, -1754552775 / 470086768, 14199869525 / 1410260304, -10690763975 / 1880347072],
+        [
+            0.0,
+            127303824393 / 49829197408,
+            -318862633887 / 49829197408,
+            701980252875 / 199316789632,
+        ],
+        [0.0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844],
+        [0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423],
+    ]
+)
 
 
 @njit(cache=True)
@@ -145,7 +156,8 @@ def rhs_slide(state, strips, parcel, nodes, weights, nsurf, out):
 
 @njit(cache=True)
 def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf):
-    """Break-away margin of sticking to ``surf`` at this pose (> 0: the stick breaks).
+    """
+    Break-away margin of sticking to ``surf`` at this pose (> 0: the stick breaks).
 
     Returns (margin, area of surf, Fx, Fy, T of the other surfaces' kinetic wrench).
     ``state`` must carry the stuck velocity (surface velocity, φ̇ = 0).
@@ -288,9 +300,23 @@ def _time_to_next_border(state, vx, parcel, borders):
 
 
 @njit(cache=True)
-def _stick_advance(y, surf, t, t_end, y_target, strips, parcel, nodes, weights, nsurf,
-                   borders, reductions, counters):
-    """Advance a parcel stuck to ``surf``; returns (t_new, reason).
+def _stick_advance(
+    y,
+    surf,
+    t,
+    t_end,
+    y_target,
+    strips,
+    parcel,
+    nodes,
+    weights,
+    nsurf,
+    borders,
+    reductions,
+    counters,
+):
+    """
+    Advance a parcel stuck to ``surf``; returns (t_new, reason).
 
     reason: 0 reached t_end, 1 reached the target line, 2 break-away, 3 left the surface.
     ``y`` is updated in place (rigid translation with the surface, φ̇ = 0).
@@ -383,7 +409,8 @@ def _stick_advance(y, surf, t, t_end, y_target, strips, parcel, nodes, weights, 
 
 @njit(cache=True)
 def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
-    """Slip direction σ̂ and growth λ of a parcel leaving its stick to ``surf``.
+    """
+    Slip direction σ̂ and growth λ of a parcel leaving its stick to ``surf``.
 
     At vanishing slip the kinetic wrench of ``surf`` depends only on the direction
     σ̂ of the generalized slip (ẋ - v_sx, ẏ - v_sy, ρ φ̇), so the parcel leaves
@@ -457,7 +484,8 @@ def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
 
 @njit(cache=True)
 def _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, surf, s_layer, nudge):
-    """Leave a stick to ``surf`` at time t; returns the time the sliding integration starts.
+    """
+    Leave a stick to ``surf`` at time t; returns the time the sliding integration starts.
 
     At break-away the slip on the stuck surface is exactly zero, where kinetic
     friction has no direction, and a slip direction off the self-consistent one
@@ -502,9 +530,29 @@ def _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, surf, s_laye
 
 
 @njit(cache=True)
-def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights, borders,
-                 rtol, atol, h_max, reductions, ts, ys, ms, ev, counters):
-    """Event-located Dormand-Prince integration of the hybrid model.
+def run_accurate(
+    y0,
+    mode0,
+    t0,
+    t_end,
+    y_target,
+    strips,
+    parcel,
+    nodes,
+    weights,
+    borders,
+    rtol,
+    atol,
+    h_max,
+    reductions,
+    ts,
+    ys,
+    ms,
+    ev,
+    counters,
+):
+    """
+    Event-located Dormand-Prince integration of the hybrid model.
 
     counters (out): [n_steps, n_rhs, n_rejected, n_out, n_events, closed_form_jumps,
                      stick_scans]. Returns (status, t, mode) with the final state in ys.
@@ -551,8 +599,21 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
             status = ST_MAX_STEPS
             break
         if mode >= 0:
-            t_new, reason = _stick_advance(y, mode, t, t_end, y_target, strips, parcel, nodes,
-                                           weights, nsurf, borders, reductions, stick_counters)
+            t_new, reason = _stick_advance(
+                y,
+                mode,
+                t,
+                t_end,
+                y_target,
+                strips,
+                parcel,
+                nodes,
+                weights,
+                nsurf,
+                borders,
+                reductions,
+                stick_counters,
+            )
             t = t_new
             n_out = _record(ts, ys, ms, n_out, t, y, mode)
             if reason == 1:
@@ -566,8 +627,19 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
                 if reason == 2:
                     # the layer ends where explicit steps can follow the slip direction:
                     # its growth needs the direction error below sqrt(2 margin/F)
-                    t = _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, broke_from,
-                                    max(100.0 * stick_tol, 1e-4 * vscale), nudge)
+                    t = _break_away(
+                        y,
+                        t,
+                        t_end,
+                        strips,
+                        parcel,
+                        nodes,
+                        weights,
+                        nsurf,
+                        broke_from,
+                        max(100.0 * stick_tol, 1e-4 * vscale),
+                        nudge,
+                    )
                     armed[broke_from] = False
                 fresh = True
                 n_out = _record(ts, ys, ms, n_out, t, y, mode)
@@ -600,7 +672,7 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
             n_rej += 1
             continue
         if enorm > 1.0:
-            h *= max(0.2, 0.9 * enorm ** -0.2)
+            h *= max(0.2, 0.9 * enorm**-0.2)
             n_rej += 1
             continue
         # accepted: look for the earliest event inside (t, t + h]
@@ -686,7 +758,7 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
         if enorm == 0.0:
             h_next = 5.0 * h
         else:
-            h_next = h * min(5.0, max(0.2, 0.9 * enorm ** -0.2))
+            h_next = h * min(5.0, max(0.2, 0.9 * enorm**-0.2))
         if theta_ev <= 1.0 and theta_ev < 1.0 - 1e-12:
             # redo the step to the event, so no stage sees past it
             h_next = h
@@ -735,9 +807,9 @@ def run_accurate(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
 
 # ---------------------------------------------------------------- implicit step
 @njit(cache=True)
-def _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy,
-                  stat):
-    """Quadrature points of the footprint (centroid fans, Gauss n x n per triangle).
+def _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy, stat):
+    """
+    Quadrature points of the footprint (centroid fans, Gauss n x n per triangle).
 
     ck[k] = weight · μ_k · pressure with μ_k the kinetic coefficient at the current
     slip of that point (the 'lag' that keeps the implicit problem convex).
@@ -800,7 +872,8 @@ def _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of,
 
 @njit(cache=True)
 def _friction_at(W, y, npt, px, py, ck, surf_of, svx, svy, skip, out):
-    """Kinetic wrench of the point set at generalized velocity W (surface ``skip`` left out).
+    """
+    Kinetic wrench of the point set at generalized velocity W (surface ``skip`` left out).
 
     Returns the dissipation D(W) = Σ c_k |u_k| of the included points.
     """
@@ -851,14 +924,16 @@ def _solve_spd(H, grad, nvar):
 
 
 @njit(cache=True)
-def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy,
-                  stat, y_out):
+def implicit_step(
+    y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy, stat, y_out
+):
     """One backward-Euler velocity step; returns (mode, newton_iterations)."""
     m = parcel[P_MASS]
     inertia = parcel[P_INERTIA]
     rot = parcel[P_ROTATION] > 0.5
-    npt = _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy,
-                        stat)
+    npt = _build_points(
+        y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy, stat
+    )
     W0 = np.array([y[3], y[4], y[5] if rot else 0.0])
     mass = np.array([m, m, inertia if rot else 1.0])
     wr = np.empty(3)
@@ -894,7 +969,7 @@ def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_
     H = np.empty((3, 3))
     nvar = 3 if rot else 2
     fval = 0.0
-    have_f = False      # f and the wrench at W are known from the last line search
+    have_f = False  # f and the wrench at W are known from the last line search
     for its in range(1, 60):
         if not have_f:
             fval = _friction_at(W, y, npt, px, py, ck, surf_of, svx, svy, -1, wr)
@@ -947,7 +1022,9 @@ def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_
         # wr now holds the wrench at the accepted point: the next iteration reuses it
         fval = ft
         have_f = True
-        if step * math.sqrt(dW[0] ** 2 + dW[1] ** 2 + dW[2] ** 2) <= 1e-15 * (1.0 + math.sqrt(W[0] ** 2 + W[1] ** 2)):
+        if step * math.sqrt(dW[0] ** 2 + dW[1] ** 2 + dW[2] ** 2) <= 1e-15 * (
+            1.0 + math.sqrt(W[0] ** 2 + W[1] ** 2)
+        ):
             break
     y_out[3] = W[0]
     y_out[4] = W[1]
@@ -960,8 +1037,12 @@ def implicit_step(y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_
 
 @njit(cache=True)
 def _take_fixed_step(y, y_new, t, t_next, y_target):
-    """Move y to the step's end, or to where the scrap line is crossed inside it
-    (linear in the step); returns (t, crossed)."""
+    """
+    Take a fixed step, stopping at the scrap line.
+
+    Move y to the step's end, or to where the scrap line is crossed inside it
+    (linear in the step); returns (t, crossed).
+    """
     if y_target < math.inf and y[1] < y_target <= y_new[1]:
         th = (y_target - y[1]) / (y_new[1] - y[1])
         for j in range(6):
@@ -973,8 +1054,9 @@ def _take_fixed_step(y, y_new, t, t_next, y_target):
 
 
 @njit(cache=True)
-def run_implicit(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights, h,
-                 ts, ys, ms, ev, counters):
+def run_implicit(
+    y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights, h, ts, ys, ms, ev, counters
+):
     """Fixed-step implicit integration; the scrap line is located by linear interpolation."""
     nsurf = n_surf_of(strips)
     cap = 4 * nodes.shape[0] * nodes.shape[0] * MAX_VERTS * strips.shape[0] + 1
@@ -999,13 +1081,33 @@ def run_implicit(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
     for i_step in range(n_total):
         t_next = t_end if i_step == n_total - 1 else t0 + (i_step + 1) * h
         hh = t_next - t
-        new_mode, its = implicit_step(y, hh, strips, parcel, nodes, weights, nsurf, px, py, ck,
-                                      surf_of, svx, svy, stat, y_new)
+        new_mode, its = implicit_step(
+            y,
+            hh,
+            strips,
+            parcel,
+            nodes,
+            weights,
+            nsurf,
+            px,
+            py,
+            ck,
+            surf_of,
+            svx,
+            svy,
+            stat,
+            y_new,
+        )
         n_newton += its
         n_steps += 1
         if new_mode != mode:
-            n_ev = _log_event(ev, n_ev, t + hh, EV_STICK if new_mode >= 0 else EV_BREAK,
-                              new_mode if new_mode >= 0 else mode)
+            n_ev = _log_event(
+                ev,
+                n_ev,
+                t + hh,
+                EV_STICK if new_mode >= 0 else EV_BREAK,
+                new_mode if new_mode >= 0 else mode,
+            )
         if not np.all(np.isfinite(y_new)):
             status = ST_NONFINITE
             break
@@ -1030,7 +1132,8 @@ def run_implicit(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights,
 # ---------------------------------------------------------------- the seed's threshold model
 @njit(cache=True)
 def rhs_threshold(state, strips, parcel, nodes, weights, nsurf, v_min, out, modes_out):
-    """Eqs. 4.1/4.2/4.4: kinetic where a surface slips faster than v_min, else static.
+    """
+    Eqs. 4.1/4.2/4.4: kinetic where a surface slips faster than v_min, else static.
 
     A 'static' surface answers the kinetic pull of the others with at most its limit
     (middle rows of eqs. 4.2 and 4.4); its own kinetic wrench is not applied.
@@ -1084,8 +1187,24 @@ def rhs_threshold(state, strips, parcel, nodes, weights, nsurf, v_min, out, mode
 
 
 @njit(cache=True)
-def run_threshold(y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights, h, v_min,
-                  ts, ys, ms, ev, counters):
+def run_threshold(
+    y0,
+    mode0,
+    t0,
+    t_end,
+    y_target,
+    strips,
+    parcel,
+    nodes,
+    weights,
+    h,
+    v_min,
+    ts,
+    ys,
+    ms,
+    ev,
+    counters,
+):
     """Classic RK4 at a fixed step on the seed's threshold model."""
     nsurf = n_surf_of(strips)
     y = y0.copy()

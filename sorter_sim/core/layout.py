@@ -1,4 +1,5 @@
-"""Column layout of the plain float64 arrays the numba kernels share.
+"""
+Column layout of the plain float64 arrays the numba kernels share.
 
 A cell is a set of *strips*: bands x_lo <= x <= x_hi of the conveyor plane, each
 moving with a surface velocity and carrying its own friction law. The seed's
@@ -19,6 +20,7 @@ full model; 0 = Fig. 7 line 2), Gauss order per direction, closed-form flag
 
 State vector (6): x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
 """
+
 from .friction import N_LAW_PARAMS
 
 S_XLO = 0

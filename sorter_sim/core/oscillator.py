@@ -1,4 +1,5 @@
-"""The seed's stick-slip test body (Fig. 4): a block on a fixed surface pulled by a spring.
+"""
+The seed's stick-slip test body (Fig. 4): a block on a fixed surface pulled by a spring.
 
 A body of mass m_p rests on a surface; a spring of stiffness k joins it to a
 point B driven at constant speed ẋ_s, so the external force is
@@ -17,6 +18,7 @@ closed form), ``implicit`` (backward Euler in velocity, Kikuuwe et al. 2005:
 exact stick at any step) and ``threshold`` (eq. 3.1 with v_min, classic RK4).
 Units: kg, N, m, s.
 """
+
 from __future__ import annotations
 
 import math
@@ -29,9 +31,9 @@ from numba import njit
 from .integrators import _A, _B, _C, _E  # the Dormand-Prince 5(4) tableau
 
 # rows of eq. (3.1), as the seed numbers them
-ROW_KINETIC = 1   # F(1): |v| > v_min, F = F_kin sgn(v)
-ROW_HOLD = 2      # F(2): |P| < F_stat, F = P (held)
-ROW_BREAK = 3     # F(3): |P| >= F_stat, F = F_stat sgn(P) (leaving rest)
+ROW_KINETIC = 1  # F(1): |v| > v_min, F = F_kin sgn(v)
+ROW_HOLD = 2  # F(2): |P| < F_stat, F = P (held)
+ROW_BREAK = 3  # F(3): |P| >= F_stat, F = F_stat sgn(P) (leaving rest)
 
 
 @dataclass(frozen=True)
@@ -64,9 +66,13 @@ class Oscillator:
 
 @dataclass
 class OscResult:
-    """Trajectory of the body: t, x (body), v, x_spring (point B), P (external force),
+    """
+    Hold a trajectory of the Fig. 4 body.
+
+    Trajectory of the body: t, x (body), v, x_spring (point B), P (external force),
     F (friction force on the body, opposing), row (eq. 3.1 row, threshold method; else
-    1 sliding / 2 at rest), events [(t, 'stick'|'slip')], counters and wall time."""
+    1 sliding / 2 at rest), events [(t, 'stick'|'slip')], counters and wall time.
+    """
 
     t: np.ndarray
     x: np.ndarray
@@ -84,7 +90,7 @@ class OscResult:
 
 
 def exact_phases(osc: Oscillator, t_end: float):
-    """The exact sequence of phases up to t_end: list of (t_start, kind, x0, v0, sigma)."""
+    """Return the exact sequence of phases up to t_end: list of (t_start, kind, x0, v0, sigma)."""
     if not (math.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end must be a finite time > 0 s, got {t_end}")
     w0 = osc.omega0
@@ -135,7 +141,7 @@ def exact_phases(osc: Oscillator, t_end: float):
 
 
 def exact_solution(osc: Oscillator, t_end: float, n: int = 2001, t_eval=None) -> OscResult:
-    """The exact piecewise trajectory, sampled at ``t_eval`` (or n uniform points)."""
+    """Return the exact piecewise trajectory, sampled at ``t_eval`` (or n uniform points)."""
     phases = exact_phases(osc, t_end)
     ts = np.linspace(0.0, t_end, n) if t_eval is None else np.asarray(t_eval, float)
     w0 = osc.omega0
@@ -254,7 +260,7 @@ def _run_accurate(p, t_end, rtol, atol, h_max, ts, xs, vs, rows, ev_t, ev_k, cou
         ev = v_err / (atol + rtol * max(abs(v), abs(v_new)))
         err = math.sqrt(0.5 * (ex * ex + ev * ev))
         if err > 1.0:
-            h *= max(0.2, 0.9 * err ** -0.2)
+            h *= max(0.2, 0.9 * err**-0.2)
             continue
         if v_new * sigma <= 0.0 and abs(v) > 0.0:
             # the slide ends inside this step: shrink to the zero of v (secant on the
@@ -414,10 +420,20 @@ def _run_threshold(p, t_end, dt, v_min, ts, xs, vs, rows, ev_t, ev_k, counters):
     counters[3] = 4 * n_steps
 
 
-def run_oscillator(osc: Oscillator, t_end: float, method: str = "accurate", *, dt: float = 1e-3,
-                   v_min: float = 1e-3, rtol: float = 1e-8, atol: float = 1e-10,
-                   h_max: float = math.inf, max_points: int | None = None) -> OscResult:
-    """Integrate the Fig. 4 body with one of the three methods (see the module docstring).
+def run_oscillator(
+    osc: Oscillator,
+    t_end: float,
+    method: str = "accurate",
+    *,
+    dt: float = 1e-3,
+    v_min: float = 1e-3,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    h_max: float = math.inf,
+    max_points: int | None = None,
+) -> OscResult:
+    """
+    Integrate the Fig. 4 body with one of the three methods (see the module docstring).
 
     h_max caps the accurate method's steps (a denser output; rests are still one record).
     The fixed-step methods record every step (``max_points`` defaults to that count);
@@ -433,8 +449,12 @@ def run_oscillator(osc: Oscillator, t_end: float, method: str = "accurate", *, d
         raise ValueError(f"t_end must be a finite time > 0 s, got {t_end}")
     if not (h_max > 0):
         raise ValueError(f"h_max must be > 0 s, got {h_max}")
-    for name, val, lo, hi in (("dt", dt, 0.0, 10.0), ("v_min", v_min, 0.0, 10.0),
-                              ("rtol", rtol, 0.0, 0.1), ("atol", atol, 0.0, 1.0)):
+    for name, val, lo, hi in (
+        ("dt", dt, 0.0, 10.0),
+        ("v_min", v_min, 0.0, 10.0),
+        ("rtol", rtol, 0.0, 0.1),
+        ("atol", atol, 0.0, 1.0),
+    ):
         if not (math.isfinite(val) and lo < val <= hi):
             raise ValueError(f"{name} must be in ({lo}, {hi}], got {val}")
     p = osc.params()
@@ -467,9 +487,21 @@ def run_oscillator(osc: Oscillator, t_end: float, method: str = "accurate", *, d
     else:
         F = np.where(row == ROW_KINETIC, osc.F_kin * np.sign(v), P)
         events = [(float(ev_t[i]), "slip" if ev_k[i] == 1 else "stick") for i in range(ne)]
-    return OscResult(t, x, v, x_spring, P, F, row, events, method, n_steps=int(counters[2]),
-                     n_rhs=int(counters[3]), wall_s=wall,
-                     extra={"truncated": bool(t[-1] < t_end - 1e-9 * max(1.0, t_end))})
+    return OscResult(
+        t,
+        x,
+        v,
+        x_spring,
+        P,
+        F,
+        row,
+        events,
+        method,
+        n_steps=int(counters[2]),
+        n_rhs=int(counters[3]),
+        wall_s=wall,
+        extra={"truncated": bool(t[-1] < t_end - 1e-9 * max(1.0, t_end))},
+    )
 
 
 def static_stage_durations(res: OscResult, n_cycles: int = 3) -> list[float]:

@@ -1,4 +1,5 @@
-"""One parcel through a set of conveyor strips: the Python face of the model core.
+"""
+One parcel through a set of conveyor strips: the Python face of the model core.
 
 ``Parcel`` and ``Strip`` describe the physics, ``three_zone_strips`` builds the
 seed's cell (zones a, b, c of Fig. 6), and ``simulate`` runs one of the three
@@ -6,6 +7,7 @@ integration methods and returns a ``SimResult`` (scipy ``OdeResult`` style:
 ``status``, ``message``, ``success`` and counters). Arguments are checked at this
 boundary; a bad one raises ``ValueError`` naming it and what is allowed.
 """
+
 from __future__ import annotations
 
 import math
@@ -41,11 +43,19 @@ from .wrench import gauss_legendre_01
 
 G_STANDARD = 9.81  # m/s², the seed's g
 
-METHODS = {"accurate": _ig.METHOD_ACCURATE, "implicit": _ig.METHOD_IMPLICIT,
-           "threshold": _ig.METHOD_THRESHOLD}
+METHODS = {
+    "accurate": _ig.METHOD_ACCURATE,
+    "implicit": _ig.METHOD_IMPLICIT,
+    "threshold": _ig.METHOD_THRESHOLD,
+}
 
-EVENT_NAMES = {_ig.EV_STICK: "stick", _ig.EV_BREAK: "break", _ig.EV_BORDER: "border",
-               _ig.EV_TARGET: "target", _ig.EV_LEAVE: "leave"}
+EVENT_NAMES = {
+    _ig.EV_STICK: "stick",
+    _ig.EV_BREAK: "break",
+    _ig.EV_BORDER: "border",
+    _ig.EV_TARGET: "target",
+    _ig.EV_LEAVE: "leave",
+}
 
 STATUS_MESSAGES = {
     _ig.ST_END: "reached the end of the time span",
@@ -78,26 +88,43 @@ class FrictionLaw:
 
     def __post_init__(self):
         if self.model not in LAW_NAMES:
-            raise ValueError(f"friction model must be one of {sorted(LAW_NAMES)}, got {self.model!r}")
+            raise ValueError(
+                f"friction model must be one of {sorted(LAW_NAMES)}, got {self.model!r}"
+            )
         vals = tuple(float(v) for v in self.values)
         for v in vals:
             if not math.isfinite(v):
-                raise ValueError(f"friction.{self.model} parameters must be finite, got {list(vals)}")
-        need = {"const2": 2, "const1": 1, "linear": 2, "polynomial": None, "stribeck": 6,
-                "bspline": 12}[self.model]
+                raise ValueError(
+                    f"friction.{self.model} parameters must be finite, got {list(vals)}"
+                )
+        need = {
+            "const2": 2,
+            "const1": 1,
+            "linear": 2,
+            "polynomial": None,
+            "stribeck": 6,
+            "bspline": 12,
+        }[self.model]
         if need is not None and len(vals) != need:
             raise ValueError(f"friction.{self.model} takes {need} values, got {len(vals)}")
         if self.model == "polynomial" and not 1 <= len(vals) <= 6:
             raise ValueError(f"friction.polynomial takes 1 to 6 coefficients, got {len(vals)}")
-        if self.model in ("const2", "const1", "stribeck") and min(vals[:2] if self.model != "const1" else vals) < 0:
+        if (
+            self.model in ("const2", "const1", "stribeck")
+            and min(vals[:2] if self.model != "const1" else vals) < 0
+        ):
             raise ValueError(f"friction.{self.model} coefficients must be >= 0, got {list(vals)}")
         if self.model == "bspline":
             v = vals[:6]
             if any(b <= a for a, b in zip(v, v[1:])) or v[0] < 0:
-                raise ValueError("friction.bspline control speeds must start at >= 0 and increase, "
-                                 f"got {list(v)}")
+                raise ValueError(
+                    "friction.bspline control speeds must start at >= 0 and increase, "
+                    f"got {list(v)}"
+                )
             if min(vals[6:]) < 0:
-                raise ValueError(f"friction.bspline control coefficients must be >= 0, got {list(vals[6:])}")
+                raise ValueError(
+                    f"friction.bspline control coefficients must be >= 0, got {list(vals[6:])}"
+                )
         object.__setattr__(self, "values", vals)
 
     @property
@@ -105,7 +132,7 @@ class FrictionLaw:
         return LAW_NAMES[self.model]
 
     def scaled(self, factor: float) -> "FrictionLaw":
-        """The same shape with every coefficient multiplied by ``factor`` (speeds kept)."""
+        """Return the same shape with every coefficient multiplied by ``factor`` (speeds kept)."""
         v = list(self.values)
         if self.model in ("const2", "const1", "polynomial"):
             v = [x * factor for x in v]
@@ -141,7 +168,7 @@ class Parcel:
     @property
     def inertia(self) -> float:
         """I = m (A² + B²)/12 about the centre of gravity [kg m²]."""
-        return self.m * (self.A ** 2 + self.B ** 2) / 12.0
+        return self.m * (self.A**2 + self.B**2) / 12.0
 
     def leading_edge_offset(self, phi: float) -> float:
         """Distance from the centre of gravity to the foremost corner along x [m]."""
@@ -161,10 +188,17 @@ class Strip:
     name: str = ""
 
 
-def three_zone_strips(v: float, alpha: float, b: float, law_a: FrictionLaw,
-                      law_b: FrictionLaw, law_c: FrictionLaw | None = None,
-                      stroke: float = 1.0) -> list[Strip]:
-    """The seed's cell (Fig. 6): belt zone a (x < 0), disks b (0..b), belt zone c (x > b).
+def three_zone_strips(
+    v: float,
+    alpha: float,
+    b: float,
+    law_a: FrictionLaw,
+    law_b: FrictionLaw,
+    law_c: FrictionLaw | None = None,
+    stroke: float = 1.0,
+) -> list[Strip]:
+    """
+    Return the seed's cell (Fig. 6): belt zone a (x < 0), disks b (0..b), belt zone c (x > b).
 
     v: belt speed [m/s]; alpha: disk angle [rad] (disk surface velocity v(cos α, sin α));
     b: disk-field width [m], ``inf`` for the seed's b -> ∞ (zone c is then absent);
@@ -179,7 +213,9 @@ def three_zone_strips(v: float, alpha: float, b: float, law_a: FrictionLaw,
     strips = [Strip(-math.inf, 0.0, v, 0.0, law_a, 1.0, "a")]
     if b > 0.0:
         if stroke > 0.0:
-            strips.append(Strip(0.0, b, v * math.cos(alpha), v * math.sin(alpha), law_b, stroke, "b"))
+            strips.append(
+                Strip(0.0, b, v * math.cos(alpha), v * math.sin(alpha), law_b, stroke, "b")
+            )
         if stroke < 1.0:
             strips.append(Strip(0.0, b, v, 0.0, law_a, 1.0 - stroke, "b_belt"))
     if math.isfinite(b):
@@ -193,11 +229,15 @@ def strip_array(strips: list[Strip]) -> np.ndarray:
     velocities: list[tuple[float, float]] = []
     for k, s in enumerate(strips):
         if not (s.x_lo < s.x_hi):
-            raise ValueError(f"strip {s.name or k}: x_lo must be below x_hi, got {s.x_lo}, {s.x_hi}")
+            raise ValueError(
+                f"strip {s.name or k}: x_lo must be below x_hi, got {s.x_lo}, {s.x_hi}"
+            )
         key = (float(s.vx), float(s.vy))
         surf = None
         for j, w in enumerate(velocities):
-            if math.isclose(w[0], key[0], abs_tol=1e-15) and math.isclose(w[1], key[1], abs_tol=1e-15):
+            if math.isclose(w[0], key[0], abs_tol=1e-15) and math.isclose(
+                w[1], key[1], abs_tol=1e-15
+            ):
                 surf = j
         if surf is None:
             velocities.append(key)
@@ -209,12 +249,17 @@ def strip_array(strips: list[Strip]) -> np.ndarray:
         arr[k, S_WEIGHT] = s.weight
         arr[k, S_SURF] = surf
         arr[k, S_LAW] = s.law.law_id
-        arr[k, S_PARAMS:S_PARAMS + N_LAW_PARAMS] = s.law.row()
+        arr[k, S_PARAMS : S_PARAMS + N_LAW_PARAMS] = s.law.row()
     return arr
 
 
-def parcel_array(parcel: Parcel, rotation: bool = True, n_quad: int = 8,
-                 closed_form: bool = True, g: float = G_STANDARD) -> np.ndarray:
+def parcel_array(
+    parcel: Parcel,
+    rotation: bool = True,
+    n_quad: int = 8,
+    closed_form: bool = True,
+    g: float = G_STANDARD,
+) -> np.ndarray:
     arr = np.zeros(PARCEL_WIDTH)
     arr[P_HALF_A] = 0.5 * parcel.A
     arr[P_HALF_B] = 0.5 * parcel.B
@@ -234,7 +279,8 @@ def strip_borders(strips: list[Strip]) -> np.ndarray:
 
 @dataclass
 class SimResult:
-    """What a run produced, scipy-style.
+    """
+    What a run produced, scipy-style.
 
     t [s], y (n x 6: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s]) and mode (-1 sliding,
     k >= 0 stuck to surface k) at every recorded step; events as (t, kind, info).
@@ -298,12 +344,27 @@ def initial_mode(y0, arr: np.ndarray, parcel_arr: np.ndarray) -> int:
     return MODE_SLIDE
 
 
-def simulate(parcel: Parcel, strips: list[Strip], y0, t_span, method: str = "accurate", *,
-             rtol: float = 1e-8, atol: float = 1e-10, dt: float = 1e-3, v_min: float = 1e-6,
-             y_target: float = math.inf, rotation: bool = True, reductions: bool = True,
-             n_quad: int = 8, h_max: float = 0.05, max_points: int = 200_000,
-             g: float = G_STANDARD) -> SimResult:
-    """Run one parcel over ``strips`` from state ``y0`` over ``t_span`` = (t0, t_end).
+def simulate(
+    parcel: Parcel,
+    strips: list[Strip],
+    y0,
+    t_span,
+    method: str = "accurate",
+    *,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    dt: float = 1e-3,
+    v_min: float = 1e-6,
+    y_target: float = math.inf,
+    rotation: bool = True,
+    reductions: bool = True,
+    n_quad: int = 8,
+    h_max: float = 0.05,
+    max_points: int = 200_000,
+    g: float = G_STANDARD,
+) -> SimResult:
+    """
+    Run one parcel over ``strips`` from state ``y0`` over ``t_span`` = (t0, t_end).
 
     method: 'accurate' (rtol/atol), 'implicit' (dt) or 'threshold' (dt, v_min).
     y_target: stop when the centre of gravity reaches y = y_target [m] (scrap line).
@@ -340,20 +401,71 @@ def simulate(parcel: Parcel, strips: list[Strip], y0, t_span, method: str = "acc
     mode0 = initial_mode(y0, arr, par)
     wall = time.perf_counter()
     if method == "accurate":
-        status, t_fin, mode = _ig.run_accurate(y0, mode0, t0, t_end, y_target_eff, arr, par, nodes,
-                                               weights, borders, rtol, atol, h_max, reductions,
-                                               ts, ys, ms, ev, counters)
+        status, t_fin, mode = _ig.run_accurate(
+            y0,
+            mode0,
+            t0,
+            t_end,
+            y_target_eff,
+            arr,
+            par,
+            nodes,
+            weights,
+            borders,
+            rtol,
+            atol,
+            h_max,
+            reductions,
+            ts,
+            ys,
+            ms,
+            ev,
+            counters,
+        )
     elif method == "implicit":
-        status, t_fin, mode = _ig.run_implicit(y0, mode0, t0, t_end, y_target_eff, arr, par, nodes,
-                                               weights, dt, ts, ys, ms, ev, counters)
+        status, t_fin, mode = _ig.run_implicit(
+            y0,
+            mode0,
+            t0,
+            t_end,
+            y_target_eff,
+            arr,
+            par,
+            nodes,
+            weights,
+            dt,
+            ts,
+            ys,
+            ms,
+            ev,
+            counters,
+        )
     else:
-        status, t_fin, mode = _ig.run_threshold(y0, mode0, t0, t_end, y_target_eff, arr, par, nodes,
-                                                weights, dt, v_min, ts, ys, ms, ev, counters)
+        status, t_fin, mode = _ig.run_threshold(
+            y0,
+            mode0,
+            t0,
+            t_end,
+            y_target_eff,
+            arr,
+            par,
+            nodes,
+            weights,
+            dt,
+            v_min,
+            ts,
+            ys,
+            ms,
+            ev,
+            counters,
+        )
     wall = time.perf_counter() - wall
     n_out = min(int(counters[3]), max_points)
     n_ev = min(int(counters[4]), ev.shape[0])
-    events = [(float(ev[i, 0]), EVENT_NAMES.get(int(ev[i, 1]), str(int(ev[i, 1]))), int(ev[i, 2]))
-              for i in range(n_ev)]
+    events = [
+        (float(ev[i, 0]), EVENT_NAMES.get(int(ev[i, 1]), str(int(ev[i, 1]))), int(ev[i, 2]))
+        for i in range(n_ev)
+    ]
     used = []
     if reductions and all(s.law.is_constant for s in strips):
         used.append("closed_form_wrench")
@@ -367,11 +479,32 @@ def simulate(parcel: Parcel, strips: list[Strip], y0, t_span, method: str = "acc
     if "a" in names and "b" not in names:
         used.append("zone_b_absent")
     return SimResult(
-        t=ts[:n_out].copy(), y=ys[:n_out].copy(), mode=ms[:n_out].copy(), events=events,
-        status=int(status), message=STATUS_MESSAGES[int(status)], method=method,
-        n_steps=int(counters[0]), n_rhs=int(counters[1]), n_rejected=int(counters[2]),
-        wall_s=wall, reductions=used, surfaces=surface_velocities(arr))
+        t=ts[:n_out].copy(),
+        y=ys[:n_out].copy(),
+        mode=ms[:n_out].copy(),
+        events=events,
+        status=int(status),
+        message=STATUS_MESSAGES[int(status)],
+        method=method,
+        n_steps=int(counters[0]),
+        n_rhs=int(counters[1]),
+        n_rejected=int(counters[2]),
+        wall_s=wall,
+        reductions=used,
+        surfaces=surface_velocities(arr),
+    )
 
 
-__all__ = ["FrictionLaw", "Parcel", "SimResult", "Strip", "simulate", "three_zone_strips",
-           "strip_array", "parcel_array", "G_STANDARD", "METHODS", "LAW_BSPLINE"]
+__all__ = [
+    "FrictionLaw",
+    "Parcel",
+    "SimResult",
+    "Strip",
+    "simulate",
+    "three_zone_strips",
+    "strip_array",
+    "parcel_array",
+    "G_STANDARD",
+    "METHODS",
+    "LAW_BSPLINE",
+]

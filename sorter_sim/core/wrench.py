@@ -1,4 +1,5 @@
-"""Friction force and moment on the parcel from each conveyor surface (seed eqs. 4.1-4.9).
+"""
+Friction force and moment on the parcel from each conveyor surface (seed eqs. 4.1-4.9).
 
 Every area element dS of the footprint part over a strip opposes its own rubbing
 velocity u(p) = V + φ̇ ẑ×(p - g) - v_surface with dF = -μ(|u|) (m g w / S) û dS.
@@ -20,6 +21,7 @@ Jacobian s vanishes, so Gauss-Legendre in (s, t) converges fast (with a sinh
 map along edges that pass close to c); when c is far the fan starts at the
 centroid and the integrand is smooth anyway.
 """
+
 from __future__ import annotations
 
 import math
@@ -67,7 +69,7 @@ def gauss_legendre_01(n: int):
 
 @njit(cache=True)
 def closed_form_applies(poly, n, qx, qy, ux_q, uy_q, omega):
-    """True where the exact constant-μ wrench is accurate: pure translation or a near ICR."""
+    """Return True where the exact constant-μ wrench is accurate (translation or a near ICR)."""
     if omega == 0.0:
         return True
     return abs(omega) * max_radius(poly, n, qx, qy) >= SMALL_ROTATION * math.hypot(ux_q, uy_q)
@@ -75,7 +77,8 @@ def closed_form_applies(poly, n, qx, qy, ux_q, uy_q, omega):
 
 @njit(cache=True)
 def strip_wrench_closed(poly, n, area, qx, qy, gx, gy, ux_q, uy_q, omega, mu, pressure):
-    """Exact friction wrench (Fx, Fy, T about g) of a constant-μ strip part.
+    """
+    Exact friction wrench (Fx, Fy, T about g) of a constant-μ strip part.
 
     Valid where ``closed_form_applies``; for φ̇ = 0 it is F = -μ p S û_q, T = (q - g)×F.
     """
@@ -98,8 +101,9 @@ def strip_wrench_closed(poly, n, area, qx, qy, gx, gy, ux_q, uy_q, omega, mu, pr
 
 
 @njit(cache=True)
-def strip_wrench_quad(poly, n, qx, qy, gx, gy, ux_q, uy_q, omega, law, params,
-                      pressure, nodes, weights):
+def strip_wrench_quad(
+    poly, n, qx, qy, gx, gy, ux_q, uy_q, omega, law, params, pressure, nodes, weights
+):
     """Friction wrench (Fx, Fy, T about g) of a strip part by Duffy-fan Gauss quadrature."""
     radius = max_radius(poly, n, qx, qy)
     cx = qx
@@ -151,7 +155,16 @@ def strip_wrench_quad(poly, n, qx, qy, gx, gy, ux_q, uy_q, omega, law, params,
                 sp = math.hypot(ux, uy)
                 if sp == 0.0:
                     continue
-                wgt = weights[a] * jac_t * weights[b] * s * det * pressure * mu_kinetic(law, params, sp) / sp
+                wgt = (
+                    weights[a]
+                    * jac_t
+                    * weights[b]
+                    * s
+                    * det
+                    * pressure
+                    * mu_kinetic(law, params, sp)
+                    / sp
+                )
                 dfx = -wgt * ux
                 dfy = -wgt * uy
                 fx += dfx
@@ -161,9 +174,11 @@ def strip_wrench_quad(poly, n, qx, qy, gx, gy, ux_q, uy_q, omega, law, params,
 
 
 @njit(cache=True)
-def evaluate_surfaces(state, strips, parcel, nodes, weights, skip_kinetic, need_static,
-                      kin, stat, area, slip_c):
-    """Per-surface kinetic wrench, static limits, contact area and centroid slip speed.
+def evaluate_surfaces(
+    state, strips, parcel, nodes, weights, skip_kinetic, need_static, kin, stat, area, slip_c
+):
+    """
+    Per-surface kinetic wrench, static limits, contact area and centroid slip speed.
 
     Fills, for every surface k:
       kin[k]    = (Fx, Fy, T) of kinetic friction from its strips (zero for
@@ -221,12 +236,17 @@ def evaluate_surfaces(state, strips, parcel, nodes, weights, skip_kinetic, need_
             stat[surf, 1] += mus * pressure * i_r
         if surf == skip_kinetic:
             continue
-        if closed_ok and law_is_constant(law) and closed_form_applies(poly, n, qx, qy, ux_q, uy_q, om):
+        if (
+            closed_ok
+            and law_is_constant(law)
+            and closed_form_applies(poly, n, qx, qy, ux_q, uy_q, om)
+        ):
             mu = mu_kinetic(law, params, 1.0)
             fx, fy, t = strip_wrench_closed(poly, n, a, qx, qy, x, y, ux_q, uy_q, om, mu, pressure)
         else:
-            fx, fy, t = strip_wrench_quad(poly, n, qx, qy, x, y, ux_q, uy_q, om, law, params,
-                                          pressure, nodes, weights)
+            fx, fy, t = strip_wrench_quad(
+                poly, n, qx, qy, x, y, ux_q, uy_q, om, law, params, pressure, nodes, weights
+            )
         kin[surf, 0] += fx
         kin[surf, 1] += fy
         kin[surf, 2] += t
@@ -244,7 +264,7 @@ def evaluate_surfaces(state, strips, parcel, nodes, weights, skip_kinetic, need_
 
 
 def n_surfaces(strips: np.ndarray) -> int:
-    """Number of distinct surfaces referenced by the strips."""
+    """Return the number of distinct surfaces referenced by the strips."""
     return int(strips[:, S_SURF].max()) + 1 if strips.shape[0] else 0
 
 
