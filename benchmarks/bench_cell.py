@@ -86,7 +86,8 @@ def bench_cell(sim_s: float, parcels: int) -> dict:
 
 
 def bench_node(sim_s: float, parcels: int, subscribe: bool) -> dict:
-    from sorter_sim.node import EVENT_QOS, SENSOR_QOS, STREAM_QOS, SimNode
+    from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
+    from sorter_sim.node import SimNode
     from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseArray
     from sensor_msgs.msg import JointState, TimeReference

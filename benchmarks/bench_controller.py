@@ -52,7 +52,7 @@ import numpy as np  # noqa: E402
 from sensor_msgs.msg import TimeReference  # noqa: E402
 
 from sorter_cell.demo import RunningCell  # noqa: E402
-from sorter_control.node import EVENT_QOS  # noqa: E402
+from sorter_ros.interface import EVENT_QOS  # noqa: E402
 
 MIXED = ["A", "B", "C", "A", "A", "B", "C", "B", "B", "A", "C", "A"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]

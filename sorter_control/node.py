@@ -20,7 +20,8 @@ Interface (all names relative): subscribes ``sensors/<name>`` (std_msgs/Bool),
 and ``status/jam`` (std_msgs/Bool, the cell's state bits), ``routing/updates``
 (diagnostic_msgs/KeyValue: key = label, ``prefix*`` or ``*``, value = left | right |
 straight, or empty to remove);
-publishes ``sort/confirmations`` (diagnostic_msgs/DiagnosticStatus) and
+publishes ``controller/heartbeat`` (std_msgs/UInt32, a counter, every scan: the
+cell's watchdog), ``sort/confirmations`` (diagnostic_msgs/DiagnosticStatus) and
 ``diagnostics`` (diagnostic_msgs/DiagnosticArray); serves ``~/reset``
 (std_srvs/Trigger) and ``~/estop`` (std_srvs/SetBool).
 """
@@ -35,7 +36,6 @@ from dataclasses import dataclass
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (
-    FloatingPointRange,
     Parameter,
     ParameterDescriptor,
     ParameterType,
@@ -44,12 +44,13 @@ from rcl_interfaces.msg import (
 )
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, TimeReference
-from std_msgs.msg import Bool, String
+from std_msgs.msg import Bool, String, UInt32
 from std_srvs.srv import SetBool, Trigger
 
 from sorter_ros.env import run_node
+from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS, plain
+from sorter_ros.interface import descriptor as ros_descriptor
 
 from .logic import (
     ControllerConfig,
@@ -64,20 +65,7 @@ from .logic import (
 from .timing import CellModel
 
 NODE_NAME = "sorter_controller"
-SENSOR_QOS = QoSProfile(
-    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
-)
-EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-
 D, B, S, SA, DA = "double", "bool", "string", "string_array", "double_array"
-_TYPES = {
-    D: ParameterType.PARAMETER_DOUBLE,
-    B: ParameterType.PARAMETER_BOOL,
-    S: ParameterType.PARAMETER_STRING,
-    SA: ParameterType.PARAMETER_STRING_ARRAY,
-    DA: ParameterType.PARAMETER_DOUBLE_ARRAY,
-}
 
 
 @dataclass(frozen=True)
@@ -266,25 +254,17 @@ ROUTING_KEYS = ("routing.rules", "routing.default", "reject_destination")
 
 
 def descriptor(spec: Spec) -> ParameterDescriptor:
-    d = ParameterDescriptor(
-        name=spec.name,
-        type=_TYPES[spec.type],
-        description=spec.description,
+    """Return the ROS descriptor of a controller parameter."""
+    ranged = spec.type == D and spec.lo is not None
+    return ros_descriptor(
+        spec.name,
+        spec.type,
+        spec.description,
+        lo=spec.lo,
+        hi=spec.hi,
         read_only=spec.read_only,
+        constraints=f"a finite number in [{spec.lo:g}, {spec.hi:g}]" if ranged else "",
     )
-    if spec.type == D and spec.lo is not None:
-        d.floating_point_range = [
-            FloatingPointRange(from_value=float(spec.lo), to_value=float(spec.hi), step=0.0)
-        ]
-        d.additional_constraints = f"a finite number in [{spec.lo:g}, {spec.hi:g}]"
-    return d
-
-
-def _plain(value):
-    """Parameter values as plain Python (rclpy may hold arrays as array.array)."""
-    if value is None or isinstance(value, (str, bool, int, float)):
-        return value
-    return list(value)
 
 
 def _value(pv: ParameterValue):
@@ -410,7 +390,7 @@ class ControllerNode(Node):
                 p = self.declare_parameter(spec.name, spec.default, descriptor(spec))
             except Exception as exc:  # rclpy's InvalidParameter*Exception family
                 raise ValueError(f"parameter {spec.name!r}: {exc}") from None
-            self.values[spec.name] = _plain(p.value)
+            self.values[spec.name] = plain(p.value)
         config_from_values(self.values)  # fail now, naming the parameter
         self.logic: SorterLogic | None = None
         self._svc = {
@@ -431,6 +411,9 @@ class ControllerNode(Node):
             DiagnosticStatus, "sort/confirmations", EVENT_QOS
         )
         self._pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
+        # the cell's watchdog expects this every scan: a scan that stops, stops it
+        self._pub_heartbeat = self.create_publisher(UInt32, "controller/heartbeat", STREAM_QOS)
+        self._beats = 0
         self.create_service(Trigger, "~/reset", self._srv_reset)
         self.create_service(SetBool, "~/estop", self._srv_estop)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -619,6 +602,8 @@ class ControllerNode(Node):
         if self.logic is None:
             return
         wall0 = time.perf_counter()
+        self._beats = (self._beats + 1) & 0xFFFFFFFF
+        self._pub_heartbeat.publish(UInt32(data=self._beats))
         self._expire_calls()
         image = InputImage(
             t=self._now(),
@@ -800,7 +785,7 @@ class ControllerNode(Node):
         return response
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
-        changes = {p.name: _plain(p.value) for p in parameters if p.name in SPECS}
+        changes = {p.name: plain(p.value) for p in parameters if p.name in SPECS}
         for name in changes:
             if name not in ROUTING_KEYS:
                 return SetParametersResult(
@@ -823,7 +808,7 @@ class ControllerNode(Node):
         changed = False
         for p in parameters:
             if p.name in ROUTING_KEYS:
-                self.values[p.name] = _plain(p.value)
+                self.values[p.name] = plain(p.value)
                 changed = True
         if changed and self.logic is not None:
             # a new table replaces the old one, run-time updates included

@@ -76,6 +76,17 @@ class Outcome:
 
 
 @dataclass(frozen=True)
+class WatchdogTrip:
+    """The controller's heartbeat stopped: at t_ns the cell went to its safe state."""
+
+    t_ns: int
+    silent_s: float  # simulated time since the last heartbeat [s]
+
+
+WATCHDOG_REFUSAL = 'refused: the controller watchdog holds the disks down (no heartbeat)'
+
+
+@dataclass(frozen=True)
 class ParcelSpec:
     """
     Describe a parcel to induct.
@@ -146,6 +157,11 @@ class Cell:
         self.k = 0
         self.estop = False
         self.jam = False
+        # the controller watchdog: armed by the first heartbeat, tripped when the next one
+        # is later than watchdog_timeout (simulated time), cleared by a heartbeat
+        self.watchdog_tripped = False
+        self.watchdog_trips = 0
+        self._heartbeat_k: int | None = None
         self.n_inducted = 0
         self.outcome_counts = {'left': 0, 'right': 0, 'straight': 0, 'jammed': 0}
         self._stream_rng = np.random.Generator(np.random.PCG64(params.seed))
@@ -244,12 +260,17 @@ class Cell:
         """Raise (True) or lower the disks; refused while the e-stop is engaged."""
         if self.estop:
             return False, 'refused: e-stop engaged (call reset first)'
+        if up and self.watchdog_tripped:
+            return False, WATCHDOG_REFUSAL
         self.act[ck.A_STROKE_TARGET] = 1.0 if up else 0.0
         return True, 'raising the disks' if up else 'lowering the disks'
 
     def set_alpha(self, alpha_rad: float) -> tuple[bool, str]:
+        """Command the disk angle [rad]; refused while the e-stop or the watchdog holds it."""
         if self.estop:
             return False, 'refused: e-stop engaged (call reset first)'
+        if self.watchdog_tripped:
+            return False, WATCHDOG_REFUSAL
         if not (math.isfinite(alpha_rad) and abs(alpha_rad) <= math.pi / 2 + 1e-12):
             return False, f'disk angle must be finite and in [-90, 90] deg, got {alpha_rad!r} rad'
         self.act[ck.A_ALPHA_CMD] = alpha_rad
@@ -273,7 +294,42 @@ class Cell:
 
     @property
     def faults(self) -> list[str]:
-        return [name for name, on in (('estop', self.estop), ('jam', self.jam)) if on]
+        """Return the names of the active faults: estop, jam, watchdog."""
+        flags = (('estop', self.estop), ('jam', self.jam), ('watchdog', self.watchdog_tripped))
+        return [name for name, on in flags if on]
+
+    # ------------------------------------------------------------------ watchdog
+    def heartbeat(self) -> bool:
+        """
+        Take a controller heartbeat now; return True if it cleared a tripped watchdog.
+
+        A controller that comes back takes over where the safe state left the cell: the
+        disks down and at safe_alpha_deg, ready for its next command.
+        """
+        self._heartbeat_k = self.k
+        if self.watchdog_tripped:
+            self.watchdog_tripped = False
+            return True
+        return False
+
+    @property
+    def watchdog_armed(self) -> bool:
+        return self._heartbeat_k is not None and self.params.watchdog_timeout > 0.0
+
+    def _watchdog_deadline(self) -> int | None:
+        """Period index at which the watchdog trips, or None when it cannot."""
+        if not self.watchdog_armed or self.watchdog_tripped:
+            return None
+        late = math.ceil(self.params.watchdog_timeout / self.dt - 1e-9)
+        return self._heartbeat_k + max(1, late)
+
+    def _trip_watchdog(self) -> WatchdogTrip:
+        """Fail safe as a diverter does when its PLC stops: disks down, α to its safe value."""
+        self.watchdog_tripped = True
+        self.watchdog_trips += 1
+        self.act[ck.A_STROKE_TARGET] = 0.0
+        self.act[ck.A_ALPHA_CMD] = math.radians(self.params.safe_alpha_deg)
+        return WatchdogTrip(self.t_ns, (self.k - self._heartbeat_k) * self.dt)
 
     # ------------------------------------------------------------------ sensors
     def sensor_states(self) -> dict[str, bool]:
@@ -464,10 +520,19 @@ class Cell:
         while remaining > 0:
             events += self._place_pending()
             m = min(remaining, self._periods_until_placement())
+            deadline = self._watchdog_deadline()
+            if deadline is not None:
+                if self.k >= deadline:
+                    events.append(self._trip_watchdog())
+                    continue
+                m = min(m, deadline - self.k)
             done, n_ev = self._kernel(m)
             events += self._collect(n_ev)
             self.k += done
             remaining -= done
+        deadline = self._watchdog_deadline()
+        if deadline is not None and self.k >= deadline:
+            events.append(self._trip_watchdog())
         events.sort(key=lambda e: e.t_ns)
         return events
 

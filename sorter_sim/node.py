@@ -21,60 +21,40 @@ import time
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    ParameterType,
-    SetParametersResult,
-)
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, TimeReference
-from std_msgs.msg import Bool, String, UInt32MultiArray
+from std_msgs.msg import Bool, String, UInt32, UInt32MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
-from .cdr import pose_array_cdr, stamp
-from .cell import STATE_NAMES, Cell, LabelRead, Outcome, ParcelSpec, SensorEdge
-from .params import (
-    BOOL,
-    DOUBLE,
-    DOUBLE_ARRAY,
-    INTEGER,
-    SCHEMA,
-    SPECS,
-    STRING,
-    STRING_ARRAY,
-    CellParams,
-    ParamError,
-)
 from sorter_ros.env import run_node
+from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS, plain
+from sorter_ros.interface import descriptor as ros_descriptor
+
+from .cdr import pose_array_cdr, stamp
+from .cell import (
+    STATE_NAMES,
+    WATCHDOG_REFUSAL,
+    Cell,
+    LabelRead,
+    Outcome,
+    ParcelSpec,
+    SensorEdge,
+    WatchdogTrip,
+)
+from .params import SCHEMA, SPECS, CellParams, ParamError
 
 NODE_NAME = 'sorter_sim'
 FRAME_ID = 'conveyor'
 PARCEL_HEIGHT = 0.2  # m, only for the marker boxes (the model is planar)
 MAX_CATCH_UP_S = 0.25  # realtime mode: simulated time one tick may catch up
 
-# status/<bit>: std_msgs/Bool each; fault = estop or jam
-STATUS_BITS = ('estop', 'jam', 'fault')
-SENSOR_QOS = QoSProfile(
-    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
-)
-EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-
-_ROS_TYPES = {
-    DOUBLE: ParameterType.PARAMETER_DOUBLE,
-    INTEGER: ParameterType.PARAMETER_INTEGER,
-    STRING: ParameterType.PARAMETER_STRING,
-    BOOL: ParameterType.PARAMETER_BOOL,
-    DOUBLE_ARRAY: ParameterType.PARAMETER_DOUBLE_ARRAY,
-    STRING_ARRAY: ParameterType.PARAMETER_STRING_ARRAY,
-}
-
+# status/<bit>: std_msgs/Bool each; fault = estop or jam or watchdog
+STATUS_BITS = ('estop', 'jam', 'watchdog', 'fault')
 # colour (r, g, b) per parcel state, in the order of cell.STATE_NAMES
 STATE_COLOURS = {
     'on_belt': (0.6, 0.6, 0.6),
@@ -92,27 +72,15 @@ INDUCT_KEYS = ('label', 'A', 'B', 'm', 'phi0_deg', 'y')
 def descriptor(spec) -> ParameterDescriptor:
     """Return the ROS descriptor of a schema entry: type, description, range, read-only."""
     units = f' [{spec.units}]' if spec.units else ''
-    d = ParameterDescriptor(
-        name=spec.name,
-        type=_ROS_TYPES[spec.type],
-        description=spec.description + units,
-        additional_constraints=f'{spec.allowed}',
+    return ros_descriptor(
+        spec.name,
+        spec.type,
+        spec.description + units,
+        lo=spec.lo,
+        hi=spec.hi,
         read_only=spec.read_only,
+        constraints=spec.allowed,
     )
-    if spec.type == DOUBLE:
-        d.floating_point_range = [
-            FloatingPointRange(from_value=float(spec.lo), to_value=float(spec.hi), step=0.0)
-        ]
-    elif spec.type == INTEGER:
-        d.integer_range = [IntegerRange(from_value=int(spec.lo), to_value=int(spec.hi), step=0)]
-    return d
-
-
-def _plain(value):
-    """Parameter values as Python lists (rclpy may hold arrays as array.array)."""
-    if isinstance(value, (str, bool, int, float)) or value is None:
-        return value
-    return list(value)
 
 
 def _time_msg(t_ns: int) -> Time:
@@ -145,12 +113,14 @@ class SimNode(Node):
             name: self.create_publisher(Bool, f'status/{name}', SENSOR_QOS) for name in STATUS_BITS
         }
         self._status_sent = None
+        self._safe_alpha_set = False  # the watchdog itself sets alpha_deg to its safe value
         self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
         self.create_service(SetBool, 'diverter/popup', self._srv_popup)
         self.create_service(SetBool, 'estop', self._srv_estop)
         self.create_service(Trigger, 'reset', self._srv_reset)
         self.create_service(Trigger, 'step', self._srv_step)
         self.create_subscription(DiagnosticStatus, 'parcels/induct', self._on_induct, EVENT_QOS)
+        self.create_subscription(UInt32, 'controller/heartbeat', self._on_heartbeat, STREAM_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._post_set_parameters)
         self._joint_state = JointState(name=['disk_angle', 'popup_stroke'])
@@ -192,7 +162,7 @@ class SimNode(Node):
                 raise ParamError(
                     f'parameter {spec.name!r} must be {spec.allowed} ({exc})'
                 ) from None
-            values[spec.name] = _plain(param.value)
+            values[spec.name] = plain(param.value)
         # rclpy ignores values given for names nobody declares: a misspelt parameter in a
         # params file would silently keep its default, so name it instead
         given = getattr(self, '_parameter_overrides', {})
@@ -212,7 +182,7 @@ class SimNode(Node):
         return CellParams.from_values(values)
 
     def _changes(self, parameters) -> dict:
-        return {p.name: _plain(p.value) for p in parameters if p.name in SPECS}
+        return {p.name: plain(p.value) for p in parameters if p.name in SPECS}
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         """Validate a run-time change as a whole; nothing changes unless all of it is valid."""
@@ -229,6 +199,8 @@ class SimNode(Node):
             return SetParametersResult(
                 successful=False, reason='refused: e-stop engaged (call reset first)'
             )
+        if 'alpha_deg' in changes and self.cell.watchdog_tripped and not self._safe_alpha_set:
+            return SetParametersResult(successful=False, reason=WATCHDOG_REFUSAL)
         try:
             self.params.with_changes(changes)
         except ParamError as exc:
@@ -308,8 +280,12 @@ class SimNode(Node):
         Only on change: a reset publishes the cleared bits before its reply, and no
         periodic copy of an old value can follow it.
         """
-        bits = {'estop': self.cell.estop, 'jam': self.cell.jam}
-        bits['fault'] = bits['estop'] or bits['jam']
+        bits = {
+            'estop': self.cell.estop,
+            'jam': self.cell.jam,
+            'watchdog': self.cell.watchdog_tripped,
+        }
+        bits['fault'] = bits['estop'] or bits['jam'] or bits['watchdog']
         if bits != self._status_sent:
             for name in STATUS_BITS:
                 self._publish(self._pub_status[name], Bool(data=bool(bits[name])))
@@ -334,6 +310,15 @@ class SimNode(Node):
                         f'jam: parcel {e.parcel_id} ({e.label}) stopped at '
                         f'x = {e.x:.3f} m, y = {e.y:.3f} m ({e.cause})'
                     )
+            elif isinstance(e, WatchdogTrip):
+                self._command_safe_alpha()
+                self.get_logger().error(
+                    f'watchdog: no controller heartbeat for {e.silent_s:.3f} s (simulated); '
+                    f'disks dropping, disk angle to {self.params.safe_alpha_deg:g} deg until '
+                    f'heartbeats return'
+                )
+        if any(isinstance(e, WatchdogTrip) for e in events):
+            self._publish_status()
 
     def _outcome_msg(self, e: Outcome) -> DiagnosticStatus:
         values = [
@@ -486,6 +471,25 @@ class SimNode(Node):
         return response
 
     # ------------------------------------------------------------------ induct
+    def _command_safe_alpha(self) -> None:
+        """
+        Make the alpha_deg parameter say what the tripped watchdog commands.
+
+        The parameter is the commanded disk angle; keeping it true means a controller that
+        takes over sees the safe angle and its next command is a change the cell applies.
+        """
+        self._safe_alpha_set = True
+        try:
+            self.set_parameters([Parameter('alpha_deg', value=self.params.safe_alpha_deg)])
+        finally:
+            self._safe_alpha_set = False
+
+    def _on_heartbeat(self, msg: UInt32) -> None:
+        """Take the controller's heartbeat (any message counts; the value is its counter)."""
+        if self.cell.heartbeat():
+            self.get_logger().info('controller heartbeat back: watchdog cleared')
+            self._publish_status()
+
     def _on_induct(self, msg: DiagnosticStatus) -> None:
         """Return an external induct request; bad values are logged and the message dropped."""
         try:

@@ -258,6 +258,26 @@ SCHEMA: tuple[ParamSpec, ...] = (
         0.0,
         5.0,
     ),
+    _p(
+        'watchdog_timeout',
+        DOUBLE,
+        0.3,
+        'the controller\'s heartbeat (controller/heartbeat) may be this late, in simulated '
+        'time; then the disks drop and the disk angle goes to safe_alpha_deg until heartbeats '
+        'return. Armed by the first heartbeat; 0: no watchdog',
+        's',
+        0.0,
+        60.0,
+    ),
+    _p(
+        'safe_alpha_deg',
+        DOUBLE,
+        0.0,
+        'disk angle the watchdog commands when it trips (0: the disks turn with the belt)',
+        'deg',
+        -90.0,
+        90.0,
+    ),
     # -- friction (seed Fig. 3 laws, scaled to these coefficients at 1 m/s)
     _p(
         'friction_model',
@@ -582,6 +602,8 @@ class CellParams:
     alpha_deg: float
     alpha_slew_rate_deg_s: float
     popup_stroke_time: float
+    watchdog_timeout: float
+    safe_alpha_deg: float
     friction_model: str
     mu_belt: float
     mu_disks: float

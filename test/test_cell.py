@@ -24,6 +24,7 @@ from sorter_sim.cell import (
     ParcelSpec,
     SensorEdge,
     check_parcel,
+    WatchdogTrip,
 )
 from sorter_sim.core import cell_kernels as ck
 from sorter_sim.core.simulate import FrictionLaw, Parcel, simulate, strip_array, three_zone_strips
@@ -403,3 +404,60 @@ def test_the_readme_documents_every_parameter():
     section = text.split('## Simulation node', 1)[1].split('\n## ', 1)[0]
     for spec in SCHEMA:
         assert f'| `{spec.name}` |' in section, spec.name
+
+
+# ---------------------------------------------------------------- the controller watchdog
+def test_watchdog_fails_safe_when_the_heartbeat_stops_and_clears_when_it_returns():
+    cell = make_cell(
+        alpha_deg=45.0,
+        popup_stroke_time=0.1,
+        alpha_slew_rate_deg_s=360.0,
+        watchdog_timeout=0.3,
+        safe_alpha_deg=0.0,
+    )
+    dt_ns = cell.params.control_period_ns
+    assert cell.popup(True)[0]
+    # not armed before the first heartbeat: a cell driven without a controller never trips
+    cell.advance(2000)
+    assert not cell.watchdog_armed and not cell.watchdog_tripped and cell.stroke == 1.0
+    # heartbeats in time keep it quiet
+    for _ in range(10):
+        cell.heartbeat()
+        cell.advance(290)
+    assert not cell.watchdog_tripped and cell.stroke == 1.0
+    cell.heartbeat()
+    k0 = cell.k
+    assert not any(isinstance(e, WatchdogTrip) for e in cell.advance(299))
+    assert not cell.watchdog_tripped
+    # the 300th period after the heartbeat (0.3 s) trips it, at exactly that time
+    (trip,) = [e for e in cell.advance(1) if isinstance(e, WatchdogTrip)]
+    assert trip.t_ns == (k0 + 300) * dt_ns and trip.silent_s == pytest.approx(0.3, abs=1e-12)
+    assert cell.watchdog_tripped and cell.faults == ['watchdog'] and cell.watchdog_trips == 1
+    ok, why = cell.popup(True)
+    assert not ok and 'watchdog' in why
+    assert not cell.set_alpha(math.radians(30.0))[0]
+    assert cell.popup(False)[0]
+    # safe state: the disks drop in their stroke time, α slews 45° -> 0° at 360°/s (0.125 s)
+    cell.advance(100)
+    assert cell.stroke == 0.0
+    cell.advance(30)
+    assert cell.alpha == 0.0
+    # a controller that comes back takes over: cleared, commands accepted again
+    assert cell.heartbeat() is True
+    assert not cell.watchdog_tripped and cell.faults == []
+    assert cell.popup(True)[0] and cell.set_alpha(math.radians(30.0))[0]
+
+
+def test_watchdog_off_and_ranges():
+    cell = make_cell(watchdog_timeout=0.0)
+    cell.heartbeat()
+    cell.advance(5000)
+    assert not cell.watchdog_armed and not cell.watchdog_tripped
+    for name, bad in (
+        ('watchdog_timeout', -0.1),
+        ('watchdog_timeout', 61.0),
+        ('safe_alpha_deg', 91.0),
+        ('watchdog_timeout', math.nan),
+    ):
+        with pytest.raises(ParamError, match=name):
+            CellParams.defaults().with_changes({name: bad}, runtime=False)

@@ -26,7 +26,8 @@ from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Bool, String
 from std_srvs.srv import SetBool, Trigger
 
-from sorter_control.node import EVENT_QOS, SENSOR_QOS, STREAM_QOS, ControllerNode
+from sorter_control.node import ControllerNode
+from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
 from sorter_sim.node import SimNode
 
 pytestmark = pytest.mark.ros
@@ -485,3 +486,42 @@ def test_sorter_demo_bad_arguments_exit_2(argv, words, capsys):
     assert main(["demo", *argv]) == 2
     err = capsys.readouterr().err
     assert words in err and len(err.strip().splitlines()) == 1
+
+
+# --------------------------------------------------------------------------- watchdog
+
+
+def test_a_stopped_controller_leaves_the_disks_down_and_a_new_one_takes_over(ros):
+    cell = Cell(ros, sim={"watchdog_timeout": 0.3})
+    sim = cell.sim
+    ros.spin_until(lambda: sim.cell.watchdog_armed, 5.0, "the controller's first heartbeat")
+    # the disks up, as a divert in progress leaves them; then the controller stops
+    assert sim.cell.popup(True)[0]
+    ros.spin_until(lambda: sim.cell.stroke == 1.0, 5.0, "the disks up")
+    ros.executor.remove_node(cell.ctl)
+    ros.nodes.remove(cell.ctl)
+    cell.ctl.destroy_node()
+    t_stop = sim.cell.t
+    ros.spin_until(lambda: sim.cell.watchdog_tripped, 10.0, "the watchdog to trip")
+    # within the timeout (simulated), plus at most one fast-mode slice of lag
+    assert sim.cell.t - t_stop <= 0.3 + CELL["fast_slice"] + 0.011
+    ros.spin_until(lambda: sim.cell.stroke == 0.0, 5.0, "the disks down")
+    # a controller started again takes over: its heartbeat clears the watchdog, it runs
+    ctl = ros.add(
+        ControllerNode(
+            context=ros.context,
+            parameter_overrides=[Parameter(k, value=v) for k, v in CONTROLLER.items()],
+        )
+    )
+    ros.spin_until(lambda: not sim.cell.watchdog_tripped, 15.0, "the watchdog to clear")
+    ros.spin_until(
+        lambda: ctl.logic is not None and ctl.logic.state == "running",
+        10.0,
+        "the new controller to run",
+    )
+    assert sim.cell.faults == []
+    # and the next parcels go where routing says
+    for n, label in enumerate(("A00001", "B00002"), start=1):
+        cell.induct(label)
+        ros.spin_until(lambda n=n: len(cell.outcomes) == n, 30.0, f"outcome {n}")
+    assert [o["exit"] for o in cell.outcomes] == ["left", "right"], cell.outcomes

@@ -24,12 +24,13 @@ from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, TimeReference
-from std_msgs.msg import Bool, String, UInt32MultiArray
+from std_msgs.msg import Bool, String, UInt32, UInt32MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from sorter_sim.cdr import pose_array_cdr
-from sorter_sim.node import EVENT_QOS, SENSOR_QOS, STREAM_QOS, SimNode, main
+from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
+from sorter_sim.node import SimNode, main
 from sorter_sim.params import ParamError
 
 pytestmark = pytest.mark.ros
@@ -55,7 +56,7 @@ TOPICS = {
     'sort/outcomes': (DiagnosticStatus, EVENT_QOS),
     'diagnostics': (DiagnosticArray, STREAM_QOS),
     **{f'sensors/{s}': (Bool, SENSOR_QOS) for s in SENSORS},
-    **{f'status/{b}': (Bool, SENSOR_QOS) for b in ('estop', 'jam', 'fault')},
+    **{f'status/{b}': (Bool, SENSOR_QOS) for b in ('estop', 'jam', 'watchdog', 'fault')},
 }
 
 
@@ -385,8 +386,12 @@ def test_estop_refuses_commands_until_reset(ros):
     assert [probe.msgs[f'status/{b}'][-1].data for b in ('estop', 'jam', 'fault')] == [False] * 3
     reply = probe.call('estop', SetBool.Request(data=True))
     assert reply.success
-    ros.spin_until(lambda: probe.msgs['status/estop'][-1].data, 5.0, 'status/estop true')
-    assert probe.msgs['status/fault'][-1].data and not probe.msgs['status/jam'][-1].data
+    ros.spin_until(
+        lambda: probe.msgs['status/estop'][-1].data and probe.msgs['status/fault'][-1].data,
+        5.0,
+        'status/estop and status/fault true',
+    )
+    assert not probe.msgs['status/jam'][-1].data
     for request in (True, False):
         reply = probe.call('diverter/popup', SetBool.Request(data=request))
         assert not reply.success and 'e-stop' in reply.message
@@ -405,8 +410,11 @@ def test_estop_refuses_commands_until_reset(ros):
     n_estop = len(probe.msgs['status/estop'])
     reply = probe.call('reset', Trigger.Request())
     assert reply.success and 'estop' in reply.message
-    ros.spin_until(lambda: not probe.msgs['status/estop'][-1].data, 5.0, 'status/estop false')
-    assert not probe.msgs['status/fault'][-1].data
+    ros.spin_until(
+        lambda: not (probe.msgs['status/estop'][-1].data or probe.msgs['status/fault'][-1].data),
+        5.0,
+        'status/estop and status/fault false',
+    )
     # sent on change only: one message per change, none repeating an old value
     assert [m.data for m in probe.msgs['status/estop'][n_estop - 1 :]] == [True, False]
     assert probe.call('diverter/popup', SetBool.Request(data=True)).success
@@ -560,3 +568,43 @@ def test_main_exits_2_with_one_line_on_a_bad_parameter(capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'belt_speed' in err[0] and '[0.5, 1.5]' in err[0]
+
+
+def test_watchdog_drops_the_disks_when_heartbeats_stop(ros):
+    sim = make_sim(ros, watchdog_timeout=0.3, safe_alpha_deg=0.0, alpha_deg=60.0)
+    probe = Probe(ros)
+    beat = probe.node.create_publisher(UInt32, 'controller/heartbeat', STREAM_QOS)
+    probe.wait_connected(sim)
+    ros.spin_until(lambda: beat.get_subscription_count() > 0, 5.0, 'the heartbeat subscriber')
+    assert probe.call('diverter/popup', SetBool.Request(data=True)).success
+    beat.publish(UInt32(data=1))
+    ros.spin_until(lambda: sim.cell.watchdog_armed, 5.0, 'the first heartbeat')
+    probe.step(250)
+    probe.settle()
+    assert not probe.msgs['status/watchdog'][-1].data
+    assert probe.msgs['diverter/state'][-1].position[1] == 1.0
+    # silence: 0.3 s of simulated time after the heartbeat the cell fails safe
+    probe.step(60)
+    ros.spin_until(
+        lambda: probe.msgs['status/watchdog'][-1].data and probe.msgs['status/fault'][-1].data,
+        5.0,
+        'status/watchdog and status/fault true',
+    )
+    reply = probe.call('diverter/popup', SetBool.Request(data=True))
+    assert not reply.success and 'watchdog' in reply.message
+    (result,) = _set_params(ros, probe, 'sorter_sim', _double('alpha_deg', 30.0))
+    assert not result.successful and 'watchdog' in result.reason
+    probe.step(200)
+    probe.settle()
+    alpha, stroke = probe.msgs['diverter/state'][-1].position
+    assert stroke == 0.0 and alpha == 0.0
+    # the controller comes back: cleared, and it commands the diverter again
+    beat.publish(UInt32(data=2))
+    ros.spin_until(
+        lambda: (
+            not (probe.msgs['status/watchdog'][-1].data or probe.msgs['status/fault'][-1].data)
+        ),
+        5.0,
+        'the watchdog and fault bits to clear',
+    )
+    assert probe.call('diverter/popup', SetBool.Request(data=True)).success
