@@ -745,6 +745,7 @@ class ControllerNode(Node):
                 "nominal_parcel_length_m": f"{self.values['nominal_parcel_length']:g}",
                 "routing": ";".join(st["routing"]),
                 "bad_messages": self.n_bad_messages,
+                "callback_errors": getattr(self, "callback_errors", 0),
             }
         )
         return DiagnosticStatus(
@@ -785,6 +786,15 @@ class ControllerNode(Node):
         return response
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
+        for p in parameters:
+            # switching clocks under a running PLC turns every time it holds into nonsense
+            # (false jams, a storm of "time went back"); it is fixed at start-up
+            if p.name == "use_sim_time" and p.value != self.get_parameter("use_sim_time").value:
+                return SetParametersResult(
+                    successful=False,
+                    reason="use_sim_time is read-only while the controller runs: it keeps the "
+                    "clock it started with (restart the node to change it)",
+                )
         changes = {p.name: plain(p.value) for p in parameters if p.name in SPECS}
         for name in changes:
             if name not in ROUTING_KEYS:

@@ -86,35 +86,76 @@ def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=No
     Applies the discovery default, initialises rclpy, spins ``make_node()`` and
     tears down in ``finally``. A configuration error raised while the node is
     built (one of ``config_errors``) is printed as one line and exits with code 2.
+    Once the node runs it never dies of a callback: see ``spin_surviving``.
     """
     import sys
 
     import rclpy
-    from rclpy.executors import ExternalShutdownException
 
     apply_ros_env_defaults()
     rclpy.init(args=args)
     node = None
     code = 0
     try:
-        node = make_node()
-        rclpy.spin(node)
-    except config_errors as exc:
-        if node is not None:
-            raise
-        print(f'{prog}: {exc}', file=sys.stderr)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
+        try:
+            node = make_node()
+        except config_errors as exc:
+            print(f'{prog}: {exc}', file=sys.stderr)
+            code = 2
+        else:
+            spin_surviving(node)
+    except KeyboardInterrupt:
         pass
-    except Exception:
-        # SIGINT/SIGTERM shut the context down between bytecodes, possibly in the
-        # middle of a callback; what that callback raises then (publishing on a
-        # context that is gone) is part of shutting down, not a fault
-        if node is None or node.context.ok():
-            raise
     finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        # a second Ctrl-C may land in the teardown too: it is still a clean exit
+        try:
+            if node is not None:
+                node.destroy_node()
+        except KeyboardInterrupt:
+            pass
+        try:
+            rclpy.try_shutdown()
+        except KeyboardInterrupt:
+            pass
     if code:
         sys.exit(code)
+
+
+def spin_surviving(node) -> int:
+    """
+    Spin ``node`` until its context shuts down, surviving whatever a callback raises.
+
+    rclpy runs some callbacks of its own in the node's executor (the parameter
+    services, the time source's /clock subscription); a malformed request there (a
+    ParameterValue of an unknown type, a /clock stamp with negative seconds) raises
+    out of ``spin_once`` and would end a plain ``rclpy.spin``. Here it is logged,
+    counted in ``node.callback_errors`` (the nodes report it in their diagnostics)
+    and the node spins on. Returns the count.
+    """
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    node.callback_errors = 0
+    try:
+        while node.context.ok():
+            try:
+                executor.spin_once(timeout_sec=0.1)
+            except ExternalShutdownException:
+                break
+            except KeyboardInterrupt:
+                raise
+            except Exception as exc:
+                # SIGINT/SIGTERM shut the context down between bytecodes, possibly in
+                # the middle of a callback; what it raises then is part of shutting down
+                if not node.context.ok():
+                    break
+                node.callback_errors += 1
+                node.get_logger().error(
+                    f'a callback raised {type(exc).__name__}: {exc}; ignored, the node goes on '
+                    f'({node.callback_errors} so far)'
+                )
+    finally:
+        executor.remove_node(node)
+        executor.shutdown(timeout_sec=1.0)
+    return node.callback_errors

@@ -420,6 +420,8 @@ class SimNode(Node):
             'time_mode': self.params.time_mode,
             'inducted': str(self.cell.n_inducted),
             'pending_inducts': str(self.cell.pending_inducts),
+            'watchdog_trips': str(self.cell.watchdog_trips),
+            'callback_errors': str(getattr(self, 'callback_errors', 0)),
             **{f'exits_{k}': str(v) for k, v in counts.items()},
         }
         status = DiagnosticStatus(

@@ -525,3 +525,18 @@ def test_a_stopped_controller_leaves_the_disks_down_and_a_new_one_takes_over(ros
         cell.induct(label)
         ros.spin_until(lambda n=n: len(cell.outcomes) == n, 30.0, f"outcome {n}")
     assert [o["exit"] for o in cell.outcomes] == ["left", "right"], cell.outcomes
+
+
+def test_use_sim_time_cannot_change_while_the_controller_runs(ros):
+    cell = Cell(ros)
+    bad = ParameterMsg(
+        name="use_sim_time",
+        value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=False),
+    )
+    (result,) = cell.call(
+        SetParameters, "sorter_controller/set_parameters", SetParameters.Request(parameters=[bad])
+    ).results
+    assert not result.successful and "read-only" in result.reason
+    assert cell.ctl.get_parameter("use_sim_time").value is True
+    ros.spin_for(0.5)
+    assert cell.state == "running" and cell.ctl.logic.fault is None

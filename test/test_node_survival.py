@@ -1,0 +1,95 @@
+"""
+Both executables survive bad requests inside rclpy's own callbacks, and end cleanly.
+
+The nodes run as their console scripts (``sim_node``, ``controller_node``) in
+processes of their own, so that what is tested is the executables' spin loop, not
+the test's executor. A ParameterValue of an unknown type (raised in rclpy's
+parameter service) and a /clock message with negative seconds (raised in rclpy's
+time source) must be logged and counted while the nodes go on serving; SIGINT then
+ends each with exit code 0 and no traceback.
+"""
+
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+
+from builtin_interfaces.msg import Time
+from rcl_interfaces.msg import Parameter, ParameterValue
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rosgraph_msgs.msg import Clock
+from std_srvs.srv import Trigger
+import pytest
+
+from sorter_ros.interface import STREAM_QOS
+
+pytestmark = pytest.mark.ros
+
+BIN = Path(sys.executable).parent
+NS = '/survival'
+
+
+def _start(exe: str, *ros_args: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [str(BIN / exe), '--ros-args', '-r', f'__ns:={NS}', *ros_args],
+        env=dict(os.environ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _stop(proc: subprocess.Popen) -> tuple[int, str]:
+    proc.send_signal(signal.SIGINT)
+    try:
+        out, err = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        pytest.fail(f'{proc.args[0]} did not end within 20 s of SIGINT:\n{err[-2000:]}')
+    return proc.returncode, out + err
+
+
+def test_bad_requests_inside_rclpy_callbacks_do_not_end_the_nodes(ros):
+    procs = {
+        'sorter_sim': _start('sim_node', '-p', 'time_mode:=lockstep', '-p', 'arrival:=none'),
+        'sorter_controller': _start(
+            'controller_node', '-p', 'use_sim_time:=true', '-p', "cell_node:=''"
+        ),
+    }
+    try:
+        node = ros.make_node('fuzzer')
+        get = {n: node.create_client(GetParameters, f'{NS}/{n}/get_parameters') for n in procs}
+        setp = {n: node.create_client(SetParameters, f'{NS}/{n}/set_parameters') for n in procs}
+        step = node.create_client(Trigger, f'{NS}/step')
+        clock = node.create_publisher(Clock, '/clock', STREAM_QOS)
+        ros.spin_until(
+            lambda: all(c.service_is_ready() for c in (*get.values(), *setp.values(), step)),
+            30.0,
+            'both nodes to start and offer their services',
+        )
+        # a parameter value of a type that does not exist, to each node
+        bad = Parameter(name='alpha_deg', value=ParameterValue(type=42))
+        for name, client in setp.items():
+            future = client.call_async(SetParameters.Request(parameters=[bad]))
+            ros.spin_for(1.0)
+            if not future.done():
+                client.remove_pending_request(future)
+        # a /clock with negative seconds, to the controller (it runs on simulation time)
+        ros.spin_until(lambda: clock.get_subscription_count() >= 1, 10.0, 'a /clock subscriber')
+        clock.publish(Clock(clock=Time(sec=-5, nanosec=0)))
+        ros.spin_for(1.0)
+        # both still serve
+        for name, client in get.items():
+            reply = ros.call(client, GetParameters.Request(names=['use_sim_time']))
+            assert len(reply.values) == 1, name
+        assert ros.call(step, Trigger.Request()).success
+        for name, proc in procs.items():
+            assert proc.poll() is None, f'{name} ended: {proc.communicate()[1][-2000:]}'
+    finally:
+        results = {name: _stop(proc) for name, proc in procs.items()}
+    for name, (code, text) in results.items():
+        assert code == 0, f'{name} exit {code}:\n{text[-3000:]}'
+        assert 'Traceback' not in text, f'{name}:\n{text[-3000:]}'
+        assert 'a callback raised' in text, f'{name} logged no ignored error:\n{text[-3000:]}'
