@@ -49,6 +49,7 @@ from std_msgs.msg import Bool, String, UInt32
 from std_srvs.srv import SetBool, Trigger
 
 from sorter_ros.env import run_node
+from sorter_sim.description import Q
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
 
@@ -77,6 +78,32 @@ class Spec:
     lo: float | None = None
     hi: float | None = None
     read_only: bool = True
+    lo_open: bool = False  # lo itself excluded
+
+    @property
+    def allowed(self) -> str:
+        """Return the range in words."""
+        return f"a finite number in {'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}]"
+
+    def in_range(self, v: float) -> bool:
+        """Return True if the finite number ``v`` lies in the range."""
+        return (self.lo < v if self.lo_open else self.lo <= v) and v <= self.hi
+
+
+def _cell_spec(name, key, type_=D, default=None, extra="") -> Spec:
+    """Return the spec of one of the cell's quantities: range and meaning from the description."""
+    q = Q[key]
+    unit = f" [{q.unit}]" if q.unit else ""
+    return Spec(
+        name,
+        type_,
+        q.default if default is None else default,
+        q.meaning + (f" ({extra})" if extra else "") + unit,
+        q.lo,
+        q.hi,
+        True,
+        q.lo_open,
+    )
 
 
 # The controller's parameters. The cell group is what the PLC knows of the machine;
@@ -98,41 +125,35 @@ SCHEMA = (
         0.1,
         600.0,
     ),
-    Spec("belt_speed", D, 1.5, "belt speed v: the encoder scale [m/s]", 0.05, 10.0),
-    Spec("belt_width", D, 0.7, "belt width w (the seed's s) [m]", 0.1, 5.0),
-    Spec("disk_field_length", D, 1.2, "disk field length b (zone b) [m]", 0.05, 10.0),
-    Spec(
-        "chute_margin", D, 0.1, "chute openings reach this far beyond the disk field [m]", 0.0, 2.0
-    ),
+    _cell_spec("belt_speed", "belt.speed", extra="the encoder scale"),
+    _cell_spec("belt_width", "belt.width"),
+    _cell_spec("disk_field_length", "disk_field.length", extra="finite here"),
+    _cell_spec("chute_margin", "disk_field.chute_margin"),
     Spec(
         "photo_eyes.names",
         SA,
         ["pe_scan", "pe_divert", "pe_exit"],
         "photo-eye names (topics sensors/<name>)",
     ),
-    Spec("photo_eyes.x", DA, [-2.0, -0.3, 2.0], "photo-eye x, one per name [m]", -500.0, 50.0),
+    _cell_spec("photo_eyes.x", "sensors.x", DA, [-2.0, -0.3, 2.0], "one per name"),
     Spec("scan_eye", S, "pe_scan", "the photo-eye on the scanner line (tracking starts there)"),
     Spec("divert_eye", S, "pe_divert", "the photo-eye just upstream of the disk field"),
-    Spec("popup_stroke_time", D, 0.1, "full pop-up stroke time [s]", 0.0, 5.0),
-    Spec("alpha_slew_rate_deg_s", D, 360.0, "disk angle slew rate [deg/s]", 1.0, 36000.0),
+    _cell_spec("popup_stroke_time", "diverter.stroke_time"),
+    _cell_spec("alpha_slew_rate_deg_s", "diverter.alpha_slew_rate"),
     Spec("friction_model", S, "const1", "friction law for the divert prediction (Fig. 3)"),
-    Spec("mu_belt", D, 0.6, "friction coefficient parcel/belt for the prediction", 0.0, 3.0),
-    Spec("mu_disks", D, 0.6, "friction coefficient parcel/disks for the prediction", 0.0, 3.0),
-    Spec(
+    _cell_spec("mu_belt", "friction.mu", extra="parcel/belt, for the prediction"),
+    _cell_spec("mu_disks", "friction.mu", extra="parcel/disks, for the prediction"),
+    _cell_spec(
         "nominal_parcel_width",
-        D,
-        0.4,
-        "parcel width B assumed by the prediction (the photo-eyes measure only the length) [m]",
-        0.01,
-        3.0,
+        "parcel.width",
+        default=0.4,
+        extra="assumed by the prediction: the photo-eyes measure only the length",
     ),
-    Spec(
+    _cell_spec(
         "nominal_parcel_length",
-        D,
-        0.4,
-        "parcel length the minimum gap is reported for [m]",
-        0.01,
-        5.0,
+        "parcel.length",
+        default=0.4,
+        extra="the length the minimum gap is reported for",
     ),
     Spec(
         "warm_lengths",
@@ -213,7 +234,9 @@ SCHEMA = (
         0.01,
         60.0,
     ),
-    Spec("max_parcel_length", D, 1.2, "the longest parcel the cell takes [m]", 0.05, 10.0),
+    _cell_spec(
+        "max_parcel_length", "parcel.length", default=1.2, extra="the longest the cell takes"
+    ),
     Spec(
         "missed_divert_margin",
         D,
@@ -263,7 +286,7 @@ def descriptor(spec: Spec) -> ParameterDescriptor:
         lo=spec.lo,
         hi=spec.hi,
         read_only=spec.read_only,
-        constraints=f"a finite number in [{spec.lo:g}, {spec.hi:g}]" if ranged else "",
+        constraints=spec.allowed if ranged else "",
     )
 
 
@@ -299,18 +322,19 @@ def config_from_values(values: dict) -> ControllerConfig:
                 isinstance(v, bool)
                 or not isinstance(v, (int, float))
                 or not math.isfinite(v)
-                or (spec.lo is not None and not spec.lo <= v <= spec.hi)
+                or (spec.lo is not None and not spec.in_range(v))
             ):
-                raise ValueError(
-                    f"parameter {name!r} must be a finite number in [{spec.lo:g}, {spec.hi:g}], "
-                    f"got {v!r}"
-                )
+                raise ValueError(f"parameter {name!r} must be {spec.allowed}, got {v!r}")
         elif spec.type == DA:
             if not isinstance(v, (list, tuple)) or not all(
                 isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
                 for x in v
             ):
                 raise ValueError(f"parameter {name!r} must be a list of finite numbers, got {v!r}")
+            if spec.lo is not None and not all(spec.in_range(float(x)) for x in v):
+                raise ValueError(
+                    f"parameter {name!r}: every entry must be {spec.allowed}, got {v!r}"
+                )
         elif spec.type == SA:
             if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
                 raise ValueError(f"parameter {name!r} must be a list of strings, got {v!r}")

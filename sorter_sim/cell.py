@@ -26,7 +26,7 @@ from .core.layout import PARCEL_WIDTH
 from .core.simulate import Parcel, parcel_array
 from .core.wrench import gauss_legendre_01
 from .params import SPECS, CellParams, ParamError, format_label, parcel_half_extents
-from .scene import scene_strips, validate as validate_scene
+from .scene import zone_law
 
 EXIT_NAMES = {ck.EV_LEFT: 'left', ck.EV_RIGHT: 'right', ck.EV_STRAIGHT: 'straight'}
 # parcel states for markers, indexed by the kernels' S_* codes
@@ -178,19 +178,9 @@ class Cell:
 
     # ------------------------------------------------------------------ set-up
     def _configure(self, p: CellParams) -> None:
-        scene = validate_scene(
-            {
-                'friction': {'model': p.friction_model},
-                'zones': {
-                    'b': p.disk_field_length,
-                    'mu_a': p.mu_belt,
-                    'mu_b': p.mu_disks,
-                    'mu_c': p.mu_belt,
-                },
-            }
-        )
-        laws = {s.name: s.law for s in scene_strips(scene)}
-        law_a, law_b = laws['a'], laws['b']
+        # the zones' laws: the parameters are checked already (CellParams), no scene needed
+        law_a = zone_law(p.friction_model, p.mu_belt)
+        law_b = zone_law(p.friction_model, p.mu_disks)
         self.law_belt, self.law_disks = law_a, law_b
         self.laws = np.vstack([law_a.row(), law_b.row()])
         c = self.cfg

@@ -27,6 +27,7 @@ from functools import cached_property
 from typing import Any
 
 from .core.friction import LAW_NAMES
+from .description import Q
 
 DOUBLE = 'double'
 INTEGER = 'integer'
@@ -63,6 +64,15 @@ class ParamSpec:
     choices: tuple = ()
     read_only: bool = True
     length: tuple[int, int] | None = None  # allowed array length (min, max)
+    lo_open: bool = False  # lo itself excluded
+
+    @property
+    def _bracket(self) -> str:
+        return '(' if self.lo_open else '['
+
+    def in_range(self, v: float) -> bool:
+        """Return True if the finite number ``v`` lies in the declared range."""
+        return (self.lo < v if self.lo_open else self.lo <= v) and v <= self.hi
 
     @property
     def allowed(self) -> str:
@@ -74,11 +84,11 @@ class ParamSpec:
             return 'true or false'
         if self.type in (DOUBLE, INTEGER):
             kind = 'an integer' if self.type == INTEGER else 'a finite number'
-            return f'{kind} in [{self.lo:g}, {self.hi:g}]{unit}'
+            return f'{kind} in {self._bracket}{self.lo:g}, {self.hi:g}]{unit}'
         if self.type == DOUBLE_ARRAY:
             n = self.length
             count = f'{n[0]}' if n[0] == n[1] else f'{n[0]} to {n[1]}'
-            return f'{count} finite numbers in [{self.lo:g}, {self.hi:g}]{unit}'
+            return f'{count} finite numbers in {self._bracket}{self.lo:g}, {self.hi:g}]{unit}'
         if self.type == STRING_ARRAY:
             return f'a list of {self.length[0]} to {self.length[1]} strings'
         return 'a string'
@@ -98,6 +108,29 @@ def _p(
 ):
     return ParamSpec(
         name, type_, default, description, units, lo, hi, tuple(choices), read_only, length
+    )
+
+
+def _cellp(name, key, type_=DOUBLE, default=None, extra='', read_only=True, length=None):
+    """
+    Return the spec of a parameter that is one of the cell's quantities (``description``).
+
+    Its unit, range and meaning come from the cell description; ``default`` (else the
+    quantity's) and ``extra`` say what is particular to the node.
+    """
+    q = Q[key]
+    return ParamSpec(
+        name,
+        type_,
+        q.default if default is None else default,
+        q.meaning + (f' ({extra})' if extra else ''),
+        q.unit,
+        q.lo,
+        q.hi,
+        (),
+        read_only,
+        length,
+        q.lo_open,
     )
 
 
@@ -153,35 +186,10 @@ SCHEMA: tuple[ParamSpec, ...] = (
         0.1,
     ),
     # -- cell geometry (conveyor frame)
-    _p(
-        'belt_speed',
-        DOUBLE,
-        1.5,
-        'belt speed v (the disks turn at the same surface speed)',
-        'm/s',
-        0.5,
-        1.5,
-    ),
-    _p('belt_width', DOUBLE, 0.7, 'belt width s; the belt spans y in [-s/2, s/2]', 'm', 0.3, 2.0),
-    _p(
-        'disk_field_length',
-        DOUBLE,
-        1.2,
-        'length b of the disk field (zone b, 0 <= x <= b)',
-        'm',
-        0.1,
-        5.0,
-    ),
-    _p(
-        'chute_margin',
-        DOUBLE,
-        0.1,
-        'the chute openings in both side walls reach this far beyond '
-        'the disk field, upstream and downstream',
-        'm',
-        0.0,
-        1.0,
-    ),
+    _cellp('belt_speed', 'belt.speed'),
+    _cellp('belt_width', 'belt.width'),
+    _cellp('disk_field_length', 'disk_field.length', extra='finite here'),
+    _cellp('chute_margin', 'disk_field.chute_margin'),
     _p(
         'induct_x',
         DOUBLE,
@@ -218,66 +226,30 @@ SCHEMA: tuple[ParamSpec, ...] = (
         'the disk field)',
         length=(2, 32),
     ),
-    _p(
+    _cellp(
         'photo_eyes.x',
+        'sensors.x',
         DOUBLE_ARRAY,
         [-2.0, -0.3, 2.0],
-        'photo-eye beam positions, one per name; each beam spans the belt',
-        'm',
-        -500.0,
-        50.0,
+        extra='one per name; each beam spans the belt',
         length=(2, 32),
     ),
     # -- diverter
-    _p(
+    _cellp(
         'alpha_deg',
-        DOUBLE,
-        90.0,
-        'commanded disk angle α (> 0 diverts to the left chute, +y); '
-        'the physical angle follows at alpha_slew_rate_deg_s',
-        'deg',
-        -90.0,
-        90.0,
+        'diverter.alpha_deg',
+        extra='commanded; the physical angle follows at alpha_slew_rate_deg_s',
         read_only=False,
     ),
-    _p(
-        'alpha_slew_rate_deg_s',
-        DOUBLE,
-        360.0,
-        'slew rate of the physical disk angle',
-        'deg/s',
-        1.0,
-        36000.0,
-    ),
-    _p(
-        'popup_stroke_time',
-        DOUBLE,
-        0.1,
-        'time for a full pop-up stroke (0 = instantaneous)',
-        's',
-        0.0,
-        5.0,
-    ),
-    _p(
+    _cellp('alpha_slew_rate_deg_s', 'diverter.alpha_slew_rate'),
+    _cellp('popup_stroke_time', 'diverter.stroke_time'),
+    _cellp(
         'watchdog_timeout',
-        DOUBLE,
-        0.3,
-        'the controller\'s heartbeat (controller/heartbeat) may be this late, in simulated '
-        'time; then the disks drop and the disk angle goes to safe_alpha_deg until heartbeats '
-        'return. Armed by the first heartbeat; 0: no watchdog',
-        's',
-        0.0,
-        60.0,
+        'diverter.watchdog_timeout',
+        extra='armed by the first heartbeat on controller/heartbeat; tripped, the disks drop '
+        'and turn to safe_alpha_deg until heartbeats return',
     ),
-    _p(
-        'safe_alpha_deg',
-        DOUBLE,
-        0.0,
-        'disk angle the watchdog commands when it trips (0: the disks turn with the belt)',
-        'deg',
-        -90.0,
-        90.0,
-    ),
+    _cellp('safe_alpha_deg', 'diverter.safe_alpha_deg'),
     # -- friction (seed Fig. 3 laws, scaled to these coefficients at 1 m/s)
     _p(
         'friction_model',
@@ -287,24 +259,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
         'as in config/scenes; const1 is the seed\'s sorting runs)',
         choices=tuple(LAW_NAMES),
     ),
-    _p(
-        'mu_belt',
-        DOUBLE,
-        0.6,
-        'friction coefficient parcel/belt (zones a and c) at 1 m/s',
-        '',
-        0.0,
-        3.0,
-    ),
-    _p(
-        'mu_disks',
-        DOUBLE,
-        0.6,
-        'friction coefficient parcel/disks (zone b) at 1 m/s',
-        '',
-        0.0,
-        3.0,
-    ),
+    _cellp('mu_belt', 'friction.mu', extra='parcel/belt, zones a and c, at 1 m/s'),
+    _cellp('mu_disks', 'friction.mu', extra='parcel/disks, zone b, at 1 m/s'),
     _p(
         'integrator',
         STRING,
@@ -364,47 +320,39 @@ SCHEMA: tuple[ParamSpec, ...] = (
         50.0,
         read_only=False,
     ),
-    _p(
+    _cellp(
         'parcel_A',
+        'parcel.length',
         DOUBLE_ARRAY,
         [0.3, 0.7],
-        'parcel length A (along x at φ = 0) [min, max]',
-        'm',
-        0.05,
-        2.0,
+        extra='[min, max] of the stream',
         read_only=False,
         length=(2, 2),
     ),
-    _p(
+    _cellp(
         'parcel_B',
+        'parcel.width',
         DOUBLE_ARRAY,
         [0.2, 0.4],
-        'parcel width B [min, max]',
-        'm',
-        0.05,
-        2.0,
+        extra='[min, max] of the stream',
         read_only=False,
         length=(2, 2),
     ),
-    _p(
+    _cellp(
         'parcel_m',
+        'parcel.mass',
         DOUBLE_ARRAY,
         [1.0, 10.0],
-        'parcel mass [min, max]',
-        'kg',
-        0.01,
-        1000.0,
+        extra='[min, max] of the stream',
         read_only=False,
         length=(2, 2),
     ),
-    _p(
+    _cellp(
         'parcel_phi0_deg',
+        'parcel.skew_deg',
         DOUBLE_ARRAY,
         [-3.0, 3.0],
-        'initial skew φ0 [min, max]',
-        'deg',
-        -90.0,
-        90.0,
+        extra='initial skew φ0, [min, max] of the stream',
         read_only=False,
         length=(2, 2),
     ),
@@ -506,7 +454,7 @@ def _check_value(spec: ParamSpec, value: Any) -> Any:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise bad
         v = float(value)
-        if not (math.isfinite(v) and spec.lo <= v <= spec.hi):
+        if not (math.isfinite(v) and spec.in_range(v)):
             raise bad
         return v
     if not isinstance(value, (list, tuple)) or not spec.length[0] <= len(value) <= spec.length[1]:
@@ -520,7 +468,7 @@ def _check_value(spec: ParamSpec, value: Any) -> Any:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise bad
         v = float(v)
-        if not (math.isfinite(v) and spec.lo <= v <= spec.hi):
+        if not (math.isfinite(v) and spec.in_range(v)):
             raise bad
         out.append(v)
     return tuple(out)

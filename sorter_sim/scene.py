@@ -26,6 +26,7 @@ import numpy as np
 import yaml
 
 from .core.friction import mu_kinetic
+from .description import Q
 from .core.simulate import FrictionLaw, Parcel, SimResult, simulate, three_zone_strips
 
 
@@ -72,20 +73,35 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     },
 }
 
+
+def _cell(key: str, kind: str = "float") -> tuple:
+    """Return the rule of a scene key that is one of the cell's quantities."""
+    q = Q[key]
+    allowed = q.allowed + (", or null" if kind == "mu" else "")
+    return (kind, q.lo, q.hi, allowed)
+
+
 # key -> (kind, lo, hi, what is allowed); kind: float, bool, int, choice, list
 _RULES: dict[str, tuple] = {
-    "parcel.A": ("float", 0.0, 5.0, "a length in (0, 5] m"),
-    "parcel.B": ("float", 0.0, 5.0, "a width in (0, 5] m"),
-    "parcel.m": ("float", 0.0, 1000.0, "a mass in (0, 1000] kg"),
-    "parcel.phi0_deg": ("float", -180.0, 180.0, "an angle in [-180, 180] deg"),
-    "belt.v": ("float", 0.0, 10.0, "a belt speed in [0, 10] m/s"),
-    "belt.s": ("float", 0.0, 10.0, "a conveyor width in (0, 10] m"),
-    "zones.b": ("float_inf", 0.0, math.inf, "a disk-field width >= 0 m, or .inf"),
-    "zones.mu_a": ("mu", 0.0, 3.0, "a coefficient in [0, 3], or null"),
-    "zones.mu_b": ("mu", 0.0, 3.0, "a coefficient in [0, 3], or null"),
-    "zones.mu_c": ("mu", 0.0, 3.0, "a coefficient in [0, 3], or null"),
-    "diverter.alpha_deg": ("float", -90.0, 90.0, "a disk angle in [-90, 90] deg"),
-    "diverter.stroke": ("float", 0.0, 1.0, "a pop-up position in [0, 1]"),
+    # the cell's quantities: ranges from the cell description
+    "parcel.A": _cell("parcel.length"),
+    "parcel.B": _cell("parcel.width"),
+    "parcel.m": _cell("parcel.mass"),
+    "parcel.phi0_deg": _cell("parcel.skew_deg"),
+    "belt.v": _cell("belt.speed"),
+    "belt.s": _cell("belt.width"),
+    # zone b of a scene may be absent (0) or the seed's b -> ∞
+    "zones.b": (
+        "float_inf",
+        0.0,
+        math.inf,
+        "a disk-field length: 0, or " + Q["disk_field.length"].allowed + ", or .inf",
+    ),
+    "zones.mu_a": _cell("friction.mu", "mu"),
+    "zones.mu_b": _cell("friction.mu", "mu"),
+    "zones.mu_c": _cell("friction.mu", "mu"),
+    "diverter.alpha_deg": _cell("diverter.alpha_deg"),
+    "diverter.stroke": _cell("diverter.stroke"),
     "friction.model": (
         "choice",
         ("const2", "const1", "linear", "polynomial", "stribeck", "bspline"),
@@ -116,10 +132,6 @@ _RULES: dict[str, tuple] = {
     "solver.t_max": ("float", 0.0, 3600.0, "a time limit in (0, 3600] s"),
 }
 _OPEN_LOW = {
-    "parcel.A",
-    "parcel.B",
-    "parcel.m",
-    "belt.s",
     "friction.v_ref",
     "model.v_min",
     "model.g",
@@ -175,6 +187,8 @@ def _check(key: str, value: Any) -> Any:
         v = int(v)
     too_low = v <= lo if key in _OPEN_LOW else v < lo
     if too_low or v > hi:
+        raise SceneError(f"{key}: must be {allowed}, got {value!r}")
+    if key == "zones.b" and 0.0 < v < math.inf and not Q["disk_field.length"].contains(v):
         raise SceneError(f"{key}: must be {allowed}, got {value!r}")
     return v
 
@@ -253,14 +267,25 @@ def apply_overrides(scene: dict, overrides: list[str]) -> dict:
     return validate(raw)
 
 
+def zone_law(model: str, mu: float | None, params=None, v_ref: float | None = None):
+    """
+    Return the friction law of one zone: law ``model`` scaled to ``mu`` at ``v_ref``.
+
+    ``params`` are the law's own values (default: the scene defaults, the seed's
+    where it gives them); ``mu`` None takes the law as given. The law must not be 0
+    at ``v_ref`` when it is scaled (``validate`` checks a scene for that).
+    """
+    fr = DEFAULTS["friction"]
+    law = FrictionLaw(model, tuple(fr[model] if params is None else params))
+    if mu is None:
+        return law
+    ref = mu_kinetic(law.law_id, law.row(), fr["v_ref"] if v_ref is None else v_ref)
+    return law.scaled(mu / ref)
+
+
 def _zone_law(scene: dict, zone: str) -> FrictionLaw:
     fr = scene["friction"]
-    law = FrictionLaw(fr["model"], tuple(fr[fr["model"]]))
-    target = scene["zones"][f"mu_{zone}"]
-    if target is None:
-        return law
-    ref = mu_kinetic(law.law_id, law.row(), fr["v_ref"])
-    return law.scaled(target / ref)
+    return zone_law(fr["model"], scene["zones"][f"mu_{zone}"], fr[fr["model"]], fr["v_ref"])
 
 
 def scene_parcel(scene: dict) -> Parcel:

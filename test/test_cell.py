@@ -79,7 +79,7 @@ def test_cell_yaml_is_the_declared_default():
     [
         ('belt_speed', math.nan),
         ('belt_speed', math.inf),
-        ('belt_speed', 2.0),
+        ('belt_speed', 20.0),
         ('belt_speed', 'fast'),
         ('belt_speed', True),
         ('alpha_deg', 91.0),

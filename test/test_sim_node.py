@@ -548,7 +548,7 @@ def test_a_namespaced_second_cell_does_not_see_the_first(ros):
     'name, value, match',
     [
         ('belt_speed', math.nan, 'belt_speed'),
-        ('belt_speed', 3.0, 'belt_speed'),
+        ('belt_speed', 30.0, 'belt_speed'),
         ('alpha_deg', 'ninety', 'alpha_deg'),
         ('alpha_deg', 45, 'alpha_deg'),
         ('scanner_x', -1.2, 'pe_scan'),
@@ -564,10 +564,10 @@ def test_bad_start_up_values_stop_the_node_with_a_clear_error(ros, name, value, 
 
 def test_main_exits_2_with_one_line_on_a_bad_parameter(capsys):
     with pytest.raises(SystemExit) as exc:
-        main(['sim_node', '--ros-args', '-p', 'belt_speed:=2.5', '-p', 'time_mode:=lockstep'])
+        main(['sim_node', '--ros-args', '-p', 'belt_speed:=12.5', '-p', 'time_mode:=lockstep'])
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and 'belt_speed' in err[0] and '[0.5, 1.5]' in err[0]
+    assert len(err) == 1 and 'belt_speed' in err[0] and '[0.05, 10]' in err[0]
 
 
 def test_watchdog_drops_the_disks_when_heartbeats_stop(ros):

@@ -1,0 +1,208 @@
+"""
+The cell's physical quantities, each declared once: name, unit, default, range, meaning.
+
+A sorter cell is a belt, a field of torsional disks (zone b of the seed's Fig. 6)
+with its chute openings, the friction between parcel and surfaces, a pop-up
+diverter, photo-eyes along the belt and the parcels themselves. Every place that
+takes one of these quantities from a user reads its range and meaning here: the
+scene schema (``scene.py``, hence ``sorter run --set`` and the design sweeps), the
+simulation node's parameters (``params.py``), the controller's configuration
+(``sorter_control.node``), and the README's table (``markdown_table``; a test
+keeps the two equal). So the node, the controller and the model accept the same
+values, and a value the model cannot handle is refused with one message naming
+the key, the value and what is allowed.
+
+The ranges are physical, not the seed's: belts from a crawl (0.05 m/s) to 10 m/s,
+parcels from 1 cm to 5 m and from 10 g to a tonne. A lower bound keeps the model
+away from degenerate cases (a 1e-300 m parcel, a belt at rest that never
+delivers), an upper bound from values no conveyor has. Defaults are the seed's
+cell (belt width s = 0.7 m, v = 1.5 m/s, μ = 0.6, disks at α = 90°) and the
+default cell of ``config/cell.yaml``.
+
+This module is plain Python: no ROS, no YAML, no numba.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Any
+
+
+class DescriptionError(ValueError):
+    """A value lies outside the physical range of its quantity, or is not a number."""
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """One physical quantity of the cell."""
+
+    key: str  # canonical name, section.quantity
+    unit: str  # SI, or deg; '' for dimensionless
+    default: float
+    lo: float
+    hi: float
+    meaning: str
+    lo_open: bool = False  # lo itself excluded
+
+    @property
+    def allowed(self) -> str:
+        """Return what is allowed, in words (the range with its unit)."""
+        unit = f' {self.unit}' if self.unit else ''
+        bracket = '(' if self.lo_open else '['
+        return f'a finite number in {bracket}{self.lo:g}, {self.hi:g}]{unit}'
+
+    def contains(self, value: float) -> bool:
+        """Return True if ``value`` is a finite number in the range."""
+        if not math.isfinite(value):
+            return False
+        above = value > self.lo if self.lo_open else value >= self.lo
+        return above and value <= self.hi
+
+    def check(self, value: Any, name: str | None = None) -> float:
+        """Return ``value`` as a float, or raise DescriptionError naming ``name`` (or the key)."""
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise DescriptionError(f'{name or self.key}: must be {self.allowed}, got {value!r}')
+        if not self.contains(float(value)):
+            raise DescriptionError(f'{name or self.key}: must be {self.allowed}, got {value!r}')
+        return float(value)
+
+
+def _q(key, unit, default, lo, hi, meaning, lo_open=False) -> Quantity:
+    return Quantity(key, unit, default, lo, hi, meaning, lo_open)
+
+
+# The order here is the order of the README table.
+QUANTITIES: tuple[Quantity, ...] = (
+    # -- belt
+    _q(
+        'belt.speed',
+        'm/s',
+        1.5,
+        0.05,
+        10.0,
+        'belt speed v (the disks turn at the same surface speed)',
+    ),
+    _q(
+        'belt.width',
+        'm',
+        0.7,
+        0.1,
+        5.0,
+        'belt width s; the belt spans y in [-s/2, s/2] and the scrap line lies s away across it',
+    ),
+    # -- disk field (zone b) and chutes
+    _q(
+        'disk_field.length',
+        'm',
+        1.2,
+        0.0,
+        10.0,
+        'length b of the disk field, zone b '
+        '(0 <= x <= b); a scene may also give .inf, the seed\'s b -> ∞',
+        lo_open=True,
+    ),
+    _q(
+        'disk_field.chute_margin',
+        'm',
+        0.1,
+        0.0,
+        2.0,
+        'the chute openings in both side walls '
+        'reach this far beyond the disk field, upstream and downstream',
+    ),
+    # -- friction
+    _q(
+        'friction.mu',
+        '',
+        0.6,
+        0.0,
+        3.0,
+        'a zone\'s friction coefficient parcel/belt or '
+        'parcel/disks, at the reference speed (the law of Fig. 3 is scaled to it)',
+    ),
+    # -- diverter
+    _q(
+        'diverter.alpha_deg',
+        'deg',
+        90.0,
+        -90.0,
+        90.0,
+        'disk angle α; > 0 diverts to the left chute (+y)',
+    ),
+    _q(
+        'diverter.alpha_slew_rate',
+        'deg/s',
+        360.0,
+        1.0,
+        36000.0,
+        'slew rate of the physical disk angle',
+    ),
+    _q(
+        'diverter.stroke',
+        '',
+        1.0,
+        0.0,
+        1.0,
+        'pop-up position, 0 down .. 1 up: the share of the load the disks carry',
+    ),
+    _q(
+        'diverter.stroke_time',
+        's',
+        0.1,
+        0.0,
+        5.0,
+        'time for a full pop-up stroke (0 = instantaneous)',
+    ),
+    _q(
+        'diverter.watchdog_timeout',
+        's',
+        0.3,
+        0.0,
+        60.0,
+        'the controller\'s heartbeat may be '
+        'this late (simulated time) before the diverter fails safe; 0: no watchdog',
+    ),
+    _q(
+        'diverter.safe_alpha_deg',
+        'deg',
+        0.0,
+        -90.0,
+        90.0,
+        'disk angle the watchdog commands when it trips',
+    ),
+    # -- sensors
+    _q(
+        'sensors.x',
+        'm',
+        0.0,
+        -500.0,
+        50.0,
+        'position of a photo-eye beam or the scanner line '
+        'along the belt (x = 0: upstream edge of the disk field)',
+    ),
+    # -- parcels
+    _q('parcel.length', 'm', 0.7, 0.01, 5.0, 'parcel length A (along the belt at φ = 0)'),
+    _q('parcel.width', 'm', 0.2, 0.01, 5.0, 'parcel width B'),
+    _q(
+        'parcel.mass', 'kg', 5.0, 0.01, 1000.0, 'parcel mass m (uniform pressure on the footprint)'
+    ),
+    _q('parcel.skew_deg', 'deg', 0.0, -180.0, 180.0, 'parcel skew φ on the belt'),
+)
+
+Q: dict[str, Quantity] = {q.key: q for q in QUANTITIES}
+
+
+def markdown_table() -> str:
+    """Return the README's table of the cell's quantities."""
+    lines = ['| quantity | unit | range | default | meaning |', '|---|---|---|---|---|']
+    for q in QUANTITIES:
+        bracket = '(' if q.lo_open else '['
+        lines.append(
+            f'| `{q.key}` | {q.unit or "–"} | {bracket}{q.lo:g}, {q.hi:g}] | {q.default:g} | '
+            f'{q.meaning} |'
+        )
+    return '\n'.join(lines)
+
+
+__all__ = ['DescriptionError', 'Quantity', 'QUANTITIES', 'Q', 'markdown_table']
