@@ -29,6 +29,8 @@ import math
 import time
 from pathlib import Path
 
+from sorter_sim.description import Q
+
 LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
 FAST_SLICE = 0.005  # s of simulated time per executor pass of the cell in fast mode
@@ -86,8 +88,9 @@ def _check_args(args) -> str | None:
             return f"--rtf must be a number in [0.01, 100] or fast, got {args.rtf!r}"
     if args.gap is not None:
         lo, hi = args.gap
-        if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 <= lo <= hi <= 100.0):
-            return f"--gap must be 0 <= MIN <= MAX <= 100 m, got {lo} {hi}"
+        q = Q["stream.gap"]
+        if not (q.contains(lo) and q.contains(hi) and lo <= hi):
+            return f"--gap MIN MAX: each must be {q.allowed}, with MIN <= MAX; got {lo} {hi}"
     if not 0 <= args.seed < 2**31:
         return f"--seed must be in [0, 2^31), got {args.seed}"
     out = Path(args.out)

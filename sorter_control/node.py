@@ -44,6 +44,7 @@ from rcl_interfaces.msg import (
 )
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
+from rclpy.parameter import Parameter as RclpyParameter
 from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Bool, String, UInt32
 from std_srvs.srv import SetBool, Trigger
@@ -66,6 +67,7 @@ from .logic import (
 from .timing import CellModel
 
 NODE_NAME = "sorter_controller"
+LAST_WORDS_TIMEOUT = 0.5  # [s, wall] to lower the disks when stopping
 D, B, S, SA, DA = "double", "bool", "string", "string_array", "double_array"
 
 
@@ -650,7 +652,27 @@ class ControllerNode(Node):
             self._publish_confirmation(c)
         for level, text in out.log:
             self._log(level, text)
+        self._publish_routing()
         self.logic.record_scan_wall(time.perf_counter() - wall0)
+
+    def _publish_routing(self) -> None:
+        """Keep the routing parameters equal to the live table (updates change both)."""
+        live = self.logic.routing
+        rules, default = live.rules(with_default=False), live.default or ""
+        if rules == self.values["routing.rules"] and default == self.values["routing.default"]:
+            return
+        result = self.set_parameters(
+            [
+                RclpyParameter("routing.rules", RclpyParameter.Type.STRING_ARRAY, rules),
+                RclpyParameter("routing.default", RclpyParameter.Type.STRING, default),
+            ]
+        )
+        if not all(r.successful for r in result):
+            # cannot happen for a table the logic accepted; say so rather than drift apart
+            self.get_logger().error(
+                "routing parameters not updated to the live table: "
+                + "; ".join(r.reason for r in result if not r.successful)
+            )
 
     def _log(self, level: str, text: str) -> None:
         # one call site per severity: rclpy refuses to change a call site's severity
@@ -661,6 +683,33 @@ class ControllerNode(Node):
             log.warning(text)
         else:
             log.info(text)
+
+    def last_words(self, executor, timeout: float = LAST_WORDS_TIMEOUT) -> bool:
+        """
+        Lower the disks before the controller goes; return whether the cell confirmed it.
+
+        A PLC that stops cleanly leaves its diverter safe rather than relying on the
+        cell's watchdog: the disks drop within one service round trip. Waits at most
+        ``timeout`` seconds of wall time; if the cell does not answer, its watchdog
+        still drops the disks once the heartbeat stops.
+        """
+        client = self._svc["popup"]
+        if not client.service_is_ready():
+            self.get_logger().warning("stopping: the cell's diverter/popup is not there")
+            return False
+        future = client.call_async(SetBool.Request(data=False))
+        deadline = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < deadline and self.context.ok():
+            executor.spin_once(timeout_sec=0.02)
+        ok = future.done() and future.exception() is None and bool(future.result().success)
+        if ok:
+            self.get_logger().info("stopping: disks lowered")
+        else:
+            client.remove_pending_request(future)
+            self.get_logger().warning(
+                "stopping: the cell did not confirm lowering the disks; its watchdog will"
+            )
+        return ok
 
     def _call(self, cmd, wall0: float) -> None:
         client = self._svc[cmd.kind]

@@ -49,8 +49,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sorter_sim.core.simulate import simulate
-from sorter_sim.scene import SceneError, scene_initial_state, scene_parcel, scene_strips, validate
+from sorter_sim.core.simulate import Parcel, simulate
+from sorter_sim.model import cell_strips, entry_state
 
 DESTINATIONS = ("left", "right", "straight")
 
@@ -290,34 +290,25 @@ class DivertPredictor:
     def _run(self, A: float, v: float, alpha_deg: float) -> Prediction:
         cell = self.cell
         try:
-            scene = validate(
-                {
-                    "parcel": {
-                        "A": A,
-                        "B": cell.parcel_width,
-                        "m": cell.parcel_mass,
-                        "phi0_deg": 0.0,
-                    },
-                    "belt": {"v": v, "s": cell.belt_width},
-                    "zones": {
-                        "b": cell.disk_field_length,
-                        "mu_a": cell.mu_belt,
-                        "mu_b": cell.mu_disks,
-                        "mu_c": cell.mu_belt,
-                    },
-                    "diverter": {"alpha_deg": alpha_deg, "stroke": 1.0},
-                    "friction": {"model": cell.friction_model},
-                }
+            parcel = Parcel(A, cell.parcel_width, cell.parcel_mass)
+            strips = cell_strips(
+                v,
+                alpha_deg,
+                cell.disk_field_length,
+                cell.mu_belt,
+                cell.mu_disks,
+                cell.mu_belt,
+                cell.friction_model,
             )
-        except SceneError as exc:
+        except ValueError as exc:
             raise ValueError(f"cannot predict a divert: {exc}") from None
-        y0 = scene_initial_state(scene)
+        y0 = entry_state(parcel, v)
         half_diag = 0.5 * math.hypot(A, cell.parcel_width)
         # run until the whole footprint is off the belt, and at least to the commit line
         y_run = max(cell.commit_distance, 0.5 * cell.belt_width + half_diag) + 0.01
         res = simulate(
-            scene_parcel(scene),
-            scene_strips(scene),
+            parcel,
+            strips,
             y0,
             (0.0, self.t_max),
             self.method,
@@ -602,27 +593,19 @@ def seed_capacity(
     Return the seed's technical capacity W_t = 3600 / t_scrap [pcs/h] (Fig. 9).
 
     t_scrap: from the leading edge on the zone a/b border until the centre of gravity
-    has covered the belt width s, on this cell's disk field and friction.
+    has covered the belt width s, on this cell's disk field and friction (the model
+    is mirror-symmetric, so ±α give the same), within the scenes' 20 s horizon.
     """
-    scene = validate(
-        {
-            "parcel": {
-                "A": A,
-                "B": B if B is not None else cell.parcel_width,
-                "m": cell.parcel_mass,
-            },
-            "belt": {"v": v, "s": cell.belt_width},
-            "zones": {
-                "b": cell.disk_field_length,
-                "mu_a": cell.mu_belt,
-                "mu_b": cell.mu_disks,
-                "mu_c": cell.mu_belt,
-            },
-            "diverter": {"alpha_deg": alpha_deg},
-            "friction": {"model": cell.friction_model},
-        }
+    strips = cell_strips(
+        v,
+        abs(alpha_deg),
+        cell.disk_field_length,
+        cell.mu_belt,
+        cell.mu_disks,
+        cell.mu_belt,
+        cell.friction_model,
     )
-    from sorter_sim.scene import run_scene
-
-    _, summary = run_scene(scene)
-    return summary["capacity_pcs_h"] or 0.0
+    parcel = Parcel(A, B if B is not None else cell.parcel_width, cell.parcel_mass)
+    y0 = entry_state(parcel, v)
+    res = simulate(parcel, strips, y0, (0.0, 20.0), "accurate", y_target=y0[1] + cell.belt_width)
+    return 3600.0 / res.t_target if res.t_target else 0.0

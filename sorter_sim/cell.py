@@ -26,7 +26,7 @@ from .core.layout import PARCEL_WIDTH
 from .core.simulate import Parcel, parcel_array
 from .core.wrench import gauss_legendre_01
 from .params import SPECS, CellParams, ParamError, format_label, parcel_half_extents
-from .scene import zone_law
+from .model import zone_law
 
 EXIT_NAMES = {ck.EV_LEFT: 'left', ck.EV_RIGHT: 'right', ck.EV_STRAIGHT: 'straight'}
 # parcel states for markers, indexed by the kernels' S_* codes

@@ -188,6 +188,17 @@ QUANTITIES: tuple[Quantity, ...] = (
         'parcel.mass', 'kg', 5.0, 0.01, 1000.0, 'parcel mass m (uniform pressure on the footprint)'
     ),
     _q('parcel.skew_deg', 'deg', 0.0, -180.0, 180.0, 'parcel skew φ on the belt'),
+    # -- parcel stream
+    _q(
+        'stream.gap',
+        'm',
+        0.9,
+        0.05,
+        100.0,
+        'belt gap between consecutive parcels, trailing edge to leading edge (below 5 cm '
+        'the photo-eyes could not tell two parcels apart within a scan)',
+    ),
+    _q('stream.rate', '1/s', 1.0, 0.001, 50.0, 'mean arrival rate of a Poisson stream'),
 )
 
 Q: dict[str, Quantity] = {q.key: q for q in QUANTITIES}

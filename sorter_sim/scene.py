@@ -26,20 +26,14 @@ import numpy as np
 import yaml
 
 from .core.friction import mu_kinetic
+from .core.simulate import FrictionLaw, Parcel, SimResult, simulate
 from .description import Q
-from .core.simulate import FrictionLaw, Parcel, SimResult, simulate, three_zone_strips
+from .model import LAW_DEFAULTS, V_REF, cell_strips, entry_state, zone_law
 
 
 class SceneError(ValueError):
     """A scene key is missing, unknown or out of its allowed range."""
 
-
-# Default B-spline control points (v_i [m/s], μ_i): an assumption, since the seed
-# does not list Piątkowski & Sempruch's (2006b) values. Shape: μ_0 = 0.65 at rest
-# (the seed's μ_0), a minimum near 0.2 m/s, then a slow rise towards μ_G-like
-# values at sorting speeds. The rise around 0.37 m/s is what damps the two-belt
-# positioning oscillation of Fig. 13 (a constant μ cannot damp it).
-BSPLINE_DEFAULT = [0.0, 0.1, 0.25, 0.6, 1.5, 2.5, 0.65, 0.45, 0.42, 0.47, 0.50, 0.52]
 
 DEFAULTS: dict[str, dict[str, Any]] = {
     "parcel": {
@@ -53,13 +47,8 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     "diverter": {"alpha_deg": 90.0, "stroke": 1.0},
     "friction": {
         "model": "const1",
-        "v_ref": 1.0,
-        "const2": [0.65, 0.46],  # the seed's μ_0, μ_G (models 2 and 3)
-        "const1": [0.6],  # the seed's sorting runs
-        "linear": [0.65, -0.15],  # assumption
-        "polynomial": [0.65, -1.0, 0.0, 2.0],  # assumption: Fig. 3d's rise at 1 m/s
-        "stribeck": [0.65, 0.3, 10.0, 5.0, 1.5, 0.1],  # assumption: μ0, μmin, b1, b2, b3, v_knee
-        "bspline": list(BSPLINE_DEFAULT),
+        "v_ref": V_REF,
+        **{name: list(values) for name, values in LAW_DEFAULTS.items()},
     },
     "model": {"rotation": True, "v_min": 1e-6, "g": 9.81},
     "solver": {
@@ -267,22 +256,6 @@ def apply_overrides(scene: dict, overrides: list[str]) -> dict:
     return validate(raw)
 
 
-def zone_law(model: str, mu: float | None, params=None, v_ref: float | None = None):
-    """
-    Return the friction law of one zone: law ``model`` scaled to ``mu`` at ``v_ref``.
-
-    ``params`` are the law's own values (default: the scene defaults, the seed's
-    where it gives them); ``mu`` None takes the law as given. The law must not be 0
-    at ``v_ref`` when it is scaled (``validate`` checks a scene for that).
-    """
-    fr = DEFAULTS["friction"]
-    law = FrictionLaw(model, tuple(fr[model] if params is None else params))
-    if mu is None:
-        return law
-    ref = mu_kinetic(law.law_id, law.row(), fr["v_ref"] if v_ref is None else v_ref)
-    return law.scaled(mu / ref)
-
-
 def _zone_law(scene: dict, zone: str) -> FrictionLaw:
     fr = scene["friction"]
     return zone_law(fr["model"], scene["zones"][f"mu_{zone}"], fr[fr["model"]], fr["v_ref"])
@@ -294,22 +267,24 @@ def scene_parcel(scene: dict) -> Parcel:
 
 
 def scene_strips(scene: dict):
-    return three_zone_strips(
+    fr, zones = scene["friction"], scene["zones"]
+    return cell_strips(
         scene["belt"]["v"],
-        math.radians(scene["diverter"]["alpha_deg"]),
-        scene["zones"]["b"],
-        _zone_law(scene, "a"),
-        _zone_law(scene, "b"),
-        _zone_law(scene, "c"),
+        scene["diverter"]["alpha_deg"],
+        zones["b"],
+        zones["mu_a"],
+        zones["mu_b"],
+        zones["mu_c"],
+        fr["model"],
         scene["diverter"]["stroke"],
+        fr[fr["model"]],
+        fr["v_ref"],
     )
 
 
 def scene_initial_state(scene: dict) -> np.ndarray:
     """Leading edge on the zone a/b border, moving with the belt, φ̇ = 0."""
-    parcel = scene_parcel(scene)
-    phi = math.radians(scene["parcel"]["phi0_deg"])
-    return np.array([-parcel.leading_edge_offset(phi), 0.0, phi, scene["belt"]["v"], 0.0, 0.0])
+    return entry_state(scene_parcel(scene), scene["belt"]["v"], scene["parcel"]["phi0_deg"])
 
 
 def run_scene(scene: dict) -> tuple[SimResult, dict]:

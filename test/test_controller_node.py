@@ -20,7 +20,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
-from rcl_interfaces.srv import SetParameters
+from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Bool, String
@@ -228,6 +228,24 @@ def test_routing_update_after_the_scan_changes_the_destination(ros):
         "left",
         "sorted",
     )
+    # one truth: the parameter shows the live table, as another tool reads it
+    client = cell.w.create_client(GetParameters, "/sorter_controller/get_parameters")
+
+    def rules():
+        reply = ros.call(client, GetParameters.Request(names=["routing.rules"]))
+        return list(reply.values[0].string_array_value)
+
+    assert rules() == ["Q17=left"] + ROUTING  # exact labels first, then the prefixes
+    # removing a rule that does not exist, or a pattern outside the grammar: refused, counted
+    cell.route_pub.publish(KeyValue(key="Q99", value=""))
+    cell.route_pub.publish(KeyValue(key="D;1", value="left"))
+    ros.spin_until(
+        lambda: int(cell.value("routing_rejected")) >= 2, 5.0, "two refused routing updates"
+    )
+    assert "Q17=left" in rules() and not any(r.startswith(("Q99", "D;1")) for r in rules())
+    # a removal that exists changes the parameter back
+    cell.route_pub.publish(KeyValue(key="Q17", value=""))
+    ros.spin_until(lambda: "Q17=left" not in rules(), 5.0, "the parameter to drop Q17")
 
 
 def test_too_short_gap_is_sent_straight_and_flagged(ros):
@@ -477,6 +495,7 @@ def test_sorter_demo_sorts_and_reports(tmp_path, capsys):
         (["--sim-time", "0"], "--sim-time"),
         (["--rtf", "warp"], "--rtf"),
         (["--gap", "1.0", "0.5"], "--gap"),
+        (["--gap", "0", "0"], "[0.05, 100] m"),
         (["--out", "paths.svg"], "--out"),
     ],
 )

@@ -1,7 +1,7 @@
 """
 The model core and the controller logic stay free of ROS.
 
-sorter_sim/core/ and sorter_control/logic.py must be usable (and testable)
+sorter_sim/core/ and sorter_control/logic/ must be usable (and testable)
 without rclpy or any message package; the ROS nodes wrap them.
 """
 
@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-ROS_FREE_FILES = sorted((REPO / 'sorter_sim' / 'core').rglob('*.py')) + [
-    REPO / 'sorter_control' / 'logic.py',
-]
+ROS_FREE_FILES = sorted((REPO / 'sorter_sim' / 'core').rglob('*.py')) + sorted(
+    (REPO / 'sorter_control' / 'logic').rglob('*.py')
+)
 FORBIDDEN_PREFIXES = ('rclpy', 'rcl_interfaces', 'builtin_interfaces')
 FORBIDDEN_SUFFIXES = ('_msgs', '_srvs')
 

@@ -38,6 +38,8 @@ CONSUMERS = {
     'parcel.width': ('parcel.B', 'parcel_B', 'nominal_parcel_width'),
     'parcel.mass': ('parcel.m', 'parcel_m', None),
     'parcel.skew_deg': ('parcel.phi0_deg', 'parcel_phi0_deg', None),
+    'stream.gap': (None, 'arrival_gap', None),
+    'stream.rate': (None, 'arrival_rate', None),
 }
 
 

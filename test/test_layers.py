@@ -45,7 +45,7 @@ def test_an_rclpy_import_in_the_core_breaks_its_contract(tmp_path):
     assert out.returncode == 1, out.stdout[-4000:]
     assert 'Contracts: 4 kept, 2 broken.' in out.stdout, out.stdout[-2000:]
     assert (
-        'The model core imports no ROS, no messages, no YAML and no node plumbing BROKEN'
+        'The model and its description import no ROS, no messages, no YAML, no plumbing BROKEN'
         in out.stdout
     )
     assert (

@@ -14,6 +14,7 @@ import pytest
 from sorter_control.logic import (
     ControllerConfig,
     Edge,
+    EdgeDetector,
     InputImage,
     Reply,
     RoutingError,
@@ -78,14 +79,40 @@ def test_routing_default_and_runtime_updates():
     [
         ("A=up", "one of left, right, straight"),
         ("no_equals", "label=destination"),
-        ("=left", "non-empty"),
-        ("A*B=left", "only at the end"),
+        ("=left", "1 to 64"),
+        ("A*B=left", "not allowed"),
         (42, "label=destination"),
+        # the grammar: a destination cannot be a number, a label holds no '=' or ';'
+        ("D=1", "one of left, right, straight"),
+        ("D;1=left", "not allowed"),
+        ("D=1=left", "one of left, right, straight"),
+        ("x" * 65 + "=left", "1 to 64"),
+        ("A B=left", "not allowed"),
+        ("A=", "the destination is empty"),
     ],
 )
 def test_routing_rejects_bad_rules_with_a_reason(rule, words):
     with pytest.raises(RoutingError, match=words):
         RoutingTable([rule])
+
+
+def test_routing_refuses_a_pattern_given_twice_and_a_removal_of_nothing():
+    with pytest.raises(RoutingError, match="given twice"):
+        RoutingTable(["A*=left", "A*=right"])
+    with pytest.raises(RoutingError, match="given twice"):
+        RoutingTable(["*=left"], default="right")  # two defaults
+    rt = RoutingTable(["A*=left"])
+    with pytest.raises(RoutingError, match="no rule for 'B7' to remove"):
+        rt.set("B7", "")
+    with pytest.raises(RoutingError, match="no default to remove"):
+        rt.set("*", "")
+    assert rt.rules() == ["A*=left"]
+
+
+def test_routing_error_messages_never_echo_a_long_input():
+    with pytest.raises(RoutingError) as err:
+        RoutingTable(["A" * 100_000 + "=left"])
+    assert len(str(err.value)) < 500
 
 
 def test_routing_update_that_is_bad_changes_nothing():
@@ -192,37 +219,55 @@ def test_spacing_rules_closed_forms():
 
 
 def test_edges_use_latched_stamps_and_catch_short_pulses():
-    cfg, logic, _ = make()
-    logic.scan(InputImage(t=0.0, bits={"pe_divert": False}))
+    det = EdgeDetector(["pe_divert", "pe_exit"])
+    # a sensor's first bit is its starting state, not an edge
+    assert det.detect(InputImage(t=0.0, bits={"pe_divert": False}), 0.0) == (
+        [],
+        {"pe_divert": False},
+    )
     # a bit change with its latched stamp: the stamp is the edge time
-    logic.t = 0.01
-    edges = logic._detect_edges(
-        InputImage(t=0.01, bits={"pe_divert": True}, edges=[Edge("pe_divert", 0.0042, True)])
+    edges, _ = det.detect(
+        InputImage(t=0.01, bits={"pe_divert": True}, edges=[Edge("pe_divert", 0.0042, True)]),
+        0.01,
     )
     assert edges == [Edge("pe_divert", 0.0042, True)]
     # no stamp (the latched edge has not arrived): the scan time
-    logic.t = 0.02
-    assert logic._detect_edges(InputImage(t=0.02, bits={"pe_divert": False})) == [
+    assert det.detect(InputImage(t=0.02, bits={"pe_divert": False}), 0.02)[0] == [
         Edge("pe_divert", 0.02, False)
     ]
     # blocked and cleared inside one scan: the bits agree, the latched pair tells
-    logic.t = 0.03
-    pulse = logic._detect_edges(
+    pulse, _ = det.detect(
         InputImage(
             t=0.03,
             bits={"pe_divert": False},
             edges=[Edge("pe_divert", 0.022, True), Edge("pe_divert", 0.027, False)],
-        )
+        ),
+        0.03,
     )
     assert [(e.t, e.rising) for e in pulse] == [(0.022, True), (0.027, False)]
     # a latched edge the bit does not show (a forced input) is not an edge
-    logic.t = 0.04
     assert (
-        logic._detect_edges(
-            InputImage(t=0.04, bits={"pe_divert": False}, edges=[Edge("pe_divert", 0.035, True)])
-        )
+        det.detect(
+            InputImage(t=0.04, bits={"pe_divert": False}, edges=[Edge("pe_divert", 0.035, True)]),
+            0.04,
+        )[0]
         == []
     )
+    # a stamp later than the scan that reads it is clipped to the scan; unknown sensors and
+    # non-finite stamps are ignored
+    late, _ = det.detect(
+        InputImage(
+            t=0.05,
+            bits={"pe_divert": True},
+            edges=[
+                Edge("pe_divert", 0.07, True),
+                Edge("nowhere", 0.045, True),
+                Edge("pe_divert", math.nan, True),
+            ],
+        ),
+        0.05,
+    )
+    assert late == [Edge("pe_divert", 0.05, True)]
 
 
 # --------------------------------------------------------------------------- sorting a stream
@@ -289,7 +334,7 @@ def test_measured_length_and_resync_at_the_divert_eye():
             if p.length is not None:
                 seen["length"] = p.length
             if "pe_divert" in p.confirmed and "lead" not in seen:
-                seen["lead"] = logic_.lead_x(p)
+                seen["lead"] = logic_.tracker.lead_x(p)
                 seen["true_lead"] = plant_.parcels[0].x + 0.5 * 0.437
 
     run_cell(plant, logic, 2.0, on_scan=watch)

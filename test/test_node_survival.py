@@ -19,7 +19,8 @@ from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import Parameter, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rosgraph_msgs.msg import Clock
-from std_srvs.srv import Trigger
+from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool, Trigger
 import pytest
 
 from sorter_ros.interface import STREAM_QOS
@@ -93,3 +94,41 @@ def test_bad_requests_inside_rclpy_callbacks_do_not_end_the_nodes(ros):
         assert code == 0, f'{name} exit {code}:\n{text[-3000:]}'
         assert 'Traceback' not in text, f'{name}:\n{text[-3000:]}'
         assert 'a callback raised' in text, f'{name} logged no ignored error:\n{text[-3000:]}'
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_a_controller_that_stops_lowers_the_disks_itself(ros, sig):
+    # the cell's watchdog is off here, so only the controller's last words can lower the disks
+    procs = {
+        'sorter_sim': _start('sim_node', '-p', 'arrival:=none', '-p', 'watchdog_timeout:=0.0'),
+        'sorter_controller': _start('controller_node', '-p', f'cell_node:={NS}/sorter_sim'),
+    }
+    ctl = procs['sorter_controller']
+    try:
+        node = ros.make_node('plc_watcher')
+        stroke = []
+        node.create_subscription(
+            JointState, f'{NS}/diverter/state', lambda m: stroke.append(m.position[1]), STREAM_QOS
+        )
+        popup = node.create_client(SetBool, f'{NS}/diverter/popup')
+        get = node.create_client(GetParameters, f'{NS}/sorter_controller/get_parameters')
+        ros.spin_until(
+            lambda: popup.service_is_ready() and get.service_is_ready(),
+            30.0,
+            'both nodes to start and offer their services',
+        )
+        # the controller's first scans command the disks down; then raise them from outside,
+        # as a PLC program would have for a divert under way
+        ros.spin_for(1.0)
+        assert ros.call(popup, SetBool.Request(data=True)).success
+        ros.spin_until(lambda: stroke and stroke[-1] == 1.0, 5.0, 'the disks to be up')
+        ctl.send_signal(sig)
+        ros.spin_until(lambda: stroke[-1] == 0.0, 5.0, 'the disks to be lowered')
+        out, err = ctl.communicate(timeout=20)
+    finally:
+        results = {name: _stop(proc) for name, proc in procs.items() if proc.poll() is None}
+    text = out + err
+    assert ctl.returncode == 0, text[-3000:]
+    assert 'stopping: disks lowered' in text and 'Traceback' not in text, text[-3000:]
+    for name, (code, text) in results.items():
+        assert code == 0, f'{name} exit {code}:\n{text[-3000:]}'

@@ -40,7 +40,8 @@ from ..core.oscillator import (
 from ..core.simulate import FrictionLaw, Parcel, Strip, parcel_array, simulate, strip_array
 from ..core.wrench import evaluate_surfaces, gauss_legendre_01
 from ..core.geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
-from ..scene import BSPLINE_DEFAULT, run_scene, scene_parcel, scene_strips, validate
+from ..model import BSPLINE_DEFAULT
+from ..scene import run_scene, scene_parcel, scene_strips, validate
 
 SEED_S = 0.7  # m, conveyor width the centre of gravity must cross (seed: s)
 SEED_MU = 0.6  # the seed's μ_a = μ_b (= μ_c) of section 5

@@ -37,7 +37,7 @@ from ..core.simulate import (
     three_zone_strips,
 )
 from ..core.wrench import evaluate_surfaces, gauss_legendre_01
-from ..scene import BSPLINE_DEFAULT
+from ..model import BSPLINE_DEFAULT
 from .workprecision import ParcelCase, Trajectory, compare, timed
 
 CHECKS = """\

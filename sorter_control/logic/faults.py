@@ -1,0 +1,202 @@
+"""
+Faults: the controller's state, and the supervision of the photo-eyes that raises them.
+
+Each fault is a state of its own, a diagnostic, and no diverts until a reset:
+``jam`` (an eye blocked by a tracked parcel longer than the parcel explains),
+``stuck_on`` (an eye blocked with no parcel due), ``stuck_off`` (a parcel's
+transit window passed with the eye clear; a scanner label with no blocking),
+``missed_divert`` (no chute sensor in time), ``diverter_timeout`` (a service call
+unanswered), ``diverter_refused`` and ``estop``. The first fault defines the
+state; later ones are logged.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..timing import side_of
+from .image import ScanIO
+from .tracking import R_FAULT, R_LATE, R_MISSED, Tracker
+
+STATES = (
+    "running",
+    "jam",
+    "stuck_on",
+    "stuck_off",
+    "missed_divert",
+    "diverter_timeout",
+    "diverter_refused",
+    "estop",
+    "resetting",
+)
+FAULT_STATES = STATES[1:8]
+
+
+class Faults:
+    """The controller's state: running, one of the faults, or resetting."""
+
+    def __init__(self, estop_on_jam: bool = True):
+        self.estop_on_jam = estop_on_jam
+        self.state = "running"
+        self.fault: dict | None = None
+        self.counts = {k: 0 for k in FAULT_STATES}
+        self.reset_t = -math.inf  # when the last reset cleared a fault [s]
+
+    @property
+    def running(self) -> bool:
+        return self.state == "running"
+
+    def enter(self, io: ScanIO, kind: str, message: str, sensor: str | None = None) -> None:
+        """Enter fault ``kind``, unless a fault (or a reset) is already under way."""
+        if self.state in FAULT_STATES or self.state == "resetting":
+            io.log("error", f"{kind}: {message} (while in {self.state})")
+            return
+        self.state = kind
+        self.fault = {"kind": kind, "sensor": sensor, "message": message, "t": io.t}
+        self.counts[kind] += 1
+        io.log("error", f"{kind}: {message}; no diverts until reset")
+        if kind == "jam" and self.estop_on_jam:
+            io.command("estop", True)
+
+    def enter_estop(self, io: ScanIO, message: str) -> bool:
+        """Enter the e-stop state (over any fault); False if already in it."""
+        if self.state == "estop":
+            return False
+        if self.state in FAULT_STATES:
+            io.log("error", f"e-stop while in {self.state}: {message}")
+        self.state = "estop"
+        self.fault = {"kind": "estop", "sensor": None, "message": message, "t": io.t}
+        self.counts["estop"] += 1
+        io.log("error", f"estop: {message}; no diverts until reset")
+        return True
+
+    def restore(self, io: ScanIO, message: str) -> None:
+        """Go back to the fault a failed reset was to clear."""
+        if self.fault is not None:
+            self.state = self.fault["kind"]
+        io.log("error", message)
+
+    def clear(self, t: float) -> str:
+        """Back to running at time t [s]; returns what was cleared."""
+        was = self.fault["kind"] if self.fault else self.state
+        self.state = "running"
+        self.fault = None
+        self.reset_t = t
+        return was
+
+
+class Supervisor:
+    """
+    The checks a scan makes on the tracking: eyes blocked too long, transit windows passed.
+
+    It also infers outcomes from time: a parcel never decided went straight; a
+    straight one past the field is done; a divert with no chute sensor by its
+    deadline is missed.
+    """
+
+    def __init__(self, config, counts: dict):
+        self.config = config
+        self.counts = counts
+
+    def check(self, io: ScanIO, tr: Tracker, faults: Faults) -> None:
+        cfg = self.config
+        v = tr.v
+        tol_x = cfg.tracking_tolerance + v * cfg.scan_period
+        b = cfg.cell.disk_field_length
+        # photo-eyes blocked too long: jam (a parcel that should have passed) or stuck on
+        for name in tr.eye_x:
+            eye = tr.eyes[name]
+            if not eye.blocked or not tr.belt_running:
+                continue
+            held = tr.t - eye.since
+            p = tr.by_seq(eye.by)
+            if p is not None:
+                limit = tr.expected_clear(p, name, eye.since) - eye.since + cfg.jam_margin
+                if held > limit and faults.running:
+                    if name == cfg.scan_eye and eye.labels_while_blocked >= 2:
+                        io.fault(
+                            "stuck_on",
+                            f"{name}: blocked for {held:.2f} s while "
+                            f"{eye.labels_while_blocked} labels were read",
+                            name,
+                        )
+                    else:
+                        io.fault(
+                            "jam",
+                            f"{name}: blocked for {held:.2f} s by parcel "
+                            f"{p.seq} ({p.label}), which should have cleared it after "
+                            f"{limit - cfg.jam_margin:.2f} s",
+                            name,
+                        )
+            else:
+                limit = cfg.max_parcel_length / v + cfg.jam_margin
+                if held > limit and faults.running:
+                    io.fault(
+                        "stuck_on",
+                        f"{name}: blocked for {held:.2f} s with no parcel due "
+                        f"(longest parcel: {cfg.max_parcel_length / v:.2f} s)",
+                        name,
+                    )
+        for name in tr.side_of_sensor:
+            eye = tr.eyes[name]
+            if (
+                eye.blocked
+                and tr.belt_running
+                and tr.t - eye.since > cfg.max_parcel_length / v + cfg.jam_margin
+                and faults.running
+            ):
+                io.fault(
+                    "jam",
+                    f"{name}: blocked for {tr.t - eye.since:.2f} s: a parcel stuck "
+                    "at the chute entry",
+                    name,
+                )
+        if not tr.belt_running:
+            return
+        for p in tr.parcels:
+            x_lead = tr.lead_x(p)
+            # transit windows at the checkpoints (a straight parcel is done before the eyes
+            # downstream of the field see it, and still checked there)
+            for name, x_e in tr.eye_x.items():
+                if name in p.confirmed or not tr.checkpoint(p, name):
+                    continue
+                if x_lead > x_e + tol_x:
+                    # a blocked eye means merged with the parcel ahead (or the eye is stuck
+                    # on): the blocked-time check decides
+                    p.confirmed[name] = None
+                    if not tr.eyes[name].blocked and faults.running:
+                        io.fault(
+                            "stuck_off",
+                            f"{name}: parcel {p.seq} ({p.label}) should have "
+                            f"blocked it {(x_lead - x_e) / v:.2f} s ago",
+                            name,
+                        )
+            if p.done:
+                continue
+            # outcomes the controller infers from time
+            length = p.length if p.length is not None else cfg.max_parcel_length
+            if not p.committed:
+                if x_lead > length + b + tol_x:
+                    # never decided (fault state or unknown length): it went through with the
+                    # disks down
+                    io.finish(p, "straight", R_FAULT if not faults.running else R_LATE)
+                continue
+            side = side_of(p.plan)
+            if side == 0:
+                if x_lead > length + b + tol_x:
+                    io.finish(p, "straight")
+            elif p.prediction is not None:
+                deadline = tr.t_enter(p) + p.prediction.t_chute + cfg.missed_divert_margin
+                if tr.t > deadline:
+                    chute = tr.chute_of["left" if side > 0 else "right"]
+                    if not faults.running:
+                        # the disks were dropped by the fault: its fate is not the divert's doing
+                        io.finish(p, "unknown", R_FAULT)
+                        continue
+                    io.finish(p, "unknown", R_MISSED)
+                    self.counts["missed"] += 1
+                    io.fault(
+                        "missed_divert",
+                        f"parcel {p.seq} ({p.label}) did not reach {chute} by {deadline:.3f} s",
+                        chute,
+                    )

@@ -1,0 +1,414 @@
+"""
+The PLC program: one scan reads the input image and runs the parts in order.
+
+``SorterLogic.scan(image)`` is one PLC scan. It takes the scan's time (refusing
+one that goes back), applies routing updates, service replies, the cell's status
+bits and the operator's requests, then the edges (``image.EdgeDetector``) and
+labels to the tracking (``tracking.Tracker``), lets the supervision check the
+eyes and the transit windows (``faults.Supervisor``), decides and writes the
+diverter's outputs (``sequencing.DiverterSequencer``). It returns the service
+calls to make, the sort confirmations and log lines; it never waits for
+anything.
+
+A reset clears tracking: parcels already on the belt are let through straight
+("flush") until the belt has carried them out.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from ..timing import DivertPredictor, GapModel
+from .config import ControllerConfig
+from .faults import FAULT_STATES, Faults, Supervisor
+from .image import Command, Confirmation, EdgeDetector, InputImage, ScanOutput
+from .routing import RoutingError, RoutingTable
+from .sequencing import DiverterSequencer
+from .tracking import R_ABORTED, R_MISSORT, R_REJECTED, R_SORTED, Tracked, Tracker
+
+COUNTS = (
+    "inducted",
+    "left",
+    "right",
+    "straight",
+    "rejected",
+    "no_read",
+    "gap_too_short",
+    "cannot_divert",
+    "late",
+    "mis_sorted",
+    "missed",
+    "aborted",
+    "untracked",
+    "unexpected_chute",
+    "labels_without_parcel",
+    "scans",
+    "overruns",
+    "late_scans",
+    "routing_updates",
+    "routing_rejected",
+    "commands",
+    "replies",
+    "timeouts",
+)
+
+
+class _Scan:
+    """The ``ScanIO`` of one scan: the parts log, fault, command and finish through it."""
+
+    def __init__(self, logic: SorterLogic, out: ScanOutput):
+        self.logic = logic
+        self.out = out
+        self.t = logic.t
+
+    def log(self, level: str, text: str) -> None:
+        self.out.log.append((level, text))
+        self.logic.log_history.append((self.t, level, text))
+
+    def fault(self, kind: str, message: str, sensor: str | None = None) -> None:
+        self.logic.faults.enter(self, kind, message, sensor)
+
+    def command(self, kind: str, value) -> Command:
+        return self.logic.sequencer.command(self.out, kind, value, self.t)
+
+    def finish(self, p: Tracked, reached: str, result: str | None = None) -> None:
+        self.logic.finish(self, p, reached, result)
+
+
+class SorterLogic:
+    """The PLC program. Feed it one ``InputImage`` per scan; act on what ``scan`` returns."""
+
+    def __init__(self, config: ControllerConfig, predictor: DivertPredictor | None = None):
+        self.config = config
+        self.predictor = predictor or DivertPredictor(config.cell)
+        self.gaps = GapModel(
+            self.predictor,
+            config.actuators(),
+            divert_alpha_deg=abs(config.divert_alpha_deg),
+            clearance=config.clearance,
+        )
+        self.counts = {k: 0 for k in COUNTS}
+        self.tracker = Tracker(config, self.counts)
+        self.edges = EdgeDetector(self.tracker.sensors)
+        self.faults = Faults(config.estop_on_jam)
+        self.supervisor = Supervisor(config, self.counts)
+        self.sequencer = DiverterSequencer(
+            config,
+            self.gaps,
+            RoutingTable(config.routing_rules, config.routing_default, config.reject_destination),
+            self.tracker,
+            self.counts,
+        )
+        self._reset_requested = False
+        self._estop_requested = False
+        self.scan_wall: deque = deque(maxlen=1000)
+        self.log_history: deque = deque(maxlen=50)
+
+    # --- the parts' state, as the node and the tests read it -------------------------------------
+    @property
+    def t(self) -> float | None:
+        return self.tracker.t
+
+    @property
+    def state(self) -> str:
+        return self.faults.state
+
+    @property
+    def fault(self) -> dict | None:
+        return self.faults.fault
+
+    @property
+    def fault_counts(self) -> dict:
+        return self.faults.counts
+
+    @property
+    def parcels(self) -> list[Tracked]:
+        return self.tracker.parcels
+
+    @property
+    def x_scan(self) -> float:
+        return self.tracker.x_scan
+
+    @property
+    def routing(self) -> RoutingTable:
+        return self.sequencer.routing
+
+    @routing.setter
+    def routing(self, table: RoutingTable) -> None:
+        self.sequencer.routing = table
+
+    @property
+    def commanded_up(self) -> bool | None:
+        return self.sequencer.commanded_up
+
+    @commanded_up.setter
+    def commanded_up(self, up: bool | None) -> None:
+        self.sequencer.commanded_up = up
+
+    @property
+    def v(self) -> float:
+        return self.config.belt_speed
+
+    # --- configuration facts -----------------------------------------------------------------
+    def warm_lengths(self, lo: float, hi: float) -> list[float]:
+        """Return the prediction grid's lengths in [lo, hi] m."""
+        step = self.predictor.cell.length_step
+        n = int(math.floor((hi - lo) / step + 1e-9)) + 1
+        return [lo + i * step for i in range(max(n, 1))]
+
+    def warm_up(self, lengths) -> None:
+        """Predict ahead for these lengths [m] (outside the scan), so scans find them ready."""
+        self.gaps.warm(lengths, self.v)
+
+    def min_gap(self, length: float) -> dict:
+        """Return the least gap [m] for parcels of ``length`` m at the configured belt speed."""
+        return self.gaps.min_gap(length, self.v)
+
+    def lookahead_ok(self, length: float) -> bool:
+        """Whether the scanner sits far enough upstream to see the follower before a decision."""
+        lead = self.gaps.act.stroke_total + self.config.scan_period
+        distance = -self.x_scan - self.v * lead
+        need = length + self.min_gap(length)["worst"]
+        return distance >= need
+
+    # --- operator requests ---------------------------------------------------------------------
+    def request_reset(self) -> str:
+        self._reset_requested = True
+        return f"reset requested in state {self.state}"
+
+    def request_estop(self) -> str:
+        self._estop_requested = True
+        return "e-stop requested"
+
+    def record_scan_wall(self, seconds: float) -> None:
+        """
+        Record how long a scan took in wall time, as the node measured it.
+
+        Longer than a period is an overrun.
+        """
+        self.scan_wall.append(seconds)
+        if seconds > self.config.scan_period:
+            self.counts["overruns"] += 1
+
+    def update_route(self, pattern: str, destination: str) -> str:
+        """
+        Return a routing change from a warehouse controller.
+
+        Raises RoutingError if not allowed.
+        """
+        done = self.routing.set(pattern, destination)
+        self.counts["routing_updates"] += 1
+        return done
+
+    # --- the scan ------------------------------------------------------------------------------
+    def scan(self, image: InputImage) -> ScanOutput:
+        out = ScanOutput()
+        t = float(image.t)
+        if not math.isfinite(t):
+            self._refuse_scan(out, f"scan ignored: time {image.t!r} is not finite")
+            return out
+        if self.t is not None:
+            dt = t - self.t
+            if dt < 0:
+                self._refuse_scan(out, f"scan ignored: time went back from {self.t} to {t} s")
+                return out
+            if dt > self.config.scan_period + self.config.timing_margin + 1e-9:
+                # later than the timing budget absorbs: an action may have come late
+                self.counts["late_scans"] += 1
+        self.tracker.advance(t)
+        self.counts["scans"] += 1
+        io = _Scan(self, out)
+
+        self._apply_routing(io, image.routing_updates)
+        self._apply_replies(io, image.replies)
+        if image.diverter is not None:
+            self.sequencer.diverter = image.diverter
+        self._apply_cell_status(io, image)
+        self._apply_operator(io)
+        edges, first = self.edges.detect(image, t)
+        self.tracker.first_seen(first)
+        for edge in edges:
+            self.tracker.on_edge(io, edge)
+        self.tracker.apply_labels(io, image.labels, self.faults.running)
+        self.supervisor.check(io, self.tracker, self.faults)
+        if self.faults.running:
+            self.sequencer.decide(io)
+        else:
+            self.sequencer.decide_faulted()
+        self.sequencer.write_outputs(out, self.state)
+        self.tracker.prune()
+        return out
+
+    def _refuse_scan(self, out: ScanOutput, text: str) -> None:
+        out.log.append(("error", text))
+        self.log_history.append((self.t, "error", text))
+
+    def finish(self, io: _Scan, p: Tracked, reached: str, result: str | None = None) -> None:
+        """Record where parcel p went, and how that compares with the plan."""
+        if p.done:
+            return
+        p.done = True
+        p.reached = reached
+        asked = p.asked if p.asked is not None else self.routing.lookup(p.label)[0]
+        if result is None:
+            if reached != p.plan:
+                result = R_MISSORT
+            elif p.result is not None:
+                result = p.result
+            else:
+                result = R_REJECTED if p.how in ("unknown", "no_read") else R_SORTED
+        if result == R_MISSORT:
+            self.counts["mis_sorted"] += 1
+        if reached in ("left", "right", "straight"):
+            self.counts[reached] += 1
+        if result == R_REJECTED:
+            self.counts["rejected"] += 1
+        if result == R_ABORTED:
+            self.counts["aborted"] += 1
+        io.out.confirmations.append(
+            Confirmation(p.label or "", asked, reached, result, p.seq, self.t)
+        )
+
+    def _drop_tracking(self, io: _Scan, why: str) -> None:
+        self.sequencer.last_decided = None
+        self.tracker.clear(io, why)
+
+    # --- inputs --------------------------------------------------------------------------------
+    def _apply_routing(self, io: _Scan, updates) -> None:
+        for item in updates:
+            try:
+                pattern, dest = item
+                done = self.update_route(pattern, dest)
+            except (RoutingError, TypeError, ValueError) as exc:
+                self.counts["routing_rejected"] += 1
+                io.log("warn", f"routing update rejected: {exc}")
+            else:
+                io.log("info", f"routing update: {done}")
+
+    def _apply_replies(self, io: _Scan, replies) -> None:
+        seqr = self.sequencer
+        for r in replies:
+            cmd = seqr.in_flight.pop(r.command_id, None)
+            if cmd is None:
+                continue
+            self.counts["replies"] += 1
+            what = f"{cmd.kind} {cmd.value!r}"
+            if r.timed_out:
+                self.counts["timeouts"] += 1
+                if cmd.kind in ("popup", "alpha"):
+                    # not retried: a late answer could still be acted on, and a second call
+                    # would actuate twice; the diverter's state is unknown until reset
+                    if cmd.kind == "popup":
+                        seqr.commanded_up = None
+                    else:
+                        seqr.commanded_alpha = None
+                    seqr.diverter_silent = True
+                    io.fault(
+                        "diverter_timeout", f"{what}: no answer from the cell in time; not retried"
+                    )
+                elif cmd.kind == "reset":
+                    self.faults.restore(io, "reset: no answer from the cell in time")
+                else:
+                    io.log("error", f"{what}: no answer from the cell in time")
+                continue
+            if r.accepted:
+                if cmd.kind == "reset":
+                    self._cleared(io)
+                elif cmd.kind == "estop":
+                    self.tracker.belt_running = False
+                continue
+            reason = r.message or "no reason given"
+            if cmd.kind == "reset":
+                self.faults.restore(io, f"reset refused by the cell: {reason}")
+            elif any(w in reason.lower() for w in ("e-stop", "estop", "emergency")):
+                self._enter_estop(io, f"{what} refused: {reason}")
+            elif cmd.kind in ("popup", "alpha"):
+                if cmd.kind == "popup":
+                    seqr.commanded_up = None
+                else:
+                    seqr.commanded_alpha = None
+                io.fault("diverter_refused", f"{what} refused by the cell: {reason}")
+            else:
+                io.log("error", f"{what} refused by the cell: {reason}")
+
+    def _enter_estop(self, io: _Scan, message: str) -> None:
+        if not self.faults.enter_estop(io, message):
+            return
+        self.tracker.belt_running = False
+        self.sequencer.commanded_up = False  # the cell drops the disks on e-stop
+        self._drop_tracking(io, "e-stop")
+
+    def _apply_cell_status(self, io: _Scan, image: InputImage) -> None:
+        if image.cell_status_t is not None and image.cell_status_t < self.faults.reset_t:
+            return  # reported before the last reset: stale
+        if image.cell_estop:
+            # a jam the controller stopped the belt for stays a jam; anything else becomes an
+            # e-stop
+            self.tracker.belt_running = False
+            if self.state not in ("estop", "resetting", "jam"):
+                self._enter_estop(io, "the cell reports an e-stop")
+        if image.cell_jam and self.state == "running":
+            io.fault("jam", "the cell reports a jam")
+
+    def _apply_operator(self, io: _Scan) -> None:
+        if self._estop_requested:
+            self._estop_requested = False
+            io.command("estop", True)
+            self._enter_estop(io, "requested by the operator")
+        if self._reset_requested:
+            self._reset_requested = False
+            if self.state == "running":
+                io.log("info", "reset: nothing to clear")
+            elif self.state == "resetting":
+                io.log("info", "reset already under way")
+            elif self.state in ("estop", "jam") and not self.sequencer.busy("reset"):
+                # the cell holds these faults too (belt stopped): it must reset first
+                self.faults.state = "resetting"
+                io.command("reset", None)
+                io.log("info", "reset: asking the cell to reset")
+            else:
+                self._cleared(io)
+
+    def _cleared(self, io: _Scan) -> None:
+        seqr = self.sequencer
+        was = self.faults.clear(self.t)
+        self.tracker.belt_running = True
+        if was in ("diverter_timeout", "diverter_refused") or seqr.diverter_silent:
+            # the operator has looked at the diverter: its state is unknown, so write it afresh
+            seqr.forget_outputs()
+        seqr.diverter_silent = False
+        self._drop_tracking(io, f"reset after {was}")
+        self.tracker.restart_eyes()
+        io.log("info", f"reset: {was} cleared, running")
+
+    # --- diagnostics ---------------------------------------------------------------------------
+    def desired_outputs(self) -> tuple[bool, float | None]:
+        """(disks up, disk angle in deg or None to keep) as the committed plan wants them now."""
+        return self.sequencer.desired_outputs()
+
+    def status(self) -> dict:
+        """Counters, state and scan statistics for the node's diagnostics."""
+        walls = sorted(self.scan_wall)
+
+        def q(f):
+            return walls[min(len(walls) - 1, int(f * len(walls)))] if walls else 0.0
+
+        return {
+            "state": self.state,
+            "fault": dict(self.fault) if self.fault else None,
+            "counts": dict(self.counts),
+            "faults": dict(self.fault_counts),
+            "tracked": sum(1 for p in self.parcels if not p.done),
+            "scan_wall_p50_ms": q(0.5) * 1e3,
+            "scan_wall_p99_ms": q(0.99) * 1e3,
+            "scan_wall_max_ms": (walls[-1] if walls else 0.0) * 1e3,
+            "predictions": self.predictor.n_runs,
+            "prediction_wall_s": self.predictor.wall_s,
+            "routing": self.routing.rules(),
+            "commanded_up": self.sequencer.commanded_up,
+            "commanded_alpha_deg": self.sequencer.commanded_alpha,
+        }
+
+
+__all__ = ["FAULT_STATES", "SorterLogic"]
