@@ -556,13 +556,11 @@ def run(args) -> int | str:
     err = _check_args(args)
     if err:
         return err
-    import yaml
-
     from sorter_ros.env import find_config_dir
+    from sorter_ros.params_file import read_params_file
 
     config_dir = find_config_dir()
-    cell_doc = yaml.safe_load((config_dir / "cell.yaml").read_text())
-    cell = next(iter(cell_doc.values()))["ros__parameters"]
+    cell = read_params_file(config_dir / "cell.yaml", "sorter_sim")
     lengths = tuple(cell.get("parcel_A", [0.3, 0.7]))
     plan = stream_plan(lengths, config_dir)
     gap = (

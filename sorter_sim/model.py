@@ -14,11 +14,12 @@ zone's coefficient ``mu`` scales its law to that value at the reference speed
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 
-from .core.friction import mu_kinetic
+from .core.friction import mu_kinetic, mu_static
 from .core.simulate import FrictionLaw, Parcel, Strip, three_zone_strips
 
 # Default B-spline control points (v_i [m/s], μ_i): an assumption, since the seed
@@ -53,6 +54,50 @@ def zone_law(model: str, mu: float | None, params=None, v_ref: float | None = No
         return law
     ref = mu_kinetic(law.law_id, law.row(), V_REF if v_ref is None else v_ref)
     return law.scaled(mu / ref)
+
+
+N_SPEEDS = 2001  # speeds at which a law is checked
+
+
+def law_problem(model: str, params, v_max: float) -> str | None:
+    """
+    Say what is wrong with friction law ``model`` of these parameters, or None.
+
+    See ``_law_problem``; the answer is remembered per law and speed range, so a
+    sweep that validates every point pays for each law once.
+    """
+    return _law_problem(model, tuple(float(p) for p in params), float(v_max))
+
+
+@functools.lru_cache(maxsize=4096)
+def _law_problem(model: str, params: tuple, v_max: float) -> str | None:
+    """
+    Say what is wrong with friction law ``model`` of these parameters, or None.
+
+    A law must build (its own rules: counts, increasing B-spline speeds...) and
+    give a finite coefficient >= 0 at every slip speed from 0 to ``v_max``
+    [m/s], the most a parcel can slip on a surface of the cell (twice the belt
+    speed: a parcel carried one way over disks turning the other). A law that goes
+    negative would push a parcel along its slip, and the model would run away.
+    """
+    try:
+        law = FrictionLaw(model, tuple(params))
+    except ValueError as exc:
+        return str(exc)
+    row = law.row()
+    speeds = np.linspace(0.0, v_max, N_SPEEDS)
+    mu = np.array([mu_kinetic(law.law_id, row, float(s)) for s in speeds])
+    mu_s = mu_static(law.law_id, row)
+    bad = ~np.isfinite(mu) | (mu < 0.0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        return (
+            f"μ({speeds[i]:.3g} m/s) = {mu[i]:.3g}: the law must be a finite number >= 0 at "
+            f"every slip speed from 0 to {v_max:.3g} m/s"
+        )
+    if not (math.isfinite(mu_s) and mu_s >= 0.0):
+        return f"static μ = {mu_s:.3g}: must be a finite number >= 0"
+    return None
 
 
 def cell_strips(

@@ -23,12 +23,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
+from sorter_ros.strict_yaml import StrictYamlError, load_yaml_text, read_yaml_file
 
 from .core.friction import mu_kinetic
 from .core.simulate import FrictionLaw, Parcel, SimResult, simulate
 from .description import Q
-from .model import LAW_DEFAULTS, V_REF, cell_strips, entry_state, zone_law
+from .model import LAW_DEFAULTS, V_REF, cell_strips, entry_state, law_problem, zone_law
 
 
 class SceneError(ValueError):
@@ -200,12 +200,16 @@ def validate(scene: dict) -> dict:
                 allowed = ", ".join(f"{section}.{k}" for k in DEFAULTS[section])
                 raise SceneError(f"unknown key {full!r}; allowed in {section}: {allowed}")
             out[section][key] = _check(full, value)
-    # cross-checks: the law must build, and its reference value must be positive to scale
+    # cross-checks: every law, selected or not, must build and stay >= 0 over the slip
+    # speeds of this cell (a law chosen later by --set or a sweep is then already sound);
+    # the selected one's reference value must be positive to scale
+    v_slip = math.ceil(4.0 * abs(out["belt"]["v"])) / 2.0  # 2 v, up to the next 0.5 m/s
+    for name in LAW_DEFAULTS:
+        problem = law_problem(name, out["friction"][name], v_slip)
+        if problem is not None:
+            raise SceneError(f"friction.{name}: {problem}")
     model = out["friction"]["model"]
-    try:
-        law = FrictionLaw(model, tuple(out["friction"][model]))
-    except ValueError as exc:
-        raise SceneError(f"friction.{model}: {exc}") from None
+    law = FrictionLaw(model, tuple(out["friction"][model]))
     ref = mu_kinetic(law.law_id, law.row(), out["friction"]["v_ref"])
     if any(out["zones"][k] is not None for k in ("mu_a", "mu_b", "mu_c")) and not ref > 0.0:
         raise SceneError(
@@ -216,22 +220,13 @@ def validate(scene: dict) -> dict:
 
 
 def load_scene(path: str | Path) -> dict:
-    """Read and validate a scene YAML file."""
-    p = Path(path)
+    """Read and validate a scene YAML file (read strictly: see ``sorter_ros.strict_yaml``)."""
     try:
-        text = p.read_text()
-    except OSError as exc:
-        raise SceneError(f"cannot read scene file {str(p)!r}: {exc.strerror or exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        # PyYAML's message spans lines; keep the problem and its position on one line
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise SceneError(f"scene file {str(p)!r} is not valid YAML{where}: {problem}") from None
+        data = read_yaml_file(path, "scene file")
+    except StrictYamlError as exc:
+        raise SceneError(str(exc)) from None
     if data is None:
-        raise SceneError(f"scene file {str(p)!r} is empty")
+        raise SceneError(f"scene file {str(path)!r} is empty")
     return validate(data)
 
 
@@ -249,9 +244,12 @@ def apply_overrides(scene: dict, overrides: list[str]) -> dict:
         if section not in DEFAULTS or name not in DEFAULTS[section]:
             raise SceneError(f"--set: unknown key {key!r}; allowed: {', '.join(sorted(_RULES))}")
         try:
-            value = yaml.safe_load(text)
-        except yaml.YAMLError:
-            raise SceneError(f"--set {key}: cannot read value {text!r}") from None
+            value = load_yaml_text(text, f"--set {key}")
+        except StrictYamlError as exc:
+            raise SceneError(str(exc)) from None
+        # each value is checked as it is given: a later --set of the same key does not
+        # hide a bad one
+        _check(key, value)
         raw.setdefault(section, {})[name] = value
     return validate(raw)
 

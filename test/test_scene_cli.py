@@ -165,3 +165,34 @@ def test_numba_kernels_are_cached_on_disk():
     cache = list((ROOT / "sorter_sim" / "core" / "__pycache__").glob("*.nbi"))
     assert any("integrators" in p.name for p in cache)
     assert any("wrench" in p.name for p in cache)
+
+
+@pytest.mark.parametrize(
+    "overrides, words",
+    [
+        # negative μ: the selected law, and one not selected (it could be selected next)
+        (["friction.model=stribeck", "friction.stribeck=[0.65,0.3,10,5,-100,0.1]"], "μ(0.102"),
+        (["friction.stribeck=[0.65,0.3,10,5,-100,0.1]"], "friction.stribeck: μ("),
+        (["friction.const2=[-0.65,0.4]"], "friction.const2"),
+        # a law negative only at slip speeds a fast belt reaches
+        (["belt.v=3.0", "friction.stribeck=[0.65,0.3,10,-1,1,0.1]"], "from 0 to 6 m/s"),
+        (["friction.bspline=[0,0.1,0.2,0.3,0.4,0.4,0.6,0.5,0.4,0.4,0.4,0.4]"], "increase"),
+        # every value is checked as it is given, even if a later one replaces it
+        (["belt.v=nan", "belt.v=1.0"], "belt.v"),
+    ],
+)
+def test_laws_and_values_are_checked_whether_used_or_not(overrides, words):
+    with pytest.raises(SceneError) as err:
+        apply_overrides(validate({}), overrides)
+    assert words in str(err.value), str(err.value)
+
+
+def test_every_accepted_law_is_non_negative_over_the_slip_speeds():
+    from sorter_sim.core.friction import mu_kinetic
+    from sorter_sim.core.simulate import FrictionLaw
+
+    scene = validate({"belt": {"v": 2.0}})
+    for name in ("const2", "const1", "linear", "polynomial", "stribeck", "bspline"):
+        law = FrictionLaw(name, tuple(scene["friction"][name]))
+        mu = [mu_kinetic(law.law_id, law.row(), 4.0 * k / 400) for k in range(401)]
+        assert min(mu) >= 0.0, name

@@ -277,9 +277,9 @@ seed: 7
     s5 = sweep.load_study(write_spec(tmp_path, body.replace("{n}", "5"), "a.yaml"))
     s8 = sweep.load_study(write_spec(tmp_path, body.replace("{n}", "8"), "b.yaml"))
     again = sweep.load_study(write_spec(tmp_path, body.replace("{n}", "5"), "c.yaml"))
-    v5 = [v for v, _ in s5.points]
-    assert v5 == [v for v, _ in again.points] == [v for v, _ in s8.points][:5]
-    for A, mu_b, al, nq in (v for v, _ in s8.points):
+    v5 = list(s5.points)
+    assert v5 == list(again.points) == list(s8.points)[:5]
+    for A, mu_b, al, nq in s8.points:
         assert 0.3 <= A <= 1.0 and 0.3 <= mu_b <= 0.9 and al in (45.0, 90.0) and nq in (4, 5, 6)
     assert len({v[0] for v in v5}) == 5
 
@@ -331,6 +331,17 @@ def test_local_processes_and_dask_give_the_serial_result(tmp_path):
         ("parameters: {}\n", "parameters"),
         ("scene: missing.yaml\nparameters:\n  belt.v: [1]\n", "missing.yaml"),
         ("parameters: [\n", "not valid YAML"),
+        # sizes are checked before any point is built or validated
+        (
+            "parameters:\n  parcel.A: {min: 0.3, max: 1.0}\nsampling: random\nsamples: 10000000\n",
+            "samples: must be in [1, 100000]",
+        ),
+        (
+            "parameters:\n  parcel.A: {min: 0.3, max: 1.0, num: 1000}\n"
+            "  parcel.B: {min: 0.2, max: 0.5, num: 1000}\n",
+            "the grid has 1000000 points",
+        ),
+        ("parameters:\n  belt.v: [1]\n  belt.v: [2]\n", "appears twice"),
     ],
 )
 def test_bad_spec_is_one_line_exit_2(tmp_path, capsys, body, named):
@@ -376,3 +387,22 @@ def test_unreachable_scheduler_is_a_clear_error(tmp_path, capsys):
         == 2
     )
     assert "cannot reach a Dask scheduler" in capsys.readouterr().err
+
+
+def test_an_oversized_study_is_refused_at_once(tmp_path, capsys):
+    spec = write_spec(
+        tmp_path,
+        "parameters:\n  parcel.A: {min: 0.3, max: 1.0}\nsampling: random\nsamples: 10000000\n",
+    )
+    t0 = time.perf_counter()
+    assert main(["sweep", str(spec), "--out", str(tmp_path / "r.csv"), "--max-points", "1"]) == 2
+    # refused from the spec alone: no point was drawn (drawing ten million takes minutes)
+    assert time.perf_counter() - t0 < 5.0
+    assert "100000" in capsys.readouterr().err
+
+
+def test_more_workers_than_points_is_fine(tmp_path):
+    spec = write_spec(tmp_path, "parameters:\n  parcel.A: [0.4, 0.5]\n")
+    out = tmp_path / "r.csv"
+    assert main(["sweep", str(spec), "--out", str(out), "--workers", "64", "--no-progress"]) == 0
+    assert len(read_rows(out)) == 2

@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
+from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
 from ..scene import DEFAULTS, SceneError, load_scene, run_scene, validate
 
@@ -86,17 +86,37 @@ class SpecError(ValueError):
 # ---------------------------------------------------------------------------- the design
 @dataclass
 class Study:
-    """A parsed spec: base scene, varied keys, the design points (validated scenes)."""
+    """
+    A parsed spec: base scene, varied keys, the design points (each validated).
+
+    A point is kept as its values only (a few numbers, not a scene of a few kB);
+    ``scene`` builds its scene again when it runs.
+    """
 
     keys: list
-    points: list  # [(values tuple, scene dict)]
+    points: list  # [values tuple], in design order, repeats removed
     outputs: list
     out: Path | None
     sampling: str
+    base: dict
 
     @property
     def columns(self) -> list:
         return ["point"] + list(self.keys) + list(self.outputs)
+
+    def scene(self, values) -> dict:
+        """Return the validated scene of the design point with these values."""
+        return _point_scene(self.base, self.keys, values)
+
+
+MAX_POINTS = 100_000  # a larger design is several studies (each resumable)
+
+
+def _point_scene(base: dict, keys, values) -> dict:
+    scene = copy.deepcopy(base)
+    for key, value in zip(keys, values):
+        _set_key(scene, key, value)
+    return validate(scene)
 
 
 def _one_line(exc) -> str:
@@ -201,11 +221,9 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
     """Read and check a study spec; every design point is validated as a scene up front."""
     p = Path(path)
     try:
-        raw = yaml.safe_load(p.read_text())
-    except OSError as exc:
-        raise SpecError(f"cannot read study spec {str(p)!r}: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise SpecError(f"study spec {str(p)!r} is not valid YAML: {_one_line(exc)}") from None
+        raw = read_yaml_file(p, "study spec")
+    except StrictYamlError as exc:
+        raise SpecError(str(exc)) from None
     if not isinstance(raw, dict):
         raise SpecError(
             f"study spec {str(p)!r} must be a mapping with keys {', '.join(SPEC_KEYS)}"
@@ -252,22 +270,32 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
     if sampling == "grid":
         if "samples" in raw or "seed" in raw:
             raise SpecError("samples/seed: only for sampling: random")
-        combos = list(itertools.product(*[_grid_values(k, params[k]) for k in keys]))
+        axes = [_grid_values(k, params[k]) for k in keys]
+        size = math.prod(len(a) for a in axes)
+        if size > MAX_POINTS:
+            raise SpecError(
+                f"parameters: the grid has {size} points, more than {MAX_POINTS} a study may "
+                "have; split it into several studies"
+            )
+        combos = itertools.product(*axes)
     else:
         if "samples" not in raw:
             raise SpecError(
                 "samples: random sampling needs samples (how many points), e.g. samples: 100"
             )
         n = _number("samples", raw["samples"], integer=True)
-        if not 1 <= n <= 10_000_000:
-            raise SpecError(f"samples: must be in [1, 10000000], got {n:g}")
+        if not 1 <= n <= MAX_POINTS:
+            raise SpecError(
+                f"samples: must be in [1, {MAX_POINTS}] (split a larger design into several "
+                f"studies), got {n:g}"
+            )
         seed = raw.get("seed", 0)
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             raise SpecError(f"seed: must be a whole number >= 0, got {seed!r}")
         samplers = [_random_sampler(k, params[k]) for k in keys]
         rng = np.random.default_rng(seed)
         # point-major draws: a larger `samples` keeps the first points (and their results)
-        combos = [tuple(s(rng) for s in samplers) for _ in range(int(n))]
+        combos = (tuple(s(rng) for s in samplers) for _ in range(int(n)))
     outputs = raw.get("outputs", list(OUTPUTS))
     if not isinstance(outputs, list) or not outputs:
         raise SpecError(f"outputs: must be a list, a subset of {', '.join(OUTPUTS)}")
@@ -277,11 +305,8 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
     points = []
     seen = {}
     for i, combo in enumerate(combos):
-        scene = copy.deepcopy(base)
-        for key, value in zip(keys, combo):
-            _set_key(scene, key, value)
         try:
-            scene = validate(scene)
+            scene = _point_scene(base, keys, combo)
         except SceneError as exc:
             desc = ", ".join(f"{k}={v!r}" for k, v in zip(keys, combo))
             raise SpecError(f"parameters: point {i} ({desc}): {exc}") from None
@@ -290,7 +315,7 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
         if key in seen:
             continue  # a grid may repeat a value; run it once
         seen[key] = i
-        points.append((values, scene))
+        points.append(values)
     out_path = out if out is not None else raw.get("out")
     if out_path is not None:
         if not isinstance(out_path, str):
@@ -302,7 +327,7 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
         out_path = Path(p.stem + ".csv")
     if out_path.suffix.lower() not in FORMATS:
         raise SpecError(f"out: must end in .csv or .parquet, got {str(out_path)!r}")
-    return Study(keys, points, list(outputs), out_path, sampling)
+    return Study(keys, points, list(outputs), out_path, sampling, base)
 
 
 # ---------------------------------------------------------------------------- one point
@@ -574,9 +599,7 @@ def run_study(
         else CsvStore(out, study.columns)
     )
     done_rows = store.load()
-    design = {
-        point_key(values): (i, values, scene) for i, (values, scene) in enumerate(study.points)
-    }
+    design = {point_key(values): (i, values) for i, values in enumerate(study.points)}
     finished = {}
     for r in done_rows:
         k = tuple(r[c] for c in study.keys)
@@ -586,7 +609,8 @@ def run_study(
     if max_points is not None:
         pending = pending[:max_points]
     n_resumed = len(finished)
-    workers = workers or os.cpu_count() or 1
+    # more workers than points would only start idle processes
+    workers = max(1, min(workers or os.cpu_count() or 1, len(pending)))
     from tqdm import tqdm
 
     bar = tqdm(
@@ -615,10 +639,12 @@ def run_study(
     interrupted = False
     try:
         if submit is None:
-            for key, (i, values, scene) in pending:
-                record(key, i, values, run_point(scene))
+            for key, (i, values) in pending:
+                record(key, i, values, run_point(study.scene(values)))
         else:
-            futures = {submit(scene): (key, i, values) for key, (i, values, scene) in pending}
+            futures = {
+                submit(study.scene(values)): (key, i, values) for key, (i, values) in pending
+            }
             for fut in completed(list(futures)):
                 key, i, values = futures[fut]
                 record(key, i, values, fut.result())
