@@ -450,6 +450,7 @@ class ControllerNode(Node):
         self._labels: list[tuple[float, str]] = []
         self._diverter: DiverterState | None = None
         self._routing: list[tuple[str, str]] = []
+        self._clock_sources: int | None = None  # publishers of /clock, when on sim time
         self._replies: list[Reply] = []
         self._cell_estop: bool | None = None
         self._cell_jam: bool | None = None
@@ -642,6 +643,7 @@ class ControllerNode(Node):
             cell_estop=self._cell_estop,
             cell_jam=self._cell_jam,
             cell_status_t=self._cell_status_t,
+            clock_sources=self._clock_sources,
         )
         self._edges, self._labels, self._replies, self._routing = [], [], [], []
         self._cell_estop = self._cell_jam = self._cell_status_t = None
@@ -830,6 +832,10 @@ class ControllerNode(Node):
         )
 
     def _publish_diagnostics(self) -> None:
+        # who publishes the simulated clock, checked here (once per diagnostics period)
+        # rather than per scan: more than one is a clock fault the next scan reports
+        if self.get_parameter("use_sim_time").value:
+            self._clock_sources = self.count_publishers("/clock")
         msg = DiagnosticArray(status=[self.diagnostic_status()])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._pub_diag.publish(msg)

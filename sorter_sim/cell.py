@@ -25,6 +25,7 @@ from .core import cell_kernels as ck
 from .core.layout import PARCEL_WIDTH
 from .core.simulate import Parcel, parcel_array
 from .core.wrench import gauss_legendre_01
+from .description import PENDING_INDUCTS_MAX, label_problem
 from .params import SPECS, CellParams, ParamError, format_label, parcel_half_extents
 from .model import zone_law
 
@@ -122,8 +123,8 @@ def check_parcel(spec: ParcelSpec, belt_width: float) -> ParcelSpec:
             f'the parcel must fit on the belt: |y| + half its width across the belt '
             f'= {abs(spec.y0) + hy:.4g} m exceeds belt_width/2 = {0.5 * belt_width:g} m'
         )
-    if len(spec.label) > 256:
-        raise ParamError(f'label must be at most 256 characters, got {len(spec.label)}')
+    if spec.label != '' and label_problem(spec.label) is not None:
+        raise ParamError(label_problem(spec.label))
     return spec
 
 
@@ -166,6 +167,7 @@ class Cell:
         self.outcome_counts = {'left': 0, 'right': 0, 'straight': 0, 'jammed': 0}
         self._stream_rng = np.random.Generator(np.random.PCG64(params.seed))
         self._external = deque()
+        self.n_induct_refused = 0  # inducts refused because too many were waiting
         self._stream_next: tuple[ParcelSpec, float] | None = None
         self._stream_due_k: int | None = None
         # one period can log per parcel a few sensor changes, a scan, an exit and a jam
@@ -339,8 +341,20 @@ class Cell:
 
     # ------------------------------------------------------------------ parcels
     def induct(self, spec: ParcelSpec) -> None:
-        """Queue a parcel from outside; it appears at induct_x as soon as there is room."""
-        self._external.append(check_parcel(spec, self.params.belt_width))
+        """
+        Queue a parcel from outside; it appears at induct_x as soon as there is room.
+
+        At most PENDING_INDUCTS_MAX wait: more is refused (ParamError), as a real
+        infeed refuses parcels when its accumulation conveyor is full.
+        """
+        spec = check_parcel(spec, self.params.belt_width)
+        if len(self._external) >= PENDING_INDUCTS_MAX:
+            self.n_induct_refused += 1
+            raise ParamError(
+                f'{PENDING_INDUCTS_MAX} inducts already wait for room on the belt; '
+                'this one is refused'
+            )
+        self._external.append(spec)
 
     @property
     def pending_inducts(self) -> int:

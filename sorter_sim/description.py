@@ -26,7 +26,32 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+import re
 from typing import Any
+
+
+# A parcel's label, as the scanner reads it and the routing table names it: 1 to
+# LABEL_MAX letters, digits and - _ . : / # (no spaces, '=', ';' or '*', which the
+# routing grammar and the diagnostics use as separators).
+LABEL_MAX = 64
+LABEL_CHARS = 'letters, digits and - _ . : / #'
+LABEL_RE = re.compile(r'[A-Za-z0-9_.:/#-]{1,%d}' % LABEL_MAX)
+PENDING_INDUCTS_MAX = 1000  # parcels parcels/induct may queue while the belt is full
+
+
+def label_problem(label) -> str | None:
+    """Say why ``label`` is not a parcel label, or None."""
+    if not isinstance(label, str):
+        return f'a label must be a string, got {shown(label)}'
+    if not LABEL_RE.fullmatch(label):
+        return f'a label is 1 to {LABEL_MAX} {LABEL_CHARS}; got {shown(label)}'
+    return None
+
+
+def shown(value, limit: int = 60) -> str:
+    """Quote a value for an error message, cut short: no message echoes a large input whole."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + '...'
 
 
 class DescriptionError(ValueError):
@@ -61,10 +86,11 @@ class Quantity:
 
     def check(self, value: Any, name: str | None = None) -> float:
         """Return ``value`` as a float, or raise DescriptionError naming ``name`` (or the key)."""
+        what = f'{name or self.key}: must be {self.allowed}, got {shown(value)}'
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise DescriptionError(f'{name or self.key}: must be {self.allowed}, got {value!r}')
+            raise DescriptionError(what)
         if not self.contains(float(value)):
-            raise DescriptionError(f'{name or self.key}: must be {self.allowed}, got {value!r}')
+            raise DescriptionError(what)
         return float(value)
 
 

@@ -46,6 +46,7 @@ from .cell import (
     SensorEdge,
     WatchdogTrip,
 )
+from .description import shown
 from .params import SCHEMA, SPECS, CellParams, ParamError
 
 NODE_NAME = 'sorter_sim'
@@ -115,6 +116,7 @@ class SimNode(Node):
         self._status_sent = None
         self._safe_alpha_set = False  # the watchdog itself sets alpha_deg to its safe value
         self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
+        self._clock_publishers_warned = 0
         self.create_service(SetBool, 'diverter/popup', self._srv_popup)
         self.create_service(SetBool, 'estop', self._srv_estop)
         self.create_service(Trigger, 'reset', self._srv_reset)
@@ -390,7 +392,25 @@ class SimNode(Node):
     def _publish_clock(self) -> None:
         self._publish(self._pub_clock, Clock(clock=_time_msg(self.cell.t_ns)))
 
+    def _check_clock_publishers(self) -> int:
+        """Warn (once per change) when another node publishes /clock too: time is then two."""
+        n = self.count_publishers('/clock')
+        if n > 1 and n != self._clock_publishers_warned:
+            others = [
+                f'{i.node_namespace.rstrip("/")}/{i.node_name}'
+                for i in self.get_publishers_info_by_topic('/clock')
+                if (i.node_name, i.node_namespace) != (self.get_name(), self.get_namespace())
+            ]
+            self.get_logger().warning(
+                f'{n} publishers on /clock ({", ".join(others) or "another node"} besides this '
+                'cell): controllers on simulated time see it jump; give each cell its own '
+                'clock (remap /clock) or run one cell per ROS_DOMAIN_ID'
+            )
+        self._clock_publishers_warned = n if n > 1 else 0
+        return n
+
     def _publish_diagnostics(self) -> None:
+        clock_publishers = self._check_clock_publishers()
         now = time.perf_counter()
         wall0, k0 = self._diag_ref
         self._diag_ref = (now, self.cell.k)
@@ -420,6 +440,8 @@ class SimNode(Node):
             'time_mode': self.params.time_mode,
             'inducted': str(self.cell.n_inducted),
             'pending_inducts': str(self.cell.pending_inducts),
+            'inducts_refused': str(self.cell.n_induct_refused),
+            'clock_publishers': str(clock_publishers),
             'watchdog_trips': str(self.cell.watchdog_trips),
             'callback_errors': str(getattr(self, 'callback_errors', 0)),
             **{f'exits_{k}': str(v) for k, v in counts.items()},
@@ -505,9 +527,9 @@ class SimNode(Node):
         given = {}
         for kv in msg.values:
             if kv.key not in INDUCT_KEYS:
-                raise ParamError(f'unknown key {kv.key!r}; allowed: {", ".join(INDUCT_KEYS)}')
+                raise ParamError(f'unknown key {shown(kv.key)}; allowed: {", ".join(INDUCT_KEYS)}')
             if kv.key in given:
-                raise ParamError(f'key {kv.key!r} given twice')
+                raise ParamError(f'key {shown(kv.key)} given twice')
             given[kv.key] = kv.value
         numbers = {}
         for key in ('A', 'B', 'm', 'phi0_deg', 'y'):
@@ -515,9 +537,9 @@ class SimNode(Node):
                 try:
                     numbers[key] = float(given[key])
                 except ValueError:
-                    raise ParamError(f'{key} must be a number, got {given[key]!r}') from None
+                    raise ParamError(f'{key} must be a number, got {shown(given[key])}') from None
                 if not math.isfinite(numbers[key]):
-                    raise ParamError(f'{key} must be finite, got {given[key]!r}')
+                    raise ParamError(f'{key} must be finite, got {shown(given[key])}')
         # missing sizes take the middle of the configured stream's ranges
         return ParcelSpec(
             A=numbers.get('A', 0.5 * sum(p.parcel_A)),

@@ -21,13 +21,14 @@ seed's 0.5-1.5 m/s, μ = 0.6) and equal config/cell.yaml.
 from __future__ import annotations
 
 import math
+import string
 import re
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
 
 from .core.friction import LAW_NAMES
-from .description import Q
+from .description import LABEL_MAX, Q, label_problem, shown
 
 DOUBLE = 'double'
 INTEGER = 'integer'
@@ -360,7 +361,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
         'labels',
         STRING_ARRAY,
         ['A', 'B', 'C'],
-        'labels cycled over the stream (field {label} of label_pattern)',
+        'labels cycled over the stream (field {label} of label_pattern), each 1 to 64 '
+        'letters, digits and - _ . : / #',
         read_only=False,
         length=(1, 10000),
     ),
@@ -369,7 +371,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
         STRING,
         '{label}{id:05d}',
         'a parcel\'s label: a Python format string '
-        'with fields {id} (parcel id), {n} (stream index) and {label}',
+        'with fields {id} (parcel id), {n} (stream index) and {label}, at most 200 characters; '
+        'every label it makes must be 1 to 64 letters, digits and - _ . : / #',
         read_only=False,
     ),
     _p('seed', INTEGER, 1, 'seed of the parcel stream (same seed, same stream)', '', 0, 2**31 - 1),
@@ -422,7 +425,7 @@ def _field(name: str) -> str:
 
 def _check_value(spec: ParamSpec, value: Any) -> Any:
     """Type and range of one value; returns it normalised (tuples for arrays)."""
-    bad = ParamError(f'parameter {spec.name!r} must be {spec.allowed}, got {value!r}')
+    bad = ParamError(f'parameter {spec.name!r} must be {spec.allowed}, got {shown(value)}')
     if spec.type == BOOL:
         if not isinstance(value, bool):
             raise bad
@@ -475,22 +478,61 @@ def format_label(pattern: str, *, id: int, n: int, label: str) -> str:
     return pattern.format(id=id, n=n, label=label)
 
 
-def check_label_pattern(pattern: str) -> None:
+PATTERN_MAX = 200  # characters of label_pattern
+
+
+def check_label_pattern(pattern: str, labels=('A',)) -> None:
+    """
+    Refuse a label pattern that could make a label outside the label grammar.
+
+    Every label of ``labels`` must itself be a label, and the pattern, formatted
+    with each of them and with ids up to a billion, must give one (so a pattern
+    cannot index past a label's end, pad a label to megabytes, or insert a
+    separator the routing grammar uses).
+    """
+    if len(pattern) > PATTERN_MAX:
+        raise ParamError(
+            f'parameter \'label_pattern\' may have at most {PATTERN_MAX} characters, '
+            f'got {len(pattern)}'
+        )
     fields = {f.split('.')[0].split('[')[0] for f in _FORMAT_FIELD.findall(pattern)}
     unknown = sorted(fields - set(LABEL_FIELDS))
     if unknown:
         raise ParamError(
             f'parameter \'label_pattern\' may use only the fields {{id}}, {{n}} and '
-            f'{{label}}, got {pattern!r} (unknown: {", ".join(unknown)})'
+            f'{{label}}, got {shown(pattern)} (unknown: {", ".join(unknown)})'
         )
     try:
-        text = format_label(pattern, id=1, n=0, label='A')
-    except (ValueError, IndexError, KeyError, AttributeError, TypeError) as exc:
+        specs = [spec or '' for _, _, spec, _ in string.Formatter().parse(pattern)]
+    except ValueError as exc:
         raise ParamError(
-            f'parameter \'label_pattern\' is not a valid format string: {pattern!r} ({exc})'
+            f'parameter \'label_pattern\' is not a valid format string: {shown(pattern)} ({exc})'
         ) from None
-    if not text:
-        raise ParamError('parameter \'label_pattern\' gives empty labels')
+    for spec in specs:
+        # checked before formatting: a width of a billion would allocate gigabytes
+        if '{' in spec or any(int(w) > LABEL_MAX for w in re.findall(r'\d+', spec)):
+            raise ParamError(
+                f'parameter \'label_pattern\': format spec {shown(spec)} could make a label '
+                f'longer than {LABEL_MAX} characters'
+            )
+    for label in dict.fromkeys(labels):
+        problem = label_problem(label)
+        if problem is not None:
+            raise ParamError(f'parameter \'labels\': {problem}')
+        for pid in (1, 10**9):
+            try:
+                text = format_label(pattern, id=pid, n=pid - 1, label=label)
+            except (ValueError, IndexError, KeyError, AttributeError, TypeError) as exc:
+                raise ParamError(
+                    f'parameter \'label_pattern\' {shown(pattern)} cannot label a parcel '
+                    f'with label {label!r} and id {pid}: {shown(str(exc))}'
+                ) from None
+            problem = label_problem(text)
+            if problem is not None:
+                raise ParamError(
+                    f'parameter \'label_pattern\' {shown(pattern)} with label {label!r} '
+                    f'and id {pid}: {problem}'
+                )
 
 
 def parcel_half_extents(A: float, B: float, phi: float) -> tuple[float, float]:
@@ -722,7 +764,7 @@ class CellParams:
                 f'parameter \'control_period\' must be a whole number of nanoseconds, '
                 f'got {self.control_period!r}'
             )
-        check_label_pattern(self.label_pattern)
+        check_label_pattern(self.label_pattern, self.labels)
 
 
 __all__ = [

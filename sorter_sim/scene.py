@@ -27,7 +27,7 @@ from sorter_ros.strict_yaml import StrictYamlError, load_yaml_text, read_yaml_fi
 
 from .core.friction import mu_kinetic
 from .core.simulate import FrictionLaw, Parcel, SimResult, simulate
-from .description import Q
+from .description import Q, shown
 from .model import LAW_DEFAULTS, V_REF, cell_strips, entry_state, law_problem, zone_law
 
 
@@ -146,39 +146,39 @@ def _check(key: str, value: Any) -> Any:
         value = [_as_number(v) for v in value]
     if kind == "bool":
         if not isinstance(value, bool):
-            raise SceneError(f"{key}: must be {allowed}, got {value!r}")
+            raise SceneError(f"{key}: must be {allowed}, got {shown(value)}")
         return value
     if kind == "choice":
         if value not in lo:
-            raise SceneError(f"{key}: must be {allowed}, got {value!r}")
+            raise SceneError(f"{key}: must be {allowed}, got {shown(value)}")
         return value
     if kind == "list":
         if not isinstance(value, (list, tuple)) or not lo <= len(value) <= hi:
-            raise SceneError(f"{key}: must be a list {allowed}, got {value!r}")
+            raise SceneError(f"{key}: must be a list {allowed}, got {shown(value)}")
         out = []
         for v in value:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise SceneError(
-                    f"{key}: every entry must be a finite number ({allowed}), got {value!r}"
+                    f"{key}: every entry must be a finite number ({allowed}), got {shown(value)}"
                 )
             out.append(float(v))
         return out
     if kind == "mu" and value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(f"{key}: must be {allowed}, got {value!r}")
+        raise SceneError(f"{key}: must be {allowed}, got {shown(value)}")
     v = float(value)
     if math.isnan(v) or (math.isinf(v) and kind != "float_inf"):
-        raise SceneError(f"{key}: must be {allowed}, got {value!r}")
+        raise SceneError(f"{key}: must be {allowed}, got {shown(value)}")
     if kind == "int":
         if v != int(v):
-            raise SceneError(f"{key}: must be {allowed}, got {value!r}")
+            raise SceneError(f"{key}: must be {allowed}, got {shown(value)}")
         v = int(v)
     too_low = v <= lo if key in _OPEN_LOW else v < lo
     if too_low or v > hi:
-        raise SceneError(f"{key}: must be {allowed}, got {value!r}")
+        raise SceneError(f"{key}: must be {allowed}, got {shown(value)}")
     if key == "zones.b" and 0.0 < v < math.inf and not Q["disk_field.length"].contains(v):
-        raise SceneError(f"{key}: must be {allowed}, got {value!r}")
+        raise SceneError(f"{key}: must be {allowed}, got {shown(value)}")
     return v
 
 

@@ -113,6 +113,16 @@ def test_bad_values_are_refused_naming_the_parameter(name, value):
         ({'parcel_B': [0.2, 0.7]}, 'belt_width'),
         ({'label_pattern': '{label}{serial}'}, 'label_pattern'),
         ({'label_pattern': '{id:q}'}, 'label_pattern'),
+        # a pattern or labels that could make a label outside the label grammar
+        ({'label_pattern': '{label[0]}', 'labels': ['']}, 'labels'),
+        ({'label_pattern': '{label[3]}', 'labels': ['AB']}, 'cannot label'),
+        ({'label_pattern': '{id:>20000000}'}, 'longer than 64'),
+        ({'label_pattern': '{id:>{n}}'}, 'longer than 64'),
+        ({'label_pattern': '{id:>60}{label}'}, '1 to 64'),
+        ({'label_pattern': '{label} {id}'}, '1 to 64'),
+        ({'label_pattern': '{label}=' + 'x' * 300}, 'at most 200'),
+        ({'labels': ['A;B']}, 'labels'),
+        ({'labels': ['L' * 65]}, 'labels'),
         ({'pose_rate_hz': 1000.0, 'control_period': 0.002}, 'pose_rate_hz'),
     ],
 )
@@ -138,6 +148,8 @@ def test_structural_parameters_cannot_change_at_run_time():
         (ParcelSpec(0.4, 0.2, 5.0, 2.0), 'phi0'),
         (ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.3), 'fit'),
         (ParcelSpec(0.4, 0.2, 5.0, 0.0, math.inf), 'y'),
+        (ParcelSpec(0.4, 0.2, 5.0, label='A B'), '1 to 64'),
+        (ParcelSpec(0.4, 0.2, 5.0, label='x' * 100_000), '1 to 64'),
     ],
 )
 def test_bad_parcels_are_refused(spec, match):
@@ -461,3 +473,14 @@ def test_watchdog_off_and_ranges():
     ):
         with pytest.raises(ParamError, match=name):
             CellParams.defaults().with_changes({name: bad}, runtime=False)
+
+
+def test_pending_inducts_are_capped_and_the_excess_counted():
+    from sorter_sim.description import PENDING_INDUCTS_MAX
+
+    cell = Cell(CellParams.defaults().with_changes({'arrival': 'none'}, runtime=False))
+    for _ in range(PENDING_INDUCTS_MAX):
+        cell.induct(ParcelSpec(0.4, 0.2, 5.0))
+    with pytest.raises(ParamError, match='refused'):
+        cell.induct(ParcelSpec(0.4, 0.2, 5.0))
+    assert cell.pending_inducts == PENDING_INDUCTS_MAX and cell.n_induct_refused == 1

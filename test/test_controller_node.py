@@ -385,6 +385,37 @@ def test_estop_and_reset_through_the_controller(ros):
     assert cell.outcome("B5")["exit"] == "right"
 
 
+def test_a_second_clock_is_one_clock_fault_until_it_is_gone(ros):
+    from rosgraph_msgs.msg import Clock
+
+    cell = Cell(ros)
+    # a second node publishing /clock (a second cell started without its own namespace)
+    other = ros.make_node("other_cell")
+    clock = other.create_publisher(Clock, "/clock", STREAM_QOS)
+    cell.wait_state("clock", 5.0)
+    assert "2 nodes publish /clock" in cell.status.message
+    assert cell.value("fault_clock") == "1"
+    ros.spin_until(
+        lambda: (
+            cell.cell_status is not None
+            and _values(cell.cell_status).get("clock_publishers") == "2"
+        ),
+        5.0,
+        "the cell to report two /clock publishers",
+    )
+    refused = cell.call(Trigger, "/sorter_controller/reset", Trigger.Request())
+    assert refused.success  # taken; the next scan refuses it while the cause remains
+    ros.spin_for(0.5)
+    assert cell.state == "clock"
+    other.destroy_publisher(clock)
+    ros.spin_for(1.5)  # the controller sees the graph change at its next diagnostics period
+    assert cell.call(Trigger, "/sorter_controller/reset", Trigger.Request()).success
+    cell.wait_state("running", 5.0)
+    cell.induct("A7")
+    ros.spin_until(lambda: cell.outcome("A7") is not None, 10.0, "A7 to leave")
+    assert cell.outcome("A7")["exit"] == "left"
+
+
 def test_estop_engaged_at_the_cell_is_seen(ros):
     cell = Cell(ros)
     assert cell.call(SetBool, "estop", SetBool.Request(data=True)).success  # the operator's button

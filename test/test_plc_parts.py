@@ -259,3 +259,49 @@ def test_sequencer_refuses_a_divert_too_close_behind_a_divert_to_the_other_side(
     assert b.plan == "straight" and b.result == "gap_too_short"
     assert seq.counts["gap_too_short"] == 1
     assert any("gap too short" in text for _, text in io.logs)
+
+
+# --------------------------------------------------------------------------- the clock
+
+
+def test_time_going_back_is_one_clock_fault_and_a_reset_rebases():
+    from sorter_control.logic import InputImage, SorterLogic
+
+    logic = SorterLogic(CFG, PREDICTOR)
+    for k in range(100):
+        logic.scan(InputImage(t=100.0 + 0.01 * k))
+    lines = []
+    # a second clock, or a restarted simulation: time goes back, and stays on its own base
+    for k in range(300):
+        out = logic.scan(InputImage(t=5.0 + 0.01 * k))
+        lines += out.log
+    assert logic.state == "clock" and logic.fault_counts["clock"] == 1
+    errors = [t for level, t in lines if level == "error"]
+    assert len(errors) == 1 and "went back from 100.990 to 5.000 s" in errors[0]
+    assert logic.counts["clock_jumps"] == 300
+    logic.request_reset()
+    out = logic.scan(InputImage(t=8.0))
+    assert logic.state == "running" and logic.t == 8.0
+    assert any("time base is now 8.000" in t for _, t in out.log)
+    out = logic.scan(InputImage(t=8.01))
+    assert logic.state == "running" and out.log == []
+
+
+def test_a_leap_ahead_and_a_second_clock_source_are_clock_faults():
+    from sorter_control.logic import InputImage, SorterLogic
+
+    logic = SorterLogic(CFG, PREDICTOR)
+    logic.scan(InputImage(t=1.0))
+    logic.scan(InputImage(t=1.0 + 1.7e9))  # use_sim_time switched to the wall clock
+    assert logic.state == "clock" and "jumped ahead" in logic.fault["message"]
+    # two publishers of /clock: a fault, and a reset does not clear it while they remain
+    logic = SorterLogic(CFG, PREDICTOR)
+    logic.scan(InputImage(t=1.0, clock_sources=1))
+    logic.scan(InputImage(t=1.01, clock_sources=2))
+    assert logic.state == "clock" and "2 nodes publish /clock" in logic.fault["message"]
+    logic.request_reset()
+    logic.scan(InputImage(t=1.02, clock_sources=2))
+    assert logic.state == "clock"
+    logic.request_reset()
+    logic.scan(InputImage(t=1.03, clock_sources=1))
+    assert logic.state == "running"

@@ -6,7 +6,8 @@ Each fault is a state of its own, a diagnostic, and no diverts until a reset:
 ``stuck_on`` (an eye blocked with no parcel due), ``stuck_off`` (a parcel's
 transit window passed with the eye clear; a scanner label with no blocking),
 ``missed_divert`` (no chute sensor in time), ``diverter_timeout`` (a service call
-unanswered), ``diverter_refused`` and ``estop``. The first fault defines the
+unanswered), ``diverter_refused``, ``clock`` (simulated time went back or jumped ahead, or
+more than one node publishes /clock) and ``estop``. The first fault defines the
 state; later ones are logged.
 """
 
@@ -26,10 +27,11 @@ STATES = (
     "missed_divert",
     "diverter_timeout",
     "diverter_refused",
+    "clock",
     "estop",
     "resetting",
 )
-FAULT_STATES = STATES[1:8]
+FAULT_STATES = STATES[1:9]
 
 
 class Faults:

@@ -56,6 +56,7 @@ class InputImage:
     cell_estop: bool | None = None  # as the cell reports it, if known
     cell_jam: bool | None = None
     cell_status_t: float | None = None  # the report's time stamp [s]
+    clock_sources: int | None = None  # publishers of the simulated clock, if it is used
 
 
 @dataclass(frozen=True)

@@ -51,6 +51,7 @@ COUNTS = (
     "commands",
     "replies",
     "timeouts",
+    "clock_jumps",
 )
 
 
@@ -102,6 +103,8 @@ class SorterLogic:
         )
         self._reset_requested = False
         self._estop_requested = False
+        # a scan this much later than the last one is a jump of the clock, not a late scan
+        self._max_jump = max(2.0, 100 * config.scan_period)
         self.scan_wall: deque = deque(maxlen=1000)
         self.log_history: deque = deque(maxlen=50)
 
@@ -210,15 +213,24 @@ class SorterLogic:
             return out
         if self.t is not None:
             dt = t - self.t
-            if dt < 0:
-                self._refuse_scan(out, f"scan ignored: time went back from {self.t} to {t} s")
-                return out
+            if dt < 0 or dt > self._max_jump:
+                return self._clock_jump(out, t, dt)
             if dt > self.config.scan_period + self.config.timing_margin + 1e-9:
                 # later than the timing budget absorbs: an action may have come late
                 self.counts["late_scans"] += 1
         self.tracker.advance(t)
         self.counts["scans"] += 1
         io = _Scan(self, out)
+        if image.clock_sources is not None and image.clock_sources > 1:
+            if self.state != "clock":
+                self._clock_fault(
+                    io,
+                    f"{image.clock_sources} nodes publish /clock: simulated time is not one "
+                    "clock (two cells on one /clock?); no diverts until reset",
+                )
+            elif self._reset_requested:
+                self._reset_requested = False
+                io.log("warn", f"reset refused: {image.clock_sources} nodes still publish /clock")
 
         self._apply_routing(io, image.routing_updates)
         self._apply_replies(io, image.replies)
@@ -239,6 +251,39 @@ class SorterLogic:
         self.sequencer.write_outputs(out, self.state)
         self.tracker.prune()
         return out
+
+    def _clock_jump(self, out: ScanOutput, t: float, dt: float) -> ScanOutput:
+        """
+        Enter the clock fault (once): simulated time went back, or leapt ahead.
+
+        Every time the PLC holds (edges, windows, deadlines) is on the old time base,
+        so the scan is not run. A reset re-bases on the new time: tracking is dropped
+        and the controller runs on; if the cause remains, the next jump faults again.
+        """
+        self.counts["clock_jumps"] += 1
+        io = _Scan(self, out)
+        io.t = t
+        if self._reset_requested and self.state == "clock":
+            self._reset_requested = False
+            self.tracker.t = t
+            self._cleared(io)
+            io.log("info", f"reset: the time base is now {t:.3f} s")
+            return out
+        what = "went back" if dt < 0 else "jumped ahead"
+        self._clock_fault(
+            io, f"simulated time {what} from {self.t:.3f} to {t:.3f} s; no diverts until reset"
+        )
+        return out
+
+    def _clock_fault(self, io: _Scan, message: str) -> None:
+        # worse than any other fault: what the PLC holds is on a time base that is gone
+        if self.state == "clock":
+            return
+        if self.state in FAULT_STATES or self.state == "resetting":
+            self.faults.state = "running"  # so that the clock fault takes over
+        self.faults.enter(io, "clock", message)
+        self.sequencer.forget_outputs()
+        self._drop_tracking(io, "clock fault")
 
     def _refuse_scan(self, out: ScanOutput, text: str) -> None:
         out.log.append(("error", text))

@@ -18,13 +18,11 @@ default) and missing reads go to the reject destination.
 
 from __future__ import annotations
 
-import re
+from sorter_sim.description import LABEL_CHARS, LABEL_MAX
+from sorter_sim.description import LABEL_RE as _LABEL
 
 from ..timing import DESTINATIONS
 
-LABEL_CHARS = "letters, digits and - _ . : / #"
-LABEL_MAX = 64
-_LABEL = re.compile(r"[A-Za-z0-9_.:/#-]{1,%d}" % LABEL_MAX)
 GRAMMAR = (
     "a rule is 'pattern=destination'; a pattern is a label of 1 to "
     f"{LABEL_MAX} {LABEL_CHARS}, such a label followed by '*' (a prefix) or '*' alone "
