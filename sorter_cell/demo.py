@@ -174,7 +174,7 @@ class _Observer:
         node.create_subscription(
             DiagnosticStatus, "sort/confirmations", self._on_confirmation, events
         )
-        node.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, stream)
+        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, stream)
         node.create_subscription(UInt32MultiArray, "parcels/ids", self._on_ids, stream)
         if want_paths:
             node.create_subscription(PoseArray, "parcels/poses", self._on_poses, stream)

@@ -436,7 +436,8 @@ class ControllerNode(Node):
         self._pub_confirm = self.create_publisher(
             DiagnosticStatus, "sort/confirmations", EVENT_QOS
         )
-        self._pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", STREAM_QOS)
+        # absolute, where diagnostic aggregators and tools look; the status names the node
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", STREAM_QOS)
         # the cell's watchdog expects this every scan: a scan that stops, stops it
         self._pub_heartbeat = self.create_publisher(UInt32, "controller/heartbeat", STREAM_QOS)
         self._beats = 0
@@ -577,7 +578,8 @@ class ControllerNode(Node):
         self._bits[name] = bool(msg.data)
 
     def _on_edge(self, msg: TimeReference) -> None:
-        name = msg.header.frame_id
+        # stamped <cell frame>/<sensor>: the sensor is the last name
+        name = msg.header.frame_id.rpartition("/")[2]
         t = msg.time_ref.sec + 1e-9 * msg.time_ref.nanosec
         if msg.source not in ("rising", "falling") or not name or not math.isfinite(t):
             self.n_bad_messages += 1

@@ -47,10 +47,11 @@ from .cell import (
     WatchdogTrip,
 )
 from .description import shown
+from .warmup import warm_cell
 from .params import SCHEMA, SPECS, CellParams, ParamError
 
 NODE_NAME = 'sorter_sim'
-FRAME_ID = 'conveyor'
+FRAME_ID = 'conveyor'  # the cell's frame in the root namespace (see frame_id)
 PARCEL_HEIGHT = 0.2  # m, only for the marker boxes (the model is planar)
 MAX_CATCH_UP_S = 0.25  # realtime mode: simulated time one tick may catch up
 
@@ -95,6 +96,13 @@ class SimNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         self.params = self._declare_parameters()
+        warm_s = warm_cell(self.params)
+        if warm_s > 1.0:
+            self.get_logger().info(
+                f'compiled the model\'s kernels in {warm_s:.1f} s (once per clone; cached)'
+            )
+        ns = self.get_namespace().strip('/')
+        self.frame_id = self.params.frame_id or (f'{ns}/{FRAME_ID}' if ns else FRAME_ID)
         self.cell = Cell(self.params)
         p = self.params
         self._pub_poses = self.create_publisher(PoseArray, 'parcels/poses', STREAM_QOS)
@@ -108,7 +116,8 @@ class SimNode(Node):
         self._pub_label = self.create_publisher(String, 'scanner/label', EVENT_QOS)
         self._pub_diverter = self.create_publisher(JointState, 'diverter/state', STREAM_QOS)
         self._pub_outcomes = self.create_publisher(DiagnosticStatus, 'sort/outcomes', EVENT_QOS)
-        self._pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', STREAM_QOS)
+        # absolute, where diagnostic aggregators and tools look; the status names the node
+        self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', STREAM_QOS)
         # the cell's state bits, as a PLC reads them: latched, published when they change
         self._pub_status = {
             name: self.create_publisher(Bool, f'status/{name}', SENSOR_QOS) for name in STATUS_BITS
@@ -126,7 +135,7 @@ class SimNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._post_set_parameters)
         self._joint_state = JointState(name=['disk_angle', 'popup_stroke'])
-        self._joint_state.header.frame_id = FRAME_ID
+        self._joint_state.header.frame_id = self.frame_id
         # bookkeeping for diagnostics
         self._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
         self._diag_ref = (time.perf_counter(), self.cell.k)
@@ -221,9 +230,14 @@ class SimNode(Node):
     # ------------------------------------------------------------------ time
     def _tick_realtime(self) -> None:
         p = self.params
-        now = time.monotonic()
         if self._wall_ref is None:
-            self._wall_ref = (now, self.cell.k)
+            # anchor simulated to wall time after one period has run: that first period
+            # loads the compiled kernels (seconds on a fresh clone), start-up rather than
+            # simulated time to drop
+            self.advance(1)
+            self._wall_ref = (time.monotonic(), self.cell.k)
+            return
+        now = time.monotonic()
         wall0, k0 = self._wall_ref
         target = k0 + int((now - wall0) * p.real_time_factor / self.cell.dt)
         n = target - self.cell.k
@@ -300,7 +314,7 @@ class SimNode(Node):
                 self._publish(self._pub_sensor[e.sensor], Bool(data=e.blocked))
                 ref = TimeReference(source='rising' if e.blocked else 'falling')
                 ref.header.stamp = _time_msg(e.t_ns)
-                ref.header.frame_id = e.sensor
+                ref.header.frame_id = f'{self.frame_id}/{e.sensor}'
                 ref.time_ref = _time_msg(e.t_ns)
                 self._publish(self._pub_edges, ref)
             elif isinstance(e, LabelRead):
@@ -353,7 +367,9 @@ class SimNode(Node):
         self._publish(self._pub_ids, ids)
         self._publish(
             self._pub_poses,
-            pose_array_cdr(self.cell.t_ns, FRAME_ID, parcels['x'], parcels['y'], parcels['phi']),
+            pose_array_cdr(
+                self.cell.t_ns, self.frame_id, parcels['x'], parcels['y'], parcels['phi']
+            ),
         )
 
     def _publish_diverter(self) -> None:
@@ -368,13 +384,13 @@ class SimNode(Node):
         parcels = self.cell.parcels()
         stamp_msg = _time_msg(self.cell.t_ns)
         clear = Marker(action=Marker.DELETEALL, ns='parcels')
-        clear.header.frame_id = FRAME_ID
+        clear.header.frame_id = self.frame_id
         markers = [clear]
         for pid, x, y, phi, A, B, code in zip(
             *(parcels[k].tolist() for k in ('id', 'x', 'y', 'phi', 'A', 'B', 'state'))
         ):
             m = Marker(ns='parcels', id=int(pid), type=Marker.CUBE, action=Marker.ADD)
-            m.header.frame_id = FRAME_ID
+            m.header.frame_id = self.frame_id
             m.header.stamp = stamp_msg
             m.pose.position.x = x
             m.pose.position.y = y

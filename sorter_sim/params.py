@@ -387,6 +387,14 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ),
     # -- outputs
     _p(
+        'frame_id',
+        STRING,
+        '',
+        'frame of every stamped message (parcels/poses, parcels/markers, diverter/state; a '
+        'sensor edge is stamped <frame_id>/<sensor>); empty: conveyor in the root namespace, '
+        '<namespace>/conveyor in a namespace, so that two cells never share a frame',
+    ),
+    _p(
         'pose_rate_hz',
         DOUBLE,
         100.0,
@@ -479,6 +487,7 @@ def format_label(pattern: str, *, id: int, n: int, label: str) -> str:
 
 
 PATTERN_MAX = 200  # characters of label_pattern
+_FRAME_ID = re.compile(r'[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*){0,15}')
 
 
 def check_label_pattern(pattern: str, labels=('A',)) -> None:
@@ -601,6 +610,7 @@ class CellParams:
     label_pattern: str
     seed: int
     max_parcels: int
+    frame_id: str
     pose_rate_hz: float
     marker_rate_hz: float
     sensor_heartbeat_s: float
@@ -765,6 +775,11 @@ class CellParams:
                 f'got {self.control_period!r}'
             )
         check_label_pattern(self.label_pattern, self.labels)
+        if self.frame_id and not _FRAME_ID.fullmatch(self.frame_id):
+            raise ParamError(
+                f'parameter \'frame_id\' must be empty or a frame name (letters, digits, _ '
+                f'and / between names, no leading /), got {shown(self.frame_id)}'
+            )
 
 
 __all__ = [

@@ -102,7 +102,7 @@ class Cell:
         w.create_subscription(
             String, "scanner/label", lambda m: self.labels.append(m.data), EVENT_QOS
         )
-        w.create_subscription(DiagnosticArray, "diagnostics", self._on_diag, STREAM_QOS)
+        w.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, STREAM_QOS)
         self.induct_pub = w.create_publisher(DiagnosticStatus, "parcels/induct", EVENT_QOS)
         self.route_pub = w.create_publisher(KeyValue, "routing/updates", EVENT_QOS)
         ros.spin_until(

@@ -132,3 +132,5 @@ def test_a_controller_that_stops_lowers_the_disks_itself(ros, sig):
     assert 'stopping: disks lowered' in text and 'Traceback' not in text, text[-3000:]
     for name, (code, text) in results.items():
         assert code == 0, f'{name} exit {code}:\n{text[-3000:]}'
+    # the cell ran in real time from its first period: no simulated time dropped at start-up
+    assert 'dropping' not in results['sorter_sim'][1], results['sorter_sim'][1][-3000:]

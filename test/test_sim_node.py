@@ -54,7 +54,7 @@ TOPICS = {
     'scanner/label': (String, EVENT_QOS),
     'diverter/state': (JointState, STREAM_QOS),
     'sort/outcomes': (DiagnosticStatus, EVENT_QOS),
-    'diagnostics': (DiagnosticArray, STREAM_QOS),
+    '/diagnostics': (DiagnosticArray, STREAM_QOS),
     **{f'sensors/{s}': (Bool, SENSOR_QOS) for s in SENSORS},
     **{f'status/{b}': (Bool, SENSOR_QOS) for b in ('estop', 'jam', 'watchdog', 'fault')},
 }
@@ -142,9 +142,13 @@ class Probe:
 
     def edges(self, sensor=None) -> list[tuple[str, float, str]]:
         return [
-            (m.header.frame_id, m.time_ref.sec + 1e-9 * m.time_ref.nanosec, m.source)
+            (
+                m.header.frame_id.rpartition('/')[2],
+                m.time_ref.sec + 1e-9 * m.time_ref.nanosec,
+                m.source,
+            )
             for m in self.msgs['sensors/edges']
-            if sensor in (None, m.header.frame_id)
+            if sensor in (None, m.header.frame_id.rpartition('/')[2])
         ]
 
 
@@ -172,7 +176,8 @@ def test_topics_services_and_types_are_as_documented(ros):
     probe.wait_connected(sim)
     topics = dict(probe.node.get_topic_names_and_types())
     expected = {
-        f'/{t}': f'{m.__module__.split(".")[0]}/msg/{m.__name__}' for t, (m, _) in TOPICS.items()
+        ('/' + t).replace('//', '/'): f'{m.__module__.split(".")[0]}/msg/{m.__name__}'
+        for t, (m, _) in TOPICS.items()
     }
     expected.update(
         {
@@ -209,6 +214,10 @@ def test_topics_services_and_types_are_as_documented(ros):
     assert len(ids) == len(poses) == 2
     assert list(ids[-1].data) == [1] and len(poses[-1].poses) == 1
     assert poses[-1].header.frame_id == 'conveyor'
+    assert probe.msgs['diverter/state'][-1].header.frame_id == 'conveyor'
+    assert {m.header.frame_id for m in probe.msgs['sensors/edges']} <= {
+        f'conveyor/{s}' for s in SENSORS
+    }
     assert (poses[-1].header.stamp.sec, poses[-1].header.stamp.nanosec) == (0, 20_000_000)
     assert poses[-1].poses[0].position.x == pytest.approx(-1.5 - 0.2 + 1.5 * 0.02, abs=1e-12)
     joint = probe.msgs['diverter/state'][-1]
@@ -217,8 +226,8 @@ def test_topics_services_and_types_are_as_documented(ros):
     clock = probe.msgs['/clock'][-1].clock
     assert (clock.sec, clock.nanosec) == (0, 20_000_000)
     # diagnostics once a second of wall time
-    ros.spin_until(lambda: probe.msgs['diagnostics'], 3.0, 'diagnostics')
-    (status,) = probe.msgs['diagnostics'][-1].status
+    ros.spin_until(lambda: probe.msgs['/diagnostics'], 3.0, 'diagnostics')
+    (status,) = probe.msgs['/diagnostics'][-1].status
     values = {kv.key: kv.value for kv in status.values}
     assert values['parcels_in_cell'] == '1' and values['faults'] == 'none'
     assert {'real_time_factor', 'step_cost_us', 'publish_cost_us'} <= set(values)
@@ -532,6 +541,18 @@ def test_a_namespaced_second_cell_does_not_see_the_first(ros):
     assert len(p1.msgs['parcels/poses'][-1].poses) == 1
     assert [m.data for m in p1.msgs['scanner/label']] == ['ONLY-IN-1']
     assert p1.msgs['/cell1/clock'][-1].clock.nanosec == 400_000_000
+    # each cell stamps its own frame, derived from its namespace
+    assert p1.msgs['parcels/poses'][-1].header.frame_id == 'cell1/conveyor'
+    assert {m.header.frame_id.rpartition('/')[0] for m in p1.msgs['sensors/edges']} == {
+        'cell1/conveyor'
+    }
+    # both report on the one /diagnostics, each status named after its node
+    names = lambda: {st.name for m in p1.msgs['/diagnostics'] for st in m.status}  # noqa: E731
+    ros.spin_until(
+        lambda: {'/cell1/sorter_sim: cell', '/cell2/sorter_sim: cell'} <= names(),
+        5.0,
+        'both cells on /diagnostics',
+    )
     # the second cell saw no parcel, no command and no step
     assert not p2.msgs['parcels/poses'] and not p2.msgs['scanner/label']
     assert not p2.msgs['sensors/edges']
@@ -541,6 +562,7 @@ def test_a_namespaced_second_cell_does_not_see_the_first(ros):
     p2.settle()
     assert len(p2.msgs['parcels/poses'][-1].poses) == 0
     assert p2.msgs['diverter/state'][-1].position[1] == 0.0
+    assert p2.msgs['diverter/state'][-1].header.frame_id == 'cell2/conveyor'
 
 
 # ---------------------------------------------------------------- start-up errors
