@@ -105,6 +105,16 @@ def install_stop_handlers():
     return stop
 
 
+def _ignore_stop_signals() -> None:
+    import signal
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(sig, signal.SIG_IGN)
+        except (ValueError, OSError):  # not the main thread: nothing to change
+            pass
+
+
 def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=None) -> None:
     """
     Run a node as every executable of this package does (ros2/demos talker style).
@@ -138,7 +148,10 @@ def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=No
     except KeyboardInterrupt:
         pass
     finally:
-        # a second Ctrl-C may land in the teardown too: it is still a clean exit
+        # the teardown is short and bounded: it finishes whatever signal comes now (one
+        # arriving after it, while the interpreter exits, would otherwise end the process
+        # by SIGINT instead of exit code 0)
+        _ignore_stop_signals()
         try:
             if node is not None:
                 node.destroy_node()
