@@ -218,7 +218,7 @@ QUANTITIES: tuple[Quantity, ...] = (
     _q(
         'stream.gap',
         'm',
-        0.9,
+        1.45,
         0.05,
         100.0,
         'belt gap between consecutive parcels, trailing edge to leading edge (below 5 cm '

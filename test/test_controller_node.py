@@ -15,6 +15,7 @@ come from its ``diagnostics`` topic.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -590,3 +591,36 @@ def test_use_sim_time_cannot_change_while_the_controller_runs(ros):
     assert cell.ctl.get_parameter("use_sim_time").value is True
     ros.spin_for(0.5)
     assert cell.state == "running" and cell.ctl.logic.fault is None
+
+
+# --------------------------------------------------------------------------- the defaults
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
+
+
+def test_defaults_agree():
+    """The default stream (config/cell.yaml) is one the default controller can sort."""
+    from sorter_cell.demo import stream_plan
+    from sorter_ros.params_file import read_params_file
+    from sorter_sim.params import SPECS
+
+    cell = read_params_file(CONFIG_DIR / "cell.yaml", "sorter_sim")
+    plan = stream_plan(tuple(cell["parcel_A"]), CONFIG_DIR)
+    assert cell["arrival_gap"][0] >= plan["min_gap_m"], (cell["arrival_gap"], plan)
+    assert list(SPECS["arrival_gap"].default) == list(cell["arrival_gap"])
+
+
+@pytest.mark.slow
+def test_the_default_cell_and_controller_sort_a_minute_with_no_gap_too_short(ros):
+    files = {
+        "sim": ["--params-file", str(CONFIG_DIR / "cell.yaml")]
+        + ["-p", "time_mode:=fast", "-p", "fast_slice:=0.005"],
+        "ctl": ["--params-file", str(CONFIG_DIR / "controller.yaml")],
+    }
+    sim = ros.add(SimNode(context=ros.context, cli_args=["--ros-args", *files["sim"]]))
+    ctl = ros.add(ControllerNode(context=ros.context, cli_args=["--ros-args", *files["ctl"]]))
+    ros.spin_until(lambda: ctl.logic is not None, 30.0, "the controller to start")
+    ros.spin_until(lambda: sim.cell.t_ns >= 60_000_000_000, 50.0, "a minute of the cell")
+    counts = ctl.logic.counts
+    assert counts["inducted"] >= 20, counts
+    assert counts["gap_too_short"] == 0 and counts["mis_sorted"] == 0 and counts["late"] == 0
+    assert ctl.logic.state == "running", ctl.logic.fault
