@@ -264,3 +264,33 @@ def test_threshold_model_first_static_stage_depends_on_v_min():
     assert t1[0] > t1[1] > t1[2]
     assert t1[0] / t1[2] > 5.0
     assert max(later) / min(later) < 5.0
+
+
+# ------------------------------------------------------------ the pop-up stroke
+STROKES = (0.0, 0.25, 0.45, 0.5, 0.51, 0.55, 0.6, 0.8, 1.0)
+
+
+@pytest.mark.parametrize("rotation", ["false", "true"])
+def test_stroke_range_follows_the_load_share_and_always_ends(rotation):
+    # Zone b: the disks carry the share s of the parcel's weight, the belt between them the
+    # rest. With the same μ on both, a parcel arriving stuck to the belt feels the disks'
+    # kinetic pull s·μ·m·g·f (f: the share of its footprint over zone b) against the belt's
+    # static capacity μ·m·g·(1 - s·f). The stick breaks when f = 1/(2s), after the leading
+    # edge has gone f·A into the field: t_break = A / (2 s v). For s <= 1/2 that needs
+    # f >= 1: the belt holds the parcel for good (an exact balance at s = 1/2 holds too),
+    # and it never reaches the scrap line. Above 1/2 the sooner, the larger the stroke.
+    base = load_scene("config/scenes/fig9a.yaml")
+    A, v = base["parcel"]["A"], base["belt"]["v"]
+    t_scrap = {}
+    for s in STROKES:
+        scene = apply_overrides(base, [f"diverter.stroke={s}", f"model.rotation={rotation}"])
+        res, summary = run_scene(scene)
+        assert res.n_steps <= 1000, (s, res.n_steps)  # no stall, at the balance neither
+        breaks = [e["t"] for e in summary["events"] if e["kind"] == "break"]
+        if s <= 0.5:
+            assert breaks == [] and summary["t_scrap"] is None, (s, summary["message"])
+        else:
+            assert breaks[0] == pytest.approx(A / (2 * s * v), abs=1e-9), s
+            t_scrap[s] = summary["t_scrap"]
+    ordered = [t_scrap[s] for s in STROKES if s > 0.5]
+    assert all(a > b for a, b in zip(ordered, ordered[1:])), ordered

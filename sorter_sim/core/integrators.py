@@ -154,6 +154,9 @@ def rhs_slide(state, strips, parcel, nodes, weights, nsurf, out):
     out[5] = t / parcel[P_INERTIA] if parcel[P_ROTATION] > 0.5 else 0.0
 
 
+STICK_RTOL = 1e-13  # relative: a balance to rounding (a few ulps of the wrench sums) holds
+
+
 @njit(cache=True)
 def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf):
     """
@@ -175,9 +178,12 @@ def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf):
             fx += kin[s, 0]
             fy += kin[s, 1]
             t += kin[s, 2]
-    margin = math.hypot(fx, fy) - stat[surf, 0]
+    # a pull equal to the capacity within STICK_RTOL holds: at an exact balance (the
+    # disks carrying half the load at the belt's μ, a stroke of 0.5) rounding would
+    # otherwise break the stick and make it again at every step, without end
+    margin = math.hypot(fx, fy) - stat[surf, 0] * (1.0 + STICK_RTOL)
     if parcel[P_ROTATION] > 0.5:
-        margin = max(margin, abs(t) - stat[surf, 1])
+        margin = max(margin, abs(t) - stat[surf, 1] * (1.0 + STICK_RTOL))
     return margin, area[surf], fx, fy, t
 
 
