@@ -25,11 +25,13 @@ a mixed stream, so every divert is feasible. At the end: a summary table
 from __future__ import annotations
 
 import json
+import sys
 import math
 import time
 from pathlib import Path
 
 from sorter_sim.description import Q
+from sorter_sim.outpaths import file_problem
 
 LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
@@ -96,6 +98,9 @@ def _check_args(args) -> str | None:
     out = Path(args.out)
     if out.suffix.lower() != ".png":
         return f"--out must name a .png file, got {args.out!r}"
+    problem = file_problem(out)
+    if problem:
+        return problem
     return None
 
 
@@ -585,7 +590,13 @@ def run(args) -> int | str:
         t_end = rc.finish()
         summary = summarize(rc.obs, plan, t_end, wall, rc.time_mode)
         summary["png"] = str(args.out)
-        plot_paths(rc.obs, rc.cell_params(), summary, Path(args.out))
+        try:
+            plot_paths(rc.obs, rc.cell_params(), summary, Path(args.out))
+        except OSError as exc:
+            # checked before the run, yet gone since (a full disk): the summary still counts
+            summary["png"] = None
+            why = exc.strerror or exc
+            print(f"sorter demo: cannot write {args.out!r}: {why}", file=sys.stderr)
     if args.json:
         print(json.dumps(summary, sort_keys=True))
     else:

@@ -79,30 +79,43 @@ def find_config_dir() -> Path:
     )
 
 
-def install_stop_handlers():
+class StopSignals:
     """
-    Make SIGINT and SIGTERM ask for a clean stop; return the event they set.
+    SIGINT and SIGTERM as a request for a clean stop.
 
-    The first signal only sets the event: the spin loop sees it within a tenth of
-    a second, lets the node say its last words (the controller lowers the disks)
-    and tears down. A second signal, while that is under way, raises
-    KeyboardInterrupt: the user is in a hurry, and teardown takes it as a clean
-    exit too. A flag rather than an exception at the first signal means no
-    callback is ever cut in half.
+    The first signal only sets the request: the spin loop sees it within a tenth
+    of a second, lets the node say its last words (the controller lowers the
+    disks) and tears down. A second signal while the node still spins or speaks
+    raises KeyboardInterrupt: the user is in a hurry, and that is a clean exit
+    too. Once the teardown has begun (``quiet``), signals change nothing: the
+    teardown is short and bounded, and an exception there, or after it while the
+    interpreter exits, would end the process by the signal rather than with exit
+    code 0. A flag rather than an exception at the first signal means no callback
+    is ever cut in half.
     """
-    import signal
-    import threading
 
-    stop = threading.Event()
+    def __init__(self):
+        import threading
 
-    def handler(signum, frame):
-        if stop.is_set():
+        self.requested = threading.Event()
+        self.quiet = False
+
+    def install(self) -> 'StopSignals':
+        import signal
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._handler)
+        return self
+
+    def _handler(self, signum, frame):
+        if self.quiet:
+            return
+        if self.requested.is_set():
             raise KeyboardInterrupt
-        stop.set()
+        self.requested.set()
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, handler)
-    return stop
+    def is_set(self) -> bool:
+        return self.requested.is_set()
 
 
 def _ignore_stop_signals() -> None:
@@ -123,7 +136,7 @@ def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=No
     tears down in ``finally``. A configuration error raised while the node is
     built (one of ``config_errors``) is printed as one line and exits with code 2.
     Once the node runs it never dies of a callback: see ``spin_surviving``.
-    SIGINT and SIGTERM stop it cleanly, exit code 0 (see ``install_stop_handlers``).
+    SIGINT and SIGTERM stop it cleanly, exit code 0 (see ``StopSignals``).
     """
     import sys
 
@@ -135,9 +148,10 @@ def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=No
     # say its last words over it
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
+    stop = None
     code = 0
     try:
-        stop = install_stop_handlers()
+        stop = StopSignals().install()
         try:
             node = make_node()
         except config_errors as exc:
@@ -148,9 +162,9 @@ def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=No
     except KeyboardInterrupt:
         pass
     finally:
-        # the teardown is short and bounded: it finishes whatever signal comes now (one
-        # arriving after it, while the interpreter exits, would otherwise end the process
-        # by SIGINT instead of exit code 0)
+        # the teardown is short and bounded: it finishes whatever signal comes now
+        if stop is not None:
+            stop.quiet = True
         _ignore_stop_signals()
         try:
             if node is not None:
@@ -176,7 +190,7 @@ def spin_surviving(node, stop=None) -> int:
     counted in ``node.callback_errors`` (the nodes report it in their diagnostics)
     and the node spins on. Returns the count.
 
-    When ``stop`` (a ``threading.Event``) ends the loop, the node's
+    When ``stop`` (``StopSignals``, or any object with ``is_set()``) ends the loop, the node's
     ``last_words(executor)``, if it has one, runs before the executor goes: the
     context is still up, so it can still call a service.
     """
@@ -212,6 +226,8 @@ def spin_surviving(node, stop=None) -> int:
             except Exception as exc:
                 node.get_logger().error(f'last words failed: {type(exc).__name__}: {exc}')
     finally:
+        if stop is not None and hasattr(stop, 'quiet'):
+            stop.quiet = True  # the teardown has begun
         executor.remove_node(node)
         executor.shutdown(timeout_sec=1.0)
     return node.callback_errors

@@ -529,6 +529,7 @@ def test_sorter_demo_sorts_and_reports(tmp_path, capsys):
         (["--gap", "1.0", "0.5"], "--gap"),
         (["--gap", "0", "0"], "[0.05, 100] m"),
         (["--out", "paths.svg"], "--out"),
+        (["--out", "/proc/version/paths.png"], "is not a folder"),
     ],
 )
 def test_sorter_demo_bad_arguments_exit_2(argv, words, capsys):

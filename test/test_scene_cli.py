@@ -196,3 +196,28 @@ def test_every_accepted_law_is_non_negative_over_the_slip_speeds():
         law = FrictionLaw(name, tuple(scene["friction"][name]))
         mu = [mu_kinetic(law.law_id, law.row(), 4.0 * k / 400) for k in range(401)]
         assert min(mu) >= 0.0, name
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["paper", "9", "--out", "{file}"],
+        ["paper", "9", "--out", "{file}/sub"],
+        ["sweep", "{spec}", "--out", "{file}/r.csv"],
+        ["sweep", "{spec}", "--out", "{folder}/d.csv"],
+        ["bench", "precision", "--out", "{file}"],
+    ],
+)
+def test_outputs_are_checked_before_any_work(tmp_path, argv):
+    # a path through a regular file cannot be created, whoever runs the test
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "d.csv").mkdir()
+    spec = tmp_path / "study.yaml"
+    spec.write_text("parameters:\n  parcel.A: [0.4]\n")
+    argv = [a.format(file=tmp_path / "file", spec=spec, folder=tmp_path) for a in argv]
+    r = subprocess.run(
+        [sys.executable, "-m", "sorter_sim", *argv], capture_output=True, text=True, timeout=60
+    )
+    assert r.returncode == 2 and "--out" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert not [p for p in tmp_path.glob("*.csv") if p.is_file()]

@@ -28,6 +28,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..outpaths import dir_problem
+
 
 from ..core.oscillator import Oscillator
 from . import stiff_cases as sx
@@ -121,12 +123,9 @@ def run(args) -> int | str | None:
             f" (unknown: {', '.join(bad)})" if bad else ""
         )
     out = Path(args.out)
-    try:
-        (out / "img").mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        return f"--out {str(out)!r}: cannot create the output directory ({exc.strerror or exc})"
-    if not (out / "img").is_dir():
-        return f"--out {str(out)!r}: not a directory"
+    problem = dir_problem(out) or dir_problem(out / "img")
+    if problem:
+        return problem
     path = write_precision_report(out, quick=args.quick, log=print, parts=parts)
     print(f"wrote {path}")
     return 0

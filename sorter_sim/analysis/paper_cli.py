@@ -12,6 +12,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..outpaths import dir_problem
+
 from .paper import fig4, fig5, fig7, fig8, fig9, fig10, fig11, fig13, fig14
 from .two_stage import two_stage_figure
 
@@ -52,8 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args) -> int | str:
     """``sorter paper FIG``: compute, write and print one figure (or all of them)."""
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        return f"--out {str(out)!r} exists and is not a folder"
+    problem = dir_problem(out)
+    if problem:
+        return problem
     which = ALIASES.get(args.figure, args.figure)
     names = list(FIGURES) if which == "all" else [which]
     failed = []

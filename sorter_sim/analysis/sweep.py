@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from ..outpaths import file_problem
 from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
 from ..scene import DEFAULTS, SceneError, load_scene, run_scene, validate
@@ -720,6 +721,9 @@ def run(args) -> int | str:
         return f"--max-points must be >= 0, got {args.max_points}"
     try:
         study = load_study(args.spec, args.out)
+        problem = file_problem(study.out)
+        if problem:
+            return problem
         res = run_study(
             study,
             workers=args.workers,
