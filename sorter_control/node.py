@@ -51,7 +51,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from sorter_ros.env import run_node
 from sorter_sim.description import Q
-from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS, plain
+from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
 
 from .logic import (
@@ -441,8 +441,8 @@ class ControllerNode(Node):
         # the cell's watchdog expects this every scan: a scan that stops, stops it
         self._pub_heartbeat = self.create_publisher(UInt32, "controller/heartbeat", STREAM_QOS)
         self._beats = 0
-        self.create_service(Trigger, "~/reset", self._srv_reset)
-        self.create_service(SetBool, "~/estop", self._srv_estop)
+        self.create_service(Trigger, "~/reset", self._srv_reset, qos_profile=SERVICE_QOS)
+        self.create_service(SetBool, "~/estop", self._srv_estop, qos_profile=SERVICE_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._post_set_parameters)
         # the input buffer the next scan reads

@@ -19,6 +19,11 @@ SENSOR_QOS = QoSProfile(
 EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 # periodic streams where the newest message matters (poses, diverter state, clock)
 STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+# service requests: a reliable queue deep enough for any burst a cell meets (rclpy's
+# default keeps 10, so the 11th request of a burst was dropped without an answer); each
+# request is served in turn, a refusal is an answer with its reason
+SERVICE_QUEUE = 1000
+SERVICE_QOS = QoSProfile(depth=SERVICE_QUEUE, reliability=ReliabilityPolicy.RELIABLE)
 
 PARAMETER_TYPES = {
     'double': ParameterType.PARAMETER_DOUBLE,

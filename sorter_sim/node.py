@@ -32,7 +32,7 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from sorter_ros.env import run_node
-from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS, plain
+from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
 
 from .cdr import pose_array_cdr, stamp
@@ -126,10 +126,10 @@ class SimNode(Node):
         self._safe_alpha_set = False  # the watchdog itself sets alpha_deg to its safe value
         self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
         self._clock_publishers_warned = 0
-        self.create_service(SetBool, 'diverter/popup', self._srv_popup)
-        self.create_service(SetBool, 'estop', self._srv_estop)
-        self.create_service(Trigger, 'reset', self._srv_reset)
-        self.create_service(Trigger, 'step', self._srv_step)
+        self.create_service(SetBool, 'diverter/popup', self._srv_popup, qos_profile=SERVICE_QOS)
+        self.create_service(SetBool, 'estop', self._srv_estop, qos_profile=SERVICE_QOS)
+        self.create_service(Trigger, 'reset', self._srv_reset, qos_profile=SERVICE_QOS)
+        self.create_service(Trigger, 'step', self._srv_step, qos_profile=SERVICE_QOS)
         self.create_subscription(DiagnosticStatus, 'parcels/induct', self._on_induct, EVENT_QOS)
         self.create_subscription(UInt32, 'controller/heartbeat', self._on_heartbeat, STREAM_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)

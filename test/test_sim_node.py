@@ -630,3 +630,19 @@ def test_watchdog_drops_the_disks_when_heartbeats_stop(ros):
         'the watchdog and fault bits to clear',
     )
     assert probe.call('diverter/popup', SetBool.Request(data=True)).success
+
+
+def test_a_burst_of_service_calls_is_served_whole(ros):
+    # four clients (default QoS, as ros2 service call or a warehouse controller makes them)
+    # call the same service 200 times each, all at once: every call is answered
+    make_sim(ros)
+    clients = [
+        ros.make_node(f'burst{i}').create_client(SetBool, 'diverter/popup') for i in range(4)
+    ]
+    ros.spin_until(lambda: all(c.service_is_ready() for c in clients), 10.0, 'the service')
+    futures = [c.call_async(SetBool.Request(data=False)) for _ in range(200) for c in clients]
+    try:
+        ros.spin_until(lambda: all(f.done() for f in futures), 30.0, 'every call answered')
+    finally:
+        print(f'{sum(f.done() for f in futures)} of {len(futures)} calls answered')
+    assert all(f.result().success for f in futures)
