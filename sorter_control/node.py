@@ -53,6 +53,7 @@ from sorter_ros.env import run_node
 from sorter_sim.description import Q
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
+from sorter_ros.interface import parameter_problem
 
 from .logic import (
     ControllerConfig,
@@ -867,6 +868,9 @@ class ControllerNode(Node):
         return response
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
+        problem = parameter_problem(self, parameters)
+        if problem:
+            return SetParametersResult(successful=False, reason=problem)
         for p in parameters:
             # switching clocks under a running PLC turns every time it holds into nonsense
             # (false jams, a storm of "time went back"); it is fixed at start-up

@@ -72,3 +72,26 @@ def plain(value):
     if value is None or isinstance(value, (str, bool, int, float)):
         return value
     return list(value)
+
+
+def parameter_problem(node, parameters) -> str | None:
+    """
+    Say why a set_parameters request cannot be taken, whatever the node's own rules.
+
+    rclpy lets a parameter named '' through to exist afterwards, undeclared, and
+    passes strings with NUL characters that the middleware then cuts at the NUL
+    ('A\\0B' is stored as 'A'): both are refused here, with a reason.
+    """
+    for p in parameters:
+        if not p.name or not node.has_parameter(p.name):
+            return (
+                f'no parameter named {p.name[:60]!r} on this node (see ros2 param list); '
+                'nothing was changed'
+            )
+        value = p.value
+        texts = [value] if isinstance(value, str) else []
+        if isinstance(value, (list, tuple)) and value and isinstance(value[0], str):
+            texts = list(value)
+        if any('\x00' in t for t in texts):
+            return f'parameter {p.name!r}: a string may not hold NUL characters'
+    return None

@@ -34,6 +34,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from sorter_ros.env import run_node
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
+from sorter_ros.interface import parameter_problem
 
 from .cdr import pose_array_cdr, stamp
 from .cell import (
@@ -197,6 +198,9 @@ class SimNode(Node):
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         """Validate a run-time change as a whole; nothing changes unless all of it is valid."""
+        problem = parameter_problem(self, parameters)
+        if problem:
+            return SetParametersResult(successful=False, reason=problem)
         for p in parameters:
             if p.name == 'use_sim_time' and p.value:
                 return SetParametersResult(

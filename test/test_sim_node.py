@@ -646,3 +646,20 @@ def test_a_burst_of_service_calls_is_served_whole(ros):
     finally:
         print(f'{sum(f.done() for f in futures)} of {len(futures)} calls answered')
     assert all(f.result().success for f in futures)
+
+
+def test_a_parameter_without_a_name_is_refused_and_never_exists(ros):
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.msg import ParameterType, ParameterValue
+    from rcl_interfaces.srv import ListParameters, SetParameters
+
+    make_sim(ros)
+    node = ros.make_node('setter')
+    setp = node.create_client(SetParameters, 'sorter_sim/set_parameters')
+    value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=1.0)
+    reply = ros.call(setp, SetParameters.Request(parameters=[ParameterMsg(name='', value=value)]))
+    assert not reply.results[0].successful and 'no parameter named' in reply.results[0].reason
+    names = ros.call(
+        node.create_client(ListParameters, 'sorter_sim/list_parameters'), ListParameters.Request()
+    ).result.names
+    assert '' not in names and 'alpha_deg' in names
