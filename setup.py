@@ -37,13 +37,15 @@ setup(
         # pytest-xdist: the suite runs in a worker process, so that a test ended by its
         # time limit (test/suite_timeout.py) is an ordinary failure and the suite goes on
         # import-linter: the layer contracts in setup.cfg (test/test_layers.py);
-        # ruff (flake8's checks) and ament-lint-pep257: lint as tests (test/test_lint.py)
+        # ruff (flake8's checks) and ament-lint-pep257: lint as tests (test/test_lint.py);
+        # hypothesis: the property-based fuzz tests of every input (test/test_fuzz.py)
         'test': [
             'pytest>=8',
             'pytest-xdist>=3.5',
             'import-linter>=2.1',
             'ruff>=0.6',
             'ament-lint-pep257>=0.14',
+            'hypothesis>=6.100',
         ],
     },
     zip_safe=True,

@@ -25,7 +25,7 @@ from .core import cell_kernels as ck
 from .core.layout import PARCEL_WIDTH
 from .core.simulate import Parcel, parcel_array
 from .core.wrench import gauss_legendre_01
-from .description import PENDING_INDUCTS_MAX, label_problem
+from .description import PENDING_INDUCTS_MAX, label_problem, shown
 from .params import SPECS, CellParams, ParamError, format_label, parcel_half_extents
 from .model import zone_law
 
@@ -111,12 +111,14 @@ def check_parcel(spec: ParcelSpec, belt_width: float) -> ParcelSpec:
         v = getattr(spec, key)
         if not (isinstance(v, (int, float)) and math.isfinite(v) and ps.lo <= v <= ps.hi):
             raise ParamError(
-                f'{key} must be a finite number in [{ps.lo:g}, {ps.hi:g}] {ps.units}, got {v!r}'
+                f'{key} must be a finite number in [{ps.lo:g}, {ps.hi:g}] {ps.units}, '
+                f'got {shown(v)}'
             )
     if not (math.isfinite(spec.phi0) and abs(spec.phi0) <= math.pi / 2):
-        raise ParamError(f'phi0_deg must be in [-90, 90] deg, got {math.degrees(spec.phi0)!r}')
+        phi = math.degrees(spec.phi0)
+        raise ParamError(f'phi0_deg must be in [-90, 90] deg, got {shown(phi)}')
     if not math.isfinite(spec.y0):
-        raise ParamError(f'y must be finite, got {spec.y0!r}')
+        raise ParamError(f'y must be finite, got {shown(spec.y0)}')
     _, hy = parcel_half_extents(spec.A, spec.B, spec.phi0)
     if abs(spec.y0) + hy > 0.5 * belt_width + 1e-12:
         raise ParamError(
@@ -264,7 +266,10 @@ class Cell:
         if self.watchdog_tripped:
             return False, WATCHDOG_REFUSAL
         if not (math.isfinite(alpha_rad) and abs(alpha_rad) <= math.pi / 2 + 1e-12):
-            return False, f'disk angle must be finite and in [-90, 90] deg, got {alpha_rad!r} rad'
+            return (
+                False,
+                f'disk angle must be finite and in [-90, 90] deg, got {shown(alpha_rad)} rad',
+            )
         self.act[ck.A_ALPHA_CMD] = alpha_rad
         return True, ''
 

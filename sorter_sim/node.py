@@ -543,32 +543,42 @@ class SimNode(Node):
             self.get_logger().warning(f'parcels/induct dropped: {exc}')
 
     def _induct_spec(self, msg: DiagnosticStatus) -> ParcelSpec:
-        p = self.params
-        given = {}
-        for kv in msg.values:
-            if kv.key not in INDUCT_KEYS:
-                raise ParamError(f'unknown key {shown(kv.key)}; allowed: {", ".join(INDUCT_KEYS)}')
-            if kv.key in given:
-                raise ParamError(f'key {shown(kv.key)} given twice')
-            given[kv.key] = kv.value
-        numbers = {}
-        for key in ('A', 'B', 'm', 'phi0_deg', 'y'):
-            if key in given:
-                try:
-                    numbers[key] = float(given[key])
-                except ValueError:
-                    raise ParamError(f'{key} must be a number, got {shown(given[key])}') from None
-                if not math.isfinite(numbers[key]):
-                    raise ParamError(f'{key} must be finite, got {shown(given[key])}')
-        # missing sizes take the middle of the configured stream's ranges
-        return ParcelSpec(
-            A=numbers.get('A', 0.5 * sum(p.parcel_A)),
-            B=numbers.get('B', 0.5 * sum(p.parcel_B)),
-            m=numbers.get('m', 0.5 * sum(p.parcel_m)),
-            phi0=math.radians(numbers.get('phi0_deg', 0.0)),
-            y0=numbers.get('y', 0.0),
-            label=given.get('label', ''),
-        )
+        return induct_spec([(kv.key, kv.value) for kv in msg.values], self.params)
+
+
+def induct_spec(pairs, p: CellParams) -> ParcelSpec:
+    """
+    Return the parcel a parcels/induct message asks for, from its (key, value) pairs.
+
+    Raises ParamError naming what is wrong: an unknown or repeated key, a value that
+    is not a finite number. Missing sizes take the middle of the stream's ranges;
+    the parcel itself is checked when it is queued (``Cell.induct``).
+    """
+    given = {}
+    for key, value in pairs:
+        if key not in INDUCT_KEYS:
+            raise ParamError(f'unknown key {shown(key)}; allowed: {", ".join(INDUCT_KEYS)}')
+        if key in given:
+            raise ParamError(f'key {shown(key)} given twice')
+        given[key] = value
+    numbers = {}
+    for key in ('A', 'B', 'm', 'phi0_deg', 'y'):
+        if key in given:
+            try:
+                numbers[key] = float(given[key])
+            except ValueError:
+                raise ParamError(f'{key} must be a number, got {shown(given[key])}') from None
+            if not math.isfinite(numbers[key]):
+                raise ParamError(f'{key} must be finite, got {shown(given[key])}')
+    # missing sizes take the middle of the configured stream's ranges
+    return ParcelSpec(
+        A=numbers.get('A', 0.5 * sum(p.parcel_A)),
+        B=numbers.get('B', 0.5 * sum(p.parcel_B)),
+        m=numbers.get('m', 0.5 * sum(p.parcel_m)),
+        phi0=math.radians(numbers.get('phi0_deg', 0.0)),
+        y0=numbers.get('y', 0.0),
+        label=given.get('label', ''),
+    )
 
 
 def main(args=None):

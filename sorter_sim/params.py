@@ -435,7 +435,7 @@ def _field(name: str) -> str:
 
 def _check_value(spec: ParamSpec, value: Any) -> Any:
     """Type and range of one value; returns it normalised (tuples for arrays)."""
-    bad = ParamError(f'parameter {spec.name!r} must be {spec.allowed}, got {shown(value)}')
+    bad = ParamError(f'parameter {shown(spec.name)} must be {spec.allowed}, got {shown(value)}')
     if spec.type == BOOL:
         if not isinstance(value, bool):
             raise bad
@@ -479,7 +479,8 @@ def _check_value(spec: ParamSpec, value: Any) -> Any:
 def _range_pair(name: str, pair: tuple) -> None:
     if pair[0] > pair[1]:
         raise ParamError(
-            f'parameter {name!r} is a range [min, max]: min must not exceed max, got {list(pair)}'
+            f'parameter {shown(name)} is a range [min, max]: min must not exceed max, '
+            f'got {list(pair)}'
         )
 
 
@@ -536,12 +537,12 @@ def check_label_pattern(pattern: str, labels=('A',)) -> None:
             except (ValueError, IndexError, KeyError, AttributeError, TypeError) as exc:
                 raise ParamError(
                     f'parameter \'label_pattern\' {shown(pattern)} cannot label a parcel '
-                    f'with label {label!r} and id {pid}: {shown(str(exc))}'
+                    f'with label {shown(label)} and id {pid}: {shown(str(exc))}'
                 ) from None
             problem = label_problem(text)
             if problem is not None:
                 raise ParamError(
-                    f'parameter \'label_pattern\' {shown(pattern)} with label {label!r} '
+                    f'parameter \'label_pattern\' {shown(pattern)} with label {shown(label)} '
                     f'and id {pid}: {problem}'
                 )
 
@@ -708,7 +709,7 @@ class CellParams:
         for n in names:
             if not _SENSOR_NAME.match(n) or n in RESERVED_SENSOR_NAMES:
                 raise ParamError(
-                    f'parameter \'photo_eyes.names\': {n!r} is not allowed; a name '
+                    f'parameter \'photo_eyes.names\': {shown(n)} is not allowed; a name '
                     f'starts with a letter, has only letters, digits and _, and is '
                     f'none of {", ".join(RESERVED_SENSOR_NAMES)}'
                 )
@@ -717,7 +718,7 @@ class CellParams:
         for need in ('pe_scan', 'pe_divert'):
             if need not in names:
                 raise ParamError(
-                    f'parameter \'photo_eyes.names\' must include {need!r}, got {list(names)}'
+                    f'parameter \'photo_eyes.names\' must include {shown(need)}, got {list(names)}'
                 )
         if self.photo_eye('pe_scan') != self.scanner_x:
             raise ParamError(
@@ -774,7 +775,7 @@ class CellParams:
         if abs(self.control_period * 1e9 - self.control_period_ns) > 1e-6:
             raise ParamError(
                 f'parameter \'control_period\' must be a whole number of nanoseconds, '
-                f'got {self.control_period!r}'
+                f'got {shown(self.control_period)}'
             )
         check_label_pattern(self.label_pattern, self.labels)
         if self.frame_id and not _FRAME_ID.fullmatch(self.frame_id):

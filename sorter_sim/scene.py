@@ -189,16 +189,16 @@ def validate(scene: dict) -> dict:
     out = copy.deepcopy(DEFAULTS)
     for section, body in scene.items():
         if section not in DEFAULTS:
-            raise SceneError(f"unknown section {section!r}; allowed: {', '.join(DEFAULTS)}")
+            raise SceneError(f"unknown section {shown(section)}; allowed: {', '.join(DEFAULTS)}")
         if body is None:
             continue
         if not isinstance(body, dict):
-            raise SceneError(f"{section}: must be a mapping of keys, got {body!r}")
+            raise SceneError(f"{section}: must be a mapping of keys, got {shown(body)}")
         for key, value in body.items():
             full = f"{section}.{key}"
             if full not in _RULES:
                 allowed = ", ".join(f"{section}.{k}" for k in DEFAULTS[section])
-                raise SceneError(f"unknown key {full!r}; allowed in {section}: {allowed}")
+                raise SceneError(f"unknown key {shown(full)}; allowed in {section}: {allowed}")
             out[section][key] = _check(full, value)
     # cross-checks: every law, selected or not, must build and stay >= 0 over the slip
     # speeds of this cell (a law chosen later by --set or a sweep is then already sound);
@@ -226,7 +226,7 @@ def load_scene(path: str | Path) -> dict:
     except StrictYamlError as exc:
         raise SceneError(str(exc)) from None
     if data is None:
-        raise SceneError(f"scene file {str(path)!r} is empty")
+        raise SceneError(f"scene file {shown(str(path))} is empty")
     return validate(data)
 
 
@@ -235,14 +235,15 @@ def apply_overrides(scene: dict, overrides: list[str]) -> dict:
     raw = copy.deepcopy(scene)
     for item in overrides:
         if "=" not in item:
-            raise SceneError(f"--set {item!r}: expected key=value, e.g. parcel.A=0.4")
+            raise SceneError(f"--set {shown(item)}: expected key=value, e.g. parcel.A=0.4")
         key, _, text = item.partition("=")
         key = key.strip()
         if key.count(".") != 1:
-            raise SceneError(f"--set {key!r}: keys have the form section.key, e.g. belt.v")
+            raise SceneError(f"--set {shown(key)}: keys have the form section.key, e.g. belt.v")
         section, name = key.split(".")
         if section not in DEFAULTS or name not in DEFAULTS[section]:
-            raise SceneError(f"--set: unknown key {key!r}; allowed: {', '.join(sorted(_RULES))}")
+            allowed = ", ".join(sorted(_RULES))
+            raise SceneError(f"--set: unknown key {shown(key)}; allowed: {allowed}")
         try:
             value = load_yaml_text(text, f"--set {key}")
         except StrictYamlError as exc:

@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from ..description import shown
 from ..outpaths import file_problem
 from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
@@ -127,11 +128,13 @@ def _one_line(exc) -> str:
 
 def _split_key(key) -> tuple[str, str]:
     if not isinstance(key, str) or key.count(".") != 1:
-        raise SpecError(f"parameters: keys have the form section.key (e.g. belt.v), got {key!r}")
+        raise SpecError(
+            f"parameters: keys have the form section.key (e.g. belt.v), got {shown(key)}"
+        )
     section, name = key.split(".")
     if section not in DEFAULTS or name not in DEFAULTS[section]:
         allowed = ", ".join(f"{s}.{k}" for s in DEFAULTS for k in DEFAULTS[s])
-        raise SpecError(f"parameters: unknown scene key {key!r}; allowed: {allowed}")
+        raise SpecError(f"parameters: unknown scene key {shown(key)}; allowed: {allowed}")
     return section, name
 
 
@@ -148,9 +151,9 @@ def _number(where: str, v, *, integer=False) -> float:
         except ValueError:
             pass
     if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
-        raise SpecError(f"{where}: must be a number, got {v!r}")
+        raise SpecError(f"{where}: must be a number, got {shown(v)}")
     if integer and v != int(v):
-        raise SpecError(f"{where}: must be a whole number, got {v!r}")
+        raise SpecError(f"{where}: must be a whole number, got {shown(v)}")
     return float(v)
 
 
@@ -181,10 +184,10 @@ def _grid_values(key: str, spec) -> list:
     else:
         raise SpecError(
             f"{where}: must be a list of values, {{values: [...]}} or "
-            f"{{min: .., max: .., num: ..}}, got {spec!r}"
+            f"{{min: .., max: .., num: ..}}, got {shown(spec)}"
         )
     if not isinstance(values, list) or not values:
-        raise SpecError(f"{where}: needs at least one value, got {values!r}")
+        raise SpecError(f"{where}: needs at least one value, got {shown(values)}")
     return [float(v) if isinstance(v, np.floating) else v for v in values]
 
 
@@ -194,7 +197,7 @@ def _random_sampler(key: str, spec):
     if isinstance(spec, list) or (isinstance(spec, dict) and set(spec) == {"values"}):
         values = spec if isinstance(spec, list) else spec["values"]
         if not isinstance(values, list) or not values:
-            raise SpecError(f"{where}: needs at least one value, got {values!r}")
+            raise SpecError(f"{where}: needs at least one value, got {shown(values)}")
         return lambda rng: values[int(rng.integers(len(values)))]
     if isinstance(spec, dict) and {"min", "max"} <= set(spec) <= {"min", "max", "num", "log"}:
         lo, hi = _number(f"{where}.min", spec["min"]), _number(f"{where}.max", spec["max"])
@@ -209,7 +212,7 @@ def _random_sampler(key: str, spec):
         return lambda rng: float(rng.uniform(lo, hi))
     raise SpecError(
         f"{where}: must be a list of values, {{values: [...]}} or {{min: .., max: ..}}, "
-        f"got {spec!r}"
+        f"got {shown(spec)}"
     )
 
 
@@ -227,11 +230,11 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
         raise SpecError(str(exc)) from None
     if not isinstance(raw, dict):
         raise SpecError(
-            f"study spec {str(p)!r} must be a mapping with keys {', '.join(SPEC_KEYS)}"
+            f"study spec {shown(str(p))} must be a mapping with keys {', '.join(SPEC_KEYS)}"
         )
     for k in raw:
         if k not in SPEC_KEYS:
-            raise SpecError(f"unknown spec key {k!r}; allowed: {', '.join(SPEC_KEYS)}")
+            raise SpecError(f"unknown spec key {shown(k)}; allowed: {', '.join(SPEC_KEYS)}")
     # base scene
     base_spec = raw.get("scene")
     if base_spec is None:
@@ -245,11 +248,11 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
             raise SpecError(f"scene: {exc}") from None
     else:
         raise SpecError(
-            f"scene: must be a path to a scene file or a scene mapping, got {base_spec!r}"
+            f"scene: must be a path to a scene file or a scene mapping, got {shown(base_spec)}"
         )
     fixed = raw.get("set") or {}
     if not isinstance(fixed, dict):
-        raise SpecError(f"set: must be a mapping of section.key: value, got {fixed!r}")
+        raise SpecError(f"set: must be a mapping of section.key: value, got {shown(fixed)}")
     base = copy.deepcopy(base)
     for key, value in fixed.items():
         _split_key(key)
@@ -267,7 +270,7 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
         _split_key(key)
     sampling = raw.get("sampling", "grid")
     if sampling not in ("grid", "random"):
-        raise SpecError(f"sampling: must be grid or random, got {sampling!r}")
+        raise SpecError(f"sampling: must be grid or random, got {shown(sampling)}")
     if sampling == "grid":
         if "samples" in raw or "seed" in raw:
             raise SpecError("samples/seed: only for sampling: random")
@@ -292,7 +295,7 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
             )
         seed = raw.get("seed", 0)
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise SpecError(f"seed: must be a whole number >= 0, got {seed!r}")
+            raise SpecError(f"seed: must be a whole number >= 0, got {shown(seed)}")
         samplers = [_random_sampler(k, params[k]) for k in keys]
         rng = np.random.default_rng(seed)
         # point-major draws: a larger `samples` keeps the first points (and their results)
@@ -302,14 +305,14 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
         raise SpecError(f"outputs: must be a list, a subset of {', '.join(OUTPUTS)}")
     for o in outputs:
         if o not in OUTPUTS:
-            raise SpecError(f"outputs: unknown output {o!r}; allowed: {', '.join(OUTPUTS)}")
+            raise SpecError(f"outputs: unknown output {shown(o)}; allowed: {', '.join(OUTPUTS)}")
     points = []
     seen = {}
     for i, combo in enumerate(combos):
         try:
             scene = _point_scene(base, keys, combo)
         except SceneError as exc:
-            desc = ", ".join(f"{k}={v!r}" for k, v in zip(keys, combo))
+            desc = ", ".join(f"{k}={shown(v)}" for k, v in zip(keys, combo))
             raise SpecError(f"parameters: point {i} ({desc}): {exc}") from None
         values = tuple(scene[k.split(".")[0]][k.split(".")[1]] for k in keys)
         key = point_key(values)
@@ -321,13 +324,13 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
     if out_path is not None:
         if not isinstance(out_path, str):
             raise SpecError(
-                f"out: must be a file path ending in .csv or .parquet, got {out_path!r}"
+                f"out: must be a file path ending in .csv or .parquet, got {shown(out_path)}"
             )
         out_path = Path(out_path) if out is not None else p.parent / out_path
     else:
         out_path = Path(p.stem + ".csv")
     if out_path.suffix.lower() not in FORMATS:
-        raise SpecError(f"out: must end in .csv or .parquet, got {str(out_path)!r}")
+        raise SpecError(f"out: must end in .csv or .parquet, got {shown(str(out_path))}")
     return Study(keys, points, list(outputs), out_path, sampling, base)
 
 
@@ -396,7 +399,7 @@ class CsvStore:
         rows = list(csv.reader(io.StringIO(data.decode())))
         if rows[0] != self.columns:
             raise SpecError(
-                f"--out {str(self.path)!r} holds a table with other columns "
+                f"--out {shown(str(self.path))} holds a table with other columns "
                 f"({', '.join(rows[0])}); this study writes {', '.join(self.columns)}: "
                 "choose another --out or remove the file"
             )
@@ -456,11 +459,11 @@ class ParquetStore:
                 table = pq.read_table(self.path)
             except Exception as exc:  # noqa: BLE001 - any unreadable file is the same user error
                 raise SpecError(
-                    f"--out {str(self.path)!r} is not a readable Parquet file: {exc}"
+                    f"--out {shown(str(self.path))} is not a readable Parquet file: {exc}"
                 ) from None
             if table.column_names != self.columns:
                 raise SpecError(
-                    f"--out {str(self.path)!r} holds a table with other columns "
+                    f"--out {shown(str(self.path))} holds a table with other columns "
                     f"({', '.join(table.column_names)}); this study writes "
                     f"{', '.join(self.columns)}: choose another --out or remove the file"
                 )
@@ -565,7 +568,7 @@ def _executor(workers: int, scheduler: str | None, timeout_s: float = 10.0):
             client = Client(scheduler, timeout=f"{timeout_s}s")
         except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError by address kind
             raise SpecError(
-                f"--scheduler: cannot reach a Dask scheduler at {scheduler!r}: {exc}"
+                f"--scheduler: cannot reach a Dask scheduler at {shown(scheduler)}: {exc}"
             ) from None
         return (
             (lambda scene: client.submit(run_point, scene, pure=False)),
