@@ -406,21 +406,29 @@ class RunningCell:
         self.executor_kind = executor
         self.nodes = []
         self.ctx = None
+        self.stop = None  # SIGINT/SIGTERM, once the cell is up (sorter_ros.env.StopSignals)
+        self.started = False
 
     def __enter__(self) -> "RunningCell":
         import rclpy
         from rclpy.context import Context
         from rclpy.parameter import Parameter
 
+        from rclpy.signals import SignalHandlerOptions
+
         from sorter_sim.node import SimNode
-        from sorter_ros.env import apply_ros_env_defaults, find_config_dir
+        from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
 
         from sorter_control.node import ControllerNode
 
         apply_ros_env_defaults()
         config_dir = find_config_dir()
         self.ctx = Context()
+        # Ctrl-C ends the run early, cleanly: the first one stops the stream where it is
+        # and the summary covers what ran; a second one hurries (KeyboardInterrupt)
+        self.stop = StopSignals().install()
         rclpy.init(
+            signal_handler_options=SignalHandlerOptions.NO,
             context=self.ctx,
             args=[
                 "--ros-args",
@@ -468,6 +476,7 @@ class RunningCell:
             self.t_start = self.obs.t_sim
             if self.arrival != "none":
                 self._set_sim("arrival", self.arrival)
+            self.started = True
         except BaseException:
             self.__exit__(None, None, None)
             raise
@@ -503,6 +512,10 @@ class RunningCell:
     def spin_until(self, predicate, timeout_wall: float = math.inf) -> bool:
         deadline = time.monotonic() + timeout_wall
         while not predicate():
+            if self.stop.is_set():
+                if not self.started:
+                    raise KeyboardInterrupt  # stopped while starting: nothing to report
+                return False
             if time.monotonic() > deadline:
                 return False
             self.executor.spin_once(timeout_sec=0.05)
@@ -549,11 +562,15 @@ class RunningCell:
     def __exit__(self, *exc) -> None:
         import rclpy
 
+        if self.stop is not None:
+            self.stop.quiet = True  # the teardown is short: it finishes whatever comes now
         for n in self.nodes:
             n.destroy_node()
         self.nodes = []
         if self.ctx is not None:
             rclpy.try_shutdown(context=self.ctx)
+        if self.stop is not None:
+            self.stop.restore()
 
 
 def run(args) -> int | str:

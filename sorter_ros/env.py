@@ -99,13 +99,22 @@ class StopSignals:
 
         self.requested = threading.Event()
         self.quiet = False
+        self._previous = {}
 
     def install(self) -> 'StopSignals':
         import signal
 
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, self._handler)
+            self._previous[sig] = signal.signal(sig, self._handler)
         return self
+
+    def restore(self) -> None:
+        """Put back the handlers there were before ``install`` (for a caller that goes on)."""
+        import signal
+
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous = {}
 
     def _handler(self, signum, frame):
         if self.quiet:
