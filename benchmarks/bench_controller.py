@@ -100,7 +100,7 @@ class _EdgeClock:
         self.clock.append((time.monotonic(), msg.clock.sec + 1e-9 * msg.clock.nanosec))
 
     def _on_edge(self, msg):
-        if msg.header.frame_id == "pe_scan" and msg.source == "falling":
+        if msg.header.frame_id.rpartition("/")[2] == "pe_scan" and msg.source == "falling":
             self.edges.append((msg.time_ref.sec + 1e-9 * msg.time_ref.nanosec, time.monotonic()))
 
     def edge_walls(self) -> list[tuple[float, float]]:
