@@ -387,6 +387,7 @@ def test_unreachable_scheduler_is_a_clear_error(tmp_path, capsys):
         == 2
     )
     assert "cannot reach a Dask scheduler" in capsys.readouterr().err
+    assert not (tmp_path / "r.csv").exists()  # no header-only table left behind
 
 
 def test_an_oversized_study_is_refused_at_once(tmp_path, capsys):

@@ -615,6 +615,10 @@ def run_study(
     n_resumed = len(finished)
     # more workers than points would only start idle processes
     workers = max(1, min(workers or os.cpu_count() or 1, len(pending)))
+    # the engine first: a scheduler that cannot be reached leaves no file behind
+    submit, completed, close = (
+        _executor(workers, scheduler, scheduler_timeout) if pending else (None, None, lambda: None)
+    )
     from tqdm import tqdm
 
     bar = tqdm(
@@ -637,9 +641,6 @@ def run_study(
         computed.append(key)
         bar.update(1)
 
-    submit, completed, close = (
-        _executor(workers, scheduler, scheduler_timeout) if pending else (None, None, lambda: None)
-    )
     interrupted = False
     try:
         if submit is None:
