@@ -270,12 +270,18 @@ def test_time_going_back_is_one_clock_fault_and_a_reset_rebases():
     logic = SorterLogic(CFG, PREDICTOR)
     for k in range(100):
         logic.scan(InputImage(t=100.0 + 0.01 * k))
+    # as if a divert had the disks up (its calls answered)
+    logic.sequencer.in_flight.clear()
+    logic.sequencer.commanded_up = True
     lines = []
     # a second clock, or a restarted simulation: time goes back, and stays on its own base
+    commands = []
     for k in range(300):
         out = logic.scan(InputImage(t=5.0 + 0.01 * k))
         lines += out.log
+        commands += [(c.kind, c.value) for c in out.commands]
     assert logic.state == "clock" and logic.fault_counts["clock"] == 1
+    assert commands == [("popup", False)]  # the disks down, once, whatever time it is
     errors = [t for level, t in lines if level == "error"]
     assert len(errors) == 1 and "went back from 100.990 to 5.000 s" in errors[0]
     assert logic.counts["clock_jumps"] == 300

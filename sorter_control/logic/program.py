@@ -273,6 +273,8 @@ class SorterLogic:
         self._clock_fault(
             io, f"simulated time {what} from {self.t:.3f} to {t:.3f} s; no diverts until reset"
         )
+        # the disks down, whatever time it is: a fault's outputs need no clock
+        self.sequencer.write_outputs(out, self.state)
         return out
 
     def _clock_fault(self, io: _Scan, message: str) -> None:
