@@ -815,6 +815,7 @@ class ControllerNode(Node):
             {
                 "scan_wall_p50_ms": f"{st['scan_wall_p50_ms']:.3f}",
                 "scan_wall_p99_ms": f"{st['scan_wall_p99_ms']:.3f}",
+                "clock_lag_max_ms": f"{st['clock_lag_max_ms']:.1f}",
                 "scan_wall_max_ms": f"{st['scan_wall_max_ms']:.3f}",
                 "predictions": st["predictions"],
                 "prediction_wall_s": f"{st['prediction_wall_s']:.3f}",

@@ -311,3 +311,24 @@ def test_a_leap_ahead_and_a_second_clock_source_are_clock_faults():
     logic.request_reset()
     logic.scan(InputImage(t=1.03, clock_sources=1))
     assert logic.state == "running"
+
+
+def test_a_clock_lagging_the_cells_stamps_does_not_move_parcels_ahead():
+    # This node's clock (from /clock) runs 0.1 s behind the cell under load: the scanner
+    # eye's latched edge says 0.20 s while the scan's clock reads 0.10 s. The parcel must
+    # be where the cell has it, not 0.1 s x v ahead (which made a false stuck_off).
+    from sorter_control.logic import InputImage, SorterLogic
+
+    logic = SorterLogic(CFG, PREDICTOR)
+    for k in range(10):
+        logic.scan(InputImage(t=0.01 * k, bits={"pe_scan": False}))
+    logic.scan(
+        InputImage(t=0.10, bits={"pe_scan": True}, edges=[Edge("pe_scan", 0.20, True)])
+    )
+    (p,) = logic.parcels
+    assert p.t_scan == 0.20 and logic.t == 0.20
+    for k in range(11, 31):  # the clock catches up; time never runs backwards meanwhile
+        logic.scan(InputImage(t=0.01 * k, bits={"pe_scan": True}))
+        assert logic.state == "running"
+    assert logic.tracker.lead_x(p) == pytest.approx(X_SCAN + V * (0.30 - 0.20), abs=1e-12)
+    assert logic.status()["clock_lag_max_ms"] == pytest.approx(100.0)

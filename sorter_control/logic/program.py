@@ -22,10 +22,12 @@ from collections import deque
 from ..timing import DivertPredictor, GapModel
 from .config import ControllerConfig
 from .faults import FAULT_STATES, Faults, Supervisor
-from .image import Command, Confirmation, EdgeDetector, InputImage, ScanOutput
+from .image import Command, Confirmation, Edge, EdgeDetector, InputImage, ScanOutput
 from .routing import RoutingError, RoutingTable
 from .sequencing import DiverterSequencer
 from .tracking import R_ABORTED, R_MISSORT, R_REJECTED, R_SORTED, Tracked, Tracker
+
+MAX_CLOCK_LAG = 0.5  # [s] how far this node's clock may lag the cell's latched stamps
 
 COUNTS = (
     "inducted",
@@ -105,6 +107,7 @@ class SorterLogic:
         self._estop_requested = False
         # a scan this much later than the last one is a jump of the clock, not a late scan
         self._max_jump = max(2.0, 100 * config.scan_period)
+        self.clock_lag_max = 0.0  # the most this node's clock lagged the cell's stamps [s]
         self.scan_wall: deque = deque(maxlen=1000)
         self.log_history: deque = deque(maxlen=50)
 
@@ -207,10 +210,25 @@ class SorterLogic:
     # --- the scan ------------------------------------------------------------------------------
     def scan(self, image: InputImage) -> ScanOutput:
         out = ScanOutput()
-        t = float(image.t)
-        if not math.isfinite(t):
+        raw = float(image.t)
+        if not math.isfinite(raw):
             self._refuse_scan(out, f"scan ignored: time {image.t!r} is not finite")
             return out
+        # This node's clock comes from /clock; under load it can lag the cell, whose latched
+        # edges carry the cell's own time. The PLC's "now" is never earlier than an edge it
+        # has read (else a parcel born at the scanner would be placed ahead of itself by
+        # v x lag): the scan time moves up to the newest stamp, within MAX_CLOCK_LAG.
+        t = raw
+        stamps = [
+            e.t
+            for e in image.edges
+            if isinstance(e, Edge) and isinstance(e.t, (int, float)) and math.isfinite(e.t)
+        ]
+        if stamps and raw < max(stamps) <= raw + MAX_CLOCK_LAG:
+            t = max(stamps)
+        if self.t is not None and self.t - MAX_CLOCK_LAG <= raw < self.t:
+            t = max(t, self.t)  # still behind the time the last stamps set: no time passes
+        self.clock_lag_max = max(self.clock_lag_max, t - raw)
         if self.t is not None:
             dt = t - self.t
             if dt < 0 or dt > self._max_jump:
@@ -242,7 +260,18 @@ class SorterLogic:
         self.tracker.first_seen(first)
         for edge in edges:
             self.tracker.on_edge(io, edge)
-        self.tracker.apply_labels(io, image.labels, self.faults.running)
+        labels = image.labels
+        if t > raw:
+            # labels carry this node's clock at reception: put them on the cell's time too
+            shifted = []
+            for item in labels:
+                try:
+                    lt, text = item
+                    shifted.append((float(lt) + (t - raw), text))
+                except (TypeError, ValueError):
+                    shifted.append(item)  # malformed: apply_labels skips it
+            labels = shifted
+        self.tracker.apply_labels(io, labels, self.faults.running)
         self.supervisor.check(io, self.tracker, self.faults)
         if self.faults.running:
             self.sequencer.decide(io)
@@ -455,6 +484,7 @@ class SorterLogic:
             "routing": self.routing.rules(),
             "commanded_up": self.sequencer.commanded_up,
             "commanded_alpha_deg": self.sequencer.commanded_alpha,
+            "clock_lag_max_ms": self.clock_lag_max * 1e3,
         }
 
 
