@@ -75,7 +75,7 @@ def plain(value):
 
 
 def parameter_problem(node, parameters) -> str | None:
-    """
+    r"""
     Say why a set_parameters request cannot be taken, whatever the node's own rules.
 
     rclpy lets a parameter named '' through to exist afterwards, undeclared, and
