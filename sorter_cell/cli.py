@@ -1,5 +1,5 @@
 """
-The ``sorter`` command: ``sorter run | paper | sweep | bench | demo``.
+The ``sorter`` command: ``sorter run | paper | sweep | bench | demo | replay``.
 
 The model's verbs come from ``sorter_sim.cli``; ``demo`` starts the simulation
 node and the controller together, so it sits here, above both packages.
@@ -14,6 +14,7 @@ from sorter_sim import cli as model_cli
 VERBS = dict(
     model_cli.VERBS,
     demo=("sorter_cell.demo", "run the sorter cell: simulation + controller nodes"),
+    replay=("sorter_cell.replay", "summarise a recorded run (MCAP) and draw its parcel paths"),
 )
 
 

@@ -35,6 +35,7 @@ from sorter_sim.outpaths import file_problem
 
 LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
+FOXGLOVE_PORT = 8765  # Foxglove's usual WebSocket port
 FAST_SLICE = 0.005  # s of simulated time per executor pass of the cell in fast mode
 # outcome colours on the plot
 EXIT_COLOURS = {"left": "tab:green", "right": "tab:blue", "straight": "0.45", "jammed": "tab:red"}
@@ -76,6 +77,27 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--verbose", action="store_true", help="show the nodes' informational log lines"
     )
+    parser.add_argument(
+        "--record",
+        default=None,
+        metavar="FILE.mcap",
+        help="record every topic of the cell and the controller to MCAP (ROS 2 CDR, "
+        "simulation time); read it back with sorter replay",
+    )
+    parser.add_argument(
+        "--foxglove",
+        nargs="?",
+        type=int,
+        const=FOXGLOVE_PORT,
+        default=0,
+        metavar="PORT",
+        help=f"serve the live view to Foxglove on ws://127.0.0.1:PORT (default {FOXGLOVE_PORT})",
+    )
+    parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress bar (there is none either when stderr is not a terminal)",
+    )
 
 
 def _check_args(args) -> str | None:
@@ -95,6 +117,14 @@ def _check_args(args) -> str | None:
             return f"--gap MIN MAX: each must be {q.allowed}, with MIN <= MAX; got {lo} {hi}"
     if not 0 <= args.seed < 2**31:
         return f"--seed must be in [0, 2^31), got {args.seed}"
+    if not 0 <= args.foxglove <= 65535:
+        return f"--foxglove PORT must be in [1, 65535], got {args.foxglove}"
+    if args.record is not None:
+        from sorter_ros.recording import recording_problem
+
+        problem = recording_problem(args.record)
+        if problem:
+            return f"--record {problem}"
     out = Path(args.out)
     if out.suffix.lower() != ".png":
         return f"--out must name a .png file, got {args.out!r}"
@@ -320,7 +350,26 @@ def print_table(s: dict) -> None:
         print(f"  {name:<{width}}  {value}")
 
 
-def plot_paths(obs: _Observer, params: dict, summary: dict, out: Path) -> None:
+def exits_by_id(outcomes) -> dict[int, str]:
+    """Return {parcel id: exit} from outcome values (the cell's sort/outcomes key/values)."""
+    exit_of = {}
+    for o in outcomes:
+        try:
+            exit_of[int(o["id"])] = o["exit"]
+        except (KeyError, ValueError):
+            pass
+    return exit_of
+
+
+def plot_paths(
+    paths: dict[int, list], exit_of: dict[int, str], params: dict, title: str, out: Path
+) -> None:
+    """
+    Draw the parcels' paths over the cell, coloured by their exit, into the PNG ``out``.
+
+    ``paths``: {parcel id: [(x, y), ...]} in the conveyor frame [m]; ``params``: the cell's
+    belt_width, disk_field_length, chute_margin, induct_x, exit_x and photo-eyes.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -329,12 +378,6 @@ def plot_paths(obs: _Observer, params: dict, summary: dict, out: Path) -> None:
 
     w, b, margin = params["belt_width"], params["disk_field_length"], params["chute_margin"]
     x0, x1 = params["induct_x"] - 0.2, params["exit_x"] + 0.3
-    exit_of = {}
-    for o in obs.outcomes.values():
-        try:
-            exit_of[int(o["id"])] = o["exit"]
-        except (KeyError, ValueError):
-            pass
     fig, ax = plt.subplots(figsize=(11, 4.2))
     ax.add_patch(Rectangle((x0, -w / 2), x1 - x0, w, color="0.93", zorder=0))
     ax.add_patch(
@@ -349,7 +392,7 @@ def plot_paths(obs: _Observer, params: dict, summary: dict, out: Path) -> None:
         ax.plot([x, x], [-w / 2, w / 2], color="tab:purple", lw=0.8, ls="--")
         ax.text(x, -w / 2 - 0.08, name, ha="center", va="top", fontsize=7, color="tab:purple")
     seen = set()
-    for pid, pts in obs.paths.items():
+    for pid, pts in paths.items():
         if len(pts) < 2:
             continue
         ex = exit_of.get(pid, "in cell")
@@ -362,12 +405,7 @@ def plot_paths(obs: _Observer, params: dict, summary: dict, out: Path) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x along the belt [m] (conveyor frame)")
     ax.set_ylabel("y [m]")
-    ax.set_title(
-        f"sorter demo: {summary['inducted']} parcels in {summary['sim_time_s']:g} s, "
-        f"{summary['throughput_pcs_h']:.0f} pcs/h, mis-sorted {summary['mis_sorted']}, "
-        f"jams {summary['jams']}",
-        fontsize=10,
-    )
+    ax.set_title(title, fontsize=10)
     ax.legend(loc="upper left", fontsize=7, ncol=6, frameon=False)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -521,14 +559,31 @@ class RunningCell:
             self.executor.spin_once(timeout_sec=0.05)
         return True
 
-    def run_for(self, sim_time: float) -> float:
+    def run_for(self, sim_time: float, quiet: bool = True) -> float:
         """
         Spin until ``sim_time`` simulated seconds after the stream started.
 
-        Returns the wall time.
+        Returns the wall time. Unless ``quiet``, a progress bar on a terminal shows the
+        simulated seconds.
         """
+        from sorter_sim.progress import progress_bar
+
         wall0 = time.monotonic()
-        self.spin_until(lambda: self.obs.t_sim >= self.t_start + sim_time)
+        bar = progress_bar(round(sim_time, 3), "sorter demo", "s", quiet=quiet)
+        shown = 0.0
+
+        def reached() -> bool:
+            nonlocal shown
+            t = min(self.obs.t_sim - self.t_start, sim_time)
+            if t - shown >= 0.1:
+                bar.update(round(t - shown, 3))
+                shown = t
+            return self.obs.t_sim >= self.t_start + sim_time
+
+        try:
+            self.spin_until(reached)
+        finally:
+            bar.close()
         return time.monotonic() - wall0
 
     def finish(self) -> float:
@@ -597,28 +652,53 @@ def run(args) -> int | str:
         "labels": list(LABEL_CYCLE),
         "seed": int(args.seed),
     }
-    with RunningCell(
-        sim_params=sim_params,
-        controller_params={"routing.rules": list(ROUTING)},
-        rtf=args.rtf,
-        log_level="info" if args.verbose else "warn",
-    ) as rc:
-        wall = rc.run_for(args.sim_time)
+    controller_params = {"routing.rules": list(ROUTING)}
+    if args.record:
+        # both nodes write into the one file (sorter_ros.recording shares it in a process)
+        sim_params["record_path"] = controller_params["record_path"] = args.record
+    if args.foxglove:
+        sim_params["foxglove_port"] = args.foxglove
+        print(
+            f"sorter demo: live view on ws://127.0.0.1:{args.foxglove} (open it in Foxglove)",
+            file=sys.stderr,
+        )
+    try:
+        rc = RunningCell(
+            sim_params=sim_params,
+            controller_params=controller_params,
+            rtf=args.rtf,
+            log_level="info" if args.verbose else "warn",
+        ).__enter__()
+    except ValueError as exc:
+        # a node refused its start-up values (a busy live-view port, an unwritable file)
+        return f"sorter demo: {exc}"
+    try:
+        wall = rc.run_for(args.sim_time, quiet=args.quiet)
         t_end = rc.finish()
         summary = summarize(rc.obs, plan, t_end, wall, rc.time_mode)
         summary["png"] = str(args.out)
         try:
-            plot_paths(rc.obs, rc.cell_params(), summary, Path(args.out))
+            title = (
+                f"sorter demo: {summary['inducted']} parcels in {summary['sim_time_s']:g} s, "
+                f"{summary['throughput_pcs_h']:.0f} pcs/h, mis-sorted {summary['mis_sorted']}, "
+                f"jams {summary['jams']}"
+            )
+            exit_of = exits_by_id(rc.obs.outcomes.values())
+            plot_paths(rc.obs.paths, exit_of, rc.cell_params(), title, Path(args.out))
         except OSError as exc:
             # checked before the run, yet gone since (a full disk): the summary still counts
             summary["png"] = None
             why = exc.strerror or exc
             print(f"sorter demo: cannot write {args.out!r}: {why}", file=sys.stderr)
+    finally:
+        rc.__exit__(None, None, None)
     if args.json:
         print(json.dumps(summary, sort_keys=True))
     else:
         print_table(summary)
         print(f"  paths                      {args.out}")
+        if args.record:
+            print(f"  recording                  {args.record} (sorter replay {args.record})")
     return 0 if summary["mis_sorted"] == 0 and summary["jams"] == 0 else 1
 
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
 
 import rclpy
@@ -54,6 +54,7 @@ from sorter_sim.description import Q
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
 from sorter_ros.interface import parameter_problem
+from sorter_ros.recording import open_recorder, release_recorder
 
 from .logic import (
     ControllerConfig,
@@ -260,6 +261,14 @@ SCHEMA = (
         "follows it (more throughput, risk of a forced divert)",
     ),
     Spec("diagnostics_period", D, 1.0, "period of the diagnostics message, wall [s]", 0.05, 60.0),
+    Spec(
+        "record_path",
+        S,
+        "",
+        "MCAP file (.mcap) that records every message this node publishes, as ROS 2 CDR "
+        "stamped with the node's clock (the cell's in the demo, which shares the file); "
+        "empty: no recording",
+    ),
 )
 SPECS = {s.name: s for s in SCHEMA}
 # the cell's parameters as the simulation node names them
@@ -419,6 +428,13 @@ class ControllerNode(Node):
                 raise ValueError(f"parameter {spec.name!r}: {exc}") from None
             self.values[spec.name] = plain(p.value)
         config_from_values(self.values)  # fail now, naming the parameter
+        self.published = Counter()  # messages per topic, counted where they are published
+        self.recorder = None
+        if self.values["record_path"]:
+            try:
+                self.recorder = open_recorder(self.values["record_path"])
+            except ValueError as exc:
+                raise ValueError(f"parameter 'record_path': {exc}") from None
         self.logic: SorterLogic | None = None
         self._svc = {
             "popup": self.create_client(SetBool, "diverter/popup"),
@@ -633,7 +649,7 @@ class ControllerNode(Node):
             return
         wall0 = time.perf_counter()
         self._beats = (self._beats + 1) & 0xFFFFFFFF
-        self._pub_heartbeat.publish(UInt32(data=self._beats))
+        self._publish(self._pub_heartbeat, UInt32(data=self._beats))
         self._expire_calls()
         image = InputImage(
             t=self._now(),
@@ -784,14 +800,15 @@ class ControllerNode(Node):
             ("t", f"{c.t:.6f}"),
         ]
         level = LEVELS.get(c.result, DiagnosticStatus.WARN)
-        self._pub_confirm.publish(
+        self._publish(
+            self._pub_confirm,
             DiagnosticStatus(
                 level=level,
                 name=c.label,
                 message=c.result,
                 hardware_id=self.get_fully_qualified_name(),
                 values=[KeyValue(key=k, value=v) for k, v in values],
-            )
+            ),
         )
 
     def diagnostic_status(self) -> DiagnosticStatus:
@@ -842,7 +859,22 @@ class ControllerNode(Node):
             self._clock_sources = self.count_publishers("/clock")
         msg = DiagnosticArray(status=[self.diagnostic_status()])
         msg.header.stamp = self.get_clock().now().to_msg()
-        self._pub_diag.publish(msg)
+        self._publish(self._pub_diag, msg)
+
+    def _publish(self, publisher, msg) -> None:
+        """Publish ``msg``, count it per topic and record it (stamped with this node's clock)."""
+        publisher.publish(msg)
+        topic = publisher.topic_name
+        self.published[topic] += 1
+        if self.recorder is not None:
+            self.recorder.write(topic, msg, self.get_clock().now().nanoseconds)
+
+    def destroy_node(self):
+        """Finish the recording, then destroy the node."""
+        if self.recorder is not None:
+            release_recorder(self.recorder)
+            self.recorder = None
+        return super().destroy_node()
 
     # ------------------------------------------------------------------ services and parameters
     def _srv_reset(self, request, response):

@@ -602,6 +602,32 @@ class Cell:
             'state': rows[:, 6].astype(np.int64),
         }
 
+    def parcel_motion(self) -> dict:
+        """
+        Return label, speed and slip of each parcel in the cell, in id order (as ``parcels``).
+
+        speed: of the centre of gravity [m/s]; slip_belt, slip_disks: its speed relative to
+        the belt's and to the disks' surface [m/s], the relative speeds the friction zones
+        see at the CoG. Parcels riding a surface are advanced in closed form: their velocity
+        is that surface's.
+        """
+        idx = np.flatnonzero(self.phase != ck.PH_FREE)
+        idx = idx[np.argsort(self.ids[idx], kind='mergesort')]
+        v = self.state[idx, 3:5].copy()
+        mode, phase = self.mode[idx], self.phase[idx]
+        speed = self.belt_velocity
+        belt = np.array([speed, 0.0])
+        disks = speed * np.array([math.cos(self.alpha), math.sin(self.alpha)])
+        riding = phase == ck.PH_CELL
+        v[riding & (mode == ck.MODE_BELT)] = belt
+        v[riding & (mode == ck.MODE_DISKS)] = disks
+        return {
+            'label': [self.labels[i] for i in idx],
+            'speed': np.hypot(v[:, 0], v[:, 1]),
+            'slip_belt': np.hypot(v[:, 0] - belt[0], v[:, 1] - belt[1]),
+            'slip_disks': np.hypot(v[:, 0] - disks[0], v[:, 1] - disks[1]),
+        }
+
     @property
     def n_parcels(self) -> int:
         return int(np.count_nonzero(self.phase != ck.PH_FREE))

@@ -15,8 +15,10 @@ services and parameters are served) and ``lockstep`` (one control period per
 
 from __future__ import annotations
 
+import json
 import math
 import time
+from collections import Counter
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -35,6 +37,7 @@ from sorter_ros.env import run_node
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
 from sorter_ros.interface import parameter_problem
+from sorter_ros.recording import open_recorder, release_recorder
 
 from .cdr import pose_array_cdr, stamp
 from .cell import (
@@ -48,12 +51,14 @@ from .cell import (
     WatchdogTrip,
 )
 from .description import shown
+from .live_view import CellLayout, LiveView
 from .warmup import warm_cell
 from .params import SCHEMA, SPECS, CellParams, ParamError
 
 NODE_NAME = 'sorter_sim'
 FRAME_ID = 'conveyor'  # the cell's frame in the root namespace (see frame_id)
 PARCEL_HEIGHT = 0.2  # m, only for the marker boxes (the model is planar)
+RECORDING_METADATA = 'sorter_sim parameters'  # the metadata record of the cell's parameters
 MAX_CATCH_UP_S = 0.25  # realtime mode: simulated time one tick may catch up
 
 # status/<bit>: std_msgs/Bool each; fault = estop or jam or watchdog
@@ -106,6 +111,10 @@ class SimNode(Node):
         self.frame_id = self.params.frame_id or (f'{ns}/{FRAME_ID}' if ns else FRAME_ID)
         self.cell = Cell(self.params)
         p = self.params
+        self.published = Counter()  # messages per topic, counted where they are published
+        self.recorder = None
+        self.live_view = None
+        self._open_outputs()
         self._pub_poses = self.create_publisher(PoseArray, 'parcels/poses', STREAM_QOS)
         self._pub_ids = self.create_publisher(UInt32MultiArray, 'parcels/ids', STREAM_QOS)
         self._pub_markers = self.create_publisher(MarkerArray, 'parcels/markers', STREAM_QOS)
@@ -163,6 +172,67 @@ class SimNode(Node):
             f'ms, belt {p.belt_speed:g} m/s x {p.belt_width:g} m, disk field '
             f'{p.disk_field_length:g} m, sensors {", ".join(self.cell.sensor_names)}'
         )
+
+    def _open_outputs(self) -> None:
+        """Open the recording and the live view the parameters ask for; ParamError if not."""
+        p = self.params
+        try:
+            if p.record_path:
+                try:
+                    self.recorder = open_recorder(p.record_path)
+                except ValueError as exc:
+                    raise ParamError(f'parameter \'record_path\': {exc}') from None
+                # the cell's parameters travel with the recording: `sorter replay` draws the
+                # cell from them, with nothing but the file
+                self.recorder.add_metadata(
+                    RECORDING_METADATA,
+                    {
+                        'node': self.get_fully_qualified_name(),
+                        **{k: json.dumps(v) for k, v in p.as_values().items()},
+                    },
+                )
+            if p.foxglove_port:
+                ns = self.get_namespace().rstrip('/')
+                layout = CellLayout(
+                    frame_id=self.frame_id,
+                    belt_width=p.belt_width,
+                    disk_field_length=p.disk_field_length,
+                    chute_x_range=p.chute_x_range,
+                    induct_x=p.induct_x,
+                    exit_x=p.exit_x,
+                    scanner_x=p.scanner_x,
+                    photo_eyes=tuple(zip(p.photo_eyes_names, p.photo_eyes_x)),
+                )
+                try:
+                    self.live_view = LiveView(
+                        layout,
+                        host=p.foxglove_host,
+                        port=p.foxglove_port,
+                        prefix=f'{ns}/live',
+                        max_rate_hz=p.foxglove_rate_hz,
+                    )
+                except ValueError as exc:
+                    raise ParamError(f'parameter \'foxglove_port\': {exc}') from None
+                self.get_logger().info(
+                    f'live view: Foxglove WebSocket server on '
+                    f'ws://{p.foxglove_host}:{self.live_view.port}'
+                )
+        except ParamError:
+            self._close_outputs()
+            raise
+
+    def _close_outputs(self) -> None:
+        if self.live_view is not None:
+            self.live_view.close()
+            self.live_view = None
+        if self.recorder is not None:
+            release_recorder(self.recorder)
+            self.recorder = None
+
+    def destroy_node(self):
+        """Finish the recording and stop the live view, then destroy the node."""
+        self._close_outputs()
+        return super().destroy_node()
 
     # ------------------------------------------------------------------ parameters
     def _declare_parameters(self) -> CellParams:
@@ -282,16 +352,35 @@ class SimNode(Node):
                 self._publish_diverter()
             if k % p.marker_stride == 0 and self._pub_markers.get_subscription_count() > 0:
                 self._publish_markers()
+            if self.live_view is not None and k % p.pose_stride == 0 and self.live_view.due():
+                self._update_live_view()
             if k % p.heartbeat_stride == 0:
                 self._publish_sensors()
             self._publish_clock()
             self._cost['publish_s'] += time.perf_counter() - t1
 
     # ------------------------------------------------------------------ publishing
-    def _publish(self, publisher, msg) -> None:
+    def _publish(self, publisher, msg, msg_type: str | None = None) -> None:
+        """Publish ``msg`` (or its CDR bytes, with ``msg_type``), count it and record it."""
         publisher.publish(msg)
         self._cost['messages'] += 1
         self.n_messages += 1
+        topic = publisher.topic_name
+        self.published[topic] += 1
+        if self.recorder is not None:
+            self.recorder.write(topic, msg, self.cell.t_ns, msg_type)
+
+    def _update_live_view(self) -> None:
+        c = self.cell
+        self.live_view.update(
+            c.t_ns,
+            parcels=c.parcels(),
+            motion=c.parcel_motion(),
+            alpha=c.alpha,
+            stroke=c.stroke,
+            sensors=c.sensor_states(),
+            state_names=STATE_NAMES,
+        )
 
     def _publish_status(self) -> None:
         """
@@ -374,6 +463,7 @@ class SimNode(Node):
             pose_array_cdr(
                 self.cell.t_ns, self.frame_id, parcels['x'], parcels['y'], parcels['phi']
             ),
+            'geometry_msgs/msg/PoseArray',
         )
 
     def _publish_diverter(self) -> None:
@@ -475,7 +565,7 @@ class SimNode(Node):
         )
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = _time_msg(self.cell.t_ns)
-        self._pub_diag.publish(msg)
+        self._publish(self._pub_diag, msg)
 
     # ------------------------------------------------------------------ services
     def _srv_popup(self, request, response):

@@ -423,6 +423,39 @@ SCHEMA: tuple[ParamSpec, ...] = (
         0.01,
         3600.0,
     ),
+    # -- live view and recording
+    _p(
+        'foxglove_port',
+        INTEGER,
+        0,
+        'TCP port of the live view, a Foxglove WebSocket server (<ns>/live/scene, '
+        '<ns>/live/tf, <ns>/live/values); 0: off',
+        '',
+        0,
+        65535,
+    ),
+    _p(
+        'foxglove_host',
+        STRING,
+        '127.0.0.1',
+        'address the live view binds to (loopback unless told otherwise)',
+    ),
+    _p(
+        'foxglove_rate_hz',
+        DOUBLE,
+        30.0,
+        'most live-view frames per wall-clock second (sent only while a client subscribes)',
+        'Hz',
+        1.0,
+        200.0,
+    ),
+    _p(
+        'record_path',
+        STRING,
+        '',
+        'MCAP file (.mcap) that records every message the node publishes, as ROS 2 CDR '
+        'stamped with simulated time; empty: no recording',
+    ),
 )
 
 SPECS: dict[str, ParamSpec] = {s.name: s for s in SCHEMA}
@@ -617,6 +650,10 @@ class CellParams:
     pose_rate_hz: float
     marker_rate_hz: float
     sensor_heartbeat_s: float
+    foxglove_port: int
+    foxglove_host: str
+    foxglove_rate_hz: float
+    record_path: str
 
     # -- construction ------------------------------------------------------
     @classmethod
@@ -778,6 +815,16 @@ class CellParams:
                 f'got {shown(self.control_period)}'
             )
         check_label_pattern(self.label_pattern, self.labels)
+        if self.foxglove_port and not 0 < len(self.foxglove_host) <= 253:
+            raise ParamError(
+                'parameter \'foxglove_host\' must be a host name or address (1 to 253 '
+                f'characters), got {shown(self.foxglove_host)}'
+            )
+        if len(self.record_path) > 4096:
+            raise ParamError(
+                f'parameter \'record_path\' must be a path of at most 4096 characters, got '
+                f'{shown(self.record_path)}'
+            )
         if self.frame_id and not _FRAME_ID.fullmatch(self.frame_id):
             raise ParamError(
                 f'parameter \'frame_id\' must be empty or a frame name (letters, digits, _ '

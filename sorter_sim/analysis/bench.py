@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..outpaths import dir_problem
+from ..progress import progress_bar
 
 
 from ..core.oscillator import Oscillator
@@ -83,6 +84,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", default="docs", help="output directory (default: docs)")
     p.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress bar (there is none either when stderr is not a terminal)",
+    )
+    p.add_argument(
         "--parts",
         default=",".join(REPORT_PARTS),
         metavar="LIST",
@@ -126,7 +132,7 @@ def run(args) -> int | str | None:
     problem = dir_problem(out) or dir_problem(out / "img")
     if problem:
         return problem
-    path = write_precision_report(out, quick=args.quick, log=print, parts=parts)
+    path = write_precision_report(out, quick=args.quick, log=print, parts=parts, quiet=args.quiet)
     print(f"wrote {path}")
     return 0
 
@@ -650,9 +656,33 @@ _DEFINITIONS = """\
 """
 
 
-def write_precision_report(out: Path, quick: bool = False, log=print, parts=REPORT_PARTS) -> Path:
-    """Run the report's ``parts`` (default all) and write OUT/accuracy.md and OUT/img/*.png."""
+def write_precision_report(
+    out: Path, quick: bool = False, log=print, parts=REPORT_PARTS, quiet: bool = True
+) -> Path:
+    """
+    Run the report's ``parts`` (default all) and write OUT/accuracy.md and OUT/img/*.png.
+
+    Unless ``quiet``, a progress bar on a terminal counts the parts (each case of the
+    matrix one part); ``log`` lines are written above it.
+    """
     t_start = time.perf_counter()
+    matrix = sx.matrix(quick=quick) if "matrix" in parts else []
+    bar = progress_bar(
+        len(parts) - ("matrix" in parts) + len(matrix), "bench precision", "part", quiet=quiet
+    )
+    say = log
+
+    def log(line):
+        # printed lines go above the bar; another logger gets them as they are
+        if say is print:
+            bar.write(line)
+        else:
+            say(line)
+
+    def done(what):
+        bar.set_postfix_str(what)
+        bar.update(1)
+
     img = out / "img"
     img.mkdir(parents=True, exist_ok=True)
     info = machine_info()
@@ -668,12 +698,14 @@ def write_precision_report(out: Path, quick: bool = False, log=print, parts=REPO
     with one_core():
         if "cases" in parts:
             cases = precision_cases(quick, log)
+            done("cases")
         if "core" in parts:
             log("benchmark (Fig. 9a)")
             core_text, core_fig = bench_core(repeats=3 if quick else 7, quick=quick)
+            done("core")
         if "matrix" in parts:
             log("stiff/extreme-case matrix")
-        for sc in sx.matrix(quick=quick) if "matrix" in parts else ():
+        for sc in matrix:
             w = time.perf_counter()
             runs = sx.run_case(sc)
             matrix_runs.append((sc, runs))
@@ -681,15 +713,20 @@ def write_precision_report(out: Path, quick: bool = False, log=print, parts=REPO
                 f"  {sc.name:<22} {time.perf_counter() - w:6.1f} s  "
                 + " ".join(f"{r.method}:{'pass' if r.passed else 'FAIL'}" for r in runs)
             )
+            done(sc.name)
         if "long" in parts:
             log("two-belt positioning, long runs")
             long_runs = sx.two_belt_long(QUICK_LONG_S if quick else 600.0)
+            done("long")
         if "reductions" in parts:
             log("reductions")
             red_rows = sx.reductions(repeats=2 if quick else 7)
+            done("reductions")
         if "quadrature" in parts:
             log("implicit method: quadrature order")
             quad = implicit_quadrature_floor(quick)
+            done("quadrature")
+    bar.close()
     md = _report_markdown(
         cases,
         core_text,

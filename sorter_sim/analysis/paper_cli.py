@@ -13,6 +13,7 @@ import argparse
 from pathlib import Path
 
 from ..outpaths import dir_problem
+from ..progress import progress_bar
 
 from .paper import fig4, fig5, fig7, fig8, fig9, fig10, fig11, fig13, fig14
 from .two_stage import two_stage_figure
@@ -49,6 +50,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--quick", action="store_true", help="coarse grids and shorter runs (seconds per figure)"
     )
+    parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress bar (there is none either when stderr is not a terminal)",
+    )
 
 
 def run(args) -> int | str:
@@ -60,11 +66,15 @@ def run(args) -> int | str:
     which = ALIASES.get(args.figure, args.figure)
     names = list(FIGURES) if which == "all" else [which]
     failed = []
+    bar = progress_bar(len(names), "sorter paper", "fig", quiet=args.quiet or len(names) == 1)
     for name in names:
+        bar.set_postfix_str(f"Fig. {name}")
         res = FIGURES[name](out, quick=args.quick)
-        print(res.report(), flush=True)
+        bar.write(res.report())
+        bar.update(1)
         if not res.success:
             failed.append(name)
+    bar.close()
     if failed:
         print(f"seed statements not reproduced in: Fig. {', '.join(failed)} (see [FAILS] above)")
         return 1

@@ -46,7 +46,6 @@ import itertools
 import json
 import math
 import os
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import as_completed as futures_as_completed
@@ -56,6 +55,7 @@ from pathlib import Path
 import numpy as np
 from ..description import shown
 from ..outpaths import file_problem
+from ..progress import progress_bar
 from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
 from ..scene import DEFAULTS, SceneError, load_scene, run_scene, validate
@@ -619,15 +619,8 @@ def run_study(
     submit, completed, close = (
         _executor(workers, scheduler, scheduler_timeout) if pending else (None, None, lambda: None)
     )
-    from tqdm import tqdm
-
-    bar = tqdm(
-        total=len(design),
-        initial=n_resumed,
-        unit="pt",
-        disable=not progress,
-        desc=f"sweep {out.name}",
-        file=sys.stderr,
+    bar = progress_bar(
+        len(design), f"sweep {out.name}", "pt", quiet=not progress, initial=n_resumed
     )
     store.open()
     computed = []
@@ -712,7 +705,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="stop after N newly finished points (the rest on the next run)",
     )
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--quiet",
+        "--no-progress",
+        dest="no_progress",
+        action="store_true",
+        help="no progress bar (there is none either when stderr is not a terminal)",
+    )
 
 
 def run(args) -> int | str:

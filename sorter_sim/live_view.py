@@ -1,0 +1,431 @@
+"""
+The cell's live view: a Foxglove WebSocket server showing the cell as it runs.
+
+Owns what a Foxglove client sees of one cell, with Foxglove's standard schemas:
+``<prefix>/scene`` (``foxglove.SceneUpdate``: belt, disk field with its angle α and
+pop-up state, chutes, photo-eyes lit while blocked, the scanner, every parcel as a
+box with its id and label and the path it has taken), ``<prefix>/tf``
+(``foxglove.FrameTransforms``: the cell's frame under ``world``) and
+``<prefix>/values`` (JSON, plottable: α, the pop-up stroke, each sensor bit, and per
+parcel its speed and its slip on the belt and on the disks, the friction zones'
+relative speeds). No ROS and no physics here: the simulation node hands it the
+state it already has, and nothing is built while no client subscribes.
+
+Try it: ``sorter demo --foxglove``, then open ws://127.0.0.1:8765 in Foxglove.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import foxglove
+from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
+from foxglove.messages import (
+    ArrowPrimitive,
+    Color,
+    CubePrimitive,
+    FrameTransform,
+    FrameTransforms,
+    KeyValuePair,
+    LinePrimitive,
+    Point3,
+    Pose,
+    Quaternion,
+    SceneEntity,
+    SceneEntityDeletion,
+    SceneEntityDeletionType,
+    SceneUpdate,
+    TextPrimitive,
+    Timestamp,
+    Vector3,
+)
+
+PARCEL_HEIGHT = 0.2  # m: the model is planar; only for the boxes
+PATH_POINTS = 400  # most points kept of a parcel's path
+PATH_STEP = 0.01  # m: a path point is added when the parcel moved this far
+CHUTE_WIDTH = 0.5  # m, drawn beside each side wall's opening
+STATE_COLOURS = {
+    'on_belt': (0.6, 0.6, 0.6),
+    'on_disks': (0.1, 0.4, 1.0),
+    'sliding': (1.0, 0.75, 0.0),
+    'diverted': (0.1, 0.8, 0.2),
+    'straight': (0.55, 0.35, 0.15),
+    'jammed': (1.0, 0.0, 0.0),
+}
+
+VALUES_SCHEMA = {
+    'type': 'object',
+    'properties': {
+        't': {'type': 'number', 'description': 'simulated time [s]'},
+        'alpha_deg': {'type': 'number', 'description': 'physical disk angle α [deg]'},
+        'stroke': {'type': 'number', 'description': 'pop-up position, 0 down .. 1 up'},
+        'sensors': {'type': 'object', 'additionalProperties': {'type': 'integer'}},
+        'parcels': {
+            'type': 'array',
+            'items': {
+                'type': 'object',
+                'properties': {
+                    'id': {'type': 'integer'},
+                    'label': {'type': 'string'},
+                    'state': {'type': 'string'},
+                    'speed': {'type': 'number', 'description': 'speed of the CoG [m/s]'},
+                    'slip_belt': {
+                        'type': 'number',
+                        'description': 'speed of the CoG relative to the belt [m/s]',
+                    },
+                    'slip_disks': {
+                        'type': 'number',
+                        'description': 'speed of the CoG relative to the disks [m/s]',
+                    },
+                },
+            },
+        },
+    },
+}
+
+
+@dataclass(frozen=True)
+class CellLayout:
+    """Where things are in the cell's frame (x along the belt, x = 0 at the disk field) [m]."""
+
+    frame_id: str
+    belt_width: float
+    disk_field_length: float
+    chute_x_range: tuple[float, float]
+    induct_x: float
+    exit_x: float
+    scanner_x: float
+    photo_eyes: tuple[tuple[str, float], ...]
+
+
+def _rgba(rgb, a=1.0) -> Color:
+    return Color(r=rgb[0], g=rgb[1], b=rgb[2], a=a)
+
+
+def _pose(x, y, z, yaw=0.0) -> Pose:
+    return Pose(
+        position=Vector3(x=x, y=y, z=z),
+        orientation=Quaternion(x=0.0, y=0.0, z=math.sin(0.5 * yaw), w=math.cos(0.5 * yaw)),
+    )
+
+
+def _box(x0, x1, y0, y1, z0, z1, rgb, a=1.0) -> CubePrimitive:
+    return CubePrimitive(
+        pose=_pose(0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.5 * (z0 + z1)),
+        size=Vector3(x=x1 - x0, y=y1 - y0, z=z1 - z0),
+        color=_rgba(rgb, a),
+    )
+
+
+def _stamp(t_ns: int) -> Timestamp:
+    return Timestamp(sec=t_ns // 1_000_000_000, nsec=t_ns % 1_000_000_000)
+
+
+class LiveView:
+    """
+    A Foxglove server of one cell; ``update`` sends a frame when a client listens.
+
+    ``port`` 1-65535 on ``host`` (127.0.0.1 unless told otherwise). Raises ValueError
+    with one line when the server cannot start (port busy, unknown host). Each view has
+    its own Foxglove context, so several cells (or tests) in one process do not mix.
+    """
+
+    def __init__(
+        self,
+        layout: CellLayout,
+        *,
+        host: str,
+        port: int,
+        prefix: str = '',
+        max_rate_hz: float = 30.0,
+    ):
+        self.layout = layout
+        self.prefix = prefix.rstrip('/')
+        self.context = foxglove.Context()
+        try:
+            self.server = foxglove.start_server(
+                name=f'sorter_cell {layout.frame_id}',
+                host=host,
+                port=port,
+                context=self.context,
+            )
+        except RuntimeError as exc:
+            raise ValueError(
+                f'cannot serve the live view on {host}:{port}: '
+                f'{str(exc).removeprefix("FoxgloveError: ")}'
+            ) from None
+        self.scene = SceneUpdateChannel(f'{self.prefix}/scene', context=self.context)
+        self.tf = FrameTransformsChannel(f'{self.prefix}/tf', context=self.context)
+        self.values = foxglove.Channel(
+            f'{self.prefix}/values', schema=VALUES_SCHEMA, context=self.context
+        )
+        self.min_wall_interval = 1.0 / max_rate_hz
+        self._last_wall = -math.inf
+        self._paths: dict[int, deque] = {}
+        self.frames_sent = 0
+
+    @property
+    def port(self) -> int:
+        return self.server.port
+
+    def listening(self) -> bool:
+        return self.scene.has_sinks() or self.tf.has_sinks() or self.values.has_sinks()
+
+    def due(self) -> bool:
+        """Return True when a frame should go out now (a client listens, the rate allows)."""
+        if not self.listening():
+            return False
+        return time.monotonic() - self._last_wall >= self.min_wall_interval
+
+    def update(
+        self,
+        t_ns: int,
+        *,
+        parcels: dict,
+        motion: dict,
+        alpha: float,
+        stroke: float,
+        sensors: dict[str, bool],
+        state_names,
+    ) -> None:
+        """
+        Send one frame: the scene, the frame transform and the plottable values.
+
+        ``parcels`` as ``Cell.parcels()`` gives them, ``motion`` as ``Cell.parcel_motion()``.
+        """
+        self._last_wall = time.monotonic()
+        stamp = _stamp(t_ns)
+        fid = self.layout.frame_id
+        self._track_paths(parcels)
+        if self.tf.has_sinks():
+            self.tf.log(
+                FrameTransforms(
+                    transforms=[
+                        FrameTransform(
+                            timestamp=stamp,
+                            parent_frame_id='world',
+                            child_frame_id=fid,
+                            translation=Vector3(x=0.0, y=0.0, z=0.0),
+                            rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+                        )
+                    ]
+                ),
+                log_time=t_ns,
+            )
+        if self.scene.has_sinks():
+            entities = self._static_entities(stamp, alpha, stroke, sensors)
+            entities += self._parcel_entities(stamp, parcels, motion, state_names)
+            # the frame replaces the previous one whole: parcels that left disappear
+            clear = SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletionType.All)
+            self.scene.log(SceneUpdate(deletions=[clear], entities=entities), log_time=t_ns)
+        if self.values.has_sinks():
+            self.values.log(
+                {
+                    't': t_ns * 1e-9,
+                    'alpha_deg': math.degrees(alpha),
+                    'stroke': stroke,
+                    'sensors': {k: int(v) for k, v in sensors.items()},
+                    'parcels': [
+                        {
+                            'id': int(pid),
+                            'label': motion['label'][i],
+                            'state': state_names[int(parcels['state'][i])],
+                            'speed': float(motion['speed'][i]),
+                            'slip_belt': float(motion['slip_belt'][i]),
+                            'slip_disks': float(motion['slip_disks'][i]),
+                        }
+                        for i, pid in enumerate(parcels['id'].tolist())
+                    ],
+                },
+                log_time=t_ns,
+            )
+        self.frames_sent += 1
+
+    def _track_paths(self, parcels: dict) -> None:
+        live = set()
+        for pid, x, y in zip(*(parcels[k].tolist() for k in ('id', 'x', 'y'))):
+            live.add(pid)
+            path = self._paths.get(pid)
+            if path is None:
+                path = self._paths[pid] = deque(maxlen=PATH_POINTS)
+            if not path or math.hypot(x - path[-1][0], y - path[-1][1]) >= PATH_STEP:
+                path.append((x, y))
+        for pid in set(self._paths) - live:
+            del self._paths[pid]
+
+    def _static_entities(self, stamp, alpha, stroke, sensors) -> list[SceneEntity]:
+        lay = self.layout
+        w2, b = 0.5 * lay.belt_width, lay.disk_field_length
+        x0, x1 = lay.induct_x - 0.3, lay.exit_x + 0.3
+        lo, hi = lay.chute_x_range
+        fid = lay.frame_id
+        belt = SceneEntity(
+            timestamp=stamp,
+            frame_id=fid,
+            id='belt',
+            cubes=[
+                _box(x0, 0.0, -w2, w2, -0.03, 0.0, (0.25, 0.25, 0.28)),
+                _box(b, x1, -w2, w2, -0.03, 0.0, (0.25, 0.25, 0.28)),
+                # side walls, open where the chutes are
+                _box(x0, lo, w2, w2 + 0.02, 0.0, 0.15, (0.1, 0.1, 0.1)),
+                _box(hi, x1, w2, w2 + 0.02, 0.0, 0.15, (0.1, 0.1, 0.1)),
+                _box(x0, lo, -w2 - 0.02, -w2, 0.0, 0.15, (0.1, 0.1, 0.1)),
+                _box(hi, x1, -w2 - 0.02, -w2, 0.0, 0.15, (0.1, 0.1, 0.1)),
+            ],
+        )
+        chutes = SceneEntity(
+            timestamp=stamp,
+            frame_id=fid,
+            id='chutes',
+            cubes=[
+                _box(lo, hi, w2, w2 + CHUTE_WIDTH, -0.2, -0.18, (0.3, 0.6, 0.3), 0.6),
+                _box(lo, hi, -w2 - CHUTE_WIDTH, -w2, -0.2, -0.18, (0.3, 0.45, 0.7), 0.6),
+            ],
+            texts=[
+                TextPrimitive(
+                    pose=_pose(0.5 * (lo + hi), w2 + 0.5 * CHUTE_WIDTH, 0.0),
+                    billboard=True,
+                    font_size=14,
+                    scale_invariant=True,
+                    color=_rgba((1, 1, 1)),
+                    text='left chute',
+                ),
+                TextPrimitive(
+                    pose=_pose(0.5 * (lo + hi), -w2 - 0.5 * CHUTE_WIDTH, 0.0),
+                    billboard=True,
+                    font_size=14,
+                    scale_invariant=True,
+                    color=_rgba((1, 1, 1)),
+                    text='right chute',
+                ),
+            ],
+        )
+        up = stroke > 0.5
+        disk_rgb = (1.0, 0.55, 0.1) if up else (0.55, 0.45, 0.35)
+        disks = SceneEntity(
+            timestamp=stamp,
+            frame_id=fid,
+            id='disk_field',
+            metadata=[
+                KeyValuePair(key='alpha_deg', value=f'{math.degrees(alpha):.2f}'),
+                KeyValuePair(key='stroke', value=f'{stroke:.3f}'),
+            ],
+            cubes=[_box(0.0, b, -w2, w2, -0.03, -0.03 + 0.03 * stroke + 1e-3, disk_rgb)],
+            arrows=[
+                ArrowPrimitive(
+                    pose=_pose(0.5 * b, 0.0, 0.02, alpha),
+                    shaft_length=0.3,
+                    shaft_diameter=0.03,
+                    head_length=0.1,
+                    head_diameter=0.08,
+                    color=_rgba((1.0, 1.0, 1.0)),
+                )
+            ],
+            texts=[
+                TextPrimitive(
+                    pose=_pose(0.5 * b, -w2 - 0.15, 0.05),
+                    billboard=True,
+                    font_size=14,
+                    scale_invariant=True,
+                    color=_rgba((1, 1, 1)),
+                    text=f'α {math.degrees(alpha):.1f}°, disks {"up" if up else "down"}',
+                )
+            ],
+        )
+        sensor_cubes, sensor_texts = [], []
+        for name, x in lay.photo_eyes:
+            lit = sensors.get(name, False)
+            sensor_cubes.append(
+                _box(
+                    x - 0.008,
+                    x + 0.008,
+                    -w2 - 0.05,
+                    w2 + 0.05,
+                    0.0,
+                    0.25,
+                    (1.0, 0.1, 0.1) if lit else (0.3, 0.3, 0.3),
+                    1.0 if lit else 0.5,
+                )
+            )
+            sensor_texts.append(
+                TextPrimitive(
+                    pose=_pose(x, w2 + 0.1, 0.3),
+                    billboard=True,
+                    font_size=12,
+                    scale_invariant=True,
+                    color=_rgba((1, 1, 1)),
+                    text=name,
+                )
+            )
+        sx = lay.scanner_x
+        sensor_cubes.append(
+            _box(sx - 0.02, sx + 0.02, -w2 - 0.05, w2 + 0.05, 0.45, 0.5, (0.2, 0.5, 1.0), 0.8)
+        )
+        sensor_texts.append(
+            TextPrimitive(
+                pose=_pose(sx, -w2 - 0.1, 0.55),
+                billboard=True,
+                font_size=12,
+                scale_invariant=True,
+                color=_rgba((0.6, 0.8, 1.0)),
+                text='scanner',
+            )
+        )
+        sensors_entity = SceneEntity(
+            timestamp=stamp, frame_id=fid, id='sensors', cubes=sensor_cubes, texts=sensor_texts
+        )
+        return [belt, chutes, disks, sensors_entity]
+
+    def _parcel_entities(self, stamp, parcels, motion, state_names) -> list[SceneEntity]:
+        fid = self.layout.frame_id
+        out = []
+        cols = (parcels[k].tolist() for k in ('id', 'x', 'y', 'phi', 'A', 'B', 'state'))
+        for i, (pid, x, y, phi, A, B, code) in enumerate(zip(*cols)):
+            state = state_names[code]
+            label = motion['label'][i]
+            path = self._paths.get(pid, ())
+            out.append(
+                SceneEntity(
+                    timestamp=stamp,
+                    frame_id=fid,
+                    id=f'parcel/{pid}',
+                    metadata=[
+                        KeyValuePair(key='label', value=label),
+                        KeyValuePair(key='state', value=state),
+                    ],
+                    cubes=[
+                        CubePrimitive(
+                            pose=_pose(x, y, 0.5 * PARCEL_HEIGHT, phi),
+                            size=Vector3(x=A, y=B, z=PARCEL_HEIGHT),
+                            color=_rgba(STATE_COLOURS[state]),
+                        )
+                    ],
+                    texts=[
+                        TextPrimitive(
+                            pose=_pose(x, y, PARCEL_HEIGHT + 0.1),
+                            billboard=True,
+                            font_size=12,
+                            scale_invariant=True,
+                            color=_rgba((1, 1, 1)),
+                            text=f'{pid} {label}',
+                        )
+                    ],
+                    lines=[
+                        LinePrimitive(
+                            thickness=2.0,
+                            scale_invariant=True,
+                            points=[Point3(x=px, y=py, z=0.01) for px, py in path],
+                            color=_rgba(STATE_COLOURS[state], 0.8),
+                        )
+                    ]
+                    if len(path) > 1
+                    else [],
+                )
+            )
+        return out
+
+    def close(self) -> None:
+        self.server.stop()
