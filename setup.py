@@ -30,6 +30,13 @@ setup(
         'pyarrow>=14.0',
         # sorter sweep / sorter paper: the progress bar over the points of a study
         'tqdm>=4.66',
+        # the live view: a Foxglove WebSocket server with Foxglove's own schemas
+        # (sorter_sim/live_view.py), no ROS bridge needed
+        'foxglove-sdk>=0.30',
+        # recordings: MCAP files in the ros2 profile (sorter_ros/recording.py); the ROS 2
+        # support package decodes them in sorter replay from the definitions inside
+        'mcap>=1.2',
+        'mcap-ros2-support>=0.5',
         'ros-jazzy-rclpy[fastrtps]>=7.1',
         'ros-jazzy-common-interfaces>=5.3',
     ],
@@ -38,7 +45,8 @@ setup(
         # time limit (test/suite_timeout.py) is an ordinary failure and the suite goes on
         # import-linter: the layer contracts in setup.cfg (test/test_layers.py);
         # ruff (flake8's checks) and ament-lint-pep257: lint as tests (test/test_lint.py);
-        # hypothesis: the property-based fuzz tests of every input (test/test_fuzz.py)
+        # hypothesis: the property-based fuzz tests of every input (test/test_fuzz.py);
+        # websockets and protobuf: a Foxglove client decoding the live view (test_live_view)
         'test': [
             'pytest>=8',
             'pytest-xdist>=3.5',
@@ -46,6 +54,9 @@ setup(
             'ruff>=0.6',
             'ament-lint-pep257>=0.14',
             'hypothesis>=6.100',
+            # a Foxglove client in the live-view test: WebSocket + the advertised protobuf
+            'websockets>=13',
+            'protobuf>=4.25',
         ],
     },
     zip_safe=True,
