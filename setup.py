@@ -37,6 +37,10 @@ setup(
         # support package decodes them in sorter replay from the definitions inside
         'mcap>=1.2',
         'mcap-ros2-support>=0.5',
+        # a Foxglove client (python -m sorter_cell.live_snapshot, the live-view test):
+        # WebSocket, and protobuf to decode the schemas the server advertises
+        'websockets>=13',
+        'protobuf>=4.25',
         'ros-jazzy-rclpy[fastrtps]>=7.1',
         'ros-jazzy-common-interfaces>=5.3',
     ],
@@ -45,8 +49,7 @@ setup(
         # time limit (test/suite_timeout.py) is an ordinary failure and the suite goes on
         # import-linter: the layer contracts in setup.cfg (test/test_layers.py);
         # ruff (flake8's checks) and ament-lint-pep257: lint as tests (test/test_lint.py);
-        # hypothesis: the property-based fuzz tests of every input (test/test_fuzz.py);
-        # websockets and protobuf: a Foxglove client decoding the live view (test_live_view)
+        # hypothesis: the property-based fuzz tests of every input (test/test_fuzz.py)
         'test': [
             'pytest>=8',
             'pytest-xdist>=3.5',
@@ -54,9 +57,6 @@ setup(
             'ruff>=0.6',
             'ament-lint-pep257>=0.14',
             'hypothesis>=6.100',
-            # a Foxglove client in the live-view test: WebSocket + the advertised protobuf
-            'websockets>=13',
-            'protobuf>=4.25',
         ],
     },
     zip_safe=True,

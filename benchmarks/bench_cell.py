@@ -2,7 +2,7 @@
 Benchmark of the simulation node: real-time factor with 100 parcels, cost per message.
 
 Not a test: it prints figures. The cell is the default one (config/cell.yaml)
-with the induct point moved 150 m upstream so that about a hundred parcels of
+with the induct point moved 230 m upstream so that about a hundred parcels of
 the default stream are on the belt at once, the disks permanently up at
 α = 90°, so every parcel is diverted (the costly case: each one slides over
 the disk field), 1 ms physics, poses at 100 Hz, sensors on change.
@@ -13,6 +13,10 @@ Three measurements after a warm-up that fills the cell (not timed):
           subscribed (rmw still serializes every message);
   node+sub  the same with one subscriber per output topic in the same process
           and executor, so delivery and the subscriber's callbacks count too.
+  node+live the node with its Foxglove live view on and one WebSocket client (in a
+          thread of this process) subscribed to every channel of it.
+  node+rec  the node recording everything it publishes to an MCAP file.
+The last two are the costs of the live view and the recording against ``node``.
 Real-time factor = simulated time / wall time over the measured span; cost per
 message = the node's wall time spent building and publishing messages divided
 by the number published.
@@ -44,7 +48,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from sorter_sim.cell import Cell  # noqa: E402
 from sorter_sim.params import CellParams  # noqa: E402
 
-BENCH_CELL = {'induct_x': -150.0, 'max_parcels': 256, 'alpha_deg': 90.0}
+BENCH_CELL = {'induct_x': -230.0, 'max_parcels': 256, 'alpha_deg': 90.0}
 
 
 def warm_up(cell: Cell, parcels: int) -> float:
@@ -85,7 +89,45 @@ def bench_cell(sim_s: float, parcels: int) -> dict:
     }
 
 
-def bench_node(sim_s: float, parcels: int, subscribe: bool) -> dict:
+class _LiveClient:
+    """A Foxglove WebSocket client in a thread: subscribes to every channel, counts frames."""
+
+    def __init__(self, port: int):
+        import json
+        import threading
+
+        from websockets.sync.client import connect
+
+        self.frames = 0
+        self._stop = threading.Event()
+        self.ws = connect(f'ws://127.0.0.1:{port}', subprotocols=['foxglove.sdk.v1'])
+        while True:
+            msg = json.loads(self.ws.recv(timeout=10))
+            if msg['op'] == 'advertise':
+                break
+        subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels']]
+        self.ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+        self.thread = threading.Thread(target=self._drain, daemon=True)
+        self.thread.start()
+
+    def _drain(self) -> None:
+        while not self._stop.is_set():
+            try:
+                frame = self.ws.recv(timeout=0.2)
+            except TimeoutError:
+                continue
+            except Exception:  # the server went away
+                return
+            if isinstance(frame, bytes):
+                self.frames += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        self.thread.join(timeout=2)
+        self.ws.close()
+
+
+def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> dict:
     from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
     from sorter_sim.node import SimNode
     from diagnostic_msgs.msg import DiagnosticStatus
@@ -97,6 +139,18 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool) -> dict:
     rclpy.init(context=ctx)
     try:
         values = {**BENCH_CELL, 'time_mode': 'fast'}
+        tmp = None
+        if extra == 'live':
+            import socket
+
+            with socket.socket() as probe:
+                probe.bind(('127.0.0.1', 0))
+                values['foxglove_port'] = probe.getsockname()[1]
+        elif extra == 'rec':
+            import tempfile
+
+            tmp = tempfile.TemporaryDirectory()
+            values['record_path'] = str(Path(tmp.name) / 'bench.mcap')
         node = SimNode(
             context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in values.items()]
         )
@@ -122,8 +176,15 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool) -> dict:
             deadline = time.monotonic() + 10.0
             while node._pub_poses.get_subscription_count() == 0 and time.monotonic() < deadline:
                 executor.spin_once(timeout_sec=0.01)
+        client = None
+        if extra == 'live':
+            client = _LiveClient(node.live_view.port)
+            deadline = time.monotonic() + 10.0
+            while not node.live_view.listening() and time.monotonic() < deadline:
+                time.sleep(0.01)
         warm_up(node.cell, parcels)
         k0, msgs0 = node.cell.k, node.n_messages
+        frames0 = node.live_view.frames_sent if client else 0
         node._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
         t_end = node.cell.t + sim_s
         t0 = time.perf_counter()
@@ -141,8 +202,15 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool) -> dict:
             'jams': node.cell.outcome_counts['jammed'],
             'received': received['n'],
         }
+        if client is not None:
+            out['frames'] = node.live_view.frames_sent - frames0
+            out['frames_per_wall_s'] = out['frames'] / wall
+            client.close()
         executor.shutdown()
         node.destroy_node()
+        if tmp is not None:
+            out['recorded_mb'] = (Path(tmp.name) / 'bench.mcap').stat().st_size / 1e6
+            tmp.cleanup()
         return out
     finally:
         rclpy.try_shutdown(context=ctx)
@@ -176,14 +244,31 @@ def main() -> int:
         f'{c["parcels_mean"]:.0f} parcels   integrated parcel-periods '
         f'{100 * c["integrated_share"]:.2f} %   jams {c["jams"]}'
     )
-    for subscribe in (False, True):
-        n = best_of([bench_node(args.sim_s, args.parcels, subscribe) for _ in range(args.repeat)])
-        name = 'node+sub' if subscribe else 'node'
+    base = None
+    for name, subscribe, extra in (
+        ('node', False, ''),
+        ('node+sub', True, ''),
+        ('node+live', False, 'live'),
+        ('node+rec', False, 'rec'),
+    ):
+        n = best_of(
+            [bench_node(args.sim_s, args.parcels, subscribe, extra) for _ in range(args.repeat)]
+        )
+        base = base or n
+        cost = '' if n is base else f'   cost {100 * (1 - n["rtf"] / base["rtf"]):+.1f} %'
         print(
             f'{name:9s} real-time factor {n["rtf"]:7.1f}   {n["us_per_period"]:6.1f} us/period '
             f'(physics)   {n["us_per_message"]:6.1f} us/message   '
             f'{n["messages_per_sim_s"]:.0f} messages per simulated s   {n["parcels"]} parcels   '
-            f'jams {n["jams"]}' + (f'   received {n["received"]}' if subscribe else '')
+            f'jams {n["jams"]}'
+            + (f'   received {n["received"]}' if subscribe else '')
+            + (
+                f'   frames {n["frames"]} ({n["frames_per_wall_s"]:.0f}/s)'
+                if extra == 'live'
+                else ''
+            )
+            + (f'   file {n["recorded_mb"]:.1f} MB' if extra == 'rec' else '')
+            + cost
         )
     print(f'# load average after {os.getloadavg()[0]:.2f}')
     return 0

@@ -658,10 +658,6 @@ def run(args) -> int | str:
         sim_params["record_path"] = controller_params["record_path"] = args.record
     if args.foxglove:
         sim_params["foxglove_port"] = args.foxglove
-        print(
-            f"sorter demo: live view on ws://127.0.0.1:{args.foxglove} (open it in Foxglove)",
-            file=sys.stderr,
-        )
     try:
         rc = RunningCell(
             sim_params=sim_params,
@@ -671,7 +667,12 @@ def run(args) -> int | str:
         ).__enter__()
     except ValueError as exc:
         # a node refused its start-up values (a busy live-view port, an unwritable file)
-        return f"sorter demo: {exc}"
+        return str(exc)
+    if args.foxglove:
+        print(
+            f"sorter demo: live view on ws://127.0.0.1:{args.foxglove} (open it in Foxglove)",
+            file=sys.stderr,
+        )
     try:
         wall = rc.run_for(args.sim_time, quiet=args.quiet)
         t_end = rc.finish()

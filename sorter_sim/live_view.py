@@ -326,7 +326,7 @@ class LiveView:
             ],
             texts=[
                 TextPrimitive(
-                    pose=_pose(0.5 * b, -w2 - 0.15, 0.05),
+                    pose=_pose(0.5 * b, -w2 + 0.08, 0.05),
                     billboard=True,
                     font_size=14,
                     scale_invariant=True,
