@@ -1,5 +1,5 @@
 """
-A picture of the live view as a Foxglove client receives it (``python -m sorter_cell.live_snapshot``).
+A picture of the live view as a Foxglove client receives it.
 
 Runs a cell (lock-step, the default stream, disks up at α = 45°) with its live view
 on, connects a WebSocket client speaking the Foxglove protocol, takes one
@@ -136,7 +136,7 @@ def draw_scene(scene, out: Path, title: str) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument('--out', default='docs/img/live_view.png', help='PNG to write')
     ap.add_argument('--sim-time', type=float, default=9.0, help='simulated seconds before it')
     args = ap.parse_args(argv)

@@ -54,7 +54,7 @@ from sorter_sim.description import Q
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
 from sorter_ros.interface import parameter_problem
-from sorter_ros.recording import open_recorder, release_recorder
+from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 
 from .logic import (
     ControllerConfig,
@@ -863,11 +863,9 @@ class ControllerNode(Node):
 
     def _publish(self, publisher, msg) -> None:
         """Publish ``msg``, count it per topic and record it (stamped with this node's clock)."""
-        publisher.publish(msg)
-        topic = publisher.topic_name
-        self.published[topic] += 1
-        if self.recorder is not None:
-            self.recorder.write(topic, msg, self.get_clock().now().nanoseconds)
+        t_ns = self.get_clock().now().nanoseconds if self.recorder is not None else 0
+        publish_recorded(publisher, msg, self.recorder, t_ns)
+        self.published[publisher.topic_name] += 1
 
     def destroy_node(self):
         """Finish the recording, then destroy the node."""

@@ -29,6 +29,25 @@ PROFILE = 'ros2'
 SEPARATOR = '=' * 80
 
 
+def publish_recorded(publisher, msg, recorder: Recorder | None, t_ns: int) -> None:
+    """
+    Publish ``msg`` (a message or its CDR bytes) and hand the same bytes to ``recorder``.
+
+    With a recorder the message is serialized once, here, and published as those bytes
+    (rclpy publishes serialized messages as they are): the recording holds exactly
+    what went out, and recording costs no second serialization.
+    """
+    if recorder is None:
+        publisher.publish(msg)
+        return
+    if isinstance(msg, (bytes, bytearray)):
+        data = msg
+    else:
+        data = serialize_message(msg)
+    publisher.publish(data)
+    recorder.write(publisher.topic_name, data, t_ns, publisher.msg_type)
+
+
 def type_name(msg_class) -> str:
     """Return 'pkg/msg/Type' of a rosidl message class."""
     pkg = msg_class.__module__.split('.')[0]
@@ -91,9 +110,10 @@ class Recorder:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self._stream = open(self.path, 'wb')
-        # small chunks: a process killed outright (no Ctrl-C) loses at most one of them
+        # LZ4 chunks rather than zstd: cheaper on the node's thread, files about 1.5x larger;
+        # 1 MiB chunks, so a process killed outright (no Ctrl-C) loses at most one of them
         self._writer = Writer(
-            self._stream, chunk_size=256 * 1024, compression=CompressionType.ZSTD
+            self._stream, chunk_size=1024 * 1024, compression=CompressionType.LZ4
         )
         self._writer.start(profile=PROFILE, library='sorter_cell')
         self._channels: dict[str, int] = {}
@@ -118,18 +138,25 @@ class Recorder:
         self._channels[topic] = channel
         return channel
 
-    def write(self, topic: str, msg, t_ns: int, msg_type: str | None = None) -> None:
-        """Write ``msg`` (a message, or CDR bytes with ``msg_type``) published at ``t_ns``."""
+    def write(self, topic: str, msg, t_ns: int, msg_type=None) -> None:
+        """
+        Write ``msg`` published on ``topic`` at ``t_ns``.
+
+        ``msg`` is a message, or its CDR bytes with ``msg_type`` (the message class or
+        'pkg/msg/Type'), which is needed only the first time a topic is written.
+        """
         if isinstance(msg, (bytes, bytearray)):
             data = bytes(msg)
         else:
             data = serialize_message(msg)
-            msg_type = msg_type or type_name(type(msg))
+            msg_type = type(msg)
         with self._lock:
             if self.closed:
                 return
             channel = self._channels.get(topic)
             if channel is None:
+                if not isinstance(msg_type, str):
+                    msg_type = type_name(msg_type)
                 channel = self._channel(topic, msg_type)
             self._writer.add_message(
                 channel_id=channel, log_time=t_ns, publish_time=t_ns, data=data

@@ -37,7 +37,7 @@ from sorter_ros.env import run_node
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
 from sorter_ros.interface import parameter_problem
-from sorter_ros.recording import open_recorder, release_recorder
+from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 
 from .cdr import pose_array_cdr, stamp
 from .cell import (
@@ -360,15 +360,12 @@ class SimNode(Node):
             self._cost['publish_s'] += time.perf_counter() - t1
 
     # ------------------------------------------------------------------ publishing
-    def _publish(self, publisher, msg, msg_type: str | None = None) -> None:
-        """Publish ``msg`` (or its CDR bytes, with ``msg_type``), count it and record it."""
-        publisher.publish(msg)
+    def _publish(self, publisher, msg) -> None:
+        """Publish ``msg`` (or its CDR bytes), count it per topic and record it."""
+        publish_recorded(publisher, msg, self.recorder, self.cell.t_ns)
         self._cost['messages'] += 1
         self.n_messages += 1
-        topic = publisher.topic_name
-        self.published[topic] += 1
-        if self.recorder is not None:
-            self.recorder.write(topic, msg, self.cell.t_ns, msg_type)
+        self.published[publisher.topic_name] += 1
 
     def _update_live_view(self) -> None:
         c = self.cell
@@ -463,7 +460,6 @@ class SimNode(Node):
             pose_array_cdr(
                 self.cell.t_ns, self.frame_id, parcels['x'], parcels['y'], parcels['phi']
             ),
-            'geometry_msgs/msg/PoseArray',
         )
 
     def _publish_diverter(self) -> None:
