@@ -98,6 +98,13 @@ def add_arguments(parser) -> None:
         action="store_true",
         help="no progress bar (there is none either when stderr is not a terminal)",
     )
+    parser.add_argument(
+        "--io",
+        choices=("ros", "modbus", "opcua"),
+        default="ros",
+        help="how the controller reaches the cell: ROS topics and services (ros, the default), "
+        "or as a soft PLC scanning the cell's I/O image over Modbus TCP or OPC UA",
+    )
 
 
 def _check_args(args) -> str | None:
@@ -345,7 +352,8 @@ def print_table(s: dict) -> None:
         ),
     ]
     width = max(len(r[0]) for r in rows)
-    print("sorter demo: the cell and its controller over ROS 2")
+    how = f"a soft PLC over {s['io']}" if s.get("io") else "its controller over ROS 2"
+    print(f"sorter demo: the cell and {how}")
     for name, value in rows:
         print(f"  {name:<{width}}  {value}")
 
@@ -633,6 +641,13 @@ def run(args) -> int | str:
     err = _check_args(args)
     if err:
         return err
+    if args.io != "ros":
+        if args.rtf != "fast" or args.foxglove or args.record:
+            return (
+                "--io modbus|opcua runs the cell and the soft PLC in step: no --rtf, "
+                "--foxglove or --record with it"
+            )
+        return run_soft_plc(args)
     from sorter_ros.env import find_config_dir
     from sorter_ros.params_file import read_params_file
 
@@ -700,6 +715,189 @@ def run(args) -> int | str:
         print(f"  paths                      {args.out}")
         if args.record:
             print(f"  recording                  {args.record} (sorter replay {args.record})")
+    return 0 if summary["mis_sorted"] == 0 and summary["jams"] == 0 else 1
+
+
+def _stream(args, config_dir: Path):
+    """Return the plan of the demo's stream (gaps, capacity) and the cell's stream values."""
+    from sorter_ros.params_file import read_params_file
+
+    cell = read_params_file(config_dir / "cell.yaml", "sorter_sim")
+    lengths = tuple(cell.get("parcel_A", [0.3, 0.7]))
+    plan = stream_plan(lengths, config_dir)
+    gap = (
+        tuple(args.gap)
+        if args.gap is not None
+        else (round(plan["min_gap_m"] + 0.02, 3), round(plan["min_gap_m"] + 0.4, 3))
+    )
+    plan["stream_gap_m"] = list(gap)
+    return plan, {
+        "arrival": "gap",
+        "arrival_gap": list(gap),
+        "labels": list(LABEL_CYCLE),
+        "seed": int(args.seed),
+    }
+
+
+def run_soft_plc(args) -> int | str:
+    """
+    ``sorter demo --io modbus|opcua``: the PLC program as a soft PLC on the cell's fieldbus.
+
+    The cell runs in this process with its Modbus TCP or OPC UA server; the soft PLC
+    (``sorter_control.soft_plc``) connects to it as a client, as a real PLC would, and
+    scans the I/O image once every scan period of simulated time: the cell advances a
+    scan period, the PLC reads its inputs, decides and writes its outputs, and so on
+    (the two step together, so the run is as fast as the machine and as repeatable as
+    the ROS demo). An observer node watches the cell's outcomes over ROS, as a
+    warehouse would.
+    """
+    import socket
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from sorter_control.node import config_from_values
+    from sorter_control.soft_plc import FieldbusError, ModbusIO, OpcUaIO, SoftPLC
+    from rclpy.signals import SignalHandlerOptions
+
+    from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
+    from sorter_sim.node import SimNode
+
+    apply_ros_env_defaults()
+    config_dir = find_config_dir()
+    plan, stream = _stream(args, config_dir)
+    cfg = config_from_values(_controller_values(config_dir))
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    ctx = Context()
+    log_level = "info" if args.verbose else "warn"
+    # Ctrl-C ends the stream where it is, as in the ROS demo; rclpy's own handler stays out
+    stop = StopSignals().install()
+    rclpy.init(
+        signal_handler_options=SignalHandlerOptions.NO,
+        context=ctx,
+        args=[
+            "--ros-args",
+            "--params-file",
+            str(config_dir / "cell.yaml"),
+            "--log-level",
+            log_level,
+        ],
+    )
+    nodes, io = [], None
+    try:
+        sim = SimNode(
+            context=ctx,
+            parameter_overrides=[
+                Parameter(k, value=v)
+                for k, v in {
+                    "time_mode": "lockstep",
+                    "pose_rate_hz": 50.0,
+                    f"{args.io}_port": port,
+                    **stream,
+                    "arrival": "none",
+                }.items()
+            ],
+        )
+        nodes.append(sim)
+        watcher = rclpy.create_node("sorter_demo", context=ctx)
+        nodes.append(watcher)
+        obs = _Observer(watcher, want_paths=True)
+        executor = SingleThreadedExecutor(context=ctx)
+        for n in nodes:
+            executor.add_node(n)
+        sensors = sim.cell.sensor_names
+        try:
+            if args.io == "modbus":
+                io = ModbusIO("127.0.0.1", sim.fieldbus.modbus_port, sensors)
+            else:
+                io = OpcUaIO(sim.fieldbus.opcua_endpoint, "cell", sensors)
+        except FieldbusError as exc:
+            return str(exc)
+        plc = SoftPLC(cfg, io)
+        lo, hi = sim.params.parcel_A
+        plc.logic.warm_up(plc.logic.warm_lengths(lo, hi))
+        sim.set_parameters([Parameter("arrival", value="gap")])
+        per_scan = max(1, round(cfg.scan_period / sim.cell.dt))
+        t0, wall0 = sim.cell.t, time.monotonic()
+        from sorter_sim.progress import progress_bar
+
+        bar = progress_bar(
+            round(args.sim_time, 3), f"sorter demo --io {args.io}", "s", quiet=args.quiet
+        )
+        shown = 0.0
+        while sim.cell.t - t0 < args.sim_time and not stop.is_set():
+            sim.advance(per_scan)
+            plc.scan()
+            executor.spin_once(timeout_sec=0.0)
+            if sim.cell.t - t0 - shown >= 0.1:
+                bar.update(round(sim.cell.t - t0 - shown, 3))
+                shown = sim.cell.t - t0
+        bar.close()
+        wall = time.monotonic() - wall0
+        t_end = sim.cell.t - t0
+        deadline = time.monotonic() + 0.5
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.02)
+        for c in plc.confirmations:
+            obs.confirmations[c.label] = {
+                "label": c.label,
+                "destination_asked": c.destination_asked,
+                "destination_reached": c.destination_reached,
+                "result": c.result,
+            }
+        st = plc.logic.status()
+        obs.ctl_diag = {
+            "state": st["state"],
+            **{k: str(v) for k, v in st["counts"].items()},
+            **{f"fault_{k}": str(v) for k, v in st["faults"].items()},
+            "scan_wall_p99_ms": f"{st['scan_wall_p99_ms']:.3f}",
+        }
+        summary = summarize(obs, plan, t_end, wall, f"soft PLC over {args.io}")
+        summary["io"] = args.io
+        summary["io_requests"] = io.requests
+        summary["io_write_errors"] = plc.write_errors
+        summary["png"] = str(args.out)
+        params = {
+            k: sim.get_parameter(k).value
+            for k in ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")
+        }
+        params["photo_eyes.names"] = list(sim.params.photo_eyes_names)
+        params["photo_eyes.x"] = list(sim.params.photo_eyes_x)
+        title = (
+            f"sorter demo, soft PLC over {args.io}: {summary['inducted']} parcels in "
+            f"{summary['sim_time_s']:g} s, mis-sorted {summary['mis_sorted']}, "
+            f"jams {summary['jams']}"
+        )
+        try:
+            plot_paths(
+                obs.paths, exits_by_id(obs.outcomes.values()), params, title, Path(args.out)
+            )
+        except OSError as exc:
+            summary["png"] = None
+            print(
+                f"sorter demo: cannot write {args.out!r}: {exc.strerror or exc}", file=sys.stderr
+            )
+    finally:
+        stop.quiet = True
+        if io is not None:
+            io.close()
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        stop.restore()
+    if args.json:
+        print(json.dumps(summary, sort_keys=True))
+    else:
+        print_table(summary)
+        print(
+            f"  fieldbus                   {args.io}: {summary['io_requests']} requests, "
+            f"{summary['io_write_errors']} refused writes"
+        )
+        print(f"  paths                      {args.out}")
     return 0 if summary["mis_sorted"] == 0 and summary["jams"] == 0 else 1
 
 

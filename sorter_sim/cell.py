@@ -157,6 +157,7 @@ class Cell:
         self.act = np.zeros(ck.ACT_WIDTH)
         self.act[ck.A_ALPHA] = self.act[ck.A_ALPHA_CMD] = params.alpha_rad
         self.act[ck.A_BELT_ON] = 1.0
+        self.belt_run = True  # the belt's run command (a fieldbus output); e-stop overrides it
         self.k = 0
         self.estop = False
         self.jam = False
@@ -286,8 +287,16 @@ class Cell:
             edges += self._remove(int(i))
         self.estop = False
         self.jam = False
-        self.act[ck.A_BELT_ON] = 1.0
+        self.act[ck.A_BELT_ON] = 1.0 if self.belt_run else 0.0
         return edges
+
+    def run_belt(self, run: bool) -> tuple[bool, str]:
+        """Run or stop the belt (the run command); while the e-stop holds, it stays stopped."""
+        self.belt_run = bool(run)
+        if self.estop:
+            return False, 'the belt stays stopped: e-stop engaged (call reset first)'
+        self.act[ck.A_BELT_ON] = 1.0 if run else 0.0
+        return True, 'belt running' if run else 'belt stopped'
 
     @property
     def faults(self) -> list[str]:

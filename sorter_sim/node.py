@@ -51,6 +51,8 @@ from .cell import (
     WatchdogTrip,
 )
 from .description import shown
+from .fieldbus import FieldbusServers, IOImage, ScannerQueue
+from .io_map import io_map
 from .live_view import CellLayout, LiveView
 from .warmup import warm_cell
 from .params import SCHEMA, SPECS, CellParams, ParamError
@@ -114,6 +116,8 @@ class SimNode(Node):
         self.published = Counter()  # messages per topic, counted where they are published
         self.recorder = None
         self.live_view = None
+        self.io_image = None  # the fieldbus I/O image, when a server is on
+        self.fieldbus = None
         self._open_outputs()
         self._pub_poses = self.create_publisher(PoseArray, 'parcels/poses', STREAM_QOS)
         self._pub_ids = self.create_publisher(UInt32MultiArray, 'parcels/ids', STREAM_QOS)
@@ -217,11 +221,116 @@ class SimNode(Node):
                     f'live view: Foxglove WebSocket server on '
                     f'ws://{p.foxglove_host}:{self.live_view.port}'
                 )
+            if p.modbus_port or p.opcua_port:
+                self._open_fieldbus()
         except ParamError:
             self._close_outputs()
             raise
 
+    def _open_fieldbus(self) -> None:
+        p = self.params
+        self.io_image = IOImage(
+            io_map(self.cell.sensor_names),
+            {
+                'diverter.popup': False,
+                'cell.reset': False,
+                'belt.run': True,
+                'scanner.ack': False,
+                'cell.estop': False,
+                'diverter.alpha_setpoint': p.alpha_deg,
+                'plc.heartbeat': 0,
+            },
+        )
+        self._scanner = ScannerQueue()
+        self._belt_travel = 0.0
+        self._io_refused = 0
+        self.fieldbus = FieldbusServers(
+            self.io_image,
+            modbus=(p.modbus_host, p.modbus_port) if p.modbus_port else None,
+            opcua=(p.opcua_host, p.opcua_port) if p.opcua_port else None,
+            cell_name=self.get_namespace().strip('/').replace('/', '_') or 'cell',
+        )
+        try:
+            self.fieldbus.start()
+        except ValueError as exc:
+            self.fieldbus = None
+            key = 'modbus_port' if 'Modbus' in str(exc) else 'opcua_port'
+            raise ParamError(f'parameter {key!r}: {exc}') from None
+        self._refresh_io([])
+        served = []
+        if self.fieldbus.modbus_port:
+            served.append(f'Modbus TCP on {p.modbus_host}:{self.fieldbus.modbus_port}')
+        if self.fieldbus.opcua_endpoint:
+            served.append(f'OPC UA on {self.fieldbus.opcua_endpoint}')
+        self.get_logger().info('fieldbus I/O image: ' + ', '.join(served))
+
+    def _apply_io(self) -> None:
+        """Apply what the PLC wrote since the last period (outputs of the I/O image)."""
+        out, rises = self.io_image.take_outputs()
+        if not out:
+            return
+        c = self.cell
+        for name, value in out.items():
+            ok = True
+            if name == 'diverter.popup':
+                ok, _ = c.popup(bool(value))
+            elif name == 'belt.run':
+                ok, _ = c.run_belt(bool(value))
+            elif name == 'plc.heartbeat':
+                if c.heartbeat():
+                    self.get_logger().info('PLC heartbeat back: watchdog cleared')
+                    self._publish_status()
+            elif name == 'diverter.alpha_setpoint':
+                result = self.set_parameters([Parameter('alpha_deg', value=float(value))])[0]
+                ok = result.successful
+            self._io_refused += not ok
+        if 'cell.estop' in rises:
+            c.engage_estop()
+            self._publish_status()
+            self.get_logger().warning('e-stop engaged by the PLC: belt stopped, disks dropping')
+        if 'cell.reset' in rises:
+            self._publish_events(c.reset())
+        if 'scanner.ack' in rises:
+            self._scanner.ack()
+
+    def _refresh_io(self, events) -> None:
+        """Latch the cell's state into the inputs of the I/O image (end of a period)."""
+        c = self.cell
+        values = {}
+        for e in events:
+            if isinstance(e, SensorEdge):
+                values[f'sensor.{e.sensor}'] = e.blocked
+                edge = 'rise' if e.blocked else 'fall'
+                values[f'sensor.{e.sensor}.{edge}_time'] = e.t_ns * 1e-9
+            elif isinstance(e, LabelRead):
+                self._scanner.read(e.label)
+        if not events and c.k == 0:
+            values.update({f'sensor.{n}': b for n, b in c.sensor_states().items()})
+        q = self._scanner
+        stroke = c.stroke
+        values.update(
+            {
+                'scanner.ready': bool(q.waiting),
+                'scanner.label': q.waiting[0] if q.waiting else '',
+                'scanner.sequence': q.sequence,
+                'diverter.up': stroke >= 0.999,
+                'diverter.down': stroke <= 0.001,
+                'diverter.alpha': math.degrees(c.alpha),
+                'diverter.stroke': stroke,
+                'status.estop': c.estop,
+                'status.jam': c.jam,
+                'status.watchdog': c.watchdog_tripped,
+                'status.fault': bool(c.faults),
+                'belt.encoder': self._belt_travel,
+                'cell.time': c.t_ns * 1e-9,
+            }
+        )
+        self.io_image.refresh_inputs(values)
+
     def _close_outputs(self) -> None:
+        if self.fieldbus is not None:
+            self.fieldbus.stop()
+            self.fieldbus = None
         if self.live_view is not None:
             self.live_view.close()
             self.live_view = None
@@ -338,9 +447,15 @@ class SimNode(Node):
         strides = (p.pose_stride, p.marker_stride, p.heartbeat_stride)
         while n > 0:
             k = self.cell.k
-            m = min([n] + [s - k % s for s in strides])
+            # with a fieldbus, one period at a time: the I/O image is exchanged every period
+            m = 1 if self.io_image is not None else min([n] + [s - k % s for s in strides])
             t0 = time.perf_counter()
+            if self.io_image is not None:
+                self._apply_io()
+                self._belt_travel += self.cell.belt_velocity * self.cell.dt
             events = self.cell.advance(m)
+            if self.io_image is not None:
+                self._refresh_io(events)
             t1 = time.perf_counter()
             self._cost['step_s'] += t1 - t0
             self._cost['periods'] += m
@@ -550,6 +665,7 @@ class SimNode(Node):
             'clock_publishers': str(clock_publishers),
             'watchdog_trips': str(self.cell.watchdog_trips),
             'callback_errors': str(getattr(self, 'callback_errors', 0)),
+            **self._fieldbus_diagnostics(),
             **{f'exits_{k}': str(v) for k, v in counts.items()},
         }
         status = DiagnosticStatus(
@@ -562,6 +678,19 @@ class SimNode(Node):
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = _time_msg(self.cell.t_ns)
         self._publish(self._pub_diag, msg)
+
+    def _fieldbus_diagnostics(self) -> dict:
+        if self.io_image is None:
+            return {}
+        st = self.io_image.stats
+        return {
+            'fieldbus_writes': str(st['writes']),
+            'fieldbus_writes_refused': str(st['refused']),
+            # outputs a newer write replaced before the cell applied them: lost updates
+            'fieldbus_outputs_lost': str(st['overwritten']),
+            'fieldbus_outputs_refused_by_cell': str(self._io_refused),
+            'fieldbus_labels_dropped': str(self._scanner.dropped),
+        }
 
     # ------------------------------------------------------------------ services
     def _srv_popup(self, request, response):

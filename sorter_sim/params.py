@@ -29,6 +29,7 @@ from typing import Any
 
 from .core.friction import LAW_NAMES
 from .description import LABEL_MAX, Q, label_problem, shown
+from .io_map import MAX_SENSORS
 
 DOUBLE = 'double'
 INTEGER = 'integer'
@@ -450,6 +451,27 @@ SCHEMA: tuple[ParamSpec, ...] = (
         200.0,
     ),
     _p(
+        'modbus_port',
+        INTEGER,
+        0,
+        'TCP port of the Modbus TCP server of the I/O image (README, Fieldbus); 0: off',
+        '',
+        0,
+        65535,
+    ),
+    _p('modbus_host', STRING, '127.0.0.1', 'address the Modbus TCP server binds to'),
+    _p(
+        'opcua_port',
+        INTEGER,
+        0,
+        'TCP port of the OPC UA server of the I/O image (opc.tcp://<host>:<port>/sorter_cell/); '
+        '0: off',
+        '',
+        0,
+        65535,
+    ),
+    _p('opcua_host', STRING, '127.0.0.1', 'address the OPC UA server binds to'),
+    _p(
         'record_path',
         STRING,
         '',
@@ -653,6 +675,10 @@ class CellParams:
     foxglove_port: int
     foxglove_host: str
     foxglove_rate_hz: float
+    modbus_port: int
+    modbus_host: str
+    opcua_port: int
+    opcua_host: str
     record_path: str
 
     # -- construction ------------------------------------------------------
@@ -815,10 +841,17 @@ class CellParams:
                 f'got {shown(self.control_period)}'
             )
         check_label_pattern(self.label_pattern, self.labels)
-        if self.foxglove_port and not 0 < len(self.foxglove_host) <= 253:
+        for name in ('foxglove', 'modbus', 'opcua'):
+            host = getattr(self, f'{name}_host')
+            if getattr(self, f'{name}_port') and not 0 < len(host) <= 253:
+                raise ParamError(
+                    f'parameter \'{name}_host\' must be a host name or address (1 to 253 '
+                    f'characters), got {shown(host)}'
+                )
+        if len(self.photo_eyes_names) + 2 > MAX_SENSORS and (self.modbus_port or self.opcua_port):
             raise ParamError(
-                'parameter \'foxglove_host\' must be a host name or address (1 to 253 '
-                f'characters), got {shown(self.foxglove_host)}'
+                f'the fieldbus I/O map takes at most {MAX_SENSORS} sensors (photo-eyes and the '
+                f'two chute sensors); photo_eyes.names has {len(self.photo_eyes_names)}'
             )
         if len(self.record_path) > 4096:
             raise ParamError(

@@ -1,0 +1,245 @@
+"""
+The sorter's PLC program as a soft PLC on the fieldbus: what a real PLC would do.
+
+The same ``SorterLogic`` the controller node runs, scanning the cell's I/O image
+over Modbus TCP (``ModbusIO``, pymodbus client) or OPC UA (``OpcUaIO``, asyncua
+client) instead of ROS topics and services: each scan reads every input at once
+(sensor bits, the latched edge times, the scanner's label with its ready/ack
+handshake, the diverter's feedback, the status bits, the cell's clock), runs the
+logic, and writes the outputs (pop-up coil, α setpoint, e-stop and reset pulses,
+the heartbeat the cell's watchdog expects). Only the declared I/O map
+(``sorter_sim.io_map``, part of the cell description) is shared with the cell.
+
+A write the server refuses (a Modbus exception, an OPC UA bad status) comes back
+to the logic as a refused command, as a refused service call does in the node.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+from sorter_sim.io_map import COIL, DI, INPUT, IR, OUTPUT, Signal, io_map
+
+from .logic import SorterLogic
+from .logic.config import ControllerConfig
+from .logic.image import DiverterState, Edge, InputImage, Reply
+
+
+class FieldbusError(Exception):
+    """A fieldbus read or write failed (connection lost, refused by the server)."""
+
+
+class ModbusIO:
+    """The I/O image over Modbus TCP: one request per input table, one per output write."""
+
+    def __init__(self, host: str, port: int, sensor_names, timeout: float = 2.0):
+        from pymodbus.client import ModbusTcpClient
+
+        self.signals = io_map(sensor_names)
+        self.client = ModbusTcpClient(host, port=port, timeout=timeout, retries=0)
+        if not self.client.connect():
+            raise FieldbusError(f'cannot connect to Modbus TCP {host}:{port}')
+        self._inputs = [s for s in self.signals if s.direction == INPUT]
+        self._spans = {
+            t: (
+                min(s.address for s in self._inputs if s.table == t),
+                max(s.address + s.words for s in self._inputs if s.table == t),
+            )
+            for t in (DI, IR)
+        }
+        self.requests = 0
+
+    def read_inputs(self) -> dict:
+        lo, hi = self._spans[DI]
+        r = self.client.read_discrete_inputs(lo, count=hi - lo)
+        self.requests += 1
+        if r.isError():
+            raise FieldbusError(f'reading discrete inputs: {r}')
+        bits = r.bits
+        lo_r, hi_r = self._spans[IR]
+        regs = []
+        # at most 125 registers a request (the protocol's limit)
+        for a in range(lo_r, hi_r, 125):
+            rr = self.client.read_input_registers(a, count=min(125, hi_r - a))
+            self.requests += 1
+            if rr.isError():
+                raise FieldbusError(f'reading input registers: {rr}')
+            regs += rr.registers
+        values = {}
+        for s in self._inputs:
+            if s.table == DI:
+                values[s.name] = bool(bits[s.address - lo])
+            else:
+                values[s.name] = _decode(s, regs[s.address - lo_r : s.address - lo_r + s.words])
+        return values
+
+    def write(self, s: Signal, value) -> str | None:
+        """Write one output; return None, or why the server refused it."""
+        if s.table == COIL:
+            r = self.client.write_coil(s.address, bool(value))
+        else:
+            r = self.client.write_register(s.address, s.raw(value))
+        self.requests += 1
+        if r.isError():
+            return f'Modbus exception {getattr(r, "exception_code", "?")} writing {s.name}'
+        return None
+
+    def close(self) -> None:
+        self.client.close()
+
+
+class OpcUaIO:
+    """The I/O image over OPC UA: one Read of every input a scan, one Write per output."""
+
+    def __init__(self, endpoint: str, cell_name: str, sensor_names, timeout: float = 4.0):
+        from asyncua import ua
+        from asyncua.sync import Client
+
+        self.ua = ua
+        self.signals = io_map(sensor_names)
+        self.client = Client(endpoint, timeout=timeout)
+        try:
+            self.client.connect()
+        except Exception as exc:
+            raise FieldbusError(f'cannot connect to OPC UA {endpoint}: {exc}') from None
+        idx = self.client.get_namespace_index('urn:sorter_cell')
+        cell = self.client.nodes.objects.get_child([f'{idx}:{cell_name}'])
+        self._inputs = [s for s in self.signals if s.direction == INPUT]
+        folder = {
+            INPUT: cell.get_child([f'{idx}:Inputs']),
+            OUTPUT: cell.get_child([f'{idx}:Outputs']),
+        }
+        self.nodes = {
+            s.name: folder[s.direction].get_child([f'{idx}:{s.name}']) for s in self.signals
+        }
+        self._input_nodes = [self.nodes[s.name] for s in self._inputs]
+        self.requests = 0
+
+    def read_inputs(self) -> dict:
+        values = self.client.read_values(self._input_nodes)
+        self.requests += 1
+        return {s.name: v for s, v in zip(self._inputs, values)}
+
+    def write(self, s: Signal, value) -> str | None:
+        ua = self.ua
+        if s.type == 'bool':
+            variant = ua.Variant(bool(value), ua.VariantType.Boolean)
+        elif s.opcua_type == 'Double':
+            variant = ua.Variant(float(value), ua.VariantType.Double)
+        else:
+            variant = ua.Variant(int(value), getattr(ua.VariantType, s.opcua_type))
+        try:
+            self.nodes[s.name].write_value(variant)
+        except Exception as exc:  # asyncua raises the server's bad status code
+            return f'OPC UA {type(exc).__name__} writing {s.name}'
+        finally:
+            self.requests += 1
+        return None
+
+    def close(self) -> None:
+        self.client.disconnect()
+
+
+def _decode(s: Signal, regs: list[int]):
+    if s.type == 'string':
+        data = b''.join(bytes((r >> 8, r & 0xFF)) for r in regs)
+        return data.rstrip(b'\0').decode('ascii', 'replace')
+    if s.type == 'uint32':
+        return s.value((regs[0] << 16) | regs[1])
+    return s.value(regs[0])
+
+
+class SoftPLC:
+    """
+    ``SorterLogic`` scanning a fieldbus I/O image.
+
+    ``scan()`` is one PLC cycle: read the inputs, run the program, write the outputs.
+    Confirmations and log lines of each scan are kept (``confirmations``, ``log``).
+    """
+
+    def __init__(self, config: ControllerConfig, io):
+        self.config = config
+        self.io = io
+        self.logic = SorterLogic(config)
+        self.out = {s.name: s for s in io.signals if s.direction == OUTPUT}
+        self._edge_times: dict[str, float] = {}
+        self._replies: list[Reply] = []
+        self._ack = False
+        self._pulses: list[str] = []  # pulse outputs to bring back to 0 next scan
+        self._beat = 0
+        self.confirmations = []
+        self.log: list[tuple[str, str]] = []
+        self.scans = 0
+        self.write_errors = 0
+
+    def scan(self) -> float:
+        """Run one scan; return the cell time it read [s]."""
+        wall0 = time.perf_counter()
+        for name in self._pulses:
+            self._write(name, False)
+        self._pulses = []
+        if self._ack:
+            self._write('scanner.ack', False)
+            self._ack = False
+        x = self.io.read_inputs()
+        t = float(x['cell.time'])
+        bits, edges = {}, []
+        for s in self.io.signals:
+            if s.table == DI and s.name.startswith('sensor.'):
+                sensor = s.name[len('sensor.') :]
+                bits[sensor] = bool(x[s.name])
+                for edge, rising in (('rise', True), ('fall', False)):
+                    key = f'{s.name}.{edge}_time'
+                    te = float(x[key])
+                    if te > 0.0 and te != self._edge_times.get(key):
+                        self._edge_times[key] = te
+                        edges.append(Edge(sensor, te, rising))
+        edges.sort(key=lambda e: e.t)
+        labels = []
+        if x['scanner.ready']:
+            labels.append((t, x['scanner.label']))
+            self._write('scanner.ack', True)
+            self._ack = True
+        image = InputImage(
+            t=t,
+            bits=bits,
+            edges=edges,
+            labels=labels,
+            diverter=DiverterState(
+                alpha=math.radians(x['diverter.alpha']), stroke=x['diverter.stroke']
+            ),
+            replies=self._replies,
+            cell_estop=bool(x['status.estop']),
+            cell_jam=bool(x['status.jam']),
+            cell_status_t=t,
+        )
+        self._replies = []
+        out = self.logic.scan(image)
+        self._beat = (self._beat + 1) & 0xFFFF
+        self._write('plc.heartbeat', self._beat)
+        for cmd in out.commands:
+            self._command(cmd)
+        self.confirmations += out.confirmations
+        self.log += out.log
+        self.scans += 1
+        self.logic.record_scan_wall(time.perf_counter() - wall0)
+        return t
+
+    def _command(self, cmd) -> None:
+        if cmd.kind == 'popup':
+            err = self._write('diverter.popup', bool(cmd.value))
+        elif cmd.kind == 'alpha':
+            err = self._write('diverter.alpha_setpoint', float(cmd.value))
+        elif cmd.kind in ('estop', 'reset'):
+            name = 'cell.estop' if cmd.kind == 'estop' else 'cell.reset'
+            err = self._write(name, True)
+            self._pulses.append(name)
+        else:
+            err = f'no output for {cmd.kind}'
+        self._replies.append(Reply(cmd.id, err is None, err or 'written'))
+
+    def _write(self, name: str, value) -> str | None:
+        err = self.io.write(self.out[name], value)
+        self.write_errors += err is not None
+        return err

@@ -1,0 +1,435 @@
+"""
+The cell's fieldbus: one I/O image, served over Modbus TCP and OPC UA.
+
+``IOImage`` is the cell's process image, generic over the declared I/O map
+(``sorter_sim.io_map``): the simulation node refreshes its inputs at the end of
+every physics period and takes the outputs clients wrote at the start of the next
+one, the way a PLC's I/O image is exchanged once per cycle. ``FieldbusServers``
+serves it in one background thread (an asyncio loop): Modbus TCP with pymodbus
+(discrete inputs, coils, input and holding registers at the map's addresses and
+scaling) and OPC UA with asyncua (a folder per cell, ``Inputs`` and ``Outputs``
+with typed variables in engineering units; only outputs are writable).
+
+Bad writes change nothing and get the protocol's own error: Modbus exception 2
+(illegal data address) for an address no output has, 3 (illegal data value) for
+a value outside the output's range; OPC UA ``BadNotWritable`` for inputs,
+``BadTypeMismatch`` for a wrong type and ``BadOutOfRange`` for NaN or a value out
+of range. Every write is checked and applied whole, under the image's lock, so two
+clients writing at once each see their write applied or refused as a unit. No ROS
+here: the node hands the image what the cell reports and applies what it returns.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import threading
+from collections import deque
+
+from .io_map import COIL, DI, HR, INPUT, IR, OUTPUT, by_name, table_size
+
+_TABLES = (DI, COIL, IR, HR)
+# Modbus function code -> table it reads or writes
+_FC_TABLE = {1: COIL, 2: DI, 3: HR, 4: IR, 5: COIL, 15: COIL, 6: HR, 16: HR}
+_FC_WRITES = {5, 6, 15, 16}
+LABEL_QUEUE = 64  # labels the scanner keeps while the PLC has not acknowledged them
+
+
+class WriteRefused(Exception):
+    """A client's write that the image refuses; ``code`` names why (address/value)."""
+
+    def __init__(self, code: str, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+class IOImage:
+    """
+    The process image: inputs (cell -> PLC) and outputs (PLC -> cell) of one cell.
+
+    Thread-safe: the node and the servers' thread meet here under one lock.
+    """
+
+    def __init__(self, signals, initial_outputs: dict):
+        self.signals = tuple(signals)
+        self.by_name = by_name(self.signals)
+        self._lock = threading.Lock()
+        self.raw = {t: [0] * table_size(self.signals, t) for t in _TABLES}
+        # which output signal owns each coil / holding register
+        self._owner = {COIL: {}, HR: {}}
+        for s in self.signals:
+            if s.direction == OUTPUT:
+                for a in range(s.address, s.address + s.words):
+                    self._owner[s.table][a] = s
+        self.inputs = {s.name: _zero(s) for s in self.signals if s.direction == INPUT}
+        self.outputs = {}
+        for name, value in initial_outputs.items():
+            self._store_output(self.by_name[name], value)
+        self._pending: dict[str, object] = {}
+        self._rises: set[str] = set()
+        self.stats = {'writes': 0, 'refused': 0, 'overwritten': 0, 'refreshes': 0}
+
+    # ---------------------------------------------------------------- the cell's side
+    def refresh_inputs(self, values: dict) -> None:
+        """Set input signals (engineering values) and their raw registers."""
+        with self._lock:
+            for name, value in values.items():
+                s = self.by_name[name]
+                self.inputs[name] = value
+                self._encode(s, value)
+            self.stats['refreshes'] += 1
+
+    def take_outputs(self) -> tuple[dict, set]:
+        """
+        Return the outputs written since the last call and the bits that rose meanwhile.
+
+        ({name: engineering value}, {names of bool outputs that went 0 -> 1}): a pulse a
+        client writes within one physics period (1 then 0) still counts as a rising edge.
+        """
+        with self._lock:
+            out, self._pending = self._pending, {}
+            rises, self._rises = self._rises, set()
+        return out, rises
+
+    def output(self, name: str):
+        with self._lock:
+            return self.outputs[name]
+
+    # ---------------------------------------------------------------- the clients' side
+    def snapshot(self, table: str) -> list[int]:
+        """Return a copy of a Modbus table's raw values."""
+        with self._lock:
+            return list(self.raw[table])
+
+    def write_raw(self, table: str, address: int, values: list[int]) -> None:
+        """
+        Write raw coils or holding registers; all of it is applied, or none.
+
+        Raises WriteRefused('address') when an address holds no output (inputs are read
+        only), WriteRefused('value') when a value is outside its output's range.
+        """
+        owners = self._owner.get(table)
+        if owners is None:
+            raise WriteRefused('address', f'{table} is read-only')
+        changes = {}
+        for i, raw in enumerate(values):
+            s = owners.get(address + i)
+            if s is None:
+                raise WriteRefused('address', f'no output at {table} {address + i}')
+            if s.words != 1:
+                raise WriteRefused('address', f'{s.name} spans {s.words} registers')
+            value = bool(raw) if s.type == 'bool' else s.value(int(raw))
+            if not s.accepts(value):
+                raise WriteRefused('value', f'{s.name} = {value} outside [{s.lo}, {s.hi}]')
+            changes[s.name] = value
+        self._apply(changes)
+
+    def write_value(self, name: str, value) -> None:
+        """Write one output by name in engineering units (OPC UA); WriteRefused if not."""
+        s = self.by_name.get(name)
+        if s is None or s.direction != OUTPUT:
+            raise WriteRefused('address', f'{name} is not an output')
+        if s.type != 'bool' and isinstance(value, float) and not math.isfinite(value):
+            raise WriteRefused('value', f'{name} must be finite')
+        if not s.accepts(value):
+            raise WriteRefused('value', f'{name} = {value} outside [{s.lo}, {s.hi}]')
+        self._apply({name: bool(value) if s.type == 'bool' else float(value)})
+
+    def count_refused(self) -> None:
+        with self._lock:
+            self.stats['refused'] += 1
+
+    def _apply(self, changes: dict) -> None:
+        with self._lock:
+            for name, value in changes.items():
+                if name in self._pending and self._pending[name] != value:
+                    # a newer write before the cell took the older one: the older is lost
+                    self.stats['overwritten'] += 1
+                if value is True and self.outputs[name] is False:
+                    self._rises.add(name)
+                self._store_output(self.by_name[name], value)
+                self._pending[name] = value
+            self.stats['writes'] += 1
+
+    # ---------------------------------------------------------------- encoding
+    def _store_output(self, s, value) -> None:
+        self.outputs[s.name] = value
+        self._encode(s, value)
+
+    def _encode(self, s, value) -> None:
+        regs = self.raw[s.table]
+        a = s.address
+        if s.type == 'bool':
+            regs[a] = 1 if value else 0
+        elif s.type == 'string':
+            data = value.encode('ascii', 'replace')[: 2 * s.words].ljust(2 * s.words, b'\0')
+            regs[a : a + s.words] = [(data[2 * i] << 8) | data[2 * i + 1] for i in range(s.words)]
+        elif s.type == 'uint32':
+            raw = s.raw(value)
+            regs[a], regs[a + 1] = raw >> 16, raw & 0xFFFF
+        else:
+            regs[a] = s.raw(value)
+
+
+def _zero(s):
+    return False if s.type == 'bool' else '' if s.type == 'string' else 0.0
+
+
+class ScannerQueue:
+    """The scanner's labels waiting for the PLC's acknowledgement (bounded; oldest first)."""
+
+    def __init__(self):
+        self.waiting: deque[str] = deque()
+        self.sequence = 0
+        self.dropped = 0
+
+    def read(self, label: str) -> None:
+        self.sequence = (self.sequence + 1) & 0xFFFF
+        if len(self.waiting) >= LABEL_QUEUE:
+            self.waiting.popleft()
+            self.dropped += 1
+        self.waiting.append(label)
+
+    def ack(self) -> None:
+        if self.waiting:
+            self.waiting.popleft()
+
+
+# ------------------------------------------------------------------------ the servers
+class FieldbusServers:
+    """
+    Modbus TCP and OPC UA servers of one ``IOImage``, in a thread of their own.
+
+    ``modbus`` / ``opcua``: (host, port) or None. ``start()`` returns once both listen
+    and raises ValueError with one line when one cannot (port busy, unknown host).
+    """
+
+    def __init__(self, image: IOImage, *, modbus=None, opcua=None, cell_name: str = 'cell'):
+        self.image = image
+        self.modbus_addr = modbus
+        self.opcua_addr = opcua
+        self.cell_name = cell_name or 'cell'
+        self.loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._run, name='fieldbus', daemon=True)
+        self._ready = threading.Event()
+        self._error: str | None = None
+        self._modbus = None
+        self._opcua = None
+        self.opcua_nodes: dict[str, object] = {}
+        self.modbus_port: int | None = None
+        self.opcua_endpoint: str | None = None
+
+    def start(self) -> None:
+        self._thread.start()
+        if not self._ready.wait(60.0):
+            raise ValueError('the fieldbus servers did not start within 60 s')
+        if self._error:
+            self.stop()
+            raise ValueError(self._error)
+
+    def _run(self) -> None:
+        asyncio.set_event_loop(self.loop)
+        try:
+            self.loop.run_until_complete(self._start_all())
+        except Exception as exc:  # reported by start() in one line
+            self._error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            self._ready.set()
+            return
+        self._ready.set()
+        self.loop.run_forever()
+
+    async def _start_all(self) -> None:
+        if self.modbus_addr is not None:
+            await self._start_modbus(*self.modbus_addr)
+        if self.opcua_addr is not None:
+            await self._start_opcua(*self.opcua_addr)
+
+    def stop(self) -> None:
+        """Stop both servers and the thread (idempotent)."""
+        if self._thread.is_alive() and self.loop.is_running():
+            fut = asyncio.run_coroutine_threadsafe(self._stop_all(), self.loop)
+            try:
+                fut.result(10.0)
+            except Exception:  # a server that will not stop cleanly still goes with the loop
+                pass
+            self.loop.call_soon_threadsafe(self.loop.stop)
+            self._thread.join(10.0)
+
+    async def _stop_all(self) -> None:
+        if self._modbus is not None:
+            await self._modbus.shutdown()
+            self._modbus = None
+        if self._opcua is not None:
+            await self._opcua.stop()
+            self._opcua = None
+
+    # ---------------------------------------------------------------- Modbus TCP
+    async def _start_modbus(self, host: str, port: int) -> None:
+        from pymodbus.constants import ExcCodes
+        from pymodbus.server import ModbusTcpServer
+        from pymodbus.simulator import DataType, SimData, SimDevice
+
+        logging.getLogger('pymodbus').setLevel(logging.CRITICAL)
+        image = self.image
+
+        async def action(fc, start, address, count, regs, set_values):
+            table = _FC_TABLE.get(fc)
+            if table is None:
+                return ExcCodes.ILLEGAL_FUNCTION
+            try:
+                if fc in _FC_WRITES:
+                    if set_values is None:  # pymodbus reads the block back after a write
+                        _fill(regs, table, start, image)
+                        return None
+                    image.write_raw(table, address, [int(v) for v in set_values])
+                    return None
+                _fill(regs, table, start, image)
+            except WriteRefused as exc:
+                image.count_refused()
+                return (
+                    ExcCodes.ILLEGAL_ADDRESS if exc.code == 'address' else ExcCodes.ILLEGAL_VALUE
+                )
+            return None
+
+        def block(table, bits):
+            n = max(1, len(image.raw[table]))
+            if bits:
+                return [SimData(0, count=n, values=False, datatype=DataType.BITS)]
+            return [SimData(0, count=n, values=0, datatype=DataType.REGISTERS)]
+
+        device = SimDevice(
+            id=0,  # every unit id
+            simdata=(block(COIL, True), block(DI, True), block(HR, False), block(IR, False)),
+            action=action,
+        )
+        self._modbus = ModbusTcpServer(device, address=(host, port))
+        try:
+            await self._modbus.serve_forever(background=True)
+        except RuntimeError:
+            self._modbus = None
+            raise ValueError(
+                f'cannot serve Modbus TCP on {host}:{port}: {_bind_problem(host, port)}'
+            )
+        self.modbus_port = self._modbus.transport.sockets[0].getsockname()[1]
+
+    # ---------------------------------------------------------------- OPC UA
+    async def _start_opcua(self, host: str, port: int) -> None:
+        from asyncua import Server, ua
+
+        for name in ('asyncua', 'asyncua.server', 'asyncua.server.uaprocessor'):
+            logging.getLogger(name).setLevel(logging.CRITICAL)
+        server = Server()
+        await server.init()
+        endpoint = f'opc.tcp://{host}:{port}/sorter_cell/'
+        server.set_endpoint(endpoint)
+        server.set_server_name('sorter_cell')
+        idx = await server.register_namespace('urn:sorter_cell')
+        cell = await server.nodes.objects.add_folder(idx, self.cell_name)
+        folders = {
+            INPUT: await cell.add_folder(idx, 'Inputs'),
+            OUTPUT: await cell.add_folder(idx, 'Outputs'),
+        }
+        image = self.image
+        aspace = server.iserver.aspace
+        for s in image.signals:
+            vtype = getattr(ua.VariantType, s.opcua_type)
+            initial = image.inputs[s.name] if s.direction == INPUT else image.outputs[s.name]
+            var = await folders[s.direction].add_variable(
+                idx, s.name, ua.Variant(_opc_value(s, initial), vtype)
+            )
+            await var.write_attribute(
+                ua.AttributeIds.Description, ua.DataValue(ua.LocalizedText(s.meaning))
+            )
+            if s.unit:
+                await var.add_property(
+                    idx,
+                    'EngineeringUnits',
+                    ua.EUInformation(DisplayName=ua.LocalizedText(s.unit)),
+                )
+            if s.direction == INPUT:
+                aspace.set_attribute_value_callback(
+                    var.nodeid, ua.AttributeIds.Value, _input_reader(image, s, vtype)
+                )
+            else:
+                if s.lo is not None:
+                    await var.add_property(idx, 'EURange', ua.Range(Low=s.lo, High=s.hi))
+                await var.set_writable()
+                aspace.set_attribute_value_setter(
+                    var.nodeid, ua.AttributeIds.Value, _output_writer(image, s)
+                )
+            self.opcua_nodes[s.name] = var.nodeid
+        try:
+            await server.start()
+        except (OSError, RuntimeError) as exc:
+            raise ValueError(
+                f'cannot serve OPC UA on {host}:{port}: {getattr(exc, "strerror", None) or exc}'
+            ) from None
+        self._opcua = server
+        self.opcua_endpoint = endpoint
+
+
+def _bind_problem(host: str, port: int) -> str:
+    """Say why ``host:port`` cannot be listened on, as the system does."""
+    import socket
+
+    try:
+        with socket.create_server((host, port)):
+            return 'the server could not listen there'
+    except OSError as exc:
+        return exc.strerror or str(exc)
+
+
+def _fill(regs: list, table: str, start: int, image: IOImage) -> None:
+    """Fill pymodbus's block (bits packed 16 a register for DI/coils) from the image."""
+    values = image.snapshot(table)
+    if table in (DI, COIL):
+        for r in range(len(regs)):
+            word = 0
+            for b in range(16):
+                a = start + 16 * r + b
+                if a < len(values) and values[a]:
+                    word |= 1 << b
+            regs[r] = word
+    else:
+        for r in range(len(regs)):
+            a = start + r
+            regs[r] = values[a] if a < len(values) else 0
+
+
+def _opc_value(s, value):
+    if s.type == 'bool':
+        return bool(value)
+    if s.type == 'string':
+        return str(value)
+    if s.opcua_type == 'Double':
+        return float(value)
+    return int(round(value)) & (0xFFFFFFFF if s.type == 'uint32' else 0xFFFF)
+
+
+def _input_reader(image: IOImage, s, vtype):
+    from asyncua import ua
+
+    def read(nodeid, attr):
+        return ua.DataValue(ua.Variant(_opc_value(s, image.inputs[s.name]), vtype))
+
+    return read
+
+
+def _output_writer(image: IOImage, s):
+    from asyncua import ua
+
+    def write(node, attr, value):
+        v = value.Value.Value if value.Value is not None else None
+        try:
+            image.write_value(s.name, v)
+        except WriteRefused as exc:
+            image.count_refused()
+            raise ua.UaStatusCodeError(
+                ua.StatusCodes.BadOutOfRange
+                if exc.code == 'value'
+                else ua.StatusCodes.BadNotWritable
+            ) from None
+        node.attributes[attr].value = value
+
+    return write
