@@ -240,10 +240,21 @@ class FieldbusServers:
         self.loop.run_forever()
 
     async def _start_all(self) -> None:
+        # the failing server is named first in the message: the node names its parameter
         if self.modbus_addr is not None:
-            await self._start_modbus(*self.modbus_addr)
+            try:
+                await self._start_modbus(*self.modbus_addr)
+            except ValueError:
+                raise
+            except Exception as exc:
+                raise ValueError(f'cannot serve Modbus TCP: {exc}') from None
         if self.opcua_addr is not None:
-            await self._start_opcua(*self.opcua_addr)
+            try:
+                await self._start_opcua(*self.opcua_addr)
+            except ValueError:
+                raise
+            except Exception as exc:
+                raise ValueError(f'cannot serve OPC UA: {exc}') from None
 
     def stop(self) -> None:
         """Stop both servers and the thread (idempotent)."""
@@ -267,6 +278,7 @@ class FieldbusServers:
     # ---------------------------------------------------------------- Modbus TCP
     async def _start_modbus(self, host: str, port: int) -> None:
         from pymodbus.constants import ExcCodes
+        from pymodbus.pdu import ExceptionResponse
         from pymodbus.server import ModbusTcpServer
         from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -286,11 +298,17 @@ class FieldbusServers:
                     return None
                 _fill(regs, table, start, image)
             except WriteRefused as exc:
-                image.count_refused()
                 return (
                     ExcCodes.ILLEGAL_ADDRESS if exc.code == 'address' else ExcCodes.ILLEGAL_VALUE
                 )
             return None
+
+        def trace_pdu(sending: bool, pdu):
+            # every exception response counts, also those pymodbus sends itself (addresses
+            # outside the tables never reach the action above)
+            if sending and isinstance(pdu, ExceptionResponse):
+                image.count_refused()
+            return pdu
 
         def block(table, bits):
             n = max(1, len(image.raw[table]))
@@ -303,7 +321,7 @@ class FieldbusServers:
             simdata=(block(COIL, True), block(DI, True), block(HR, False), block(IR, False)),
             action=action,
         )
-        self._modbus = ModbusTcpServer(device, address=(host, port))
+        self._modbus = ModbusTcpServer(device, address=(host, port), trace_pdu=trace_pdu)
         try:
             await self._modbus.serve_forever(background=True)
         except RuntimeError:

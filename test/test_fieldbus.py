@@ -1,0 +1,302 @@
+"""
+The fieldbus I/O image, checked with the protocols' own clients (pymodbus, asyncua).
+
+The cell runs in lock-step in this process with its Modbus TCP and OPC UA servers;
+the tests are the PLC side: they read the declared inputs against what the cell
+knows, write outputs and see the cell act on them one physics period later, and
+send every kind of bad write the issue names. A refused write must come back with
+the protocol's own error, change nothing in the cell, and leave the node serving.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+from asyncua import ua
+from asyncua.sync import Client as OpcClient
+from pymodbus.client import ModbusTcpClient
+from rclpy.parameter import Parameter
+
+from sorter_sim.core import cell_kernels as ck
+from sorter_sim.io_map import by_name, io_map
+from sorter_sim.node import SimNode
+from sorter_sim.params import ParamError
+from test_sim_node import SHORT_CELL
+
+pytestmark = pytest.mark.ros
+BIN = Path(sys.executable).parent
+SENSORS = ['pe_scan', 'pe_divert', 'pe_exit', 'chute_left', 'chute_right']
+MAP = by_name(io_map(SENSORS))
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def cell(ros):
+    node = SimNode(
+        context=ros.context,
+        parameter_overrides=[
+            Parameter(k, value=v)
+            for k, v in {
+                **SHORT_CELL,
+                'arrival': 'gap',
+                'arrival_gap': [1.0, 1.0],
+                'alpha_deg': 60.0,
+                'modbus_port': _free_port(),
+                'opcua_port': _free_port(),
+            }.items()
+        ],
+    )
+    ros.add(node)
+    return node
+
+
+@pytest.fixture
+def modbus(cell):
+    client = ModbusTcpClient('127.0.0.1', port=cell.fieldbus.modbus_port, timeout=5, retries=0)
+    assert client.connect()
+    yield client
+    client.close()
+
+
+@pytest.fixture
+def opcua(cell):
+    client = OpcClient(cell.fieldbus.opcua_endpoint, timeout=10)
+    client.connect()
+    idx = client.get_namespace_index('urn:sorter_cell')
+    root = client.nodes.objects.get_child([f'{idx}:cell'])
+
+    def node(name):
+        folder = 'Outputs' if MAP[name].direction == 'output' else 'Inputs'
+        return root.get_child([f'{idx}:{folder}', f'{idx}:{name}'])
+
+    yield node
+    client.disconnect()
+
+
+def _u32(regs, address):
+    return (regs[address] << 16) | regs[address + 1]
+
+
+def test_the_inputs_are_what_the_cell_knows(cell, modbus, opcua):
+    cell.advance(2600)  # the first parcel past the scanner, on to pe_divert
+    c = cell.cell
+    bits = modbus.read_discrete_inputs(0, count=23).bits
+    for name, blocked in c.sensor_states().items():
+        assert bits[MAP[f'sensor.{name}'].address] == blocked, name
+    regs = modbus.read_input_registers(0, count=40).registers
+    t = MAP['cell.time']
+    assert _u32(regs, t.address) * t.scale == pytest.approx(c.t, abs=1e-4)
+    enc = MAP['belt.encoder']
+    assert _u32(regs, enc.address) * enc.scale == pytest.approx(1.5 * c.t, abs=2e-4)
+    assert MAP['diverter.alpha'].value(regs[4]) == pytest.approx(60.0)
+    # the scanner's label waits with its ready bit until the PLC acknowledges it
+    label = bytes(b for r in regs[8:40] for b in (r >> 8, r & 0xFF)).rstrip(b'\0').decode()
+    assert bits[MAP['scanner.ready'].address] and label == 'A00001'
+    assert opcua('scanner.label').read_value() == 'A00001'
+    assert opcua('belt.encoder').read_value() == pytest.approx(1.5 * c.t, abs=2e-4)
+    # acknowledged, the label goes; the next one read meanwhile (if any) takes its place
+    n_read = regs[MAP['scanner.sequence'].address]
+    assert n_read >= 1
+    assert not modbus.write_coil(MAP['scanner.ack'].address, True).isError()
+    cell.advance(1)
+    ready = modbus.read_discrete_inputs(16, count=1).bits[0]
+    assert ready == (n_read >= 2)
+    if ready:
+        assert opcua('scanner.label').read_value() == 'B00002'
+
+
+def test_edge_times_are_latched_inside_the_period_that_shows_the_edge(cell, modbus):
+    rise = MAP['sensor.pe_scan.rise_time']
+    fall = MAP['sensor.pe_scan.fall_time']
+    seen = []
+    for _ in range(3000):
+        t_before = cell.cell.t
+        cell.advance(1)
+        blocked = modbus.read_discrete_inputs(0, count=1).bits[0]
+        if seen and blocked != seen[-1][1]:
+            regs = modbus.read_input_registers(rise.address, count=4).registers
+            latched = _u32(regs, 0 if blocked else 2) * rise.scale
+            # the edge lies inside the physics period after which the bit changed
+            assert t_before - 1e-4 <= latched <= cell.cell.t + 1e-9, (t_before, latched)
+            if not blocked:
+                assert _u32(regs, 0) * rise.scale < latched  # it rose before it fell
+                break
+        seen.append((cell.cell.t, blocked))
+    else:
+        pytest.fail('pe_scan never saw a parcel pass')
+    assert fall.address == rise.address + 2
+
+
+def test_outputs_act_on_the_cell_one_period_later(cell, modbus, opcua):
+    assert not modbus.write_coil(MAP['diverter.popup'].address, True).isError()
+    assert not modbus.write_register(0, MAP['diverter.alpha_setpoint'].raw(-30.0)).isError()
+    assert cell.get_parameter('alpha_deg').value == 60.0  # not before the next period
+    cell.advance(1)
+    assert cell.get_parameter('alpha_deg').value == -30.0
+    cell.advance(300)
+    assert cell.cell.stroke == 1.0 and math.degrees(cell.cell.alpha) == pytest.approx(-30.0)
+    opcua('diverter.alpha_setpoint').write_value(ua.Variant(45.5, ua.VariantType.Double))
+    opcua('diverter.popup').write_value(ua.Variant(False, ua.VariantType.Boolean))
+    cell.advance(1)
+    assert cell.get_parameter('alpha_deg').value == 45.5
+    cell.advance(200)
+    assert cell.cell.stroke == 0.0
+    assert modbus.read_discrete_inputs(17, count=2).bits[:2] == [False, True]
+    # e-stop and reset as pulses; the heartbeat arms and feeds the watchdog
+    modbus.write_coil(MAP['cell.estop'].address, True)
+    cell.advance(1)
+    assert cell.cell.estop and cell.cell.belt_velocity == 0.0
+    modbus.write_coil(MAP['cell.estop'].address, False)
+    modbus.write_coil(MAP['cell.reset'].address, True)
+    modbus.write_coil(MAP['cell.reset'].address, False)  # a pulse inside one period counts
+    cell.advance(1)
+    assert not cell.cell.estop and cell.cell.belt_velocity == 1.5
+    modbus.write_register(MAP['plc.heartbeat'].address, 1)
+    cell.advance(1)
+    assert cell.cell.watchdog_armed
+    cell.advance(400)  # no heartbeat for 0.4 s > 0.3 s: fail safe
+    assert cell.cell.watchdog_tripped and modbus.read_discrete_inputs(21, count=1).bits[0]
+
+
+def _state(cell):
+    c = cell.cell
+    return (
+        cell.get_parameter('alpha_deg').value,
+        float(c.act[ck.A_STROKE_TARGET]),
+        c.estop,
+        c.belt_run,
+        c.watchdog_armed,
+    )
+
+
+def test_bad_writes_are_refused_with_the_protocols_errors_and_change_nothing(cell, modbus, opcua):
+    cell.advance(5)
+    before = _state(cell)
+    alpha = MAP['diverter.alpha_setpoint']
+    cases = [
+        # out-of-range α: illegal data value
+        (lambda: modbus.write_register(alpha.address, alpha.raw(90.5)), 3),
+        (lambda: modbus.write_registers(0, [alpha.raw(10.0), 0, 7]), 2),  # runs past outputs
+        (lambda: modbus.write_register(7, 1), 2),  # no output there (an input's address)
+        (lambda: modbus.write_coil(40, True), 2),
+        (lambda: modbus.read_input_registers(500, count=2), 2),  # unknown address
+        (lambda: modbus.read_discrete_inputs(0, count=200), 2),
+    ]
+    for call, code in cases:
+        r = call()
+        assert r.isError() and r.exception_code == code, r
+    for value, status in (
+        (ua.Variant(math.nan, ua.VariantType.Double), 'BadOutOfRange'),
+        (ua.Variant(-91.0, ua.VariantType.Double), 'BadOutOfRange'),
+        (ua.Variant('up', ua.VariantType.String), 'BadTypeMismatch'),
+    ):
+        with pytest.raises(ua.UaStatusCodeError) as err:
+            opcua('diverter.alpha_setpoint').write_value(value)
+        assert type(err.value).__name__ == status
+    with pytest.raises(ua.UaStatusCodeError) as err:  # inputs are not writable
+        opcua('sensor.pe_scan').write_value(ua.Variant(True, ua.VariantType.Boolean))
+    assert type(err.value).__name__ in ('BadUserAccessDenied', 'BadNotWritable')
+    cell.advance(5)
+    assert _state(cell) == before
+    # the Modbus exceptions and the OPC UA writes refused for their value
+    assert int(_diag(cell)['fieldbus_writes_refused']) == len(cases) + 2
+
+
+def test_a_client_that_leaves_mid_request_and_two_writers_at_once(cell, modbus):
+    # half a Modbus frame, then gone
+    s = socket.create_connection(('127.0.0.1', cell.fieldbus.modbus_port))
+    s.sendall(bytes([0, 1, 0, 0, 0, 6, 1]))
+    s.close()
+    # two clients writing the α setpoint at once, 200 times each: each write whole
+    port = cell.fieldbus.modbus_port
+    alpha = MAP['diverter.alpha_setpoint']
+    errors = []
+
+    def writer(value):
+        c = ModbusTcpClient('127.0.0.1', port=port, timeout=5, retries=0)
+        c.connect()
+        for _ in range(200):
+            if c.write_register(alpha.address, alpha.raw(value)).isError():
+                errors.append(value)
+        c.close()
+
+    threads = [threading.Thread(target=writer, args=(v,)) for v in (12.5, -40.0)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert not errors
+    cell.advance(1)
+    assert cell.get_parameter('alpha_deg').value in (12.5, -40.0)
+    assert modbus.read_holding_registers(alpha.address, count=1).registers[0] in (
+        alpha.raw(12.5),
+        alpha.raw(-40.0),
+    )
+    assert int(_diag(cell)['fieldbus_outputs_lost']) > 0  # many writes, one period
+    cell.advance(10)
+    assert cell.context.ok()
+
+
+def _diag(cell):
+    return cell._fieldbus_diagnostics()
+
+
+def test_a_busy_fieldbus_port_is_refused_in_one_line(ros):
+    with socket.socket() as busy:
+        busy.bind(('127.0.0.1', 0))
+        busy.listen()
+        for key in ('modbus_port', 'opcua_port'):
+            with pytest.raises(ParamError) as err:
+                SimNode(
+                    context=ros.context,
+                    parameter_overrides=[
+                        Parameter('time_mode', value='lockstep'),
+                        Parameter(key, value=busy.getsockname()[1]),
+                    ],
+                )
+            assert key in str(err.value) and '\n' not in str(err.value)
+
+
+@pytest.mark.parametrize('io', ['modbus', 'opcua'])
+def test_the_soft_plc_sorts_the_demo_stream_as_the_ros_controller_does(io, tmp_path):
+    runs = {}
+    for how in ('ros', io):
+        out = subprocess.run(
+            [
+                str(BIN / 'sorter'),
+                'demo',
+                '--sim-time',
+                '20',
+                '--io',
+                how,
+                '--json',
+                '--out',
+                str(tmp_path / f'{how}.png'),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert out.returncode == 0, out.stderr[-2000:]
+        runs[how] = json.loads(out.stdout)
+    plc, ros_run = runs[io], runs['ros']
+    assert plc['mis_sorted'] == 0 and plc['jams'] == 0 and plc['io_write_errors'] == 0
+    assert plc['sorted_left'] >= 3 and plc['sorted_right'] >= 3
+    assert (
+        abs(plc['throughput_pcs_h'] - ros_run['throughput_pcs_h'])
+        <= 0.05 * (ros_run['throughput_pcs_h'])
+    )
+    for key in ('sorted_left', 'sorted_right', 'straight', 'inducted'):
+        assert plc[key] == ros_run[key], key
