@@ -16,6 +16,8 @@ Three measurements after a warm-up that fills the cell (not timed):
   node+live the node with its Foxglove live view on and one WebSocket client (in a
           thread of this process) subscribed to every channel of it.
   node+rec  the node recording everything it publishes to an MCAP file.
+  node+fieldbus  the node serving its I/O image over Modbus TCP and OPC UA, one client
+          each (threads of this process) reading every input every 10 ms of wall time.
 The last two are the costs of the live view and the recording against ``node``.
 Real-time factor = simulated time / wall time over the measured span; cost per
 message = the node's wall time spent building and publishing messages divided
@@ -127,6 +129,34 @@ class _LiveClient:
         self.ws.close()
 
 
+class _FieldbusClients:
+    """A PLC in another process: a Modbus and an OPC UA client reading every 10 ms."""
+
+    def __init__(self, node):
+        import subprocess
+
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                str(Path(__file__).with_name('fieldbus_clients.py')),
+                str(node.fieldbus.modbus_port),
+                node.fieldbus.opcua_endpoint,
+                *node.cell.sensor_names,
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self.proc.stdout.readline().strip() == 'ready'
+        self.t0 = time.monotonic()
+
+    def close(self) -> float:
+        """Stop the clients; return their reads per wall second (both together)."""
+        self.proc.terminate()
+        out = self.proc.communicate(timeout=20)[0].split()
+        wall = time.monotonic() - self.t0
+        return sum(int(x.split('=')[1]) for x in out) / wall
+
+
 def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> dict:
     from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
     from sorter_sim.node import SimNode
@@ -146,6 +176,13 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> 
             with socket.socket() as probe:
                 probe.bind(('127.0.0.1', 0))
                 values['foxglove_port'] = probe.getsockname()[1]
+        elif extra == 'fieldbus':
+            import socket
+
+            for key in ('modbus_port', 'opcua_port'):
+                with socket.socket() as probe:
+                    probe.bind(('127.0.0.1', 0))
+                    values[key] = probe.getsockname()[1]
         elif extra == 'rec':
             import tempfile
 
@@ -183,8 +220,10 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> 
             while not node.live_view.listening() and time.monotonic() < deadline:
                 time.sleep(0.01)
         warm_up(node.cell, parcels)
+        if extra == 'fieldbus':
+            client = _FieldbusClients(node)
         k0, msgs0 = node.cell.k, node.n_messages
-        frames0 = node.live_view.frames_sent if client else 0
+        frames0 = node.live_view.frames_sent if extra == 'live' else 0
         node._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
         t_end = node.cell.t + sim_s
         t0 = time.perf_counter()
@@ -202,7 +241,9 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> 
             'jams': node.cell.outcome_counts['jammed'],
             'received': received['n'],
         }
-        if client is not None:
+        if extra == 'fieldbus':
+            out['reads_per_wall_s'] = client.close()
+        elif client is not None:
             out['frames'] = node.live_view.frames_sent - frames0
             out['frames_per_wall_s'] = out['frames'] / wall
             client.close()
@@ -250,6 +291,7 @@ def main() -> int:
         ('node+sub', True, ''),
         ('node+live', False, 'live'),
         ('node+rec', False, 'rec'),
+        ('node+fieldbus', False, 'fieldbus'),
     ):
         n = best_of(
             [bench_node(args.sim_s, args.parcels, subscribe, extra) for _ in range(args.repeat)]
@@ -257,7 +299,7 @@ def main() -> int:
         base = base or n
         cost = '' if n is base else f'   cost {100 * (1 - n["rtf"] / base["rtf"]):+.1f} %'
         print(
-            f'{name:9s} real-time factor {n["rtf"]:7.1f}   {n["us_per_period"]:6.1f} us/period '
+            f'{name:13s} real-time factor {n["rtf"]:7.1f}   {n["us_per_period"]:6.1f} us/period '
             f'(physics)   {n["us_per_message"]:6.1f} us/message   '
             f'{n["messages_per_sim_s"]:.0f} messages per simulated s   {n["parcels"]} parcels   '
             f'jams {n["jams"]}'
@@ -268,6 +310,7 @@ def main() -> int:
                 else ''
             )
             + (f'   file {n["recorded_mb"]:.1f} MB' if extra == 'rec' else '')
+            + (f'   client reads {n["reads_per_wall_s"]:.0f}/s' if extra == 'fieldbus' else '')
             + cost
         )
     print(f'# load average after {os.getloadavg()[0]:.2f}')

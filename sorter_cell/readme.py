@@ -58,6 +58,37 @@ def controller_table() -> str:
     return '\n'.join(rows)
 
 
+def io_map_table() -> str:
+    """Return the fieldbus I/O map of the default cell (config/cell.yaml's sensors)."""
+    from sorter_sim.cell import CHUTE_SENSORS
+    from sorter_sim.io_map import io_map
+    from sorter_sim.params import CellParams
+
+    p = CellParams.defaults()
+    signals = io_map(list(p.photo_eyes_names) + list(CHUTE_SENSORS))
+    rows = [
+        '| signal | direction | Modbus | type | unit | scaling | accepts | meaning |',
+        '|---|---|---|---|---|---|---|---|',
+    ]
+    short = {
+        'discrete_input': 'DI',
+        'coil': 'coil',
+        'input_register': 'IR',
+        'holding_register': 'HR',
+    }
+    for s in signals:
+        where = f'{short[s.table]} {s.address}'
+        if s.words > 1:
+            where += f'-{s.address + s.words - 1}'
+        scaling = f'{s.scale:g} {s.unit or ""}/count'.replace(' /', '/') if s.scale != 1 else ''
+        accepts = f'[{s.lo:g}, {s.hi:g}]' if s.lo is not None else ''
+        rows.append(
+            f'| `{s.name}` | {s.direction} | {where} | {s.type} | {s.unit or "–"} | {scaling} | '
+            f'{accepts} | {s.meaning} |'
+        )
+    return '\n'.join(rows)
+
+
 def tables() -> dict[str, str]:
     """Return every generated table by name."""
     from sorter_sim.description import markdown_table
@@ -66,6 +97,7 @@ def tables() -> dict[str, str]:
         'cell-description': markdown_table(),
         'sim-node-parameters': sim_node_table(),
         'controller-parameters': controller_table(),
+        'io-map': io_map_table(),
     }
 
 

@@ -34,8 +34,11 @@ class ModbusIO:
     """The I/O image over Modbus TCP: one request per input table, one per output write."""
 
     def __init__(self, host: str, port: int, sensor_names, timeout: float = 2.0):
+        import logging
+
         from pymodbus.client import ModbusTcpClient
 
+        logging.getLogger('pymodbus').setLevel(logging.CRITICAL)  # failures are raised here
         self.signals = io_map(sensor_names)
         self.client = ModbusTcpClient(host, port=port, timeout=timeout, retries=0)
         if not self.client.connect():
