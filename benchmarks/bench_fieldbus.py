@@ -1,17 +1,16 @@
 """
-Benchmark of the fieldbus: round trip from a sensor edge in the cell to the pop-up command
-seen back in the cell, over Modbus TCP or OPC UA, with a PLC scanning every 10 ms.
+Benchmark of the fieldbus round trip: a sensor edge in the cell to the pop-up command in it.
 
-Not a test: it prints figures. The cell (``sim_node``, config/cell.yaml) runs in
-its own process on the wall clock (real-time factor 1) with a dense stream of short
-parcels; this process is the PLC: every ``--scan`` seconds of wall time it reads
-the inputs, and when ``pe_scan``'s latched rising-edge time has changed it writes
-``diverter.popup`` = 1 (and 0 again at the falling edge). The cell's side of the
-round trip is measured on the cell's own clock: the stroke rises at 1/stroke_time
-from the period the command was applied, so t_applied = cell.time - stroke x
-stroke_time, read while the disks move; round trip = t_applied - t_edge. It holds
-the edge's wait for the next scan, the PLC's read, its write and the image's
-one-period exchange.
+Over Modbus TCP or OPC UA, with a PLC scanning every 10 ms. Not a test: it prints
+figures. The cell (``sim_node``, config/cell.yaml) runs in its own process on the
+wall clock (real-time factor 1) with a dense stream of short parcels; this process
+is the PLC: every ``--scan`` seconds of wall time it reads the inputs, and when
+``pe_scan``'s latched rising-edge time has changed it writes ``diverter.popup`` = 1
+(and 0 again at the falling edge). The cell's side of the round trip is measured on
+the cell's own clock: the stroke rises at 1/stroke_time from the period the command
+was applied, so t_applied = cell.time - stroke x stroke_time, read while the disks
+move; round trip = t_applied - t_edge. It holds the edge's wait for the next scan,
+the PLC's read, its write and the image's one-period exchange.
 
     .venv/bin/python benchmarks/bench_fieldbus.py [--edges 200] [--scan 0.01] [--io modbus]
 """
