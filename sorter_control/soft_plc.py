@@ -24,6 +24,7 @@ from sorter_sim.io_map import COIL, DI, INPUT, IR, OUTPUT, Signal, io_map
 from .logic import SorterLogic
 from .logic.config import ControllerConfig
 from .logic.image import DiverterState, Edge, InputImage, Reply
+from .logic.routing import RoutingError
 
 
 class FieldbusError(Exception):
@@ -32,6 +33,8 @@ class FieldbusError(Exception):
 
 class ModbusIO:
     """The I/O image over Modbus TCP: one request per input table, one per output write."""
+
+    warehouse = False  # the warehouse link is on the OPC UA server only
 
     def __init__(self, host: str, port: int, sensor_names, timeout: float = 2.0):
         import logging
@@ -116,13 +119,66 @@ class OpcUaIO:
         self.nodes = {
             s.name: folder[s.direction].get_child([f'{idx}:{s.name}']) for s in self.signals
         }
-        self._input_nodes = [self.nodes[s.name] for s in self._inputs]
+        self._wh_folder = cell.get_child([f'{idx}:Warehouse'])
+        self._wh = {
+            name: self._wh_folder.get_child([f'{idx}:{name}'])
+            for name in (
+                'RouteRequests',
+                'PendingRoutes',
+                'TakeRoutes',
+                'Confirm',
+                'PublishRoutingTable',
+            )
+        }
+        # the warehouse's request counter is read with the inputs, in the same request
+        self._input_nodes = [self.nodes[s.name] for s in self._inputs] + [
+            self._wh['RouteRequests']
+        ]
         self.requests = 0
+
+    warehouse = True
 
     def read_inputs(self) -> dict:
         values = self.client.read_values(self._input_nodes)
         self.requests += 1
-        return {s.name: v for s, v in zip(self._inputs, values)}
+        out = {s.name: v for s, v in zip(self._inputs, values)}
+        out['warehouse.requests'] = values[-1]
+        return out
+
+    def pending_routes(self) -> list[tuple[str, str]]:
+        """Return the routing changes the warehouse asked for and the PLC has not taken."""
+        lines = self._wh['PendingRoutes'].read_value() or []
+        self.requests += 1
+        out = []
+        for line in lines:
+            rule = line.split('|', 1)[1]
+            pattern, _, destination = rule.partition('=')
+            out.append((pattern, destination))
+        return out
+
+    def take_routes(self, results: list[str]) -> None:
+        ua = self.ua
+        self._wh_folder.call_method(
+            self._wh['TakeRoutes'],
+            ua.Variant(len(results), ua.VariantType.UInt32),
+            ua.Variant(results, ua.VariantType.String, is_array=True),
+        )
+        self.requests += 1
+
+    def confirm(self, lines: list[str]) -> None:
+        ua = self.ua
+        self._wh_folder.call_method(
+            self._wh['Confirm'], ua.Variant(lines, ua.VariantType.String, is_array=True)
+        )
+        self.requests += 1
+
+    def publish_table(self, rules: list[str]) -> None:
+        ua = self.ua
+        self._wh_folder.call_method(
+            self._wh['PublishRoutingTable'],
+            ua.Variant(rules, ua.VariantType.String, is_array=True),
+        )
+        self.requests += 1
 
     def write(self, s: Signal, value) -> str | None:
         ua = self.ua
@@ -175,6 +231,8 @@ class SoftPLC:
         self.log: list[tuple[str, str]] = []
         self.scans = 0
         self.write_errors = 0
+        self._routes_seen = 0  # the warehouse's request counter at the last look
+        self._table: list[str] | None = None
 
     def scan(self) -> float:
         """Run one scan; return the cell time it read [s]."""
@@ -218,6 +276,8 @@ class SoftPLC:
             cell_status_t=t,
         )
         self._replies = []
+        if self.io.warehouse and x['warehouse.requests'] != self._routes_seen:
+            self._take_routes(x['warehouse.requests'])
         out = self.logic.scan(image)
         self._beat = (self._beat + 1) & 0xFFFF
         self._write('plc.heartbeat', self._beat)
@@ -225,9 +285,38 @@ class SoftPLC:
             self._command(cmd)
         self.confirmations += out.confirmations
         self.log += out.log
+        if self.io.warehouse:
+            self._report(out.confirmations)
         self.scans += 1
         self.logic.record_scan_wall(time.perf_counter() - wall0)
         return t
+
+    def _take_routes(self, seen: int) -> None:
+        """Apply the warehouse's routing changes in order, as the ROS topic's updates are."""
+        results = []
+        for pattern, destination in self.io.pending_routes():
+            try:
+                done = self.logic.update_route(pattern, destination)
+            except (RoutingError, ValueError) as exc:
+                self.logic.counts['routing_rejected'] += 1
+                results.append(f'refused: {exc}')
+            else:
+                results.append(f'accepted: {done}')
+        self.io.take_routes(results)
+        self._routes_seen = seen
+
+    def _report(self, confirmations) -> None:
+        if confirmations:
+            self.io.confirm(
+                [
+                    f'{c.label};{c.destination_asked};{c.destination_reached};{c.result}'
+                    for c in confirmations
+                ]
+            )
+        table = self.logic.routing.rules()
+        if table != self._table:
+            self.io.publish_table(table)
+            self._table = table
 
     def _command(self, cmd) -> None:
         if cmd.kind == 'popup':

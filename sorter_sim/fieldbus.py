@@ -196,6 +196,71 @@ class ScannerQueue:
             self.waiting.popleft()
 
 
+class Warehouse:
+    """
+    The warehouse link's mailbox on the cell's OPC UA server (thread-safe).
+
+    A warehouse controller asks for routing changes (``request``: pattern and
+    destination in the routing grammar; an empty destination removes a rule); the PLC
+    takes them in order (``pending``, ``take`` with one result line each), reports what
+    it sorted (``confirm``) and its live table (``set_table``). The same exchange as
+    ``routing/updates`` and ``sort/confirmations`` on ROS, with the same grammar: the
+    cell checks the form, the PLC's routing table decides (duplicates, removals).
+    """
+
+    MAX_PENDING = 1000  # requests the PLC has not taken yet
+    KEEP = 200  # result and confirmation lines kept
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._pending: deque[tuple[int, str, str]] = deque()
+        self.requested = 0
+        self.results: deque[str] = deque(maxlen=self.KEEP)
+        self.confirmations: deque[str] = deque(maxlen=self.KEEP)
+        self.confirmed = 0
+        self.table: list[str] = []
+
+    def request(self, pattern, destination) -> int:
+        """Queue a routing change; return its sequence number, or raise ValueError (why)."""
+        from .description import LABEL_RE
+
+        if not isinstance(pattern, str) or not isinstance(destination, str):
+            raise ValueError('pattern and destination must be strings')
+        body = pattern[:-1] if pattern.endswith('*') else pattern
+        if pattern != '*' and not LABEL_RE.fullmatch(body):
+            raise ValueError('pattern must be a label, a label followed by * or * alone')
+        if destination not in ('left', 'right', 'straight', ''):
+            raise ValueError("destination must be left, right, straight or '' (remove)")
+        with self._lock:
+            if len(self._pending) >= self.MAX_PENDING:
+                raise ValueError(f'{self.MAX_PENDING} requests wait already')
+            self.requested += 1
+            self._pending.append((self.requested, pattern, destination))
+            return self.requested
+
+    def pending(self) -> list[str]:
+        """Return the waiting requests, oldest first, as 'seq|pattern=destination'."""
+        with self._lock:
+            return [f'{n}|{p}={d}' for n, p, d in self._pending]
+
+    def take(self, count: int, results: list[str]) -> None:
+        """Drop the ``count`` oldest requests, keeping one result line for each."""
+        with self._lock:
+            for i in range(min(count, len(self._pending))):
+                n, p, d = self._pending.popleft()
+                why = results[i] if i < len(results) else 'taken'
+                self.results.append(f'{n}|{p}={d}: {why}')
+
+    def confirm(self, lines: list[str]) -> None:
+        with self._lock:
+            self.confirmations.extend(lines)
+            self.confirmed += len(lines)
+
+    def set_table(self, rules: list[str]) -> None:
+        with self._lock:
+            self.table = list(rules)
+
+
 # ------------------------------------------------------------------------ the servers
 class FieldbusServers:
     """
@@ -217,6 +282,7 @@ class FieldbusServers:
         self._modbus = None
         self._opcua = None
         self.opcua_nodes: dict[str, object] = {}
+        self.warehouse = Warehouse()
         self.modbus_port: int | None = None
         self.opcua_endpoint: str | None = None
 
@@ -332,6 +398,76 @@ class FieldbusServers:
         self.modbus_port = self._modbus.transport.sockets[0].getsockname()[1]
 
     # ---------------------------------------------------------------- OPC UA
+    async def _add_warehouse(self, cell, idx, aspace) -> None:
+        """The ``Warehouse`` folder: the routing requests, their results, the confirmations."""
+        from asyncua import ua
+
+        wh = self.warehouse
+        folder = await cell.add_folder(idx, 'Warehouse')
+        String, UInt32 = ua.VariantType.String, ua.VariantType.UInt32
+        readers = {
+            'RouteRequests': (UInt32, lambda: wh.requested, 'routing changes asked so far'),
+            'PendingRoutes': (String, wh.pending, "requests the PLC has not taken: 'seq|rule'"),
+            'RouteResults': (String, lambda: list(wh.results), "'seq|rule: accepted/refused'"),
+            'Confirmations': (
+                String,
+                lambda: list(wh.confirmations),
+                "the PLC's sort confirmations: 'label;asked;reached;result'",
+            ),
+            'ConfirmationCount': (UInt32, lambda: wh.confirmed, 'confirmations so far'),
+            'RoutingTable': (String, lambda: list(wh.table), "the PLC's live routing table"),
+        }
+        for name, (vtype, get, meaning) in readers.items():
+            initial = ua.Variant(get(), vtype, is_array=vtype == String)
+            var = await folder.add_variable(idx, name, initial)
+            await var.write_attribute(
+                ua.AttributeIds.Description, ua.DataValue(ua.LocalizedText(meaning))
+            )
+            aspace.set_attribute_value_callback(
+                var.nodeid,
+                ua.AttributeIds.Value,
+                lambda nodeid, attr, get=get, vtype=vtype: ua.DataValue(
+                    ua.Variant(get(), vtype, is_array=vtype == String)
+                ),
+            )
+            self.opcua_nodes[f'Warehouse.{name}'] = var.nodeid
+
+        def request_route(parent, pattern, destination):
+            try:
+                seq = wh.request(pattern.Value, destination.Value)
+            except ValueError:
+                self.image.count_refused()
+                return ua.StatusCode(ua.StatusCodes.BadInvalidArgument)
+            return [ua.Variant(seq, UInt32)]
+
+        def take_routes(parent, count, results):
+            if not isinstance(count.Value, int) or not isinstance(results.Value, list):
+                return ua.StatusCode(ua.StatusCodes.BadInvalidArgument)
+            wh.take(count.Value, [str(r) for r in results.Value])
+            return []
+
+        def confirm(parent, lines):
+            if not isinstance(lines.Value, list):
+                return ua.StatusCode(ua.StatusCodes.BadInvalidArgument)
+            wh.confirm([str(x) for x in lines.Value])
+            return []
+
+        def publish_table(parent, rules):
+            if not isinstance(rules.Value, list):
+                return ua.StatusCode(ua.StatusCodes.BadInvalidArgument)
+            wh.set_table([str(x) for x in rules.Value])
+            return []
+
+        methods = {
+            'RequestRoute': (request_route, [String, String], [UInt32]),
+            'TakeRoutes': (take_routes, [UInt32, String], []),
+            'Confirm': (confirm, [String], []),
+            'PublishRoutingTable': (publish_table, [String], []),
+        }
+        for name, (func, inputs, outputs) in methods.items():
+            node = await folder.add_method(idx, name, func, inputs, outputs)
+            self.opcua_nodes[f'Warehouse.{name}'] = node.nodeid
+
     async def _start_opcua(self, host: str, port: int) -> None:
         from asyncua import Server, ua
 
@@ -377,6 +513,7 @@ class FieldbusServers:
                     var.nodeid, ua.AttributeIds.Value, _output_writer(image, s)
                 )
             self.opcua_nodes[s.name] = var.nodeid
+        await self._add_warehouse(cell, idx, aspace)
         try:
             await server.start()
         except (OSError, RuntimeError) as exc:

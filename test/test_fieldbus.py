@@ -300,3 +300,50 @@ def test_the_soft_plc_sorts_the_demo_stream_as_the_ros_controller_does(io, tmp_p
     )
     for key in ('sorted_left', 'sorted_right', 'straight', 'inducted'):
         assert plc[key] == ros_run[key], key
+
+
+def test_the_warehouse_link_over_opc_ua_routes_and_confirms(cell):
+    from sorter_cell.demo import _controller_values
+    from sorter_control.node import config_from_values
+    from sorter_control.soft_plc import OpcUaIO, SoftPLC
+
+    config = Path(__file__).resolve().parents[1] / 'config'
+    cfg = config_from_values(
+        {**_controller_values(config), 'routing.rules': ['A*=left', 'B*=right', 'C*=straight']}
+    )
+    plc = SoftPLC(cfg, OpcUaIO(cell.fieldbus.opcua_endpoint, 'cell', cell.cell.sensor_names))
+    wms = OpcClient(cell.fieldbus.opcua_endpoint, timeout=10)
+    wms.connect()
+    try:
+        idx = wms.get_namespace_index('urn:sorter_cell')
+        wh = wms.nodes.objects.get_child([f'{idx}:cell', f'{idx}:Warehouse'])
+
+        def read(name):
+            return wh.get_child([f'{idx}:{name}']).read_value()
+
+        def request(pattern, destination):
+            return wh.call_method(f'{idx}:RequestRoute', pattern, destination)
+
+        assert request('C*', 'left') == 1  # the C parcels now go left
+        assert request('Z*', '') == 2  # removing a rule there is not: refused by the PLC
+        for bad in (('C=1', 'left'), ('C*', 'up'), ('C;1', 'left')):
+            with pytest.raises(ua.UaStatusCodeError) as err:
+                request(*bad)
+            assert type(err.value).__name__ == 'BadInvalidArgument'
+        while cell.cell.t < 12.0:
+            cell.advance(10)
+            plc.scan()
+        results = read('RouteResults')
+        assert results[0].startswith('1|C*=left: accepted'), results
+        assert results[1].startswith('2|Z*=: refused'), results
+        assert read('PendingRoutes') == [] and read('RouteRequests') == 2
+        assert 'C*=left' in read('RoutingTable') and 'C*=straight' not in read('RoutingTable')
+        lines = read('Confirmations')
+        assert read('ConfirmationCount') == len(lines) >= 4
+        by_label = {line.split(';')[0]: line.split(';')[1:] for line in lines}
+        assert by_label['C00003'] == ['left', 'left', 'sorted'], by_label
+        assert by_label['A00001'] == ['left', 'left', 'sorted']
+        assert by_label['B00002'] == ['right', 'right', 'sorted']
+    finally:
+        wms.disconnect()
+        plc.io.close()
