@@ -41,6 +41,10 @@ setup(
         # WebSocket, and protobuf to decode the schemas the server advertises
         'websockets>=13',
         'protobuf>=4.25',
+        # the fieldbus I/O image: Modbus TCP (server and the soft PLC's client) and OPC UA
+        # (server and client), both the reference Python stacks of their protocol
+        'pymodbus>=3.16,<4',
+        'asyncua>=1.1',
         'ros-jazzy-rclpy[fastrtps]>=7.1',
         'ros-jazzy-common-interfaces>=5.3',
     ],
