@@ -302,12 +302,23 @@ def test_the_soft_plc_sorts_the_demo_stream_as_the_ros_controller_does(io, tmp_p
         assert plc[key] == ros_run[key], key
 
 
-def test_the_warehouse_link_over_opc_ua_routes_and_confirms(cell):
+def test_the_warehouse_link_over_opc_ua_routes_and_confirms(ros):
     from sorter_cell.demo import _controller_values
     from sorter_control.node import config_from_values
     from sorter_control.soft_plc import OpcUaIO, SoftPLC
 
     config = Path(__file__).resolve().parents[1] / 'config'
+    # the default cell (config/cell.yaml), as the PLC's configuration (controller.yaml) knows it
+    cell = ros.add(
+        SimNode(
+            context=ros.context,
+            cli_args=['--ros-args', '--params-file', str(config / 'cell.yaml')],
+            parameter_overrides=[
+                Parameter('time_mode', value='lockstep'),
+                Parameter('opcua_port', value=_free_port()),
+            ],
+        )
+    )
     cfg = config_from_values(
         {**_controller_values(config), 'routing.rules': ['A*=left', 'B*=right', 'C*=straight']}
     )
@@ -330,7 +341,7 @@ def test_the_warehouse_link_over_opc_ua_routes_and_confirms(cell):
             with pytest.raises(ua.UaStatusCodeError) as err:
                 request(*bad)
             assert type(err.value).__name__ == 'BadInvalidArgument'
-        while cell.cell.t < 12.0:
+        while cell.cell.t < 14.0:
             cell.advance(10)
             plc.scan()
         results = read('RouteResults')

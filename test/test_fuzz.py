@@ -221,7 +221,7 @@ def _parameter_value(kind, number, text, flag, numbers_, texts_):
     # service, which spin_surviving outlives: test_node_survival runs that as a process)
     v = ParameterValue(type=kind)
     v.double_value = float(number)
-    v.integer_value = int(max(-(2**63), min(2**63 - 1, int(number))))
+    v.integer_value = int(max(-(2**63), min(2**63 - 1, number)))  # inf too: clamped first
     v.string_value = text.replace('\x00', '')
     v.bool_value = flag
     v.double_array_value = [float(x) for x in numbers_]

@@ -322,9 +322,7 @@ def test_a_clock_lagging_the_cells_stamps_does_not_move_parcels_ahead():
     logic = SorterLogic(CFG, PREDICTOR)
     for k in range(10):
         logic.scan(InputImage(t=0.01 * k, bits={"pe_scan": False}))
-    logic.scan(
-        InputImage(t=0.10, bits={"pe_scan": True}, edges=[Edge("pe_scan", 0.20, True)])
-    )
+    logic.scan(InputImage(t=0.10, bits={"pe_scan": True}, edges=[Edge("pe_scan", 0.20, True)]))
     (p,) = logic.parcels
     assert p.t_scan == 0.20 and logic.t == 0.20
     for k in range(11, 31):  # the clock catches up; time never runs backwards meanwhile
