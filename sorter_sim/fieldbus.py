@@ -399,7 +399,7 @@ class FieldbusServers:
 
     # ---------------------------------------------------------------- OPC UA
     async def _add_warehouse(self, cell, idx, aspace) -> None:
-        """The ``Warehouse`` folder: the routing requests, their results, the confirmations."""
+        """Add the ``Warehouse`` folder: routing requests, their results, confirmations."""
         from asyncua import ua
 
         wh = self.warehouse
