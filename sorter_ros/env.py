@@ -86,18 +86,23 @@ class StopSignals:
     The first signal only sets the request: the spin loop sees it within a tenth
     of a second, lets the node say its last words (the controller lowers the
     disks) and tears down. A second signal while the node still spins or speaks
-    raises KeyboardInterrupt: the user is in a hurry, and that is a clean exit
-    too. Once the teardown has begun (``quiet``), signals change nothing: the
-    teardown is short and bounded, and an exception there, or after it while the
-    interpreter exits, would end the process by the signal rather than with exit
-    code 0. A flag rather than an exception at the first signal means no callback
-    is ever cut in half.
+    means the user is in a hurry (``hurry``): with ``hurry_raises`` (the demo's
+    choice) it raises KeyboardInterrupt; without it (the nodes'), it only sets the
+    flag, and the node skips what is left of its last words. Once the teardown has
+    begun (``quiet``), signals change nothing: the teardown is short and bounded,
+    and an exception there, or after it while the interpreter exits, would end the
+    process by the signal rather than with exit code 0. A flag rather than an
+    exception means no callback is ever cut in half: an exception raised inside
+    the executor's spin can leave rclpy's wait set half torn down, and the
+    teardown that follows then crashed (SIGSEGV, 1 double SIGINT of 100).
     """
 
-    def __init__(self):
+    def __init__(self, hurry_raises: bool = True):
         import threading
 
         self.requested = threading.Event()
+        self.hurry = False
+        self.hurry_raises = hurry_raises
         self.quiet = False
         self._previous = {}
 
@@ -120,7 +125,10 @@ class StopSignals:
         if self.quiet:
             return
         if self.requested.is_set():
-            raise KeyboardInterrupt
+            self.hurry = True
+            if self.hurry_raises:
+                raise KeyboardInterrupt
+            return
         self.requested.set()
 
     def is_set(self) -> bool:
@@ -160,7 +168,7 @@ def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=No
     stop = None
     code = 0
     try:
-        stop = StopSignals().install()
+        stop = StopSignals(hurry_raises=False).install()
         try:
             node = make_node()
         except config_errors as exc:
@@ -227,7 +235,14 @@ def spin_surviving(node, stop=None) -> int:
                     f'({node.callback_errors} so far)'
                 )
         last_words = getattr(node, 'last_words', None)
-        if stop is not None and stop.is_set() and last_words is not None and node.context.ok():
+        hurry = getattr(stop, 'hurry', False)
+        if (
+            stop is not None
+            and stop.is_set()
+            and not hurry
+            and last_words is not None
+            and node.context.ok()
+        ):
             try:
                 last_words(executor)
             except KeyboardInterrupt:

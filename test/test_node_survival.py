@@ -134,3 +134,34 @@ def test_a_controller_that_stops_lowers_the_disks_itself(ros, sig):
         assert code == 0, f'{name} exit {code}:\n{text[-3000:]}'
     # the cell ran in real time from its first period: no simulated time dropped at start-up
     assert 'dropping' not in results['sorter_sim'][1], results['sorter_sim'][1][-3000:]
+
+
+@pytest.mark.parametrize('exe', ['sim_node', 'controller_node'])
+def test_a_double_sigint_is_a_clean_exit_whenever_the_second_lands(ros, exe):
+    """The second signal only hurries the stop: no exception thrown into a running callback."""
+    import time
+
+    extra = ['-p', 'arrival:=none', '-p', 'time_mode:=fast'] if exe == 'sim_node' else []
+    if exe == 'controller_node':
+        extra = ['-p', "cell_node:=''"]
+    node = ros.make_node('signal_watcher')
+    for gap in (0.0, 0.02, 0.05, 0.1):
+        proc = _start(exe, *extra)
+        try:
+            name = 'sorter_sim' if exe == 'sim_node' else 'sorter_controller'
+            ros.spin_until(
+                lambda name=name: (name, NS) in node.get_node_names_and_namespaces(),
+                30.0,
+                f'{exe} to start',
+            )
+            proc.send_signal(signal.SIGINT)
+            time.sleep(gap)
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=20)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        text = out + err
+        assert proc.returncode == 0, f'{exe}, second signal after {gap} s:\n{text[-3000:]}'
+        assert 'Traceback' not in text and 'Exception ignored' not in text, text[-3000:]
