@@ -613,14 +613,7 @@ class RunningCell:
         return t_end
 
     def cell_params(self) -> dict:
-        sim = self.sim
-        out = {
-            k: sim.get_parameter(k).value
-            for k in ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")
-        }
-        out["photo_eyes.names"] = list(sim.get_parameter("photo_eyes.names").value)
-        out["photo_eyes.x"] = list(sim.get_parameter("photo_eyes.x").value)
-        return out
+        return cell_params(self.sim)
 
     def __exit__(self, *exc) -> None:
         import rclpy
@@ -649,24 +642,8 @@ def run(args) -> int | str:
             )
         return run_soft_plc(args)
     from sorter_ros.env import find_config_dir
-    from sorter_ros.params_file import read_params_file
 
-    config_dir = find_config_dir()
-    cell = read_params_file(config_dir / "cell.yaml", "sorter_sim")
-    lengths = tuple(cell.get("parcel_A", [0.3, 0.7]))
-    plan = stream_plan(lengths, config_dir)
-    gap = (
-        tuple(args.gap)
-        if args.gap is not None
-        else (round(plan["min_gap_m"] + 0.02, 3), round(plan["min_gap_m"] + 0.4, 3))
-    )
-    plan["stream_gap_m"] = list(gap)
-    sim_params = {
-        "arrival": "gap",
-        "arrival_gap": list(gap),
-        "labels": list(LABEL_CYCLE),
-        "seed": int(args.seed),
-    }
+    plan, sim_params = _stream(args, find_config_dir())
     controller_params = {"routing.rules": list(ROUTING)}
     if args.record:
         # both nodes write into the one file (sorter_ros.recording shares it in a process)
@@ -716,6 +693,17 @@ def run(args) -> int | str:
         if args.record:
             print(f"  recording                  {args.record} (sorter replay {args.record})")
     return 0 if summary["mis_sorted"] == 0 and summary["jams"] == 0 else 1
+
+
+def cell_params(sim) -> dict:
+    """Return what ``plot_paths`` needs of the cell, from the simulation node's parameters."""
+    out = {
+        k: sim.get_parameter(k).value
+        for k in ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")
+    }
+    out["photo_eyes.names"] = list(sim.get_parameter("photo_eyes.names").value)
+    out["photo_eyes.x"] = list(sim.get_parameter("photo_eyes.x").value)
+    return out
 
 
 def _stream(args, config_dir: Path):
@@ -861,12 +849,7 @@ def run_soft_plc(args) -> int | str:
         summary["io_requests"] = io.requests
         summary["io_write_errors"] = plc.write_errors
         summary["png"] = str(args.out)
-        params = {
-            k: sim.get_parameter(k).value
-            for k in ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")
-        }
-        params["photo_eyes.names"] = list(sim.params.photo_eyes_names)
-        params["photo_eyes.x"] = list(sim.params.photo_eyes_x)
+        params = cell_params(sim)
         title = (
             f"sorter demo, soft PLC over {args.io}: {summary['inducted']} parcels in "
             f"{summary['sim_time_s']:g} s, mis-sorted {summary['mis_sorted']}, "

@@ -43,10 +43,11 @@ from foxglove.messages import (
     Vector3,
 )
 
-PARCEL_HEIGHT = 0.2  # m: the model is planar; only for the boxes
+PARCEL_HEIGHT = 0.2  # m: the model is planar; only for the boxes (live view and markers)
 PATH_POINTS = 400  # most points kept of a parcel's path
 PATH_STEP = 0.01  # m: a path point is added when the parcel moved this far
 CHUTE_WIDTH = 0.5  # m, drawn beside each side wall's opening
+# colour (r, g, b) per parcel state (cell.STATE_NAMES), in the live view and the markers
 STATE_COLOURS = {
     'on_belt': (0.6, 0.6, 0.6),
     'on_disks': (0.1, 0.4, 1.0),

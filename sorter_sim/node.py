@@ -53,27 +53,17 @@ from .cell import (
 from .description import shown
 from .fieldbus import FieldbusServers, IOImage, ScannerQueue
 from .io_map import io_map
-from .live_view import CellLayout, LiveView
+from .live_view import PARCEL_HEIGHT, STATE_COLOURS, CellLayout, LiveView
 from .warmup import warm_cell
 from .params import SCHEMA, SPECS, CellParams, ParamError
 
 NODE_NAME = 'sorter_sim'
 FRAME_ID = 'conveyor'  # the cell's frame in the root namespace (see frame_id)
-PARCEL_HEIGHT = 0.2  # m, only for the marker boxes (the model is planar)
 RECORDING_METADATA = 'sorter_sim parameters'  # the metadata record of the cell's parameters
 MAX_CATCH_UP_S = 0.25  # realtime mode: simulated time one tick may catch up
 
 # status/<bit>: std_msgs/Bool each; fault = estop or jam or watchdog
 STATUS_BITS = ('estop', 'jam', 'watchdog', 'fault')
-# colour (r, g, b) per parcel state, in the order of cell.STATE_NAMES
-STATE_COLOURS = {
-    'on_belt': (0.6, 0.6, 0.6),
-    'on_disks': (0.1, 0.4, 1.0),
-    'sliding': (1.0, 0.75, 0.0),
-    'diverted': (0.1, 0.8, 0.2),
-    'straight': (0.55, 0.35, 0.15),
-    'jammed': (1.0, 0.0, 0.0),
-}
 
 # induct message keys -> (ParcelSpec field, conversion)
 INDUCT_KEYS = ('label', 'A', 'B', 'm', 'phi0_deg', 'y')

@@ -28,18 +28,13 @@ from sorter_sim.core import cell_kernels as ck
 from sorter_sim.io_map import by_name, io_map
 from sorter_sim.node import SimNode
 from sorter_sim.params import ParamError
+from test_live_record import _free_port
 from test_sim_node import SHORT_CELL
 
 pytestmark = pytest.mark.ros
 BIN = Path(sys.executable).parent
 SENSORS = ['pe_scan', 'pe_divert', 'pe_exit', 'chute_left', 'chute_right']
 MAP = by_name(io_map(SENSORS))
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(('127.0.0.1', 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture
