@@ -224,8 +224,7 @@ class SoftPLC:
         self.out = {s.name: s for s in io.signals if s.direction == OUTPUT}
         self._edge_times: dict[str, float] = {}
         self._replies: list[Reply] = []
-        self._ack = False
-        self._pulses: list[str] = []  # pulse outputs to bring back to 0 next scan
+        self._pulses: list[str] = []  # pulse outputs (ack, e-stop, reset) back to 0 next scan
         self._beat = 0
         self.confirmations = []
         self.log: list[tuple[str, str]] = []
@@ -240,9 +239,6 @@ class SoftPLC:
         for name in self._pulses:
             self._write(name, False)
         self._pulses = []
-        if self._ack:
-            self._write('scanner.ack', False)
-            self._ack = False
         x = self.io.read_inputs()
         t = float(x['cell.time'])
         bits, edges = {}, []
@@ -261,7 +257,7 @@ class SoftPLC:
         if x['scanner.ready']:
             labels.append((t, x['scanner.label']))
             self._write('scanner.ack', True)
-            self._ack = True
+            self._pulses.append('scanner.ack')
         image = InputImage(
             t=t,
             bits=bits,

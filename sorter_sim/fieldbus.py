@@ -92,10 +92,6 @@ class IOImage:
             rises, self._rises = self._rises, set()
         return out, rises
 
-    def output(self, name: str):
-        with self._lock:
-            return self.outputs[name]
-
     # ---------------------------------------------------------------- the clients' side
     def snapshot(self, table: str) -> list[int]:
         """Return a copy of a Modbus table's raw values."""
