@@ -571,6 +571,16 @@ def test_a_stopped_controller_leaves_the_disks_down_and_a_new_one_takes_over(ros
         10.0,
         "the new controller to run",
     )
+    # and hears the cell: in fast mode a parcel reaches the scanner a few wall-clock ms after
+    # its induction, sooner than DDS may match a new subscription; an eye whose first state
+    # the controller learns with a parcel already in it has no rising edge, and a parcel the
+    # controller never saw is (rightly) passed straight
+    ros.spin_until(
+        lambda: all(s.get_publisher_count() > 0 for s in ctl.subscriptions)
+        and all(bit is not None for bit in ctl.logic.edges.bits.values()),
+        10.0,
+        "the new controller to hear every topic and know every eye",
+    )
     assert sim.cell.faults == []
     # and the next parcels go where routing says
     for n, label in enumerate(("A00001", "B00002"), start=1):
