@@ -612,9 +612,6 @@ class RunningCell:
         }
         return t_end
 
-    def cell_params(self) -> dict:
-        return cell_params(self.sim)
-
     def __exit__(self, *exc) -> None:
         import rclpy
 
@@ -677,7 +674,7 @@ def run(args) -> int | str:
                 f"jams {summary['jams']}"
             )
             exit_of = exits_by_id(rc.obs.outcomes.values())
-            plot_paths(rc.obs.paths, exit_of, rc.cell_params(), title, Path(args.out))
+            plot_paths(rc.obs.paths, exit_of, cell_params(rc.sim), title, Path(args.out))
         except OSError as exc:
             # checked before the run, yet gone since (a full disk): the summary still counts
             summary["png"] = None

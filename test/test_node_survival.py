@@ -14,6 +14,7 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
+import time
 
 from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import Parameter, ParameterValue
@@ -136,21 +137,23 @@ def test_a_controller_that_stops_lowers_the_disks_itself(ros, sig):
     assert 'dropping' not in results['sorter_sim'][1], results['sorter_sim'][1][-3000:]
 
 
-@pytest.mark.parametrize('exe', ['sim_node', 'controller_node'])
+# executable -> (node name, arguments that start it on its own)
+ALONE = {
+    'sim_node': ('sorter_sim', ['-p', 'arrival:=none', '-p', 'time_mode:=fast']),
+    'controller_node': ('sorter_controller', ['-p', "cell_node:=''"]),
+}
+
+
+@pytest.mark.parametrize('exe', list(ALONE))
 def test_a_double_sigint_is_a_clean_exit_whenever_the_second_lands(ros, exe):
     """The second signal only hurries the stop: no exception thrown into a running callback."""
-    import time
-
-    extra = ['-p', 'arrival:=none', '-p', 'time_mode:=fast'] if exe == 'sim_node' else []
-    if exe == 'controller_node':
-        extra = ['-p', "cell_node:=''"]
+    name, extra = ALONE[exe]
     node = ros.make_node('signal_watcher')
     for gap in (0.0, 0.02, 0.05, 0.1):
         proc = _start(exe, *extra)
         try:
-            name = 'sorter_sim' if exe == 'sim_node' else 'sorter_controller'
             ros.spin_until(
-                lambda name=name: (name, NS) in node.get_node_names_and_namespaces(),
+                lambda: (name, NS) in node.get_node_names_and_namespaces(),
                 30.0,
                 f'{exe} to start',
             )
