@@ -74,8 +74,8 @@ setup(
     entry_points={
         'console_scripts': [
             'sorter = sorter_cell.cli:main',
-            'sim_node = sorter_sim.node:main',
-            'controller_node = sorter_control.node:main',
+            'sim_node = sorter_sim.executable:main',
+            'controller_node = sorter_control.executable:main',
         ],
     },
 )

@@ -946,8 +946,9 @@ class ControllerNode(Node):
             self.get_logger().info(f"routing table: {'; '.join(self.logic.routing.rules())}")
 
 
-def main(args=None):
-    run_node(ControllerNode, "controller_node", (ValueError,), args)
+def main(args=None, stop=None):
+    """Run the node; ``stop``: the executable's StopSignals, when it installed them first."""
+    run_node(ControllerNode, "controller_node", (ValueError,), args, stop)
 
 
 if __name__ == "__main__":

@@ -145,7 +145,9 @@ def _ignore_stop_signals() -> None:
             pass
 
 
-def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=None) -> None:
+def run_node(
+    make_node, prog: str, config_errors: tuple = (ValueError,), args=None, stop=None
+) -> None:
     """
     Run a node as every executable of this package does (ros2/demos talker style).
 
@@ -153,7 +155,10 @@ def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=No
     tears down in ``finally``. A configuration error raised while the node is
     built (one of ``config_errors``) is printed as one line and exits with code 2.
     Once the node runs it never dies of a callback: see ``spin_surviving``.
-    SIGINT and SIGTERM stop it cleanly, exit code 0 (see ``StopSignals``).
+    SIGINT and SIGTERM stop it cleanly, exit code 0 (see ``StopSignals``). An
+    executable passes the ``stop`` it installed first thing (``start_node``), so that
+    a signal while the node's modules still load is a clean stop too: a stop asked
+    for before the node exists skips building it.
     """
     import sys
 
@@ -165,17 +170,18 @@ def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=No
     # say its last words over it
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
-    stop = None
     code = 0
     try:
-        stop = StopSignals(hurry_raises=False).install()
+        if stop is None:
+            stop = StopSignals(hurry_raises=False).install()
         try:
-            node = make_node()
+            node = None if stop.is_set() else make_node()
         except config_errors as exc:
             print(f'{prog}: {exc}', file=sys.stderr)
             code = 2
         else:
-            spin_surviving(node, stop)
+            if node is not None:
+                spin_surviving(node, stop)
     except KeyboardInterrupt:
         pass
     finally:
@@ -194,6 +200,22 @@ def run_node(make_node, prog: str, config_errors: tuple = (ValueError,), args=No
             pass
     if code:
         sys.exit(code)
+
+
+def start_node(node_module: str, args=None) -> None:
+    """
+    Console entry of an executable: catch the stop signals, then load and run its node.
+
+    Loading numpy, numba, rclpy and the node's modules takes a few tenths of a
+    second; with the handlers installed first, SIGINT or SIGTERM in that time is a
+    clean stop (exit 0, no traceback) rather than a KeyboardInterrupt out of an
+    import or death by SIGTERM. ``node_module`` names a module with
+    ``main(args, stop)``; it is imported here, so this module stays light.
+    """
+    import importlib
+
+    stop = StopSignals(hurry_raises=False).install()
+    importlib.import_module(node_module).main(args, stop)
 
 
 def spin_surviving(node, stop=None) -> int:

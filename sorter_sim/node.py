@@ -789,8 +789,9 @@ def induct_spec(pairs, p: CellParams) -> ParcelSpec:
     )
 
 
-def main(args=None):
-    run_node(SimNode, 'sim_node', (ParamError,), args)
+def main(args=None, stop=None):
+    """Run the node; ``stop``: the executable's StopSignals, when it installed them first."""
+    run_node(SimNode, 'sim_node', (ParamError,), args, stop)
 
 
 if __name__ == '__main__':

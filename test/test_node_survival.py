@@ -168,3 +168,50 @@ def test_a_double_sigint_is_a_clean_exit_whenever_the_second_lands(ros, exe):
         text = out + err
         assert proc.returncode == 0, f'{exe}, second signal after {gap} s:\n{text[-3000:]}'
         assert 'Traceback' not in text and 'Exception ignored' not in text, text[-3000:]
+
+
+def _catches_sigterm(pid: int) -> bool:
+    with open(f'/proc/{pid}/status') as fh:
+        for line in fh:
+            if line.startswith('SigCgt:'):
+                return bool(int(line.split()[1], 16) & (1 << (signal.SIGTERM - 1)))
+    return False
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+@pytest.mark.parametrize('exe', list(ALONE))
+def test_a_stop_while_the_node_still_loads_is_a_clean_exit(exe, sig):
+    """The executables catch SIGINT and SIGTERM before their modules load (a few tenths of a s)."""
+    _, extra = ALONE[exe]
+    for delay in (0.0, 0.1, 0.3):
+        proc = _start(exe, *extra)
+        try:
+            deadline = time.monotonic() + 10.0
+            while not _catches_sigterm(proc.pid):
+                assert proc.poll() is None and time.monotonic() < deadline, (
+                    f'{exe} never caught SIGTERM'
+                )
+                time.sleep(0.001)
+            time.sleep(delay)
+            proc.send_signal(sig)
+            out, err = proc.communicate(timeout=20)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        text = out + err
+        assert proc.returncode == 0, f'{exe}, {sig.name} {delay} s into the start:\n{text[-3000:]}'
+        assert 'Traceback' not in text and 'Exception ignored' not in text, text[-3000:]
+
+
+def test_the_executables_load_nothing_heavy_before_their_handlers():
+    """A console script imports no ROS, no numerics before ``start_node`` installs the handlers."""
+    heavy = ('numpy', 'numba', 'scipy', 'rclpy', 'yaml')
+    probe = (
+        'import sys, sorter_sim.executable, sorter_control.executable; '
+        f'print(sorted(m for m in {heavy!r} if m in sys.modules))'
+    )
+    out = subprocess.run(
+        [sys.executable, '-c', probe], capture_output=True, text=True, check=True
+    ).stdout
+    assert out.strip() == '[]'

@@ -1,0 +1,13 @@
+"""
+The ``sim_node`` executable.
+
+Light on purpose: the console script imports only this and ``sorter_ros.env``, so
+the stop signals are caught before the node's modules load (``start_node``).
+"""
+
+from sorter_ros.env import start_node
+
+
+def main(args=None) -> None:
+    """Entry point of ``sim_node`` (``ros2 run sorter_cell sim_node``)."""
+    start_node('sorter_sim.node', args)
