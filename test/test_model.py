@@ -294,3 +294,52 @@ def test_stroke_range_follows_the_load_share_and_always_ends(rotation):
             t_scrap[s] = summary["t_scrap"]
     ordered = [t_scrap[s] for s in STROKES if s > 0.5]
     assert all(a > b for a, b in zip(ordered, ordered[1:])), ordered
+
+
+@pytest.mark.parametrize("method", ["accurate", "implicit"])
+def test_a_run_that_outgrows_its_output_still_ends_on_its_final_state(method):
+    # the accurate method may take more steps than there are records (its step budget is
+    # larger): the records stop growing, but the last one must be the run's true end
+    law = FrictionLaw("const1", (0.6,))
+    args = (Parcel(0.7, 0.2, 5.0), three_zone_strips(1.5, math.radians(90.0), 10.0, law, law))
+    kw = dict(y0=[-0.35, 0.0, 0.0, 1.5, 0.0, 0.0], t_span=(0.0, 3.0), method=method, y_target=0.5)
+    full = simulate(*args, **kw)
+    n = len(full.t)
+    assert full.success and n > 40
+    short = simulate(*args, **kw, max_points=20)
+    assert len(short.t) == 20
+    assert np.array_equal(short.t[:19], full.t[:19])
+    if method == "accurate":
+        # same steps, fewer records: the run itself is the same, and says it was thinned
+        assert short.success and short.t_target == full.t_target
+        assert short.t[-1] == full.t[-1] and np.array_equal(short.y[-1], full.y[-1])
+        assert f"first 19 of {n} records" in short.message
+    else:
+        # the fixed-step methods stop when their records are full, on the state they reached
+        assert not short.success and short.t[-1] == full.t[19]
+        assert np.array_equal(short.y[-1], full.y[19])
+
+
+def test_the_kernel_cache_is_dropped_when_any_core_source_changes(tmp_path):
+    # numba checks a cached kernel against its own file only; a kernel calling into another
+    # module of the core would keep the old callee. The stamp covers every source.
+    from sorter_sim.core import _drop_stale_kernels
+
+    (tmp_path / "a.py").write_text("x = 1\n")
+    (tmp_path / "b.py").write_text("y = 2\n")
+    cache = tmp_path / "__pycache__"
+
+    def fill():
+        cache.mkdir(exist_ok=True)
+        for name in ("a.k-1.py311.nbi", "a.k-1.py311.1.nbc", "b.m-3.py311.nbi"):
+            (cache / name).write_bytes(b"kernel")
+
+    fill()
+    assert _drop_stale_kernels(tmp_path)  # no stamp yet: nothing cached can be trusted
+    assert not list(cache.glob("*.nb*"))
+    fill()
+    assert not _drop_stale_kernels(tmp_path)  # unchanged: the cache stays
+    assert len(list(cache.glob("*.nb*"))) == 3
+    (tmp_path / "b.py").write_text("y = 3\n")  # a callee's module changes
+    assert _drop_stale_kernels(tmp_path)
+    assert not list(cache.glob("*.nb*"))

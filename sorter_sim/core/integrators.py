@@ -264,11 +264,18 @@ def _log_event(ev, n_ev, t, kind, info):
 
 @njit(cache=True)
 def _record(ts, ys, ms, n_out, t, y, mode):
-    if n_out < ts.shape[0]:
-        ts[n_out] = t
-        for j in range(6):
-            ys[n_out, j] = y[j]
-        ms[n_out] = mode
+    """
+    Record (t, y, mode) as record ``n_out``; returns the count.
+
+    Past the arrays' capacity the last slot takes every further record, so it
+    always holds the latest state: a run that outgrows its output (the accurate
+    method may take many times more steps) still ends on its true final state.
+    """
+    i = min(n_out, ts.shape[0] - 1)
+    ts[i] = t
+    for j in range(6):
+        ys[i, j] = y[j]
+    ms[i] = mode
     return n_out + 1
 
 

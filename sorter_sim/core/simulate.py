@@ -484,7 +484,13 @@ def simulate(
         mode=ms[:n_out].copy(),
         events=events,
         status=int(status),
-        message=STATUS_MESSAGES[int(status)],
+        message=STATUS_MESSAGES[int(status)]
+        + (
+            f" (the trajectory holds the first {max_points - 1} of {int(counters[3])} records"
+            " and the last: raise max_points for all)"
+            if counters[3] > max_points
+            else ""
+        ),
         method=method,
         n_steps=int(counters[0]),
         n_rhs=int(counters[1]),
