@@ -90,16 +90,14 @@ def one_run(graph_node, exe: str, mode: str, k: int, rng: random.Random) -> dict
         proc.send_signal(signal.SIGINT if mode == 'startup_sigint' else signal.SIGTERM)
     else:
         up = _ready(graph_node, ns, NODE_NAMES[exe])
-    if mode in STARTUP_MODES:
-        pass
-    elif mode == 'sigterm':
-        proc.send_signal(signal.SIGTERM)
-    else:
-        proc.send_signal(signal.SIGINT)
-        if mode == 'double_sigint':
-            time.sleep(rng.uniform(0.0, 0.1))
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
+        if mode == 'sigterm':
+            proc.send_signal(signal.SIGTERM)
+        else:
+            proc.send_signal(signal.SIGINT)
+            if mode == 'double_sigint':
+                time.sleep(rng.uniform(0.0, 0.1))
+                if proc.poll() is None:
+                    proc.send_signal(signal.SIGINT)
     try:
         out, err = proc.communicate(timeout=20)
         hung = False
