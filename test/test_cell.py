@@ -268,8 +268,11 @@ def test_raised_disks_divert_as_the_model_core_predicts(alpha_deg, chute):
         A, B, m, math.radians(abs(alpha_deg)), p.disk_field_length
     )
     t_at_field = -p.induct_x / p.belt_speed  # leading edge from induct_x to the disk field
-    assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=1e-8)
-    assert out.x == pytest.approx(y_ref[0], abs=1e-8)
+    # the cell integrates period by period: a break-away layer cut by a period's end is
+    # resumed from the slip it reached (``integrators._resume_layer``), which agrees with
+    # the one-run reference to the integrator's tolerance rather than to the last bit
+    assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=1e-6)
+    assert out.x == pytest.approx(y_ref[0], abs=1e-6)
     # the chute-entry sensor of that side: blocked when the footprint first reaches past the
     # entry line (located inside a period of sliding), clear after the crossing; the other never
     side = f'chute_{chute}'

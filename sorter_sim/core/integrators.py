@@ -51,6 +51,7 @@ from .layout import (
     P_INERTIA,
     P_MASS,
     P_ROTATION,
+    P_STICK,
     S_SURF,
     S_VX,
     S_VY,
@@ -63,7 +64,7 @@ from .layout import (
 )
 from .friction import mu_kinetic, mu_static
 from .geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
-from .wrench import evaluate_surfaces
+from .wrench import evaluate_surfaces, static_surface_wrench
 
 METHOD_ACCURATE = 0
 METHOD_IMPLICIT = 1
@@ -155,15 +156,101 @@ def rhs_slide(state, strips, parcel, nodes, weights, nsurf, out):
 
 
 STICK_RTOL = 1e-13  # relative: a balance to rounding (a few ulps of the wrench sums) holds
+GAUGE_ITERATIONS = 5000
 
 
 @njit(cache=True)
-def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf):
+def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
+    """
+    Gauge of the wrench (wx, wy, wt) in the limit set of ``surf``'s patch: <= 1 iff it holds.
+
+    A rigid patch under distributed Coulomb friction can supply exactly the wrenches
+    W with W·ξ <= D(ξ) for every twist ξ, D the patch's dissipation rate at μ_s
+    (``static_surface_wrench``): a convex set whose support function is D. Its gauge
+    is γ(W) = max_ξ W·ξ / D(ξ), a quasi-concave ratio of 1-homogeneous functions
+    (every local maximum is the maximum). At the maximiser ξ* the limit-surface point
+    G(ξ*) = ∇D(ξ*) lies on the ray of W: G = W / γ. Found by the relaxation
+    ξ <- ξ + κ (W/γ - G(ξ)) on unit generalized twists (x, y, ρφ), which is stationary
+    exactly there (its ξ-component vanishes by Euler's relation ξ·G = D) and moves G
+    towards W/γ because G is monotone; κ = 1/(2 max(F_max, T_max/ρ)) as in
+    ``_leave_direction``. ``xi`` (3, in/out) carries ξ between calls: a stick scanned
+    along its path starts each check next to the last maximiser.
+
+    Returns γ (0 for W = 0; inf when the patch supplies no friction at all).
+    """
+    mass = parcel[P_MASS]
+    rho = math.sqrt(parcel[P_INERTIA] / mass)
+    gx = wx
+    gy = wy
+    gw = wt / rho
+    wn = math.sqrt(gx * gx + gy * gy + gw * gw)
+    if wn == 0.0:
+        return 0.0
+    nx = xi[0]
+    ny = xi[1]
+    nw = xi[2]
+    nn = math.sqrt(nx * nx + ny * ny + nw * nw)
+    if not nn > 0.0 or not math.isfinite(nn):
+        nx = gx / wn
+        ny = gy / wn
+        nw = gw / wn
+    else:
+        nx /= nn
+        ny /= nn
+        nw /= nn
+    gamma = 0.0
+    kappa = 0.0
+    for it in range(GAUGE_ITERATIONS):
+        fx, fy, ft = static_surface_wrench(
+            state, strips, parcel, nodes, weights, surf, nx, ny, nw / rho
+        )
+        # ∇D in generalized coordinates: minus the friction wrench
+        dx = -fx
+        dy = -fy
+        dw = -ft / rho
+        d = nx * dx + ny * dy + nw * dw
+        if not d > 0.0:
+            return math.inf
+        if it == 0:
+            kappa = 1.0 / (2.0 * math.sqrt(dx * dx + dy * dy + dw * dw))
+        gamma = (nx * gx + ny * gy + nw * gw) / d
+        if gamma <= 0.0:
+            # ξ points away from W: restart on W itself (its own ratio is positive)
+            nx = gx / wn
+            ny = gy / wn
+            nw = gw / wn
+            continue
+        mx = nx + kappa * (gx / gamma - dx)
+        my = ny + kappa * (gy / gamma - dy)
+        mw = nw + kappa * (gw / gamma - dw)
+        mn = math.sqrt(mx * mx + my * my + mw * mw)
+        mx /= mn
+        my /= mn
+        mw /= mn
+        change = abs(mx - nx) + abs(my - ny) + abs(mw - nw)
+        nx = mx
+        ny = my
+        nw = mw
+        if change < 1e-12:
+            break
+    xi[0] = nx
+    xi[1] = ny
+    xi[2] = nw
+    return gamma
+
+
+@njit(cache=True)
+def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf, xi):
     """
     Break-away margin of sticking to ``surf`` at this pose (> 0: the stick breaks).
 
     Returns (margin, area of surf, Fx, Fy, T of the other surfaces' kinetic wrench).
-    ``state`` must carry the stuck velocity (surface velocity, φ̇ = 0).
+    ``state`` must carry the stuck velocity (surface velocity, φ̇ = 0), so the stuck
+    surface must supply exactly the opposite of the others' wrench. Exact stick
+    (``P_STICK``): margin = γ - 1, γ that wrench's gauge in the surface's limit set
+    (``limit_gauge``; without rotation φ̇ = 0 is a constraint and the set is the disk
+    |F| <= F_max). Seed stick: the decoupled test of eqs. 4.2/4.4, |F| <= F_max and
+    |T| <= T_max separately, in force units. ``xi`` (3): the gauge's warm start.
     """
     kin = np.empty((nsurf, 3))
     stat = np.empty((nsurf, 2))
@@ -181,6 +268,11 @@ def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf):
     # a pull equal to the capacity within STICK_RTOL holds: at an exact balance (the
     # disks carrying half the load at the belt's μ, a stroke of 0.5) rounding would
     # otherwise break the stick and make it again at every step, without end
+    if parcel[P_ROTATION] > 0.5 and parcel[P_STICK] > 0.5:
+        if area[surf] <= 0.0:
+            return (math.inf if fx != 0.0 or fy != 0.0 or t != 0.0 else 0.0), 0.0, fx, fy, t
+        gamma = limit_gauge(state, strips, parcel, nodes, weights, surf, fx, fy, t, xi)
+        return gamma - (1.0 + STICK_RTOL), area[surf], fx, fy, t
     margin = math.hypot(fx, fy) - stat[surf, 0] * (1.0 + STICK_RTOL)
     if parcel[P_ROTATION] > 0.5:
         margin = max(margin, abs(t) - stat[surf, 1] * (1.0 + STICK_RTOL))
@@ -339,6 +431,7 @@ def _stick_advance(
     y[3] = vsx
     y[4] = vsy
     y[5] = 0.0
+    xi = np.zeros(3)  # the limit-set gauge's twist, carried along the stick
     t_stop = t_end
     reason_stop = 0
     if vsy > 0.0 and y_target < math.inf and y[1] < y_target:
@@ -350,7 +443,7 @@ def _stick_advance(
     if speed == 0.0:
         # a stopped surface holds the parcel for good (only the other surfaces could
         # move it, and they are checked at the start)
-        m, a, _, _, _ = stick_margin(y, strips, parcel, nodes, weights, nsurf, surf)
+        m, a, _, _, _ = stick_margin(y, strips, parcel, nodes, weights, nsurf, surf, xi)
         counters[0] += 1
         if m > 0.0:
             return t, 2
@@ -387,7 +480,7 @@ def _stick_advance(
         t_next = min(t_stop, t + dt_scan)
         ys[0] = y0x + vsx * (t_next - t0)
         ys[1] = y0y + vsy * (t_next - t0)
-        m, a, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf)
+        m, a, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf, xi)
         counters[0] += 1
         if m > 0.0 or a <= 0.0:
             # locate the first pose where the stick fails, by bisection in time
@@ -398,7 +491,9 @@ def _stick_advance(
                 mid = 0.5 * (lo + hi)
                 ys[0] = y0x + vsx * (mid - t0)
                 ys[1] = y0y + vsy * (mid - t0)
-                m2, a2, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf)
+                m2, a2, _, _, _ = stick_margin(
+                    ys, strips, parcel, nodes, weights, nsurf, surf, xi
+                )
                 counters[0] += 1
                 failed = (a2 <= 0.0) if want_leave else (m2 > 0.0 or a2 <= 0.0)
                 if failed:
@@ -496,7 +591,7 @@ def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
 
 
 @njit(cache=True)
-def _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, surf, s_layer, nudge):
+def _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, surf, s_layer, nudge, s0):
     """
     Leave a stick to ``surf`` at time t; returns the time the sliding integration starts.
 
@@ -508,7 +603,10 @@ def _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, surf, s_laye
     starts on that direction with a tiny offset ``nudge``. Where λ grows from zero
     at rate j (constant μ, force balance just passed) the slip is ½ j τ² and the
     offset from the stuck motion j τ³/6; the parcel is advanced so until the slip
-    reaches ``s_layer``.
+    reaches ``s_layer``, or to ``t_end`` if that comes first (a caller integrating
+    period by period, as the cell does, then resumes the layer with ``s0``, the
+    slip it has reached: ``_resume_layer``). ``y`` holds the stuck motion (s0 = 0)
+    or the motion s0 into the layer.
     """
     mass = parcel[P_MASS]
     rho = math.sqrt(parcel[P_INERTIA] / mass)
@@ -526,20 +624,67 @@ def _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, surf, s_laye
         _, _, _, lam1 = _leave_direction(yp, strips, parcel, nodes, weights, nsurf, surf)
         jerk = (lam1 - lam) / dt_probe
     tau = math.sqrt(2.0 * s_layer / jerk) if jerk > 0.0 else math.inf
-    if jerk <= 0.0 or lam * tau > 0.5 * jerk * tau * tau or t + tau >= t_end:
-        y[3] = vsx + nudge * sx
-        y[4] = vsy + nudge * sy
-        y[5] = nudge * sw / rho
+    if jerk <= 0.0 or lam * tau > 0.5 * jerk * tau * tau:
+        if s0 == 0.0:
+            y[3] = vsx + nudge * sx
+            y[4] = vsy + nudge * sy
+            y[5] = nudge * sw / rho
         return t
+    tau0 = math.sqrt(2.0 * s0 / jerk)
+    if tau0 >= tau:
+        return t
+    tau = min(tau, tau0 + (t_end - t))
     dv = 0.5 * jerk * tau * tau
-    dx = jerk * tau * tau * tau / 6.0
-    y[0] += vsx * tau + dx * sx
-    y[1] += vsy * tau + dx * sy
+    dx = jerk * (tau * tau * tau - tau0 * tau0 * tau0) / 6.0
+    dt = tau - tau0
+    y[0] += vsx * dt + dx * sx
+    y[1] += vsy * dt + dx * sy
     y[2] += dx * sw / rho
     y[3] = vsx + dv * sx
     y[4] = vsy + dv * sy
     y[5] = dv * sw / rho
-    return t + tau
+    return t + dt
+
+
+@njit(cache=True)
+def _resume_layer(y, t, t_end, strips, parcel, nodes, weights, nsurf, s_layer, nudge):
+    """
+    Resume a break-away layer a run starts inside; returns the time sliding integration starts.
+
+    A run that starts sliding with a surface under the parcel whose slip is below
+    ``s_layer`` and growing is inside the layer ``_break_away`` solves in closed form
+    (an earlier run ended there): continue it so, from the slip reached, rather than
+    step through it.
+    """
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
+    rot = parcel[P_ROTATION] > 0.5
+    area = np.empty(nsurf)
+    sig = np.empty(3)
+    acc = np.empty(6)
+    _contact_surfaces(y, strips, parcel, nsurf, area)
+    for s in range(nsurf):
+        if area[s] <= 0.0:
+            continue
+        vsx, vsy = surface_velocity(strips, s)
+        n = _gen_slip(y, vsx, vsy, rho, rot, sig)
+        if n == 0.0 or n >= s_layer:
+            continue
+        rhs_slide(y, strips, parcel, nodes, weights, nsurf, acc)
+        if sig[0] * acc[3] + sig[1] * acc[4] + sig[2] * rho * acc[5] <= 0.0:
+            continue  # falling: a stick to come, which the events locate
+        stuck = y.copy()
+        stuck[3] = vsx
+        stuck[4] = vsy
+        stuck[5] = 0.0
+        t_new = _break_away(
+            stuck, t, t_end, strips, parcel, nodes, weights, nsurf, s, s_layer, nudge, n
+        )
+        if t_new > t:
+            # the increments of the layer from the slip reached: y moves with them
+            for j in range(6):
+                y[j] = stuck[j]
+        return t_new
+    return t
 
 
 @njit(cache=True)
@@ -587,6 +732,9 @@ def run_accurate(
     vscale = max(vscale, math.hypot(y0[3], y0[4]), 1e-3)
     stick_tol = max(atol, rtol * vscale)
     nudge = 1e-3 * stick_tol
+    # the break-away layer ends where explicit steps can follow the slip direction:
+    # its growth needs the direction error below sqrt(2 margin/F)
+    s_layer = max(100.0 * stick_tol, 1e-4 * vscale)
     K = np.empty((7, 6))
     y_new = np.empty(6)
     err = np.empty(6)
@@ -607,6 +755,11 @@ def run_accurate(
     fresh = True
     status = ST_END
     max_out = ts.shape[0]
+    if mode == MODE_SLIDE and t < t_end:
+        t_layer = _resume_layer(y, t, t_end, strips, parcel, nodes, weights, nsurf, s_layer, nudge)
+        if t_layer > t:
+            t = t_layer
+            n_out = _record(ts, ys, ms, n_out, t, y, mode)
     while t < t_end:
         if n_steps + n_out >= 50 * max_out:
             status = ST_MAX_STEPS
@@ -638,8 +791,6 @@ def run_accurate(
                 broke_from = mode
                 mode = MODE_SLIDE
                 if reason == 2:
-                    # the layer ends where explicit steps can follow the slip direction:
-                    # its growth needs the direction error below sqrt(2 margin/F)
                     t = _break_away(
                         y,
                         t,
@@ -650,8 +801,9 @@ def run_accurate(
                         weights,
                         nsurf,
                         broke_from,
-                        max(100.0 * stick_tol, 1e-4 * vscale),
+                        s_layer,
                         nudge,
+                        0.0,
                     )
                     armed[broke_from] = False
                 fresh = True
