@@ -156,7 +156,20 @@ def rhs_slide(state, strips, parcel, nodes, weights, nsurf, out):
 
 
 STICK_RTOL = 1e-13  # relative: a balance to rounding (a few ulps of the wrench sums) holds
-GAUGE_ITERATIONS = 5000
+GAUGE_ITERATIONS = 60
+
+
+@njit(cache=True)
+def _dissipation_gradient(state, strips, parcel, nodes, weights, surf, rho, z0, z1, z2, out):
+    """∇D at the generalized twist (z0, z1, z2) = (ẋ, ẏ, ρφ̇) relative to ``surf``; returns D."""
+    fx, fy, ft = static_surface_wrench(
+        state, strips, parcel, nodes, weights, surf, z0, z1, z2 / rho
+    )
+    # the friction wrench is -∇D; D = ξ·∇D by Euler's relation (D is 1-homogeneous)
+    out[0] = -fx
+    out[1] = -fy
+    out[2] = -ft / rho
+    return z0 * out[0] + z1 * out[1] + z2 * out[2]
 
 
 @njit(cache=True)
@@ -167,76 +180,137 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
     A rigid patch under distributed Coulomb friction can supply exactly the wrenches
     W with W·ξ <= D(ξ) for every twist ξ, D the patch's dissipation rate at μ_s
     (``static_surface_wrench``): a convex set whose support function is D. Its gauge
-    is γ(W) = max_ξ W·ξ / D(ξ), a quasi-concave ratio of 1-homogeneous functions
-    (every local maximum is the maximum). At the maximiser ξ* the limit-surface point
-    G(ξ*) = ∇D(ξ*) lies on the ray of W: G = W / γ. Found by the relaxation
-    ξ <- ξ + κ (W/γ - G(ξ)) on unit generalized twists (x, y, ρφ), which is stationary
-    exactly there (its ξ-component vanishes by Euler's relation ξ·G = D) and moves G
-    towards W/γ because G is monotone; κ = 1/(2 max(F_max, T_max/ρ)) as in
-    ``_leave_direction``. ``xi`` (3, in/out) carries ξ between calls: a stick scanned
-    along its path starts each check next to the last maximiser.
+    is γ(W) = max_ξ W·ξ / D(ξ) = 1 / min {D(ξ) : W·ξ = 1}, the minimum of a convex
+    function on a plane. It is found by Newton's method in that plane (generalized
+    twists (ẋ, ẏ, ρφ̇)): the gradient is exact (the closed-form wrench), the 2 x 2
+    Hessian a central difference of it, with a backtracking line search on D. At the
+    minimiser ξ* the limit-surface point ∇D(ξ*) = W / γ: ξ* is the twist the patch
+    slips with when the stick breaks (maximal dissipation). ``xi`` (3, in/out)
+    carries ξ* between calls: a stick scanned along its path starts each solve next
+    to the last minimiser.
 
     Returns γ (0 for W = 0; inf when the patch supplies no friction at all).
     """
     mass = parcel[P_MASS]
     rho = math.sqrt(parcel[P_INERTIA] / mass)
-    gx = wx
-    gy = wy
-    gw = wt / rho
-    wn = math.sqrt(gx * gx + gy * gy + gw * gw)
-    if wn == 0.0:
+    w = np.array([wx, wy, wt / rho])
+    w2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    if w2 == 0.0:
         return 0.0
-    nx = xi[0]
-    ny = xi[1]
-    nw = xi[2]
-    nn = math.sqrt(nx * nx + ny * ny + nw * nw)
-    if not nn > 0.0 or not math.isfinite(nn):
-        nx = gx / wn
-        ny = gy / wn
-        nw = gw / wn
+    wn = math.sqrt(w2)
+    # an orthonormal basis (p, q) of the plane's directions, W⊥
+    e = np.zeros(3)
+    k = 0
+    for i in range(1, 3):
+        if abs(w[i]) < abs(w[k]):
+            k = i
+    e[k] = 1.0
+    p = np.empty(3)
+    dot = (e[0] * w[0] + e[1] * w[1] + e[2] * w[2]) / w2
+    for i in range(3):
+        p[i] = e[i] - dot * w[i]
+    pn = math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+    for i in range(3):
+        p[i] /= pn
+    q = np.array(
+        [
+            (w[1] * p[2] - w[2] * p[1]) / wn,
+            (w[2] * p[0] - w[0] * p[2]) / wn,
+            (w[0] * p[1] - w[1] * p[0]) / wn,
+        ]
+    )
+    # start: the carried twist scaled onto the plane, else W itself (W·ξ = 1 both)
+    z = np.empty(3)
+    wx_ = w[0] * xi[0] + w[1] * xi[1] + w[2] * xi[2]
+    if wx_ > 0.0 and math.isfinite(wx_):
+        for i in range(3):
+            z[i] = xi[i] / wx_
     else:
-        nx /= nn
-        ny /= nn
-        nw /= nn
-    gamma = 0.0
-    kappa = 0.0
-    for it in range(GAUGE_ITERATIONS):
-        fx, fy, ft = static_surface_wrench(
-            state, strips, parcel, nodes, weights, surf, nx, ny, nw / rho
-        )
-        # ∇D in generalized coordinates: minus the friction wrench
-        dx = -fx
-        dy = -fy
-        dw = -ft / rho
-        d = nx * dx + ny * dy + nw * dw
-        if not d > 0.0:
-            return math.inf
-        if it == 0:
-            kappa = 1.0 / (2.0 * math.sqrt(dx * dx + dy * dy + dw * dw))
-        gamma = (nx * gx + ny * gy + nw * gw) / d
-        if gamma <= 0.0:
-            # ξ points away from W: restart on W itself (its own ratio is positive)
-            nx = gx / wn
-            ny = gy / wn
-            nw = gw / wn
-            continue
-        mx = nx + kappa * (gx / gamma - dx)
-        my = ny + kappa * (gy / gamma - dy)
-        mw = nw + kappa * (gw / gamma - dw)
-        mn = math.sqrt(mx * mx + my * my + mw * mw)
-        mx /= mn
-        my /= mn
-        mw /= mn
-        change = abs(mx - nx) + abs(my - ny) + abs(mw - nw)
-        nx = mx
-        ny = my
-        nw = mw
-        if change < 1e-12:
+        for i in range(3):
+            z[i] = w[i] / w2
+    g = np.empty(3)
+    gp = np.empty(3)
+    gm = np.empty(3)
+    zt = np.empty(3)
+    d = _dissipation_gradient(
+        state, strips, parcel, nodes, weights, surf, rho, z[0], z[1], z[2], g
+    )
+    if not d > 0.0:
+        return math.inf
+    for _ in range(GAUGE_ITERATIONS):
+        # reduced gradient and Hessian in the plane
+        g0 = g[0] * p[0] + g[1] * p[1] + g[2] * p[2]
+        g1 = g[0] * q[0] + g[1] * q[1] + g[2] * q[2]
+        zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
+        # at the minimum the reduced gradient vanishes: ∇D ∥ W, |∇D| ~ D/|ξ|
+        if math.hypot(g0, g1) <= 1e-14 * d / zn:
             break
-    xi[0] = nx
-    xi[1] = ny
-    xi[2] = nw
-    return gamma
+        hstep = 1e-5 * zn
+        h00 = 0.0
+        h01 = 0.0
+        h10 = 0.0
+        h11 = 0.0
+        for j in range(2):
+            for i in range(3):
+                dirn = p[i] if j == 0 else q[i]
+                zt[i] = z[i] + hstep * dirn
+            _dissipation_gradient(
+                state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], gp
+            )
+            for i in range(3):
+                dirn = p[i] if j == 0 else q[i]
+                zt[i] = z[i] - hstep * dirn
+            _dissipation_gradient(
+                state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], gm
+            )
+            c0 = ((gp[0] - gm[0]) * p[0] + (gp[1] - gm[1]) * p[1] + (gp[2] - gm[2]) * p[2]) / (
+                2.0 * hstep
+            )
+            c1 = ((gp[0] - gm[0]) * q[0] + (gp[1] - gm[1]) * q[1] + (gp[2] - gm[2]) * q[2]) / (
+                2.0 * hstep
+            )
+            if j == 0:
+                h00 = c0
+                h10 = c1
+            else:
+                h01 = c0
+                h11 = c1
+        h01 = 0.5 * (h01 + h10)
+        det = h00 * h11 - h01 * h01
+        if h00 > 0.0 and h11 > 0.0 and det > 1e-12 * h00 * h11:
+            s0 = -(h11 * g0 - h01 * g1) / det
+            s1 = -(h00 * g1 - h01 * g0) / det
+        else:
+            # not positive definite (rounding near a kink): a gradient step of Newton's scale
+            scale = zn * zn / d
+            s0 = -scale * g0
+            s1 = -scale * g1
+        slope = g0 * s0 + g1 * s1
+        step = 1.0
+        dt_ = d
+        for _ls in range(40):
+            for i in range(3):
+                zt[i] = z[i] + step * (s0 * p[i] + s1 * q[i])
+            dt_ = _dissipation_gradient(
+                state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], gp
+            )
+            if dt_ <= d + 1e-4 * step * slope:
+                break
+            step *= 0.5
+        if not dt_ <= d:
+            break  # no descent left at rounding level: z is the minimiser
+        moved = step * math.hypot(s0, s1)
+        for i in range(3):
+            z[i] = zt[i]
+            g[i] = gp[i]
+        d = dt_
+        if moved <= 1e-15 * zn:
+            break
+    zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
+    for i in range(3):
+        xi[i] = z[i] / zn
+    # W·ξ = 1 on the plane; recompute it against drift
+    return (w[0] * z[0] + w[1] * z[1] + w[2] * z[2]) / d
 
 
 @njit(cache=True)
@@ -491,9 +565,7 @@ def _stick_advance(
                 mid = 0.5 * (lo + hi)
                 ys[0] = y0x + vsx * (mid - t0)
                 ys[1] = y0y + vsy * (mid - t0)
-                m2, a2, _, _, _ = stick_margin(
-                    ys, strips, parcel, nodes, weights, nsurf, surf, xi
-                )
+                m2, a2, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf, xi)
                 counters[0] += 1
                 failed = (a2 <= 0.0) if want_leave else (m2 > 0.0 or a2 <= 0.0)
                 if failed:
