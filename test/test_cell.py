@@ -268,17 +268,19 @@ def test_raised_disks_divert_as_the_model_core_predicts(alpha_deg, chute):
         A, B, m, math.radians(abs(alpha_deg)), p.disk_field_length
     )
     t_at_field = -p.induct_x / p.belt_speed  # leading edge from induct_x to the disk field
-    # the cell integrates period by period: a break-away layer cut by a period's end is
-    # resumed from the slip it reached (``integrators._resume_layer``), which agrees with
-    # the one-run reference to the integrator's tolerance rather than to the last bit
-    assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=1e-6)
-    assert out.x == pytest.approx(y_ref[0], abs=1e-6)
+    # the cell integrates period by period. At an exact stick's break-away the slip grows
+    # from zero as ½ j τ² over a few milliseconds (the layer ``integrators._break_away``
+    # solves in closed form); a period's end inside it resumes the layer from the slip and
+    # pose reached (``_resume_layer``), re-linearised there. The two differ by the layer's
+    # third-order offset, j τ³/6 ≈ 2e-7 m here (j ≈ 15 m/s³, τ ≈ 4.5 ms), not by rounding.
+    assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=5e-7)
+    assert out.x == pytest.approx(y_ref[0], abs=5e-7)
     # the chute-entry sensor of that side: blocked when the footprint first reaches past the
     # entry line (located inside a period of sliding), clear after the crossing; the other never
     side = f'chute_{chute}'
     rise, fall = edges_of(events, side)
     assert rise.blocked and rise.t_ns < out.t_ns < fall.t_ns and not fall.blocked
-    assert rise.t_ns * 1e-9 == pytest.approx(t_at_field + t_corner, abs=1e-7)
+    assert rise.t_ns * 1e-9 == pytest.approx(t_at_field + t_corner, abs=5e-7)
     other = 'chute_right' if chute == 'left' else 'chute_left'
     assert not edges_of(events, other)
     assert cell.n_parcels == 0 and not cell.faults
