@@ -64,7 +64,7 @@ from .layout import (
 )
 from .friction import mu_kinetic, mu_static
 from .geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
-from .wrench import evaluate_surfaces, static_surface_wrench
+from .wrench import evaluate_surfaces, rest_surface_wrench, static_surface_wrench
 
 METHOD_ACCURATE = 0
 METHOD_IMPLICIT = 1
@@ -588,29 +588,20 @@ def _stick_advance(
 
 
 @njit(cache=True)
-def _kinetic_pull(y, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, rho, eps, z, out):
+def _kinetic_pull(y, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, out):
     """
     Growth term W_o·σ - D_k(σ) of a unit slip σ (generalized) on ``surf``, and its gradient.
 
-    W_o: the other surfaces' kinetic wrench, D_k the stuck surface's kinetic dissipation
-    at vanishing slip (evaluated at slip ``eps`` σ; it depends only on σ's direction).
+    W_o = (ox, oy, ow): the other surfaces' kinetic wrench at the stuck motion, D_k the
+    stuck patch's kinetic dissipation at vanishing slip (μ_k(0), 1-homogeneous in σ).
     ``out`` gets W_o - ∇D_k(σ). Generalized coordinates (x, y, ρφ): the mass matrix is m I.
     """
-    kin = np.empty((nsurf, 3))
-    stat = np.empty((nsurf, 2))
-    area = np.empty(nsurf)
-    slip = np.empty(nsurf)
-    yp = y.copy()
-    yp[3] = vsx + eps * z[0]
-    yp[4] = vsy + eps * z[1]
-    yp[5] = eps * z[2] / rho
-    evaluate_surfaces(yp, strips, parcel, nodes, weights, -2, False, kin, stat, area, slip)
-    for i in range(3):
-        out[i] = 0.0
-    for k in range(nsurf):
-        out[0] += kin[k, 0]
-        out[1] += kin[k, 1]
-        out[2] += kin[k, 2] / rho
+    fx, fy, ft = rest_surface_wrench(
+        y, strips, parcel, nodes, weights, surf, z[0], z[1], z[2] / rho, True
+    )
+    out[0] = ox + fx
+    out[1] = oy + fy
+    out[2] = ow + ft / rho
     return out[0] * z[0] + out[1] * z[1] + out[2] * z[2]
 
 
@@ -635,7 +626,6 @@ def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
     rho = math.sqrt(parcel[P_INERTIA] / mass)
     rot = parcel[P_ROTATION] > 0.5
     vsx, vsy = surface_velocity(strips, surf)
-    eps = 1e-6 * max(1.0, math.hypot(vsx, vsy))
     kin = np.empty((nsurf, 3))
     stat = np.empty((nsurf, 2))
     area = np.empty(nsurf)
@@ -677,7 +667,7 @@ def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
     gp = np.empty(3)
     gm = np.empty(3)
     zt = np.empty(3)
-    f = _kinetic_pull(y, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, rho, eps, z, g)
+    f = _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, g)
     p = np.empty(3)
     q = np.empty(3)
     ndim = 2 if rot else 1
@@ -713,14 +703,10 @@ def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
         for jd in range(ndim):
             for i in range(3):
                 zt[i] = z[i] + hstep * (p[i] if jd == 0 else q[i])
-            _kinetic_pull(
-                y, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, rho, eps, zt, gp
-            )
+            _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, gp)
             for i in range(3):
                 zt[i] = z[i] - hstep * (p[i] if jd == 0 else q[i])
-            _kinetic_pull(
-                y, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, rho, eps, zt, gm
-            )
+            _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, gm)
             c0 = ((gp[0] - gm[0]) * p[0] + (gp[1] - gm[1]) * p[1] + (gp[2] - gm[2]) * p[2]) / (
                 2.0 * hstep
             )
@@ -756,9 +742,7 @@ def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
             tn = math.sqrt(zt[0] * zt[0] + zt[1] * zt[1] + zt[2] * zt[2])
             for i in range(3):
                 zt[i] /= tn
-            ft = _kinetic_pull(
-                y, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, rho, eps, zt, gp
-            )
+            ft = _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, gp)
             if ft >= f:
                 break
             step *= 0.5
@@ -799,7 +783,7 @@ def _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, surf, s_laye
     offset from the stuck motion is ½ λ τ² + j τ³/6 along σ̂. It is advanced so
     until the slip reaches ``s_layer``, or to ``t_end`` if that comes first (a
     caller integrating period by period, as the cell does, then resumes the layer
-    with ``s0``, the slip it has reached: ``_resume_layer``). ``y`` holds the
+    with ``s0``, the slip it has reached: ``_small_slip``). ``y`` holds the
     stuck motion (s0 = 0) or the motion s0 into the layer. Without a growth rate
     (λ = j = 0) the parcel starts on σ̂ with a tiny offset ``nudge``.
     """
@@ -853,35 +837,48 @@ def _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, surf, s_laye
 
 
 @njit(cache=True)
-def _resume_layer(y, t, t_end, strips, parcel, nodes, weights, nsurf, s_layer, nudge):
+def _small_slip(
+    y, t, t_end, strips, parcel, nodes, weights, nsurf, s_check, s_layer, nudge, counters
+):
     """
-    Resume a break-away layer a run starts inside; returns the time sliding integration starts.
+    Settle a surface whose slip is below ``s_check``: stick to it, or solve its layer.
 
-    A run that starts sliding with a surface under the parcel whose slip is below
-    ``s_layer`` and growing is inside the layer ``_break_away`` solves in closed form
-    (an earlier run ended there): continue it so, from the slip reached, rather than
-    step through it.
+    Near zero slip the kinetic friction's direction turns at a rate F/(m |slip|): an
+    explicit step there settles into a chatter of |slip| ~ μ g h that neither falls
+    to zero nor grows (a stall of steps ~1e-10 s). The slip's fate at this pose is
+    decided by the forces, not by a band: if the wrench the surface must supply to
+    carry the parcel lies in its limit set (``stick_margin`` <= 0) the parcel sticks
+    (the slip, below the stick tolerances, is dropped); else the parcel is leaving
+    the surface and the layer is continued in closed form from the slip reached
+    (``_break_away`` with s0). Also resumes a layer a run starts inside (an earlier
+    run, as the cell integrates period by period, ended there).
+
+    Returns (t, surf, stuck): the new time, the surface acted on (-1 none) and
+    whether the parcel now sticks to it (``y`` then carries the stuck motion).
     """
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
     area = np.empty(nsurf)
     sig = np.empty(3)
-    acc = np.empty(6)
+    xi = np.zeros(3)
     _contact_surfaces(y, strips, parcel, nsurf, area)
     for s in range(nsurf):
         if area[s] <= 0.0:
             continue
         vsx, vsy = surface_velocity(strips, s)
         n = _gen_slip(y, vsx, vsy, rho, rot, sig)
-        if n == 0.0 or n >= s_layer:
+        if n == 0.0 or n >= s_check:
             continue
-        rhs_slide(y, strips, parcel, nodes, weights, nsurf, acc)
-        if sig[0] * acc[3] + sig[1] * acc[4] + sig[2] * rho * acc[5] <= 0.0:
-            continue  # falling: a stick to come, which the events locate
         stuck = y.copy()
         stuck[3] = vsx
         stuck[4] = vsy
         stuck[5] = 0.0
+        m, _, _, _, _ = stick_margin(stuck, strips, parcel, nodes, weights, nsurf, s, xi)
+        counters[0] += 1
+        if m <= 0.0:
+            for j in range(6):
+                y[j] = stuck[j]
+            return t, s, True
         t_new = _break_away(
             stuck, t, t_end, strips, parcel, nodes, weights, nsurf, s, s_layer, nudge, n
         )
@@ -889,8 +886,8 @@ def _resume_layer(y, t, t_end, strips, parcel, nodes, weights, nsurf, s_layer, n
             # the increments of the layer from the slip reached: y moves with them
             for j in range(6):
                 y[j] = stuck[j]
-        return t_new
-    return t
+            return t_new, s, False
+    return t, -1, False
 
 
 @njit(cache=True)
@@ -965,11 +962,7 @@ def run_accurate(
     fresh = True
     status = ST_END
     max_out = ts.shape[0]
-    if mode == MODE_SLIDE and t < t_end:
-        t_layer = _resume_layer(y, t, t_end, strips, parcel, nodes, weights, nsurf, s_layer, nudge)
-        if t_layer > t:
-            t = t_layer
-            n_out = _record(ts, ys, ms, n_out, t, y, mode)
+    s_check = 0.5 * s_layer
     while t < t_end:
         if n_steps + n_out >= 50 * max_out:
             status = ST_MAX_STEPS
@@ -1020,6 +1013,41 @@ def run_accurate(
                 n_out = _record(ts, ys, ms, n_out, t, y, mode)
             continue
         # ---- sliding: one Dormand-Prince step with event location ----
+        _contact_surfaces(y, strips, parcel, nsurf, area)
+        small = False
+        for s in range(nsurf):
+            vsx, vsy = surface_velocity(strips, s)
+            sig0n[s] = _gen_slip(y, vsx, vsy, rho, rot, sig)
+            for j in range(3):
+                sig0[3 * s + j] = sig[j] / sig0n[s] if sig0n[s] > 0.0 else 0.0
+            if area[s] > 0.0 and 0.0 < sig0n[s] < s_check:
+                small = True
+        if small:
+            t_new, s_act, stuck = _small_slip(
+                y,
+                t,
+                t_end,
+                strips,
+                parcel,
+                nodes,
+                weights,
+                nsurf,
+                s_check,
+                s_layer,
+                nudge,
+                stick_counters,
+            )
+            if stuck:
+                n_ev = _log_event(ev, n_ev, t, EV_STICK, s_act)
+                mode = s_act
+                fresh = True
+                n_out = _record(ts, ys, ms, n_out, t, y, mode)
+                continue
+            if t_new > t:
+                t = t_new
+                fresh = True
+                n_out = _record(ts, ys, ms, n_out, t, y, mode)
+                continue
         if fresh:
             rhs_slide(y, strips, parcel, nodes, weights, nsurf, K[0])
             n_rhs += 1
@@ -1031,12 +1059,6 @@ def run_accurate(
         if h <= 1e-14 * max(1.0, abs(t)):
             status = ST_STEP_FAIL
             break
-        _contact_surfaces(y, strips, parcel, nsurf, area)
-        for s in range(nsurf):
-            vsx, vsy = surface_velocity(strips, s)
-            sig0n[s] = _gen_slip(y, vsx, vsy, rho, rot, sig)
-            for j in range(3):
-                sig0[3 * s + j] = sig[j] / sig0n[s] if sig0n[s] > 0.0 else 0.0
         if nb > 0:
             _corner_event_values(y, parcel, borders, ev0)
         _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err)
@@ -1312,7 +1334,11 @@ def implicit_step(
     W0 = np.array([y[3], y[4], y[5] if rot else 0.0])
     mass = np.array([m, m, inertia if rot else 1.0])
     wr = np.empty(3)
-    # stick test, surface by surface (the seed's decoupled force and moment limits)
+    # stick test, surface by surface: the wrench the surface must supply to carry the
+    # parcel through the step, in its limit set (exact stick, ``limit_gauge``) or within
+    # the seed's decoupled force and moment limits (seed stick)
+    exact = rot and parcel[P_STICK] > 0.5
+    xi = np.zeros(3)
     present = np.zeros(nsurf)
     for k in range(npt):
         present[surf_of[k]] = 1.0
@@ -1325,9 +1351,15 @@ def implicit_step(
         rfx = mass[0] * (Ws[0] - W0[0]) / h - wr[0]
         rfy = mass[1] * (Ws[1] - W0[1]) / h - wr[1]
         rt = mass[2] * (Ws[2] - W0[2]) / h - wr[2]
-        ok = math.hypot(rfx, rfy) <= stat[s, 0]
-        if rot:
-            ok = ok and abs(rt) <= stat[s, 1]
+        if exact:
+            ok = (
+                limit_gauge(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, xi)
+                <= 1.0 + STICK_RTOL
+            )
+        else:
+            ok = math.hypot(rfx, rfy) <= stat[s, 0]
+            if rot:
+                ok = ok and abs(rt) <= stat[s, 1]
         if ok:
             y_out[3] = vsx
             y_out[4] = vsy

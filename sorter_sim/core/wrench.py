@@ -275,6 +275,19 @@ def static_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, o
     normal is the twist. Exact for polygons (``strip_wrench_closed``) wherever that
     is accurate, Gauss quadrature at constant μ_s elsewhere.
     """
+    return rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, False)
+
+
+@njit(cache=True)
+def rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, kinetic):
+    """
+    Wrench of surface ``surf`` for the twist direction (ux, uy, om), at the coefficient of rest.
+
+    The coefficient is μ_s (``kinetic`` False: the limit set's support point, see
+    ``static_surface_wrench``) or the kinetic law's limit at vanishing speed μ_k(0)
+    (``kinetic`` True: the friction a patch slipping infinitely slowly with that
+    twist direction feels, which a break-away starts from).
+    """
     x = state[0]
     y = state[1]
     half_a = parcel[P_HALF_A]
@@ -296,7 +309,11 @@ def static_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, o
         a, qx, qy = polygon_area_centroid(poly, n)
         if a <= 0.0:
             continue
-        mus = mu_static(int(strips[k, S_LAW]), strips[k, S_PARAMS:])
+        law = int(strips[k, S_LAW])
+        if kinetic:
+            mus = mu_kinetic(law, strips[k, S_PARAMS:], 0.0)
+        else:
+            mus = mu_static(law, strips[k, S_PARAMS:])
         pressure = p_unit * w
         ux_q = ux - om * (qy - y)
         uy_q = uy + om * (qx - x)
@@ -324,6 +341,7 @@ __all__ = [
     "evaluate_surfaces",
     "gauss_legendre_01",
     "n_surfaces",
+    "rest_surface_wrench",
     "static_surface_wrench",
     "strip_wrench_closed",
     "strip_wrench_quad",
