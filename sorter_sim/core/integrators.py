@@ -606,52 +606,54 @@ def _kinetic_pull(y, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, o
 
 
 @njit(cache=True)
-def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
+def _others_wrench(y, strips, parcel, nodes, weights, nsurf, surf, out):
     """
-    Slip direction σ̂ and growth λ of a parcel leaving its stick to ``surf``.
+    Kinetic wrench of every surface but ``surf`` at the state y, generalized (Fx, Fy, T/ρ).
 
-    At vanishing slip the kinetic wrench of ``surf`` depends only on the direction σ̂
-    of the generalized slip (ẋ - v_sx, ẏ - v_sy, ρ φ̇), and the parcel leaves along
-    the σ̂ its own acceleration reproduces: W_o - ∇D_k(σ̂) = m λ σ̂, λ >= 0 (W_o the
-    other surfaces' kinetic wrench, D_k the stuck patch's kinetic dissipation). That
-    is the maximiser of the concave W_o·σ - D_k(σ) on the unit ball, and λ = its
-    maximum / m (by Euler's relation σ·∇D_k = D_k): a convex problem, solved by
-    Newton's method on the unit sphere (exact gradient, differenced Hessian, a
-    backtracking line search). At the break of an exact stick (μ_s = μ_k) λ starts
-    from zero with σ̂ the limit set's maximal-dissipation twist. Returns
-    (σx, σy, σw, λ) with λ in m/s² (generalized units); λ = 0 where nothing pulls
-    the parcel off (the maximum is at σ = 0).
+    Returns ``surf``'s contact area (0: the parcel has left it).
     """
-    mass = parcel[P_MASS]
-    rho = math.sqrt(parcel[P_INERTIA] / mass)
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
-    vsx, vsy = surface_velocity(strips, surf)
     kin = np.empty((nsurf, 3))
     stat = np.empty((nsurf, 2))
     area = np.empty(nsurf)
     slip = np.empty(nsurf)
-    yp = y.copy()
-    yp[3] = vsx
-    yp[4] = vsy
-    yp[5] = 0.0
-    evaluate_surfaces(yp, strips, parcel, nodes, weights, surf, True, kin, stat, area, slip)
-    ox = 0.0
-    oy = 0.0
-    ow = 0.0
+    evaluate_surfaces(y, strips, parcel, nodes, weights, surf, False, kin, stat, area, slip)
+    out[:] = 0.0
     for k in range(nsurf):
         if k != surf:
-            ox += kin[k, 0]
-            oy += kin[k, 1]
-            ow += kin[k, 2] / rho if rot else 0.0
+            out[0] += kin[k, 0]
+            out[1] += kin[k, 1]
+            out[2] += kin[k, 2] / rho if rot else 0.0
+    return area[surf]
+
+
+@njit(cache=True)
+def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
+    """
+    Unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow); returns λ >= 0.
+
+    W_o is the other surfaces' generalized kinetic wrench, D_k the patch of ``surf``
+    slipping infinitely slowly (μ_k(0), ``rest_surface_wrench``). The maximiser is the
+    direction a small slip on ``surf`` settles to (its own acceleration W_o - ∇D_k(σ̂)
+    = m λ σ̂ is along it) and λ its growth rate [m/s², generalized]: a concave problem,
+    solved by Newton's method on the unit sphere (exact gradient, differenced Hessian,
+    backtracking line search). ``z`` carries a start (a zero vector: the limit set's
+    maximal-dissipation twist for W_o, else W_o's direction) and returns σ̂.
+    """
+    mass = parcel[P_MASS]
+    rho = math.sqrt(parcel[P_INERTIA] / mass)
+    rot = parcel[P_ROTATION] > 0.5
     norm = math.sqrt(ox * ox + oy * oy + ow * ow)
-    if norm == 0.0:
-        return 0.0, 0.0, 0.0, 0.0
-    # start on the limit set's maximal-dissipation twist for the others' pull
-    z = np.zeros(3)
-    if rot and area[surf] > 0.0:
-        limit_gauge(yp, strips, parcel, nodes, weights, surf, ox, oy, ow * rho, z)
     zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
-    if not zn > 0.0 or (ox * z[0] + oy * z[1] + ow * z[2]) <= 0.0:
+    if norm == 0.0 and zn == 0.0:
+        return 0.0
+    if zn == 0.0 and rot:
+        limit_gauge(yp, strips, parcel, nodes, weights, surf, ox, oy, ow * rho, z)
+        zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
+        if zn > 0.0 and (ox * z[0] + oy * z[1] + ow * z[2]) <= 0.0:
+            zn = 0.0
+    if not zn > 0.0:
         z[0] = ox / norm
         z[1] = oy / norm
         z[2] = ow / norm
@@ -755,90 +757,271 @@ def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
         f = ft
         if moved <= 1e-15:
             break
-    return z[0], z[1], z[2], max(f / mass, 0.0)
+    return max(f / mass, 0.0)
 
 
 @njit(cache=True)
-def _layer_time(lam, jerk, slip):
-    """Time τ at which the layer's slip λ τ + ½ j τ² reaches ``slip`` (λ, j >= 0, not both 0)."""
-    if slip <= 0.0:
-        return 0.0
-    # the root of ½ j τ² + λ τ - s written without cancellation
-    return 2.0 * slip / (lam + math.sqrt(lam * lam + 2.0 * jerk * slip))
-
-
-@njit(cache=True)
-def _break_away(y, t, t_end, strips, parcel, nodes, weights, nsurf, surf, s_layer, nudge, s0):
+def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
     """
-    Leave a stick to ``surf`` at time t; returns the time the sliding integration starts.
+    Slip direction σ̂ and growth λ of a parcel leaving its stick to ``surf`` (``_pull_direction``).
 
-    At break-away the slip on the stuck surface is exactly zero, where kinetic
-    friction has no direction, and a slip direction off the self-consistent one
-    relaxes onto it at a rate F/(m |slip|): an arbitrarily stiff boundary layer,
-    where explicit steps chatter about the slip direction and the slip itself
-    does not grow. It is solved in closed form along σ̂ of ``_leave_direction``:
-    the slip grows as λ τ + ½ j τ² (λ the growth rate at the break, j its rate of
-    change: λ > 0 where μ_s > μ_k or the required wrench jumped past the limit,
-    λ = 0 and j > 0 where the pull crossed the limit smoothly) and the parcel's
-    offset from the stuck motion is ½ λ τ² + j τ³/6 along σ̂. It is advanced so
-    until the slip reaches ``s_layer``, or to ``t_end`` if that comes first (a
-    caller integrating period by period, as the cell does, then resumes the layer
-    with ``s0``, the slip it has reached: ``_small_slip``). ``y`` holds the
-    stuck motion (s0 = 0) or the motion s0 into the layer. Without a growth rate
-    (λ = j = 0) the parcel starts on σ̂ with a tiny offset ``nudge``.
+    At vanishing slip the kinetic wrench of ``surf`` depends only on the direction σ̂
+    of the generalized slip (ẋ - v_sx, ẏ - v_sy, ρ φ̇); the others' wrench is taken at
+    the stuck motion. At the break of an exact stick (μ_s = μ_k) λ starts from zero
+    with σ̂ the limit set's maximal-dissipation twist. Returns (σx, σy, σw, λ); λ = 0
+    where nothing pulls the parcel off.
+    """
+    vsx, vsy = surface_velocity(strips, surf)
+    yp = y.copy()
+    yp[3] = vsx
+    yp[4] = vsy
+    yp[5] = 0.0
+    w = np.empty(3)
+    a = _others_wrench(yp, strips, parcel, nodes, weights, nsurf, surf, w)
+    z = np.zeros(3)
+    if a <= 0.0 and w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    lam = _pull_direction(yp, strips, parcel, nodes, weights, surf, w[0], w[1], w[2], z)
+    return z[0], z[1], z[2], lam
+
+
+@njit(cache=True)
+def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, out):
+    """
+    Right-hand side of the slip layer on ``surf``: u = (x, y, φ, s), s the slip magnitude.
+
+    On the layer's slow manifold the slip points along σ̂, the direction a small slip
+    settles to against the other surfaces' wrench at the current motion
+    (``_pull_direction``, warm-started from and returned in ``z``); the pose moves
+    with the surface plus s σ̂, and s grows at σ̂·a, a the full model's (generalized)
+    acceleration at that motion. ``yv`` gets the full state. Returns the stuck
+    patch's friction magnitude |∇D_k| [N] (its stiffness is that over m s).
+    """
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
+    rot = parcel[P_ROTATION] > 0.5
+    sl = max(u[3], 0.0)
+    for j in range(3):
+        yv[j] = u[j]
+    yv[3] = vsx + sl * z[0]
+    yv[4] = vsy + sl * z[1]
+    yv[5] = sl * z[2] / rho if rot else 0.0
+    w = np.empty(3)
+    _others_wrench(yv, strips, parcel, nodes, weights, nsurf, surf, w)
+    _pull_direction(yv, strips, parcel, nodes, weights, surf, w[0], w[1], w[2], z)
+    yv[3] = vsx + sl * z[0]
+    yv[4] = vsy + sl * z[1]
+    yv[5] = sl * z[2] / rho if rot else 0.0
+    rhs_slide(yv, strips, parcel, nodes, weights, nsurf, acc)
+    out[0] = yv[3]
+    out[1] = yv[4]
+    out[2] = yv[5]
+    out[3] = z[0] * acc[3] + z[1] * acc[4] + z[2] * rho * acc[5]
+    fx, fy, ft = rest_surface_wrench(
+        yv, strips, parcel, nodes, weights, surf, z[0], z[1], z[2] / rho, True
+    )
+    return math.sqrt(fx * fx + fy * fy + (ft / rho) ** 2)
+
+
+@njit(cache=True)
+def _layer(
+    y,
+    t,
+    t_end,
+    y_target,
+    strips,
+    parcel,
+    nodes,
+    weights,
+    nsurf,
+    surf,
+    s0,
+    z,
+    rtol,
+    atol,
+    borders,
+    counters,
+):
+    """
+    Integrate the slip layer on ``surf`` from slip ``s0`` at time t; returns the time it ends.
+
+    At a break-away the slip on the stuck surface starts at zero, where kinetic
+    friction has no direction: a slip direction off the settled one turns onto it at a
+    rate F/(m s), an arbitrarily stiff layer where explicit steps of the full model
+    chatter about the direction and the slip hardly grows. On the layer's slow
+    manifold (``_layer_rhs``) the direction is slaved to the pose, so the layer is a
+    smooth 4-state problem (pose and slip magnitude), integrated here by the same
+    Dormand-Prince pair under the same tolerances. It ends, handing over to the full
+    model, once the slip has grown so that the full model's step is no longer bound by
+    the direction's stiffness (F h / (m s) <= 1 at the layer's current step h), or
+    before a corner crosses a strip border or the centre of gravity the scrap line
+    (the full model locates those), or at t_end; or, if the slip falls back, below a
+    tenth of s0's scale, where the caller decides stick or slip again.
+
+    ``y`` (in: the pose; out: the full state at the end, velocity = surface + s σ̂),
+    ``z`` (in: a start for σ̂, may be zero; out: σ̂). counters[0] += rhs evaluations.
     """
     mass = parcel[P_MASS]
-    rho = math.sqrt(parcel[P_INERTIA] / mass)
-    sx, sy, sw, lam = _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf)
-    if sx == 0.0 and sy == 0.0 and sw == 0.0:
-        return t
     vsx, vsy = surface_velocity(strips, surf)
-    speed = math.hypot(vsx, vsy)
-    jerk = 0.0
-    if speed > 0.0:
-        dt_probe = 1e-5 * min(parcel[P_HALF_A], parcel[P_HALF_B]) / speed
-        yp = y.copy()
-        yp[0] += vsx * dt_probe
-        yp[1] += vsy * dt_probe
-        _, _, _, lam1 = _leave_direction(yp, strips, parcel, nodes, weights, nsurf, surf)
-        jerk = max((lam1 - lam) / dt_probe, 0.0)
-    if lam <= 0.0 and jerk <= 0.0:
-        if s0 == 0.0:
-            y[3] = vsx + nudge * sx
-            y[4] = vsy + nudge * sy
-            y[5] = nudge * sw / rho
-        return t
-    tau0 = 0.0
+    u = np.array([y[0], y[1], y[2], s0])
+    un = np.empty(4)
+    us = np.empty(4)
+    err = np.empty(4)
+    K = np.empty((7, 4))
+    yv = np.empty(6)
+    acc = np.empty(6)
+    zs = z.copy()
+    nb = borders.shape[0]
+    ev0 = np.empty(4 * nb)
+    ev1 = np.empty(4 * nb)
+    fmag = _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, K[0])
+    counters[0] += 1
+    h = min(1e-3, t_end - t)
+    s_floor = 0.1 * s0
+    for _ in range(10000):
+        if t >= t_end or h <= 1e-14 * max(1.0, abs(t)):
+            break
+        h = min(h, t_end - t)
+        for i in range(1, 7):
+            for j in range(4):
+                acc_ = 0.0
+                for k in range(i):
+                    acc_ += (_A[i, k] * K[k, j]) if i < 6 else (_B[k] * K[k, j])
+                us[j] = u[j] + h * acc_
+            for j in range(3):
+                zs[j] = z[j]
+            _layer_rhs(
+                us, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, zs, yv, acc, K[i]
+            )
+        for j in range(4):
+            un[j] = us[j]
+        counters[0] += 6
+        for j in range(4):
+            e = 0.0
+            for k in range(7):
+                e += _E[k] * K[k, j]
+            err[j] = h * e
+        # the slip relative to itself: the trajectory after a break is sensitive to when
+        # the slip grows (its growth starts from λ = 0), so an absolute slip error of the
+        # full model's velocity scale put Fig. 9a 100 rtol m off
+        en = 0.0
+        for j in range(4):
+            sc = atol + rtol * max(abs(u[j]), abs(un[j]))
+            en += (err[j] / sc) ** 2
+        en = math.sqrt(en / 4.0)
+        crossed = un[3] < 0.0 or (y_target < math.inf and u[1] < y_target <= un[1])
+        if nb > 0 and not crossed:
+            yv[:3] = u[:3]
+            _corner_event_values(yv, parcel, borders, ev0)
+            yv[:3] = un[:3]
+            _corner_event_values(yv, parcel, borders, ev1)
+            for q in range(4 * nb):
+                if abs(ev0[q]) > 1e-12 and ev0[q] * ev1[q] < 0.0:
+                    crossed = True
+        if not math.isfinite(en) or en > 1.0 or crossed:
+            h *= 0.25 if (crossed or not math.isfinite(en)) else max(0.2, 0.9 * en**-0.2)
+            if crossed and h < 1e-9:
+                break  # the event is just ahead: the full model locates it
+            continue
+        t += h
+        for j in range(4):
+            u[j] = un[j]
+        for j in range(3):
+            z[j] = zs[j]
+        for j in range(4):
+            K[0, j] = K[6, j]
+        fmag = _layer_rhs(
+            u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, K[0]
+        )
+        counters[0] += 1
+        h *= min(5.0, max(0.2, 0.9 * en**-0.2)) if en > 0.0 else 5.0
+        # hand over once the full model's explicit step would be stiff-bound by the
+        # direction only 10x past the layer's own (F h / (m s) = 10): later, the slow
+        # manifold's zeroth-order direction costs accuracy (handing over at F h/(m s) = 1
+        # put Fig. 9a 3e-7 m off at rtol 1e-8; at 10 and at 50 it converges to the same
+        # limit, 4e-9 m off there); earlier, the full model's steps pay for the stiffness
+        if u[3] * mass >= 0.1 * fmag * h:
+            break
+        if K[0, 3] < 0.0 and u[3] < s_floor:
+            break
+    rho = math.sqrt(parcel[P_INERTIA] / mass)
+    sl = max(u[3], 0.0)
+    for j in range(3):
+        y[j] = u[j]
+    y[3] = vsx + sl * z[0]
+    y[4] = vsy + sl * z[1]
+    y[5] = sl * z[2] / rho if parcel[P_ROTATION] > 0.5 else 0.0
+    return t
+
+
+@njit(cache=True)
+def _break_away(
+    y,
+    t,
+    t_end,
+    y_target,
+    strips,
+    parcel,
+    nodes,
+    weights,
+    nsurf,
+    surf,
+    s0,
+    rtol,
+    atol,
+    borders,
+    counters,
+):
+    """
+    Leave a stick to ``surf`` (s0 = 0), or continue a small slip s0 on it; returns the time.
+
+    ``y`` holds the stuck motion (s0 = 0) or the state s0 into the layer, whose slip
+    direction starts the layer's; the layer (``_layer``) is integrated until the full
+    model can take over.
+    """
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
+    rot = parcel[P_ROTATION] > 0.5
+    vsx, vsy = surface_velocity(strips, surf)
+    z = np.zeros(3)
     if s0 > 0.0:
-        # λ here is the growth rate τ0 into the layer, λ0 + j τ0, and s0 = λ0 τ0 + ½ j τ0²:
-        # τ0 is the smaller root of ½ j τ0² - λ τ0 + s0 = 0 (λ0 = λ - j τ0 >= 0)
-        disc = lam * lam - 2.0 * jerk * s0
-        if disc >= 0.0:
-            tau0 = 2.0 * s0 / (lam + math.sqrt(disc))
-        else:
-            tau0 = lam / jerk
-        lam = max(lam - jerk * tau0, 0.0)
-        if lam <= 0.0 and jerk <= 0.0:
-            return t
-    tau_layer = _layer_time(lam, jerk, s_layer)
-    if tau0 >= tau_layer:
-        return t
-    tau = min(tau_layer, tau0 + (t_end - t))
-    dv = lam * tau + 0.5 * jerk * tau * tau
-    dx = 0.5 * lam * (tau * tau - tau0 * tau0) + jerk * (tau**3 - tau0**3) / 6.0
-    dt = tau - tau0
-    y[0] += vsx * dt + dx * sx
-    y[1] += vsy * dt + dx * sy
-    y[2] += dx * sw / rho
-    y[3] = vsx + dv * sx
-    y[4] = vsy + dv * sy
-    y[5] = dv * sw / rho
-    return t + dt
+        _gen_slip(y, vsx, vsy, rho, rot, z)
+        for j in range(3):
+            z[j] /= s0
+    return _layer(
+        y,
+        t,
+        t_end,
+        y_target,
+        strips,
+        parcel,
+        nodes,
+        weights,
+        nsurf,
+        surf,
+        s0,
+        z,
+        rtol,
+        atol,
+        borders,
+        counters,
+    )
 
 
 @njit(cache=True)
 def _small_slip(
-    y, t, t_end, strips, parcel, nodes, weights, nsurf, s_check, s_layer, nudge, counters
+    y,
+    t,
+    t_end,
+    y_target,
+    strips,
+    parcel,
+    nodes,
+    weights,
+    nsurf,
+    s_check,
+    rtol,
+    atol,
+    borders,
+    counters,
 ):
     """
     Settle a surface whose slip is below ``s_check``: stick to it, or solve its layer.
@@ -879,13 +1062,27 @@ def _small_slip(
             for j in range(6):
                 y[j] = stuck[j]
             return t, s, True
+        yl = y.copy()
         t_new = _break_away(
-            stuck, t, t_end, strips, parcel, nodes, weights, nsurf, s, s_layer, nudge, n
+            yl,
+            t,
+            t_end,
+            y_target,
+            strips,
+            parcel,
+            nodes,
+            weights,
+            nsurf,
+            s,
+            n,
+            rtol,
+            atol,
+            borders,
+            counters,
         )
         if t_new > t:
-            # the increments of the layer from the slip reached: y moves with them
             for j in range(6):
-                y[j] = stuck[j]
+                y[j] = yl[j]
             return t_new, s, False
     return t, -1, False
 
@@ -934,14 +1131,6 @@ def run_accurate(
         vscale = max(vscale, math.hypot(strips[k, S_VX], strips[k, S_VY]))
     vscale = max(vscale, math.hypot(y0[3], y0[4]), 1e-3)
     stick_tol = max(atol, rtol * vscale)
-    nudge = 1e-3 * stick_tol
-    # the break-away layer's closed form (``_break_away``) freezes the slip direction and
-    # linearises its growth while the pose moves on; ended at 1e-4 of the surface speed
-    # it put Fig. 9a 3e-6 m off solve_ivp resolving the layer itself, at 100 stick
-    # tolerances 4e-10 m. So it ends there and the method converges with the tolerance;
-    # the explicit steps after it pay for that while the slip direction is still stiff
-    # (about 1/sqrt(s_layer) steps: 3x as many on Fig. 9a)
-    s_layer = 100.0 * stick_tol
     K = np.empty((7, 6))
     y_new = np.empty(6)
     err = np.empty(6)
@@ -962,7 +1151,8 @@ def run_accurate(
     fresh = True
     status = ST_END
     max_out = ts.shape[0]
-    s_check = 0.5 * s_layer
+    # a slip below this is settled by the forces (``_small_slip``): stuck, or a layer
+    s_check = 50.0 * stick_tol
     while t < t_end:
         if n_steps + n_out >= 50 * max_out:
             status = ST_MAX_STEPS
@@ -998,15 +1188,18 @@ def run_accurate(
                         y,
                         t,
                         t_end,
+                        y_target,
                         strips,
                         parcel,
                         nodes,
                         weights,
                         nsurf,
                         broke_from,
-                        s_layer,
-                        nudge,
                         0.0,
+                        rtol,
+                        atol,
+                        borders,
+                        stick_counters,
                     )
                     armed[broke_from] = False
                 fresh = True
@@ -1027,14 +1220,16 @@ def run_accurate(
                 y,
                 t,
                 t_end,
+                y_target,
                 strips,
                 parcel,
                 nodes,
                 weights,
                 nsurf,
                 s_check,
-                s_layer,
-                nudge,
+                rtol,
+                atol,
+                borders,
                 stick_counters,
             )
             if stuck:
