@@ -268,13 +268,11 @@ def test_raised_disks_divert_as_the_model_core_predicts(alpha_deg, chute):
         A, B, m, math.radians(abs(alpha_deg)), p.disk_field_length
     )
     t_at_field = -p.induct_x / p.belt_speed  # leading edge from induct_x to the disk field
-    # the cell integrates period by period. At an exact stick's break-away the slip grows
-    # from zero as ½ j τ² over a few milliseconds (the layer ``integrators._break_away``
-    # solves in closed form); a period's end inside it resumes the layer from the slip and
-    # pose reached (``_resume_layer``), re-linearised there. The two differ by the layer's
-    # third-order offset, j τ³/6 ≈ 2e-7 m here (j ≈ 15 m/s³, τ ≈ 4.5 ms), not by rounding.
-    assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=5e-7)
-    assert out.x == pytest.approx(y_ref[0], abs=5e-7)
+    # the cell integrates at its own tolerances (rtol 1e-6, atol 1e-8) and restarts every
+    # period: a single core run at those tolerances is 1e-7 s off the reference; the cell,
+    # re-entering the break-away layer (``integrators._layer``) at each period's end, 5e-7 s
+    assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=1e-6)
+    assert out.x == pytest.approx(y_ref[0], abs=1e-6)
     # the chute-entry sensor of that side: blocked when the footprint first reaches past the
     # entry line (located inside a period of sliding), clear after the crossing; the other never
     side = f'chute_{chute}'

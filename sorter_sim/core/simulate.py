@@ -385,8 +385,8 @@ def simulate(
     sticks on a single surface, i.e. the full model, for checking the reductions.
     stick: 'exact' (a stick holds while the wrench the stuck surface must supply is in
     its patch's limit set) or 'seed' (the paper's decoupled |F| <= F_max, |T| <= T_max);
-    it decides the accurate method's sticks (the implicit method's minimisation is exact
-    by construction, the threshold method is the seed's model).
+    it decides the accurate and the implicit method's sticks (the threshold method is
+    the seed's model, decoupled by construction).
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
