@@ -50,7 +50,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "v_ref": V_REF,
         **{name: list(values) for name, values in LAW_DEFAULTS.items()},
     },
-    "model": {"rotation": True, "v_min": 1e-6, "g": 9.81},
+    "model": {"rotation": True, "stick": "exact", "v_min": 1e-6, "g": 9.81},
     "solver": {
         "method": "accurate",
         "rtol": 1e-8,
@@ -105,6 +105,7 @@ _RULES: dict[str, tuple] = {
     "friction.stribeck": ("list", 6, 6, "[mu0, mu_min, b1, b2, b3, v_knee]"),
     "friction.bspline": ("list", 12, 12, "[v0..v5, mu0..mu5]"),
     "model.rotation": ("bool", None, None, "true or false"),
+    "model.stick": ("choice", ("exact", "seed"), None, "one of exact, seed"),
     "model.v_min": ("float", 0.0, 1.0, "a threshold speed in (0, 1] m/s"),
     "model.g": ("float", 0.0, 100.0, "gravity in (0, 100] m/s²"),
     "solver.method": (
@@ -312,6 +313,7 @@ def run_scene(scene: dict) -> tuple[SimResult, dict]:
         v_min=scene["model"]["v_min"],
         y_target=y0[1] + s,
         rotation=scene["model"]["rotation"],
+        stick=scene["model"]["stick"],
         reductions=solver["reductions"],
         n_quad=solver["n_quad"],
         g=scene["model"]["g"],

@@ -268,14 +268,17 @@ def test_raised_disks_divert_as_the_model_core_predicts(alpha_deg, chute):
         A, B, m, math.radians(abs(alpha_deg)), p.disk_field_length
     )
     t_at_field = -p.induct_x / p.belt_speed  # leading edge from induct_x to the disk field
-    assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=1e-8)
-    assert out.x == pytest.approx(y_ref[0], abs=1e-8)
+    # the cell integrates at its own tolerances (rtol 1e-6, atol 1e-8) and restarts every
+    # period: a single core run at those tolerances is 1e-7 s off the reference; the cell,
+    # re-entering the break-away layer (``integrators._layer``) at each period's end, 5e-7 s
+    assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=1e-6)
+    assert out.x == pytest.approx(y_ref[0], abs=1e-6)
     # the chute-entry sensor of that side: blocked when the footprint first reaches past the
     # entry line (located inside a period of sliding), clear after the crossing; the other never
     side = f'chute_{chute}'
     rise, fall = edges_of(events, side)
     assert rise.blocked and rise.t_ns < out.t_ns < fall.t_ns and not fall.blocked
-    assert rise.t_ns * 1e-9 == pytest.approx(t_at_field + t_corner, abs=1e-7)
+    assert rise.t_ns * 1e-9 == pytest.approx(t_at_field + t_corner, abs=5e-7)
     other = 'chute_right' if chute == 'left' else 'chute_left'
     assert not edges_of(events, other)
     assert cell.n_parcels == 0 and not cell.faults

@@ -576,8 +576,10 @@ def test_a_stopped_controller_leaves_the_disks_down_and_a_new_one_takes_over(ros
     # the controller learns with a parcel already in it has no rising edge, and a parcel the
     # controller never saw is (rightly) passed straight
     ros.spin_until(
-        lambda: all(s.get_publisher_count() > 0 for s in ctl.subscriptions)
-        and all(bit is not None for bit in ctl.logic.edges.bits.values()),
+        lambda: (
+            all(s.get_publisher_count() > 0 for s in ctl.subscriptions)
+            and all(bit is not None for bit in ctl.logic.edges.bits.values())
+        ),
         10.0,
         "the new controller to hear every topic and know every eye",
     )

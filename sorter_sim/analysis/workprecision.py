@@ -548,8 +548,17 @@ class ScipyParcel:
         return np.array([y[3] - vx, y[4] - vy, self.rho * y[5] if self.case.rotation else 0.0])
 
     def margin(self, y, s) -> tuple[float, float]:
+        # the limit-set gauge's warm start: a fresh twist per check keeps every call
+        # independent of the order brentq asks them in
         m, a, _, _, _ = _ig.stick_margin(
-            np.asarray(y, float), self.arr, self.par, self.nodes, self.weights, self.nsurf, s
+            np.asarray(y, float),
+            self.arr,
+            self.par,
+            self.nodes,
+            self.weights,
+            self.nsurf,
+            s,
+            np.zeros(3),
         )
         return m, a
 

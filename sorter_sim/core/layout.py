@@ -16,7 +16,9 @@ Strip row (``STRIP_WIDTH`` columns):
 Parcel row (``PARCEL_WIDTH`` columns): half_A, half_B [m], mass [kg], inertia
 [kg m²], g [m/s²], rotation flag (1 = moment of friction forces on, the seed's
 full model; 0 = Fig. 7 line 2), Gauss order per direction, closed-form flag
-(1 = constant-μ strips use the exact wrench instead of quadrature).
+(1 = constant-μ strips use the exact wrench instead of quadrature), stick law
+(1 = exact: a stick holds while the wrench the stuck surface must supply lies in
+its patch's limit set; 0 = the seed's decoupled test |F| <= F_max, |T| <= T_max).
 
 State vector (6): x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
 """
@@ -41,7 +43,11 @@ P_GRAV = 4
 P_ROTATION = 5
 P_NQUAD = 6
 P_CLOSED = 7
-PARCEL_WIDTH = 8
+P_STICK = 8
+PARCEL_WIDTH = 9
+
+STICK_SEED = 0
+STICK_EXACT = 1
 
 # Modes of the hybrid model: sliding, or stuck to surface k (k >= 0).
 MODE_SLIDE = -1

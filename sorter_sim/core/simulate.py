@@ -21,6 +21,9 @@ from .friction import LAW_BSPLINE, LAW_NAMES, N_LAW_PARAMS, law_is_constant, law
 from .layout import (
     MODE_SLIDE,
     P_CLOSED,
+    P_STICK,
+    STICK_EXACT,
+    STICK_SEED,
     P_GRAV,
     P_HALF_A,
     P_HALF_B,
@@ -253,13 +256,21 @@ def strip_array(strips: list[Strip]) -> np.ndarray:
     return arr
 
 
+# the stick laws of ``simulate(stick=...)`` and the scene key model.stick
+STICK_LAWS = {"exact": STICK_EXACT, "seed": STICK_SEED}
+
+
 def parcel_array(
     parcel: Parcel,
     rotation: bool = True,
     n_quad: int = 8,
     closed_form: bool = True,
     g: float = G_STANDARD,
+    stick: str = "exact",
 ) -> np.ndarray:
+    """Return the parcel row the kernels read (``layout``); ``stick``: 'exact' or 'seed'."""
+    if stick not in STICK_LAWS:
+        raise ValueError(f"stick must be one of {sorted(STICK_LAWS)}, got {stick!r}")
     arr = np.zeros(PARCEL_WIDTH)
     arr[P_HALF_A] = 0.5 * parcel.A
     arr[P_HALF_B] = 0.5 * parcel.B
@@ -269,6 +280,7 @@ def parcel_array(
     arr[P_ROTATION] = 1.0 if rotation else 0.0
     arr[P_NQUAD] = n_quad
     arr[P_CLOSED] = 1.0 if closed_form else 0.0
+    arr[P_STICK] = STICK_LAWS[stick]
     return arr
 
 
@@ -362,6 +374,7 @@ def simulate(
     h_max: float = 0.05,
     max_points: int = 200_000,
     g: float = G_STANDARD,
+    stick: str = "exact",
 ) -> SimResult:
     """
     Run one parcel over ``strips`` from state ``y0`` over ``t_span`` = (t0, t_end).
@@ -370,6 +383,10 @@ def simulate(
     y_target: stop when the centre of gravity reaches y = y_target [m] (scrap line).
     reductions: False forces quadrature for constant-μ strips and stepping through
     sticks on a single surface, i.e. the full model, for checking the reductions.
+    stick: 'exact' (a stick holds while the wrench the stuck surface must supply is in
+    its patch's limit set) or 'seed' (the paper's decoupled |F| <= F_max, |T| <= T_max);
+    it decides the accurate and the implicit method's sticks (the threshold method is
+    the seed's model, decoupled by construction).
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
@@ -389,7 +406,7 @@ def simulate(
     arr = strip_array(strips)
     if not rotation and y0[5] != 0.0:
         raise ValueError("y0[5] (omega) must be 0 when rotation is off")
-    par = parcel_array(parcel, rotation, n_quad, reductions, g)
+    par = parcel_array(parcel, rotation, n_quad, reductions, g, stick)
     nodes, weights = gauss_legendre_01(n_quad)
     borders = strip_borders(strips)
     ts = np.empty(max_points)
@@ -510,6 +527,7 @@ __all__ = [
     "three_zone_strips",
     "strip_array",
     "parcel_array",
+    "STICK_LAWS",
     "G_STANDARD",
     "METHODS",
     "LAW_BSPLINE",

@@ -29,7 +29,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .friction import law_is_constant, mu_kinetic, mu_static
+from .friction import LAW_CONST1, N_LAW_PARAMS, law_is_constant, mu_kinetic, mu_static
 from .geometry import (
     MAX_VERTS,
     box_corners,
@@ -263,6 +263,75 @@ def evaluate_surfaces(
                     break
 
 
+@njit(cache=True)
+def static_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om):
+    """
+    Friction wrench (Fx, Fy, T about g) of surface ``surf`` at its static coefficients.
+
+    For the rigid twist (ux, uy, om) of the parcel relative to the surface (velocity
+    of the centre of gravity relative to the surface [m/s], φ̇ [rad/s]) this is
+    -∇D, D(twist) = Σ μ_s p w ∫ |u| dA the patch's dissipation rate at μ_s: the point
+    of the patch's limit set (Goyal, Ruina and Papadopoulos 1991) whose outward
+    normal is the twist. Exact for polygons (``strip_wrench_closed``) wherever that
+    is accurate, Gauss quadrature at constant μ_s elsewhere.
+    """
+    return rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, False)
+
+
+@njit(cache=True)
+def rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, kinetic):
+    """
+    Wrench of surface ``surf`` for the twist direction (ux, uy, om), at the coefficient of rest.
+
+    The coefficient is μ_s (``kinetic`` False: the limit set's support point, see
+    ``static_surface_wrench``) or the kinetic law's limit at vanishing speed μ_k(0)
+    (``kinetic`` True: the friction a patch slipping infinitely slowly with that
+    twist direction feels, which a break-away starts from).
+    """
+    x = state[0]
+    y = state[1]
+    half_a = parcel[P_HALF_A]
+    half_b = parcel[P_HALF_B]
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * half_a * half_b)
+    corners = np.empty((4, 2))
+    poly = np.empty((MAX_VERTS, 2))
+    work = np.empty((MAX_VERTS, 2))
+    row = np.zeros(N_LAW_PARAMS)
+    box_corners(x, y, state[2], half_a, half_b, corners)
+    fx = 0.0
+    fy = 0.0
+    t = 0.0
+    for k in range(strips.shape[0]):
+        w = strips[k, S_WEIGHT]
+        if w <= 0.0 or int(strips[k, S_SURF]) != surf:
+            continue
+        n = clip_to_strip(corners, strips[k, S_XLO], strips[k, S_XHI], poly, work)
+        a, qx, qy = polygon_area_centroid(poly, n)
+        if a <= 0.0:
+            continue
+        law = int(strips[k, S_LAW])
+        if kinetic:
+            mus = mu_kinetic(law, strips[k, S_PARAMS:], 0.0)
+        else:
+            mus = mu_static(law, strips[k, S_PARAMS:])
+        pressure = p_unit * w
+        ux_q = ux - om * (qy - y)
+        uy_q = uy + om * (qx - x)
+        if parcel[P_CLOSED] > 0.5 and closed_form_applies(poly, n, qx, qy, ux_q, uy_q, om):
+            dfx, dfy, dt = strip_wrench_closed(
+                poly, n, a, qx, qy, x, y, ux_q, uy_q, om, mus, pressure
+            )
+        else:
+            row[0] = mus
+            dfx, dfy, dt = strip_wrench_quad(
+                poly, n, qx, qy, x, y, ux_q, uy_q, om, LAW_CONST1, row, pressure, nodes, weights
+            )
+        fx += dfx
+        fy += dfy
+        t += dt
+    return fx, fy, t
+
+
 def n_surfaces(strips: np.ndarray) -> int:
     """Return the number of distinct surfaces referenced by the strips."""
     return int(strips[:, S_SURF].max()) + 1 if strips.shape[0] else 0
@@ -272,6 +341,8 @@ __all__ = [
     "evaluate_surfaces",
     "gauss_legendre_01",
     "n_surfaces",
+    "rest_surface_wrench",
+    "static_surface_wrench",
     "strip_wrench_closed",
     "strip_wrench_quad",
 ]
