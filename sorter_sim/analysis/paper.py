@@ -116,8 +116,14 @@ def sorting_scene(
     rotation=True,
     t_max=20.0,
     s=SEED_S,
+    stick="seed",
 ) -> dict:
-    """Return a validated scene of the seed's sorting cell; zone c takes μ_a unless told."""
+    """
+    Return a validated scene of the seed's sorting cell; zone c takes μ_a unless told.
+
+    The figures reproduce the seed's computations, so its decoupled stick test is the
+    default here (``stick="exact"`` for the limit-set stick every other part uses).
+    """
     fr = {"model": model}
     if law is not None:
         fr[model] = list(law)
@@ -133,7 +139,7 @@ def sorting_scene(
             },
             "diverter": {"alpha_deg": alpha_deg},
             "friction": fr,
-            "model": {"rotation": rotation},
+            "model": {"rotation": rotation, "stick": stick},
             "solver": {"t_max": t_max},
         }
     )
