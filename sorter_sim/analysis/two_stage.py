@@ -106,7 +106,7 @@ def disk_field_strips(
 def _run(strips, A, B, m, v, t_end, y_target):
     parcel = Parcel(A, B, m)
     y0 = [-0.5 * A, 0.0, 0.0, v, 0.0, 0.0]  # leading edge on x = 0, moving with the belt
-    return simulate(parcel, strips, y0, (0.0, t_end), "accurate", y_target=y_target)
+    return simulate(parcel, strips, y0, (0.0, t_end), "accurate", y_target=y_target, stick="seed")
 
 
 @dataclass
