@@ -765,31 +765,6 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
 
 
 @njit(cache=True)
-def _leave_direction(y, strips, parcel, nodes, weights, nsurf, surf):
-    """
-    Slip direction σ̂ and growth λ of a parcel leaving its stick to ``surf`` (``_pull_direction``).
-
-    At vanishing slip the kinetic wrench of ``surf`` depends only on the direction σ̂
-    of the generalized slip (ẋ - v_sx, ẏ - v_sy, ρ φ̇); the others' wrench is taken at
-    the stuck motion. At the break of an exact stick (μ_s = μ_k) λ starts from zero
-    with σ̂ the limit set's maximal-dissipation twist. Returns (σx, σy, σw, λ); λ = 0
-    where nothing pulls the parcel off.
-    """
-    vsx, vsy = surface_velocity(strips, surf)
-    yp = y.copy()
-    yp[3] = vsx
-    yp[4] = vsy
-    yp[5] = 0.0
-    w = np.empty(3)
-    a = _others_wrench(yp, strips, parcel, nodes, weights, nsurf, surf, w)
-    z = np.zeros(3)
-    if a <= 0.0 and w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
-        return 0.0, 0.0, 0.0, 0.0
-    lam = _pull_direction(yp, strips, parcel, nodes, weights, surf, w[0], w[1], w[2], z)
-    return z[0], z[1], z[2], lam
-
-
-@njit(cache=True)
 def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, out):
     """
     Right-hand side of the slip layer on ``surf``: u = (x, y, φ, s), s the slip magnitude.
