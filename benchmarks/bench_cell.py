@@ -1,11 +1,11 @@
 """
-Benchmark of the simulation node: real-time factor with 100 parcels, cost per message.
+Benchmark of the simulation node: real-time factor with 200 parcels, cost per message.
 
 Not a test: it prints figures. The cell is the default one (config/cell.yaml)
-with the induct point moved 230 m upstream so that about a hundred parcels of
-the default stream are on the belt at once, the disks permanently up at
-α = 90°, so every parcel is diverted (the costly case: each one slides over
-the disk field), 1 ms physics, poses at 100 Hz, sensors on change.
+with the induct point moved upstream (2.3 m per parcel: the default stream's
+pitch) so that ``--parcels`` parcels (default 200) are on the belt at once,
+the disks permanently up at α = 90°, so every parcel is diverted (the costly
+case: each one slides over the disk field), 1 ms physics, poses at 100 Hz, sensors on change.
 
 Three measurements after a warm-up that fills the cell (not timed):
   cell    the ROS-free core alone (``Cell.advance``), no messages;
@@ -23,7 +23,7 @@ Real-time factor = simulated time / wall time over the measured span; cost per
 message = the node's wall time spent building and publishing messages divided
 by the number published.
 
-    .venv/bin/python benchmarks/bench_cell.py [--sim-s 20] [--parcels 100]
+    .venv/bin/python benchmarks/bench_cell.py [--sim-s 20] [--parcels 200]
 """
 
 from __future__ import annotations
@@ -50,7 +50,14 @@ from rclpy.parameter import Parameter  # noqa: E402
 from sorter_sim.cell import Cell  # noqa: E402
 from sorter_sim.params import CellParams  # noqa: E402
 
-BENCH_CELL = {'induct_x': -230.0, 'max_parcels': 256, 'alpha_deg': 90.0}
+BENCH_CELL = {'max_parcels': 256, 'alpha_deg': 90.0}
+# the default stream's pitch (parcel length and arrival gap) is about 2.2 m
+PITCH_M = 2.3
+
+
+def bench_values(parcels: int) -> dict:
+    """Return the cell's parameter changes for ``parcels`` parcels on the belt at once."""
+    return {**BENCH_CELL, 'induct_x': -PITCH_M * parcels}
 
 
 def warm_up(cell: Cell, parcels: int) -> float:
@@ -70,7 +77,7 @@ def warm_up(cell: Cell, parcels: int) -> float:
 
 
 def bench_cell(sim_s: float, parcels: int) -> dict:
-    cell = Cell(CellParams.defaults().with_changes(BENCH_CELL, runtime=False))
+    cell = Cell(CellParams.defaults().with_changes(bench_values(parcels), runtime=False))
     warm_up(cell, parcels)
     n = round(sim_s / cell.dt)
     stats0 = cell.stats.copy()
@@ -168,7 +175,7 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> 
     ctx = Context()
     rclpy.init(context=ctx)
     try:
-        values = {**BENCH_CELL, 'time_mode': 'fast'}
+        values = {**bench_values(parcels), 'time_mode': 'fast'}
         tmp = None
         if extra == 'live':
             import socket
@@ -265,7 +272,7 @@ def best_of(runs: list[dict]) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--sim-s', type=float, default=20.0, help='simulated seconds measured')
-    ap.add_argument('--parcels', type=int, default=100, help='parcels in the cell')
+    ap.add_argument('--parcels', type=int, default=200, help='parcels in the cell')
     ap.add_argument(
         '--repeat', type=int, default=3, help='runs per measurement; the best is shown'
     )

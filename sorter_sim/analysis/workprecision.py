@@ -36,7 +36,7 @@ import numpy as np
 from ..core import integrators as _ig
 
 # the Dormand-Prince tableau and Shampine's dense-output coefficients the core steps with
-from ..core.integrators import _A as _DP_A, _B as _DP_B, _C as _DP_C, _P as _DP_P
+from ..core.dopri import A as _DP_A, B as _DP_B, C as _DP_C, P as _DP_P
 from ..core.oscillator import Oscillator, exact_phases, run_oscillator
 from ..core.simulate import (
     G_STANDARD,

@@ -66,6 +66,7 @@ from .layout import (
     S_PARAMS,
     P_GRAV,
 )
+from .dopri import dense, rms_norm, sign_change, stage_state, step_error, step_factor
 from .friction import mu_kinetic, mu_static
 from .geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
 from .wrench import evaluate_surfaces, rest_surface_wrench, static_surface_wrench
@@ -87,37 +88,6 @@ EV_BREAK = 2
 EV_BORDER = 3
 EV_TARGET = 4
 EV_LEAVE = 5
-
-# Dormand-Prince 5(4) tableau (Dormand & Prince 1980) and dense output (Shampine 1986)
-_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])
-_A = np.array(
-    [
-        [0.0, 0.0, 0.0, 0.0, 0.0],
-        [1 / 5, 0.0, 0.0, 0.0, 0.0],
-        [3 / 40, 9 / 40, 0.0, 0.0, 0.0],
-        [44 / 45, -56 / 15, 32 / 9, 0.0, 0.0],
-        [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0.0],
-        [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656],
-    ]
-)
-_B = np.array([35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84])
-_E = np.array([-71 / 57600, 0.0, 71 / 16695, -71 / 1920, 17253 / 339200, -22 / 525, 1 / 40])
-_P = np.array(
-    [
-        [1.0, -8048581381 / 2820520608, 8663915743 / 2820520608, -12715105075 / 11282082432],
-        [0.0, 0.0, 0.0, 0.0],
-        [0.0, 131558114200 / 32700410799, -68118460800 / 10900136933, 87487479700 / 32700410799],
-        [0.0, -1754552775 / 470086768, 14199869525 / 1410260304, -10690763975 / 1880347072],
-        [
-            0.0,
-            127303824393 / 49829197408,
-            -318862633887 / 49829197408,
-            701980252875 / 199316789632,
-        ],
-        [0.0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844],
-        [0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423],
-    ]
-)
 
 
 @njit(cache=True)
@@ -234,7 +204,6 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
             z[i] = w[i] / w2
     g = np.empty(3)
     gp = np.empty(3)
-    gm = np.empty(3)
     zt = np.empty(3)
     d = _dissipation_gradient(
         state, strips, parcel, nodes, weights, surf, rho, z[0], z[1], z[2], g
@@ -255,24 +224,16 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
         h10 = 0.0
         h11 = 0.0
         for j in range(2):
+            # a forward difference of the exact gradient: the Hessian only shapes Newton's
+            # step (the minimiser is where the exact gradient vanishes), at half the cost
             for i in range(3):
                 dirn = p[i] if j == 0 else q[i]
                 zt[i] = z[i] + hstep * dirn
             _dissipation_gradient(
                 state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], gp
             )
-            for i in range(3):
-                dirn = p[i] if j == 0 else q[i]
-                zt[i] = z[i] - hstep * dirn
-            _dissipation_gradient(
-                state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], gm
-            )
-            c0 = ((gp[0] - gm[0]) * p[0] + (gp[1] - gm[1]) * p[1] + (gp[2] - gm[2]) * p[2]) / (
-                2.0 * hstep
-            )
-            c1 = ((gp[0] - gm[0]) * q[0] + (gp[1] - gm[1]) * q[1] + (gp[2] - gm[2]) * q[2]) / (
-                2.0 * hstep
-            )
+            c0 = ((gp[0] - g[0]) * p[0] + (gp[1] - g[1]) * p[1] + (gp[2] - g[2]) * p[2]) / hstep
+            c1 = ((gp[0] - g[0]) * q[0] + (gp[1] - g[1]) * q[1] + (gp[2] - g[2]) * q[2]) / hstep
             if j == 0:
                 h00 = c0
                 h10 = c1
@@ -358,50 +319,15 @@ def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf, xi):
 
 
 @njit(cache=True)
-def _rms_norm(err, y0, y1, rtol, atol):
-    acc = 0.0
-    for i in range(err.shape[0]):
-        sc = atol + rtol * max(abs(y0[i]), abs(y1[i]))
-        acc += (err[i] / sc) ** 2
-    return math.sqrt(acc / err.shape[0])
-
-
-@njit(cache=True)
-def _dense(y0, K, h, theta, out):
-    """Dense output y(t0 + θh) from the stage derivatives K (7 x 6)."""
-    q0 = theta
-    q1 = theta * theta
-    q2 = q1 * theta
-    q3 = q2 * theta
-    for j in range(6):
-        acc = 0.0
-        for i in range(7):
-            acc += K[i, j] * (_P[i, 0] * q0 + _P[i, 1] * q1 + _P[i, 2] * q2 + _P[i, 3] * q3)
-        out[j] = y0[j] + h * acc
-
-
-@njit(cache=True)
 def _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err):
-    """One Dormand-Prince step; K[0] must hold f(y). Fills K[1..6], y_new, err."""
+    """One Dormand-Prince step of the sliding model; K[0] holds f(y); fills K[1..6], y_new, err."""
     ys = np.empty(6)
     for i in range(1, 6):
-        for j in range(6):
-            acc = 0.0
-            for k in range(i):
-                acc += _A[i, k] * K[k, j]
-            ys[j] = y[j] + h * acc
+        stage_state(y, K, h, i, ys)
         rhs_slide(ys, strips, parcel, nodes, weights, nsurf, K[i])
-    for j in range(6):
-        acc = 0.0
-        for k in range(6):
-            acc += _B[k] * K[k, j]
-        y_new[j] = y[j] + h * acc
+    stage_state(y, K, h, 6, y_new)
     rhs_slide(y_new, strips, parcel, nodes, weights, nsurf, K[6])
-    for j in range(6):
-        acc = 0.0
-        for k in range(7):
-            acc += _E[k] * K[k, j]
-        err[j] = h * acc
+    step_error(K, h, err)
 
 
 @njit(cache=True)
@@ -483,6 +409,104 @@ def _time_to_next_border(state, vx, parcel, borders):
 
 
 @njit(cache=True)
+def _margin_at(tt, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi):
+    """Stick margin on ``surf`` at time tt of a parcel carried rigidly from (y0x, y0y) at t0."""
+    ys[0] = y0x + vsx * (tt - t0)
+    ys[1] = y0y + vsy * (tt - t0)
+    m, _, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf, xi)
+    return m
+
+
+@njit(cache=True)
+def _break_time(
+    lo,
+    hi,
+    m_hi,
+    y0x,
+    y0y,
+    t0,
+    vsx,
+    vsy,
+    ys,
+    strips,
+    parcel,
+    nodes,
+    weights,
+    nsurf,
+    surf,
+    xi,
+    counters,
+):
+    """
+    First time in (lo, hi] where the stick breaks: margin(lo) <= 0 < margin(hi) = m_hi.
+
+    Brent's method (inverse quadratic interpolation safeguarded by bisection, as
+    scipy's brentq) to 1e-13 relative in time: the margin is a smooth function of the
+    carried pose, so ~8 gauges locate the break where bisection takes ~45. Returns a
+    time on the breaking side (margin > 0), within the tolerance of the root.
+    """
+    fpre = _margin_at(
+        lo, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi
+    )
+    counters[0] += 1
+    if fpre > 0.0:
+        return lo  # broken at the scan's first point already (round-off)
+    # scipy's brentq: xcur the best estimate, xblk the far end of the bracket
+    xpre = lo
+    xcur = hi
+    fcur = m_hi
+    xblk = xpre
+    fblk = fpre
+    spre = 0.0
+    scur = 0.0
+    for _ in range(100):
+        # sides by "breaks" (margin > 0) or "holds": a margin of exactly 0 holds, so the
+        # search goes on to the first breaking time instead of stopping at the root
+        if (fpre > 0.0) != (fcur > 0.0):
+            xblk = xpre
+            fblk = fpre
+            spre = xcur - xpre
+            scur = spre
+        if abs(fblk) < abs(fcur):
+            xpre = xcur
+            xcur = xblk
+            xblk = xpre
+            fpre = fcur
+            fcur = fblk
+            fblk = fpre
+        delta = 0.5e-13 * (1.0 + abs(xcur))
+        sbis = 0.5 * (xblk - xcur)
+        if abs(sbis) < delta:
+            break
+        finite = math.isfinite(fcur) and math.isfinite(fpre) and math.isfinite(fblk)
+        if finite and abs(spre) > delta and abs(fcur) < abs(fpre):
+            if xpre == xblk:
+                stry = -fcur * (xcur - xpre) / (fcur - fpre)  # secant
+            else:
+                dpre = (fpre - fcur) / (xpre - xcur)
+                dblk = (fblk - fcur) / (xblk - xcur)
+                stry = -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre))
+            if 2.0 * abs(stry) < min(abs(spre), 3.0 * abs(sbis) - delta):
+                spre = scur
+                scur = stry
+            else:
+                spre = sbis
+                scur = sbis
+        else:
+            spre = sbis
+            scur = sbis
+        xpre = xcur
+        fpre = fcur
+        xcur += scur if abs(scur) > delta else (delta if sbis > 0.0 else -delta)
+        fcur = _margin_at(
+            xcur, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi
+        )
+        counters[0] += 1
+    # the breaking side of the final bracket, within the tolerance of the root
+    return xcur if fcur > 0.0 else xblk
+
+
+@njit(cache=True)
 def _stick_advance(
     y,
     surf,
@@ -561,27 +585,48 @@ def _stick_advance(
         m, a, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf, xi)
         counters[0] += 1
         if m > 0.0 or a <= 0.0:
-            # locate the first pose where the stick fails, by bisection in time
-            lo = t
-            hi = t_next
-            want_leave = a <= 0.0
-            for _ in range(60):
-                mid = 0.5 * (lo + hi)
-                ys[0] = y0x + vsx * (mid - t0)
-                ys[1] = y0y + vsy * (mid - t0)
-                m2, a2, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf, xi)
-                counters[0] += 1
-                failed = (a2 <= 0.0) if want_leave else (m2 > 0.0 or a2 <= 0.0)
-                if failed:
-                    hi = mid
-                else:
-                    lo = mid
-                if hi - lo <= 1e-13 * (1.0 + abs(hi)):
-                    break
-            t = hi
+            if a <= 0.0:
+                # left the surface: bisect on the contact area alone (the cheap clipping)
+                lo = t
+                hi = t_next
+                for _ in range(60):
+                    mid = 0.5 * (lo + hi)
+                    ys[0] = y0x + vsx * (mid - t0)
+                    ys[1] = y0y + vsy * (mid - t0)
+                    _contact_surfaces(ys, strips, parcel, nsurf, area)
+                    if area[surf] <= 0.0:
+                        hi = mid
+                    else:
+                        lo = mid
+                    if hi - lo <= 1e-13 * (1.0 + abs(hi)):
+                        break
+                t = hi
+                reason = 3
+            else:
+                # the margin is continuous along the stuck path: its root by Brent's method
+                t = _break_time(
+                    t,
+                    t_next,
+                    m,
+                    y0x,
+                    y0y,
+                    t0,
+                    vsx,
+                    vsy,
+                    ys,
+                    strips,
+                    parcel,
+                    nodes,
+                    weights,
+                    nsurf,
+                    surf,
+                    xi,
+                    counters,
+                )
+                reason = 2
             y[0] = y0x + vsx * (t - t0)
             y[1] = y0y + vsy * (t - t0)
-            return t, 3 if want_leave else 2
+            return t, reason
         t = t_next
         y[0] = ys[0]
         y[1] = ys[1]
@@ -671,7 +716,6 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
         z[1] /= zn
     g = np.empty(3)
     gp = np.empty(3)
-    gm = np.empty(3)
     zt = np.empty(3)
     f = _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, g)
     p = np.empty(3)
@@ -707,18 +751,12 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
         h10 = 0.0
         h11 = 0.0
         for jd in range(ndim):
+            # forward differences of the exact gradient, as in ``limit_gauge``
             for i in range(3):
                 zt[i] = z[i] + hstep * (p[i] if jd == 0 else q[i])
             _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, gp)
-            for i in range(3):
-                zt[i] = z[i] - hstep * (p[i] if jd == 0 else q[i])
-            _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, gm)
-            c0 = ((gp[0] - gm[0]) * p[0] + (gp[1] - gm[1]) * p[1] + (gp[2] - gm[2]) * p[2]) / (
-                2.0 * hstep
-            )
-            c1 = ((gp[0] - gm[0]) * q[0] + (gp[1] - gm[1]) * q[1] + (gp[2] - gm[2]) * q[2]) / (
-                2.0 * hstep
-            )
+            c0 = ((gp[0] - g[0]) * p[0] + (gp[1] - g[1]) * p[1] + (gp[2] - g[2]) * p[2]) / hstep
+            c1 = ((gp[0] - g[0]) * q[0] + (gp[1] - g[1]) * q[1] + (gp[2] - g[2]) * q[2]) / hstep
             if jd == 0:
                 h00 = c0
                 h10 = c1
@@ -786,7 +824,7 @@ def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, 
     yv[5] = sl * z[2] / rho if rot else 0.0
     w = np.empty(3)
     _others_wrench(yv, strips, parcel, nodes, weights, nsurf, surf, w)
-    _pull_direction(yv, strips, parcel, nodes, weights, surf, w[0], w[1], w[2], z)
+    lam = _pull_direction(yv, strips, parcel, nodes, weights, surf, w[0], w[1], w[2], z)
     yv[3] = vsx + sl * z[0]
     yv[4] = vsy + sl * z[1]
     yv[5] = sl * z[2] / rho if rot else 0.0
@@ -794,7 +832,12 @@ def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, 
     out[0] = yv[3]
     out[1] = yv[4]
     out[2] = yv[5]
-    out[3] = z[0] * acc[3] + z[1] * acc[4] + z[2] * rho * acc[5]
+    if sl > 0.0:
+        out[3] = z[0] * acc[3] + z[1] * acc[4] + z[2] * rho * acc[5]
+    else:
+        # at zero slip the full model has no friction direction on ``surf`` (it would
+        # leave the patch's friction out); the growth is its limit s -> 0+, λ
+        out[3] = lam
     fx, fy, ft = rest_surface_wrench(
         yv, strips, parcel, nodes, weights, surf, z[0], z[1], z[2] / rho, True
     )
@@ -854,18 +897,14 @@ def _layer(
     ev1 = np.empty(4 * nb)
     fmag = _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, K[0])
     counters[0] += 1
-    h = min(1e-3, t_end - t)
+    h = min(1e-5, t_end - t)
     s_floor = 0.1 * s0
     for _ in range(10000):
         if t >= t_end or h <= 1e-14 * max(1.0, abs(t)):
             break
         h = min(h, t_end - t)
         for i in range(1, 7):
-            for j in range(4):
-                acc_ = 0.0
-                for k in range(i):
-                    acc_ += (_A[i, k] * K[k, j]) if i < 6 else (_B[k] * K[k, j])
-                us[j] = u[j] + h * acc_
+            stage_state(u, K, h, i, us)
             for j in range(3):
                 zs[j] = z[j]
             _layer_rhs(
@@ -874,11 +913,7 @@ def _layer(
         for j in range(4):
             un[j] = us[j]
         counters[0] += 6
-        for j in range(4):
-            e = 0.0
-            for k in range(7):
-                e += _E[k] * K[k, j]
-            err[j] = h * e
+        step_error(K, h, err)
         # the slip relative to itself: the trajectory after a break is sensitive to when
         # the slip grows (its growth starts from λ = 0), so an absolute slip error of the
         # full model's velocity scale put Fig. 9a 100 rtol m off; atol 1e-3 x: a floor
@@ -894,11 +929,9 @@ def _layer(
             _corner_event_values(yv, parcel, borders, ev0)
             yv[:3] = un[:3]
             _corner_event_values(yv, parcel, borders, ev1)
-            for q in range(4 * nb):
-                if abs(ev0[q]) > 1e-12 and ev0[q] * ev1[q] < 0.0:
-                    crossed = True
+            crossed = sign_change(ev0, ev1) >= 0
         if not math.isfinite(en) or en > 1.0 or crossed:
-            h *= 0.25 if (crossed or not math.isfinite(en)) else max(0.2, 0.9 * en**-0.2)
+            h *= 0.25 if (crossed or not math.isfinite(en)) else step_factor(en)
             if crossed and h < 1e-9:
                 break  # the event is just ahead: the full model locates it
             continue
@@ -913,7 +946,7 @@ def _layer(
             u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, K[0]
         )
         counters[0] += 1
-        h *= min(5.0, max(0.2, 0.9 * en**-0.2)) if en > 0.0 else 5.0
+        h *= step_factor(en)
         # hand over once the full model's explicit step would be stiff-bound by the
         # direction only 10x past the layer's own (F h / (m s) = 10): later, the slow
         # manifold's zeroth-order direction costs accuracy (handing over at F h/(m s) = 1
@@ -1238,13 +1271,13 @@ def run_accurate(
             _corner_event_values(y, parcel, borders, ev0)
         _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err)
         n_rhs += 6
-        enorm = _rms_norm(err, y, y_new, rtol, atol)
+        enorm = rms_norm(err, y, y_new, rtol, atol)
         if not np.isfinite(enorm):
             h *= 0.2
             n_rej += 1
             continue
         if enorm > 1.0:
-            h *= max(0.2, 0.9 * enorm**-0.2)
+            h *= step_factor(enorm)
             n_rej += 1
             continue
         # accepted: look for the earliest event inside (t, t + h]
@@ -1257,7 +1290,7 @@ def run_accurate(
             hi = 1.0
             for _ in range(80):
                 mid = 0.5 * (lo + hi)
-                _dense(y, K, h, mid, yd)
+                dense(y, K, h, mid, yd)
                 if yd[1] >= y_target:
                     hi = mid
                 else:
@@ -1270,14 +1303,13 @@ def run_accurate(
         if nb > 0:
             _corner_event_values(y_new, parcel, borders, ev1)
             for q in range(4 * nb):
-                # a corner within round-off of a border has crossed it already (two
-                # corners of an aligned box cross together)
+                # as ``sign_change``, for every pair: the earliest crossing wins
                 if abs(ev0[q]) > 1e-12 and ev0[q] * ev1[q] < 0.0:
                     lo = 0.0
                     hi = 1.0
                     for _ in range(80):
                         mid = 0.5 * (lo + hi)
-                        _dense(y, K, h, mid, yd)
+                        dense(y, K, h, mid, yd)
                         _corner_event_values(yd, parcel, borders, ev1)
                         if ev1[q] * ev0[q] <= 0.0:
                             hi = mid
@@ -1311,7 +1343,7 @@ def run_accurate(
                 hi = 1.0
                 for _ in range(80):
                     mid = 0.5 * (lo + hi)
-                    _dense(y, K, h, mid, yd)
+                    dense(y, K, h, mid, yd)
                     _gen_slip(yd, vsx, vsy, rho, rot, sig)
                     pr = sig[0] * sig0[3 * s] + sig[1] * sig0[3 * s + 1] + sig[2] * sig0[3 * s + 2]
                     if pr <= 0.0:
@@ -1327,10 +1359,7 @@ def run_accurate(
                 theta_ev = th
                 ev_kind = EV_STICK
                 stick_surf = s
-        if enorm == 0.0:
-            h_next = 5.0 * h
-        else:
-            h_next = h * min(5.0, max(0.2, 0.9 * enorm**-0.2))
+        h_next = h * step_factor(enorm)
         if theta_ev <= 1.0 and theta_ev < 1.0 - 1e-12:
             # redo the step to the event, so no stage sees past it
             h_next = h

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from .integrators import _A, _B, _C, _E  # the Dormand-Prince 5(4) tableau
+from .dopri import A as _A, B as _B, C as _C, E as _E  # the core's one DP 5(4) tableau
 
 # rows of eq. (3.1), as the seed numbers them
 ROW_KINETIC = 1  # F(1): |v| > v_min, F = F_kin sgn(v)

@@ -317,6 +317,11 @@ class SimResult:
         return self.status in (_ig.ST_END, _ig.ST_TARGET)
 
     @property
+    def nfev(self) -> int:
+        """Right-hand-side evaluations, scipy's name for ``n_rhs`` (stick tests included)."""
+        return self.n_rhs
+
+    @property
     def n_events(self) -> int:
         return len(self.events)
 
