@@ -157,7 +157,7 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
     is γ(W) = max_ξ W·ξ / D(ξ) = 1 / min {D(ξ) : W·ξ = 1}, the minimum of a convex
     function on a plane. It is found by Newton's method in that plane (generalized
     twists (ẋ, ẏ, ρφ̇)): the gradient is exact (the closed-form wrench), the 2 x 2
-    Hessian a central difference of it, with a backtracking line search on D. At the
+    Hessian a forward difference of it, with a backtracking line search on D. At the
     minimiser ξ* the limit-surface point ∇D(ξ*) = W / γ: ξ* is the twist the patch
     slips with when the stick breaks (maximal dissipation). ``xi`` (3, in/out)
     carries ξ* between calls: a stick scanned along its path starts each solve next
@@ -410,11 +410,16 @@ def _time_to_next_border(state, vx, parcel, borders):
 
 @njit(cache=True)
 def _margin_at(tt, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi):
-    """Stick margin on ``surf`` at time tt of a parcel carried rigidly from (y0x, y0y) at t0."""
+    """
+    Stick margin and contact area on ``surf`` at time tt of a parcel carried from t0.
+
+    The parcel translates rigidly with the surface from (y0x, y0y); ``ys`` (the stuck
+    state) gets the pose at tt.
+    """
     ys[0] = y0x + vsx * (tt - t0)
     ys[1] = y0y + vsy * (tt - t0)
-    m, _, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf, xi)
-    return m
+    m, a, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf, xi)
+    return m, a
 
 
 @njit(cache=True)
@@ -445,7 +450,7 @@ def _break_time(
     carried pose, so ~8 gauges locate the break where bisection takes ~45. Returns a
     time on the breaking side (margin > 0), within the tolerance of the root.
     """
-    fpre = _margin_at(
+    fpre, _ = _margin_at(
         lo, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi
     )
     counters[0] += 1
@@ -498,7 +503,7 @@ def _break_time(
         xpre = xcur
         fpre = fcur
         xcur += scur if abs(scur) > delta else (delta if sbis > 0.0 else -delta)
-        fcur = _margin_at(
+        fcur, _ = _margin_at(
             xcur, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi
         )
         counters[0] += 1
@@ -580,9 +585,9 @@ def _stick_advance(
                     break
                 continue
         t_next = min(t_stop, t + dt_scan)
-        ys[0] = y0x + vsx * (t_next - t0)
-        ys[1] = y0y + vsy * (t_next - t0)
-        m, a, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf, xi)
+        m, a = _margin_at(
+            t_next, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi
+        )
         counters[0] += 1
         if m > 0.0 or a <= 0.0:
             if a <= 0.0:
@@ -803,6 +808,24 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
 
 
 @njit(cache=True)
+def _layer_state(u, z, vsx, vsy, parcel, out):
+    """
+    Fill ``out`` with the full state of the layer state u = (x, y, φ, s); returns s >= 0.
+
+    The velocity is the surface's plus the slip s along the unit generalized direction
+    z = σ̂ (its third component ρ φ̇).
+    """
+    sl = max(u[3], 0.0)
+    for j in range(3):
+        out[j] = u[j]
+    out[3] = vsx + sl * z[0]
+    out[4] = vsy + sl * z[1]
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
+    out[5] = sl * z[2] / rho if parcel[P_ROTATION] > 0.5 else 0.0
+    return sl
+
+
+@njit(cache=True)
 def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, out):
     """
     Right-hand side of the slip layer on ``surf``: u = (x, y, φ, s), s the slip magnitude.
@@ -815,19 +838,11 @@ def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, 
     patch's friction magnitude |∇D_k| [N] (its stiffness is that over m s).
     """
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
-    rot = parcel[P_ROTATION] > 0.5
-    sl = max(u[3], 0.0)
-    for j in range(3):
-        yv[j] = u[j]
-    yv[3] = vsx + sl * z[0]
-    yv[4] = vsy + sl * z[1]
-    yv[5] = sl * z[2] / rho if rot else 0.0
+    sl = _layer_state(u, z, vsx, vsy, parcel, yv)
     w = np.empty(3)
     _others_wrench(yv, strips, parcel, nodes, weights, nsurf, surf, w)
     lam = _pull_direction(yv, strips, parcel, nodes, weights, surf, w[0], w[1], w[2], z)
-    yv[3] = vsx + sl * z[0]
-    yv[4] = vsy + sl * z[1]
-    yv[5] = sl * z[2] / rho if rot else 0.0
+    _layer_state(u, z, vsx, vsy, parcel, yv)  # at the settled direction
     rhs_slide(yv, strips, parcel, nodes, weights, nsurf, acc)
     out[0] = yv[3]
     out[1] = yv[4]
@@ -873,8 +888,8 @@ def _layer(
     manifold (``_layer_rhs``) the direction is slaved to the pose, so the layer is a
     smooth 4-state problem (pose and slip magnitude), integrated here by the same
     Dormand-Prince pair under the same tolerances. It ends, handing over to the full
-    model, once the slip has grown so that the full model's step is no longer bound by
-    the direction's stiffness (F h / (m s) <= 1 at the layer's current step h), or
+    model, once the slip has grown so that the full model's step is bound by the
+    direction's stiffness only mildly (F h / (m s) <= 10 at the layer's step h), or
     before a corner crosses a strip border or the centre of gravity the scrap line
     (the full model locates those), or at t_end; or, if the slip falls back, below a
     tenth of s0's scale, where the caller decides stick or slip again.
@@ -895,7 +910,7 @@ def _layer(
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
-    fmag = _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, K[0])
+    _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, K[0])
     counters[0] += 1
     h = min(1e-5, t_end - t)
     s_floor = 0.1 * s0
@@ -956,13 +971,7 @@ def _layer(
             break
         if K[0, 3] < 0.0 and u[3] < s_floor:
             break
-    rho = math.sqrt(parcel[P_INERTIA] / mass)
-    sl = max(u[3], 0.0)
-    for j in range(3):
-        y[j] = u[j]
-    y[3] = vsx + sl * z[0]
-    y[4] = vsy + sl * z[1]
-    y[5] = sl * z[2] / rho if parcel[P_ROTATION] > 0.5 else 0.0
+    _layer_state(u, z, vsx, vsy, parcel, y)
     return t
 
 
@@ -1045,8 +1054,8 @@ def _small_slip(
     decided by the forces, not by a band: if the wrench the surface must supply to
     carry the parcel lies in its limit set (``stick_margin`` <= 0) the parcel sticks
     (the slip, below the stick tolerances, is dropped); else the parcel is leaving
-    the surface and the layer is continued in closed form from the slip reached
-    (``_break_away`` with s0). Also resumes a layer a run starts inside (an earlier
+    the surface and the layer is integrated on from the slip reached (``_break_away``
+    with s0). Also resumes a layer a run starts inside (an earlier
     run, as the cell integrates period by period, ended there).
 
     Returns (t, surf, stuck): the new time, the surface acted on (-1 none) and
