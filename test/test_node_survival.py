@@ -150,10 +150,20 @@ def test_a_double_sigint_is_a_clean_exit_whenever_the_second_lands(ros, exe):
     name, extra = ALONE[exe]
     node = ros.make_node('signal_watcher')
     for gap in (0.0, 0.02, 0.05, 0.1):
+        # the graph still lists the last run's node until its goodbye is processed (on a
+        # loaded machine, a while): its name there would not mean this one is up
+        ros.spin_until(
+            lambda: (name, NS) not in node.get_node_names_and_namespaces(),
+            30.0,
+            f'the last {exe} to leave the graph',
+        )
         proc = _start(exe, *extra)
         try:
             ros.spin_until(
-                lambda: (name, NS) in node.get_node_names_and_namespaces(),
+                lambda: (
+                    (name, NS) in node.get_node_names_and_namespaces()
+                    and _catches_sigterm(proc.pid)
+                ),
                 30.0,
                 f'{exe} to start',
             )

@@ -66,7 +66,7 @@ from .layout import (
     S_PARAMS,
     P_GRAV,
 )
-from .dopri import dense, rms_norm, sign_change, stage_state, step_error, step_factor
+from .dopri import C, dense, rms_norm, sign_change, stage_state, step_error, step_factor
 from .friction import mu_kinetic, mu_static
 from .geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
 from .wrench import evaluate_surfaces, rest_surface_wrench, static_surface_wrench
@@ -129,6 +129,13 @@ def rhs_slide(state, strips, parcel, nodes, weights, nsurf, out):
     out[5] = t / parcel[P_INERTIA] if parcel[P_ROTATION] > 0.5 else 0.0
 
 
+# a falling slip s is carried on in ln s (``_approach``) once it would reach zero within
+# APPROACH_STEPS steps h at its rate, or once F h / (m s) >= STIFF_RATIO rtol^(1/5) (F the
+# patch's friction): on the way to zero its direction turns at F/(m s), and explicit
+# steps in t shrink with s, accuracy-bound at such a ratio (measured on Fig. 9a's approach
+# to its stick and a spinning slide to rest: 0.2-0.4 at rtol 1e-6, 0.05-0.15 at 1e-10)
+APPROACH_STEPS = 5.0
+STIFF_RATIO = 2.0  # x rtol^(1/5): where a 5th-order step's error in the turning reaches rtol
 STICK_RTOL = 1e-13  # relative: a balance to rounding (a few ulps of the wrench sums) holds
 GAUGE_ITERATIONS = 60
 
@@ -685,12 +692,13 @@ def _others_wrench(y, strips, parcel, nodes, weights, nsurf, surf, out):
 @njit(cache=True)
 def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
     """
-    Find the unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow); return λ >= 0.
+    Find the unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow); return λ.
 
     W_o is the other surfaces' generalized kinetic wrench, D_k the patch of ``surf``
     slipping infinitely slowly (μ_k(0), ``rest_surface_wrench``). The maximiser is the
     direction a small slip on ``surf`` settles to (its own acceleration W_o - ∇D_k(σ̂)
-    = m λ σ̂ is along it) and λ its growth rate [m/s², generalized]: a concave problem,
+    = m λ σ̂ is along it) and λ its growth rate [m/s², generalized; negative: a slip
+    there decays, along σ̂, at -λ, as it approaches a stick]: a concave problem,
     solved by Newton's method on the unit sphere (exact gradient, differenced Hessian,
     backtracking line search). ``z`` carries a start (a zero vector: the limit set's
     maximal-dissipation twist for W_o, else W_o's direction) and returns σ̂.
@@ -804,7 +812,7 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
         f = ft
         if moved <= 1e-15:
             break
-    return max(f / mass, 0.0)
+    return f / mass
 
 
 @njit(cache=True)
@@ -849,10 +857,15 @@ def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, 
     out[2] = yv[5]
     if sl > 0.0:
         out[3] = z[0] * acc[3] + z[1] * acc[4] + z[2] * rho * acc[5]
+    elif u[3] < 0.0:
+        # past zero (a stage of the step in which an approaching slip reaches zero): the
+        # rate's continuation, so that the step's interpolant locates the zero smoothly
+        out[3] = lam
     else:
         # at zero slip the full model has no friction direction on ``surf`` (it would
-        # leave the patch's friction out); the growth is its limit s -> 0+, λ
-        out[3] = lam
+        # leave the patch's friction out); the growth is its limit s -> 0+, λ (where λ
+        # <= 0 the slip cannot grow: it stays zero)
+        out[3] = max(lam, 0.0)
     fx, fy, ft = rest_surface_wrench(
         yv, strips, parcel, nodes, weights, surf, z[0], z[1], z[2] / rho, True
     )
@@ -891,8 +904,11 @@ def _layer(
     model, once the slip has grown so that the full model's step is bound by the
     direction's stiffness only mildly (F h / (m s) <= 10 at the layer's step h), or
     before a corner crosses a strip border or the centre of gravity the scrap line
-    (the full model locates those), or at t_end; or, if the slip falls back, below a
-    tenth of s0's scale, where the caller decides stick or slip again.
+    (the full model locates those), or at t_end; or where a falling slip reaches zero
+    (the zero of the step's interpolant), where the caller decides stick or break-away.
+    The same slow manifold carries a slip approaching a stick: there the direction's
+    stiffness F/(m s) grows without bound as s -> 0, and explicit steps of the full
+    model would shrink with s.
 
     ``y`` (in: the pose; out: the full state at the end, velocity = surface + s σ̂),
     ``z`` (in: a start for σ̂, may be zero; out: σ̂). counters[0] += rhs evaluations.
@@ -913,7 +929,6 @@ def _layer(
     _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, K[0])
     counters[0] += 1
     h = min(1e-5, t_end - t)
-    s_floor = 0.1 * s0
     for _ in range(10000):
         if t >= t_end or h <= 1e-14 * max(1.0, abs(t)):
             break
@@ -938,7 +953,7 @@ def _layer(
             sc = (atol if j < 3 else 1e-3 * atol) + rtol * max(abs(u[j]), abs(un[j]))
             en += (err[j] / sc) ** 2
         en = math.sqrt(en / 4.0)
-        crossed = un[3] < 0.0 or (y_target < math.inf and u[1] < y_target <= un[1])
+        crossed = y_target < math.inf and u[1] < y_target <= un[1]
         if nb > 0 and not crossed:
             yv[:3] = u[:3]
             _corner_event_values(yv, parcel, borders, ev0)
@@ -950,6 +965,34 @@ def _layer(
             if crossed and h < 1e-9:
                 break  # the event is just ahead: the full model locates it
             continue
+        to_zero = un[3] < 0.0 and u[3] > 0.0
+        if to_zero:
+            # the slip reaches zero inside the step (an approach to a stick): end the
+            # layer there, at the zero of the step's interpolant, by redoing the step
+            # to it so that no stage sees past it
+            lo = 0.0
+            hi = 1.0
+            for _ in range(60):
+                mid = 0.5 * (lo + hi)
+                dense(u, K, h, mid, us)
+                if us[3] <= 0.0:
+                    hi = mid
+                else:
+                    lo = mid
+                if hi - lo < 1e-15:
+                    break
+            h *= hi
+            for i in range(1, 7):
+                stage_state(u, K, h, i, us)
+                for j in range(3):
+                    zs[j] = z[j]
+                _layer_rhs(
+                    us, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, zs, yv, acc, K[i]
+                )
+            for j in range(4):
+                un[j] = us[j]
+            un[3] = 0.0
+            counters[0] += 6
         t += h
         for j in range(4):
             u[j] = un[j]
@@ -967,9 +1010,7 @@ def _layer(
         # manifold's zeroth-order direction costs accuracy (handing over at F h/(m s) = 1
         # put Fig. 9a 3e-7 m off at rtol 1e-8; at 10 and at 50 it converges to the same
         # limit, 4e-9 m off there); earlier, the full model's steps pay for the stiffness
-        if u[3] * mass >= 0.1 * fmag * h:
-            break
-        if K[0, 3] < 0.0 and u[3] < s_floor:
+        if to_zero or (K[0, 3] > 0.0 and u[3] * mass >= 0.1 * fmag * h):
             break
     _layer_state(u, z, vsx, vsy, parcel, y)
     return t
@@ -1029,6 +1070,199 @@ def _break_away(
 
 
 @njit(cache=True)
+def _approach_rhs(u, s, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, out):
+    """
+    Right-hand side of a falling slip on one surface in τ = ln(s_e / s).
+
+    u = (x, y, φ, t, d): pose, time and the slip's direction d (its norm is ignored);
+    s = s_e e^-τ the slip there. With a the full model's generalized acceleration at
+    that motion and r = d̂·a < 0 the slip's rate, dt/dτ = s / -r, the pose moves at
+    its velocity times that, and dd/dτ = (a - r d̂) / -r: the direction's turning,
+    which in t runs at a rate ~F/(m s), is O(1) per unit of τ. Returns r.
+    """
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
+    rot = parcel[P_ROTATION] > 0.5
+    dn = math.sqrt(u[4] * u[4] + u[5] * u[5] + u[6] * u[6])
+    d0 = u[4] / dn
+    d1 = u[5] / dn
+    d2 = u[6] / dn if rot else 0.0
+    yv[0] = u[0]
+    yv[1] = u[1]
+    yv[2] = u[2]
+    yv[3] = vsx + s * d0
+    yv[4] = vsy + s * d1
+    yv[5] = s * d2 / rho if rot else 0.0
+    rhs_slide(yv, strips, parcel, nodes, weights, nsurf, acc)
+    a2 = rho * acc[5] if rot else 0.0
+    r = d0 * acc[3] + d1 * acc[4] + d2 * a2
+    dt = s / -r if r < 0.0 else 0.0
+    out[0] = yv[3] * dt
+    out[1] = yv[4] * dt
+    out[2] = yv[5] * dt
+    out[3] = dt
+    if r < 0.0:
+        out[4] = (acc[3] - r * d0) / -r
+        out[5] = (acc[4] - r * d1) / -r
+        out[6] = (a2 - r * d2) / -r
+    else:
+        out[4] = 0.0
+        out[5] = 0.0
+        out[6] = 0.0
+    return r
+
+
+@njit(cache=True)
+def _approach(
+    y,
+    t,
+    t_end,
+    y_target,
+    strips,
+    parcel,
+    nodes,
+    weights,
+    nsurf,
+    surf,
+    s_end,
+    rtol,
+    atol,
+    borders,
+    counters,
+    rec,
+    ts,
+    ys,
+    ms,
+):
+    """
+    Carry a slip on ``surf`` falling towards zero down to ``s_end``; returns (t, reason).
+
+    A slip s falling to a stick turns its direction at a rate F/(m s): explicit steps
+    in t shrink with s, ~30 of them for every decade. In τ = ln(s_e/s) the same motion
+    (``_approach_rhs``, the full model, no approximation) is smooth, the direction
+    settling exponentially in τ, and the same Dormand-Prince pair under the same
+    tolerances crosses the decades in a few steps. Below ``s_end`` the rest is taken
+    in closed form at the last rate r (Δt = s / -r, the pose moving with the surface
+    plus half the slip), an error O(s² Δt) per decade of the direction's change.
+
+    reason: 0 the slip reached zero (``y`` then moves with the surface exactly),
+    1 a border crossing or the scrap line is within the next step (``y`` at the last
+    accepted point before it, for the full model to locate), 2 the slip's fall slowed
+    to a twentieth of its rate at the start (a near balance: in τ the direction's
+    turning would grow stiff as F/(m |r|)), 3 t_end.
+    counters[0] += right-hand-side evaluations; every accepted step is recorded
+    (``_record``, sliding) into ts/ys/ms from rec[0] on, rec[0] the count.
+    """
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
+    rot = parcel[P_ROTATION] > 0.5
+    vsx, vsy = surface_velocity(strips, surf)
+    sig = np.empty(3)
+    s_e = _gen_slip(y, vsx, vsy, rho, rot, sig)
+    u = np.array([y[0], y[1], y[2], t, sig[0] / s_e, sig[1] / s_e, sig[2] / s_e])
+    un = np.empty(7)
+    err = np.empty(7)
+    K = np.empty((7, 7))
+    yv = np.empty(6)
+    acc = np.empty(6)
+    nb = borders.shape[0]
+    ev0 = np.empty(4 * nb)
+    ev1 = np.empty(4 * nb)
+    tau_end = math.log(s_e / s_end) if s_end < s_e else 0.0
+    tau = 0.0
+    r = _approach_rhs(u, s_e, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, K[0])
+    counters[0] += 1
+    r_min = 0.05 * abs(r)
+    reason = 0
+    h = 0.25
+    for _ in range(10000):
+        if r > -r_min:
+            reason = 2
+            break
+        if tau >= tau_end:
+            break
+        h = min(h, tau_end - tau)
+        ok = True
+        for i in range(1, 7):
+            stage_state(u, K, h, i, un)
+            ri = _approach_rhs(
+                un,
+                s_e * math.exp(-(tau + (C[i] if i < 6 else 1.0) * h)),
+                strips,
+                parcel,
+                nodes,
+                weights,
+                nsurf,
+                vsx,
+                vsy,
+                yv,
+                acc,
+                K[i],
+            )
+            ok = ok and ri < 0.0
+        counters[0] += 6
+        step_error(K, h, err)
+        en = 0.0
+        for j in range(7):
+            sc = atol + rtol * (max(abs(u[j]), abs(un[j])) if j < 4 else 1.0)
+            en += (err[j] / sc) ** 2
+        en = math.sqrt(en / 7.0)
+        if not ok or not math.isfinite(en) or en > 1.0:
+            h *= 0.25 if not ok or not math.isfinite(en) else step_factor(en)
+            if h < 1e-6:
+                reason = 2
+                break
+            continue
+        crossed = un[3] > t_end or (y_target < math.inf and u[1] < y_target <= un[1])
+        if nb > 0 and not crossed:
+            yv[:3] = u[:3]
+            _corner_event_values(yv, parcel, borders, ev0)
+            yv[:3] = un[:3]
+            _corner_event_values(yv, parcel, borders, ev1)
+            crossed = sign_change(ev0, ev1) >= 0
+        if crossed:
+            reason = 1 if un[3] <= t_end else 3
+            break
+        tau += h
+        for j in range(7):
+            u[j] = un[j]
+        for j in range(7):
+            K[0, j] = K[6, j]
+        # the FSAL stage is this point's derivative, but r needs the acceleration too
+        r = _approach_rhs(
+            u, s_e * math.exp(-tau), strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, K[0]
+        )
+        counters[0] += 1
+        rec[0] = _record(ts, ys, ms, rec[0], u[3], yv, MODE_SLIDE)
+        h *= step_factor(en)
+    t = u[3]
+    s = s_e * math.exp(-tau)
+    s1 = s
+    if reason == 0:
+        # the last stretch, s_end -> 0, at the rate reached: the slip falls linearly
+        # (to t_end, if that comes first)
+        dt = s / -r
+        if t + dt > t_end:
+            dt = t_end - t
+            s1 = s + r * dt
+            reason = 3
+        else:
+            s1 = 0.0
+        dn = math.sqrt(u[4] * u[4] + u[5] * u[5] + u[6] * u[6])
+        s_mid = 0.5 * (s + s1) / dn
+        u[0] += (vsx + s_mid * u[4]) * dt
+        u[1] += (vsy + s_mid * u[5]) * dt
+        u[2] += (s_mid * u[6] / rho if rot else 0.0) * dt
+        t += dt
+    dn = math.sqrt(u[4] * u[4] + u[5] * u[5] + u[6] * u[6])
+    y[0] = u[0]
+    y[1] = u[1]
+    y[2] = u[2]
+    y[3] = vsx + s1 * u[4] / dn
+    y[4] = vsy + s1 * u[5] / dn
+    y[5] = s1 * u[6] / dn / rho if rot else 0.0
+    return t, reason
+
+
+@njit(cache=True)
 def _small_slip(
     y,
     t,
@@ -1040,23 +1274,34 @@ def _small_slip(
     weights,
     nsurf,
     s_check,
+    s_stiff,
     rtol,
     atol,
     borders,
     counters,
+    rec,
+    ts,
+    ys,
+    ms,
 ):
     """
-    Settle a surface whose slip is below ``s_check``: stick to it, or solve its layer.
+    Settle a surface whose slip is small: stick to it, or carry the slip on its layer.
 
     Near zero slip the kinetic friction's direction turns at a rate F/(m |slip|): an
     explicit step there settles into a chatter of |slip| ~ μ g h that neither falls
-    to zero nor grows (a stall of steps ~1e-10 s). The slip's fate at this pose is
-    decided by the forces, not by a band: if the wrench the surface must supply to
-    carry the parcel lies in its limit set (``stick_margin`` <= 0) the parcel sticks
-    (the slip, below the stick tolerances, is dropped); else the parcel is leaving
-    the surface and the layer is integrated on from the slip reached (``_break_away``
-    with s0). Also resumes a layer a run starts inside (an earlier
-    run, as the cell integrates period by period, ended there).
+    to zero nor grows (a stall of steps ~1e-10 s), and a slip falling to zero makes
+    the steps shrink with it. The slip's fate at this pose is decided by the forces,
+    not by a band: below ``s_check`` (the stick tolerance's scale), if the wrench the
+    surface must supply to carry the parcel lies in its limit set (``stick_margin``
+    <= 0) the parcel sticks (the slip, below the stick tolerances, is dropped). A
+    falling slip below ``s_stiff[surface]`` (where its direction's stiffness binds the
+    explicit step) is carried down in the logarithm of the slip (``_approach``) to
+    zero, where the margin decides: stick, or break away from there; it stops short
+    where the slip's fall slows to a twentieth of its rate at the start (a near
+    balance, left to the full model). Below ``s_check`` a slip
+    the surface cannot hold goes on along its layer (``_break_away`` with s0). Also
+    resumes a layer a run starts inside (an earlier run, as the cell integrates period
+    by period, ended there).
 
     Returns (t, surf, stuck): the new time, the surface acted on (-1 none) and
     whether the parcel now sticks to it (``y`` then carries the stuck motion).
@@ -1072,19 +1317,74 @@ def _small_slip(
             continue
         vsx, vsy = surface_velocity(strips, s)
         n = _gen_slip(y, vsx, vsy, rho, rot, sig)
-        if n == 0.0 or n >= s_check:
+        if n == 0.0 or (n >= s_check and n >= s_stiff[s]):
             continue
         stuck = y.copy()
         stuck[3] = vsx
         stuck[4] = vsy
         stuck[5] = 0.0
-        m, _, _, _, _ = stick_margin(stuck, strips, parcel, nodes, weights, nsurf, s, xi)
-        counters[0] += 1
-        if m <= 0.0:
-            for j in range(6):
-                y[j] = stuck[j]
-            return t, s, True
+        if n < s_check:
+            m, _, _, _, _ = stick_margin(stuck, strips, parcel, nodes, weights, nsurf, s, xi)
+            counters[0] += 1
+            if m <= 0.0:
+                for j in range(6):
+                    y[j] = stuck[j]
+                return t, s, True
+        t0 = t
         yl = y.copy()
+        if n >= s_check:
+            t, reason = _approach(
+                yl,
+                t,
+                t_end,
+                y_target,
+                strips,
+                parcel,
+                nodes,
+                weights,
+                nsurf,
+                s,
+                s_check,
+                rtol,
+                atol,
+                borders,
+                counters,
+                rec,
+                ts,
+                ys,
+                ms,
+            )
+            if reason == 0:
+                for j in range(6):
+                    y[j] = yl[j]
+                m, _, _, _, _ = stick_margin(y, strips, parcel, nodes, weights, nsurf, s, xi)
+                counters[0] += 1
+                if m <= 0.0:
+                    return t, s, True
+                t = _break_away(
+                    y,
+                    t,
+                    t_end,
+                    y_target,
+                    strips,
+                    parcel,
+                    nodes,
+                    weights,
+                    nsurf,
+                    s,
+                    0.0,
+                    rtol,
+                    atol,
+                    borders,
+                    counters,
+                )
+                return t, s, False
+            # stopped short of zero: an event ahead, t_end, or a near balance, where the
+            # full model's steps are not bound by the direction (it falls slower than the
+            # patch could stop it) and take over
+            for j in range(6):
+                y[j] = yl[j]
+            return t, (s if t > t0 else -1), False
         t_new = _break_away(
             yl,
             t,
@@ -1102,9 +1402,31 @@ def _small_slip(
             borders,
             counters,
         )
-        if t_new > t:
+        if t_new > t0:
             for j in range(6):
                 y[j] = yl[j]
+            if _gen_slip(y, vsx, vsy, rho, rot, sig) == 0.0 and t_new < t_end:
+                m, _, _, _, _ = stick_margin(y, strips, parcel, nodes, weights, nsurf, s, xi)
+                counters[0] += 1
+                if m <= 0.0:
+                    return t_new, s, True
+                t_new = _break_away(
+                    y,
+                    t_new,
+                    t_end,
+                    y_target,
+                    strips,
+                    parcel,
+                    nodes,
+                    weights,
+                    nsurf,
+                    s,
+                    0.0,
+                    rtol,
+                    atol,
+                    borders,
+                    counters,
+                )
             return t_new, s, False
     return t, -1, False
 
@@ -1160,6 +1482,8 @@ def run_accurate(
     sig = np.empty(3)
     sig0 = np.empty(nsurf * 3)
     sig0n = np.empty(nsurf)
+    s_stiff = np.zeros(nsurf)
+    rec = np.zeros(1, dtype=np.int64)
     area = np.empty(nsurf)
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
@@ -1175,6 +1499,14 @@ def run_accurate(
     max_out = ts.shape[0]
     # a slip below this is settled by the forces (``_small_slip``): stuck, or a layer
     s_check = 50.0 * stick_tol
+    # a bound on a patch's generalized friction over m, sqrt(|F|² + (T/ρ)²)/m <= √2 μ g
+    mu_top = 0.0
+    for k in range(strips.shape[0]):
+        law = int(strips[k, S_LAW])
+        mu_top = max(mu_top, mu_static(law, strips[k, S_PARAMS:]))
+        mu_top = max(mu_top, mu_kinetic(law, strips[k, S_PARAMS:], 0.0))
+    slip_bound = 1.5 * mu_top * parcel[P_GRAV]
+    stiff_ratio = STIFF_RATIO * rtol**0.2
     while t < t_end:
         if n_steps + n_out >= 50 * max_out:
             status = ST_MAX_STEPS
@@ -1228,16 +1560,50 @@ def run_accurate(
                 n_out = _record(ts, ys, ms, n_out, t, y, mode)
             continue
         # ---- sliding: one Dormand-Prince step with event location ----
+        if fresh:
+            rhs_slide(y, strips, parcel, nodes, weights, nsurf, K[0])
+            n_rhs += 1
+            fresh = False
         _contact_surfaces(y, strips, parcel, nsurf, area)
         small = False
+        h_try = min(h, h_max)
         for s in range(nsurf):
             vsx, vsy = surface_velocity(strips, s)
             sig0n[s] = _gen_slip(y, vsx, vsy, rho, rot, sig)
             for j in range(3):
                 sig0[3 * s + j] = sig[j] / sig0n[s] if sig0n[s] > 0.0 else 0.0
-            if area[s] > 0.0 and 0.0 < sig0n[s] < s_check:
+            s_stiff[s] = 0.0
+            if area[s] <= 0.0 or not sig0n[s] > 0.0:
+                continue
+            if sig0n[s] < s_check:
                 small = True
+            else:
+                # a falling slip goes on in ln s (``_small_slip``) once it would reach zero
+                # within a few steps at its rate, or once its direction's stiffness F/(m s)
+                # binds the step (the patch's friction F: evaluated only near that range)
+                rate = sig0[3 * s] * K[0, 3] + sig0[3 * s + 1] * K[0, 4]
+                rate += sig0[3 * s + 2] * rho * K[0, 5]
+                if rate < 0.0:
+                    s_stiff[s] = -APPROACH_STEPS * rate * h_try
+                    if sig0n[s] >= s_stiff[s] and sig0n[s] * stiff_ratio < slip_bound * h_try:
+                        fx, fy, ft = rest_surface_wrench(
+                            y,
+                            strips,
+                            parcel,
+                            nodes,
+                            weights,
+                            s,
+                            sig0[3 * s],
+                            sig0[3 * s + 1],
+                            sig0[3 * s + 2] / rho,
+                            True,
+                        )
+                        n_rhs += 1
+                        fmag = math.sqrt(fx * fx + fy * fy + (ft / rho) ** 2)
+                        s_stiff[s] = max(s_stiff[s], fmag * h_try / (stiff_ratio * parcel[P_MASS]))
+                    small = small or sig0n[s] < s_stiff[s]
         if small:
+            rec[0] = n_out
             t_new, s_act, stuck = _small_slip(
                 y,
                 t,
@@ -1249,12 +1615,19 @@ def run_accurate(
                 weights,
                 nsurf,
                 s_check,
+                s_stiff,
                 rtol,
                 atol,
                 borders,
                 stick_counters,
+                rec,
+                ts,
+                ys,
+                ms,
             )
+            n_out = rec[0]
             if stuck:
+                t = t_new
                 n_ev = _log_event(ev, n_ev, t, EV_STICK, s_act)
                 mode = s_act
                 fresh = True
@@ -1263,12 +1636,14 @@ def run_accurate(
             if t_new > t:
                 t = t_new
                 fresh = True
-                n_out = _record(ts, ys, ms, n_out, t, y, mode)
+                # an approach that stopped short recorded this point already
+                last = min(n_out, ts.shape[0]) - 1
+                same = n_out > 0 and ts[last] == t and ms[last] == mode
+                for j in range(6):
+                    same = same and ys[last, j] == y[j]
+                if not same:
+                    n_out = _record(ts, ys, ms, n_out, t, y, mode)
                 continue
-        if fresh:
-            rhs_slide(y, strips, parcel, nodes, weights, nsurf, K[0])
-            n_rhs += 1
-            fresh = False
         if not np.all(np.isfinite(K[0])):
             status = ST_NONFINITE
             break
