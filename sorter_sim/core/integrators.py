@@ -131,7 +131,8 @@ def rhs_slide(state, strips, parcel, nodes, weights, nsurf, out):
 
 # a falling slip s is carried on in ln s (``_approach``) once it would reach zero within
 # APPROACH_STEPS steps h at its rate, or once F h / (m s) >= STIFF_RATIO rtol^(1/5) (F the
-# patch's friction): on the way to zero its direction turns at F/(m s), and explicit
+# patch's friction, which does at least half the slowing): on the way to zero its
+# direction turns at F/(m s), and explicit
 # steps in t shrink with s, accuracy-bound at such a ratio (measured on Fig. 9a's approach
 # to its stick and a spinning slide to rest: 0.2-0.4 at rtol 1e-6, 0.05-0.15 at 1e-10)
 APPROACH_STEPS = 5.0
@@ -343,6 +344,16 @@ def _gen_slip(state, vsx, vsy, rho, rot, out):
     out[1] = state[4] - vsy
     out[2] = rho * state[5] if rot else 0.0
     return math.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2)
+
+
+@njit(cache=True)
+def _record_new(ts, ys, ms, n_out, t, y, mode):
+    """``_record``, unless the last record is this one (a slip carried in ln s records it)."""
+    last = min(n_out, ts.shape[0]) - 1
+    same = n_out > 0 and ts[last] == t and ms[last] == mode
+    for j in range(6):
+        same = same and ys[last, j] == y[j]
+    return n_out if same else _record(ts, ys, ms, n_out, t, y, mode)
 
 
 @njit(cache=True)
@@ -890,9 +901,10 @@ def _layer(
     atol,
     borders,
     counters,
+    grow_exit,
 ):
     """
-    Integrate the slip layer on ``surf`` from slip ``s0`` at time t; returns the time it ends.
+    Integrate the slip layer on ``surf`` from slip ``s0`` at time t; returns (t, healthy).
 
     At a break-away the slip on the stuck surface starts at zero, where kinetic
     friction has no direction: a slip direction off the settled one turns onto it at a
@@ -909,6 +921,9 @@ def _layer(
     The same slow manifold carries a slip approaching a stick: there the direction's
     stiffness F/(m s) grows without bound as s -> 0, and explicit steps of the full
     model would shrink with s.
+
+    With ``grow_exit`` it also ends (``healthy``) once the slip grows at F/(20 m) or
+    faster: from there the caller carries it in ln s, no approximation.
 
     ``y`` (in: the pose; out: the full state at the end, velocity = surface + s σ̂),
     ``z`` (in: a start for σ̂, may be zero; out: σ̂). counters[0] += rhs evaluations.
@@ -929,6 +944,7 @@ def _layer(
     _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, K[0])
     counters[0] += 1
     h = min(1e-5, t_end - t)
+    healthy = False
     for _ in range(10000):
         if t >= t_end or h <= 1e-14 * max(1.0, abs(t)):
             break
@@ -1012,8 +1028,13 @@ def _layer(
         # limit, 4e-9 m off there); earlier, the full model's steps pay for the stiffness
         if to_zero or (K[0, 3] > 0.0 and u[3] * mass >= 0.1 * fmag * h):
             break
+        # growing at a twentieth of the patch's friction over m: on in ln s, exactly
+        # (``_approach`` with ``grow``), where the turning's stiffness F/(m ṡ) <= 20
+        if grow_exit and K[0, 3] * mass >= 0.05 * fmag:
+            healthy = True
+            break
     _layer_state(u, z, vsx, vsy, parcel, y)
-    return t
+    return t, healthy
 
 
 @njit(cache=True)
@@ -1033,13 +1054,20 @@ def _break_away(
     atol,
     borders,
     counters,
+    rec,
+    ts,
+    ys,
+    ms,
 ):
     """
     Leave a stick to ``surf`` (s0 = 0), or continue a small slip s0 on it; returns the time.
 
     ``y`` holds the stuck motion (s0 = 0) or the state s0 into the layer, whose slip
-    direction starts the layer's; the layer (``_layer``) is integrated until the full
-    model can take over.
+    direction starts the layer's. A stick breaks where the margin crosses zero, so the
+    slip's growth rate starts at zero too: the slip starts on the layer (``_layer``),
+    whose slow manifold is exact as s -> 0 and good while the turning's stiffness F/(m ṡ)
+    is large; once the slip grows at F/(20 m) it goes on exactly in ln s (``_approach``
+    with ``grow``), until the full model can take over.
     """
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
@@ -1049,7 +1077,7 @@ def _break_away(
         _gen_slip(y, vsx, vsy, rho, rot, z)
         for j in range(3):
             z[j] /= s0
-    return _layer(
+    t, healthy = _layer(
         y,
         t,
         t_end,
@@ -1066,19 +1094,46 @@ def _break_away(
         atol,
         borders,
         counters,
+        True,
     )
+    if healthy:
+        t_new, _ = _approach(
+            y,
+            t,
+            t_end,
+            y_target,
+            strips,
+            parcel,
+            nodes,
+            weights,
+            nsurf,
+            surf,
+            0.0,
+            rtol,
+            atol,
+            borders,
+            counters,
+            rec,
+            ts,
+            ys,
+            ms,
+            True,
+        )
+        t = t_new
+    return t
 
 
 @njit(cache=True)
-def _approach_rhs(u, s, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, out):
+def _approach_rhs(u, s, sgn, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, out):
     """
-    Right-hand side of a falling slip on one surface in τ = ln(s_e / s).
+    Right-hand side of a slip on one surface in τ = sgn ln(s / s_e).
 
     u = (x, y, φ, t, d): pose, time and the slip's direction d (its norm is ignored);
-    s = s_e e^-τ the slip there. With a the full model's generalized acceleration at
-    that motion and r = d̂·a < 0 the slip's rate, dt/dτ = s / -r, the pose moves at
-    its velocity times that, and dd/dτ = (a - r d̂) / -r: the direction's turning,
-    which in t runs at a rate ~F/(m s), is O(1) per unit of τ. Returns r.
+    s = s_e e^(sgn τ) the slip there (sgn -1: falling to a stick, +1: growing from a
+    break-away). With a the full model's generalized acceleration at that motion and
+    r = d̂·a the slip's rate, q = sgn r > 0: dt/dτ = s / q, the pose moves at its
+    velocity times that, and dd/dτ = (a - r d̂) / q: the direction's turning, which in
+    t runs at a rate ~F/(m s), is O(1) per unit of τ. Returns r.
     """
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
@@ -1095,15 +1150,16 @@ def _approach_rhs(u, s, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc
     rhs_slide(yv, strips, parcel, nodes, weights, nsurf, acc)
     a2 = rho * acc[5] if rot else 0.0
     r = d0 * acc[3] + d1 * acc[4] + d2 * a2
-    dt = s / -r if r < 0.0 else 0.0
+    q = sgn * r
+    dt = s / q if q > 0.0 else 0.0
     out[0] = yv[3] * dt
     out[1] = yv[4] * dt
     out[2] = yv[5] * dt
     out[3] = dt
-    if r < 0.0:
-        out[4] = (acc[3] - r * d0) / -r
-        out[5] = (acc[4] - r * d1) / -r
-        out[6] = (a2 - r * d2) / -r
+    if q > 0.0:
+        out[4] = (acc[3] - r * d0) / q
+        out[5] = (acc[4] - r * d1) / q
+        out[6] = (a2 - r * d2) / q
     else:
         out[4] = 0.0
         out[5] = 0.0
@@ -1132,6 +1188,7 @@ def _approach(
     ts,
     ys,
     ms,
+    grow,
 ):
     """
     Carry a slip on ``surf`` falling towards zero down to ``s_end``; returns (t, reason).
@@ -1140,7 +1197,10 @@ def _approach(
     in t shrink with s, ~30 of them for every decade. In τ = ln(s_e/s) the same motion
     (``_approach_rhs``, the full model, no approximation) is smooth, the direction
     settling exponentially in τ, and the same Dormand-Prince pair under the same
-    tolerances crosses the decades in a few steps. Below ``s_end`` the rest is taken
+    tolerances crosses the decades in a few steps. With ``grow`` the same carries a slip
+    growing from a break-away (started a hair above zero along its limit direction)
+    up the decades, until its growth slows to a quarter of its rate at the start
+    (reason 2: the full model, no longer stiff, takes over). Below ``s_end`` the rest is taken
     in closed form at the last rate r (Δt = s / -r, the pose moving with the surface
     plus half the slip), an error O(s² Δt) per decade of the direction's change.
 
@@ -1166,15 +1226,16 @@ def _approach(
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
-    tau_end = math.log(s_e / s_end) if s_end < s_e else 0.0
+    tau_end = math.inf if grow else (math.log(s_e / s_end) if s_end < s_e else 0.0)
     tau = 0.0
-    r = _approach_rhs(u, s_e, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, K[0])
+    sgn = 1.0 if grow else -1.0
+    r = _approach_rhs(u, s_e, sgn, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, K[0])
     counters[0] += 1
-    r_min = 0.05 * abs(r)
-    reason = 0
+    r_min = (0.25 if grow else 0.05) * abs(r)
+    reason = 2 if grow else 0
     h = 0.25
     for _ in range(10000):
-        if r > -r_min:
+        if sgn * r < r_min:
             reason = 2
             break
         if tau >= tau_end:
@@ -1185,7 +1246,8 @@ def _approach(
             stage_state(u, K, h, i, un)
             ri = _approach_rhs(
                 un,
-                s_e * math.exp(-(tau + (C[i] if i < 6 else 1.0) * h)),
+                s_e * math.exp(sgn * (tau + (C[i] if i < 6 else 1.0) * h)),
+                sgn,
                 strips,
                 parcel,
                 nodes,
@@ -1197,7 +1259,7 @@ def _approach(
                 acc,
                 K[i],
             )
-            ok = ok and ri < 0.0
+            ok = ok and sgn * ri > 0.0
         counters[0] += 6
         step_error(K, h, err)
         en = 0.0
@@ -1228,13 +1290,25 @@ def _approach(
             K[0, j] = K[6, j]
         # the FSAL stage is this point's derivative, but r needs the acceleration too
         r = _approach_rhs(
-            u, s_e * math.exp(-tau), strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, K[0]
+            u,
+            s_e * math.exp(sgn * tau),
+            sgn,
+            strips,
+            parcel,
+            nodes,
+            weights,
+            nsurf,
+            vsx,
+            vsy,
+            yv,
+            acc,
+            K[0],
         )
         counters[0] += 1
         rec[0] = _record(ts, ys, ms, rec[0], u[3], yv, MODE_SLIDE)
         h *= step_factor(en)
     t = u[3]
-    s = s_e * math.exp(-tau)
+    s = s_e * math.exp(sgn * tau)
     s1 = s
     if reason == 0:
         # the last stretch, s_end -> 0, at the rate reached: the slip falls linearly
@@ -1353,6 +1427,7 @@ def _small_slip(
                 ts,
                 ys,
                 ms,
+                False,
             )
             if reason == 0:
                 for j in range(6):
@@ -1377,6 +1452,10 @@ def _small_slip(
                     atol,
                     borders,
                     counters,
+                    rec,
+                    ts,
+                    ys,
+                    ms,
                 )
                 return t, s, False
             # stopped short of zero: an event ahead, t_end, or a near balance, where the
@@ -1401,6 +1480,10 @@ def _small_slip(
             atol,
             borders,
             counters,
+            rec,
+            ts,
+            ys,
+            ms,
         )
         if t_new > t0:
             for j in range(6):
@@ -1426,6 +1509,10 @@ def _small_slip(
                     atol,
                     borders,
                     counters,
+                    rec,
+                    ts,
+                    ys,
+                    ms,
                 )
             return t_new, s, False
     return t, -1, False
@@ -1538,6 +1625,7 @@ def run_accurate(
                 broke_from = mode
                 mode = MODE_SLIDE
                 if reason == 2:
+                    rec[0] = n_out
                     t = _break_away(
                         y,
                         t,
@@ -1554,10 +1642,15 @@ def run_accurate(
                         atol,
                         borders,
                         stick_counters,
+                        rec,
+                        ts,
+                        ys,
+                        ms,
                     )
                     armed[broke_from] = False
+                    n_out = rec[0]
                 fresh = True
-                n_out = _record(ts, ys, ms, n_out, t, y, mode)
+                n_out = _record_new(ts, ys, ms, n_out, t, y, mode)
             continue
         # ---- sliding: one Dormand-Prince step with event location ----
         if fresh:
@@ -1600,7 +1693,13 @@ def run_accurate(
                         )
                         n_rhs += 1
                         fmag = math.sqrt(fx * fx + fy * fy + (ft / rho) ** 2)
-                        s_stiff[s] = max(s_stiff[s], fmag * h_try / (stiff_ratio * parcel[P_MASS]))
+                        # only where that patch's friction is what stops the slip (a
+                        # slip that other surfaces slow, as in an oscillation between
+                        # belts, has no stiff approach)
+                        if -rate * parcel[P_MASS] >= 0.5 * fmag:
+                            s_stiff[s] = max(
+                                s_stiff[s], fmag * h_try / (stiff_ratio * parcel[P_MASS])
+                            )
                     small = small or sig0n[s] < s_stiff[s]
         if small:
             rec[0] = n_out
@@ -1636,13 +1735,7 @@ def run_accurate(
             if t_new > t:
                 t = t_new
                 fresh = True
-                # an approach that stopped short recorded this point already
-                last = min(n_out, ts.shape[0]) - 1
-                same = n_out > 0 and ts[last] == t and ms[last] == mode
-                for j in range(6):
-                    same = same and ys[last, j] == y[j]
-                if not same:
-                    n_out = _record(ts, ys, ms, n_out, t, y, mode)
+                n_out = _record_new(ts, ys, ms, n_out, t, y, mode)
                 continue
         if not np.all(np.isfinite(K[0])):
             status = ST_NONFINITE
