@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .core import cell_kernels as ck
-from .core.layout import PARCEL_WIDTH
+from .core.layout import PARCEL_WIDTH, STRIP_WIDTH
 from .core.simulate import Parcel, parcel_array
 from .core.wrench import gauss_legendre_01
 from .description import PENDING_INDUCTS_MAX, label_problem, shown
@@ -178,6 +178,9 @@ class Cell:
         self.ev_i = np.zeros((2 * self._ev_reserve + 1024, 4), dtype=np.int64)
         self.ev_f = np.zeros((2 * self._ev_reserve + 1024, 3))
         self.stats = np.zeros(4, dtype=np.int64)
+        # the kernel's note of the last period's strips (see ``advance_cell``)
+        self._last_strips = np.zeros((ck.MAX_STRIPS, STRIP_WIDTH))
+        self._last_info = np.array([-1, 0], dtype=np.int64)
         self._snapshot = np.zeros((cap, 7))
         self._kernel(0)  # compile (or load from numba's cache) now, not in a callback
 
@@ -522,6 +525,8 @@ class Cell:
             self.ev_f,
             self._ev_reserve,
             self.stats,
+            self._last_strips,
+            self._last_info,
         )
 
     def advance(self, n: int = 1) -> list:

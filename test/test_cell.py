@@ -284,6 +284,52 @@ def test_raised_disks_divert_as_the_model_core_predicts(alpha_deg, chute):
     assert cell.n_parcels == 0 and not cell.faults
 
 
+def test_a_parcel_stuck_to_the_disks_astride_the_border_rides_as_the_core_predicts():
+    """
+    Check a parcel the disks hold while it lies across the a/b border against the core.
+
+    Disks gripping harder than the belt (μ 0.9 against 0.3) at α = 90° take the parcel over
+    while it still lies across the border: stuck to them it rides straight across the
+    belt. The cell carries such a stick in closed form from one period to the next (its part
+    over each zone only slides along y, so no force changes); the model core integrates it.
+    """
+    A, B, m = 0.6, 0.3, 5.0
+    cell = make_cell(alpha_deg=90.0, popup_stroke_time=0.0, mu_belt=0.3, mu_disks=0.9)
+    p = cell.params
+    assert cell.popup(True)[0]
+    cell.induct(ParcelSpec(A, B, m, 0.0, 0.0, 'S'))
+    t_at_field = -p.induct_x / p.belt_speed
+    n_field = math.ceil(t_at_field / cell.dt)
+    cell.advance(n_field)
+    t_cell = n_field * cell.dt - t_at_field  # since the leading edge met the disk field
+    integrated = []
+    for _ in range(620):
+        before = cell.stats.copy()
+        cell.advance(1)
+        integrated.append(cell.stats[1] - before[1])
+        t_cell += cell.dt
+    assert cell.mode[0] == ck.MODE_DISKS and cell.state[0, 0] - A / 2 < 0.0 < cell.state[0, 0]
+    # once stuck astride, no period needs the integrator
+    assert integrated[-50:] == [0] * 50
+    res = simulate(
+        Parcel(A, B, m),
+        three_zone_strips(
+            1.5,
+            math.radians(90.0),
+            p.disk_field_length,
+            FrictionLaw('const1', (0.3,)),
+            FrictionLaw('const1', (0.9,)),
+        ),
+        [-A / 2, 0.0, 0.0, 1.5, 0.0, 0.0],
+        (0.0, t_cell),
+        'accurate',
+        rtol=1e-10,
+        atol=1e-12,
+    )
+    assert res.mode[-1] == ck.MODE_DISKS
+    assert np.allclose(cell.state[0], res.y[-1], atol=2e-6)
+
+
 def test_actuators_move_at_their_rates():
     cell = make_cell(alpha_deg=0.0, alpha_slew_rate_deg_s=180.0, popup_stroke_time=0.2)
     dt = cell.dt

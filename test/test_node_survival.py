@@ -11,6 +11,7 @@ ends each with exit code 0 and no traceback.
 
 import os
 from pathlib import Path
+import re
 import signal
 import subprocess
 import sys
@@ -134,7 +135,24 @@ def test_a_controller_that_stops_lowers_the_disks_itself(ros, sig):
     for name, (code, text) in results.items():
         assert code == 0, f'{name} exit {code}:\n{text[-3000:]}'
     # the cell ran in real time from its first period: no simulated time dropped at start-up
-    assert 'dropping' not in results['sorter_sim'][1], results['sorter_sim'][1][-3000:]
+    # (later, a machine loaded by other jobs may hold the process back past the catch-up
+    # limit; the node then says so and drops time, as an emulator must)
+    assert not _drops_at_start_up(results['sorter_sim'][1]), results['sorter_sim'][1][-3000:]
+
+
+def _drops_at_start_up(log: str, within_s: float = 1.0) -> bool:
+    """Return whether the sim node dropped simulated time within ``within_s`` of being ready."""
+    stamps = {}
+    for line in log.splitlines():
+        m = re.match(r'\[\w+\] \[(\d+\.\d+)\]', line)
+        if m is None:
+            continue
+        if 'sorter cell ready' in line:
+            stamps.setdefault('ready', float(m.group(1)))
+        elif 'dropping' in line and 'ready' in stamps:
+            if float(m.group(1)) - stamps['ready'] < within_s:
+                return True
+    return 'ready' not in stamps
 
 
 # executable -> (node name, arguments that start it on its own)

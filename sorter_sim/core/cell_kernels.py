@@ -130,7 +130,7 @@ F_YCOG = 5
 
 # overlaps and wall crossings below this are contact, not a jam [m]
 CONTACT_TOL = 1e-9
-_MAX_STRIPS = 4
+MAX_STRIPS = 4  # strips of a period at most (``cell_strips``)
 _INT_BUF = 512  # integrator output rows per parcel-period (a few are used)
 
 
@@ -482,6 +482,8 @@ def advance_cell(
     ev_f,
     ev_reserve,
     stats,
+    last_strips,
+    last_info,
 ):
     """
     Advance the cell over up to ``n_periods`` control periods from period index ``k0``.
@@ -493,6 +495,9 @@ def advance_cell(
     Sensors are the photo-eyes, then chute_left, chute_right. Events go to ev_i/ev_f;
     the kernel stops after a period that leaves fewer than ``ev_reserve`` free rows.
     stats (int64): [parcel-periods in closed form, integrated, integrator steps, rhs].
+    last_strips (MAX_STRIPS, STRIP_WIDTH) and last_info (int64 [period index, count]):
+    the strips of the last period advanced, updated (a stick that held through it holds
+    through the next under the same strips where nothing about the parcel changes).
     Returns (periods done, events written).
     """
     cap = state.shape[0]
@@ -505,7 +510,7 @@ def advance_cell(
     law_a_id = int(cfg[C_LAW_A])
     law_b_id = int(cfg[C_LAW_B])
     accurate = cfg[C_METHOD] < 0.5
-    strips = np.zeros((_MAX_STRIPS, STRIP_WIDTH))
+    strips = np.zeros((MAX_STRIPS, STRIP_WIDTH))
     borders = np.array([0.0, b])
     ts = np.empty(_INT_BUF)
     ys = np.empty((_INT_BUF, 6))
@@ -536,6 +541,13 @@ def advance_cell(
             v, a_mid, b, st_mid, law_a_id, laws[0], law_b_id, laws[1], strips
         )
         strip_view = strips[:n_strips]
+        same_strips = last_info[0] == k - 1 and last_info[1] == n_strips
+        for q in range(n_strips):
+            for j in range(STRIP_WIDTH):
+                same_strips = same_strips and strips[q, j] == last_strips[q, j]
+                last_strips[q, j] = strips[q, j]
+        last_info[0] = k
+        last_info[1] = n_strips
         ntr = 0
         for i in range(cap):
             ph = phase[i]
@@ -546,6 +558,7 @@ def advance_cell(
                 s0[j] = state[i, j]
             ha = par[i, P_HALF_A]
             hb = par[i, P_HALF_B]
+            hx0, _ = half_extents(s0[2], ha, hb)
             new_phase = ph
             tau_phase = -1.0
             if ph == PH_CELL:
@@ -565,15 +578,23 @@ def advance_cell(
                         m = disk_sid
                 on_disks_alone = False
                 if m == MODE_BELT:
-                    hx, _ = half_extents(s0[2], ha, hb)
-                    if disk_sid <= 0 or s0[0] + hx + v * h <= 0.0 or s0[0] - hx >= b:
+                    if disk_sid <= 0 or s0[0] + hx0 + v * h <= 0.0 or s0[0] - hx0 >= b:
                         rigid[i] = True
-                elif m == MODE_DISKS and disk_sid == MODE_DISKS and strips[1, S_WEIGHT] == 1.0:
-                    # stuck to fully raised disks and over nothing else for the whole period:
-                    # as on the belt, no force can break this stick
-                    hx, _ = half_extents(s0[2], ha, hb)
-                    x_end = s0[0] + strips[1, S_VX] * h
-                    on_disks_alone = min(s0[0], x_end) - hx >= 0.0 and max(s0[0], x_end) + hx <= b
+                elif m == MODE_DISKS and disk_sid == MODE_DISKS:
+                    if strips[1, S_WEIGHT] == 1.0:
+                        # stuck to fully raised disks and over nothing else for the whole
+                        # period: as on the belt, no force can break this stick
+                        x_end = s0[0] + strips[1, S_VX] * h
+                        on_disks_alone = (
+                            min(s0[0], x_end) - hx0 >= 0.0 and max(s0[0], x_end) + hx0 <= b
+                        )
+                    if not on_disks_alone and same_strips and abs(strips[1, S_VX]) * h <= 1e-15:
+                        # stuck to disks carrying it straight across the belt (α = 90°, its
+                        # x moving less than rounding): its footprint's part over every
+                        # strip only slides along y, so no force on it changes, and the
+                        # stick that held through the last period with these very strips
+                        # holds through this one
+                        on_disks_alone = True
                 if rigid[i]:
                     state[i, 0] = s0[0] + v * h
                     mode[i] = MODE_BELT
@@ -646,7 +667,7 @@ def advance_cell(
                 if new_phase == PH_CELL:
                     # scanner: the leading edge crosses the scanner line
                     if not scanned[i]:
-                        hx1, _ = half_extents(s1[2], ha, hb)
+                        hx1 = hx0 if s1[2] == s0[2] else half_extents(s1[2], ha, hb)[0]
                         if s1[0] + hx1 >= cfg[C_SCAN_X]:
                             tau = crossing_time(F_XMAX, cfg[C_SCAN_X], s0, s1, h, ha, hb)
                             n_ev = _emit(ev_i, ev_f, n_ev, k, EV_SCAN, i, 0, tau, s1[0], s1[1])
@@ -695,8 +716,7 @@ def advance_cell(
             # this parcel's own sensor transitions. Moving rigidly along x on the cell it
             # can change only a photo-eye that one of its x edges passes in this period.
             along_x_only = rigid[i] and new_phase == PH_CELL
-            if along_x_only:
-                hx, _ = half_extents(s0[2], ha, hb)
+            hx = hx0
             for s in range(n_sens):
                 if along_x_only:
                     if s >= n_eyes:
