@@ -1030,7 +1030,7 @@ def _layer(
             break
         # growing at a twentieth of the patch's friction over m: on in ln s, exactly
         # (``_approach`` with ``grow``), where the turning's stiffness F/(m ṡ) <= 20
-        if grow_exit and K[0, 3] * mass >= 0.05 * fmag:
+        if grow_exit and u[3] > 0.0 and K[0, 3] > 0.0 and K[0, 3] * mass >= 0.05 * fmag:
             healthy = True
             break
     _layer_state(u, z, vsx, vsy, parcel, y)
@@ -1217,6 +1217,8 @@ def _approach(
     vsx, vsy = surface_velocity(strips, surf)
     sig = np.empty(3)
     s_e = _gen_slip(y, vsx, vsy, rho, rot, sig)
+    if not s_e > 0.0:
+        return t, 2  # no slip to carry: the caller's other means decide
     u = np.array([y[0], y[1], y[2], t, sig[0] / s_e, sig[1] / s_e, sig[2] / s_e])
     un = np.empty(7)
     err = np.empty(7)
