@@ -132,9 +132,9 @@ def rhs_slide(state, strips, parcel, nodes, weights, nsurf, out):
 # a falling slip s is carried on in ln s (``_approach``) once it would reach zero within
 # APPROACH_STEPS steps h at its rate, or once F h / (m s) >= STIFF_RATIO rtol^(1/5) (F the
 # patch's friction, which does at least half the slowing): on the way to zero its
-# direction turns at F/(m s), and explicit
-# steps in t shrink with s, accuracy-bound at such a ratio (measured on Fig. 9a's approach
-# to its stick and a spinning slide to rest: 0.2-0.4 at rtol 1e-6, 0.05-0.15 at 1e-10)
+# direction turns at F/(m s), and explicit steps in t shrink with s, accuracy-bound at
+# such a ratio (measured on Fig. 9a's approach to its stick and on a spinning slide to
+# rest: 0.2-0.4 at rtol 1e-6, 0.05-0.15 at rtol 1e-10)
 APPROACH_STEPS = 5.0
 STIFF_RATIO = 2.0  # x rtol^(1/5): where a 5th-order step's error in the turning reaches rtol
 STICK_RTOL = 1e-13  # relative: a balance to rounding (a few ulps of the wrench sums) holds
