@@ -156,6 +156,7 @@ def test_a_spinning_slide_to_rest_against_an_independent_integration(spin):
     1e-7 m/s.
     """
     from sorter_sim.core import integrators as ig
+    from sorter_sim.core.layout import P_INERTIA, P_MASS
     from sorter_sim.core.simulate import parcel_array, strip_array
     from sorter_sim.core.wrench import gauss_legendre_01
 
@@ -164,7 +165,7 @@ def test_a_spinning_slide_to_rest_against_an_independent_integration(spin):
     y0 = np.array([0.0, 0.0, 0.2, 1.0, 0.3, spin])
     arr, par = strip_array(still), parcel_array(parcel, True, 8, True, G, "exact")
     nodes, weights = gauss_legendre_01(8)
-    rho = math.sqrt(par[3] / par[2])
+    rho = math.sqrt(par[P_INERTIA] / par[P_MASS])
 
     def rhs(t, y):
         out = np.empty(6)

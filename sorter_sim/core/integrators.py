@@ -1124,6 +1124,29 @@ def _break_away(
 
 
 @njit(cache=True)
+def _approach_state(u, s, vsx, vsy, parcel, out):
+    """
+    Fill ``out`` with the full state at u = (x, y, φ, t, d) and slip s; returns d̂.
+
+    The velocity is the surface's plus s d̂ (generalized: its third component ρ φ̇), as
+    ``_layer_state`` builds it for the layer.
+    """
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
+    rot = parcel[P_ROTATION] > 0.5
+    dn = math.sqrt(u[4] * u[4] + u[5] * u[5] + u[6] * u[6])
+    d0 = u[4] / dn
+    d1 = u[5] / dn
+    d2 = u[6] / dn if rot else 0.0
+    out[0] = u[0]
+    out[1] = u[1]
+    out[2] = u[2]
+    out[3] = vsx + s * d0
+    out[4] = vsy + s * d1
+    out[5] = s * d2 / rho if rot else 0.0
+    return d0, d1, d2
+
+
+@njit(cache=True)
 def _approach_rhs(u, s, sgn, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, out):
     """
     Right-hand side of a slip on one surface in τ = sgn ln(s / s_e).
@@ -1137,16 +1160,7 @@ def _approach_rhs(u, s, sgn, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv
     """
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
-    dn = math.sqrt(u[4] * u[4] + u[5] * u[5] + u[6] * u[6])
-    d0 = u[4] / dn
-    d1 = u[5] / dn
-    d2 = u[6] / dn if rot else 0.0
-    yv[0] = u[0]
-    yv[1] = u[1]
-    yv[2] = u[2]
-    yv[3] = vsx + s * d0
-    yv[4] = vsy + s * d1
-    yv[5] = s * d2 / rho if rot else 0.0
+    d0, d1, d2 = _approach_state(u, s, vsx, vsy, parcel, yv)
     rhs_slide(yv, strips, parcel, nodes, weights, nsurf, acc)
     a2 = rho * acc[5] if rot else 0.0
     r = d0 * acc[3] + d1 * acc[4] + d2 * a2
@@ -1322,19 +1336,12 @@ def _approach(
             reason = 3
         else:
             s1 = 0.0
-        dn = math.sqrt(u[4] * u[4] + u[5] * u[5] + u[6] * u[6])
-        s_mid = 0.5 * (s + s1) / dn
-        u[0] += (vsx + s_mid * u[4]) * dt
-        u[1] += (vsy + s_mid * u[5]) * dt
-        u[2] += (s_mid * u[6] / rho if rot else 0.0) * dt
+        # the pose moves at the stretch's mean velocity (the slip linear in time)
+        _approach_state(u, 0.5 * (s + s1), vsx, vsy, parcel, y)
+        for j in range(3):
+            u[j] += y[3 + j] * dt
         t += dt
-    dn = math.sqrt(u[4] * u[4] + u[5] * u[5] + u[6] * u[6])
-    y[0] = u[0]
-    y[1] = u[1]
-    y[2] = u[2]
-    y[3] = vsx + s1 * u[4] / dn
-    y[4] = vsy + s1 * u[5] / dn
-    y[5] = s1 * u[6] / dn / rho if rot else 0.0
+    _approach_state(u, s1, vsx, vsy, parcel, y)
     return t, reason
 
 
@@ -1406,10 +1413,9 @@ def _small_slip(
                 for j in range(6):
                     y[j] = stuck[j]
                 return t, s, True
-        t0 = t
         yl = y.copy()
         if n >= s_check:
-            t, reason = _approach(
+            t_new, reason = _approach(
                 yl,
                 t,
                 t_end,
@@ -1431,92 +1437,69 @@ def _small_slip(
                 ms,
                 False,
             )
-            if reason == 0:
+            if reason != 0:
+                # stopped short of zero: an event ahead, t_end, or a near balance, where
+                # the full model's steps are not bound by the direction (it falls slower
+                # than the patch could stop it) and take over
                 for j in range(6):
                     y[j] = yl[j]
-                m, _, _, _, _ = stick_margin(y, strips, parcel, nodes, weights, nsurf, s, xi)
-                counters[0] += 1
-                if m <= 0.0:
-                    return t, s, True
-                t = _break_away(
-                    y,
-                    t,
-                    t_end,
-                    y_target,
-                    strips,
-                    parcel,
-                    nodes,
-                    weights,
-                    nsurf,
-                    s,
-                    0.0,
-                    rtol,
-                    atol,
-                    borders,
-                    counters,
-                    rec,
-                    ts,
-                    ys,
-                    ms,
-                )
-                return t, s, False
-            # stopped short of zero: an event ahead, t_end, or a near balance, where the
-            # full model's steps are not bound by the direction (it falls slower than the
-            # patch could stop it) and take over
-            for j in range(6):
-                y[j] = yl[j]
-            return t, (s if t > t0 else -1), False
-        t_new = _break_away(
-            yl,
-            t,
-            t_end,
-            y_target,
-            strips,
-            parcel,
-            nodes,
-            weights,
-            nsurf,
-            s,
-            n,
-            rtol,
-            atol,
-            borders,
-            counters,
-            rec,
-            ts,
-            ys,
-            ms,
-        )
-        if t_new > t0:
-            for j in range(6):
-                y[j] = yl[j]
-            if _gen_slip(y, vsx, vsy, rho, rot, sig) == 0.0 and t_new < t_end:
-                m, _, _, _, _ = stick_margin(y, strips, parcel, nodes, weights, nsurf, s, xi)
-                counters[0] += 1
-                if m <= 0.0:
-                    return t_new, s, True
-                t_new = _break_away(
-                    y,
-                    t_new,
-                    t_end,
-                    y_target,
-                    strips,
-                    parcel,
-                    nodes,
-                    weights,
-                    nsurf,
-                    s,
-                    0.0,
-                    rtol,
-                    atol,
-                    borders,
-                    counters,
-                    rec,
-                    ts,
-                    ys,
-                    ms,
-                )
-            return t_new, s, False
+                return t_new, (s if t_new > t else -1), False
+            at_zero = True
+        else:
+            t_new = _break_away(
+                yl,
+                t,
+                t_end,
+                y_target,
+                strips,
+                parcel,
+                nodes,
+                weights,
+                nsurf,
+                s,
+                n,
+                rtol,
+                atol,
+                borders,
+                counters,
+                rec,
+                ts,
+                ys,
+                ms,
+            )
+            if not t_new > t:
+                continue
+            at_zero = _gen_slip(yl, vsx, vsy, rho, rot, sig) == 0.0 and t_new < t_end
+        for j in range(6):
+            y[j] = yl[j]
+        if at_zero:
+            # the slip reached zero: the limit set decides, stick or break away from there
+            m, _, _, _, _ = stick_margin(y, strips, parcel, nodes, weights, nsurf, s, xi)
+            counters[0] += 1
+            if m <= 0.0:
+                return t_new, s, True
+            t_new = _break_away(
+                y,
+                t_new,
+                t_end,
+                y_target,
+                strips,
+                parcel,
+                nodes,
+                weights,
+                nsurf,
+                s,
+                0.0,
+                rtol,
+                atol,
+                borders,
+                counters,
+                rec,
+                ts,
+                ys,
+                ms,
+            )
+        return t_new, s, False
     return t, -1, False
 
 
