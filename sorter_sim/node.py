@@ -15,6 +15,7 @@ services and parameters are served) and ``lockstep`` (one control period per
 
 from __future__ import annotations
 
+import array
 import json
 import math
 import time
@@ -104,6 +105,7 @@ class SimNode(Node):
         self.cell = Cell(self.params)
         p = self.params
         self.published = Counter()  # messages per topic, counted where they are published
+        self._topic_names = {}
         self.recorder = None
         self.live_view = None
         self.io_image = None  # the fieldbus I/O image, when a server is on
@@ -140,6 +142,10 @@ class SimNode(Node):
         self.add_post_set_parameters_callback(self._post_set_parameters)
         self._joint_state = JointState(name=['disk_angle', 'popup_stroke'])
         self._joint_state.header.frame_id = self.frame_id
+        # reused: the messages published every pose period are serialized as they are
+        # published, so one object each serves every period
+        self._clock_msg = Clock()
+        self._ids_msg = UInt32MultiArray()
         # bookkeeping for diagnostics
         self._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
         self._diag_ref = (time.perf_counter(), self.cell.k)
@@ -473,7 +479,11 @@ class SimNode(Node):
         publish_recorded(publisher, msg, self.recorder, self.cell.t_ns)
         self._cost['messages'] += 1
         self.n_messages += 1
-        self.published[publisher.topic_name] += 1
+        # rclpy's topic_name asks the C handle every time: once per publisher is enough
+        topic = self._topic_names.get(publisher)
+        if topic is None:
+            topic = self._topic_names[publisher] = publisher.topic_name
+        self.published[topic] += 1
 
     def _update_live_view(self) -> None:
         c = self.cell
@@ -560,8 +570,12 @@ class SimNode(Node):
 
     def _publish_poses(self) -> None:
         parcels = self.cell.parcels()
-        ids = UInt32MultiArray()
-        ids.data = parcels['id'].astype('uint32')
+        ids = self._ids_msg
+        # an array.array is taken as it is; a numpy array would be converted element by
+        # element (three times the cost of the whole pose stream)
+        data = array.array('I')
+        data.frombytes(parcels['id'].astype('=u4').tobytes())  # 'I' is 4 bytes wherever ROS runs
+        ids.data = data
         self._publish(self._pub_ids, ids)
         self._publish(
             self._pub_poses,
@@ -604,7 +618,9 @@ class SimNode(Node):
         self.n_marker_arrays += 1
 
     def _publish_clock(self) -> None:
-        self._publish(self._pub_clock, Clock(clock=_time_msg(self.cell.t_ns)))
+        msg = self._clock_msg
+        msg.clock.sec, msg.clock.nanosec = stamp(self.cell.t_ns)
+        self._publish(self._pub_clock, msg)
 
     def _check_clock_publishers(self) -> int:
         """Warn (once per change) when another node publishes /clock too: time is then two."""

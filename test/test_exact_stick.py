@@ -290,3 +290,54 @@ def test_near_balanced_sticks_finish_in_bounded_steps(stick):
                 # can hold, and the parcel then slides as kinetic friction has it)
                 assert res.y[-1, 1] == pytest.approx(3.0, abs=1e-3)
                 assert abs(res.y[-1, 0] - x_bal) < 1e-3
+
+
+def test_a_slip_growing_slowly_from_a_near_balance_stays_on_its_layer():
+    """
+    Check one control period of a slip the belt just fails to hold, against Radau.
+
+    A parcel riding the belt onto disks carrying it across (α = 90°) 1 cm past the pose
+    where the belt's stick breaks, slipping 1e-5-2e-5 m/s, below the scale where the
+    full model hands a slip to its layer: its slip grows slowly. The layer once handed it
+    back after every step and the full model sent it straight back, ~450 right-hand sides
+    for one 1 ms period at rtol 1e-6. Now it stays on the layer to that scale: the pose
+    after the period matches scipy's Radau on the model's own right-hand side (rtol
+    1e-12) within 1e-8 m and the velocity within 10 rtol, in fewer than 150 evaluations.
+    """
+    from scipy.integrate import solve_ivp
+
+    parcel = Parcel(0.7, 0.2, 5.0)
+    strips = cell_strips(1.5, 90.0, 1.2, 0.6, 0.6, 0.6)
+    arr = strip_array(strips)
+    par = parcel_array(parcel, True, 8, True, stick="exact")
+    nodes, weights = gauss_legendre_01(8)
+    nsurf = ig.n_surf_of(arr)
+
+    def belt_margin(x):
+        y = np.array([x, 0.0, 0.0, 1.5, 0.0, 0.0])
+        return ig.stick_margin(y, arr, par, nodes, weights, nsurf, 0, np.zeros(3))[0]
+
+    lo, hi = -0.34, 0.0  # mostly on the belt (holds) ... half on the disks (breaks)
+    assert belt_margin(lo) < 0.0 < belt_margin(hi)
+    while hi - lo > 1e-12:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if belt_margin(mid) <= 0.0 else (lo, mid)
+    out = np.empty(6)
+
+    def rhs(t, y):
+        ig.rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, nsurf, out)
+        return out.copy()
+
+    for slip in (1e-5, 2e-5):
+        y0 = np.array([hi + 0.01, 0.0, 0.0, 1.5, slip, 0.0])
+        ref = solve_ivp(rhs, (0.0, 1e-3), y0, "Radau", rtol=1e-12, atol=1e-15).y[:, -1]
+        res = simulate(parcel, strips, y0, (0.0, 1e-3), "accurate", rtol=1e-6)
+        assert res.success, res.message
+        assert res.nfev < 150, res.nfev
+        rho = math.sqrt(parcel.inertia / parcel.m)
+        pose_err = np.abs(res.y[-1, :3] - ref[:3]) * np.array([1.0, 1.0, rho])
+        assert pose_err.max() < 1e-8, pose_err
+        vel_err = np.abs(res.y[-1, 3:] - ref[3:]) * np.array([1.0, 1.0, rho])
+        assert vel_err.max() < 10 * 1e-6 * 1.5, vel_err
+        # the belt cannot hold it: the slip grew
+        assert math.hypot(res.y[-1, 3] - 1.5, res.y[-1, 4]) > slip

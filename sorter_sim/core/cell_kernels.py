@@ -558,7 +558,10 @@ def advance_cell(
                 s0[j] = state[i, j]
             ha = par[i, P_HALF_A]
             hb = par[i, P_HALF_B]
-            hx0, _ = half_extents(s0[2], ha, hb)
+            # the half extent along x only where a decision needs it: the footprint's
+            # circumradius bounds it, and most parcels are far from every border and eye
+            r_out = math.sqrt(ha * ha + hb * hb)  # not math.hypot: libm's is slower
+            hx0 = -1.0
             new_phase = ph
             tau_phase = -1.0
             if ph == PH_CELL:
@@ -578,9 +581,14 @@ def advance_cell(
                         m = disk_sid
                 on_disks_alone = False
                 if m == MODE_BELT:
-                    if disk_sid <= 0 or s0[0] + hx0 + v * h <= 0.0 or s0[0] - hx0 >= b:
+                    if disk_sid <= 0 or s0[0] + r_out + v * h <= 0.0 or s0[0] - r_out >= b:
                         rigid[i] = True
-                elif m == MODE_DISKS and disk_sid == MODE_DISKS:
+                    else:
+                        hx0, _ = half_extents(s0[2], ha, hb)
+                        rigid[i] = s0[0] + hx0 + v * h <= 0.0 or s0[0] - hx0 >= b
+                if not rigid[i] and hx0 < 0.0:
+                    hx0, _ = half_extents(s0[2], ha, hb)
+                if m == MODE_DISKS and disk_sid == MODE_DISKS:
                     if strips[1, S_WEIGHT] == 1.0:
                         # stuck to fully raised disks and over nothing else for the whole
                         # period: as on the belt, no force can break this stick
@@ -667,6 +675,8 @@ def advance_cell(
                 if new_phase == PH_CELL:
                     # scanner: the leading edge crosses the scanner line
                     if not scanned[i]:
+                        if hx0 < 0.0:
+                            hx0, _ = half_extents(s0[2], ha, hb)
                         hx1 = hx0 if s1[2] == s0[2] else half_extents(s1[2], ha, hb)[0]
                         if s1[0] + hx1 >= cfg[C_SCAN_X]:
                             tau = crossing_time(F_XMAX, cfg[C_SCAN_X], s0, s1, h, ha, hb)
@@ -716,13 +726,16 @@ def advance_cell(
             # this parcel's own sensor transitions. Moving rigidly along x on the cell it
             # can change only a photo-eye that one of its x edges passes in this period.
             along_x_only = rigid[i] and new_phase == PH_CELL
-            hx = hx0
             for s in range(n_sens):
                 if along_x_only:
                     if s >= n_eyes:
                         break
                     xe = eye_x[s]
-                    if not (s0[0] + hx <= xe <= s1[0] + hx or s0[0] - hx <= xe <= s1[0] - hx):
+                    if not s0[0] - r_out <= xe <= s1[0] + r_out:
+                        continue
+                    if hx0 < 0.0:
+                        hx0, _ = half_extents(s0[2], ha, hb)
+                    if not (s0[0] + hx0 <= xe <= s1[0] + hx0 or s0[0] - hx0 <= xe <= s1[0] - hx0):
                         continue
                 b0 = blocked[i, s]
                 b1 = sensor_blocked(s, n_eyes, eye_x, cfg, s1, new_phase, ha, hb)
@@ -760,7 +773,7 @@ def advance_cell(
                 continue
             ha_i = par[i, P_HALF_A]
             hb_i = par[i, P_HALF_B]
-            r_i = math.hypot(ha_i, hb_i)
+            r_i = math.sqrt(ha_i * ha_i + hb_i * hb_i)  # libm's hypot is slower
             for j in range(cap):
                 if j == i or (phase[j] != PH_CELL and phase[j] != PH_JAMMED):
                     continue
@@ -769,7 +782,9 @@ def advance_cell(
                 j_starts = not rigid[j]
                 if j_starts and j < i:
                     continue  # this pair was checked from j
-                reach = r_i + math.hypot(par[j, P_HALF_A], par[j, P_HALF_B])
+                reach = r_i + math.sqrt(
+                    par[j, P_HALF_A] * par[j, P_HALF_A] + par[j, P_HALF_B] * par[j, P_HALF_B]
+                )
                 if (
                     abs(state[i, 0] - state[j, 0]) >= reach
                     or abs(state[i, 1] - state[j, 1]) >= reach

@@ -902,6 +902,7 @@ def _layer(
     borders,
     counters,
     grow_exit,
+    s_floor,
 ):
     """
     Integrate the slip layer on ``surf`` from slip ``s0`` at time t; returns (t, healthy).
@@ -924,6 +925,11 @@ def _layer(
 
     With ``grow_exit`` it also ends (``healthy``) once the slip grows at F/(20 m) or
     faster: from there the caller carries it in ln s, no approximation.
+
+    Neither hand-over comes before the slip reaches ``s_floor``, the slip below which the
+    full model hands a slip back (``run_accurate``'s ``s_check``): a slip growing slowly
+    in a near balance would otherwise go back and forth between the two, a layer step
+    of the smallest size at a time.
 
     ``y`` (in: the pose; out: the full state at the end, velocity = surface + s σ̂),
     ``z`` (in: a start for σ̂, may be zero; out: σ̂). counters[0] += rhs evaluations.
@@ -1026,7 +1032,11 @@ def _layer(
         # manifold's zeroth-order direction costs accuracy (handing over at F h/(m s) = 1
         # put Fig. 9a 3e-7 m off at rtol 1e-8; at 10 and at 50 it converges to the same
         # limit, 4e-9 m off there); earlier, the full model's steps pay for the stiffness
-        if to_zero or (K[0, 3] > 0.0 and u[3] * mass >= 0.1 * fmag * h):
+        if to_zero:
+            break
+        if u[3] < s_floor:
+            continue
+        if K[0, 3] > 0.0 and u[3] * mass >= 0.1 * fmag * h:
             break
         # growing at a twentieth of the patch's friction over m: on in ln s, exactly
         # (``_approach`` with ``grow``), where the turning's stiffness F/(m ṡ) <= 20
@@ -1050,6 +1060,7 @@ def _break_away(
     nsurf,
     surf,
     s0,
+    s_floor,
     rtol,
     atol,
     borders,
@@ -1095,6 +1106,7 @@ def _break_away(
         borders,
         counters,
         True,
+        s_floor,
     )
     if healthy:
         t_new, _ = _approach(
@@ -1458,6 +1470,7 @@ def _small_slip(
                 nsurf,
                 s,
                 n,
+                s_check,
                 rtol,
                 atol,
                 borders,
@@ -1490,6 +1503,7 @@ def _small_slip(
                 nsurf,
                 s,
                 0.0,
+                s_check,
                 rtol,
                 atol,
                 borders,
@@ -1623,6 +1637,7 @@ def run_accurate(
                         nsurf,
                         broke_from,
                         0.0,
+                        s_check,
                         rtol,
                         atol,
                         borders,
