@@ -253,6 +253,11 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
         if h00 > 0.0 and h11 > 0.0 and det > 1e-12 * h00 * h11:
             s0 = -(h11 * g0 - h01 * g1) / det
             s1 = -(h00 * g1 - h01 * g0) / det
+            if -0.5 * (g0 * s0 + g1 * s1) <= 1e-15 * d:
+                # Newton's predicted decrease is below D's rounding (the gradient's
+                # quadrature is exact only to ~1e-10 of it): no line search can resolve
+                # the rest, and γ, stationary here, is exact to second order
+                break
         else:
             # not positive definite (rounding near a kink): a gradient step of Newton's scale
             scale = zn * zn / d
@@ -701,7 +706,7 @@ def _others_wrench(y, strips, parcel, nodes, weights, nsurf, surf, out):
 
 
 @njit(cache=True)
-def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
+def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hess):
     """
     Find the unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow); return λ.
 
@@ -713,6 +718,13 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
     solved by Newton's method on the unit sphere (exact gradient, differenced Hessian,
     backtracking line search). ``z`` carries a start (a zero vector: the limit set's
     maximal-dissipation twist for W_o, else W_o's direction) and returns σ̂.
+
+    ``hess`` (4, in/out) carries the last differenced Hessian, [k + 1 (0: none), h00,
+    h01, h11] in the tangent basis built on axis k: a layer solves this at every stage
+    of every step, each next to the last, and the carried Hessian starts Newton's method
+    there without two gradient differences (it is only Newton's metric: the minimiser
+    is where the exact gradient vanishes). It is differenced anew whenever a step with
+    it backtracks or fails to cut the gradient tenfold.
     """
     mass = parcel[P_MASS]
     rho = math.sqrt(parcel[P_INERTIA] / mass)
@@ -745,6 +757,8 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
     p = np.empty(3)
     q = np.empty(3)
     ndim = 2 if rot else 1
+    gn_last = math.inf
+    carried = False
     for _ in range(60):
         # a basis of the tangent plane at z (the line, without rotation)
         k = 0
@@ -767,30 +781,50 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
         g1 = (g[0] * q[0] + g[1] * q[1] + g[2] * q[2]) if ndim == 2 else 0.0
         radial = g[0] * z[0] + g[1] * z[1] + g[2] * z[2]  # = f, m λ at the optimum
         gscale = math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
-        if math.hypot(g0, g1) <= 1e-13 * gscale:
+        gn = math.hypot(g0, g1)
+        # converged: relative to the wrenches whose difference the gradient is (W_o and
+        # the patch's friction, each ~ norm), not to that difference, which vanishes at
+        # a balance. Their quadratures agree to ~1e-10 there (the point sets move with
+        # the pose), so below that f is flat to rounding and a line search on it could
+        # only halve its step some twenty times before giving up. f's error is second
+        # order in σ̂'s: the growth λ is exact to rounding all the same.
+        if gn <= 1e-9 * max(gscale, norm):
             break
-        hstep = 1e-5
-        h00 = 0.0
-        h01 = 0.0
-        h10 = 0.0
-        h11 = 0.0
-        for jd in range(ndim):
-            # forward differences of the exact gradient, as in ``limit_gauge``
-            for i in range(3):
-                zt[i] = z[i] + hstep * (p[i] if jd == 0 else q[i])
-            _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, gp)
-            c0 = ((gp[0] - g[0]) * p[0] + (gp[1] - g[1]) * p[1] + (gp[2] - g[2]) * p[2]) / hstep
-            c1 = ((gp[0] - g[0]) * q[0] + (gp[1] - g[1]) * q[1] + (gp[2] - g[2]) * q[2]) / hstep
-            if jd == 0:
-                h00 = c0
-                h10 = c1
-            else:
-                h01 = c0
-                h11 = c1
+        if carried and gn > 0.1 * gn_last:
+            hess[0] = 0.0  # the carried metric no longer serves: difference it anew
+        gn_last = gn
+        carried = hess[0] == k + 1.0
+        if carried:
+            h00 = hess[1]
+            h01 = hess[2]
+            h11 = hess[3]
+        else:
+            hstep = 1e-5
+            h00 = 0.0
+            h01 = 0.0
+            h10 = 0.0
+            h11 = 0.0
+            for jd in range(ndim):
+                # forward differences of the exact gradient, as in ``limit_gauge``
+                for i in range(3):
+                    zt[i] = z[i] + hstep * (p[i] if jd == 0 else q[i])
+                _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, gp)
+                c0 = (gp[0] - g[0]) * p[0] + (gp[1] - g[1]) * p[1] + (gp[2] - g[2]) * p[2]
+                c1 = (gp[0] - g[0]) * q[0] + (gp[1] - g[1]) * q[1] + (gp[2] - g[2]) * q[2]
+                if jd == 0:
+                    h00 = c0 / hstep
+                    h10 = c1 / hstep
+                else:
+                    h01 = c0 / hstep
+                    h11 = c1 / hstep
+            h01 = 0.5 * (h01 + h10)
+            hess[0] = k + 1.0
+            hess[1] = h00
+            hess[2] = h01
+            hess[3] = h11
         # the Riemannian Hessian of f on the sphere: the ambient one minus the radial term
         h00 -= radial
         h11 -= radial
-        h01 = 0.5 * (h01 + h10)
         if ndim == 1:
             s0 = -g0 / h00 if h00 < 0.0 else g0 * 1.0 / max(gscale, 1e-300)
             s1 = 0.0
@@ -802,6 +836,10 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
             else:
                 s0 = g0 / max(gscale, 1e-300)
                 s1 = g1 / max(gscale, 1e-300)
+        if not carried and 0.5 * (g0 * s0 + g1 * s1) <= 1e-15 * max(gscale, norm):
+            # Newton's predicted gain is below f's rounding (some ulps of the wrenches it
+            # is the difference of): no line search can resolve the rest
+            break
         step = 1.0
         ft = f
         for _ls in range(40):
@@ -814,7 +852,11 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z):
             if ft >= f:
                 break
             step *= 0.5
+        if step < 1.0 and carried:
+            hess[0] = 0.0
         if not ft >= f:
+            if carried:
+                continue  # retry from here with a fresh Hessian
             break
         moved = step * math.hypot(s0, s1)
         for i in range(3):
@@ -845,7 +887,7 @@ def _layer_state(u, z, vsx, vsy, parcel, out):
 
 
 @njit(cache=True)
-def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, out):
+def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, hess, yv, acc, out):
     """
     Right-hand side of the slip layer on ``surf``: u = (x, y, φ, s), s the slip magnitude.
 
@@ -860,7 +902,7 @@ def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, 
     sl = _layer_state(u, z, vsx, vsy, parcel, yv)
     w = np.empty(3)
     _others_wrench(yv, strips, parcel, nodes, weights, nsurf, surf, w)
-    lam = _pull_direction(yv, strips, parcel, nodes, weights, surf, w[0], w[1], w[2], z)
+    lam = _pull_direction(yv, strips, parcel, nodes, weights, surf, w[0], w[1], w[2], z, hess)
     _layer_state(u, z, vsx, vsy, parcel, yv)  # at the settled direction
     rhs_slide(yv, strips, parcel, nodes, weights, nsurf, acc)
     out[0] = yv[3]
@@ -944,10 +986,11 @@ def _layer(
     yv = np.empty(6)
     acc = np.empty(6)
     zs = z.copy()
+    hess = np.zeros(4)  # _pull_direction's Newton metric, carried from stage to stage
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
-    _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, K[0])
+    _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, hess, yv, acc, K[0])
     counters[0] += 1
     h = min(1e-5, t_end - t)
     healthy = False
@@ -960,7 +1003,7 @@ def _layer(
             for j in range(3):
                 zs[j] = z[j]
             _layer_rhs(
-                us, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, zs, yv, acc, K[i]
+                us, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, zs, hess, yv, acc, K[i]
             )
         for j in range(4):
             un[j] = us[j]
@@ -1009,7 +1052,20 @@ def _layer(
                 for j in range(3):
                     zs[j] = z[j]
                 _layer_rhs(
-                    us, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, zs, yv, acc, K[i]
+                    us,
+                    strips,
+                    parcel,
+                    nodes,
+                    weights,
+                    nsurf,
+                    surf,
+                    vsx,
+                    vsy,
+                    zs,
+                    hess,
+                    yv,
+                    acc,
+                    K[i],
                 )
             for j in range(4):
                 un[j] = us[j]
@@ -1023,7 +1079,7 @@ def _layer(
         for j in range(4):
             K[0, j] = K[6, j]
         fmag = _layer_rhs(
-            u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, yv, acc, K[0]
+            u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, hess, yv, acc, K[0]
         )
         counters[0] += 1
         h *= step_factor(en)
