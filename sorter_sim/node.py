@@ -36,6 +36,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from sorter_ros.env import run_node
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
+from sorter_ros.interface import quiet_publisher_events
 from sorter_ros.interface import descriptor as ros_descriptor
 from sorter_ros.interface import parameter_problem
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
@@ -111,26 +112,26 @@ class SimNode(Node):
         self.io_image = None  # the fieldbus I/O image, when a server is on
         self.fieldbus = None
         self._open_outputs()
-        self._pub_poses = self.create_publisher(PoseArray, 'parcels/poses', STREAM_QOS)
-        self._pub_ids = self.create_publisher(UInt32MultiArray, 'parcels/ids', STREAM_QOS)
-        self._pub_markers = self.create_publisher(MarkerArray, 'parcels/markers', STREAM_QOS)
+        self._pub_poses = self._publisher(PoseArray, 'parcels/poses', STREAM_QOS)
+        self._pub_ids = self._publisher(UInt32MultiArray, 'parcels/ids', STREAM_QOS)
+        self._pub_markers = self._publisher(MarkerArray, 'parcels/markers', STREAM_QOS)
         self._pub_sensor = {
-            name: self.create_publisher(Bool, f'sensors/{name}', SENSOR_QOS)
+            name: self._publisher(Bool, f'sensors/{name}', SENSOR_QOS)
             for name in self.cell.sensor_names
         }
-        self._pub_edges = self.create_publisher(TimeReference, 'sensors/edges', EVENT_QOS)
-        self._pub_label = self.create_publisher(String, 'scanner/label', EVENT_QOS)
-        self._pub_diverter = self.create_publisher(JointState, 'diverter/state', STREAM_QOS)
-        self._pub_outcomes = self.create_publisher(DiagnosticStatus, 'sort/outcomes', EVENT_QOS)
+        self._pub_edges = self._publisher(TimeReference, 'sensors/edges', EVENT_QOS)
+        self._pub_label = self._publisher(String, 'scanner/label', EVENT_QOS)
+        self._pub_diverter = self._publisher(JointState, 'diverter/state', STREAM_QOS)
+        self._pub_outcomes = self._publisher(DiagnosticStatus, 'sort/outcomes', EVENT_QOS)
         # absolute, where diagnostic aggregators and tools look; the status names the node
-        self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', STREAM_QOS)
+        self._pub_diag = self._publisher(DiagnosticArray, '/diagnostics', STREAM_QOS)
         # the cell's state bits, as a PLC reads them: latched, published when they change
         self._pub_status = {
-            name: self.create_publisher(Bool, f'status/{name}', SENSOR_QOS) for name in STATUS_BITS
+            name: self._publisher(Bool, f'status/{name}', SENSOR_QOS) for name in STATUS_BITS
         }
         self._status_sent = None
         self._safe_alpha_set = False  # the watchdog itself sets alpha_deg to its safe value
-        self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
+        self._pub_clock = self._publisher(Clock, '/clock', STREAM_QOS)
         self._clock_publishers_warned = 0
         self.create_service(SetBool, 'diverter/popup', self._srv_popup, qos_profile=SERVICE_QOS)
         self.create_service(SetBool, 'estop', self._srv_estop, qos_profile=SERVICE_QOS)
@@ -474,6 +475,11 @@ class SimNode(Node):
             self._cost['publish_s'] += time.perf_counter() - t1
 
     # ------------------------------------------------------------------ publishing
+    def _publisher(self, msg_type, topic: str, qos):
+        return self.create_publisher(
+            msg_type, topic, qos, event_callbacks=quiet_publisher_events()
+        )
+
     def _publish(self, publisher, msg) -> None:
         """Publish ``msg`` (or its CDR bytes), count it per topic and record it."""
         publish_recorded(publisher, msg, self.recorder, self.cell.t_ns)
