@@ -14,6 +14,7 @@ context managers here are also usable directly (e.g. to check teardown).
 from __future__ import annotations
 
 import contextlib
+import socket
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -123,3 +124,10 @@ def ros_harness_scope(context: Context) -> Iterator[RosHarness]:
         yield harness
     finally:
         harness.close()
+
+
+def free_port() -> int:
+    """Return a TCP port on loopback that was free a moment ago (for a node's server)."""
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]

@@ -23,12 +23,12 @@ from asyncua import ua
 from asyncua.sync import Client as OpcClient
 from pymodbus.client import ModbusTcpClient
 from rclpy.parameter import Parameter
+from ros_harness import free_port
 
 from sorter_sim.core import cell_kernels as ck
 from sorter_sim.io_map import by_name, io_map
 from sorter_sim.node import SimNode
 from sorter_sim.params import ParamError
-from test_live_record import _free_port
 from test_sim_node import SHORT_CELL
 
 pytestmark = pytest.mark.ros
@@ -48,8 +48,8 @@ def cell(ros):
                 'arrival': 'gap',
                 'arrival_gap': [1.0, 1.0],
                 'alpha_deg': 60.0,
-                'modbus_port': _free_port(),
-                'opcua_port': _free_port(),
+                'modbus_port': free_port(),
+                'opcua_port': free_port(),
             }.items()
         ],
     )
@@ -310,7 +310,7 @@ def test_the_warehouse_link_over_opc_ua_routes_and_confirms(ros):
             cli_args=['--ros-args', '--params-file', str(config / 'cell.yaml')],
             parameter_overrides=[
                 Parameter('time_mode', value='lockstep'),
-                Parameter('opcua_port', value=_free_port()),
+                Parameter('opcua_port', value=free_port()),
             ],
         )
     )

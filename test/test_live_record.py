@@ -28,6 +28,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.parameter import Parameter
+from ros_harness import free_port
 from websockets.sync.client import connect
 
 from sorter_sim.node import SimNode
@@ -36,12 +37,6 @@ from test_sim_node import SHORT_CELL
 
 pytestmark = pytest.mark.ros
 BIN = Path(sys.executable).parent
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(('127.0.0.1', 0))
-        return s.getsockname()[1]
 
 
 def _sim(ros, **overrides) -> SimNode:
@@ -75,7 +70,7 @@ def _recv_json(ws, op: str, timeout: float = 5.0) -> dict:
 
 
 def test_live_view_serves_the_cell_to_a_foxglove_client(ros):
-    port = _free_port()
+    port = free_port()
     node = _sim(ros, foxglove_port=port, foxglove_rate_hz=200.0)
     node.advance(2500)  # parcels on the belt and on their way; no client yet, no frame
     assert node.cell.n_parcels >= 2
