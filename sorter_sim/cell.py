@@ -144,6 +144,7 @@ class Cell:
         self.phase = np.zeros(cap, dtype=np.int64)
         self.par = np.zeros((cap, PARCEL_WIDTH))
         self.scanned = np.zeros(cap, dtype=np.bool_)
+        self.gauge_xi = np.zeros((cap, 3))  # each parcel's stick-gauge warm start
         self.blocked = np.zeros((cap, n_sens), dtype=np.bool_)
         self.counts = np.zeros(n_sens, dtype=np.int64)
         self.ids = np.zeros(cap, dtype=np.int64)
@@ -455,6 +456,7 @@ class Cell:
         self.phase[i] = ck.PH_CELL
         self.par[i] = parcel_array(Parcel(spec.A, spec.B, spec.m), n_quad=N_QUAD)
         self.scanned[i] = False
+        self.gauge_xi[i] = 0.0
         self.ids[i] = pid
         self.dims[i] = (spec.A, spec.B, spec.m)
         self.labels[i] = label
@@ -527,6 +529,7 @@ class Cell:
             self.stats,
             self._last_strips,
             self._last_info,
+            self.gauge_xi,
         )
 
     def advance(self, n: int = 1) -> list:

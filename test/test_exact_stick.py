@@ -341,3 +341,43 @@ def test_a_slip_growing_slowly_from_a_near_balance_stays_on_its_layer():
         assert vel_err.max() < 10 * 1e-6 * 1.5, vel_err
         # the belt cannot hold it: the slip grew
         assert math.hypot(res.y[-1, 3] - 1.5, res.y[-1, 4]) > slip
+
+
+def test_the_gauge_warm_start_changes_nothing_but_the_work():
+    """
+    Check that a stick's break-away does not depend on the gauge twist it starts from.
+
+    ``run_accurate`` takes the limit-set gauge's twist from its caller (the cell keeps
+    each parcel's from period to period); whatever it starts from, converged, cold or
+    pointing the wrong way, Newton finds the same minimiser: the parcel riding the belt
+    onto the disks (Fig. 9a) breaks away at the same time to 1e-12 s.
+    """
+    from sorter_sim.core.simulate import strip_borders
+
+    parcel = Parcel(0.7, 0.2, 5.0)
+    strips = cell_strips(1.5, 90.0, math.inf, 0.6, 0.6, 0.6)
+    arr = strip_array(strips)
+    par = parcel_array(parcel, True, 8, True, stick="exact")
+    nodes, weights = gauss_legendre_01(8)
+    y0 = entry_state(parcel, 1.5)
+
+    def break_time(xi):
+        ts = np.empty(4000)
+        ys = np.empty((4000, 6))
+        ms = np.empty(4000, dtype=np.int64)
+        ev = np.empty((64, 3))
+        counters = np.zeros(8, dtype=np.int64)
+        ig.run_accurate(
+            y0, 0, 0.0, 0.3, math.inf, arr, par, nodes, weights, strip_borders(strips),
+            1e-8, 1e-10, 0.05, True, ts, ys, ms, ev, counters, xi,
+        )  # fmt: skip
+        breaks = [e[0] for e in ev[: counters[4]] if e[1] == ig.EV_BREAK]
+        assert len(breaks) == 1
+        return breaks[0]
+
+    xi = np.zeros(3)
+    t_cold = break_time(xi)
+    assert np.linalg.norm(xi) == pytest.approx(1.0)  # handed back: the break's twist
+    assert 0.1 < t_cold < 0.2  # the seed's Fig. 9a parcel leaves the belt after ~0.15 s
+    for start in (xi.copy(), -xi, np.array([0.0, 0.0, 1.0])):
+        assert break_time(start) == pytest.approx(t_cold, abs=1e-12)

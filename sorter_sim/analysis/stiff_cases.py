@@ -899,6 +899,7 @@ def run_accurate_flags(
         ms,
         ev,
         counters,
+        np.zeros(3),
     )
     wall = time.perf_counter() - wall
     n = int(counters[3])

@@ -484,6 +484,7 @@ def advance_cell(
     stats,
     last_strips,
     last_info,
+    gauge_xi,
 ):
     """
     Advance the cell over up to ``n_periods`` control periods from period index ``k0``.
@@ -498,6 +499,9 @@ def advance_cell(
     last_strips (MAX_STRIPS, STRIP_WIDTH) and last_info (int64 [period index, count]):
     the strips of the last period advanced, updated (a stick that held through it holds
     through the next under the same strips where nothing about the parcel changes).
+    gauge_xi (cap, 3): each parcel's limit-set gauge twist, updated: a stick checked
+    period after period (riding the belt onto raised disks) starts each Newton solve
+    from the last one's.
     Returns (periods done, events written).
     """
     cap = state.shape[0]
@@ -634,6 +638,7 @@ def advance_cell(
                             ms,
                             evb,
                             counters,
+                            gauge_xi[i],
                         )
                     else:
                         status, _, m_new = run_implicit(

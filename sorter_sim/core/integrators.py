@@ -549,19 +549,20 @@ def _stick_advance(
     borders,
     reductions,
     counters,
+    xi,
 ):
     """
     Advance a parcel stuck to ``surf``; returns (t_new, reason).
 
     reason: 0 reached t_end, 1 reached the target line, 2 break-away, 3 left the surface.
     ``y`` is updated in place (rigid translation with the surface, φ̇ = 0).
-    ``counters``: [n_rhs, closed_form_jumps].
+    ``counters``: [n_rhs, closed_form_jumps]. ``xi`` (3, in/out): the limit-set gauge's
+    twist, carried along the stick from scan to scan (a warm start; zero: none).
     """
     vsx, vsy = surface_velocity(strips, surf)
     y[3] = vsx
     y[4] = vsy
     y[5] = 0.0
-    xi = np.zeros(3)  # the limit-set gauge's twist, carried along the stick
     t_stop = t_end
     reason_stop = 0
     if vsy > 0.0 and y_target < math.inf and y[1] < y_target:
@@ -1594,12 +1595,16 @@ def run_accurate(
     ms,
     ev,
     counters,
+    xi,
 ):
     """
     Event-located Dormand-Prince integration of the hybrid model.
 
     counters (out): [n_steps, n_rhs, n_rejected, n_out, n_events, closed_form_jumps,
                      stick_scans]. Returns (status, t, mode) with the final state in ys.
+    xi (3, in/out): the limit-set gauge's twist of a stick, a warm start for its Newton
+    solve carried from call to call (the cell integrates a parcel period by period and
+    keeps each one's); zeros: none. The result does not depend on it beyond rounding.
     """
     nsurf = n_surf_of(strips)
     rot = parcel[P_ROTATION] > 0.5
@@ -1668,6 +1673,7 @@ def run_accurate(
                 borders,
                 reductions,
                 stick_counters,
+                xi,
             )
             t = t_new
             n_out = _record(ts, ys, ms, n_out, t, y, mode)

@@ -443,6 +443,7 @@ def simulate(
             ms,
             ev,
             counters,
+            np.zeros(3),
         )
     elif method == "implicit":
         status, t_fin, mode = _ig.run_implicit(
