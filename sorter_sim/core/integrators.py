@@ -1739,8 +1739,8 @@ def run_accurate(
                 rate = sig0[3 * s] * K[0, 3] + sig0[3 * s + 1] * K[0, 4]
                 rate += sig0[3 * s + 2] * rho * K[0, 5]
                 if rate < 0.0:
-                    s_stiff[s] = -APPROACH_STEPS * rate * h_try
-                    if sig0n[s] >= s_stiff[s] and sig0n[s] * stiff_ratio < slip_bound * h_try:
+                    s_soon = -APPROACH_STEPS * rate * h_try
+                    if sig0n[s] < s_soon or sig0n[s] * stiff_ratio < slip_bound * h_try:
                         fx, fy, ft = rest_surface_wrench(
                             y,
                             strips,
@@ -1755,13 +1755,12 @@ def run_accurate(
                         )
                         n_rhs += 1
                         fmag = math.sqrt(fx * fx + fy * fy + (ft / rho) ** 2)
-                        # only where that patch's friction is what stops the slip (a
-                        # slip that other surfaces slow, as in an oscillation between
-                        # belts, has no stiff approach)
+                        # only where that patch's friction is what stops the slip: a slip
+                        # that other surfaces slow against it, as in an oscillation between
+                        # belts, turns before zero (its fall slows to nothing), and in
+                        # ln |slip| such a turn is stiff where in t it is not
                         if -rate * parcel[P_MASS] >= 0.5 * fmag:
-                            s_stiff[s] = max(
-                                s_stiff[s], fmag * h_try / (stiff_ratio * parcel[P_MASS])
-                            )
+                            s_stiff[s] = max(s_soon, fmag * h_try / (stiff_ratio * parcel[P_MASS]))
                     small = small or sig0n[s] < s_stiff[s]
         if small:
             rec[0] = n_out
