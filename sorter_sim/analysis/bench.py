@@ -798,6 +798,7 @@ def _report_markdown(
     L.append(_DEFINITIONS)
     if cases:
         L.extend(_headline_markdown(cases))
+        L.extend(_levels_markdown(cases))
     if core_text is not None:
         L.extend(["## Core benchmark: Fig. 9a", "", "```", core_text, "```", ""])
     for pc in cases:
@@ -837,6 +838,58 @@ def _headline_markdown(cases) -> list[str]:
             best = cheapest_within(rows, TARGET_ERROR)
             cells.append(f"{fmt_ms(best.wall_s)} ({best.setting})" if best else "not reached")
         L.append(f"| {fam} | " + " | ".join(cells) + " |")
+    L.append("")
+    return L
+
+
+TARGET_LEVELS = (1e-4, 1e-5, 1e-6, 1e-7, 1e-8)  # m: "at every error level"
+
+
+def _levels_markdown(cases) -> list[str]:
+    """
+    Return the target "as fast as every scipy method at every error level" checked.
+
+    For each case and final CoG error level: the accurate method's cheapest time to that
+    level over the best scipy method's (solve_ivp on the same model; the threshold model
+    is another model and does not count). "met" where the accurate method is at least as
+    fast; where no scipy method reaches the level it is met if the accurate method does.
+    """
+    L = [
+        "## Target: as fast as every scipy method at every error level",
+        "",
+        "Best scipy time / accurate time to each final CoG error level, from the tables "
+        "below (> 1: the accurate method is faster; the scipy method named):",
+        "",
+        "| case | " + " | ".join(f"{e:.0e} m" for e in TARGET_LEVELS) + " |",
+        "|---|" + "---|" * len(TARGET_LEVELS),
+    ]
+    met = total = 0
+    for pc in cases:
+        acc_rows = [r for r in pc.rows if r.family.startswith("accurate")]
+        sp_rows = [
+            r for r in pc.rows if r.family.startswith("scipy") and "threshold" not in r.family
+        ]
+        cells = []
+        for level in TARGET_LEVELS:
+            acc = cheapest_within(acc_rows, level)
+            sp = cheapest_within(sp_rows, level)
+            if acc is None and sp is None:
+                cells.append("neither reaches it")
+                continue
+            total += 1
+            if sp is None:
+                met += 1
+                cells.append(f"met (no scipy method reaches it; accurate {fmt_ms(acc.wall_s)} ms)")
+            elif acc is None:
+                cells.append(f"**NOT MET** (accurate does not reach it; {sp.family})")
+            else:
+                ok = acc.wall_s <= sp.wall_s
+                met += ok
+                word = "met" if ok else "**NOT MET**"
+                cells.append(f"{word} {sp.wall_s / acc.wall_s:.2g}x ({sp.family.split()[1]})")
+        L.append(f"| {pc.key} | " + " | ".join(cells) + " |")
+    L.append("")
+    L.append(f"Met at {met} of {total} (case, level) pairs.")
     L.append("")
     return L
 
