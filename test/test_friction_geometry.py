@@ -232,3 +232,40 @@ def test_quadrature_of_a_speed_dependent_law_converges_to_the_fine_grid():
         errs.append(np.max(np.abs(q - brute)))
     assert errs[2] < errs[0]
     assert errs[2] < 2e-6
+
+
+@pytest.mark.parametrize("model", ["const1", "bspline"])
+def test_the_adaptive_rule_of_a_nearly_translating_patch_is_exact_to_rounding(model):
+    """
+    Check the few-point rule of a patch whose instantaneous centre is far away.
+
+    With ``adapt`` such a patch takes ``smooth_order``'s points per direction where μ
+    is analytic over its speeds and well beyond: against a 24-point rule, within 1e-13
+    of the wrench, for ε = |φ̇|R/|u_q| from 1e-6 to 0.1 and rubbing speeds inside a
+    span of the b-spline and 1 % either side of a knot; where a knot lies within 3|φ̇|R
+    of the patch's speed it keeps all of its points.
+    """
+    vals = [0.0, 0.1, 0.25, 0.6, 1.5, 2.5, 0.65, 0.45, 0.42, 0.47, 0.50, 0.52]
+    law = fr.LAW_BSPLINE if model == "bspline" else fr.LAW_CONST1
+    row = fr.law_row(law, vals if model == "bspline" else [0.6])
+    knots = [vals[0], row[36], row[37], vals[5]]  # the spline's speeds at its knots
+    poly, n = _clip(footprint(0.1, 0.0, 0.3, 0.4, 0.3), 0.0, math.inf)
+    _, qx, qy = polygon_area_centroid(poly, n)
+    radius = max(math.hypot(px - qx, py - qy) for px, py in poly[:n])
+    nodes, weights = gauss_legendre_01(8)
+    ref_nodes, ref_weights = gauss_legendre_01(24)
+    speeds = [0.05, 0.3, 0.37, 0.64, 1.0, 3.0]
+    speeds += [k * (1.0 + d) for k in knots[1:] for d in (-0.01, 0.01)]
+    for uq in speeds:
+        for eps in (1e-6, 1e-4, 2e-3, 0.015, 0.05, 0.1):
+            omega = eps * uq / radius
+            args = (poly, n, qx, qy, 0.1, 0.0, 0.6 * uq, -0.8 * uq, omega, law, row, 1.0)
+            got = np.array(strip_wrench_quad(*args, nodes, weights, True))
+            reach = 3.0 * eps * uq
+            if any(uq - reach <= k <= uq + reach for k in knots) and model == "bspline":
+                # a knot among its speeds: the full rule, as without adapt
+                full = np.array(strip_wrench_quad(*args, nodes, weights))
+                assert np.array_equal(got, full), (uq, eps)
+                continue
+            ref = np.array(strip_wrench_quad(*args, ref_nodes, ref_weights))
+            assert np.abs(got - ref).max() <= 1e-13 * np.abs(ref).max(), (uq, eps)

@@ -199,6 +199,29 @@ def law_is_constant(law):
     return law == LAW_CONST1 or law == LAW_CONST2
 
 
+@njit(cache=True)
+def law_analytic_between(law, params, lo, hi):
+    """
+    Return True where μ(v) is analytic (no kink, no knot, no clipping) for lo <= v <= hi.
+
+    Constant laws, a linear law positive there, the Stribeck law away from its knee and
+    the b-spline inside one span (a cubic of the inverse of a cubic); the polynomial
+    law is not checked for its clipping at zero and counts as not analytic.
+    """
+    if law_is_constant(law):
+        return True
+    if law == LAW_LINEAR:
+        return params[0] + params[1] * lo > 0.0 and params[0] + params[1] * hi > 0.0
+    if law == LAW_STRIBECK:
+        return not lo <= params[5] <= hi
+    if law == LAW_BSPLINE:
+        for knot in (params[0], params[_BS_BOUNDS], params[_BS_BOUNDS + 1], params[5]):
+            if lo <= knot <= hi:
+                return False
+        return True
+    return False
+
+
 def mu_kinetic_array(law: int, params: np.ndarray, speeds) -> np.ndarray:
     """Vectorised helper for plots and checks: μ at each speed of ``speeds``."""
     return np.array([mu_kinetic(law, params, float(s)) for s in np.atleast_1d(speeds)])

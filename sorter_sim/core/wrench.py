@@ -33,7 +33,14 @@ import math
 import numpy as np
 from numba import njit
 
-from .friction import LAW_CONST1, N_LAW_PARAMS, law_is_constant, mu_kinetic, mu_static
+from .friction import (
+    LAW_CONST1,
+    N_LAW_PARAMS,
+    law_analytic_between,
+    law_is_constant,
+    mu_kinetic,
+    mu_static,
+)
 from .geometry import (
     MAX_VERTS,
     box_corners,
@@ -144,8 +151,11 @@ def strip_wrench_quad(
     """
     Friction wrench (Fx, Fy, T about g) of a strip part by Duffy-fan Gauss quadrature.
 
-    With ``adapt`` a constant-μ patch whose instantaneous centre is far away takes the
-    fewer points of ``smooth_order`` (never more than ``nodes`` has).
+    With ``adapt`` a patch whose instantaneous centre is far away takes the fewer points
+    of ``smooth_order`` (never more than ``nodes`` has) where μ is analytic over its
+    speeds and well beyond (``law_analytic_between`` on |u_q| ± 3|φ̇|R: a knot just
+    outside the patch's speeds would slow Gauss's convergence): a constant μ, or a
+    speed-dependent one inside one of its smooth pieces, measured to rounding alike.
     """
     radius = max_radius(poly, n, qx, qy)
     cx = qx
@@ -162,9 +172,12 @@ def strip_wrench_quad(
     fy = 0.0
     t = 0.0
     nq = nodes.shape[0]
-    if adapt and not at_icr and law_is_constant(law):
+    if adapt and not at_icr:
         uq = math.hypot(ux_q, uy_q)
-        ns = smooth_order(abs(omega) * radius / uq) if uq > 0.0 else nq
+        ns = nq
+        reach = 3.0 * abs(omega) * radius
+        if uq > 0.0 and law_analytic_between(law, params, uq - reach, uq + reach):
+            ns = smooth_order(abs(omega) * radius / uq)
         if ns < nq:
             nq = ns
             nodes = _GL_NODES[ns, :ns]
