@@ -200,26 +200,27 @@ def law_is_constant(law):
 
 
 @njit(cache=True)
-def law_analytic_between(law, params, lo, hi):
+def law_smooth_reach(law, params, speed):
     """
-    Return True where μ(v) is analytic (no kink, no knot, no clipping) for lo <= v <= hi.
+    Return how far [m/s] from ``speed`` μ(v) stays analytic (no kink, knot or clipping).
 
-    Constant laws, a linear law positive there, the Stribeck law away from its knee and
-    the b-spline inside one span (a cubic of the inverse of a cubic); the polynomial
-    law is not checked for its clipping at zero and counts as not analytic.
+    inf for a constant law and a linear law that stays positive; for the b-spline the
+    distance to its nearest knot (inside a span μ is a cubic of the inverse of a cubic);
+    0 for the laws not analysed here (the polynomial's clipping at zero, the Stribeck
+    law's steep exponential and knee).
     """
     if law_is_constant(law):
-        return True
+        return math.inf
     if law == LAW_LINEAR:
-        return params[0] + params[1] * lo > 0.0 and params[0] + params[1] * hi > 0.0
-    if law == LAW_STRIBECK:
-        return not lo <= params[5] <= hi
+        if params[1] >= 0.0:
+            return math.inf if params[0] > 0.0 else 0.0
+        return max(0.0, -params[0] / params[1] - speed)
     if law == LAW_BSPLINE:
+        reach = math.inf
         for knot in (params[0], params[_BS_BOUNDS], params[_BS_BOUNDS + 1], params[5]):
-            if lo <= knot <= hi:
-                return False
-        return True
-    return False
+            reach = min(reach, abs(speed - knot))
+        return reach
+    return 0.0
 
 
 def mu_kinetic_array(law: int, params: np.ndarray, speeds) -> np.ndarray:

@@ -36,8 +36,8 @@ from numba import njit
 from .friction import (
     LAW_CONST1,
     N_LAW_PARAMS,
-    law_analytic_between,
     law_is_constant,
+    law_smooth_reach,
     mu_kinetic,
     mu_static,
 )
@@ -153,9 +153,10 @@ def strip_wrench_quad(
 
     With ``adapt`` a patch whose instantaneous centre is far away takes the fewer points
     of ``smooth_order`` (never more than ``nodes`` has) where μ is analytic over its
-    speeds and well beyond (``law_analytic_between`` on |u_q| ± 3|φ̇|R: a knot just
-    outside the patch's speeds would slow Gauss's convergence): a constant μ, or a
-    speed-dependent one inside one of its smooth pieces, measured to rounding alike.
+    speeds and well beyond (``law_smooth_reach`` at least 3|φ̇|R; ε taken against the
+    nearer of |u_q| and that reach, as a knot just outside the patch's speeds slows
+    Gauss's convergence as the centre does): a constant μ, or a speed-dependent one
+    inside one of its smooth pieces, measured to rounding alike.
     """
     radius = max_radius(poly, n, qx, qy)
     cx = qx
@@ -175,9 +176,11 @@ def strip_wrench_quad(
     if adapt and not at_icr:
         uq = math.hypot(ux_q, uy_q)
         ns = nq
-        reach = 3.0 * abs(omega) * radius
-        if uq > 0.0 and law_analytic_between(law, params, uq - reach, uq + reach):
-            ns = smooth_order(abs(omega) * radius / uq)
+        spread = abs(omega) * radius  # the patch's speeds lie within uq ± spread
+        reach = law_smooth_reach(law, params, uq)
+        if uq > 0.0 and reach >= 3.0 * spread:
+            # analytic over a disk ~min(uq, reach)/|φ̇| wide: ε measured against both
+            ns = smooth_order(spread / min(uq, reach))
         if ns < nq:
             nq = ns
             nodes = _GL_NODES[ns, :ns]
