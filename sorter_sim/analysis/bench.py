@@ -587,7 +587,7 @@ def bench_core(repeats: int = 7, quick: bool = False, log=None) -> tuple[str, di
             f"{fmt_e(e.events.get('scrap', math.nan)) if e else '–':>12}  {r.failure or 'ok'}"
         )
     acc_rows = [r for r in rows if r.family == "accurate"]
-    scipy_rows = [r for r in rows if r.family.startswith("scipy") and "threshold" not in r.family]
+    scipy_rows = _scipy_rows(rows)
     best_acc = cheapest_within(acc_rows, TARGET_ERROR)
     best_scipy = cheapest_within(scipy_rows, TARGET_ERROR)
     default = next((r for r in acc_rows if r.setting.startswith("rtol=1e-08")), None)
@@ -845,14 +845,19 @@ def _headline_markdown(cases) -> list[str]:
 TARGET_LEVELS = (1e-4, 1e-5, 1e-6, 1e-7, 1e-8)  # m: "at every error level"
 
 
+def _scipy_rows(rows):
+    """Return the scipy rows on the project's model (the threshold model is another one)."""
+    return [r for r in rows if r.family.startswith("scipy") and "threshold" not in r.family]
+
+
 def _levels_markdown(cases) -> list[str]:
     """
     Return the target "as fast as every scipy method at every error level" checked.
 
     For each case and final CoG error level: the accurate method's cheapest time to that
-    level over the best scipy method's (solve_ivp on the same model; the threshold model
-    is another model and does not count). "met" where the accurate method is at least as
-    fast; where no scipy method reaches the level it is met if the accurate method does.
+    level over the best scipy method's (``_scipy_rows``). "met" where the accurate method
+    is at least as fast; where no scipy method reaches the level it is met if the accurate
+    method does.
     """
     L = [
         "## Target: as fast as every scipy method at every error level",
@@ -866,9 +871,7 @@ def _levels_markdown(cases) -> list[str]:
     met = total = 0
     for pc in cases:
         acc_rows = [r for r in pc.rows if r.family.startswith("accurate")]
-        sp_rows = [
-            r for r in pc.rows if r.family.startswith("scipy") and "threshold" not in r.family
-        ]
+        sp_rows = _scipy_rows(pc.rows)
         cells = []
         for level in TARGET_LEVELS:
             acc = cheapest_within(acc_rows, level)
