@@ -524,6 +524,13 @@ def advance_cell(
     s0 = np.empty(6)
     s1 = np.empty(6)
     rigid = np.zeros(cap, dtype=np.bool_)
+    # each footprint's circumradius, bounding its extent in any direction [m]
+    r_out = np.empty(cap)
+    for i in range(cap):
+        # not math.hypot: libm's is slower
+        r_out[i] = math.sqrt(
+            par[i, P_HALF_A] * par[i, P_HALF_A] + par[i, P_HALF_B] * par[i, P_HALF_B]
+        )
     tr_tau = np.empty(cap * n_sens)
     tr_s = np.empty(cap * n_sens, dtype=np.int64)
     tr_d = np.empty(cap * n_sens, dtype=np.int64)
@@ -564,7 +571,7 @@ def advance_cell(
             hb = par[i, P_HALF_B]
             # the half extent along x only where a decision needs it: the footprint's
             # circumradius bounds it, and most parcels are far from every border and eye
-            r_out = math.sqrt(ha * ha + hb * hb)  # not math.hypot: libm's is slower
+            r_i = r_out[i]
             hx0 = -1.0
             new_phase = ph
             tau_phase = -1.0
@@ -585,7 +592,7 @@ def advance_cell(
                         m = disk_sid
                 on_disks_alone = False
                 if m == MODE_BELT:
-                    if disk_sid <= 0 or s0[0] + r_out + v * h <= 0.0 or s0[0] - r_out >= b:
+                    if disk_sid <= 0 or s0[0] + r_i + v * h <= 0.0 or s0[0] - r_i >= b:
                         rigid[i] = True
                     else:
                         hx0, _ = half_extents(s0[2], ha, hb)
@@ -736,7 +743,7 @@ def advance_cell(
                     if s >= n_eyes:
                         break
                     xe = eye_x[s]
-                    if not s0[0] - r_out <= xe <= s1[0] + r_out:
+                    if not s0[0] - r_i <= xe <= s1[0] + r_i:
                         continue
                     if hx0 < 0.0:
                         hx0, _ = half_extents(s0[2], ha, hb)
@@ -778,7 +785,6 @@ def advance_cell(
                 continue
             ha_i = par[i, P_HALF_A]
             hb_i = par[i, P_HALF_B]
-            r_i = math.sqrt(ha_i * ha_i + hb_i * hb_i)  # libm's hypot is slower
             for j in range(cap):
                 if j == i or (phase[j] != PH_CELL and phase[j] != PH_JAMMED):
                     continue
@@ -787,9 +793,7 @@ def advance_cell(
                 j_starts = not rigid[j]
                 if j_starts and j < i:
                     continue  # this pair was checked from j
-                reach = r_i + math.sqrt(
-                    par[j, P_HALF_A] * par[j, P_HALF_A] + par[j, P_HALF_B] * par[j, P_HALF_B]
-                )
+                reach = r_out[i] + r_out[j]
                 if (
                     abs(state[i, 0] - state[j, 0]) >= reach
                     or abs(state[i, 1] - state[j, 1]) >= reach
