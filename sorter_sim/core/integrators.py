@@ -67,9 +67,14 @@ from .layout import (
     P_GRAV,
 )
 from .dopri import C, dense, rms_norm, sign_change, stage_state, step_error, step_factor
-from .friction import mu_kinetic, mu_static
+from .friction import law_is_constant, mu_kinetic, mu_static
 from .geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
-from .wrench import evaluate_surfaces, rest_surface_wrench, static_surface_wrench
+from .wrench import (
+    dissipation_hessian,
+    evaluate_surfaces,
+    rest_surface_wrench,
+    static_surface_wrench,
+)
 
 METHOD_ACCURATE = 0
 METHOD_IMPLICIT = 1
@@ -139,6 +144,8 @@ APPROACH_STEPS = 5.0
 STIFF_RATIO = 2.0  # x rtol^(1/5): where a 5th-order step's error in the turning reaches rtol
 STICK_RTOL = 1e-13  # relative: a balance to rounding (a few ulps of the wrench sums) holds
 GAUGE_ITERATIONS = 60
+F_NOISE = 1e-13  # relative rounding of a sum of wrench-based dissipations (closed form)
+SOLVE_RATIO = 1e-2  # the implicit solve stops where |grad| falls below this of its start
 
 
 @njit(cache=True)
@@ -2063,11 +2070,295 @@ def _solve_spd(H, grad, nvar):
 
 
 @njit(cache=True)
-def implicit_step(
+def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi):
+    """
+    How far the wrench (rfx, rfy, rt) that surface ``s`` must supply loads its stick.
+
+    At most 1 (within STICK_RTOL) iff the stick holds: the wrench lies in the patch's
+    limit set (exact stick, ``limit_gauge``: the value is the gauge) or within the
+    seed's decoupled force and moment limits ``stat[s]`` (seed stick; also without
+    rotation, where φ̇ = 0 is a constraint). Above 1 it is the larger of the decoupled
+    ratios, or the gauge where those hold.
+    """
+    rot = parcel[P_ROTATION] > 0.5
+    tol = 1.0 + STICK_RTOL
+    load = math.hypot(rfx, rfy) / (stat[s, 0] * tol) if stat[s, 0] > 0.0 else math.inf
+    if rot:
+        if stat[s, 1] > 0.0:
+            load = max(load, abs(rt) / (stat[s, 1] * tol))
+        elif rt != 0.0:
+            load = math.inf
+    if load != load:  # 0/0: no load on no patch
+        load = 0.0
+    # the decoupled limits are necessary for the limit set too (|F| <= μN, and |T|
+    # about g at most the pure spin's): the gauge runs only where they hold
+    if load <= 1.0 and rot and parcel[P_STICK] > 0.5:
+        load = limit_gauge(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, xi) / tol
+    return load
+
+
+@njit(cache=True)
+def _implicit_objective(W, W0, mass, h, kin, nsurf, strips, rot, grad):
+    """
+    f(W) = ½ (W-W0)ᵀM(W-W0)/h + Σ_s D_s(W) and its gradient, from the surfaces' wrenches at W.
+
+    With a constant μ each D_s is 1-homogeneous in the twist ξ_s = W - W_s relative to
+    surface s (moments about g), so D_s = -ξ_s·wrench_s (Euler's relation) and the
+    gradient of D is minus the wrench: no integral of its own.
+    """
+    f = 0.0
+    for i in range(3):
+        grad[i] = mass[i] * (W[i] - W0[i]) / h
+        f += 0.5 * mass[i] * (W[i] - W0[i]) ** 2 / h
+    for s in range(nsurf):
+        vsx, vsy = surface_velocity(strips, s)
+        f -= (W[0] - vsx) * kin[s, 0] + (W[1] - vsy) * kin[s, 1] + W[2] * kin[s, 2]
+        grad[0] -= kin[s, 0]
+        grad[1] -= kin[s, 1]
+        grad[2] -= kin[s, 2]
+    if not rot:
+        grad[2] = 0.0
+    return f
+
+
+@njit(cache=True)
+def _scaled(ratio, x):
+    """ratio · x for x >= 0, with 0 for x = 0 even where ratio is inf."""
+    return ratio * x if x > 0.0 else 0.0
+
+
+@njit(cache=True)
+def _implicit_step_exact(
+    y, h, mode, strips, parcel, nodes, weights, nsurf, mu_ratio, guess, hess, fresh, xis, y_out
+):
+    """
+    One backward-Euler velocity step with the exact wrench (constant μ everywhere).
+
+    Returns (mode, wrench evaluations). The step's W+ minimises
+    f(W) = ½ (W-W0)ᵀM(W-W0)/h + D(W) as in the lagged step, with D and its gradient
+    from the closed-form wrench (``evaluate_surfaces``), so the method has no
+    quadrature floor. ``guess`` (3) is the caller's prediction of W+ (the last
+    velocity change extrapolated: off by about the step's local error); ``hess``
+    (3 x 3) is the Hessian of D, kept by BFGS updates from step to step (it changes
+    slowly with the motion), so a step typically costs two evaluations. The solve
+    stops where Newton's next step is below 1e-4 of its first (the step's own
+    truncation error sets the scale) or at rounding. ``mu_ratio``: the largest
+    kinetic over static coefficient of the strips, which bounds what the other
+    surfaces can pull by their static limits. ``xis``: the gauge twists, as in the
+    lagged step.
+    """
+    m = parcel[P_MASS]
+    rot = parcel[P_ROTATION] > 0.5
+    mass = np.array([m, m, parcel[P_INERTIA] if rot else 1.0])
+    W0 = np.array([y[3], y[4], y[5] if rot else 0.0])
+    nvar = 3 if rot else 2
+    kin = np.empty((nsurf, 3))
+    stat = np.empty((nsurf, 2))
+    area = np.empty(nsurf)
+    slip = np.empty(nsurf)
+    st = y.copy()
+    n_eval = 0
+    # --- stick: first the surface stuck to, then any other the step could bring to rest
+    # the Newton start and the wrenches there: the guess, or while stuck the surface's
+    # velocity (the stuck surface's own wrench left out: zero slip, and the stick test
+    # needs the others' alone)
+    W = np.empty(3)
+    if mode >= 0:
+        W[0], W[1] = surface_velocity(strips, mode)
+        W[2] = 0.0
+    else:
+        for i in range(3):
+            W[i] = guess[i]
+        if not rot:
+            W[2] = 0.0
+    st[3] = W[0]
+    st[4] = W[1]
+    st[5] = W[2]
+    evaluate_surfaces(st, strips, parcel, nodes, weights, mode, True, kin, stat, area, slip)
+    n_eval += 1
+    f_all = 0.0
+    t_all = 0.0
+    for s in range(nsurf):
+        f_all += stat[s, 0]
+        t_all += stat[s, 1]
+    others = np.empty((nsurf, 3))
+    load = 0.0
+    for s in range(-1, nsurf):
+        cand = mode if s < 0 else s
+        if cand < 0 or (s >= 0 and s == mode) or area[cand] <= 0.0:
+            continue
+        vsx, vsy = surface_velocity(strips, cand)
+        dfx = m * (vsx - W0[0]) / h
+        dfy = m * (vsy - W0[1]) / h
+        dt_ = -mass[2] * W0[2] / h
+        if cand != mode:
+            # necessary: the change of momentum to rest on cand within all the limits
+            # (cand's static ones, the others' kinetic pull at most mu_ratio times theirs)
+            reach_f = stat[cand, 0] + _scaled(mu_ratio, f_all - stat[cand, 0])
+            reach_t = stat[cand, 1] + _scaled(mu_ratio, t_all - stat[cand, 1])
+            if math.hypot(dfx, dfy) > reach_f * (1.0 + 1e-9) or (
+                rot and abs(dt_) > reach_t * (1.0 + 1e-9)
+            ):
+                continue
+            st[3] = vsx
+            st[4] = vsy
+            st[5] = 0.0
+            evaluate_surfaces(
+                st, strips, parcel, nodes, weights, cand, False, others, stat[:0], area, slip
+            )
+            n_eval += 1
+            src = others
+        else:
+            src = kin
+        wfx = dfx
+        wfy = dfy
+        wt = dt_
+        for o in range(nsurf):
+            if o != cand:
+                wfx -= src[o, 0]
+                wfy -= src[o, 1]
+                wt -= src[o, 2]
+        load = _stick_load(y, strips, parcel, nodes, weights, cand, wfx, wfy, wt, stat, xis[cand])
+        if load <= 1.0:
+            y_out[3] = vsx
+            y_out[4] = vsy
+            y_out[5] = 0.0
+            y_out[0] = y[0] + h * vsx
+            y_out[1] = y[1] + h * vsy
+            y_out[2] = y[2]
+            return cand, n_eval
+        if cand == mode:
+            # the stick breaks: start where the surplus the patch cannot hold moves the
+            # parcel in one step (Newton and its line search take it from there)
+            excess = 1.0 - 1.0 / load if load < math.inf else 1.0
+            W[0] = vsx - excess * h * wfx / m
+            W[1] = vsy - excess * h * wfy / m
+            W[2] = -excess * h * wt / mass[2] if rot else 0.0
+            st[3] = W[0]
+            st[4] = W[1]
+            st[5] = W[2]
+            evaluate_surfaces(
+                st, strips, parcel, nodes, weights, -1, False, kin, stat[:0], area, slip
+            )
+            n_eval += 1
+    # --- slide: Newton on f with the carried BFGS Hessian and a backtracking line search
+    grad = np.empty(3)
+    gt = np.empty(3)
+    Wt = np.empty(3)
+    H = np.empty((3, 3))
+    st[3] = W[0]
+    st[4] = W[1]
+    st[5] = W[2]
+    fresh = fresh or mode >= 0
+    if fresh:
+        dissipation_hessian(st, strips, parcel, hess)
+    fval = _implicit_objective(W, W0, mass, h, kin, nsurf, strips, rot, grad)
+    # f is (M/h)-strongly convex: |W - W+|_M <= h |grad|_M⁻¹ whatever the Hessian
+    # model. The solve stops where that bound falls below SOLVE_RATIO of its value at
+    # the guess (which is off by about the step's local error) or the gradient reaches
+    # the wrenches' rounding. Not on f's rounding: at small h the velocity errors a
+    # gain below it leaves add up over the many steps.
+    g_round = 1e-12 * f_all / math.sqrt(m)
+    g_first = -1.0
+    sv = np.empty(3)
+    yv = np.empty(3)
+    hs = np.empty(3)
+    for _ in range(60):
+        gnorm = 0.0
+        for i in range(nvar):
+            gnorm += grad[i] ** 2 / mass[i]
+        gnorm = math.sqrt(gnorm)
+        if g_first < 0.0:
+            g_first = gnorm
+        for i in range(3):
+            for j in range(3):
+                H[i, j] = hess[i, j]
+            H[i, i] += mass[i] / h
+        dW = _solve_spd(H, grad, nvar)
+        f_noise = F_NOISE * abs(fval)
+        if gnorm <= SOLVE_RATIO * g_first or gnorm <= g_round:
+            # the model's Newton step costs nothing, and as H >= M/h it moves W by at
+            # most the bound that was just accepted
+            for i in range(nvar):
+                W[i] += dW[i]
+            break
+        slope = grad[0] * dW[0] + grad[1] * dW[1] + grad[2] * dW[2]
+        step = 1.0
+        ok = False
+        ft = fval
+        for _ls in range(30):
+            for i in range(3):
+                Wt[i] = W[i] + step * dW[i]
+            st[3] = Wt[0]
+            st[4] = Wt[1]
+            st[5] = Wt[2]
+            evaluate_surfaces(
+                st, strips, parcel, nodes, weights, -1, False, kin, stat[:0], area, slip
+            )
+            n_eval += 1
+            ft = _implicit_objective(Wt, W0, mass, h, kin, nsurf, strips, rot, gt)
+            if -step * slope > f_noise:
+                ok = ft <= fval + 1e-4 * step * slope
+            else:
+                # a gain below f's rounding (small steps h): the gradient decides
+                gt_norm = 0.0
+                for i in range(nvar):
+                    gt_norm += gt[i] ** 2 / mass[i]
+                ok = math.sqrt(gt_norm) <= (1.0 - 0.5 * step) * gnorm
+            if ok:
+                break
+            step *= 0.5
+        if not ok:
+            if fresh:
+                break  # no descent left at rounding level
+            # the carried model misled the step: start again from a fresh one
+            st[3] = W[0]
+            st[4] = W[1]
+            st[5] = W[2]
+            dissipation_hessian(st, strips, parcel, hess)
+            fresh = True
+            continue
+        # BFGS on D's Hessian from the accepted step's secant pair (D's part only)
+        sy = 0.0
+        shs = 0.0
+        ss = 0.0
+        yy = 0.0
+        for i in range(nvar):
+            sv[i] = Wt[i] - W[i]
+            yv[i] = gt[i] - grad[i] - mass[i] * sv[i] / h
+        for i in range(nvar):
+            hs[i] = 0.0
+            for j in range(nvar):
+                hs[i] += hess[i, j] * sv[j]
+            sy += sv[i] * yv[i]
+            shs += sv[i] * hs[i]
+            ss += sv[i] * sv[i]
+            yy += yv[i] * yv[i]
+        if sy > 1e-12 * math.sqrt(ss * yy):
+            for i in range(nvar):
+                for j in range(nvar):
+                    hess[i, j] += yv[i] * yv[j] / sy
+                    if shs > 0.0:
+                        hess[i, j] -= hs[i] * hs[j] / shs
+        for i in range(3):
+            W[i] = Wt[i]
+            grad[i] = gt[i]
+        fval = ft
+    y_out[3] = W[0]
+    y_out[4] = W[1]
+    y_out[5] = W[2] if rot else 0.0
+    y_out[0] = y[0] + h * y_out[3]
+    y_out[1] = y[1] + h * y_out[4]
+    y_out[2] = y[2] + h * y_out[5]
+    return MODE_SLIDE, n_eval
+
+
+@njit(cache=True)
+def _implicit_step_lagged(
     y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy, stat, y_out, xis
 ):
     """
-    One backward-Euler velocity step; returns (mode, newton_iterations).
+    One backward-Euler velocity step over the point set, μ lagged; returns (mode, iterations).
 
     ``xis`` (nsurf x 3): each surface's limit-set gauge twist, carried from step to step.
     """
@@ -2081,9 +2372,7 @@ def implicit_step(
     mass = np.array([m, m, inertia if rot else 1.0])
     wr = np.empty(3)
     # stick test, surface by surface: the wrench the surface must supply to carry the
-    # parcel through the step, in its limit set (exact stick, ``limit_gauge``) or within
-    # the seed's decoupled force and moment limits (seed stick)
-    exact = rot and parcel[P_STICK] > 0.5
+    # parcel through the step (``_stick_load``)
     present = np.zeros(nsurf)
     for k in range(npt):
         present[surf_of[k]] = 1.0
@@ -2096,17 +2385,7 @@ def implicit_step(
         rfx = mass[0] * (Ws[0] - W0[0]) / h - wr[0]
         rfy = mass[1] * (Ws[1] - W0[1]) / h - wr[1]
         rt = mass[2] * (Ws[2] - W0[2]) / h - wr[2]
-        # the decoupled limits are necessary for the limit set too (|F| <= μN, and |T|
-        # about g at most the pure spin's): the gauge runs only where they hold
-        ok = math.hypot(rfx, rfy) <= stat[s, 0] * (1.0 + STICK_RTOL)
-        if rot:
-            ok = ok and abs(rt) <= stat[s, 1] * (1.0 + STICK_RTOL)
-        if ok and exact:
-            ok = (
-                limit_gauge(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, xis[s])
-                <= 1.0 + STICK_RTOL
-            )
-        if ok:
+        if _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xis[s]) <= 1.0:
             y_out[3] = vsx
             y_out[4] = vsy
             y_out[5] = 0.0
@@ -2189,6 +2468,32 @@ def implicit_step(
 
 
 @njit(cache=True)
+def _constant_friction(strips):
+    """
+    (every loaded strip has a constant μ, the largest μ_k / μ_s among them).
+
+    The ratio is inf where a strip holds nothing at rest but rubs while sliding.
+    """
+    constant = True
+    ratio = 1.0
+    for k in range(strips.shape[0]):
+        if strips[k, S_WEIGHT] <= 0.0:
+            continue
+        law = int(strips[k, S_LAW])
+        if not law_is_constant(law):
+            constant = False
+            continue
+        params = strips[k, S_PARAMS:]
+        mus = mu_static(law, params)
+        muk = mu_kinetic(law, params, 1.0)
+        if mus > 0.0:
+            ratio = max(ratio, muk / mus)
+        elif muk > 0.0:
+            ratio = math.inf
+    return constant, ratio
+
+
+@njit(cache=True)
 def _take_fixed_step(y, y_new, t, t_next, y_target):
     """
     Take a fixed step, stopping at the scrap line.
@@ -2221,6 +2526,12 @@ def run_implicit(
     svy = np.empty(cap)
     stat = np.empty((nsurf, 2))
     xis = np.zeros((nsurf, 3))
+    # constant μ everywhere: the exact step; its bound on the other surfaces' pull
+    exact, mu_ratio = _constant_friction(strips)
+    guess = np.empty(3)
+    w_last = np.empty(3)
+    h_last = 0.0
+    hess = np.zeros((3, 3))
     y = y0.copy()
     y_new = np.empty(6)
     t = t0
@@ -2229,30 +2540,58 @@ def run_implicit(
     n_ev = 0
     n_steps = 0
     n_newton = 0
+    n_rhs = 0
     status = ST_END
     # step times as t0 + i h, so round-off never adds a sliver of a last step
     n_total = max(1, int(math.ceil((t_end - t0) / h - 1e-9)))
     for i_step in range(n_total):
         t_next = t_end if i_step == n_total - 1 else t0 + (i_step + 1) * h
         hh = t_next - t
-        new_mode, its = implicit_step(
-            y,
-            hh,
-            strips,
-            parcel,
-            nodes,
-            weights,
-            nsurf,
-            px,
-            py,
-            ck,
-            surf_of,
-            svx,
-            svy,
-            stat,
-            y_new,
-            xis,
-        )
+        if exact:
+            # W+ predicted by the last step's change of velocity, where it slid throughout
+            for i in range(3):
+                guess[i] = y[3 + i]
+                if mode < 0 and h_last > 0.0:
+                    guess[i] += (y[3 + i] - w_last[i]) * (hh / h_last)
+                w_last[i] = y[3 + i]
+            new_mode, its = _implicit_step_exact(
+                y,
+                hh,
+                mode,
+                strips,
+                parcel,
+                nodes,
+                weights,
+                nsurf,
+                mu_ratio,
+                guess,
+                hess,
+                h_last == 0.0,  # the Hessian carried from a sliding step, or a fresh model
+                xis,
+                y_new,
+            )
+            h_last = hh if new_mode < 0 else 0.0
+            n_rhs += its
+        else:
+            new_mode, its = _implicit_step_lagged(
+                y,
+                hh,
+                strips,
+                parcel,
+                nodes,
+                weights,
+                nsurf,
+                px,
+                py,
+                ck,
+                surf_of,
+                svx,
+                svy,
+                stat,
+                y_new,
+                xis,
+            )
+            n_rhs += 1  # one point-set build
         n_newton += its
         n_steps += 1
         if new_mode != mode:
@@ -2277,7 +2616,7 @@ def run_implicit(
             status = ST_MAX_STEPS
             break
     counters[0] = n_steps
-    counters[1] = n_steps  # one point-set build (the 'rhs') per step
+    counters[1] = n_rhs
     counters[2] = n_newton
     counters[3] = n_out
     counters[4] = n_ev
