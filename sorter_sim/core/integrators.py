@@ -25,12 +25,15 @@ and counters; ``simulate.py`` wraps them in a result object.
 
 ``implicit``  (IMPLICIT) fixed step, backward Euler in velocity. The step
     M (W+ - W)/h = wrench(W+) with set-valued Coulomb friction is the minimiser of
-    ½ (W+ - W)ᵀ M (W+ - W)/h + D(W+), D = Σ_k c_k |u_k(W+)| the dissipation over
-    quadrature points (μ lagged one step where it depends on speed), a strongly
-    convex problem: one solution for any h, exact sticking (the minimiser sits on
-    the kink at a surface's velocity when the static limits hold), no chatter.
-    This is Kikuuwe et al.'s (2005) implicit friction step carried to the planar
-    footprint. Positions follow with the new velocity (symplectic Euler).
+    ½ (W+ - W)ᵀ M (W+ - W)/h + D(W+), D the footprint's dissipation rate, a
+    strongly convex problem: one solution for any h, exact sticking (the minimiser
+    sits on the kink at a surface's velocity when the limit set holds the wrench),
+    no chatter. This is Kikuuwe et al.'s (2005) implicit friction step carried to
+    the planar footprint. With constant μ, D and its gradient come from the exact
+    wrench (``_implicit_step_exact``: no quadrature floor, about two wrench
+    evaluations a step); where μ depends on the speed it is lagged one step at the
+    Gauss points of the footprint, D = Σ_k c_k |u_k(W+)| (``_implicit_step_lagged``).
+    Positions follow with the new velocity (symplectic Euler).
 
 ``threshold`` (THRESHOLD) the seed's own model: eqs. 3.1/4.2/4.4 with the
     threshold speed v_min (a surface slipping slower than v_min is "static" and
