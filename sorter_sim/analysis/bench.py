@@ -475,7 +475,7 @@ def implicit_exact_convergence(
     case: ParcelCase, ref: Trajectory, quick: bool
 ) -> list[tuple[float, float]]:
     """
-    The implicit method's error at ever smaller steps on a constant-μ case: (h, error).
+    Measure the implicit method's error at ever smaller steps on a constant-μ case: (h, error).
 
     With constant μ its step takes the exact wrench, so the error should fall at first
     order with no floor; the smallest step shows whether it gets below 1e-7 m.

@@ -2126,7 +2126,7 @@ def _implicit_objective(W, W0, mass, h, kin, nsurf, strips, rot, grad):
 
 @njit(cache=True)
 def _scaled(ratio, x):
-    """ratio · x for x >= 0, with 0 for x = 0 even where ratio is inf."""
+    """Return ratio · x for x >= 0, with 0 for x = 0 even where ratio is inf."""
     return ratio * x if x > 0.0 else 0.0
 
 

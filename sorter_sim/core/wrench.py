@@ -245,7 +245,7 @@ def strip_wrench_quad(
 @njit(cache=True)
 def dissipation_hessian(state, strips, parcel, out):
     """
-    A model of the Hessian of the dissipation rate D at the twist in ``state`` (3 x 3).
+    Model the Hessian of the dissipation rate D at the twist in ``state`` (3 x 3, ``out``).
 
     D(V, φ̇) = Σ ∫ μ p |u| dA over the footprint, so ∇²D = Σ ∫ μ p Jᵀ(I - ûûᵀ)J / |u| dA
     with J = [[1, 0, -r_y], [0, 1, r_x]], r = p - g (moments about g), μ taken as
