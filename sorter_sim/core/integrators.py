@@ -29,11 +29,11 @@ and counters; ``simulate.py`` wraps them in a result object.
     strongly convex problem: one solution for any h, exact sticking (the minimiser
     sits on the kink at a surface's velocity when the limit set holds the wrench),
     no chatter. This is Kikuuwe et al.'s (2005) implicit friction step carried to
-    the planar footprint. With constant μ, D and its gradient come from the exact
-    wrench (``_implicit_step_exact``: no quadrature floor, about two wrench
-    evaluations a step); where μ depends on the speed it is lagged one step at the
-    Gauss points of the footprint, D = Σ_k c_k |u_k(W+)| (``_implicit_step_lagged``).
-    Positions follow with the new velocity (symplectic Euler).
+    the planar footprint (``implicit_step``). With constant μ, D and its gradient
+    come from the exact wrench (no quadrature floor, about two wrench evaluations a
+    step); where μ depends on the speed it is lagged one step at the Gauss points of
+    the footprint, D = Σ_k c_k |u_k(W+)|. Positions follow with the new velocity
+    (symplectic Euler).
 
 ``threshold`` (THRESHOLD) the seed's own model: eqs. 3.1/4.2/4.4 with the
     threshold speed v_min (a surface slipping slower than v_min is "static" and
@@ -1955,14 +1955,21 @@ def run_accurate(
 
 
 # ---------------------------------------------------------------- implicit step
+# columns of the implicit step's point set (``_build_points``)
+PT_X, PT_Y, PT_C, PT_SURF, PT_VX, PT_VY = 0, 1, 2, 3, 4, 5
+
+
 @njit(cache=True)
-def _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy, stat):
+def _build_points(y, strips, parcel, nodes, weights, pts, stat, pull, area):
     """
     Quadrature points of the footprint (centroid fans, Gauss n x n per triangle).
 
-    ck[k] = weight · μ_k · pressure with μ_k the kinetic coefficient at the current
-    slip of that point (the 'lag' that keeps the implicit problem convex).
-    stat[s] = (F_max, T_max) static limits. Returns the number of points.
+    ``pts`` (rows, one per point; columns PT_*): its position, surface and that
+    surface's velocity, and c = weight · μ_k · pressure with μ_k the kinetic
+    coefficient at the point's current slip (the 'lag' that keeps the implicit
+    problem convex). Per surface: stat = (F_max, T_max) its static limits, pull the
+    most its kinetic friction can pull (Σ ck, Σ ck |r|), area its share of the
+    footprint. Returns the number of points.
     """
     corners = np.empty((4, 2))
     poly = np.empty((MAX_VERTS, 2))
@@ -1974,6 +1981,8 @@ def _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of,
     nq = nodes.shape[0]
     npt = 0
     stat[:, :] = 0.0
+    pull[:, :] = 0.0
+    area[:] = 0.0
     for k in range(strips.shape[0]):
         w = strips[k, S_WEIGHT]
         if w <= 0.0:
@@ -1987,6 +1996,7 @@ def _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of,
         params = strips[k, S_PARAMS:]
         pressure = p_unit * w
         mus = mu_static(law, params)
+        area[s_id] += w * a
         for i in range(n):
             j = (i + 1) % n
             e0x = poly[i, 0] - qx
@@ -2006,47 +2016,90 @@ def _build_points(y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of,
                     uy = y[4] + y[5] * (xk - y[0]) - strips[k, S_VY]
                     sp = math.sqrt(ux * ux + uy * uy)
                     mu = mu_kinetic(law, params, max(sp, 1e-12))
-                    px[npt] = xk
-                    py[npt] = yk
-                    ck[npt] = wk * mu * pressure
-                    surf_of[npt] = s_id
-                    svx[npt] = strips[k, S_VX]
-                    svy[npt] = strips[k, S_VY]
-                    npt += 1
+                    c = wk * mu * pressure
+                    pts[npt, PT_X] = xk
+                    pts[npt, PT_Y] = yk
+                    pts[npt, PT_C] = c
+                    pts[npt, PT_SURF] = s_id
+                    pts[npt, PT_VX] = strips[k, S_VX]
+                    pts[npt, PT_VY] = strips[k, S_VY]
                     rr = math.sqrt((xk - y[0]) ** 2 + (yk - y[1]) ** 2)
                     stat[s_id, 0] += wk * mus * pressure
                     stat[s_id, 1] += wk * mus * pressure * rr
+                    pull[s_id, 0] += c
+                    pull[s_id, 1] += c * rr
+                    npt += 1
     return npt
 
 
 @njit(cache=True)
-def _friction_at(W, y, npt, px, py, ck, surf_of, svx, svy, skip, out):
-    """
-    Kinetic wrench of the point set at generalized velocity W (surface ``skip`` left out).
-
-    Returns the dissipation D(W) = Σ c_k |u_k| of the included points.
-    """
-    out[0] = 0.0
-    out[1] = 0.0
-    out[2] = 0.0
-    d = 0.0
+def _points_wrench(st, npt, pts, skip, kin):
+    """Kinetic wrench per surface of the point set at the twist in ``st`` (``skip``: zero)."""
+    kin[:, :] = 0.0
     for k in range(npt):
-        if surf_of[k] == skip:
+        s = int(pts[k, PT_SURF])
+        if s == skip:
             continue
-        rx = px[k] - y[0]
-        ry = py[k] - y[1]
-        ux = W[0] - W[2] * ry - svx[k]
-        uy = W[1] + W[2] * rx - svy[k]
+        rx = pts[k, PT_X] - st[0]
+        ry = pts[k, PT_Y] - st[1]
+        ux = st[3] - st[5] * ry - pts[k, PT_VX]
+        uy = st[4] + st[5] * rx - pts[k, PT_VY]
         # sqrt, not hypot: speeds are O(1) m/s, and libm's hypot costs several times more
         sp = math.sqrt(ux * ux + uy * uy)
-        d += ck[k] * sp
         if sp > 0.0:
-            fx = -ck[k] * ux / sp
-            fy = -ck[k] * uy / sp
-            out[0] += fx
-            out[1] += fy
-            out[2] += rx * fy - ry * fx
-    return d
+            fx = -pts[k, PT_C] * ux / sp
+            fy = -pts[k, PT_C] * uy / sp
+            kin[s, 0] += fx
+            kin[s, 1] += fy
+            kin[s, 2] += rx * fy - ry * fx
+
+
+@njit(cache=True)
+def _points_hessian(st, npt, pts, out):
+    """Put the point set's dissipation Hessian Σ c_k Jᵀ(I - ûûᵀ)J / |u_k| at ``st`` in ``out``."""
+    out[:, :] = 0.0
+    for k in range(npt):
+        rx = pts[k, PT_X] - st[0]
+        ry = pts[k, PT_Y] - st[1]
+        ux = st[3] - st[5] * ry - pts[k, PT_VX]
+        uy = st[4] + st[5] * rx - pts[k, PT_VY]
+        sp = max(math.sqrt(ux * ux + uy * uy), 1e-12)
+        hx = ux / sp
+        hy = uy / sp
+        c = pts[k, PT_C] / sp
+        # J = [[1, 0, -ry], [0, 1, rx]]
+        pxx = c * (1.0 - hx * hx)
+        pxy = -c * hx * hy
+        pyy = c * (1.0 - hy * hy)
+        out[0, 0] += pxx
+        out[0, 1] += pxy
+        out[1, 1] += pyy
+        out[0, 2] += -pxx * ry + pxy * rx
+        out[1, 2] += -pxy * ry + pyy * rx
+        out[2, 2] += pxx * ry * ry - 2.0 * pxy * rx * ry + pyy * rx * rx
+    out[1, 0] = out[0, 1]
+    out[2, 0] = out[0, 2]
+    out[2, 1] = out[1, 2]
+
+
+# inlined: a call would count references to the point set and the other arrays at every
+# evaluation, a tenth of an exact step's cost
+@njit(cache=True, inline="always")
+def _step_wrenches(
+    exact, st, skip, need, strips, parcel, nodes, weights, npt, pts, kin, stat, area, slip
+):
+    """
+    Every surface's kinetic wrench at the twist in ``st`` (``skip`` left out) into ``kin``.
+
+    The exact wrench (``evaluate_surfaces``; with ``need`` also the static limits and
+    areas) or the step's point set (whose limits and areas come with it).
+    """
+    if exact:
+        # (evaluate_surfaces clears the limits it is not asked for: keep them)
+        lim = stat if need else np.empty((0, 2))
+        evaluate_surfaces(st, strips, parcel, nodes, weights, skip, need, kin, lim, area, slip)
+    else:
+        _points_wrench(st, npt, pts, skip, kin)
 
 
 @njit(cache=True)
@@ -2073,6 +2126,14 @@ def _solve_spd(H, grad, nvar):
 
 
 @njit(cache=True)
+def _ratio(load, limit):
+    """Return load / limit, where a zero limit holds a zero load only."""
+    if limit > 0.0:
+        return load / limit
+    return 0.0 if load == 0.0 else math.inf
+
+
+@njit(cache=True)
 def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi):
     """
     How far the wrench (rfx, rfy, rt) that surface ``s`` must supply loads its stick.
@@ -2085,14 +2146,9 @@ def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi):
     """
     rot = parcel[P_ROTATION] > 0.5
     tol = 1.0 + STICK_RTOL
-    load = math.hypot(rfx, rfy) / (stat[s, 0] * tol) if stat[s, 0] > 0.0 else math.inf
+    load = _ratio(math.hypot(rfx, rfy), stat[s, 0] * tol)
     if rot:
-        if stat[s, 1] > 0.0:
-            load = max(load, abs(rt) / (stat[s, 1] * tol))
-        elif rt != 0.0:
-            load = math.inf
-    if load != load:  # 0/0: no load on no patch
-        load = 0.0
+        load = max(load, _ratio(abs(rt), stat[s, 1] * tol))
     # the decoupled limits are necessary for the limit set too (|F| <= μN, and |T|
     # about g at most the pure spin's): the gauge runs only where they hold
     if load <= 1.0 and rot and parcel[P_STICK] > 0.5:
@@ -2131,37 +2187,57 @@ def _scaled(ratio, x):
 
 
 @njit(cache=True)
-def _implicit_step_exact(
-    y, h, mode, strips, parcel, nodes, weights, nsurf, mu_ratio, guess, hess, fresh, xis, y_out
+def implicit_step(
+    y,
+    h,
+    mode,
+    strips,
+    parcel,
+    nodes,
+    weights,
+    exact,
+    mu_ratio,
+    pts,
+    guess,
+    hess,
+    fresh,
+    xis,
+    y_out,
 ):
     """
-    One backward-Euler velocity step with the exact wrench (constant μ everywhere).
+    One backward-Euler velocity step; returns (mode, friction evaluations).
 
-    Returns (mode, wrench evaluations). The step's W+ minimises
-    f(W) = ½ (W-W0)ᵀM(W-W0)/h + D(W) as in the lagged step, with D and its gradient
-    from the closed-form wrench (``evaluate_surfaces``), so the method has no
-    quadrature floor. ``guess`` (3) is the caller's prediction of W+ (the last
-    velocity change extrapolated: off by about the step's local error); ``hess``
-    (3 x 3) is the Hessian of D, kept by BFGS updates from step to step (it changes
-    slowly with the motion), so a step typically costs two evaluations. The solve
-    stops where Newton's next step is below 1e-4 of its first (the step's own
-    truncation error sets the scale) or at rounding. ``mu_ratio``: the largest
-    kinetic over static coefficient of the strips, which bounds what the other
-    surfaces can pull by their static limits. ``xis``: the gauge twists, as in the
-    lagged step.
+    W+ minimises f(W) = ½ (W-W0)ᵀM(W-W0)/h + D(W), D the footprint's dissipation rate
+    at the step's pose. With constant μ everywhere (``exact``) D and its gradient come
+    from the exact wrench (``evaluate_surfaces``), so the method has no quadrature
+    floor; otherwise from the point set of ``_build_points`` (``pts``, μ lagged). Both
+    ways each D_s is 1-homogeneous in the twist relative to its surface, so
+    ``_implicit_objective`` has f from the wrenches alone.
+
+    A stick is tested first (``_stick_load``): on the surface stuck to, then on any
+    other the step could bring to rest (the change of momentum within all the limits:
+    the others' pull bounded by ``mu_ratio`` times their static limits, or by the
+    point set's own sums). Then Newton on f from ``guess`` (the caller's prediction
+    of W+, about the step's local error off) with a backtracking line search. Its
+    Hessian: the point set's own, exactly, or for the exact wrench a model
+    (``dissipation_hessian``, where ``fresh``) that BFGS updates carry from step to
+    step in ``hess`` (3 x 3): about two evaluations a step. ``xis`` (nsurf x 3): each
+    surface's limit-set gauge twist, carried from step to step.
     """
     m = parcel[P_MASS]
     rot = parcel[P_ROTATION] > 0.5
+    nsurf = xis.shape[0]
     mass = np.array([m, m, parcel[P_INERTIA] if rot else 1.0])
     W0 = np.array([y[3], y[4], y[5] if rot else 0.0])
     nvar = 3 if rot else 2
     kin = np.empty((nsurf, 3))
+    others = np.empty((nsurf, 3))
     stat = np.empty((nsurf, 2))
+    pull = np.empty((nsurf, 2))
     area = np.empty(nsurf)
     slip = np.empty(nsurf)
     st = y.copy()
-    n_eval = 0
-    # --- stick: first the surface stuck to, then any other the step could bring to rest
+    npt = 0 if exact else _build_points(y, strips, parcel, nodes, weights, pts, stat, pull, area)
     # the Newton start and the wrenches there: the guess, or while stuck the surface's
     # velocity (the stuck surface's own wrench left out: zero slip, and the stick test
     # needs the others' alone)
@@ -2177,15 +2253,22 @@ def _implicit_step_exact(
     st[3] = W[0]
     st[4] = W[1]
     st[5] = W[2]
-    evaluate_surfaces(st, strips, parcel, nodes, weights, mode, True, kin, stat, area, slip)
-    n_eval += 1
+    _step_wrenches(
+        exact, st, mode, True, strips, parcel, nodes, weights, npt, pts, kin, stat, area, slip
+    )
+    n_eval = 1
+    if exact:
+        for s in range(nsurf):
+            pull[s, 0] = _scaled(mu_ratio, stat[s, 0])
+            pull[s, 1] = _scaled(mu_ratio, stat[s, 1])
+    pull_f = 0.0
+    pull_t = 0.0
     f_all = 0.0
-    t_all = 0.0
     for s in range(nsurf):
+        pull_f += pull[s, 0]
+        pull_t += pull[s, 1]
         f_all += stat[s, 0]
-        t_all += stat[s, 1]
-    others = np.empty((nsurf, 3))
-    load = 0.0
+    # --- stick: first the surface stuck to, then any other the step could bring to rest
     for s in range(-1, nsurf):
         cand = mode if s < 0 else s
         if cand < 0 or (s >= 0 and s == mode) or area[cand] <= 0.0:
@@ -2195,10 +2278,10 @@ def _implicit_step_exact(
         dfy = m * (vsy - W0[1]) / h
         dt_ = -mass[2] * W0[2] / h
         if cand != mode:
-            # necessary: the change of momentum to rest on cand within all the limits
-            # (cand's static ones, the others' kinetic pull at most mu_ratio times theirs)
-            reach_f = stat[cand, 0] + _scaled(mu_ratio, f_all - stat[cand, 0])
-            reach_t = stat[cand, 1] + _scaled(mu_ratio, t_all - stat[cand, 1])
+            # necessary: the change of momentum to rest on cand within cand's static
+            # limits and the most the others can pull
+            reach_f = stat[cand, 0] + pull_f - pull[cand, 0]
+            reach_t = stat[cand, 1] + pull_t - pull[cand, 1]
             if math.hypot(dfx, dfy) > reach_f * (1.0 + 1e-9) or (
                 rot and abs(dt_) > reach_t * (1.0 + 1e-9)
             ):
@@ -2206,8 +2289,21 @@ def _implicit_step_exact(
             st[3] = vsx
             st[4] = vsy
             st[5] = 0.0
-            evaluate_surfaces(
-                st, strips, parcel, nodes, weights, cand, False, others, stat[:0], area, slip
+            _step_wrenches(
+                exact,
+                st,
+                cand,
+                False,
+                strips,
+                parcel,
+                nodes,
+                weights,
+                npt,
+                pts,
+                others,
+                stat,
+                area,
+                slip,
             )
             n_eval += 1
             src = others
@@ -2240,11 +2336,24 @@ def _implicit_step_exact(
             st[3] = W[0]
             st[4] = W[1]
             st[5] = W[2]
-            evaluate_surfaces(
-                st, strips, parcel, nodes, weights, -1, False, kin, stat[:0], area, slip
+            _step_wrenches(
+                exact,
+                st,
+                -1,
+                False,
+                strips,
+                parcel,
+                nodes,
+                weights,
+                npt,
+                pts,
+                kin,
+                stat,
+                area,
+                slip,
             )
             n_eval += 1
-    # --- slide: Newton on f with the carried BFGS Hessian and a backtracking line search
+    # --- slide: Newton on f with a backtracking line search
     grad = np.empty(3)
     gt = np.empty(3)
     Wt = np.empty(3)
@@ -2252,8 +2361,8 @@ def _implicit_step_exact(
     st[3] = W[0]
     st[4] = W[1]
     st[5] = W[2]
-    fresh = fresh or mode >= 0
-    if fresh:
+    fresh = fresh or mode >= 0 or not exact  # the point set's Hessian is exact anyway
+    if exact and fresh:
         dissipation_hessian(st, strips, parcel, hess)
     fval = _implicit_objective(W, W0, mass, h, kin, nsurf, strips, rot, grad)
     # f is (M/h)-strongly convex: |W - W+|_M <= h |grad|_M⁻¹ whatever the Hessian
@@ -2273,18 +2382,23 @@ def _implicit_step_exact(
         gnorm = math.sqrt(gnorm)
         if g_first < 0.0:
             g_first = gnorm
+        if not exact:
+            st[3] = W[0]
+            st[4] = W[1]
+            st[5] = W[2]
+            _points_hessian(st, npt, pts, hess)
         for i in range(3):
             for j in range(3):
                 H[i, j] = hess[i, j]
             H[i, i] += mass[i] / h
         dW = _solve_spd(H, grad, nvar)
-        f_noise = F_NOISE * abs(fval)
         if gnorm <= SOLVE_RATIO * g_first or gnorm <= g_round:
             # the model's Newton step costs nothing, and as H >= M/h it moves W by at
             # most the bound that was just accepted
             for i in range(nvar):
                 W[i] += dW[i]
             break
+        f_noise = F_NOISE * abs(fval)
         slope = grad[0] * dW[0] + grad[1] * dW[1] + grad[2] * dW[2]
         step = 1.0
         ok = False
@@ -2295,8 +2409,21 @@ def _implicit_step_exact(
             st[3] = Wt[0]
             st[4] = Wt[1]
             st[5] = Wt[2]
-            evaluate_surfaces(
-                st, strips, parcel, nodes, weights, -1, False, kin, stat[:0], area, slip
+            _step_wrenches(
+                exact,
+                st,
+                -1,
+                False,
+                strips,
+                parcel,
+                nodes,
+                weights,
+                npt,
+                pts,
+                kin,
+                stat,
+                area,
+                slip,
             )
             n_eval += 1
             ft = _implicit_objective(Wt, W0, mass, h, kin, nsurf, strips, rot, gt)
@@ -2321,28 +2448,29 @@ def _implicit_step_exact(
             dissipation_hessian(st, strips, parcel, hess)
             fresh = True
             continue
-        # BFGS on D's Hessian from the accepted step's secant pair (D's part only)
-        sy = 0.0
-        shs = 0.0
-        ss = 0.0
-        yy = 0.0
-        for i in range(nvar):
-            sv[i] = Wt[i] - W[i]
-            yv[i] = gt[i] - grad[i] - mass[i] * sv[i] / h
-        for i in range(nvar):
-            hs[i] = 0.0
-            for j in range(nvar):
-                hs[i] += hess[i, j] * sv[j]
-            sy += sv[i] * yv[i]
-            shs += sv[i] * hs[i]
-            ss += sv[i] * sv[i]
-            yy += yv[i] * yv[i]
-        if sy > 1e-12 * math.sqrt(ss * yy):
+        if exact:
+            # BFGS on D's Hessian from the accepted step's secant pair (D's part only)
+            sy = 0.0
+            shs = 0.0
+            ss = 0.0
+            yy = 0.0
             for i in range(nvar):
+                sv[i] = Wt[i] - W[i]
+                yv[i] = gt[i] - grad[i] - mass[i] * sv[i] / h
+            for i in range(nvar):
+                hs[i] = 0.0
                 for j in range(nvar):
-                    hess[i, j] += yv[i] * yv[j] / sy
-                    if shs > 0.0:
-                        hess[i, j] -= hs[i] * hs[j] / shs
+                    hs[i] += hess[i, j] * sv[j]
+                sy += sv[i] * yv[i]
+                shs += sv[i] * hs[i]
+                ss += sv[i] * sv[i]
+                yy += yv[i] * yv[i]
+            if sy > 1e-12 * math.sqrt(ss * yy):
+                for i in range(nvar):
+                    for j in range(nvar):
+                        hess[i, j] += yv[i] * yv[j] / sy
+                        if shs > 0.0:
+                            hess[i, j] -= hs[i] * hs[j] / shs
         for i in range(3):
             W[i] = Wt[i]
             grad[i] = gt[i]
@@ -2354,120 +2482,6 @@ def _implicit_step_exact(
     y_out[1] = y[1] + h * y_out[4]
     y_out[2] = y[2] + h * y_out[5]
     return MODE_SLIDE, n_eval
-
-
-@njit(cache=True)
-def _implicit_step_lagged(
-    y, h, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy, stat, y_out, xis
-):
-    """
-    One backward-Euler velocity step over the point set, μ lagged; returns (mode, iterations).
-
-    ``xis`` (nsurf x 3): each surface's limit-set gauge twist, carried from step to step.
-    """
-    m = parcel[P_MASS]
-    inertia = parcel[P_INERTIA]
-    rot = parcel[P_ROTATION] > 0.5
-    npt = _build_points(
-        y, strips, parcel, nodes, weights, nsurf, px, py, ck, surf_of, svx, svy, stat
-    )
-    W0 = np.array([y[3], y[4], y[5] if rot else 0.0])
-    mass = np.array([m, m, inertia if rot else 1.0])
-    wr = np.empty(3)
-    # stick test, surface by surface: the wrench the surface must supply to carry the
-    # parcel through the step (``_stick_load``)
-    present = np.zeros(nsurf)
-    for k in range(npt):
-        present[surf_of[k]] = 1.0
-    for s in range(nsurf):
-        if present[s] == 0.0:
-            continue
-        vsx, vsy = surface_velocity(strips, s)
-        Ws = np.array([vsx, vsy, 0.0])
-        _friction_at(Ws, y, npt, px, py, ck, surf_of, svx, svy, s, wr)
-        rfx = mass[0] * (Ws[0] - W0[0]) / h - wr[0]
-        rfy = mass[1] * (Ws[1] - W0[1]) / h - wr[1]
-        rt = mass[2] * (Ws[2] - W0[2]) / h - wr[2]
-        if _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xis[s]) <= 1.0:
-            y_out[3] = vsx
-            y_out[4] = vsy
-            y_out[5] = 0.0
-            y_out[0] = y[0] + h * vsx
-            y_out[1] = y[1] + h * vsy
-            y_out[2] = y[2]
-            return s, 0
-    # no stick: damped Newton on f(W) = ½ (W-W0)ᵀM(W-W0)/h + D(W)
-    W = W0.copy()
-    its = 0
-    Wt = np.empty(3)
-    grad = np.empty(3)
-    H = np.empty((3, 3))
-    nvar = 3 if rot else 2
-    fval = 0.0
-    have_f = False  # f and the wrench at W are known from the last line search
-    for its in range(1, 60):
-        if not have_f:
-            fval = _friction_at(W, y, npt, px, py, ck, surf_of, svx, svy, -1, wr)
-            for i in range(3):
-                fval += 0.5 * mass[i] * (W[i] - W0[i]) ** 2 / h
-        for i in range(3):
-            grad[i] = mass[i] * (W[i] - W0[i]) / h - wr[i]
-        gn = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + (grad[2] ** 2 if rot else 0.0))
-        if gn <= 1e-12 * (m / h) * 1e-3:
-            break
-        H[:, :] = 0.0
-        for i in range(3):
-            H[i, i] = mass[i] / h
-        for k in range(npt):
-            rx = px[k] - y[0]
-            ry = py[k] - y[1]
-            ux = W[0] - W[2] * ry - svx[k]
-            uy = W[1] + W[2] * rx - svy[k]
-            sp = max(math.sqrt(ux * ux + uy * uy), 1e-12)
-            hx = ux / sp
-            hy = uy / sp
-            c = ck[k] / sp
-            # J = [[1, 0, -ry], [0, 1, rx]]; H += c Jᵀ (I - ûûᵀ) J
-            pxx = c * (1.0 - hx * hx)
-            pxy = -c * hx * hy
-            pyy = c * (1.0 - hy * hy)
-            H[0, 0] += pxx
-            H[0, 1] += pxy
-            H[1, 1] += pyy
-            H[0, 2] += -pxx * ry + pxy * rx
-            H[1, 2] += -pxy * ry + pyy * rx
-            H[2, 2] += pxx * ry * ry - 2.0 * pxy * rx * ry + pyy * rx * rx
-        H[1, 0] = H[0, 1]
-        H[2, 0] = H[0, 2]
-        H[2, 1] = H[1, 2]
-        dW = _solve_spd(H, grad, nvar)
-        # backtracking line search on f
-        step = 1.0
-        for _ in range(40):
-            for i in range(3):
-                Wt[i] = W[i] + step * dW[i]
-            ft = _friction_at(Wt, y, npt, px, py, ck, surf_of, svx, svy, -1, wr)
-            for i in range(3):
-                ft += 0.5 * mass[i] * (Wt[i] - W0[i]) ** 2 / h
-            if ft <= fval - 1e-4 * step * (-(grad[0] * dW[0] + grad[1] * dW[1] + grad[2] * dW[2])):
-                break
-            step *= 0.5
-        for i in range(3):
-            W[i] = Wt[i]
-        # wr now holds the wrench at the accepted point: the next iteration reuses it
-        fval = ft
-        have_f = True
-        if step * math.sqrt(dW[0] ** 2 + dW[1] ** 2 + dW[2] ** 2) <= 1e-15 * (
-            1.0 + math.sqrt(W[0] ** 2 + W[1] ** 2)
-        ):
-            break
-    y_out[3] = W[0]
-    y_out[4] = W[1]
-    y_out[5] = W[2] if rot else 0.0
-    y_out[0] = y[0] + h * y_out[3]
-    y_out[1] = y[1] + h * y_out[4]
-    y_out[2] = y[2] + h * y_out[5]
-    return MODE_SLIDE, its
 
 
 @njit(cache=True)
@@ -2520,17 +2534,11 @@ def run_implicit(
 ):
     """Fixed-step implicit integration; the scrap line is located by linear interpolation."""
     nsurf = n_surf_of(strips)
-    cap = 4 * nodes.shape[0] * nodes.shape[0] * MAX_VERTS * strips.shape[0] + 1
-    px = np.empty(cap)
-    py = np.empty(cap)
-    ck = np.empty(cap)
-    surf_of = np.empty(cap, dtype=np.int64)
-    svx = np.empty(cap)
-    svy = np.empty(cap)
-    stat = np.empty((nsurf, 2))
-    xis = np.zeros((nsurf, 3))
-    # constant μ everywhere: the exact step; its bound on the other surfaces' pull
+    # constant μ everywhere: the exact step (no point set); its bound on the others' pull
     exact, mu_ratio = _constant_friction(strips)
+    cap = 1 if exact else 4 * nodes.shape[0] * nodes.shape[0] * MAX_VERTS * strips.shape[0] + 1
+    pts = np.empty((cap, 6))
+    xis = np.zeros((nsurf, 3))
     guess = np.empty(3)
     w_last = np.empty(3)
     h_last = 0.0
@@ -2542,7 +2550,6 @@ def run_implicit(
     n_out = _record(ts, ys, ms, 0, t, y, mode)
     n_ev = 0
     n_steps = 0
-    n_newton = 0
     n_rhs = 0
     status = ST_END
     # step times as t0 + i h, so round-off never adds a sliver of a last step
@@ -2550,52 +2557,31 @@ def run_implicit(
     for i_step in range(n_total):
         t_next = t_end if i_step == n_total - 1 else t0 + (i_step + 1) * h
         hh = t_next - t
-        if exact:
-            # W+ predicted by the last step's change of velocity, where it slid throughout
-            for i in range(3):
-                guess[i] = y[3 + i]
-                if mode < 0 and h_last > 0.0:
-                    guess[i] += (y[3 + i] - w_last[i]) * (hh / h_last)
-                w_last[i] = y[3 + i]
-            new_mode, its = _implicit_step_exact(
-                y,
-                hh,
-                mode,
-                strips,
-                parcel,
-                nodes,
-                weights,
-                nsurf,
-                mu_ratio,
-                guess,
-                hess,
-                h_last == 0.0,  # the Hessian carried from a sliding step, or a fresh model
-                xis,
-                y_new,
-            )
-            h_last = hh if new_mode < 0 else 0.0
-            n_rhs += its
-        else:
-            new_mode, its = _implicit_step_lagged(
-                y,
-                hh,
-                strips,
-                parcel,
-                nodes,
-                weights,
-                nsurf,
-                px,
-                py,
-                ck,
-                surf_of,
-                svx,
-                svy,
-                stat,
-                y_new,
-                xis,
-            )
-            n_rhs += 1  # one point-set build
-        n_newton += its
+        # W+ predicted by the last step's change of velocity, where it slid throughout
+        for i in range(3):
+            guess[i] = y[3 + i]
+            if mode < 0 and h_last > 0.0:
+                guess[i] += (y[3 + i] - w_last[i]) * (hh / h_last)
+            w_last[i] = y[3 + i]
+        new_mode, its = implicit_step(
+            y,
+            hh,
+            mode,
+            strips,
+            parcel,
+            nodes,
+            weights,
+            exact,
+            mu_ratio,
+            pts,
+            guess,
+            hess,
+            h_last == 0.0,  # the Hessian carried from a sliding step, or a fresh model
+            xis,
+            y_new,
+        )
+        h_last = hh if new_mode < 0 else 0.0
+        n_rhs += its
         n_steps += 1
         if new_mode != mode:
             n_ev = _log_event(
@@ -2620,7 +2606,7 @@ def run_implicit(
             break
     counters[0] = n_steps
     counters[1] = n_rhs
-    counters[2] = n_newton
+    counters[2] = 0  # a fixed step is never rejected
     counters[3] = n_out
     counters[4] = n_ev
     return status, t, mode
