@@ -73,6 +73,7 @@ from .dopri import C, dense, rms_norm, sign_change, stage_state, step_error, ste
 from .friction import law_is_constant, mu_kinetic, mu_static
 from .geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
 from .wrench import (
+    add_slip_curvature,
     dissipation_hessian,
     evaluate_surfaces,
     rest_surface_wrench,
@@ -2064,19 +2065,7 @@ def _points_hessian(st, npt, pts, out):
         ux = st[3] - st[5] * ry - pts[k, PT_VX]
         uy = st[4] + st[5] * rx - pts[k, PT_VY]
         sp = max(math.sqrt(ux * ux + uy * uy), 1e-12)
-        hx = ux / sp
-        hy = uy / sp
-        c = pts[k, PT_C] / sp
-        # J = [[1, 0, -ry], [0, 1, rx]]
-        pxx = c * (1.0 - hx * hx)
-        pxy = -c * hx * hy
-        pyy = c * (1.0 - hy * hy)
-        out[0, 0] += pxx
-        out[0, 1] += pxy
-        out[1, 1] += pyy
-        out[0, 2] += -pxx * ry + pxy * rx
-        out[1, 2] += -pxy * ry + pyy * rx
-        out[2, 2] += pxx * ry * ry - 2.0 * pxy * rx * ry + pyy * rx * rx
+        add_slip_curvature(out, pts[k, PT_C], ux, uy, sp, rx, ry)
     out[1, 0] = out[0, 1]
     out[2, 0] = out[0, 2]
     out[2, 1] = out[1, 2]

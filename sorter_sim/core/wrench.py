@@ -243,6 +243,27 @@ def strip_wrench_quad(
 
 
 @njit(cache=True)
+def add_slip_curvature(out, c, ux, uy, sp, rx, ry):
+    """
+    Add the Hessian of c |u| in the twist, c Jᵀ(I - ûûᵀ)J / |u|, to the upper triangle of ``out``.
+
+    u = (ux, uy) the rubbing velocity of a point at r = (rx, ry) from g, sp = |u| > 0,
+    J = [[1, 0, -r_y], [0, 1, r_x]] its velocity's derivative in the twist. As
+    I - ûûᵀ = n nᵀ with n = ẑ × û, it is one rank-one term.
+    """
+    c = c / sp
+    jn0 = -uy / sp
+    jn1 = ux / sp
+    jn2 = -ry * jn0 + rx * jn1
+    out[0, 0] += c * jn0 * jn0
+    out[0, 1] += c * jn0 * jn1
+    out[0, 2] += c * jn0 * jn2
+    out[1, 1] += c * jn1 * jn1
+    out[1, 2] += c * jn1 * jn2
+    out[2, 2] += c * jn2 * jn2
+
+
+@njit(cache=True)
 def dissipation_hessian(state, strips, parcel, out):
     """
     Model the Hessian of the dissipation rate D at the twist in ``state`` (3 x 3, ``out``).
@@ -286,17 +307,8 @@ def dissipation_hessian(state, strips, parcel, out):
             ux = state[3] - state[5] * ry - strips[k, S_VX]
             uy = state[4] + state[5] * rx - strips[k, S_VY]
             sp = max(math.sqrt(ux * ux + uy * uy), 1e-300)
-            c = 0.5 * det * p_unit * w * mu_kinetic(law, params, sp) / sp
-            # (I - ûûᵀ) = n nᵀ with n = ẑ × û: one rank-one term per point
-            jn0 = -uy / sp
-            jn1 = ux / sp
-            jn2 = -ry * jn0 + rx * jn1
-            out[0, 0] += c * jn0 * jn0
-            out[0, 1] += c * jn0 * jn1
-            out[0, 2] += c * jn0 * jn2
-            out[1, 1] += c * jn1 * jn1
-            out[1, 2] += c * jn1 * jn2
-            out[2, 2] += c * jn2 * jn2
+            c = 0.5 * det * p_unit * w * mu_kinetic(law, params, sp)
+            add_slip_curvature(out, c, ux, uy, sp, rx, ry)
     out[1, 0] = out[0, 1]
     out[2, 0] = out[0, 2]
     out[2, 1] = out[1, 2]
