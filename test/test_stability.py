@@ -10,6 +10,7 @@ The full matrix, 10 minutes of two-belt positioning and the quick report run beh
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 
@@ -18,6 +19,7 @@ import pytest
 
 from sorter_sim.analysis import stiff_cases as sx
 from sorter_sim.analysis.workprecision import (
+    ParcelCase,
     ScipyParcel,
     Trajectory,
     compare,
@@ -28,6 +30,7 @@ from sorter_sim.analysis.workprecision import (
     oscillator_trajectory,
 )
 from sorter_sim.core.oscillator import Oscillator
+from sorter_sim.core.simulate import three_zone_strips
 
 
 def _matrix_params(quick: bool):
@@ -105,6 +108,30 @@ def test_the_implicit_method_with_constant_mu_has_no_quadrature_floor():
     assert 8.0 < errs[0] / errs[1] < 12.0 and errs[1] < 2e-6, errs
     res = case.run_core("implicit", dt=1e-3)
     assert res.success and res.nfev <= 2 * res.n_steps, (res.nfev, res.n_steps)
+
+
+def test_a_slip_breaking_away_leaves_the_kink_under_a_speed_dependent_mu():
+    """
+    Check that the implicit method's slip grows after a break-away with a lagged μ.
+
+    Fig. 9a with the B-spline law: the point set's friction has its kink at the belt's
+    velocity, where Newton's steps from a start on the kink shrink to nothing. A solve
+    once stopped there, the parcel riding on at the belt's speed after the break, and
+    the error grew as the step shrank (1.7e-4 m at 1e-4 s, 6.7e-4 m at 3e-5 s). Now
+    it stays at the point set's quadrature floor (about 3e-5 m at n_quad 8).
+    """
+    base = sx.sorting_case(t_max=3.0)
+    law = sx.bspline_law()
+    case = ParcelCase(
+        base.parcel,
+        three_zone_strips(1.5, math.radians(90.0), math.inf, law, law),
+        base.y0,
+        base.t_span,
+        base.y_target,
+    )
+    ref = case.core("accurate", rtol=1e-12, atol=1e-12)
+    errs = [compare(case.core("implicit", dt=dt), ref).final for dt in (1e-4, 3e-5)]
+    assert errs[1] < 1e-4 and errs[1] < 1.2 * errs[0], errs
 
 
 def test_an_oscillation_between_belts_is_not_taken_for_an_approach_to_a_stick():

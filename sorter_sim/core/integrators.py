@@ -149,7 +149,7 @@ STIFF_RATIO = 2.0  # x rtol^(1/5): where a 5th-order step's error in the turning
 STICK_RTOL = 1e-13  # relative: a balance to rounding (a few ulps of the wrench sums) holds
 GAUGE_ITERATIONS = 60
 F_NOISE = 1e-13  # relative rounding of a sum of wrench-based dissipations (closed form)
-SOLVE_RATIO = 1e-2  # the implicit solve stops where |grad| falls below this of its start
+SOLVE_RATIO = 1e-2  # the implicit solve's error bound, relative to how far it moved
 
 
 @njit(cache=True)
@@ -2176,6 +2176,17 @@ def _scaled(ratio, x):
 
 
 @njit(cache=True)
+def _stuck_step(y, h, vsx, vsy, y_out):
+    """A step stuck to a surface moving at (vsx, vsy): rigid translation with it."""
+    y_out[0] = y[0] + h * vsx
+    y_out[1] = y[1] + h * vsy
+    y_out[2] = y[2]
+    y_out[3] = vsx
+    y_out[4] = vsy
+    y_out[5] = 0.0
+
+
+@njit(cache=True)
 def implicit_step(
     y,
     h,
@@ -2225,6 +2236,18 @@ def implicit_step(
     pull = np.empty((nsurf, 2))
     area = np.empty(nsurf)
     slip = np.empty(nsurf)
+    if mode >= 0:
+        vsx, vsy = surface_velocity(strips, mode)
+        if W0[0] == vsx and W0[1] == vsy and W0[2] == 0.0:
+            # riding a surface alone under the parcel: it must supply no wrench at all,
+            # which every limit set holds (the clip alone tells)
+            _contact_surfaces(y, strips, parcel, nsurf, area)
+            alone = area[mode] > 0.0
+            for s in range(nsurf):
+                alone = alone and (s == mode or area[s] <= 0.0)
+            if alone:
+                _stuck_step(y, h, vsx, vsy, y_out)
+                return mode, 0
     st = y.copy()
     npt = 0 if exact else _build_points(y, strips, parcel, nodes, weights, pts, stat, pull, area)
     # the Newton start and the wrenches there: the guess, or while stuck the surface's
@@ -2308,20 +2331,22 @@ def implicit_step(
                 wt -= src[o, 2]
         load = _stick_load(y, strips, parcel, nodes, weights, cand, wfx, wfy, wt, stat, xis[cand])
         if load <= 1.0:
-            y_out[3] = vsx
-            y_out[4] = vsy
-            y_out[5] = 0.0
-            y_out[0] = y[0] + h * vsx
-            y_out[1] = y[1] + h * vsy
-            y_out[2] = y[2]
+            _stuck_step(y, h, vsx, vsy, y_out)
             return cand, n_eval
-        if cand == mode:
-            # the stick breaks: start where the surplus the patch cannot hold moves the
-            # parcel in one step (Newton and its line search take it from there)
-            excess = 1.0 - 1.0 / load if load < math.inf else 1.0
-            W[0] = vsx - excess * h * wfx / m
-            W[1] = vsy - excess * h * wfy / m
-            W[2] = -excess * h * wt / mass[2] if rot else 0.0
+        # no stick: the surplus the patch cannot hold moves the parcel off its velocity
+        # by about b in one step. A start within 1 % of that from the velocity sits on
+        # the kink of its friction (just stuck, or a slip just broken away), where
+        # Newton's steps shrink to nothing: start at b instead (Newton and its line
+        # search take it from there).
+        excess = 1.0 - 1.0 / load if load < math.inf else 1.0
+        bx = -excess * h * wfx / m
+        by = -excess * h * wfy / m
+        bt = -excess * h * wt / mass[2] if rot else 0.0
+        off = m * ((W[0] - vsx) ** 2 + (W[1] - vsy) ** 2) + mass[2] * W[2] ** 2
+        if cand == mode or off < 1e-4 * (m * (bx * bx + by * by) + mass[2] * bt * bt):
+            W[0] = vsx + bx
+            W[1] = vsy + by
+            W[2] = bt
             st[3] = W[0]
             st[4] = W[1]
             st[5] = W[2]
@@ -2355,22 +2380,25 @@ def implicit_step(
         dissipation_hessian(st, strips, parcel, hess)
     fval = _implicit_objective(W, W0, mass, h, kin, nsurf, strips, rot, grad)
     # f is (M/h)-strongly convex: |W - W+|_M <= h |grad|_M⁻¹ whatever the Hessian
-    # model. The solve stops where that bound falls below SOLVE_RATIO of its value at
-    # the guess (which is off by about the step's local error) or the gradient reaches
-    # the wrenches' rounding. Not on f's rounding: at small h the velocity errors a
-    # gain below it leaves add up over the many steps.
+    # model. The solve stops where that bound falls below SOLVE_RATIO of how far W has
+    # moved from its start (from a guess: about the step's local error), or the
+    # gradient reaches the wrenches' rounding. Not relative to the first gradient: a
+    # start at a kink (a slip just broken away) has the whole jump of a surface's
+    # friction in it. Not on f's rounding: at small h the velocity errors a gain below
+    # it leaves add up over the many steps.
     g_round = 1e-12 * f_all / math.sqrt(m)
-    g_first = -1.0
+    w_start = W.copy()
     sv = np.empty(3)
     yv = np.empty(3)
     hs = np.empty(3)
     for _ in range(60):
         gnorm = 0.0
+        moved = 0.0
         for i in range(nvar):
             gnorm += grad[i] ** 2 / mass[i]
+            moved += mass[i] * (W[i] - w_start[i]) ** 2
         gnorm = math.sqrt(gnorm)
-        if g_first < 0.0:
-            g_first = gnorm
+        moved = math.sqrt(moved)
         if not exact:
             st[3] = W[0]
             st[4] = W[1]
@@ -2381,7 +2409,7 @@ def implicit_step(
                 H[i, j] = hess[i, j]
             H[i, i] += mass[i] / h
         dW = _solve_spd(H, grad, nvar)
-        if gnorm <= SOLVE_RATIO * g_first or gnorm <= g_round:
+        if h * gnorm <= SOLVE_RATIO * moved or gnorm <= g_round:
             # the model's Newton step costs nothing, and as H >= M/h it moves W by at
             # most the bound that was just accepted
             for i in range(nvar):
