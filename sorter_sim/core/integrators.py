@@ -2217,11 +2217,13 @@ def implicit_step(
     A stick is tested first (``_stick_load``): on the surface stuck to, then on any
     other the step could bring to rest (the change of momentum within all the limits:
     the others' pull bounded by ``mu_ratio`` times their static limits, or by the
-    point set's own sums). Then Newton on f from ``guess`` (the caller's prediction
-    of W+, about the step's local error off) with a backtracking line search. Its
-    Hessian: the point set's own, exactly, or for the exact wrench a model
-    (``dissipation_hessian``, where ``fresh``) that BFGS updates carry from step to
-    step in ``hess`` (3 x 3): about two evaluations a step. ``xis`` (nsurf x 3): each
+    point set's own sums); a parcel riding a surface alone under it needs no more
+    than a clip. Then Newton on f from ``guess`` (the caller's prediction of W+,
+    about the step's local error off), moved off the kink of a surface that does not
+    hold where it sits on one, with a backtracking line search. Its Hessian: the
+    point set's own, exactly, or for the exact wrench a model (``dissipation_hessian``,
+    where ``fresh``) that BFGS updates carry from step to step in ``hess`` (3 x 3):
+    about 1.5 wrench evaluations a step on Fig. 9a. ``xis`` (nsurf x 3): each
     surface's limit-set gauge twist, carried from step to step.
     """
     m = parcel[P_MASS]
