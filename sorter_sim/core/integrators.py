@@ -2177,7 +2177,7 @@ def _scaled(ratio, x):
 
 @njit(cache=True)
 def _stuck_step(y, h, vsx, vsy, y_out):
-    """A step stuck to a surface moving at (vsx, vsy): rigid translation with it."""
+    """Take a step stuck to a surface moving at (vsx, vsy): rigid translation with it."""
     y_out[0] = y[0] + h * vsx
     y_out[1] = y[1] + h * vsy
     y_out[2] = y[2]
