@@ -117,6 +117,38 @@ def test_force_and_moment_interact_inside_the_seeds_box():
         assert m < 0.0 and area > 0.0
 
 
+@pytest.mark.parametrize("surf", [0, 1])
+def test_the_inner_bound_of_the_limit_set_never_admits_a_wrench_outside_it(surf):
+    """
+    Check ``inside_limit_set`` (which spares the implicit step a gauge solve) is sound.
+
+    Wrenches just outside the set (support points of random twists, the boundary, x
+    1.001) must never be admitted; of random wrenches inside the seed's box, those it
+    admits must have a gauge <= 1, and it must admit a good share of those well inside
+    (gauge < 0.2), or it would spare nothing.
+    """
+    rng = np.random.default_rng(7)
+    admitted = well_inside = 0
+    for x_cg in (-0.25, -0.05, 0.15, 0.3):
+        for phi in (0.0, 0.4, 1.2):
+            _, arr, par, nodes, weights, y = _patch(x_cg=x_cg, phi=phi)
+            f_max, t_max = _seed_limits(arr, par, nodes, weights, y, surf)
+            if f_max <= 0.0:
+                continue
+            for _ in range(40):
+                xi = rng.normal(size=3) * np.array([1.0, 1.0, 5.0])
+                w = np.array(static_surface_wrench(y, arr, par, nodes, weights, surf, *xi))
+                assert not ig.inside_limit_set(y, arr, par, surf, *(-1.001 * w))
+                box = rng.uniform(-1.0, 1.0, size=3) * np.array([f_max, f_max, t_max])
+                for scale in (1.0, 0.3, 0.1):
+                    v = box * scale
+                    if ig.inside_limit_set(y, arr, par, surf, *v):
+                        admitted += 1
+                        assert _gauge(arr, par, nodes, weights, y, surf, v) <= 1.0
+                    well_inside += _gauge(arr, par, nodes, weights, y, surf, v) < 0.2
+    assert admitted > 0.3 * well_inside, (admitted, well_inside)
+
+
 # ------------------------------------------------------------------ diversions
 
 CASES = {

@@ -2141,8 +2141,58 @@ def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi):
     # the decoupled limits are necessary for the limit set too (|F| <= μN, and |T|
     # about g at most the pure spin's): the gauge runs only where they hold
     if load <= 1.0 and rot and parcel[P_STICK] > 0.5:
-        load = limit_gauge(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, xi) / tol
+        if not inside_limit_set(y, strips, parcel, s, rfx, rfy, rt):
+            load = limit_gauge(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, xi) / tol
     return load
+
+
+@njit(cache=True)
+def inside_limit_set(state, strips, parcel, surf, fx, fy, t):
+    """
+    Return True if the wrench (fx, fy, t about g) lies in ``surf``'s limit set, by a bound.
+
+    Sufficient, not necessary: it saves the gauge's Newton solve for a wrench well
+    inside. The patch's dissipation D(V, ω) = ∫ρ|V + ω ẑ×(p - g)| dA (ρ = μ_s times the
+    pressure) is at least |∫ρ(V + ω ẑ×(p - g))| >= F_max (|V| - |ω| d), d the distance
+    from g to the patch's load centroid, and at least |ω| J with J = min over centres
+    c of ∫ρ|p - c| dA >= (2/3) F_max sqrt(F_max / (π ρ_max)) (the load packed at its
+    densest into a disk about c). Mixing the two bounds with the weights |F|/F_max and
+    1 - |F|/F_max gives D >= |F||V| + |T||ω| >= F·V + Tω for every twist, i.e. the
+    wrench is in the set, where |T| + |F| d <= (1 - |F|/F_max) J.
+    """
+    x = state[0]
+    y = state[1]
+    half_a = parcel[P_HALF_A]
+    half_b = parcel[P_HALF_B]
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * half_a * half_b)
+    corners = np.empty((4, 2))
+    poly = np.empty((MAX_VERTS, 2))
+    work = np.empty((MAX_VERTS, 2))
+    box_corners(x, y, state[2], half_a, half_b, corners)
+    f_max = 0.0
+    mx = 0.0
+    my = 0.0
+    rho_max = 0.0
+    for k in range(strips.shape[0]):
+        w = strips[k, S_WEIGHT]
+        if w <= 0.0 or int(strips[k, S_SURF]) != surf:
+            continue
+        n = clip_to_strip(corners, strips[k, S_XLO], strips[k, S_XHI], poly, work)
+        a, qx, qy = polygon_area_centroid(poly, n)
+        if a <= 0.0:
+            continue
+        rho = mu_static(int(strips[k, S_LAW]), strips[k, S_PARAMS:]) * p_unit * w
+        f_max += rho * a
+        mx += rho * a * (qx - x)
+        my += rho * a * (qy - y)
+        rho_max = max(rho_max, rho)
+    if not f_max > 0.0:
+        return False
+    f = math.hypot(fx, fy)
+    d = math.hypot(mx, my) / f_max
+    j_min = (2.0 / 3.0) * f_max * math.sqrt(f_max / (math.pi * rho_max))
+    # (a hair of margin for the rounding of the sums)
+    return abs(t) + f * d <= (1.0 - f / f_max) * j_min * (1.0 - 1e-9)
 
 
 @njit(cache=True)
