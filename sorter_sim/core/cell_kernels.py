@@ -23,8 +23,8 @@ Per parcel and period:
   parcel through a 1.0 m disk field (0.5 s of diversion, 1 ms periods) it costs
   about 9 us per parcel-period at rtol 1e-6 and ends 4e-11 m from a 1e-12
   reference, where one backward-Euler step per period (``implicit``, exact
-  stick too) costs about 6 us and errs by 6e-5 m (first order in the period).
-  So the accurate method, exact at half as much again, stays the default.
+  stick too) costs about 4.5 us and errs by 6e-5 m (first order in the period).
+  So the accurate method, exact at about twice that, stays the default.
 * A surface that changed velocity since the last period (α slewing, the belt
   stopped by an e-stop or restarted) cannot hold a parcel stuck to its old
   velocity: the parcel is handed to the integrator as sliding and re-sticks

@@ -2131,7 +2131,8 @@ def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi):
     limit set (exact stick, ``limit_gauge``: the value is the gauge) or within the
     seed's decoupled force and moment limits ``stat[s]`` (seed stick; also without
     rotation, where φ̇ = 0 is a constraint). Above 1 it is the larger of the decoupled
-    ratios, or the gauge where those hold.
+    ratios, or the gauge where those hold. The gauge's Newton solve runs only where
+    ``inside_limit_set`` cannot tell the wrench is inside.
     """
     rot = parcel[P_ROTATION] > 0.5
     tol = 1.0 + STICK_RTOL
