@@ -2227,6 +2227,35 @@ def _scaled(ratio, x):
 
 
 @njit(cache=True)
+def _bfgs_update(hess, sv, yv, nvar, hs):
+    """
+    BFGS update of ``hess`` (its leading nvar x nvar block) by the secant pair (sv, yv).
+
+    Skipped where the pair's curvature sv·yv is not clearly positive (a convex
+    function's never is negative; zero at rounding), so the matrix stays positive
+    semidefinite. ``hs``: scratch (3).
+    """
+    sy = 0.0
+    shs = 0.0
+    ss = 0.0
+    yy = 0.0
+    for i in range(nvar):
+        hs[i] = 0.0
+        for j in range(nvar):
+            hs[i] += hess[i, j] * sv[j]
+        sy += sv[i] * yv[i]
+        shs += sv[i] * hs[i]
+        ss += sv[i] * sv[i]
+        yy += yv[i] * yv[i]
+    if sy > 1e-12 * math.sqrt(ss * yy):
+        for i in range(nvar):
+            for j in range(nvar):
+                hess[i, j] += yv[i] * yv[j] / sy
+                if shs > 0.0:
+                    hess[i, j] -= hs[i] * hs[j] / shs
+
+
+@njit(cache=True)
 def _stuck_step(y, h, vsx, vsy, y_out):
     """Take a step stuck to a surface moving at (vsx, vsy): rigid translation with it."""
     y_out[0] = y[0] + h * vsx
@@ -2519,28 +2548,11 @@ def implicit_step(
             fresh = True
             continue
         if exact:
-            # BFGS on D's Hessian from the accepted step's secant pair (D's part only)
-            sy = 0.0
-            shs = 0.0
-            ss = 0.0
-            yy = 0.0
+            # D's part of the accepted step's secant pair
             for i in range(nvar):
                 sv[i] = Wt[i] - W[i]
                 yv[i] = gt[i] - grad[i] - mass[i] * sv[i] / h
-            for i in range(nvar):
-                hs[i] = 0.0
-                for j in range(nvar):
-                    hs[i] += hess[i, j] * sv[j]
-                sy += sv[i] * yv[i]
-                shs += sv[i] * hs[i]
-                ss += sv[i] * sv[i]
-                yy += yv[i] * yv[i]
-            if sy > 1e-12 * math.sqrt(ss * yy):
-                for i in range(nvar):
-                    for j in range(nvar):
-                        hess[i, j] += yv[i] * yv[j] / sy
-                        if shs > 0.0:
-                            hess[i, j] -= hs[i] * hs[j] / shs
+            _bfgs_update(hess, sv, yv, nvar, hs)
         for i in range(3):
             W[i] = Wt[i]
             grad[i] = gt[i]
