@@ -427,6 +427,18 @@ def _contact_surfaces(state, strips, parcel, nsurf, out_area):
 
 
 @njit(cache=True)
+def _alone_on(state, strips, parcel, nsurf, surf, area):
+    """Return True where ``surf`` is the only surface under the parcel (``area``: scratch)."""
+    _contact_surfaces(state, strips, parcel, nsurf, area)
+    if area[surf] <= 0.0:
+        return False
+    for s in range(nsurf):
+        if s != surf and area[s] > 0.0:
+            return False
+    return True
+
+
+@njit(cache=True)
 def _time_to_next_border(state, vx, parcel, borders):
     """Time until a corner of a parcel translating at vx reaches the next strip border."""
     if vx == 0.0 or borders.shape[0] == 0:
@@ -603,14 +615,10 @@ def _stick_advance(
         # reduction: only this surface under the parcel -> no force can break the stick
         # until a corner reaches a border; jump there in closed form.
         if reductions:
-            _contact_surfaces(y, strips, parcel, nsurf, area)
-            alone = True
-            for s in range(nsurf):
-                if s != surf and area[s] > 0.0:
-                    alone = False
+            alone = _alone_on(y, strips, parcel, nsurf, surf, area)
             dt_b = _time_to_next_border(y, vsx, parcel, borders) if alone else 0.0
             # a corner sitting on a border and moving across it gives dt_b ~ 0: scan instead
-            if alone and area[surf] > 0.0 and dt_b > 1e-12:
+            if alone and dt_b > 1e-12:
                 t_next = min(t_stop, t + dt_b)
                 counters[1] += 1
                 t = t_next
@@ -2256,6 +2264,14 @@ def _bfgs_update(hess, sv, yv, nvar, hs):
 
 
 @njit(cache=True)
+def _set_twist(state, w):
+    """Put the twist w = (ẋ, ẏ, φ̇) into ``state``'s velocities."""
+    state[3] = w[0]
+    state[4] = w[1]
+    state[5] = w[2]
+
+
+@njit(cache=True)
 def _stuck_step(y, h, vsx, vsy, y_out):
     """Take a step stuck to a surface moving at (vsx, vsy): rigid translation with it."""
     y_out[0] = y[0] + h * vsx
@@ -2320,16 +2336,16 @@ def implicit_step(
     slip = np.empty(nsurf)
     if mode >= 0:
         vsx, vsy = surface_velocity(strips, mode)
-        if W0[0] == vsx and W0[1] == vsy and W0[2] == 0.0:
-            # riding a surface alone under the parcel: it must supply no wrench at all,
-            # which every limit set holds (the clip alone tells)
-            _contact_surfaces(y, strips, parcel, nsurf, area)
-            alone = area[mode] > 0.0
-            for s in range(nsurf):
-                alone = alone and (s == mode or area[s] <= 0.0)
-            if alone:
-                _stuck_step(y, h, vsx, vsy, y_out)
-                return mode, 0
+        # riding a surface alone under the parcel: it must supply no wrench at all,
+        # which every limit set holds (the clip alone tells)
+        if (
+            W0[0] == vsx
+            and W0[1] == vsy
+            and W0[2] == 0.0
+            and _alone_on(y, strips, parcel, nsurf, mode, area)
+        ):
+            _stuck_step(y, h, vsx, vsy, y_out)
+            return mode, 0
     st = y.copy()
     npt = 0 if exact else _build_points(y, strips, parcel, nodes, weights, pts, stat, pull, area)
     # the Newton start and the wrenches there: the guess, or while stuck the surface's
@@ -2344,9 +2360,7 @@ def implicit_step(
             W[i] = guess[i]
         if not rot:
             W[2] = 0.0
-    st[3] = W[0]
-    st[4] = W[1]
-    st[5] = W[2]
+    _set_twist(st, W)
     _step_wrenches(
         exact, st, mode, True, strips, parcel, nodes, weights, npt, pts, kin, stat, area, slip
     )
@@ -2429,9 +2443,7 @@ def implicit_step(
             W[0] = vsx + bx
             W[1] = vsy + by
             W[2] = bt
-            st[3] = W[0]
-            st[4] = W[1]
-            st[5] = W[2]
+            _set_twist(st, W)
             _step_wrenches(
                 exact,
                 st,
@@ -2454,9 +2466,7 @@ def implicit_step(
     gt = np.empty(3)
     Wt = np.empty(3)
     H = np.empty((3, 3))
-    st[3] = W[0]
-    st[4] = W[1]
-    st[5] = W[2]
+    _set_twist(st, W)
     fresh = fresh or mode >= 0 or not exact  # the point set's Hessian is exact anyway
     if exact and fresh:
         dissipation_hessian(st, strips, parcel, hess)
@@ -2482,9 +2492,7 @@ def implicit_step(
         gnorm = math.sqrt(gnorm)
         moved = math.sqrt(moved)
         if not exact:
-            st[3] = W[0]
-            st[4] = W[1]
-            st[5] = W[2]
+            _set_twist(st, W)
             _points_hessian(st, npt, pts, hess)
         for i in range(3):
             for j in range(3):
@@ -2505,9 +2513,7 @@ def implicit_step(
         for _ls in range(30):
             for i in range(3):
                 Wt[i] = W[i] + step * dW[i]
-            st[3] = Wt[0]
-            st[4] = Wt[1]
-            st[5] = Wt[2]
+            _set_twist(st, Wt)
             _step_wrenches(
                 exact,
                 st,
@@ -2541,9 +2547,7 @@ def implicit_step(
             if fresh:
                 break  # no descent left at rounding level
             # the carried model misled the step: start again from a fresh one
-            st[3] = W[0]
-            st[4] = W[1]
-            st[5] = W[2]
+            _set_twist(st, W)
             dissipation_hessian(st, strips, parcel, hess)
             fresh = True
             continue
