@@ -15,7 +15,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from .jit import borrowing
 
 # nodes c_i, coefficients a_ij, 5th-order weights b_i, and e_i = b_i - b*_i (the
 # 4th-order embedded solution's difference, FSAL stage 7 included)
@@ -56,7 +57,7 @@ MIN_FACTOR = 0.2
 MAX_FACTOR = 5.0
 
 
-@njit(cache=True)
+@borrowing
 def stage_state(y, K, h, i, out):
     """
     Fill ``out`` with the state stage i (1..6) is evaluated at; i = 6 is the step's end.
@@ -76,7 +77,7 @@ def stage_state(y, K, h, i, out):
         out[j] = y[j] + h * acc
 
 
-@njit(cache=True)
+@borrowing
 def step_error(K, h, err):
     """Fill ``err`` with the embedded error estimate h Σ e_k K_k (all seven stages)."""
     for j in range(err.shape[0]):
@@ -86,7 +87,7 @@ def step_error(K, h, err):
         err[j] = h * acc
 
 
-@njit(cache=True)
+@borrowing
 def rms_norm(err, y0, y1, rtol, atol):
     """Hairer's scaled RMS norm: each component against atol + rtol max(|y0|, |y1|)."""
     acc = 0.0
@@ -96,7 +97,7 @@ def rms_norm(err, y0, y1, rtol, atol):
     return math.sqrt(acc / err.shape[0])
 
 
-@njit(cache=True)
+@borrowing
 def step_factor(enorm):
     """Factor on the step size after a step with error norm ``enorm`` (5th order: ^-1/5)."""
     if enorm == 0.0:
@@ -106,7 +107,7 @@ def step_factor(enorm):
     return min(MAX_FACTOR, max(MIN_FACTOR, SAFETY * enorm**-0.2))
 
 
-@njit(cache=True)
+@borrowing
 def dense(y0, K, h, theta, out):
     """Dense output y(t0 + θh), θ in [0, 1], of the step from y0 with stages K."""
     q0 = theta
@@ -120,7 +121,7 @@ def dense(y0, K, h, theta, out):
         out[j] = y0[j] + h * acc
 
 
-@njit(cache=True)
+@borrowing
 def sign_change(ev0, ev1):
     """
     First index whose event value changes sign between a step's ends, else -1.

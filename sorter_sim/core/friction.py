@@ -26,7 +26,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from .jit import borrowing
 
 LAW_CONST2 = 0  # params: [mu0, muG]
 LAW_CONST1 = 1  # params: [mu]
@@ -96,7 +97,7 @@ def _bspline_row(values) -> np.ndarray:
     return row
 
 
-@njit(cache=True)
+@borrowing
 def _bspline_mu(params, speed):
     v_first = params[0]
     v_last = params[5]
@@ -144,7 +145,7 @@ def _bspline_mu(params, speed):
     return ((params[o + 7] * u + params[o + 6]) * u + params[o + 5]) * u + params[o + 4]
 
 
-@njit(cache=True)
+@borrowing
 def mu_kinetic(law, params, speed):
     """Kinetic friction coefficient at rubbing speed ``speed`` > 0 [m/s]."""
     s = abs(speed)
@@ -175,7 +176,7 @@ def mu_kinetic(law, params, speed):
     return math.nan
 
 
-@njit(cache=True)
+@borrowing
 def mu_static(law, params):
     """Limiting static coefficient μ_s: the law's value as v_o -> 0+ (eq. 3.1, F_stat)."""
     if law == LAW_CONST2:
@@ -193,13 +194,13 @@ def mu_static(law, params):
     return math.nan
 
 
-@njit(cache=True)
+@borrowing
 def law_is_constant(law):
     """Return True where μ does not depend on the rubbing speed (closed-form wrench)."""
     return law == LAW_CONST1 or law == LAW_CONST2
 
 
-@njit(cache=True)
+@borrowing
 def law_smooth_reach(law, params, speed):
     """
     Return how far [m/s] from ``speed`` μ(v) stays analytic (no kink, knot or clipping).

@@ -19,12 +19,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from .jit import borrowing
 
 MAX_VERTS = 8
 
 
-@njit(cache=True)
+@borrowing
 def box_corners(x, y, phi, half_a, half_b, out):
     """Corners of the A x B box (A along x at φ = 0) centred at (x, y), counter-clockwise."""
     c = math.cos(phi)
@@ -37,7 +38,7 @@ def box_corners(x, y, phi, half_a, half_b, out):
         out[i, 1] = y + s * ox[i] + c * oy[i]
 
 
-@njit(cache=True)
+@borrowing
 def _clip_halfplane(src, n_src, dst, bound, keep_above):
     """Sutherland-Hodgman step against x >= bound (keep_above) or x <= bound."""
     n = 0
@@ -65,7 +66,7 @@ def _clip_halfplane(src, n_src, dst, bound, keep_above):
     return n
 
 
-@njit(cache=True)
+@borrowing
 def clip_to_strip(corners, x_lo, x_hi, out, work):
     """Polygon corners ∩ {x_lo <= x <= x_hi} into ``out``; returns the vertex count."""
     n = 4
@@ -86,7 +87,7 @@ def clip_to_strip(corners, x_lo, x_hi, out, work):
     return n
 
 
-@njit(cache=True)
+@borrowing
 def polygon_area_centroid(poly, n):
     """Signed-positive area and centroid of a counter-clockwise polygon."""
     if n < 3:
@@ -113,7 +114,7 @@ def polygon_area_centroid(poly, n):
     return area, x0 + cx / (3.0 * a2), y0 + cy / (3.0 * a2)
 
 
-@njit(cache=True)
+@borrowing
 def _sqrt_integral(t, h):
     """Antiderivative of sqrt(τ² + h²) at τ = t."""
     r = math.sqrt(t * t + h * h)
@@ -122,7 +123,7 @@ def _sqrt_integral(t, h):
     return 0.5 * (t * r + h * h * math.asinh(t / abs(h)))
 
 
-@njit(cache=True)
+@borrowing
 def distance_integrals(poly, n, cx, cy):
     """
     Exact (∫_P |p-c| dA, ∫_P (p-c)/|p-c| dA) for a counter-clockwise polygon.
@@ -157,7 +158,7 @@ def distance_integrals(poly, n, cx, cy):
     return i_r, gx, gy
 
 
-@njit(cache=True)
+@borrowing
 def max_radius(poly, n, qx, qy):
     """Largest vertex distance from (qx, qy)."""
     r2 = 0.0

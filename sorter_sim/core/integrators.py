@@ -51,6 +51,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .jit import borrowing
+
 from .layout import (
     MODE_SLIDE,
     P_HALF_A,
@@ -99,7 +101,7 @@ EV_TARGET = 4
 EV_LEAVE = 5
 
 
-@njit(cache=True)
+@borrowing
 def n_surf_of(strips):
     n = 0
     for k in range(strips.shape[0]):
@@ -107,7 +109,7 @@ def n_surf_of(strips):
     return n
 
 
-@njit(cache=True)
+@borrowing
 def surface_velocity(strips, surf):
     for k in range(strips.shape[0]):
         if int(strips[k, S_SURF]) == surf:
@@ -354,7 +356,7 @@ def _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err):
     step_error(K, h, err)
 
 
-@njit(cache=True)
+@borrowing
 def _gen_slip(state, vsx, vsy, rho, rot, out):
     out[0] = state[3] - vsx
     out[1] = state[4] - vsy
@@ -362,7 +364,7 @@ def _gen_slip(state, vsx, vsy, rho, rot, out):
     return math.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2)
 
 
-@njit(cache=True)
+@borrowing
 def _record_new(ts, ys, ms, n_out, t, y, mode):
     """``_record``, unless the last record is this one (a slip carried in ln s records it)."""
     last = min(n_out, ts.shape[0]) - 1
@@ -383,7 +385,7 @@ def _corner_event_values(state, parcel, borders, out):
             out[i * nb + b] = corners[i, 0] - borders[b]
 
 
-@njit(cache=True)
+@borrowing
 def _log_event(ev, n_ev, t, kind, info):
     if n_ev < ev.shape[0]:
         ev[n_ev, 0] = t
@@ -392,7 +394,7 @@ def _log_event(ev, n_ev, t, kind, info):
     return n_ev + 1
 
 
-@njit(cache=True)
+@borrowing
 def _record(ts, ys, ms, n_out, t, y, mode):
     """
     Record (t, y, mode) as record ``n_out``; returns the count.
@@ -888,7 +890,7 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
     return f / mass
 
 
-@njit(cache=True)
+@borrowing
 def _layer_state(u, z, vsx, vsy, parcel, out):
     """
     Fill ``out`` with the full state of the layer state u = (x, y, φ, s); returns s >= 0.
@@ -1211,7 +1213,7 @@ def _break_away(
     return t
 
 
-@njit(cache=True)
+@borrowing
 def _approach_state(u, s, vsx, vsy, parcel, out):
     """
     Fill ``out`` with the full state at u = (x, y, φ, t, d) and slip s; returns d̂.
@@ -1234,7 +1236,7 @@ def _approach_state(u, s, vsx, vsy, parcel, out):
     return d0, d1, d2
 
 
-@njit(cache=True)
+@borrowing
 def _approach_rhs(u, s, sgn, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, out):
     """
     Right-hand side of a slip on one surface in τ = sgn ln(s / s_e).

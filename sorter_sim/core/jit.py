@@ -1,0 +1,22 @@
+"""
+How the core's kernels are compiled.
+
+numba counts the references to every array a compiled function receives: an atomic
+add at its entry and a subtract at its exit, about 10 ns a call on a server core, and
+not removed where the function branches or may fail. In the innermost kernels
+(clipping the footprint to a strip, a strip's wrench, μ at a quadrature point, a
+Dormand-Prince stage) that counting was a fifth of a whole Fig. 9a diversion. A
+kernel that allocates nothing and returns no array needs none of it: its caller holds
+the references for the duration of the call. ``borrowing`` compiles such a kernel
+without numba's runtime (its ``_nrt`` option, which numba's own test suite compiles
+runtime-free kernels with); one that allocated would fail to compile, never run
+wrongly.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+borrowing = njit(cache=True, _nrt=False)
+
+__all__ = ["borrowing"]
