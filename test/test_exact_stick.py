@@ -25,7 +25,7 @@ from sorter_sim.core.simulate import (
     simulate,
     strip_array,
 )
-from sorter_sim.core.wrench import evaluate_surfaces, static_surface_wrench
+from sorter_sim.core.wrench import clip_scratch, evaluate_surfaces, static_surface_wrench
 from sorter_sim.model import cell_strips, entry_state
 
 # ------------------------------------------------------------------ the limit set
@@ -91,7 +91,7 @@ def test_the_gauge_is_symmetric_and_homogeneous_and_one_on_the_limit_surface():
     for _ in range(20):
         twist = rng.normal(size=3)
         fx, fy, t = static_surface_wrench(
-            y, arr, par, nodes, weights, 1, twist[0], twist[1], twist[2] / rho
+            y, arr, par, nodes, weights, 1, twist[0], twist[1], twist[2] / rho, clip_scratch()
         )
         # -F is the patch's limit-surface point with normal `twist` (the friction
         # opposes the twist): its gauge is 1 whatever the twist's size
@@ -137,7 +137,9 @@ def test_the_inner_bound_of_the_limit_set_never_admits_a_wrench_outside_it(surf)
                 continue
             for _ in range(40):
                 xi = rng.normal(size=3) * np.array([1.0, 1.0, 5.0])
-                w = np.array(static_surface_wrench(y, arr, par, nodes, weights, surf, *xi))
+                w = np.array(
+                    static_surface_wrench(y, arr, par, nodes, weights, surf, *xi, clip_scratch())
+                )
                 assert not ig.inside_limit_set(y, arr, par, surf, *(-1.001 * w))
                 box = rng.uniform(-1.0, 1.0, size=3) * np.array([f_max, f_max, t_max])
                 for scale in (1.0, 0.3, 0.1):
@@ -361,7 +363,7 @@ def test_a_slip_growing_slowly_from_a_near_balance_stays_on_its_layer():
     out = np.empty(6)
 
     def rhs(t, y):
-        ig.rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, nsurf, out)
+        ig.rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, clip_scratch(), out)
         return out.copy()
 
     for slip in (1e-5, 2e-5):

@@ -7,6 +7,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from sorter_sim.core.oscillator import Oscillator, exact_phases, exact_solution, run_oscillator
+from sorter_sim.core.wrench import clip_scratch
 from sorter_sim.core.simulate import FrictionLaw, Parcel, Strip, simulate, three_zone_strips
 from sorter_sim.scene import apply_overrides, load_scene, run_scene
 
@@ -169,7 +170,7 @@ def test_a_spinning_slide_to_rest_against_an_independent_integration(spin):
 
     def rhs(t, y):
         out = np.empty(6)
-        ig.rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, 1, out)
+        ig.rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, clip_scratch(), out)
         return out
 
     def slip(t, y):

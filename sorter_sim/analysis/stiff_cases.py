@@ -36,7 +36,7 @@ from ..core.simulate import (
     surface_velocities,
     three_zone_strips,
 )
-from ..core.wrench import evaluate_surfaces, gauss_legendre_01
+from ..core.wrench import clip_scratch, evaluate_surfaces, gauss_legendre_01
 from ..model import BSPLINE_DEFAULT
 from .workprecision import ParcelCase, Trajectory, compare, timed
 
@@ -529,9 +529,10 @@ def check_run(sc: StiffCase, method: str, settings: dict, res, traj: Trajectory)
     par = parcel_array(parcel, case.rotation, case.n_quad)
     nsurf = len(vel)
     areas = np.zeros((len(traj.t), nsurf))
+    clip = clip_scratch()
     for i in range(len(traj.t)):
         st = np.concatenate([traj.q[i], traj.dq[i]])
-        _ig._contact_surfaces(st, arr, par, nsurf, areas[i])
+        _ig._contact_surfaces(st, arr, par, clip, areas[i])
     worst_rise = 0.0
     for k in range(nsurf):
         alone = (areas[:, k] > 0) & (np.sum(areas > 0, axis=1) == 1)

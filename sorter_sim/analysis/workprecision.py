@@ -48,7 +48,7 @@ from ..core.simulate import (
     strip_borders,
     surface_velocities,
 )
-from ..core.wrench import gauss_legendre_01
+from ..core.wrench import clip_scratch, gauss_legendre_01
 
 EVENT_KINDS = ("stick", "break", "zone", "scrap")
 
@@ -448,11 +448,11 @@ class ParcelCase:
         traj = core_trajectory(res, initial_mode(np.asarray(self.y0, float), arr, par))
         if res.method == "accurate":
             nodes, weights = gauss_legendre_01(self.n_quad)
-            nsurf = int(arr[:, 5].max()) + 1
+            clip = clip_scratch()
 
             def f(t, y):
                 out = np.empty(6)
-                _ig.rhs_slide(y, arr, par, nodes, weights, nsurf, out)
+                _ig.rhs_slide(y, arr, par, nodes, weights, clip, out)
                 return out
 
             traj.make_pieces = lambda tr: dp5_pieces(
@@ -508,6 +508,7 @@ class ScipyParcel:
         self.n_rhs = 0
         self.max_rhs = math.inf
         self._out = np.empty(6)
+        self._clip = clip_scratch()
 
     # the model, as scipy sees it
     def f(self, t, y):
@@ -516,7 +517,7 @@ class ScipyParcel:
             raise BudgetExceeded(f"more than {self.max_rhs:.0f} right-hand-side evaluations")
         out = np.empty(6)
         _ig.rhs_slide(
-            np.asarray(y, float), self.arr, self.par, self.nodes, self.weights, self.nsurf, out
+            np.asarray(y, float), self.arr, self.par, self.nodes, self.weights, self._clip, out
         )
         return out
 

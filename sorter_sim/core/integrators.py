@@ -76,6 +76,11 @@ from .friction import law_is_constant, mu_kinetic, mu_static
 from .geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
 from .wrench import (
     add_slip_curvature,
+    clip_scratch,
+    kinetic_wrench,
+    place_box,
+    strip_part,
+    surface_area,
     dissipation_hessian,
     evaluate_surfaces,
     rest_surface_wrench,
@@ -117,21 +122,14 @@ def surface_velocity(strips, surf):
     return 0.0, 0.0
 
 
-@njit(cache=True)
-def rhs_slide(state, strips, parcel, nodes, weights, nsurf, out):
-    """Time derivative of the state while sliding (eq. 4.1 with kinetic friction)."""
-    kin = np.empty((nsurf, 3))
-    stat = np.empty((nsurf, 2))
-    area = np.empty(nsurf)
-    slip = np.empty(nsurf)
-    evaluate_surfaces(state, strips, parcel, nodes, weights, -2, False, kin, stat, area, slip)
-    fx = 0.0
-    fy = 0.0
-    t = 0.0
-    for s in range(nsurf):
-        fx += kin[s, 0]
-        fy += kin[s, 1]
-        t += kin[s, 2]
+@borrowing
+def rhs_slide(state, strips, parcel, nodes, weights, clip, out):
+    """
+    Time derivative of the state while sliding (eq. 4.1 with kinetic friction).
+
+    ``clip``: a footprint scratch (``wrench.clip_scratch``), so that it allocates nothing.
+    """
+    fx, fy, t = kinetic_wrench(state, strips, parcel, nodes, weights, -1, clip)
     out[0] = state[3]
     out[1] = state[4]
     out[2] = state[5]
@@ -154,11 +152,11 @@ F_NOISE = 1e-13  # relative rounding of a sum of wrench-based dissipations (clos
 SOLVE_RATIO = 1e-2  # the implicit solve's error bound, relative to how far it moved
 
 
-@njit(cache=True)
-def _dissipation_gradient(state, strips, parcel, nodes, weights, surf, rho, z0, z1, z2, out):
+@borrowing
+def _dissipation_gradient(state, strips, parcel, nodes, weights, surf, rho, z0, z1, z2, clip, out):
     """∇D at the generalized twist (z0, z1, z2) = (ẋ, ẏ, ρφ̇) relative to ``surf``; returns D."""
     fx, fy, ft = static_surface_wrench(
-        state, strips, parcel, nodes, weights, surf, z0, z1, z2 / rho
+        state, strips, parcel, nodes, weights, surf, z0, z1, z2 / rho, clip
     )
     # the friction wrench is -∇D; D = ξ·∇D by Euler's relation (D is 1-homogeneous)
     out[0] = -fx
@@ -226,8 +224,9 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
     g = np.empty(3)
     gp = np.empty(3)
     zt = np.empty(3)
+    clip = clip_scratch()
     d = _dissipation_gradient(
-        state, strips, parcel, nodes, weights, surf, rho, z[0], z[1], z[2], g
+        state, strips, parcel, nodes, weights, surf, rho, z[0], z[1], z[2], clip, g
     )
     if not d > 0.0:
         return math.inf
@@ -251,7 +250,7 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
                 dirn = p[i] if j == 0 else q[i]
                 zt[i] = z[i] + hstep * dirn
             _dissipation_gradient(
-                state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], gp
+                state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], clip, gp
             )
             c0 = ((gp[0] - g[0]) * p[0] + (gp[1] - g[1]) * p[1] + (gp[2] - g[2]) * p[2]) / hstep
             c1 = ((gp[0] - g[0]) * q[0] + (gp[1] - g[1]) * q[1] + (gp[2] - g[2]) * q[2]) / hstep
@@ -283,7 +282,7 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
             for i in range(3):
                 zt[i] = z[i] + step * (s0 * p[i] + s1 * q[i])
             dt_ = _dissipation_gradient(
-                state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], gp
+                state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], clip, gp
             )
             if dt_ <= d + 1e-4 * step * slope:
                 break
@@ -344,15 +343,15 @@ def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf, xi):
     return margin, area[surf], fx, fy, t
 
 
-@njit(cache=True)
-def _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err):
+@borrowing
+def _dp_step(y, h, K, strips, parcel, nodes, weights, clip, y_new, err):
     """One Dormand-Prince step of the sliding model; K[0] holds f(y); fills K[1..6], y_new, err."""
-    ys = np.empty(6)
     for i in range(1, 6):
-        stage_state(y, K, h, i, ys)
-        rhs_slide(ys, strips, parcel, nodes, weights, nsurf, K[i])
+        # y_new holds each stage's state until it takes the step's end
+        stage_state(y, K, h, i, y_new)
+        rhs_slide(y_new, strips, parcel, nodes, weights, clip, K[i])
     stage_state(y, K, h, 6, y_new)
-    rhs_slide(y_new, strips, parcel, nodes, weights, nsurf, K[6])
+    rhs_slide(y_new, strips, parcel, nodes, weights, clip, K[6])
     step_error(K, h, err)
 
 
@@ -411,30 +410,23 @@ def _record(ts, ys, ms, n_out, t, y, mode):
     return n_out + 1
 
 
-@njit(cache=True)
-def _contact_surfaces(state, strips, parcel, nsurf, out_area):
-    """Weighted contact area per surface (cheap: clipping only)."""
-    corners = np.empty((4, 2))
-    poly = np.empty((MAX_VERTS, 2))
-    work = np.empty((MAX_VERTS, 2))
-    box_corners(state[0], state[1], state[2], parcel[P_HALF_A], parcel[P_HALF_B], corners)
+@borrowing
+def _contact_surfaces(state, strips, parcel, clip, out_area):
+    """Weighted contact area per surface (cheap: clipping only); ``clip`` a footprint scratch."""
+    xmin, xmax = place_box(state, parcel, clip)
     out_area[:] = 0.0
     for k in range(strips.shape[0]):
-        w = strips[k, S_WEIGHT]
-        if w <= 0.0:
-            continue
-        n = clip_to_strip(corners, strips[k, S_XLO], strips[k, S_XHI], poly, work)
-        a, _, _ = polygon_area_centroid(poly, n)
-        out_area[int(strips[k, S_SURF])] += w * a
+        _, a, _, _ = strip_part(clip, strips, k, xmin, xmax)
+        out_area[int(strips[k, S_SURF])] += strips[k, S_WEIGHT] * a
 
 
-@njit(cache=True)
-def _alone_on(state, strips, parcel, nsurf, surf, area):
-    """Return True where ``surf`` is the only surface under the parcel (``area``: scratch)."""
-    _contact_surfaces(state, strips, parcel, nsurf, area)
+@borrowing
+def _alone_on(state, strips, parcel, clip, surf, area):
+    """Return True where ``surf`` alone is under the parcel (scratch: ``clip``, ``area``)."""
+    _contact_surfaces(state, strips, parcel, clip, area)
     if area[surf] <= 0.0:
         return False
-    for s in range(nsurf):
+    for s in range(area.shape[0]):
         if s != surf and area[s] > 0.0:
             return False
     return True
@@ -607,6 +599,7 @@ def _stick_advance(
             return t, 3
         return t_stop, reason_stop
     area = np.empty(nsurf)
+    clip = clip_scratch()
     lmin = 2.0 * min(parcel[P_HALF_A], parcel[P_HALF_B])
     dt_scan = lmin / (16.0 * speed)
     y0x = y[0]
@@ -617,7 +610,7 @@ def _stick_advance(
         # reduction: only this surface under the parcel -> no force can break the stick
         # until a corner reaches a border; jump there in closed form.
         if reductions:
-            alone = _alone_on(y, strips, parcel, nsurf, surf, area)
+            alone = _alone_on(y, strips, parcel, clip, surf, area)
             dt_b = _time_to_next_border(y, vsx, parcel, borders) if alone else 0.0
             # a corner sitting on a border and moving across it gives dt_b ~ 0: scan instead
             if alone and dt_b > 1e-12:
@@ -643,7 +636,7 @@ def _stick_advance(
                     mid = 0.5 * (lo + hi)
                     ys[0] = y0x + vsx * (mid - t0)
                     ys[1] = y0y + vsy * (mid - t0)
-                    _contact_surfaces(ys, strips, parcel, nsurf, area)
+                    _contact_surfaces(ys, strips, parcel, clip, area)
                     if area[surf] <= 0.0:
                         hi = mid
                     else:
@@ -686,8 +679,8 @@ def _stick_advance(
     return t, reason_stop
 
 
-@njit(cache=True)
-def _kinetic_pull(y, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, out):
+@borrowing
+def _kinetic_pull(y, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, clip, out):
     """
     Growth term W_o·σ - D_k(σ) of a unit slip σ (generalized) on ``surf``, and its gradient.
 
@@ -696,7 +689,7 @@ def _kinetic_pull(y, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, o
     ``out`` gets W_o - ∇D_k(σ). Generalized coordinates (x, y, ρφ): the mass matrix is m I.
     """
     fx, fy, ft = rest_surface_wrench(
-        y, strips, parcel, nodes, weights, surf, z[0], z[1], z[2] / rho, True
+        y, strips, parcel, nodes, weights, surf, z[0], z[1], z[2] / rho, True, clip
     )
     out[0] = ox + fx
     out[1] = oy + fy
@@ -704,31 +697,21 @@ def _kinetic_pull(y, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, o
     return out[0] * z[0] + out[1] * z[1] + out[2] * z[2]
 
 
-@njit(cache=True)
-def _others_wrench(y, strips, parcel, nodes, weights, nsurf, surf, out):
+@borrowing
+def _others_wrench(y, strips, parcel, nodes, weights, surf, clip):
     """
     Kinetic wrench of every surface but ``surf`` at the state y, generalized (Fx, Fy, T/ρ).
 
-    Returns ``surf``'s contact area (0: the parcel has left it).
+    Returns it and ``surf``'s contact area (0: the parcel has left it).
     """
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
-    rot = parcel[P_ROTATION] > 0.5
-    kin = np.empty((nsurf, 3))
-    stat = np.empty((nsurf, 2))
-    area = np.empty(nsurf)
-    slip = np.empty(nsurf)
-    evaluate_surfaces(y, strips, parcel, nodes, weights, surf, False, kin, stat, area, slip)
-    out[:] = 0.0
-    for k in range(nsurf):
-        if k != surf:
-            out[0] += kin[k, 0]
-            out[1] += kin[k, 1]
-            out[2] += kin[k, 2] / rho if rot else 0.0
-    return area[surf]
+    fx, fy, t = kinetic_wrench(y, strips, parcel, nodes, weights, surf, clip)
+    ow = t / rho if parcel[P_ROTATION] > 0.5 else 0.0
+    return fx, fy, ow, surface_area(y, strips, parcel, surf, clip)
 
 
 @njit(cache=True)
-def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hess):
+def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hess, clip):
     """
     Find the unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow); return λ.
 
@@ -775,7 +758,7 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
     g = np.empty(3)
     gp = np.empty(3)
     zt = np.empty(3)
-    f = _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, g)
+    f = _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, clip, g)
     p = np.empty(3)
     q = np.empty(3)
     ndim = 2 if rot else 1
@@ -830,7 +813,9 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
                 # forward differences of the exact gradient, as in ``limit_gauge``
                 for i in range(3):
                     zt[i] = z[i] + hstep * (p[i] if jd == 0 else q[i])
-                _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, gp)
+                _kinetic_pull(
+                    yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, clip, gp
+                )
                 c0 = (gp[0] - g[0]) * p[0] + (gp[1] - g[1]) * p[1] + (gp[2] - g[2]) * p[2]
                 c1 = (gp[0] - g[0]) * q[0] + (gp[1] - g[1]) * q[1] + (gp[2] - g[2]) * q[2]
                 if jd == 0:
@@ -870,7 +855,9 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
             tn = math.sqrt(zt[0] * zt[0] + zt[1] * zt[1] + zt[2] * zt[2])
             for i in range(3):
                 zt[i] /= tn
-            ft = _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, gp)
+            ft = _kinetic_pull(
+                yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, clip, gp
+            )
             if ft >= f:
                 break
             step *= 0.5
@@ -909,7 +896,7 @@ def _layer_state(u, z, vsx, vsy, parcel, out):
 
 
 @njit(cache=True)
-def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, hess, yv, acc, out):
+def _layer_rhs(u, strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, hess, yv, acc, out):
     """
     Right-hand side of the slip layer on ``surf``: u = (x, y, φ, s), s the slip magnitude.
 
@@ -922,11 +909,10 @@ def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, hess
     """
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     sl = _layer_state(u, z, vsx, vsy, parcel, yv)
-    w = np.empty(3)
-    _others_wrench(yv, strips, parcel, nodes, weights, nsurf, surf, w)
-    lam = _pull_direction(yv, strips, parcel, nodes, weights, surf, w[0], w[1], w[2], z, hess)
+    ox, oy, ow, _ = _others_wrench(yv, strips, parcel, nodes, weights, surf, clip)
+    lam = _pull_direction(yv, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hess, clip)
     _layer_state(u, z, vsx, vsy, parcel, yv)  # at the settled direction
-    rhs_slide(yv, strips, parcel, nodes, weights, nsurf, acc)
+    rhs_slide(yv, strips, parcel, nodes, weights, clip, acc)
     out[0] = yv[3]
     out[1] = yv[4]
     out[2] = yv[5]
@@ -942,7 +928,7 @@ def _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, hess
         # <= 0 the slip cannot grow: it stays zero)
         out[3] = max(lam, 0.0)
     fx, fy, ft = rest_surface_wrench(
-        yv, strips, parcel, nodes, weights, surf, z[0], z[1], z[2] / rho, True
+        yv, strips, parcel, nodes, weights, surf, z[0], z[1], z[2] / rho, True, clip
     )
     return math.sqrt(fx * fx + fy * fy + (ft / rho) ** 2)
 
@@ -1009,10 +995,11 @@ def _layer(
     acc = np.empty(6)
     zs = z.copy()
     hess = np.zeros(4)  # _pull_direction's Newton metric, carried from stage to stage
+    clip = clip_scratch()
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
-    _layer_rhs(u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, hess, yv, acc, K[0])
+    _layer_rhs(u, strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, hess, yv, acc, K[0])
     counters[0] += 1
     h = min(1e-5, t_end - t)
     healthy = False
@@ -1025,7 +1012,7 @@ def _layer(
             for j in range(3):
                 zs[j] = z[j]
             _layer_rhs(
-                us, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, zs, hess, yv, acc, K[i]
+                us, strips, parcel, nodes, weights, clip, surf, vsx, vsy, zs, hess, yv, acc, K[i]
             )
         for j in range(4):
             un[j] = us[j]
@@ -1079,7 +1066,7 @@ def _layer(
                     parcel,
                     nodes,
                     weights,
-                    nsurf,
+                    clip,
                     surf,
                     vsx,
                     vsy,
@@ -1101,7 +1088,7 @@ def _layer(
         for j in range(4):
             K[0, j] = K[6, j]
         fmag = _layer_rhs(
-            u, strips, parcel, nodes, weights, nsurf, surf, vsx, vsy, z, hess, yv, acc, K[0]
+            u, strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, hess, yv, acc, K[0]
         )
         counters[0] += 1
         h *= step_factor(en)
@@ -1237,7 +1224,7 @@ def _approach_state(u, s, vsx, vsy, parcel, out):
 
 
 @borrowing
-def _approach_rhs(u, s, sgn, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, out):
+def _approach_rhs(u, s, sgn, strips, parcel, nodes, weights, clip, vsx, vsy, yv, acc, out):
     """
     Right-hand side of a slip on one surface in τ = sgn ln(s / s_e).
 
@@ -1251,7 +1238,7 @@ def _approach_rhs(u, s, sgn, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
     d0, d1, d2 = _approach_state(u, s, vsx, vsy, parcel, yv)
-    rhs_slide(yv, strips, parcel, nodes, weights, nsurf, acc)
+    rhs_slide(yv, strips, parcel, nodes, weights, clip, acc)
     a2 = rho * acc[5] if rot else 0.0
     r = d0 * acc[3] + d1 * acc[4] + d2 * a2
     q = sgn * r
@@ -1327,6 +1314,7 @@ def _approach(
     un = np.empty(7)
     err = np.empty(7)
     K = np.empty((7, 7))
+    clip = clip_scratch()
     yv = np.empty(6)
     acc = np.empty(6)
     nb = borders.shape[0]
@@ -1335,7 +1323,7 @@ def _approach(
     tau_end = math.inf if grow else (math.log(s_e / s_end) if s_end < s_e else 0.0)
     tau = 0.0
     sgn = 1.0 if grow else -1.0
-    r = _approach_rhs(u, s_e, sgn, strips, parcel, nodes, weights, nsurf, vsx, vsy, yv, acc, K[0])
+    r = _approach_rhs(u, s_e, sgn, strips, parcel, nodes, weights, clip, vsx, vsy, yv, acc, K[0])
     counters[0] += 1
     r_min = (0.25 if grow else 0.05) * abs(r)
     reason = 2 if grow else 0
@@ -1358,7 +1346,7 @@ def _approach(
                 parcel,
                 nodes,
                 weights,
-                nsurf,
+                clip,
                 vsx,
                 vsy,
                 yv,
@@ -1403,7 +1391,7 @@ def _approach(
             parcel,
             nodes,
             weights,
-            nsurf,
+            clip,
             vsx,
             vsy,
             yv,
@@ -1482,9 +1470,10 @@ def _small_slip(
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
     area = np.empty(nsurf)
+    clip = clip_scratch()
     sig = np.empty(3)
     xi = np.zeros(3)
-    _contact_surfaces(y, strips, parcel, nsurf, area)
+    _contact_surfaces(y, strips, parcel, clip, area)
     for s in range(nsurf):
         if area[s] <= 0.0:
             continue
@@ -1653,6 +1642,7 @@ def run_accurate(
     s_stiff = np.zeros(nsurf)
     rec = np.zeros(1, dtype=np.int64)
     area = np.empty(nsurf)
+    clip = clip_scratch()
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
@@ -1737,10 +1727,10 @@ def run_accurate(
             continue
         # ---- sliding: one Dormand-Prince step with event location ----
         if fresh:
-            rhs_slide(y, strips, parcel, nodes, weights, nsurf, K[0])
+            rhs_slide(y, strips, parcel, nodes, weights, clip, K[0])
             n_rhs += 1
             fresh = False
-        _contact_surfaces(y, strips, parcel, nsurf, area)
+        _contact_surfaces(y, strips, parcel, clip, area)
         small = False
         h_try = min(h, h_max)
         for s in range(nsurf):
@@ -1773,6 +1763,7 @@ def run_accurate(
                             sig0[3 * s + 1],
                             sig0[3 * s + 2] / rho,
                             True,
+                            clip,
                         )
                         n_rhs += 1
                         fmag = math.sqrt(fx * fx + fy * fy + (ft / rho) ** 2)
@@ -1828,7 +1819,7 @@ def run_accurate(
             break
         if nb > 0:
             _corner_event_values(y, parcel, borders, ev0)
-        _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err)
+        _dp_step(y, h, K, strips, parcel, nodes, weights, clip, y_new, err)
         n_rhs += 6
         enorm = rms_norm(err, y, y_new, rtol, atol)
         if not np.isfinite(enorm):
@@ -1923,7 +1914,7 @@ def run_accurate(
             # redo the step to the event, so no stage sees past it
             h_next = h
             h = theta_ev * h
-            _dp_step(y, h, K, strips, parcel, nodes, weights, nsurf, y_new, err)
+            _dp_step(y, h, K, strips, parcel, nodes, weights, clip, y_new, err)
             n_rhs += 6
         n_steps += 1
         t = t + h
@@ -2336,6 +2327,7 @@ def implicit_step(
     pull = np.empty((nsurf, 2))
     area = np.empty(nsurf)
     slip = np.empty(nsurf)
+    clip = clip_scratch()
     if mode >= 0:
         vsx, vsy = surface_velocity(strips, mode)
         # riding a surface alone under the parcel: it must supply no wrench at all,
@@ -2344,7 +2336,7 @@ def implicit_step(
             W0[0] == vsx
             and W0[1] == vsy
             and W0[2] == 0.0
-            and _alone_on(y, strips, parcel, nsurf, mode, area)
+            and _alone_on(y, strips, parcel, clip, mode, area)
         ):
             _stuck_step(y, h, vsx, vsy, y_out)
             return mode, 0

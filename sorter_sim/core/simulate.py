@@ -42,7 +42,7 @@ from .layout import (
     S_XLO,
     STRIP_WIDTH,
 )
-from .wrench import gauss_legendre_01
+from .wrench import clip_scratch, gauss_legendre_01
 
 G_STANDARD = 9.81  # m/s², the seed's g
 
@@ -354,7 +354,7 @@ def initial_mode(y0, arr: np.ndarray, parcel_arr: np.ndarray) -> int:
         return MODE_SLIDE
     nsurf = int(arr[:, S_SURF].max()) + 1
     area = np.zeros(nsurf)
-    _ig._contact_surfaces(np.asarray(y0, float), arr, parcel_arr, nsurf, area)
+    _ig._contact_surfaces(np.asarray(y0, float), arr, parcel_arr, clip_scratch(), area)
     for s, (vx, vy) in enumerate(surface_velocities(arr)):
         if area[s] > 0.0 and y0[3] == vx and y0[4] == vy:
             return s

@@ -36,8 +36,6 @@ from numba import njit
 from .jit import borrowing
 
 from .friction import (
-    LAW_CONST1,
-    N_LAW_PARAMS,
     law_is_constant,
     law_smooth_reach,
     mu_kinetic,
@@ -148,10 +146,28 @@ def smooth_order(eps):
 
 @borrowing
 def strip_wrench_quad(
-    poly, n, qx, qy, gx, gy, ux_q, uy_q, omega, law, params, pressure, nodes, weights, adapt=False
+    poly,
+    n,
+    qx,
+    qy,
+    gx,
+    gy,
+    ux_q,
+    uy_q,
+    omega,
+    law,
+    params,
+    pressure,
+    nodes,
+    weights,
+    adapt=False,
+    mu_fixed=-1.0,
 ):
     """
     Friction wrench (Fx, Fy, T about g) of a strip part by Duffy-fan Gauss quadrature.
+
+    μ is the law's kinetic μ(|u|) at every point, or ``mu_fixed`` where that is >= 0
+    (a coefficient of rest, the same at every speed).
 
     With ``adapt`` a patch whose instantaneous centre is far away takes the fewer points
     of ``smooth_order`` (never more than ``nodes`` has) where μ is analytic over its
@@ -175,13 +191,13 @@ def strip_wrench_quad(
     fy = 0.0
     t = 0.0
     nq = nodes.shape[0]
-    constant = law_is_constant(law)
-    mu_const = mu_kinetic(law, params, 1.0) if constant else 0.0
+    constant = mu_fixed >= 0.0 or law_is_constant(law)
+    mu_const = mu_fixed if mu_fixed >= 0.0 else mu_kinetic(law, params, 1.0)
     if adapt and not at_icr:
         uq = math.hypot(ux_q, uy_q)
         ns = nq
         spread = abs(omega) * radius  # the patch's speeds lie within uq ± spread
-        reach = law_smooth_reach(law, params, uq)
+        reach = math.inf if constant else law_smooth_reach(law, params, uq)
         if uq > 0.0 and reach >= 3.0 * spread:
             # analytic over a disk ~min(uq, reach)/|φ̇| wide: ε measured against both
             ns = smooth_order(spread / min(uq, reach))
@@ -312,6 +328,156 @@ def dissipation_hessian(state, strips, parcel, out):
     out[2, 1] = out[1, 2]
 
 
+# A footprint scratch (``clip_scratch``): rows [0, 4) the box's corners, then the part
+# clipped to a strip (rows [4, 4 + MAX_VERTS)) and the clipper's work polygon. The
+# kernels that take one allocate nothing, so they compile without reference counting
+# (``jit.borrowing``); a caller makes one for many evaluations.
+CLIP_ROWS = 4 + 2 * MAX_VERTS
+
+
+@njit(cache=True)
+def clip_scratch():
+    """Return a footprint scratch for the kernels that take ``clip``."""
+    return np.empty((CLIP_ROWS, 2))
+
+
+@borrowing
+def place_box(state, parcel, clip):
+    """Put the corners of the parcel in ``state`` into ``clip``; returns their x range."""
+    c = clip[0:4]
+    box_corners(state[0], state[1], state[2], parcel[P_HALF_A], parcel[P_HALF_B], c)
+    return min(c[0, 0], c[1, 0], c[2, 0], c[3, 0]), max(c[0, 0], c[1, 0], c[2, 0], c[3, 0])
+
+
+@borrowing
+def strip_part(clip, strips, k, xmin, xmax):
+    """
+    Clip the box placed in ``clip`` to strip k, into clip[PART]; returns (n, area, qx, qy).
+
+    A strip of no load share, or beyond the box's x range [xmin, xmax], has none (n = 0,
+    area 0) for the price of two comparisons.
+    """
+    if strips[k, S_WEIGHT] <= 0.0 or strips[k, S_XHI] <= xmin or strips[k, S_XLO] >= xmax:
+        return 0, 0.0, 0.0, 0.0
+    poly = clip[4 : 4 + MAX_VERTS]
+    n = clip_to_strip(clip[0:4], strips[k, S_XLO], strips[k, S_XHI], poly, clip[4 + MAX_VERTS :])
+    a, qx, qy = polygon_area_centroid(poly, n)
+    return n, a, qx, qy
+
+
+@borrowing
+def surface_area(state, strips, parcel, surf, clip):
+    """Footprint area over surface ``surf``, weighted by load share [m²] (clipping only)."""
+    xmin, xmax = place_box(state, parcel, clip)
+    total = 0.0
+    for k in range(strips.shape[0]):
+        if int(strips[k, S_SURF]) == surf:
+            _, a, _, _ = strip_part(clip, strips, k, xmin, xmax)
+            total += strips[k, S_WEIGHT] * a
+    return total
+
+
+@borrowing
+def strip_part_wrench(
+    poly,
+    n,
+    a,
+    qx,
+    qy,
+    gx,
+    gy,
+    ux_q,
+    uy_q,
+    omega,
+    law,
+    params,
+    mu_fixed,
+    pressure,
+    nodes,
+    weights,
+    closed_ok,
+):
+    """
+    Friction wrench (Fx, Fy, T about g) of one strip's part of the footprint.
+
+    Exact (``strip_wrench_closed``) where μ is constant there and the closed form is
+    accurate, Gauss quadrature elsewhere; μ is the law's kinetic μ(|u|), or ``mu_fixed``
+    where that is >= 0 (a coefficient of rest). ``closed_ok`` False forces quadrature
+    (the full model, for checking the reductions).
+    """
+    constant = mu_fixed >= 0.0 or law_is_constant(law)
+    if closed_ok and constant and closed_form_applies(poly, n, qx, qy, ux_q, uy_q, omega):
+        mu = mu_fixed if mu_fixed >= 0.0 else mu_kinetic(law, params, 1.0)
+        return strip_wrench_closed(poly, n, a, qx, qy, gx, gy, ux_q, uy_q, omega, mu, pressure)
+    return strip_wrench_quad(
+        poly,
+        n,
+        qx,
+        qy,
+        gx,
+        gy,
+        ux_q,
+        uy_q,
+        omega,
+        law,
+        params,
+        pressure,
+        nodes,
+        weights,
+        closed_ok,
+        mu_fixed,
+    )
+
+
+@borrowing
+def kinetic_wrench(state, strips, parcel, nodes, weights, skip, clip):
+    """
+    Total kinetic friction wrench (Fx, Fy, T about g) on the parcel in ``state``.
+
+    Every surface but ``skip`` (-1 or less: none) at the law's μ(|u|); the sum of
+    ``evaluate_surfaces``' kinetic rows, without its per-surface bookkeeping.
+    """
+    x = state[0]
+    y = state[1]
+    om = state[5]
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * parcel[P_HALF_A] * parcel[P_HALF_B])
+    closed_ok = parcel[P_CLOSED] > 0.5
+    xmin, xmax = place_box(state, parcel, clip)
+    poly = clip[4 : 4 + MAX_VERTS]
+    fx = 0.0
+    fy = 0.0
+    t = 0.0
+    for k in range(strips.shape[0]):
+        if int(strips[k, S_SURF]) == skip:
+            continue
+        n, a, qx, qy = strip_part(clip, strips, k, xmin, xmax)
+        if a <= 0.0:
+            continue
+        dfx, dfy, dt = strip_part_wrench(
+            poly,
+            n,
+            a,
+            qx,
+            qy,
+            x,
+            y,
+            state[3] - om * (qy - y) - strips[k, S_VX],
+            state[4] + om * (qx - x) - strips[k, S_VY],
+            om,
+            int(strips[k, S_LAW]),
+            strips[k, S_PARAMS:],
+            -1.0,
+            p_unit * strips[k, S_WEIGHT],
+            nodes,
+            weights,
+            closed_ok,
+        )
+        fx += dfx
+        fy += dfy
+        t += dt
+    return fx, fy, t
+
+
 @njit(cache=True)
 def evaluate_surfaces(
     state, strips, parcel, nodes, weights, skip_kinetic, need_static, kin, stat, area, slip_c
@@ -331,40 +497,28 @@ def evaluate_surfaces(
     """
     x = state[0]
     y = state[1]
-    phi = state[2]
     vx = state[3]
     vy = state[4]
     om = state[5]
-    half_a = parcel[P_HALF_A]
-    half_b = parcel[P_HALF_B]
-    full_area = 4.0 * half_a * half_b
-    p_unit = parcel[P_MASS] * parcel[P_GRAV] / full_area
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * parcel[P_HALF_A] * parcel[P_HALF_B])
     closed_ok = parcel[P_CLOSED] > 0.5
     kin[:, :] = 0.0
     stat[:, :] = 0.0
     area[:] = 0.0
     slip_c[:] = 0.0
     qsum = np.zeros((kin.shape[0], 2))
-    corners = np.empty((4, 2))
-    poly = np.empty((MAX_VERTS, 2))
-    work = np.empty((MAX_VERTS, 2))
-    box_corners(x, y, phi, half_a, half_b, corners)
-    xmin = min(corners[0, 0], corners[1, 0], corners[2, 0], corners[3, 0])
-    xmax = max(corners[0, 0], corners[1, 0], corners[2, 0], corners[3, 0])
+    clip = clip_scratch()
+    poly = clip[4 : 4 + MAX_VERTS]
+    xmin, xmax = place_box(state, parcel, clip)
     for k in range(strips.shape[0]):
-        w = strips[k, S_WEIGHT]
-        if w <= 0.0 or strips[k, S_XHI] <= xmin or strips[k, S_XLO] >= xmax:
-            continue
-        n = clip_to_strip(corners, strips[k, S_XLO], strips[k, S_XHI], poly, work)
-        a, qx, qy = polygon_area_centroid(poly, n)
+        n, a, qx, qy = strip_part(clip, strips, k, xmin, xmax)
         if a <= 0.0:
             continue
         surf = int(strips[k, S_SURF])
+        w = strips[k, S_WEIGHT]
         law = int(strips[k, S_LAW])
         params = strips[k, S_PARAMS:]
         pressure = p_unit * w
-        ux_q = vx - om * (qy - y) - strips[k, S_VX]
-        uy_q = vy + om * (qx - x) - strips[k, S_VY]
         area[surf] += w * a
         qsum[surf, 0] += w * a * qx
         qsum[surf, 1] += w * a * qy
@@ -375,31 +529,25 @@ def evaluate_surfaces(
             stat[surf, 1] += mus * pressure * i_r
         if surf == skip_kinetic:
             continue
-        if (
-            closed_ok
-            and law_is_constant(law)
-            and closed_form_applies(poly, n, qx, qy, ux_q, uy_q, om)
-        ):
-            mu = mu_kinetic(law, params, 1.0)
-            fx, fy, t = strip_wrench_closed(poly, n, a, qx, qy, x, y, ux_q, uy_q, om, mu, pressure)
-        else:
-            fx, fy, t = strip_wrench_quad(
-                poly,
-                n,
-                qx,
-                qy,
-                x,
-                y,
-                ux_q,
-                uy_q,
-                om,
-                law,
-                params,
-                pressure,
-                nodes,
-                weights,
-                closed_ok,
-            )
+        fx, fy, t = strip_part_wrench(
+            poly,
+            n,
+            a,
+            qx,
+            qy,
+            x,
+            y,
+            vx - om * (qy - y) - strips[k, S_VX],
+            vy + om * (qx - x) - strips[k, S_VY],
+            om,
+            law,
+            params,
+            -1.0,
+            pressure,
+            nodes,
+            weights,
+            closed_ok,
+        )
         kin[surf, 0] += fx
         kin[surf, 1] += fy
         kin[surf, 2] += t
@@ -416,8 +564,8 @@ def evaluate_surfaces(
                     break
 
 
-@njit(cache=True)
-def static_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om):
+@borrowing
+def static_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, clip):
     """
     Friction wrench (Fx, Fy, T about g) of surface ``surf`` at its static coefficients.
 
@@ -426,13 +574,16 @@ def static_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, o
     -∇D, D(twist) = Σ μ_s p w ∫ |u| dA the patch's dissipation rate at μ_s: the point
     of the patch's limit set (Goyal, Ruina and Papadopoulos 1991) whose outward
     normal is the twist. Exact for polygons (``strip_wrench_closed``) wherever that
-    is accurate, Gauss quadrature at constant μ_s elsewhere.
+    is accurate, Gauss quadrature at constant μ_s elsewhere. ``clip``: a footprint
+    scratch (``clip_scratch``).
     """
-    return rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, False)
+    return rest_surface_wrench(
+        state, strips, parcel, nodes, weights, surf, ux, uy, om, False, clip
+    )
 
 
-@njit(cache=True)
-def rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, kinetic):
+@borrowing
+def rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, kinetic, clip):
     """
     Wrench of surface ``surf`` for the twist direction (ux, uy, om), at the coefficient of rest.
 
@@ -443,56 +594,41 @@ def rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om,
     """
     x = state[0]
     y = state[1]
-    half_a = parcel[P_HALF_A]
-    half_b = parcel[P_HALF_B]
-    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * half_a * half_b)
-    corners = np.empty((4, 2))
-    poly = np.empty((MAX_VERTS, 2))
-    work = np.empty((MAX_VERTS, 2))
-    row = np.zeros(N_LAW_PARAMS)
-    box_corners(x, y, state[2], half_a, half_b, corners)
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * parcel[P_HALF_A] * parcel[P_HALF_B])
+    closed_ok = parcel[P_CLOSED] > 0.5
+    xmin, xmax = place_box(state, parcel, clip)
+    poly = clip[4 : 4 + MAX_VERTS]
     fx = 0.0
     fy = 0.0
     t = 0.0
     for k in range(strips.shape[0]):
-        w = strips[k, S_WEIGHT]
-        if w <= 0.0 or int(strips[k, S_SURF]) != surf:
+        if int(strips[k, S_SURF]) != surf:
             continue
-        n = clip_to_strip(corners, strips[k, S_XLO], strips[k, S_XHI], poly, work)
-        a, qx, qy = polygon_area_centroid(poly, n)
+        n, a, qx, qy = strip_part(clip, strips, k, xmin, xmax)
         if a <= 0.0:
             continue
         law = int(strips[k, S_LAW])
-        if kinetic:
-            mus = mu_kinetic(law, strips[k, S_PARAMS:], 0.0)
-        else:
-            mus = mu_static(law, strips[k, S_PARAMS:])
-        pressure = p_unit * w
-        ux_q = ux - om * (qy - y)
-        uy_q = uy + om * (qx - x)
-        if parcel[P_CLOSED] > 0.5 and closed_form_applies(poly, n, qx, qy, ux_q, uy_q, om):
-            dfx, dfy, dt = strip_wrench_closed(
-                poly, n, a, qx, qy, x, y, ux_q, uy_q, om, mus, pressure
-            )
-        else:
-            row[0] = mus
-            dfx, dfy, dt = strip_wrench_quad(
-                poly,
-                n,
-                qx,
-                qy,
-                x,
-                y,
-                ux_q,
-                uy_q,
-                om,
-                LAW_CONST1,
-                row,
-                pressure,
-                nodes,
-                weights,
-                parcel[P_CLOSED] > 0.5,
-            )
+        params = strips[k, S_PARAMS:]
+        mus = mu_kinetic(law, params, 0.0) if kinetic else mu_static(law, params)
+        dfx, dfy, dt = strip_part_wrench(
+            poly,
+            n,
+            a,
+            qx,
+            qy,
+            x,
+            y,
+            ux - om * (qy - y),
+            uy + om * (qx - x),
+            om,
+            law,
+            params,
+            mus,
+            p_unit * strips[k, S_WEIGHT],
+            nodes,
+            weights,
+            closed_ok,
+        )
         fx += dfx
         fy += dfy
         t += dt
@@ -505,7 +641,14 @@ def n_surfaces(strips: np.ndarray) -> int:
 
 
 __all__ = [
+    "CLIP_ROWS",
+    "clip_scratch",
     "evaluate_surfaces",
+    "kinetic_wrench",
+    "place_box",
+    "strip_part",
+    "strip_part_wrench",
+    "surface_area",
     "gauss_legendre_01",
     "n_surfaces",
     "smooth_order",
