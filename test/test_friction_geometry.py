@@ -137,6 +137,76 @@ def test_distance_integral_of_a_square_about_its_centre():
     assert abs(gx) < 1e-15 and abs(gy) < 1e-15  # symmetry
 
 
+@pytest.mark.parametrize("dist", [0.6, 2.0, 10.0, 40.0])
+def test_distance_integrals_against_gauss_legendre_outside(dist):
+    # A rectangle, c placed at dist x its diagonal from the centroid in eight directions
+    # (edges wholly before, wholly after and across the foot of c's perpendicular); the
+    # reference is a 60 x 60 Gauss-Legendre rule on the rectangle's own axes, to
+    # rounding where c lies outside (|p - c| is analytic there).
+    A, B, phi, x, y = 0.4, 0.2, 0.3, 0.1, 0.05
+    poly, n = _clip(footprint(x, y, phi, A, B), -math.inf, math.inf)
+    area, qx, qy = polygon_area_centroid(poly, n)
+    nodes, weights = np.polynomial.legendre.leggauss(60)
+    cs, sn = math.cos(phi), math.sin(phi)
+
+    def ref(cx, cy):
+        lx = cs * (cx - x) + sn * (cy - y)
+        ly = -sn * (cx - x) + cs * (cy - y)
+        out = np.zeros(3)
+        for u0, u1 in _cells(-A / 2, A / 2, lx):
+            for v0, v1 in _cells(-B / 2, B / 2, ly):
+                u = 0.5 * (u0 + u1) + 0.5 * (u1 - u0) * nodes
+                v = 0.5 * (v0 + v1) + 0.5 * (v1 - v0) * nodes
+                uu, vv = np.meshgrid(u, v)
+                w = np.outer(weights, weights) * 0.25 * (u1 - u0) * (v1 - v0)
+                dx = x + cs * uu - sn * vv - cx
+                dy = y + sn * uu + cs * vv - cy
+                r = np.hypot(dx, dy)
+                out += [(w * r).sum(), (w * dx / r).sum(), (w * dy / r).sum()]
+        return out
+
+    size = math.hypot(A, B)
+    for k in range(8):
+        cx = qx + dist * size * math.cos(k * math.pi / 4 + 0.1)
+        cy = qy + dist * size * math.sin(k * math.pi / 4 + 0.1)
+        got = np.array(distance_integrals(poly, n, cx, cy))
+        want = ref(cx, cy)
+        reach = math.hypot(cx - qx, cy - qy) + size
+        # rounding, grown by the cancellation of edge terms ~ reach² against ~ area
+        assert abs(got[0] - want[0]) <= 1e-13 * area * reach * (reach / size)
+        assert np.all(np.abs(got[1:] - want[1:]) <= 1e-13 * area * (reach / size))
+
+
+def _about_corner(a, b):
+    # ∫|p - c| dA over an a x b rectangle with c on a corner: [2abd + a³ ln((b + d)/a)
+    # + b³ ln((a + d)/b)] / 6, d its diagonal
+    d = math.hypot(a, b)
+    return (2 * a * b * d + a**3 * math.log((b + d) / a) + b**3 * math.log((a + d) / b)) / 6
+
+
+def test_distance_integral_about_a_corner_and_inside():
+    # c on a corner (edges through c: h = 0 and t = 0 ends), then inside, where the
+    # rectangle is four with c on a corner of each
+    a, b, phi, x, y = 0.4, 0.2, 0.7, 0.3, -0.1
+    poly, n = _clip(footprint(x, y, phi, a, b), -math.inf, math.inf)
+    for i in range(4):
+        i_r, _, _ = distance_integrals(poly, n, poly[i, 0], poly[i, 1])
+        assert i_r == pytest.approx(_about_corner(a, b), rel=1e-13)
+    for lx, ly in [(0.0, 0.0), (0.13, -0.02), (-0.19, 0.099), (0.05, 0.0999999)]:
+        cx = x + math.cos(phi) * lx - math.sin(phi) * ly
+        cy = y + math.sin(phi) * lx + math.cos(phi) * ly
+        want = sum(
+            _about_corner(a / 2 + su * lx, b / 2 + sv * ly) for su in (-1, 1) for sv in (-1, 1)
+        )
+        i_r, _, _ = distance_integrals(poly, n, cx, cy)
+        assert i_r == pytest.approx(want, rel=1e-13)
+
+
+def _cells(lo, hi, cut):
+    """Split [lo, hi] at ``cut`` where it lies inside."""
+    return [(lo, cut), (cut, hi)] if lo < cut < hi else [(lo, hi)]
+
+
 # ---------------------------------------------------------------- wrench
 def _brute_wrench(A, B, phi, x, y, V, omega, vs, mu_of, lo=0.0, n=1500):
     s = (np.arange(n) + 0.5) / n
