@@ -52,7 +52,9 @@ def _seed_limits(arr, par, nodes, weights, y, surf):
 
 
 def _gauge(arr, par, nodes, weights, y, surf, w):
-    return ig.limit_gauge(y, arr, par, nodes, weights, surf, w[0], w[1], w[2], np.zeros(3))
+    return ig.limit_gauge(
+        y, arr, par, nodes, weights, surf, w[0], w[1], w[2], np.zeros(3), clip_scratch()
+    )
 
 
 @pytest.mark.parametrize("surf", [0, 1])

@@ -26,6 +26,14 @@ MAX_VERTS = 8
 
 
 @borrowing
+def corner_x(x, phi, half_a, half_b, i):
+    """Return the x of corner i (``box_corners``' order) of the box centred at x, turned by φ."""
+    ox = half_a if i < 2 else -half_a
+    oy = -half_b if i == 0 or i == 3 else half_b
+    return x + math.cos(phi) * ox - math.sin(phi) * oy
+
+
+@borrowing
 def box_corners(x, y, phi, half_a, half_b, out):
     """Corners of the A x B box (A along x at φ = 0) centred at (x, y), counter-clockwise."""
     c = math.cos(phi)

@@ -73,7 +73,7 @@ from .layout import (
 )
 from .dopri import C, dense, rms_norm, sign_change, stage_state, step_error, step_factor
 from .friction import law_is_constant, mu_kinetic, mu_static
-from .geometry import MAX_VERTS, box_corners, clip_to_strip, polygon_area_centroid
+from .geometry import MAX_VERTS, box_corners, clip_to_strip, corner_x, polygon_area_centroid
 from .wrench import (
     add_slip_curvature,
     clip_scratch,
@@ -166,7 +166,7 @@ def _dissipation_gradient(state, strips, parcel, nodes, weights, surf, rho, z0, 
 
 
 @njit(cache=True)
-def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
+def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi, clip):
     """
     Gauge of the wrench (wx, wy, wt) in the limit set of ``surf``'s patch: <= 1 iff it holds.
 
@@ -180,7 +180,7 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
     minimiser ξ* the limit-surface point ∇D(ξ*) = W / γ: ξ* is the twist the patch
     slips with when the stick breaks (maximal dissipation). ``xi`` (3, in/out)
     carries ξ* between calls: a stick scanned along its path starts each solve next
-    to the last minimiser.
+    to the last minimiser. ``clip``: a footprint scratch (``wrench.clip_scratch``).
 
     Returns γ (0 for W = 0; inf when the patch supplies no friction at all).
     """
@@ -224,7 +224,6 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi):
     g = np.empty(3)
     gp = np.empty(3)
     zt = np.empty(3)
-    clip = clip_scratch()
     d = _dissipation_gradient(
         state, strips, parcel, nodes, weights, surf, rho, z[0], z[1], z[2], clip, g
     )
@@ -316,6 +315,17 @@ def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf, xi):
     |F| <= F_max). Seed stick: the decoupled test of eqs. 4.2/4.4, |F| <= F_max and
     |T| <= T_max separately, in force units. ``xi`` (3): the gauge's warm start.
     """
+    # a pull equal to the capacity within STICK_RTOL holds: at an exact balance (the
+    # disks carrying half the load at the belt's μ, a stroke of 0.5) rounding would
+    # otherwise break the stick and make it again at every step, without end
+    if parcel[P_ROTATION] > 0.5 and parcel[P_STICK] > 0.5:
+        clip = clip_scratch()
+        fx, fy, t = kinetic_wrench(state, strips, parcel, nodes, weights, surf, clip)
+        a = surface_area(state, strips, parcel, surf, clip)
+        if a <= 0.0:
+            return (math.inf if fx != 0.0 or fy != 0.0 or t != 0.0 else 0.0), 0.0, fx, fy, t
+        gamma = limit_gauge(state, strips, parcel, nodes, weights, surf, fx, fy, t, xi, clip)
+        return gamma - (1.0 + STICK_RTOL), a, fx, fy, t
     kin = np.empty((nsurf, 3))
     stat = np.empty((nsurf, 2))
     area = np.empty(nsurf)
@@ -329,14 +339,6 @@ def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf, xi):
             fx += kin[s, 0]
             fy += kin[s, 1]
             t += kin[s, 2]
-    # a pull equal to the capacity within STICK_RTOL holds: at an exact balance (the
-    # disks carrying half the load at the belt's μ, a stroke of 0.5) rounding would
-    # otherwise break the stick and make it again at every step, without end
-    if parcel[P_ROTATION] > 0.5 and parcel[P_STICK] > 0.5:
-        if area[surf] <= 0.0:
-            return (math.inf if fx != 0.0 or fy != 0.0 or t != 0.0 else 0.0), 0.0, fx, fy, t
-        gamma = limit_gauge(state, strips, parcel, nodes, weights, surf, fx, fy, t, xi)
-        return gamma - (1.0 + STICK_RTOL), area[surf], fx, fy, t
     margin = math.hypot(fx, fy) - stat[surf, 0] * (1.0 + STICK_RTOL)
     if parcel[P_ROTATION] > 0.5:
         margin = max(margin, abs(t) - stat[surf, 1] * (1.0 + STICK_RTOL))
@@ -373,15 +375,14 @@ def _record_new(ts, ys, ms, n_out, t, y, mode):
     return n_out if same else _record(ts, ys, ms, n_out, t, y, mode)
 
 
-@njit(cache=True)
+@borrowing
 def _corner_event_values(state, parcel, borders, out):
     """Corner x minus border x for every (corner, border) pair."""
-    corners = np.empty((4, 2))
-    box_corners(state[0], state[1], state[2], parcel[P_HALF_A], parcel[P_HALF_B], corners)
     nb = borders.shape[0]
     for i in range(4):
+        cx = corner_x(state[0], state[2], parcel[P_HALF_A], parcel[P_HALF_B], i)
         for b in range(nb):
-            out[i * nb + b] = corners[i, 0] - borders[b]
+            out[i * nb + b] = cx - borders[b]
 
 
 @borrowing
@@ -432,17 +433,16 @@ def _alone_on(state, strips, parcel, clip, surf, area):
     return True
 
 
-@njit(cache=True)
+@borrowing
 def _time_to_next_border(state, vx, parcel, borders):
     """Time until a corner of a parcel translating at vx reaches the next strip border."""
     if vx == 0.0 or borders.shape[0] == 0:
         return math.inf
-    corners = np.empty((4, 2))
-    box_corners(state[0], state[1], state[2], parcel[P_HALF_A], parcel[P_HALF_B], corners)
     best = math.inf
     for i in range(4):
+        cx = corner_x(state[0], state[2], parcel[P_HALF_A], parcel[P_HALF_B], i)
         for b in range(borders.shape[0]):
-            dt = (borders[b] - corners[i, 0]) / vx
+            dt = (borders[b] - cx) / vx
             if dt >= 0.0 and dt < best:
                 best = dt
     return best
@@ -739,7 +739,7 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
     if norm == 0.0 and zn == 0.0:
         return 0.0
     if zn == 0.0 and rot:
-        limit_gauge(yp, strips, parcel, nodes, weights, surf, ox, oy, ow * rho, z)
+        limit_gauge(yp, strips, parcel, nodes, weights, surf, ox, oy, ow * rho, z, clip)
         zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
         if zn > 0.0 and (ox * z[0] + oy * z[1] + ow * z[2]) <= 0.0:
             zn = 0.0
@@ -2124,7 +2124,7 @@ def _ratio(load, limit):
 
 
 @njit(cache=True)
-def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi):
+def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi, clip):
     """
     How far the wrench (rfx, rfy, rt) that surface ``s`` must supply loads its stick.
 
@@ -2144,7 +2144,8 @@ def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi):
     # about g at most the pure spin's): the gauge runs only where they hold
     if load <= 1.0 and rot and parcel[P_STICK] > 0.5:
         if not inside_limit_set(y, strips, parcel, s, rfx, rfy, rt):
-            load = limit_gauge(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, xi) / tol
+            gamma = limit_gauge(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, xi, clip)
+            load = gamma / tol
     return load
 
 
@@ -2419,7 +2420,9 @@ def implicit_step(
                 wfx -= src[o, 0]
                 wfy -= src[o, 1]
                 wt -= src[o, 2]
-        load = _stick_load(y, strips, parcel, nodes, weights, cand, wfx, wfy, wt, stat, xis[cand])
+        load = _stick_load(
+            y, strips, parcel, nodes, weights, cand, wfx, wfy, wt, stat, xis[cand], clip
+        )
         if load <= 1.0:
             _stuck_step(y, h, vsx, vsy, y_out)
             return cand, n_eval
