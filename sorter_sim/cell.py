@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .core import cell_kernels as ck
+from .core.integrators import GAUGE_CARRY
 from .core.layout import PARCEL_WIDTH, STRIP_WIDTH
 from .core.simulate import Parcel, parcel_array
 from .core.wrench import gauss_legendre_01
@@ -144,7 +145,7 @@ class Cell:
         self.phase = np.zeros(cap, dtype=np.int64)
         self.par = np.zeros((cap, PARCEL_WIDTH))
         self.scanned = np.zeros(cap, dtype=np.bool_)
-        self.gauge_xi = np.zeros((cap, 3))  # each parcel's stick-gauge warm start
+        self.gauge_xi = np.zeros((cap, GAUGE_CARRY))  # each parcel's stick-gauge warm start
         self.blocked = np.zeros((cap, n_sens), dtype=np.bool_)
         self.counts = np.zeros(n_sens, dtype=np.int64)
         self.ids = np.zeros(cap, dtype=np.int64)

@@ -390,7 +390,8 @@ def test_the_gauge_warm_start_changes_nothing_but_the_work():
     ``run_accurate`` takes the limit-set gauge's twist from its caller (the cell keeps
     each parcel's from period to period); whatever it starts from, converged, cold or
     pointing the wrong way, Newton finds the same minimiser: the parcel riding the belt
-    onto the disks (Fig. 9a) breaks away at the same time to 1e-12 s.
+    onto the disks (Fig. 9a) breaks away at the same time to 1e-12 s; so does it
+    whatever Newton metric it carries (``GAUGE_CARRY``), its own or a wrong one.
     """
     from sorter_sim.core.simulate import strip_borders
 
@@ -421,3 +422,14 @@ def test_the_gauge_warm_start_changes_nothing_but_the_work():
     assert 0.1 < t_cold < 0.2  # the seed's Fig. 9a parcel leaves the belt after ~0.15 s
     for start in (xi.copy(), -xi, np.array([0.0, 0.0, 1.0])):
         assert break_time(start) == pytest.approx(t_cold, abs=1e-12)
+    # with room for it, the gauge's Newton metric is carried too: the run's own, none,
+    # or one that points Newton the wrong way (a wrong sign, a scale 1e6 off) all give
+    # the same break, the metric being differenced anew where it fails to converge
+    carry = np.zeros(ig.GAUGE_CARRY)
+    assert break_time(carry) == pytest.approx(t_cold, abs=1e-12)
+    assert carry[3] > 0.0  # a metric was carried: its basis axis + 1
+    assert np.linalg.norm(carry[:3]) == pytest.approx(1.0)
+    for axis in (1.0, 2.0, 3.0):
+        for metric in ((-1.0, 0.0, -1.0), (1e6, 0.0, 1e6), (1e-6, 0.0, 1e-6), (1.0, 5.0, 1.0)):
+            bad = np.concatenate([carry[:3], [axis], metric])
+            assert break_time(bad) == pytest.approx(t_cold, abs=1e-12), (axis, metric)

@@ -498,9 +498,9 @@ def advance_cell(
     last_strips (MAX_STRIPS, STRIP_WIDTH) and last_info (int64 [period index, count]):
     the strips of the last period advanced, updated (a stick that held through it holds
     through the next under the same strips where nothing about the parcel changes).
-    gauge_xi (cap, 3): each parcel's limit-set gauge twist, updated: a stick checked
-    period after period (riding the belt onto raised disks) starts each Newton solve
-    from the last one's.
+    gauge_xi (cap, GAUGE_CARRY): each parcel's limit-set gauge twist and Newton metric,
+    updated: a stick checked period after period (riding the belt onto raised disks)
+    starts each Newton solve from the last one's.
     Returns (periods done, events written).
     """
     cap = state.shape[0]

@@ -148,6 +148,8 @@ APPROACH_STEPS = 5.0
 STIFF_RATIO = 2.0  # x rtol^(1/5): where a 5th-order step's error in the turning reaches rtol
 STICK_RTOL = 1e-13  # relative: a balance to rounding (a few ulps of the wrench sums) holds
 GAUGE_ITERATIONS = 60
+# a limit-set gauge's warm start (``limit_gauge``'s xi): its twist, then its Hessian
+GAUGE_CARRY = 7
 F_NOISE = 1e-13  # relative rounding of a sum of wrench-based dissipations (closed form)
 SOLVE_RATIO = 1e-2  # the implicit solve's error bound, relative to how far it moved
 
@@ -178,9 +180,14 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi, cli
     twists (ẋ, ẏ, ρφ̇)): the gradient is exact (the closed-form wrench), the 2 x 2
     Hessian a forward difference of it, with a backtracking line search on D. At the
     minimiser ξ* the limit-surface point ∇D(ξ*) = W / γ: ξ* is the twist the patch
-    slips with when the stick breaks (maximal dissipation). ``xi`` (3, in/out)
-    carries ξ* between calls: a stick scanned along its path starts each solve next
-    to the last minimiser. ``clip``: a footprint scratch (``wrench.clip_scratch``).
+    slips with when the stick breaks (maximal dissipation). ``xi`` (in/out) carries
+    ξ* between calls: a stick scanned along its path starts each solve next to the
+    last minimiser. Of GAUGE_CARRY entries, it carries the last differenced Hessian
+    too ([k + 1, |ξ| H] in the plane basis built on axis k; D is 1-homogeneous, so H
+    scales as 1/|ξ|): Newton's first steps there take no differences, and the Hessian
+    is differenced anew where a step with it backtracks or fails to cut the gradient
+    tenfold (it is only Newton's metric). ``clip``: a footprint scratch
+    (``wrench.clip_scratch``).
 
     Returns γ (0 for W = 0; inf when the patch supplies no friction at all).
     """
@@ -229,20 +236,33 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi, cli
     )
     if not d > 0.0:
         return math.inf
+    carry = xi.shape[0] >= GAUGE_CARRY
+    carried = carry and xi[3] == k + 1.0
+    gn_last = math.inf
+    step = 1.0
     for _ in range(GAUGE_ITERATIONS):
         # reduced gradient and Hessian in the plane
         g0 = g[0] * p[0] + g[1] * p[1] + g[2] * p[2]
         g1 = g[0] * q[0] + g[1] * q[1] + g[2] * q[2]
         zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
+        gn = math.hypot(g0, g1)
         # at the minimum the reduced gradient vanishes: ∇D ∥ W, |∇D| ~ D/|ξ|
-        if math.hypot(g0, g1) <= 1e-14 * d / zn:
+        if gn <= 1e-14 * d / zn:
             break
-        hstep = 1e-5 * zn
+        if carried and (step < 1.0 or gn > 0.1 * gn_last):
+            carried = False  # the carried metric no longer converges fast: difference
+        gn_last = gn
         h00 = 0.0
         h01 = 0.0
         h10 = 0.0
         h11 = 0.0
-        for j in range(2):
+        if carried:
+            h00 = xi[4] / zn
+            h01 = xi[5] / zn
+            h10 = h01
+            h11 = xi[6] / zn
+        hstep = 1e-5 * zn
+        for j in range(0 if carried else 2):
             # a forward difference of the exact gradient: the Hessian only shapes Newton's
             # step (the minimiser is where the exact gradient vanishes), at half the cost
             for i in range(3):
@@ -260,6 +280,12 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi, cli
                 h01 = c0
                 h11 = c1
         h01 = 0.5 * (h01 + h10)
+        if carry and not carried:
+            xi[3] = k + 1.0
+            xi[4] = h00 * zn
+            xi[5] = h01 * zn
+            xi[6] = h11 * zn
+            carried = True
         det = h00 * h11 - h01 * h01
         if h00 > 0.0 and h11 > 0.0 and det > 1e-12 * h00 * h11:
             s0 = -(h11 * g0 - h01 * g1) / det
@@ -313,7 +339,8 @@ def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf, xi):
     (``P_STICK``): margin = γ - 1, γ that wrench's gauge in the surface's limit set
     (``limit_gauge``; without rotation φ̇ = 0 is a constraint and the set is the disk
     |F| <= F_max). Seed stick: the decoupled test of eqs. 4.2/4.4, |F| <= F_max and
-    |T| <= T_max separately, in force units. ``xi`` (3): the gauge's warm start.
+    |T| <= T_max separately, in force units. ``xi`` (3, or GAUGE_CARRY to carry its
+    Newton metric too): the gauge's warm start.
     """
     # a pull equal to the capacity within STICK_RTOL holds: at an exact balance (the
     # disks carrying half the load at the belt's μ, a stroke of 0.5) rounding would
@@ -573,8 +600,9 @@ def _stick_advance(
 
     reason: 0 reached t_end, 1 reached the target line, 2 break-away, 3 left the surface.
     ``y`` is updated in place (rigid translation with the surface, φ̇ = 0).
-    ``counters``: [n_rhs, closed_form_jumps]. ``xi`` (3, in/out): the limit-set gauge's
-    twist, carried along the stick from scan to scan (a warm start; zero: none).
+    ``counters``: [n_rhs, closed_form_jumps]. ``xi`` (GAUGE_CARRY, in/out): the limit-set
+    gauge's twist and Newton metric, carried along the stick from scan to scan (a warm
+    start; zero: none).
     """
     vsx, vsy = surface_velocity(strips, surf)
     y[3] = vsx
@@ -713,7 +741,9 @@ def _others_wrench(y, strips, parcel, nodes, weights, surf, clip):
 @njit(cache=True)
 def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hess, clip):
     """
-    Find the unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow); return λ.
+    Find the unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow).
+
+    Returns λ and |∇D_k(σ̂)| [N], the patch's generalized friction there.
 
     W_o is the other surfaces' generalized kinetic wrench, D_k the patch of ``surf``
     slipping infinitely slowly (μ_k(0), ``rest_surface_wrench``). The maximiser is the
@@ -737,7 +767,7 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
     norm = math.sqrt(ox * ox + oy * oy + ow * ow)
     zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
     if norm == 0.0 and zn == 0.0:
-        return 0.0
+        return 0.0, 0.0
     if zn == 0.0 and rot:
         limit_gauge(yp, strips, parcel, nodes, weights, surf, ox, oy, ow * rho, z, clip)
         zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
@@ -874,7 +904,8 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
         f = ft
         if moved <= 1e-15:
             break
-    return f / mass
+    # g = W_o - ∇D_k(σ̂) at the final σ̂ (accepted points only carry their gradient)
+    return f / mass, math.sqrt((g[0] - ox) ** 2 + (g[1] - oy) ** 2 + (g[2] - ow) ** 2)
 
 
 @borrowing
@@ -910,7 +941,9 @@ def _layer_rhs(u, strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, hess,
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     sl = _layer_state(u, z, vsx, vsy, parcel, yv)
     ox, oy, ow, _ = _others_wrench(yv, strips, parcel, nodes, weights, surf, clip)
-    lam = _pull_direction(yv, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hess, clip)
+    lam, fmag = _pull_direction(
+        yv, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hess, clip
+    )
     _layer_state(u, z, vsx, vsy, parcel, yv)  # at the settled direction
     rhs_slide(yv, strips, parcel, nodes, weights, clip, acc)
     out[0] = yv[3]
@@ -927,10 +960,7 @@ def _layer_rhs(u, strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, hess,
         # leave the patch's friction out); the growth is its limit s -> 0+, λ (where λ
         # <= 0 the slip cannot grow: it stays zero)
         out[3] = max(lam, 0.0)
-    fx, fy, ft = rest_surface_wrench(
-        yv, strips, parcel, nodes, weights, surf, z[0], z[1], z[2] / rho, True, clip
-    )
-    return math.sqrt(fx * fx + fy * fy + (ft / rho) ** 2)
+    return fmag
 
 
 @njit(cache=True)
@@ -1472,7 +1502,7 @@ def _small_slip(
     area = np.empty(nsurf)
     clip = clip_scratch()
     sig = np.empty(3)
-    xi = np.zeros(3)
+    xi = np.zeros(GAUGE_CARRY)
     _contact_surfaces(y, strips, parcel, clip, area)
     for s in range(nsurf):
         if area[s] <= 0.0:
@@ -1612,8 +1642,8 @@ def run_accurate(
 
     counters (out): [n_steps, n_rhs, n_rejected, n_out, n_events, closed_form_jumps,
                      stick_scans]. Returns (status, t, mode) with the final state in ys.
-    xi (3, in/out): the limit-set gauge's twist of a stick, a warm start for its Newton
-    solve carried from call to call (the cell integrates a parcel period by period and
+    xi (GAUGE_CARRY, in/out): the limit-set gauge's twist of a stick and its Newton
+    metric, a warm start for its solve carried from call to call (the cell integrates a parcel period by period and
     keeps each one's); zeros: none. The result does not depend on it beyond rounding.
     """
     nsurf = n_surf_of(strips)
@@ -2313,8 +2343,9 @@ def implicit_step(
     hold where it sits on one, with a backtracking line search. Its Hessian: the
     point set's own, exactly, or for the exact wrench a model (``dissipation_hessian``,
     where ``fresh``) that BFGS updates carry from step to step in ``hess`` (3 x 3):
-    about 1.5 wrench evaluations a step on Fig. 9a. ``xis`` (nsurf x 3): each
-    surface's limit-set gauge twist, carried from step to step.
+    about 1.5 wrench evaluations a step on Fig. 9a. ``xis`` (nsurf x
+    GAUGE_CARRY): each surface's limit-set gauge twist and Newton metric, carried from
+    step to step.
     """
     m = parcel[P_MASS]
     rot = parcel[P_ROTATION] > 0.5
@@ -2621,7 +2652,7 @@ def run_implicit(
     exact, mu_ratio = _constant_friction(strips)
     cap = 1 if exact else 4 * nodes.shape[0] * nodes.shape[0] * MAX_VERTS * strips.shape[0] + 1
     pts = np.empty((cap, 6))
-    xis = np.zeros((nsurf, 3))
+    xis = np.zeros((nsurf, GAUGE_CARRY))
     guess = np.empty(3)
     w_last = np.empty(3)
     h_last = 0.0

@@ -455,7 +455,7 @@ def simulate(
             ms,
             ev,
             counters,
-            np.zeros(3),
+            np.zeros(_ig.GAUGE_CARRY),
         )
     elif method == "implicit":
         status, t_fin, mode = _ig.run_implicit(
