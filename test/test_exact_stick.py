@@ -433,3 +433,41 @@ def test_the_gauge_warm_start_changes_nothing_but_the_work():
         for metric in ((-1.0, 0.0, -1.0), (1e6, 0.0, 1e6), (1e-6, 0.0, 1e-6), (1.0, 5.0, 1.0)):
             bad = np.concatenate([carry[:3], [axis], metric])
             assert break_time(bad) == pytest.approx(t_cold, abs=1e-12), (axis, metric)
+
+
+@pytest.mark.parametrize("alpha", [20.0, 45.0, 70.0, 90.0])
+def test_the_break_away_is_the_first_root_of_the_gauge_margin(alpha):
+    """
+    Check that a stick breaks at the first time the limit set stops holding, no later.
+
+    The accurate method scans a stick with a cheap inner bound of the limit set first
+    and runs the gauge only where the bound cannot decide. Independently of that scan,
+    the gauge margin along the carried path (belt speed, φ̇ = 0) is sampled here eight
+    times as finely and its first sign change located by scipy's brentq: the break
+    event must sit on it. A scan that let the bound admit a breaking pose would
+    report a later break.
+    """
+    from scipy.optimize import brentq
+
+    parcel = Parcel(0.7, 0.2, 5.0)
+    strips = cell_strips(1.5, alpha, math.inf, 0.6, 0.6, 0.6)
+    arr = strip_array(strips)
+    par = parcel_array(parcel, True, 8, True, stick="exact")
+    nodes, weights = gauss_legendre_01(8)
+    y0 = entry_state(parcel, 1.5)
+    res = simulate(parcel, strips, y0, (0.0, 0.5), "accurate", rtol=1e-8, atol=1e-10)
+    t_break = res.first_event("break", 0)
+    assert t_break is not None and 0.0 < t_break < 0.5
+
+    def margin(t):
+        y = np.array([y0[0] + 1.5 * t, y0[1], y0[2], 1.5, 0.0, 0.0])
+        return ig.stick_margin(y, arr, par, nodes, weights, 2, 0, np.zeros(3))[0]
+
+    dt = 0.2 / (16.0 * 1.5) / 8.0  # the scan's step over eight
+    grid = np.arange(0.0, t_break + 4 * dt, dt)
+    values = np.array([margin(t) for t in grid])
+    assert values[0] < 0.0
+    first = int(np.argmax(values > 0.0))
+    assert first > 0, "the stick never breaks on the fine grid"
+    root = brentq(margin, grid[first - 1], grid[first], xtol=1e-14)
+    assert t_break == pytest.approx(root, abs=1e-10)

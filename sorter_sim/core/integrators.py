@@ -630,6 +630,7 @@ def _stick_advance(
     clip = clip_scratch()
     lmin = 2.0 * min(parcel[P_HALF_A], parcel[P_HALF_B])
     dt_scan = lmin / (16.0 * speed)
+    bound_first = parcel[P_ROTATION] > 0.5 and parcel[P_STICK] > 0.5
     y0x = y[0]
     y0y = y[1]
     t0 = t
@@ -651,6 +652,19 @@ def _stick_advance(
                     break
                 continue
         t_next = min(t_stop, t + dt_scan)
+        if bound_first:
+            # the scan only asks whether the stick holds: a wrench well inside the
+            # limit set says so without the gauge's Newton solve (the break's own
+            # search below takes the gauge's values)
+            ys[0] = y0x + vsx * (t_next - t0)
+            ys[1] = y0y + vsy * (t_next - t0)
+            fx, fy, tq = kinetic_wrench(ys, strips, parcel, nodes, weights, surf, clip)
+            counters[0] += 1
+            if inside_limit_set(ys, strips, parcel, surf, fx, fy, tq):
+                t = t_next
+                y[0] = ys[0]
+                y[1] = ys[1]
+                continue
         m, a = _margin_at(
             t_next, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi
         )
@@ -1643,8 +1657,9 @@ def run_accurate(
     counters (out): [n_steps, n_rhs, n_rejected, n_out, n_events, closed_form_jumps,
                      stick_scans]. Returns (status, t, mode) with the final state in ys.
     xi (GAUGE_CARRY, in/out): the limit-set gauge's twist of a stick and its Newton
-    metric, a warm start for its solve carried from call to call (the cell integrates a parcel period by period and
-    keeps each one's); zeros: none. The result does not depend on it beyond rounding.
+    metric, a warm start for its solve carried from call to call (the cell integrates
+    a parcel period by period and keeps each one's); zeros: none. The result does not
+    depend on it beyond rounding.
     """
     nsurf = n_surf_of(strips)
     rot = parcel[P_ROTATION] > 0.5
