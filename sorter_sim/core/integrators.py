@@ -1192,8 +1192,9 @@ def _break_away(
     direction starts the layer's. A stick breaks where the margin crosses zero, so the
     slip's growth rate starts at zero too: the slip starts on the layer (``_layer``),
     whose slow manifold is exact as s -> 0 and good while the turning's stiffness F/(m ṡ)
-    is large; once the slip grows at F/(20 m) it goes on exactly in ln s (``_approach``
-    with ``grow``), until the full model can take over.
+    is large; once the slip grows at F/m times STIFF_RATIO rtol^(1/5) (F/(20 m) at rtol
+    1e-8) it goes on exactly in ln s (``_approach`` with ``grow``), until the full model
+    can take over.
     """
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
