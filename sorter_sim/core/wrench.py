@@ -198,7 +198,12 @@ def strip_wrench_quad(
         ns = nq
         spread = abs(omega) * radius  # the patch's speeds lie within uq ± spread
         reach = math.inf if constant else law_smooth_reach(law, params, uq)
-        if uq > 0.0 and reach >= 3.0 * spread:
+        if uq > 0.0 and spread == 0.0:
+            # a patch in pure translation rubs at one speed: μ is one number over it,
+            # whatever the law (a law not analysed for smoothness has reach 0, and
+            # 0/0 below would be no order at all)
+            ns = smooth_order(0.0)
+        elif uq > 0.0 and reach >= 3.0 * spread:
             # analytic over a disk ~min(uq, reach)/|φ̇| wide: ε measured against both
             ns = smooth_order(spread / min(uq, reach))
         if ns < nq:
