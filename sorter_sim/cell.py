@@ -168,6 +168,8 @@ class Cell:
         self.watchdog_tripped = False
         self.watchdog_trips = 0
         self._heartbeat_k: int | None = None
+        self._heartbeat_value: int | None = None  # the last counter that fed it
+        self.heartbeats_frozen = 0  # heartbeats that repeated the last counter: not fed
         self.n_inducted = 0
         self.outcome_counts = {'left': 0, 'right': 0, 'straight': 0, 'jammed': 0}
         self._stream_rng = np.random.Generator(np.random.PCG64(params.seed))
@@ -310,13 +312,20 @@ class Cell:
         return [name for name, on in flags if on]
 
     # ------------------------------------------------------------------ watchdog
-    def heartbeat(self) -> bool:
+    def heartbeat(self, counter: int) -> bool:
         """
-        Take a controller heartbeat now; return True if it cleared a tripped watchdog.
+        Take a controller heartbeat carrying ``counter``; return True if it cleared a trip.
 
-        A controller that comes back takes over where the safe state left the cell: the
-        disks down and at safe_alpha_deg, ready for its next command.
+        Only a changed counter feeds the watchdog (the first one arms it, whatever its
+        value): a frozen controller that keeps sending or rewriting its last value is a
+        stopped one, and the watchdog must see it as such (``heartbeats_frozen`` counts
+        those repeats). A controller that comes back takes over where the safe state left
+        the cell: the disks down and at safe_alpha_deg, ready for its next command.
         """
+        if self._heartbeat_value is not None and counter == self._heartbeat_value:
+            self.heartbeats_frozen += 1
+            return False
+        self._heartbeat_value = counter
         self._heartbeat_k = self.k
         if self.watchdog_tripped:
             self.watchdog_tripped = False

@@ -274,7 +274,9 @@ class SimNode(Node):
             elif name == 'belt.run':
                 ok, _ = c.run_belt(bool(value))
             elif name == 'plc.heartbeat':
-                if c.heartbeat():
+                # a rewrite of the same value reaches here too: the cell feeds its watchdog
+                # only with a changed counter
+                if c.heartbeat(int(value)):
                     self.get_logger().info('PLC heartbeat back: watchdog cleared')
                     self._publish_status()
             elif name == 'diverter.alpha_setpoint':
@@ -759,8 +761,8 @@ class SimNode(Node):
             self._safe_alpha_set = False
 
     def _on_heartbeat(self, msg: UInt32) -> None:
-        """Take the controller's heartbeat (any message counts; the value is its counter)."""
-        if self.cell.heartbeat():
+        """Take the controller's heartbeat: a counter, which feeds the watchdog when it changes."""
+        if self.cell.heartbeat(int(msg.data)):
             self.get_logger().info('controller heartbeat back: watchdog cleared')
             self._publish_status()
 

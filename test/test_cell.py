@@ -482,11 +482,11 @@ def test_watchdog_fails_safe_when_the_heartbeat_stops_and_clears_when_it_returns
     cell.advance(2000)
     assert not cell.watchdog_armed and not cell.watchdog_tripped and cell.stroke == 1.0
     # heartbeats in time keep it quiet
-    for _ in range(10):
-        cell.heartbeat()
+    for beat in range(10):
+        cell.heartbeat(beat)
         cell.advance(290)
     assert not cell.watchdog_tripped and cell.stroke == 1.0
-    cell.heartbeat()
+    cell.heartbeat(10)
     k0 = cell.k
     assert not any(isinstance(e, WatchdogTrip) for e in cell.advance(299))
     assert not cell.watchdog_tripped
@@ -504,14 +504,40 @@ def test_watchdog_fails_safe_when_the_heartbeat_stops_and_clears_when_it_returns
     cell.advance(30)
     assert cell.alpha == 0.0
     # a controller that comes back takes over: cleared, commands accepted again
-    assert cell.heartbeat() is True
+    assert cell.heartbeat(11) is True
     assert not cell.watchdog_tripped and cell.faults == []
     assert cell.popup(True)[0] and cell.set_alpha(math.radians(30.0))[0]
 
 
+def test_a_frozen_heartbeat_does_not_feed_the_watchdog_nor_clear_it():
+    cell = make_cell(alpha_deg=45.0, watchdog_timeout=0.3, safe_alpha_deg=0.0)
+    assert cell.popup(True)[0]
+    cell.heartbeat(7)  # the first heartbeat arms it, whatever its value
+    k0 = cell.k
+    # a frozen controller rewrites its last counter every 0.1 s: that is silence
+    trips = []
+    for _ in range(30):
+        trips += [e for e in cell.advance(100) if isinstance(e, WatchdogTrip)]
+        assert cell.heartbeat(7) is False
+    assert cell.watchdog_tripped and cell.watchdog_trips == 1 and len(trips) == 1
+    assert trips[0].t_ns == (k0 + 300) * cell.params.control_period_ns
+    assert cell.heartbeats_frozen == 30
+    # tripped 0.3 s after the last changed counter, not fed by the 30 repeats
+    assert cell._heartbeat_k == k0
+    # the same value does not clear it either; a changed one does
+    assert cell.heartbeat(7) is False and cell.watchdog_tripped
+    assert cell.heartbeat(8) is True and not cell.watchdog_tripped
+    # a counter that wraps (0xFFFF -> 0) is a change like any other
+    cell.heartbeat(0xFFFF)
+    cell.advance(200)
+    cell.heartbeat(0)
+    cell.advance(200)
+    assert not cell.watchdog_tripped
+
+
 def test_watchdog_off_and_ranges():
     cell = make_cell(watchdog_timeout=0.0)
-    cell.heartbeat()
+    cell.heartbeat(1)
     cell.advance(5000)
     assert not cell.watchdog_armed and not cell.watchdog_tripped
     for name, bad in (

@@ -353,3 +353,33 @@ def test_the_warehouse_link_over_opc_ua_routes_and_confirms(ros):
     finally:
         wms.disconnect()
         plc.io.close()
+
+
+@pytest.mark.parametrize('way', ['modbus', 'opcua'])
+def test_a_frozen_plc_rewriting_its_last_heartbeat_trips_the_watchdog(cell, modbus, opcua, way):
+    """A PLC that froze but keeps rewriting its last counter is silence to the watchdog."""
+    assert cell.params.watchdog_timeout == 0.3
+
+    def beat(value):
+        if way == 'modbus':
+            assert not modbus.write_register(MAP['plc.heartbeat'].address, value).isError()
+        else:
+            opcua('plc.heartbeat').write_value(ua.Variant(value, ua.VariantType.UInt16))
+
+    beat(5)
+    cell.advance(1)
+    assert cell.cell.watchdog_armed and not cell.cell.watchdog_tripped
+    # the same value every 0.1 s for 3 s, each write accepted by the protocol
+    for _ in range(30):
+        beat(5)
+        cell.advance(100)
+    assert cell.cell.watchdog_tripped and cell.cell.watchdog_trips == 1
+    assert cell.cell.heartbeats_frozen >= 29
+    assert modbus.read_discrete_inputs(MAP['status.watchdog'].address, count=1).bits[0]
+    # the same value does not clear it; the next counter does
+    beat(5)
+    cell.advance(1)
+    assert cell.cell.watchdog_tripped
+    beat(6)
+    cell.advance(1)
+    assert not cell.cell.watchdog_tripped

@@ -632,6 +632,28 @@ def test_watchdog_drops_the_disks_when_heartbeats_stop(ros):
     assert probe.call('diverter/popup', SetBool.Request(data=True)).success
 
 
+def test_a_frozen_controller_repeating_its_heartbeat_trips_the_watchdog(ros):
+    sim = make_sim(ros, watchdog_timeout=0.3, safe_alpha_deg=0.0, alpha_deg=60.0)
+    probe = Probe(ros)
+    beat = probe.node.create_publisher(UInt32, 'controller/heartbeat', STREAM_QOS)
+    probe.wait_connected(sim)
+    ros.spin_until(lambda: beat.get_subscription_count() > 0, 5.0, 'the heartbeat subscriber')
+    assert probe.call('diverter/popup', SetBool.Request(data=True)).success
+    beat.publish(UInt32(data=41))
+    ros.spin_until(lambda: sim.cell.watchdog_armed, 5.0, 'the first heartbeat')
+    # the same counter every 0.1 s of simulated time: a controller stuck in its last scan
+    for i in range(10):
+        beat.publish(UInt32(data=41))
+        ros.spin_until(
+            lambda i=i: sim.cell.heartbeats_frozen > i, 5.0, f'repeated heartbeat {i + 1}'
+        )
+        probe.step(100)
+    ros.spin_until(lambda: sim.cell.watchdog_tripped, 5.0, 'the watchdog to trip')
+    assert sim.cell.watchdog_trips == 1
+    beat.publish(UInt32(data=42))
+    ros.spin_until(lambda: not sim.cell.watchdog_tripped, 5.0, 'a changed counter to clear it')
+
+
 def test_a_burst_of_service_calls_is_served_whole(ros):
     # four clients (default QoS, as ros2 service call or a warehouse controller makes them)
     # call the same service 200 times each, all at once: every call is answered
