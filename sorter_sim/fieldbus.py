@@ -469,8 +469,13 @@ class FieldbusServers:
 
         for name in ('asyncua', 'asyncua.server', 'asyncua.server.uaprocessor'):
             logging.getLogger(name).setLevel(logging.CRITICAL)
-        server = Server()
+        server = Server(user_manager=_AnonymousOnly())
         await server.init()
+        # sessions are anonymous or refused: no identity a client offers (a user name,
+        # 'admin' with any password, a certificate) buys more than reading the inputs and
+        # writing the outputs; the server's own internal session alone administers
+        server.set_identity_tokens([ua.AnonymousIdentityToken])
+        server.iserver.allow_remote_admin = False
         endpoint = f'opc.tcp://{host}:{port}/sorter_cell/'
         server.set_endpoint(endpoint)
         server.set_server_name('sorter_cell')
@@ -510,6 +515,8 @@ class FieldbusServers:
                 )
             self.opcua_nodes[s.name] = var.nodeid
         await self._add_warehouse(cell, idx, aspace)
+        writable = {self.opcua_nodes[s.name] for s in image.signals if s.direction == OUTPUT}
+        _answer_writes_per_item(server, writable)
         try:
             await server.start()
         except (OSError, RuntimeError) as exc:
@@ -518,6 +525,62 @@ class FieldbusServers:
             ) from None
         self._opcua = server
         self.opcua_endpoint = endpoint
+
+
+class _AnonymousOnly:
+    """
+    The OPC UA user manager: every session is an anonymous client, none an administrator.
+
+    asyncua's default manager makes any client that logs in as 'admin' (with any
+    password) an administrator, who may write inputs and add or delete nodes. Here the
+    server takes anonymous identity tokens alone (a user name or a certificate token is
+    BadIdentityTokenRejected before this is asked), and a user name that reaches this
+    all the same is refused (BadUserAccessDenied); ``certificate`` is the secure
+    channel's, which does not make a session anyone in particular. An anonymous session
+    reads and writes what the address space's access levels allow, and never more.
+    """
+
+    def get_user(self, iserver, username=None, password=None, certificate=None):
+        from asyncua.crypto.permission_rules import User, UserRole
+
+        if username is None and password is None:
+            return User(role=UserRole.User, name='anonymous')
+        return None
+
+
+def _answer_writes_per_item(server, writable: set) -> None:
+    """
+    Make the server answer a WriteRequest item by item, as OPC UA Part 4 (5.10.4) says.
+
+    A value the image refuses raises inside asyncua's value setter, which would fail
+    the whole request with a ServiceFault after the items before it were applied; here
+    each item gets its own status code (BadOutOfRange, BadTypeMismatch, ...). A client's
+    write to anything but an output's Value is BadUserAccessDenied, whatever its role.
+    """
+    from asyncua import ua
+    from asyncua.crypto.permission_rules import UserRole
+
+    service = server.iserver.attribute_service
+    write_one = service.write
+
+    async def write(params, user=None):
+        if user is None or user.role == UserRole.Admin:  # the server's own session
+            return await write_one(params) if user is None else await write_one(params, user)
+        results = []
+        for item in params.NodesToWrite:
+            if item.AttributeId != ua.AttributeIds.Value or item.NodeId not in writable:
+                results.append(ua.StatusCode(ua.StatusCodes.BadUserAccessDenied))
+                continue
+            try:
+                (code,) = await write_one(ua.WriteParameters(NodesToWrite=[item]), user)
+            except ua.UaStatusCodeError as exc:
+                code = ua.StatusCode(exc.code)
+            except Exception:  # a malformed value asyncua's setter cannot take
+                code = ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+            results.append(code)
+        return results
+
+    service.write = write
 
 
 def _bind_problem(host: str, port: int) -> str:

@@ -383,3 +383,142 @@ def test_a_frozen_plc_rewriting_its_last_heartbeat_trips_the_watchdog(cell, modb
     beat(6)
     cell.advance(1)
     assert not cell.cell.watchdog_tripped
+
+
+# ---------------------------------------------------------------- OPC UA access control
+async def _activate_with(endpoint: str, token) -> str:
+    """Open a session and activate it with ``token`` as sent by any client; the outcome."""
+    from asyncua import Client
+
+    client = Client(endpoint, timeout=10)
+    await client.connect_socket()
+    try:
+        await client.send_hello()
+        await client.open_secure_channel()
+        await client.create_session()
+        params = ua.ActivateSessionParameters()
+        params.UserIdentityToken = token
+        try:
+            await client.uaclient.activate_session(params)
+        except ua.UaStatusCodeError as exc:
+            return type(exc).__name__
+        return 'activated'
+    finally:
+        client.disconnect_socket()
+
+
+def _self_signed_certificate() -> bytes:
+    import datetime
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import rsa
+    from cryptography.x509.oid import NameOID
+
+    key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, 'admin')])
+    now = datetime.datetime.now(datetime.timezone.utc)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(name)
+        .issuer_name(name)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now)
+        .not_valid_after(now + datetime.timedelta(days=1))
+        .sign(key, hashes.SHA256())
+    )
+    return cert.public_bytes(serialization.Encoding.DER)
+
+
+def test_no_identity_a_client_offers_buys_more_than_anonymous_access(cell):
+    import asyncio
+
+    endpoint = cell.fieldbus.opcua_endpoint
+    # through an ordinary client: 'admin' with any password, other names
+    for user, password in (('admin', 'x'), ('admin', ''), ('Admin', 'admin'), ('root', 'root')):
+        client = OpcClient(endpoint, timeout=10)
+        client.set_user(user)
+        client.set_password(password)
+        with pytest.raises(Exception):
+            client.connect()
+        client.disconnect_socket() if hasattr(client, 'disconnect_socket') else None
+    # and as raw tokens, past whatever a client library checks on its own side
+    names = [
+        ua.UserNameIdentityToken(PolicyId='anonymous', UserName='admin', Password=b'x'),
+        ua.UserNameIdentityToken(PolicyId='username', UserName='operator', Password=b'1234'),
+        ua.X509IdentityToken(PolicyId='certificate', CertificateData=_self_signed_certificate()),
+    ]
+    for token in names:
+        outcome = asyncio.run(_activate_with(endpoint, token))
+        assert outcome in ('BadIdentityTokenRejected', 'BadUserAccessDenied'), (token, outcome)
+    assert asyncio.run(_activate_with(endpoint, ua.AnonymousIdentityToken())) == 'activated'
+
+
+def test_an_anonymous_client_cannot_write_inputs_nor_add_or_delete_nodes(cell, opcua):
+    cell.advance(10)
+    t_input = opcua('cell.time')
+    for node, value in (
+        (t_input, ua.Variant(123.0, ua.VariantType.Double)),
+        (opcua('status.estop'), ua.Variant(True, ua.VariantType.Boolean)),
+    ):
+        with pytest.raises(ua.UaStatusCodeError) as err:
+            node.write_value(value)
+        assert type(err.value).__name__ == 'BadUserAccessDenied'
+    # a write to another attribute (the name) of an output is refused too
+    popup = opcua('diverter.popup')
+    with pytest.raises(ua.UaStatusCodeError):
+        popup.write_attribute(
+            ua.AttributeIds.DisplayName, ua.DataValue(ua.Variant(ua.LocalizedText('x')))
+        )
+    with pytest.raises(ua.UaStatusCodeError):
+        popup.delete()
+    folder = popup.get_parent()
+    with pytest.raises(ua.UaStatusCodeError):
+        folder.add_variable(2, 'intruder', 1.0)
+    # the inputs stay live, the output stays where it was
+    cell.advance(100)
+    assert t_input.read_value() == pytest.approx(cell.cell.t, abs=1e-9)
+    assert popup.read_display_name().Text == 'diverter.popup'
+    assert popup.read_value() is False
+    assert not cell.cell.estop
+
+
+def test_a_mixed_write_request_is_answered_item_by_item(cell, opcua):
+    """Part 4, 5.10.4: one status code per item; the good items applied, the bad refused."""
+    cell.advance(5)
+    popup, alpha, t_input = (
+        opcua('diverter.popup'),
+        opcua('diverter.alpha_setpoint'),
+        opcua('cell.time'),
+    )
+
+    def item(node, variant):
+        return ua.WriteValue(
+            NodeId=node.nodeid,
+            AttributeId=ua.AttributeIds.Value,
+            Value=ua.DataValue(variant),
+        )
+
+    params = ua.WriteParameters(
+        NodesToWrite=[
+            item(alpha, ua.Variant(95.0, ua.VariantType.Double)),
+            item(popup, ua.Variant(True, ua.VariantType.Boolean)),
+            item(alpha, ua.Variant('up', ua.VariantType.String)),
+            item(t_input, ua.Variant(1.0, ua.VariantType.Double)),
+            item(alpha, ua.Variant(30.0, ua.VariantType.Double)),
+        ]
+    )
+    import asyncio
+
+    from asyncua import Client
+
+    async def write():
+        async with Client(cell.fieldbus.opcua_endpoint, timeout=10) as client:
+            return await client.uaclient.write(params)
+
+    names = [r.name for r in asyncio.run(write())]
+    assert names == ['BadOutOfRange', 'Good', 'BadTypeMismatch', 'BadUserAccessDenied', 'Good']
+    cell.advance(1)
+    assert cell.get_parameter('alpha_deg').value == 30.0
+    assert float(cell.cell.act[ck.A_STROKE_TARGET]) == 1.0
