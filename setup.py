@@ -61,6 +61,8 @@ setup(
             'ruff>=0.6',
             'ament-lint-pep257>=0.14',
             'hypothesis>=6.100',
+            # independent clients in the suite: a Modbus TCP stack the cell does not use
+            'pyModbusTCP>=0.3',
         ],
     },
     zip_safe=True,

@@ -5,14 +5,16 @@ The cell's fieldbus: one I/O image, served over Modbus TCP and OPC UA.
 (``sorter_sim.io_map``): the simulation node refreshes its inputs at the end of
 every physics period and takes the outputs clients wrote at the start of the next
 one, the way a PLC's I/O image is exchanged once per cycle. ``FieldbusServers``
-serves it in one background thread (an asyncio loop): Modbus TCP with pymodbus
-(discrete inputs, coils, input and holding registers at the map's addresses and
-scaling) and OPC UA with asyncua (a folder per cell, ``Inputs`` and ``Outputs``
-with typed variables in engineering units; only outputs are writable).
+serves it in one background thread (an asyncio loop): Modbus TCP
+(``modbus_server``: discrete inputs, coils, input and holding registers at the map's
+addresses and scaling) and OPC UA with asyncua (a folder per cell, ``Inputs`` and
+``Outputs`` with typed variables in engineering units; only outputs are writable,
+and only by anonymous sessions: no identity a client offers makes it an
+administrator).
 
 Bad writes change nothing and get the protocol's own error: Modbus exception 2
 (illegal data address) for an address no output has, 3 (illegal data value) for
-a value outside the output's range; OPC UA ``BadNotWritable`` for inputs,
+a value outside the output's range; OPC UA ``BadUserAccessDenied`` for inputs,
 ``BadTypeMismatch`` for a wrong type and ``BadOutOfRange`` for NaN or a value out
 of range. Every write is checked and applied whole, under the image's lock, so two
 clients writing at once each see their write applied or refused as a unit. No ROS
@@ -24,15 +26,14 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import re
 import threading
 from collections import deque
 
+from .description import LABEL_RE
 from .io_map import COIL, DI, HR, INPUT, IR, OUTPUT, by_name, table_size
 
 _TABLES = (DI, COIL, IR, HR)
-# Modbus function code -> table it reads or writes
-_FC_TABLE = {1: COIL, 2: DI, 3: HR, 4: IR, 5: COIL, 15: COIL, 6: HR, 16: HR}
-_FC_WRITES = {5, 6, 15, 16}
 LABEL_QUEUE = 64  # labels the scanner keeps while the PLC has not acknowledged them
 
 
@@ -206,6 +207,7 @@ class Warehouse:
 
     MAX_PENDING = 1000  # requests the PLC has not taken yet
     KEEP = 200  # result and confirmation lines kept
+    MAX_RULES = 1000  # rules of a routing table the PLC publishes
 
     def __init__(self):
         self._lock = threading.Lock()
@@ -215,11 +217,11 @@ class Warehouse:
         self.confirmations: deque[str] = deque(maxlen=self.KEEP)
         self.confirmed = 0
         self.table: list[str] = []
+        self.refused = 0  # method calls refused (bad arguments)
+        self.last_refusal = ''
 
     def request(self, pattern, destination) -> int:
         """Queue a routing change; return its sequence number, or raise ValueError (why)."""
-        from .description import LABEL_RE
-
         if not isinstance(pattern, str) or not isinstance(destination, str):
             raise ValueError('pattern and destination must be strings')
         body = pattern[:-1] if pattern.endswith('*') else pattern
@@ -240,21 +242,78 @@ class Warehouse:
             return [f'{n}|{p}={d}' for n, p, d in self._pending]
 
     def take(self, count: int, results: list[str]) -> None:
-        """Drop the ``count`` oldest requests, keeping one result line for each."""
+        """
+        Drop the ``count`` oldest requests, keeping the PLC's result line for each.
+
+        Raises ValueError, changing nothing, unless there is one result line per request
+        taken, each 'accepted: ...' or 'refused: ...' (printable, at most LINE_MAX
+        characters), and ``count`` requests wait.
+        """
+        if len(results) != count:
+            raise ValueError(
+                f'{count} requests taken need {count} result lines, got {len(results)}'
+            )
+        for line in results:
+            _check_line(line, 'a result line')
+            if not line.startswith(('accepted', 'refused')):
+                raise ValueError(
+                    f"a result line starts 'accepted' or 'refused', got {line[:40]!r}"
+                )
         with self._lock:
-            for i in range(min(count, len(self._pending))):
+            if count > len(self._pending):
+                raise ValueError(f'{count} requests taken, but {len(self._pending)} wait')
+            for why in results:
                 n, p, d = self._pending.popleft()
-                why = results[i] if i < len(results) else 'taken'
                 self.results.append(f'{n}|{p}={d}: {why}')
 
     def confirm(self, lines: list[str]) -> None:
+        """Keep the PLC's sort confirmations; ValueError, changing nothing, on a bad line."""
+        for line in lines:
+            _check_line(line, 'a confirmation')
+            if not _CONFIRMATION_RE.fullmatch(line):
+                raise ValueError(
+                    "a confirmation is 'label;asked;reached;result' (label empty for no "
+                    f'read, the others words), got {line[:40]!r}'
+                )
         with self._lock:
             self.confirmations.extend(lines)
             self.confirmed += len(lines)
 
     def set_table(self, rules: list[str]) -> None:
+        """Keep the PLC's live routing table; ValueError, changing nothing, on a bad rule."""
+        for rule in rules:
+            _check_line(rule, 'a rule')
+            pattern, sep, destination = rule.partition('=')
+            body = pattern[:-1] if pattern.endswith('*') else pattern
+            if (
+                not sep
+                or destination not in DESTINATIONS
+                or (pattern != '*' and not LABEL_RE.fullmatch(body))
+            ):
+                raise ValueError(
+                    "a rule is 'pattern=destination' (a label, label* or *; left, right "
+                    f'or straight), got {rule[:40]!r}'
+                )
         with self._lock:
             self.table = list(rules)
+
+
+class MethodRefused(Exception):
+    """A warehouse method call refused: ``status`` is the OPC UA status code to answer."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+
+
+DESTINATIONS = ('left', 'right', 'straight')
+LINE_MAX = 256  # characters of a result, confirmation or rule line
+_CONFIRMATION_RE = re.compile(r'(%s)?(;[a-z_-]{1,32}){3}' % LABEL_RE.pattern)
+
+
+def _check_line(line, what: str) -> None:
+    if not isinstance(line, str) or not line or len(line) > LINE_MAX or not line.isprintable():
+        raise ValueError(f'{what} must be printable text of 1 to {LINE_MAX} characters')
 
 
 # ------------------------------------------------------------------------ the servers
@@ -331,7 +390,7 @@ class FieldbusServers:
 
     async def _stop_all(self) -> None:
         if self._modbus is not None:
-            await self._modbus.shutdown()
+            await self._modbus.stop()
             self._modbus = None
         if self._opcua is not None:
             await self._opcua.stop()
@@ -339,59 +398,16 @@ class FieldbusServers:
 
     # ---------------------------------------------------------------- Modbus TCP
     async def _start_modbus(self, host: str, port: int) -> None:
-        from pymodbus.constants import ExcCodes
-        from pymodbus.pdu import ExceptionResponse
-        from pymodbus.server import ModbusTcpServer
-        from pymodbus.simulator import DataType, SimData, SimDevice
+        from .modbus_server import ModbusTcpImageServer
 
-        logging.getLogger('pymodbus').setLevel(logging.CRITICAL)
-        image = self.image
-
-        async def action(fc, start, address, count, regs, set_values):
-            table = _FC_TABLE.get(fc)
-            if table is None:
-                return ExcCodes.ILLEGAL_FUNCTION
-            try:
-                if fc in _FC_WRITES:
-                    if set_values is None:  # pymodbus reads the block back after a write
-                        _fill(regs, table, start, image)
-                        return None
-                    image.write_raw(table, address, [int(v) for v in set_values])
-                    return None
-                _fill(regs, table, start, image)
-            except WriteRefused as exc:
-                return (
-                    ExcCodes.ILLEGAL_ADDRESS if exc.code == 'address' else ExcCodes.ILLEGAL_VALUE
-                )
-            return None
-
-        def trace_pdu(sending: bool, pdu):
-            # every exception response counts, also those pymodbus sends itself (addresses
-            # outside the tables never reach the action above)
-            if sending and isinstance(pdu, ExceptionResponse):
-                image.count_refused()
-            return pdu
-
-        def block(table, bits):
-            n = max(1, len(image.raw[table]))
-            if bits:
-                return [SimData(0, count=n, values=False, datatype=DataType.BITS)]
-            return [SimData(0, count=n, values=0, datatype=DataType.REGISTERS)]
-
-        device = SimDevice(
-            id=0,  # every unit id
-            simdata=(block(COIL, True), block(DI, True), block(HR, False), block(IR, False)),
-            action=action,
-        )
-        self._modbus = ModbusTcpServer(device, address=(host, port), trace_pdu=trace_pdu)
+        server = ModbusTcpImageServer(self.image, host, port)
         try:
-            await self._modbus.serve_forever(background=True)
-        except RuntimeError:
-            self._modbus = None
+            self.modbus_port = await server.start()
+        except OSError as exc:
             raise ValueError(
-                f'cannot serve Modbus TCP on {host}:{port}: {_bind_problem(host, port)}'
-            )
-        self.modbus_port = self._modbus.transport.sockets[0].getsockname()[1]
+                f'cannot serve Modbus TCP on {host}:{port}: {exc.strerror or exc}'
+            ) from None
+        self._modbus = server
 
     # ---------------------------------------------------------------- OPC UA
     async def _add_warehouse(self, cell, idx, aspace) -> None:
@@ -428,30 +444,65 @@ class FieldbusServers:
             )
             self.opcua_nodes[f'Warehouse.{name}'] = var.nodeid
 
-        def request_route(parent, pattern, destination):
+        Bad = ua.StatusCodes
+
+        def method(arity, body):
+            """Wrap a method: its argument count checked, a refusal counted and named."""
+
+            def call(parent, *args):
+                if len(args) != arity:
+                    wh.refused += 1
+                    return ua.StatusCode(
+                        Bad.BadArgumentsMissing if len(args) < arity else Bad.BadTooManyArguments
+                    )
+                try:
+                    return body(*args)
+                except MethodRefused as exc:
+                    wh.refused += 1
+                    wh.last_refusal = str(exc)
+                    return ua.StatusCode(exc.status)
+
+            return call
+
+        def strings(arg, what, most):
+            """Return the String array an argument must be, else raise MethodRefused (why)."""
+            if arg.VariantType != String or not isinstance(arg.Value, list):
+                raise MethodRefused(Bad.BadTypeMismatch, f'{what} must be a String array')
+            if len(arg.Value) > most:
+                raise MethodRefused(Bad.BadInvalidArgument, f'{what}: at most {most} entries')
+            return arg.Value
+
+        def request_route(pattern, destination):
+            if pattern.VariantType != String or destination.VariantType != String:
+                raise MethodRefused(Bad.BadTypeMismatch, 'pattern and destination are Strings')
             try:
                 seq = wh.request(pattern.Value, destination.Value)
-            except ValueError:
-                self.image.count_refused()
-                return ua.StatusCode(ua.StatusCodes.BadInvalidArgument)
+            except ValueError as exc:
+                raise MethodRefused(Bad.BadInvalidArgument, str(exc)) from None
             return [ua.Variant(seq, UInt32)]
 
-        def take_routes(parent, count, results):
-            if not isinstance(count.Value, int) or not isinstance(results.Value, list):
-                return ua.StatusCode(ua.StatusCodes.BadInvalidArgument)
-            wh.take(count.Value, [str(r) for r in results.Value])
+        def take_routes(count, results):
+            if count.VariantType != UInt32:
+                raise MethodRefused(Bad.BadTypeMismatch, 'count must be a UInt32')
+            lines = strings(results, 'results', Warehouse.MAX_PENDING)
+            try:
+                wh.take(count.Value, lines)
+            except ValueError as exc:
+                raise MethodRefused(Bad.BadInvalidArgument, str(exc)) from None
             return []
 
-        def confirm(parent, lines):
-            if not isinstance(lines.Value, list):
-                return ua.StatusCode(ua.StatusCodes.BadInvalidArgument)
-            wh.confirm([str(x) for x in lines.Value])
+        def confirm(lines):
+            try:
+                wh.confirm(strings(lines, 'lines', Warehouse.KEEP))
+            except ValueError as exc:
+                raise MethodRefused(Bad.BadInvalidArgument, str(exc)) from None
             return []
 
-        def publish_table(parent, rules):
-            if not isinstance(rules.Value, list):
-                return ua.StatusCode(ua.StatusCodes.BadInvalidArgument)
-            wh.set_table([str(x) for x in rules.Value])
+        def publish_table(rules):
+            try:
+                wh.set_table(strings(rules, 'rules', Warehouse.MAX_RULES))
+            except ValueError as exc:
+                raise MethodRefused(Bad.BadInvalidArgument, str(exc)) from None
             return []
 
         methods = {
@@ -461,7 +512,7 @@ class FieldbusServers:
             'PublishRoutingTable': (publish_table, [String], []),
         }
         for name, (func, inputs, outputs) in methods.items():
-            node = await folder.add_method(idx, name, func, inputs, outputs)
+            node = await folder.add_method(idx, name, method(len(inputs), func), inputs, outputs)
             self.opcua_nodes[f'Warehouse.{name}'] = node.nodeid
 
     async def _start_opcua(self, host: str, port: int) -> None:
@@ -581,34 +632,6 @@ def _answer_writes_per_item(server, writable: set) -> None:
         return results
 
     service.write = write
-
-
-def _bind_problem(host: str, port: int) -> str:
-    """Say why ``host:port`` cannot be listened on, as the system does."""
-    import socket
-
-    try:
-        with socket.create_server((host, port)):
-            return 'the server could not listen there'
-    except OSError as exc:
-        return exc.strerror or str(exc)
-
-
-def _fill(regs: list, table: str, start: int, image: IOImage) -> None:
-    """Fill pymodbus's block (bits packed 16 a register for DI/coils) from the image."""
-    values = image.snapshot(table)
-    if table in (DI, COIL):
-        for r in range(len(regs)):
-            word = 0
-            for b in range(16):
-                a = start + 16 * r + b
-                if a < len(values) and values[a]:
-                    word |= 1 << b
-            regs[r] = word
-    else:
-        for r in range(len(regs)):
-            a = start + r
-            regs[r] = values[a] if a < len(values) else 0
 
 
 def _opc_value(s, value):

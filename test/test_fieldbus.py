@@ -205,8 +205,12 @@ def test_bad_writes_are_refused_with_the_protocols_errors_and_change_nothing(cel
     assert type(err.value).__name__ in ('BadUserAccessDenied', 'BadNotWritable')
     cell.advance(5)
     assert _state(cell) == before
-    # the Modbus exceptions and the OPC UA writes refused for their value
-    assert int(_diag(cell)['fieldbus_writes_refused']) == len(cases) + 2
+    # the Modbus writes refused and the OPC UA writes refused for their value, apart
+    # from the reads refused
+    diag = _diag(cell)
+    assert int(diag['fieldbus_writes_refused']) == 4 + 2
+    assert int(diag['fieldbus_reads_refused']) == 2
+    assert int(diag['fieldbus_illegal_functions']) == 0
 
 
 def test_a_client_that_leaves_mid_request_and_two_writers_at_once(cell, modbus):
@@ -522,3 +526,227 @@ def test_a_mixed_write_request_is_answered_item_by_item(cell, opcua):
     cell.advance(1)
     assert cell.get_parameter('alpha_deg').value == 30.0
     assert float(cell.cell.act[ck.A_STROKE_TARGET]) == 1.0
+
+
+# ---------------------------------------------------------------- Modbus at byte level
+def _frame(tid: int, pdu: bytes, protocol: int = 0, unit: int = 1) -> bytes:
+    import struct
+
+    return struct.pack('>HHHB', tid, protocol, len(pdu) + 1, unit) + pdu
+
+
+def _replies(sock, n: int) -> list[tuple[int, bytes]]:
+    """Read ``n`` Modbus TCP answers: (transaction id, PDU) each."""
+    import struct
+
+    out, buf = [], b''
+    sock.settimeout(5.0)
+    while len(out) < n:
+        while len(buf) < 6 or len(buf) < 6 + struct.unpack('>H', buf[4:6])[0]:
+            chunk = sock.recv(4096)
+            assert chunk, f'connection closed after {len(out)} of {n} answers'
+            buf += chunk
+        tid, _, length = struct.unpack('>HHH', buf[:6])
+        out.append((tid, buf[7 : 6 + length]))
+        buf = buf[6 + length :]
+    return out
+
+
+def test_modbus_frames_at_byte_level(cell):
+    import struct
+
+    popup = MAP['diverter.popup'].address
+    alpha = MAP['diverter.alpha_setpoint']
+    beat = MAP['plc.heartbeat'].address
+    s = socket.create_connection(('127.0.0.1', cell.fieldbus.modbus_port))
+    try:
+        before = _state(cell)
+        # write single coil with anything but 0x0000 / 0xFF00: exception 3, nothing set
+        for value in (0x1234, 0x0001, 0xFFFF):
+            s.sendall(_frame(1, struct.pack('>BHH', 5, popup, value)))
+            assert _replies(s, 1) == [(1, bytes([0x85, 3]))]
+        cell.advance(2)
+        assert _state(cell) == before
+        # three requests in one segment: every one answered, in order
+        s.sendall(
+            _frame(10, struct.pack('>BHH', 6, beat, 7))
+            + _frame(11, struct.pack('>BHH', 6, alpha.address, alpha.raw(20.0)))
+            + _frame(12, struct.pack('>BHH', 3, beat, 1))
+        )
+        got = _replies(s, 3)
+        assert [t for t, _ in got] == [10, 11, 12]
+        assert got[0][1] == struct.pack('>BHH', 6, beat, 7)
+        assert got[2][1] == struct.pack('>BBH', 3, 2, 7)
+        cell.advance(1)
+        assert cell.get_parameter('alpha_deg').value == pytest.approx(20.0)
+        # a frame with a non-zero protocol id is dropped; the next one is served
+        s.sendall(_frame(20, struct.pack('>BHH', 6, beat, 99), protocol=5))
+        s.sendall(_frame(21, struct.pack('>BHH', 3, beat, 1)))
+        assert _replies(s, 1) == [(21, struct.pack('>BBH', 3, 2, 7))]
+        # function codes the image does not serve: exception 1
+        for fc in (7, 8, 20, 24, 99):
+            s.sendall(_frame(30 + fc, bytes([fc, 0, 0])))
+            assert _replies(s, 1) == [(30 + fc, bytes([fc | 0x80, 1]))]
+        # read/write multiple registers (23): written first, then read back
+        s.sendall(_frame(40, struct.pack('>BHHHHBH', 23, beat, 1, beat, 1, 2, 0x12)))
+        assert _replies(s, 1) == [(40, struct.pack('>BBH', 23, 2, 0x12))]
+        # mask write (22), the specification's example: 0x12, AND 0xF2, OR 0x25 -> 0x17
+        s.sendall(_frame(41, struct.pack('>BHHH', 22, beat, 0x00F2, 0x0025)))
+        assert _replies(s, 1) == [(41, struct.pack('>BHHH', 22, beat, 0x00F2, 0x0025))]
+        s.sendall(_frame(42, struct.pack('>BHH', 3, beat, 1)))
+        assert _replies(s, 1) == [(42, struct.pack('>BBH', 3, 2, 0x17))]
+        # a truncated request body: exception 3
+        s.sendall(_frame(43, bytes([3, 0])))
+        assert _replies(s, 1) == [(43, bytes([0x83, 3]))]
+        # the device says what it is (17 and 43/14)
+        s.sendall(_frame(50, bytes([17])))
+        ((_, pdu),) = _replies(s, 1)
+        assert pdu[0] == 17 and b'sorter_cell' in pdu
+        s.sendall(_frame(51, bytes([43, 14, 1, 0])))
+        ((_, pdu),) = _replies(s, 1)
+        assert pdu[:2] == bytes([43, 14]) and b'sorter_cell' in pdu
+        # a length no Modbus frame can have ends that connection, and only that one
+        s.sendall(struct.pack('>HHHB', 60, 0, 4000, 1))
+        s.settimeout(5.0)
+        assert s.recv(100) == b''
+    finally:
+        s.close()
+    diag = _diag(cell)
+    assert int(diag['fieldbus_illegal_functions']) == 5
+    assert int(diag['fieldbus_frames_dropped']) == 2
+    assert int(diag['fieldbus_writes_refused']) == 3
+    assert int(diag['fieldbus_reads_refused']) == 1
+    r = ModbusTcpClient('127.0.0.1', port=cell.fieldbus.modbus_port, timeout=5, retries=0)
+    assert r.connect() and r.read_holding_registers(beat, count=1).registers == [0x17]
+    r.close()
+
+
+def test_an_independent_modbus_client_reads_and_writes_the_image(cell):
+    """pyModbusTCP, a Modbus stack this project neither wrote nor serves with."""
+    from pyModbusTCP.client import ModbusClient
+
+    client = ModbusClient(host='127.0.0.1', port=cell.fieldbus.modbus_port, timeout=5.0)
+    try:
+        cell.advance(1500)
+        t = MAP['cell.time']
+        regs = client.read_input_registers(t.address, 2)
+        assert regs is not None, client.last_error_as_txt
+        assert ((regs[0] << 16) | regs[1]) * t.scale == pytest.approx(cell.cell.t, abs=1e-3)
+        bits = client.read_discrete_inputs(0, 5)
+        assert bits == [cell.cell.sensor_states()[n] for n in SENSORS]
+        assert client.write_single_coil(MAP['diverter.popup'].address, True)
+        alpha = MAP['diverter.alpha_setpoint']
+        assert client.write_single_register(alpha.address, alpha.raw(-25.0))
+        assert not client.write_single_register(alpha.address, alpha.raw(95.0))
+        assert client.last_except == 3  # illegal data value
+        cell.advance(1)
+        assert cell.get_parameter('alpha_deg').value == pytest.approx(-25.0)
+        assert float(cell.cell.act[ck.A_STROKE_TARGET]) == 1.0
+        ident = client.read_device_identification()
+        assert ident is not None and ident.vendor_name == b'sorter_cell'
+    finally:
+        client.close()
+
+
+def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_refusal(cell):
+    import asyncio
+
+    from asyncua import Client
+
+    U32, I64, B, S, I32 = (
+        ua.VariantType.UInt32,
+        ua.VariantType.Int64,
+        ua.VariantType.Boolean,
+        ua.VariantType.String,
+        ua.VariantType.Int32,
+    )
+    wh = cell.fieldbus.warehouse
+
+    async def run():
+        async with Client(cell.fieldbus.opcua_endpoint, timeout=10) as client:
+            idx = await client.get_namespace_index('urn:sorter_cell')
+            folder = await client.nodes.objects.get_child([f'{idx}:cell', f'{idx}:Warehouse'])
+
+            async def call(name, *args):
+                try:
+                    return await folder.call_method(f'{idx}:{name}', *args)
+                except ua.UaStatusCodeError as exc:
+                    return type(exc).__name__
+
+            assert await call('RequestRoute', 'A*', 'left') == 1
+            assert await call('RequestRoute', 'B*', 'right') == 2
+            state = (wh.pending(), list(wh.results), list(wh.confirmations), list(wh.table))
+            refusals = {
+                'take all with no results': (
+                    'TakeRoutes',
+                    ua.Variant(4294967295, U32),
+                    ua.Variant([], S, is_array=True),
+                ),
+                'take more than wait': (
+                    'TakeRoutes',
+                    ua.Variant(3, U32),
+                    ua.Variant(['accepted: a', 'accepted: b', 'accepted: c'], S, is_array=True),
+                ),
+                'Int64 count': (
+                    'TakeRoutes',
+                    ua.Variant(1, I64),
+                    ua.Variant(['accepted: x'], S, is_array=True),
+                ),
+                'Boolean count': (
+                    'TakeRoutes',
+                    ua.Variant(True, B),
+                    ua.Variant(['accepted: x'], S, is_array=True),
+                ),
+                'garbage result': (
+                    'TakeRoutes',
+                    ua.Variant(1, U32),
+                    ua.Variant(['\x00'], S, is_array=True),
+                ),
+                'empty confirmation': (
+                    'Confirm',
+                    ua.Variant(['', '\x00', ';;;;'], S, is_array=True),
+                ),
+                'int table': ('PublishRoutingTable', ua.Variant([1, 2, 3], I32, is_array=True)),
+                'bad rule': ('PublishRoutingTable', ua.Variant(['A*=up'], S, is_array=True)),
+                'huge table': (
+                    'PublishRoutingTable',
+                    ua.Variant(['A*=left'] * 1001, S, is_array=True),
+                ),
+                'long line': (
+                    'Confirm',
+                    ua.Variant(['A1;left;left;' + 's' * 300], S, is_array=True),
+                ),
+            }
+            got = {why: await call(*args) for why, args in refusals.items()}
+            for why, outcome in got.items():
+                assert outcome in ('BadInvalidArgument', 'BadTypeMismatch'), (why, outcome)
+            assert got['Int64 count'] == got['Boolean count'] == 'BadTypeMismatch'
+            assert (
+                wh.pending(),
+                list(wh.results),
+                list(wh.confirmations),
+                list(wh.table),
+            ) == state
+            # the wrong number of arguments: the protocol's own codes
+            assert await call('RequestRoute', 'A*') == 'BadArgumentsMissing'
+            assert await call('RequestRoute', 'A*', 'left', 'x') == 'BadTooManyArguments'
+            # well-formed calls still work
+            assert (
+                await call(
+                    'TakeRoutes',
+                    ua.Variant(2, U32),
+                    ua.Variant(['accepted: A*=left', 'refused: no'], S, is_array=True),
+                )
+                is None
+            )
+            lines = ['A1;left;left;sorted', ';straight;straight;rejected']
+            assert await call('Confirm', ua.Variant(lines, S, is_array=True)) is None
+            table = ['A*=left', '*=straight']
+            assert await call('PublishRoutingTable', ua.Variant(table, S, is_array=True)) is None
+        return len(refusals) + 2
+
+    refused = asyncio.run(run())
+    assert wh.pending() == [] and len(wh.results) == 2 and wh.confirmed == 2
+    assert wh.table == ['A*=left', '*=straight']
+    assert int(_diag(cell)['fieldbus_calls_refused']) == refused
+    assert int(_diag(cell)['fieldbus_writes_refused']) == 0

@@ -1,6 +1,5 @@
 """
-Every friction law x every method x every shipped scene x both stick laws, each run
-checked against bounds that follow from Coulomb friction alone.
+Every friction law x method x shipped scene x stick law, within Coulomb's bounds.
 
 A surface can push a parcel no harder than μ_max m g (μ_max: the law's largest
 coefficient, static or kinetic, at any speed the cell can reach), and turn it no harder
@@ -29,13 +28,15 @@ STICKS = ('exact', 'seed')
 
 
 def _mu_max(strips, v_top: float) -> float:
-    """The largest μ any strip's law gives at any speed up to ``v_top``, static included."""
+    """Return the largest μ any strip's law gives at any speed up to ``v_top``, static included."""
     speeds = np.linspace(0.0, v_top, 20001)[1:]
     top = 0.0
     for st in strips:
         row = st.law.row()
         mus = mu_kinetic_array(st.law.law_id, row, speeds)
-        top = max(top, float(mus.max()), float(mu_static(st.law.law_id, row))) * max(1.0, st.weight)
+        top = max(top, float(mus.max()), float(mu_static(st.law.law_id, row))) * max(
+            1.0, st.weight
+        )
     return top
 
 
