@@ -32,81 +32,200 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument("--no-plot", action="store_true", help="summarise only, draw nothing")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    parser.add_argument(
+        "--recover",
+        action="store_true",
+        help="read a torn or damaged file up to its last intact chunk (what is lost is said)",
+    )
+
+
+RECORD_SIZE_LIMIT = 256 * 1024 * 1024  # no record of ours comes near; a flipped length may
 
 
 def read_recording(path: str | Path) -> dict:
     """
-    Return what the recording holds.
+    Return what the recording holds, reading it as a stream from its first byte.
 
     {"topics": {topic: {"type", "count"}}, "t_first_ns", "t_last_ns", "parcels":
-    {id: {...}}, "paths": {id: [(x, y), ...]}, "cell": {parameter: value} or None}.
-    Raises ValueError with one line when the file is no readable MCAP recording.
+    {id: {...}}, "paths": {id: [(x, y), ...]}, "cell": {parameter: value} or None,
+    "damage": None or what is wrong with the file and where, "undecodable": {topic:
+    count}}. Chunk and data-section CRCs are checked: a torn file (the process killed,
+    the disk full) or a damaged one is read up to its last intact chunk and the damage
+    is named; messages whose schema cannot be decoded are counted, not decoded.
+    Raises ValueError with one line when nothing of the file is a readable recording.
     """
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
+    from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema, Statistics
+    from mcap.stream_reader import StreamReader
 
-    counts: Counter = Counter()
-    types: dict[str, str] = {}
-    t_first = t_last = None
-    outcomes: dict[int, dict] = {}
-    confirmations: dict[str, dict] = {}
-    paths: dict[int, list] = {}
-    ids: list[int] | None = None
-    cell = None
+    state = _Reading()
     try:
-        with open(path, "rb") as f:
-            reader = make_reader(f, decoder_factories=[DecoderFactory()])
-            for schema, channel, message, ros_msg in reader.iter_decoded_messages(
-                log_time_order=True
-            ):
-                topic = channel.topic
-                counts[topic] += 1
-                types[topic] = schema.name
-                t = message.log_time
-                t_first = t if t_first is None else t_first
-                t_last = t
-                name = topic.rsplit("/", 2)[-2:]
-                if name == ["sort", "outcomes"]:
-                    values = {kv.key: kv.value for kv in ros_msg.values}
-                    outcomes[int(values["id"])] = values
-                elif name == ["sort", "confirmations"]:
-                    values = {kv.key: kv.value for kv in ros_msg.values}
-                    confirmations[values.get("label", ros_msg.name)] = values
-                elif name == ["parcels", "ids"]:
-                    ids = list(ros_msg.data)
-                elif name == ["parcels", "poses"] and ids is not None:
-                    if len(ids) == len(ros_msg.poses):
-                        for pid, pose in zip(ids, ros_msg.poses):
-                            paths.setdefault(int(pid), []).append(
-                                (pose.position.x, pose.position.y)
-                            )
-            for record in reader.iter_metadata():
-                if record.name == METADATA:
-                    cell = {k: json.loads(v) for k, v in record.metadata.items() if k != "node"}
+        size = Path(path).stat().st_size
+        f = open(path, "rb")
     except FileNotFoundError:
         raise ValueError(f"no such file: {str(path)[:200]!r}") from None
-    except (McapError, EOFError, KeyError, ValueError, OSError) as exc:
-        raise ValueError(f"{str(path)[:200]!r} is not a readable MCAP recording: {exc}") from None
-    parcels = {}
-    for pid in sorted(set(paths) | set(outcomes)):
-        o = outcomes.get(pid, {})
-        c = confirmations.get(o.get("label", ""), {})
-        parcels[pid] = {
-            "label": o.get("label", ""),
-            "exit": o.get("exit", "in cell"),
-            "t_exit_s": float(o["t"]) if "t" in o else None,
-            "controller": c.get("result"),
-            "destination_asked": c.get("destination_asked"),
+    except OSError as exc:
+        raise ValueError(f"cannot read {str(path)[:200]!r}: {exc.strerror or exc}") from None
+    stats = None
+    finished = False
+    in_data = True
+    with f:
+        try:
+            reader = StreamReader(f, validate_crcs=True, record_size_limit=RECORD_SIZE_LIMIT)
+            for record in reader.records:
+                if isinstance(record, Schema) and in_data:
+                    state.schemas[record.id] = record
+                elif isinstance(record, Channel) and in_data:
+                    state.channels[record.id] = record
+                elif isinstance(record, Message) and in_data:
+                    state.message(record)
+                elif isinstance(record, Metadata) and record.name == METADATA:
+                    state.metadata(record.metadata)
+                elif isinstance(record, DataEnd):
+                    in_data = False
+                elif isinstance(record, Statistics):
+                    stats = record
+                elif isinstance(record, Footer):
+                    finished = True
+        except Exception as exc:  # whatever a damaged byte makes the parser do
+            where = f"at byte {f.tell()} of {size}"
+            what = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
+            if state.n_records == 0 and not state.schemas:
+                raise ValueError(
+                    f"{str(path)[:200]!r} is not a readable MCAP recording: {what}"
+                ) from None
+            if type(exc).__name__ == "EndOfFile" or f.tell() >= size:
+                state.damage = (
+                    f"the file ends at byte {size} in the middle of a record, without its "
+                    "summary (cut short: the recorder was killed or its disk filled); "
+                    f"{state.n_records} messages in complete chunks were read"
+                )
+            else:
+                state.damage = (
+                    f"the file breaks off {where} ({type(exc).__name__}: {what}); "
+                    f"{state.n_records} messages before it were read, the rest is lost"
+                )
+    if state.damage is None and not finished:
+        state.damage = (
+            f"the file ends at byte {size} without its summary (cut short: the recorder was "
+            f"killed or its disk filled); {state.n_records} messages were read"
+        )
+    if state.damage is None and stats is not None and stats.message_count != state.n_records:
+        state.damage = (
+            f"the summary counts {stats.message_count} messages, the data holds {state.n_records}"
+        )
+    return state.result()
+
+
+class _Reading:
+    """What ``read_recording`` gathers record by record, robust to any content."""
+
+    def __init__(self):
+        self.schemas: dict = {}
+        self.channels: dict = {}
+        self.decoders: dict = {}
+        self.counts: Counter = Counter()
+        self.types: dict[str, str] = {}
+        self.undecodable: Counter = Counter()
+        self.t_first = self.t_last = None
+        self.outcomes: dict[int, dict] = {}
+        self.confirmations: dict[str, dict] = {}
+        self.paths: dict[int, list] = {}
+        self.ids: list[int] | None = None
+        self.cell = None
+        self.damage: str | None = None
+        self.n_records = 0
+
+    def _decoder(self, channel):
+        from mcap_ros2.decoder import DecoderFactory
+
+        key = channel.schema_id
+        if key not in self.decoders:
+            schema = self.schemas.get(key)
+            try:
+                self.decoders[key] = DecoderFactory().decoder_for(channel.message_encoding, schema)
+            except Exception:  # a schema the decoder cannot build (recursive, wstring...)
+                self.decoders[key] = None
+        return self.decoders[key]
+
+    def message(self, record) -> None:
+        self.n_records += 1
+        channel = self.channels.get(record.channel_id)
+        topic = channel.topic if channel is not None else f"<channel {record.channel_id}>"
+        self.counts[topic] += 1
+        schema = self.schemas.get(channel.schema_id) if channel is not None else None
+        self.types[topic] = schema.name if schema is not None else "?"
+        t = record.log_time
+        self.t_first = t if self.t_first is None else min(self.t_first, t)
+        self.t_last = t if self.t_last is None else max(self.t_last, t)
+        decode = self._decoder(channel) if channel is not None else None
+        try:
+            msg = decode(record.data)
+        except Exception:
+            msg = None
+        if msg is None:
+            self.undecodable[topic] += 1
+            return
+        try:
+            self._take(topic, msg)
+        except (AttributeError, KeyError, TypeError, ValueError, OverflowError):
+            self.undecodable[topic] += 1
+
+    def _take(self, topic: str, msg) -> None:
+        name = topic.rsplit("/", 2)[-2:]
+        if name == ["sort", "outcomes"]:
+            values = {kv.key: kv.value for kv in msg.values}
+            self.outcomes[int(values["id"])] = values
+        elif name == ["sort", "confirmations"]:
+            values = {kv.key: kv.value for kv in msg.values}
+            self.confirmations[values.get("label", msg.name)] = values
+        elif name == ["parcels", "ids"]:
+            self.ids = [int(i) for i in msg.data]
+        elif name == ["parcels", "poses"] and self.ids is not None:
+            if len(self.ids) == len(msg.poses):
+                for pid, pose in zip(self.ids, msg.poses):
+                    self.paths.setdefault(pid, []).append(
+                        (float(pose.position.x), float(pose.position.y))
+                    )
+
+    def metadata(self, values: dict) -> None:
+        try:
+            self.cell = {k: json.loads(v) for k, v in values.items() if k != "node"}
+        except (TypeError, ValueError):
+            self.cell = None
+
+    def result(self) -> dict:
+        parcels = {}
+        for pid in sorted(set(self.paths) | set(self.outcomes)):
+            o = self.outcomes.get(pid, {})
+            c = self.confirmations.get(o.get("label", ""), {})
+            parcels[pid] = {
+                "label": o.get("label", ""),
+                "exit": o.get("exit", "in cell"),
+                "t_exit_s": _seconds(o.get("t")),
+                "controller": c.get("result"),
+                "destination_asked": c.get("destination_asked"),
+            }
+        return {
+            "topics": {
+                t: {"type": self.types[t], "count": self.counts[t]} for t in sorted(self.counts)
+            },
+            "t_first_ns": self.t_first,
+            "t_last_ns": self.t_last,
+            "parcels": parcels,
+            "paths": self.paths,
+            "cell": self.cell,
+            "damage": self.damage,
+            "undecodable": dict(sorted(self.undecodable.items())),
         }
-    return {
-        "topics": {t: {"type": types[t], "count": counts[t]} for t in sorted(counts)},
-        "t_first_ns": t_first,
-        "t_last_ns": t_last,
-        "parcels": parcels,
-        "paths": paths,
-        "cell": cell,
-    }
+
+
+def _seconds(text) -> float | None:
+    """A time [s] as recorded, or None when it is missing or not a finite number."""
+    try:
+        t = float(text)
+    except (TypeError, ValueError):
+        return None
+    return t if math.isfinite(t) else None
 
 
 def summarize(rec: dict) -> dict:
@@ -124,6 +243,8 @@ def summarize(rec: dict) -> dict:
         "exits": dict(sorted(exits.items())),
         "controller_results": dict(sorted(results.items())),
         "parcel_outcomes": {str(k): v for k, v in rec["parcels"].items()},
+        "damage": rec.get("damage"),
+        "undecodable": rec.get("undecodable", {}),
     }
 
 
@@ -143,6 +264,14 @@ def _print(s: dict, png: str | None) -> None:
         t = "" if p["t_exit_s"] is None else f" at {p['t_exit_s']:.3f} s"
         ctl = f" ({p['controller']}, asked {p['destination_asked']})" if p["controller"] else ""
         print(f"  {pid:>5} {p['label']:<12} {p['exit']}{t}{ctl}")
+    if s.get("undecodable"):
+        print(
+            "undecodable: "
+            + ", ".join(f"{t} {n}" for t, n in s["undecodable"].items())
+            + " (their schema or data could not be decoded)"
+        )
+    if s.get("damage"):
+        print(f"damage: {s['damage']}")
     if png:
         print(f"paths: {png}")
 
@@ -161,6 +290,12 @@ def run(args) -> int | str:
         rec = read_recording(args.recording)
     except ValueError as exc:
         return f"sorter replay: {exc}"
+    if rec["damage"] and not args.recover:
+        n = sum(t["count"] for t in rec["topics"].values())
+        return (
+            f"sorter replay: {str(args.recording)[:200]!r} is damaged: {rec['damage']}; "
+            f"--recover reads the {n} messages before the damage"
+        )
     s = summarize(rec)
     if png:
         if rec["cell"] is None:
@@ -172,16 +307,27 @@ def run(args) -> int | str:
             f"{s['span_s']:.1f} s simulated"
         )
         exit_of = {pid: p["exit"] for pid, p in rec["parcels"].items()}
-        plot_paths(rec["paths"], exit_of, rec["cell"], title, Path(png))
+        try:
+            plot_paths(rec["paths"], exit_of, rec["cell"], title, Path(png))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            return (
+                "sorter replay: the recorded cell parameters cannot be drawn "
+                f"({type(exc).__name__}: {str(exc)[:120]}); --no-plot summarises without them"
+            )
     if args.json:
         s["png"] = png
-        print(json.dumps(s, sort_keys=True, allow_nan=False, default=_nan_none))
+        print(json.dumps(_finite(s), sort_keys=True, allow_nan=False))
     else:
         _print(s, png)
     return 0
 
 
-def _nan_none(obj):
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    raise TypeError(type(obj).__name__)
+def _finite(obj):
+    """Return ``obj`` with every non-finite float replaced by None (JSON has no NaN)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj

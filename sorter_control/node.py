@@ -432,7 +432,7 @@ class ControllerNode(Node):
         self.recorder = None
         if self.values["record_path"]:
             try:
-                self.recorder = open_recorder(self.values["record_path"])
+                self.recorder = open_recorder(self.values["record_path"], self.get_logger().error)
             except ValueError as exc:
                 raise ValueError(f"parameter 'record_path': {exc}") from None
         self.logic: SorterLogic | None = None

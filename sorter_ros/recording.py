@@ -4,18 +4,27 @@ Recording what a node publishes to MCAP, as ROS 2 CDR with the message definitio
 A node that records hands every message it publishes, at the moment it publishes it,
 to a ``Recorder``: the recording is exactly what subscribers saw (the same CDR bytes,
 the same topic names), stamped with the node's time (simulation time for the cell
-and for a controller on ``use_sim_time``). The file follows the MCAP ``ros2`` profile
-(schema encoding ``ros2msg``, message encoding ``cdr``), which ``ros2 bag info``,
-``ros2 bag play``, Foxglove and ``mcap_ros2.reader`` read.
+and for a controller on ``use_sim_time``). The file follows the MCAP ``ros2``
+profile as rosbag2 (Jazzy) writes it: schemas named ``pkg/msg/Type`` in ``ros2msg``
+with their dependencies, messages in ``cdr``,
+and each channel's ``offered_qos_profiles`` (the publisher's real QoS, in rosbag2's
+YAML), so that ``ros2 bag info/play``, rosbags, Foxglove and ``mcap_ros2.reader``
+read it and latched topics play back latched.
 
 Several nodes of one process that name the same path share one open file (the demo
 records the cell and its controller together); the file is finished (summary and
 footer written) when the last of them closes it, which the nodes do when they are
-destroyed, also after Ctrl-C.
+destroyed, also after Ctrl-C. A file being recorded is locked (``flock``): a second
+process that names it is refused before it truncates anything. A write that fails
+(the disk full) stops the recording, says so once through the callbacks given to
+``open_recorder``, and leaves the file readable up to its last complete chunk; the
+node goes on publishing.
 """
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import os
 import sys
 import threading
@@ -37,7 +46,7 @@ def publish_recorded(publisher, msg, recorder: Recorder | None, t_ns: int) -> No
     (rclpy publishes serialized messages as they are): the recording holds exactly
     what went out, and recording costs no second serialization.
     """
-    if recorder is None:
+    if recorder is None or recorder.closed:
         publisher.publish(msg)
         return
     if isinstance(msg, (bytes, bytearray)):
@@ -45,7 +54,7 @@ def publish_recorded(publisher, msg, recorder: Recorder | None, t_ns: int) -> No
     else:
         data = serialize_message(msg)
     publisher.publish(data)
-    recorder.write(publisher.topic_name, data, t_ns, publisher.msg_type)
+    recorder.write(publisher.topic_name, data, t_ns, publisher.msg_type, publisher.qos_profile)
 
 
 def type_name(msg_class) -> str:
@@ -100,50 +109,126 @@ def message_definition(name: str) -> str:
     return '\n'.join(parts)
 
 
+def qos_profiles_yaml(qos) -> str:
+    """
+    Return ``offered_qos_profiles`` of one publisher as rosbag2 (Jazzy) writes it.
+
+    A YAML list of one profile: policies by name (keep_last, reliable, transient_local,
+    automatic, ...), durations as sec/nsec, as rosbag2's ``serialize_rclcpp_qos_vector``
+    gives them and rosbag2's player (and rosbags) read them back.
+    """
+    if qos is None:
+        return ''
+
+    def duration(d) -> str:
+        ns = int(d.nanoseconds)
+        return f'\n    sec: {ns // 10**9}\n    nsec: {ns % 10**9}'
+
+    return (
+        f'- history: {qos.history.name.lower()}\n'
+        f'  depth: {int(qos.depth)}\n'
+        f'  reliability: {qos.reliability.name.lower()}\n'
+        f'  durability: {qos.durability.name.lower()}\n'
+        f'  deadline:{duration(qos.deadline)}\n'
+        f'  lifespan:{duration(qos.lifespan)}\n'
+        f'  liveliness: {qos.liveliness.name.lower()}\n'
+        f'  liveliness_lease_duration:{duration(qos.liveliness_lease_duration)}\n'
+        f'  avoid_ros_namespace_conventions: '
+        f'{"true" if qos.avoid_ros_namespace_conventions else "false"}'
+    )
+
+
 class Recorder:
     """
     One MCAP file being written; use ``open_recorder`` so nodes of a process share it.
 
-    ``write`` takes a message object or its CDR bytes. Thread-safe.
+    ``write`` takes a message object or its CDR bytes. Thread-safe. ``failure`` says
+    why the recording stopped early (None while it runs or after a clean close).
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024):
         self.path = Path(path)
-        self._stream = open(self.path, 'wb')
+        # opened without truncating, locked, then truncated: a file another process is
+        # recording is refused whole, not emptied under it
+        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise ValueError(
+                    f'{str(path)[:200]!r} is being recorded by another process'
+                ) from None
+            raise
+        os.ftruncate(fd, 0)
+        self._stream = os.fdopen(fd, 'wb')
         # LZ4 chunks rather than zstd: cheaper on the node's thread, files about 1.5x larger;
-        # 1 MiB chunks, so a process killed outright (no Ctrl-C) loses at most one of them
+        # 1 MiB chunks, so a process killed outright (no Ctrl-C) loses at most one of them;
+        # the data section's CRC too, so a reader finds a damaged file as such
         self._writer = Writer(
-            self._stream, chunk_size=1024 * 1024, compression=CompressionType.LZ4
+            self._stream,
+            chunk_size=chunk_size,
+            compression=CompressionType.LZ4,
+            enable_data_crcs=True,
         )
-        self._writer.start(profile=PROFILE, library='sorter_cell')
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
         self._lock = threading.Lock()
         self._users = 0
         self.closed = False
+        self.failure: str | None = None
+        self.on_failure: list = []
         self.messages = 0
+        self._guarded(self._writer.start, profile=PROFILE, library='sorter_cell')
 
-    def _channel(self, topic: str, msg_type: str) -> int:
+    def _guarded(self, call, *args, **kwargs) -> None:
+        """Run a write to the file; on an OS error stop recording and say why, once."""
+        if self.closed:
+            return
+        try:
+            call(*args, **kwargs)
+        except OSError as exc:
+            self._fail(exc)
+
+    def _fail(self, exc: OSError) -> None:
+        self.closed = True
+        self.failure = (
+            f'recording to {str(self.path)[:200]} stopped: {exc.strerror or exc} after '
+            f'{self.messages} messages; the file is readable up to its last complete chunk '
+            '(sorter replay --recover)'
+        )
+        try:
+            self._stream.close()
+        except OSError:
+            pass  # the buffer that could not be written is lost with the chunk it held
+        for report in self.on_failure:
+            report(self.failure)
+
+    def _channel(self, topic: str, msg_type: str, qos=None) -> int:
         schema = self._schemas.get(msg_type)
         if schema is None:
             schema = self._writer.register_schema(
-                name=msg_type.replace('/msg/', '/'),
+                name=msg_type,
                 encoding='ros2msg',
                 data=message_definition(msg_type).encode(),
             )
             self._schemas[msg_type] = schema
         channel = self._writer.register_channel(
-            topic=topic, message_encoding='cdr', schema_id=schema
+            topic=topic,
+            message_encoding='cdr',
+            schema_id=schema,
+            metadata={'offered_qos_profiles': qos_profiles_yaml(qos)},
         )
         self._channels[topic] = channel
         return channel
 
-    def write(self, topic: str, msg, t_ns: int, msg_type=None) -> None:
+    def write(self, topic: str, msg, t_ns: int, msg_type=None, qos=None) -> None:
         """
         Write ``msg`` published on ``topic`` at ``t_ns``.
 
         ``msg`` is a message, or its CDR bytes with ``msg_type`` (the message class or
-        'pkg/msg/Type'), which is needed only the first time a topic is written.
+        'pkg/msg/Type'), which is needed only the first time a topic is written; ``qos``
+        is the publisher's QoS profile, recorded with the topic's channel.
         """
         if isinstance(msg, (bytes, bytearray)):
             data = bytes(msg)
@@ -153,32 +238,35 @@ class Recorder:
         with self._lock:
             if self.closed:
                 return
-            channel = self._channels.get(topic)
-            if channel is None:
-                if not isinstance(msg_type, str):
-                    msg_type = type_name(msg_type)
-                channel = self._channel(topic, msg_type)
-            self._writer.add_message(
-                channel_id=channel, log_time=t_ns, publish_time=t_ns, data=data
-            )
+            try:
+                channel = self._channels.get(topic)
+                if channel is None:
+                    if not isinstance(msg_type, str):
+                        msg_type = type_name(msg_type)
+                    channel = self._channel(topic, msg_type, qos)
+                self._writer.add_message(
+                    channel_id=channel, log_time=t_ns, publish_time=t_ns, data=data
+                )
+            except OSError as exc:
+                self._fail(exc)
+                return
             self.messages += 1
 
     def add_metadata(self, name: str, values: dict[str, str]) -> None:
         """Write a metadata record (``name`` and string key/values), e.g. a node's parameters."""
         with self._lock:
-            if not self.closed:
-                self._writer.add_metadata(name=name, data=dict(values))
+            self._guarded(self._writer.add_metadata, name=name, data=dict(values))
 
     def close(self) -> None:
         """Finish the file (summary and footer): it is complete and indexed after this."""
         with self._lock:
             if self.closed:
                 return
+            self._guarded(self._writer.finish)
+            if self.closed:  # finishing failed: said so already
+                return
             self.closed = True
-            try:
-                self._writer.finish()
-            finally:
-                self._stream.close()
+            self._stream.close()  # releases the lock
 
 
 _open: dict[Path, Recorder] = {}
@@ -200,17 +288,19 @@ def recording_problem(path: str) -> str | None:
     return None
 
 
-def open_recorder(path: str) -> Recorder:
+def open_recorder(path: str, on_failure=None) -> Recorder:
     """
     Return the recorder of ``path``, opening the file if this process has not yet.
 
-    Raises ValueError with one line when the path cannot take a recording.
+    ``on_failure(text)`` is called once if the recording stops early (a write failed).
+    Raises ValueError with one line when the path cannot take a recording (another
+    process records it, no folder, not writable, ...).
     """
     problem = recording_problem(path)
     key = Path(path).resolve()
     with _open_lock:
         rec = _open.get(key)
-        if rec is None or rec.closed:
+        if rec is None or (rec.closed and rec._users == 0):
             if problem:
                 raise ValueError(problem)
             try:
@@ -219,6 +309,10 @@ def open_recorder(path: str) -> Recorder:
                 raise ValueError(f'cannot write {path[:200]!r}: {exc.strerror or exc}') from None
             _open[key] = rec
         rec._users += 1
+        if on_failure is not None:
+            rec.on_failure.append(on_failure)
+            if rec.failure:
+                on_failure(rec.failure)
         return rec
 
 

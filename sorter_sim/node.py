@@ -180,7 +180,7 @@ class SimNode(Node):
         try:
             if p.record_path:
                 try:
-                    self.recorder = open_recorder(p.record_path)
+                    self.recorder = open_recorder(p.record_path, self.get_logger().error)
                 except ValueError as exc:
                     raise ParamError(f'parameter \'record_path\': {exc}') from None
                 # the cell's parameters travel with the recording: `sorter replay` draws the

@@ -1,0 +1,332 @@
+"""
+Recordings that survive: read by an independent rosbag2 reader, after a kill, a full disk,
+a second writer, and any damaged byte.
+
+rosbags (its own Jazzy type store, no code shared with this project or with mcap_ros2)
+reads what the cell records; ``sorter replay`` reads every complete message of a file cut
+short and refuses, in one line, what it cannot read.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message, serialize_message
+
+from sorter_cell import replay
+from sorter_ros.recording import Recorder
+from sorter_sim.node import SimNode
+from test_sim_node import SHORT_CELL
+
+BIN = Path(sys.executable).parent
+
+
+def _sim(ros, **overrides) -> SimNode:
+    values = {**SHORT_CELL, 'arrival': 'gap', 'arrival_gap': [0.3, 0.5], **overrides}
+    node = SimNode(
+        context=ros.context,
+        parameter_overrides=[Parameter(k, value=v) for k, v in values.items()],
+    )
+    return ros.add(node)
+
+
+def _recorded(ros, path: Path, periods: int = 6000) -> Counter:
+    node = _sim(ros, record_path=str(path))
+    node.advance(periods)
+    published = Counter(node.published)
+    node.destroy_node()
+    ros.nodes.remove(node)
+    return published
+
+
+def _replay(*argv) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(BIN / 'sorter'), 'replay', *map(str, argv)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+# ---------------------------------------------------------------- an independent reader
+@pytest.mark.ros
+def test_rosbags_reads_the_recording_with_its_own_jazzy_type_store(ros, tmp_path):
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import QosDurability, QosReliability
+    from rosbags.typesys import Stores, get_typestore
+
+    path = tmp_path / 'cell.mcap'
+    published = _recorded(ros, path)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    decoded, refused, qos = Counter(), Counter(), {}
+    with AnyReader([path], default_typestore=store) as reader:
+        for conn in reader.connections:
+            assert conn.msgtype.count('/msg/') == 1, conn.msgtype  # pkg/msg/Type
+            qos[conn.topic] = conn.ext.offered_qos_profiles
+        for conn, _, raw in reader.messages():
+            try:
+                reader.deserialize(raw, conn.msgtype)
+                decoded[conn.topic] += 1
+            except Exception:
+                refused[conn.topic] += 1
+    assert decoded + refused == published
+    # rosbags refuses one type, and only for a reason of its own: rclpy's serializer
+    # (rmw_fastrtps) sizes a JointState with empty velocity and effort 8 bytes longer than
+    # its content, and rosbags insists on the exact size. The same bytes from rclpy alone:
+    from sensor_msgs.msg import JointState
+
+    alone = JointState(name=['disk_angle', 'popup_stroke'], position=[0.5, 1.0])
+    data = serialize_message(alone)
+    with pytest.raises(Exception, match='size'):
+        store.deserialize_cdr(data, 'sensor_msgs/msg/JointState')
+    assert list(deserialize_message(data, JointState).position) == [0.5, 1.0]
+    assert set(refused) <= {'/diverter/state'}
+    assert sum(decoded.values()) > 1000
+    # that topic decoded by another reader (mcap_ros2) and by rclpy, every message
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, 'rb') as f:
+        states = [
+            m
+            for _, ch, _, m in make_reader(
+                f, decoder_factories=[DecoderFactory()]
+            ).iter_decoded_messages(topics=['/diverter/state'])
+        ]
+    assert len(states) == published['/diverter/state']
+    assert all(list(m.name) == ['disk_angle', 'popup_stroke'] for m in states)
+    # latched topics record as latched: a player offers them transient local again
+    (sensor,) = qos['/sensors/pe_scan']
+    assert sensor.durability == QosDurability.TRANSIENT_LOCAL
+    assert sensor.reliability == QosReliability.RELIABLE and sensor.depth == 1
+    (stream,) = qos['/parcels/poses']
+    assert stream.durability == QosDurability.VOLATILE
+
+
+# ---------------------------------------------------------------- kill, disk full, two writers
+def _node_cmd(path: Path, *extra) -> list[str]:
+    return [
+        str(BIN / 'sim_node'),
+        '--ros-args',
+        '-p',
+        'time_mode:=fast',
+        '-p',
+        f'record_path:={path}',
+        '-p',
+        'arrival:=gap',
+        '-p',
+        'arrival_gap:=[0.3, 0.5]',
+        *extra,
+    ]
+
+
+@pytest.mark.ros
+def test_a_killed_recording_replays_every_complete_chunk_and_says_what_was_lost(tmp_path):
+    path = tmp_path / 'killed.mcap'
+    proc = subprocess.Popen(_node_cmd(path), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 45.0
+        while time.monotonic() < deadline and (
+            not path.exists() or path.stat().st_size < 2_300_000
+        ):
+            time.sleep(0.05)
+        assert path.stat().st_size >= 2_300_000, 'the node did not record two chunks in 45 s'
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    # refused in one line, naming the damage and the way to read what is there
+    out = _replay(path, '--no-plot')
+    assert out.returncode == 2 and '--recover' in out.stderr and 'damaged' in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1 and 'Traceback' not in out.stderr
+    out = _replay(path, '--no-plot', '--json', '--recover')
+    assert out.returncode == 0, out.stderr
+    s = json.loads(out.stdout)
+    assert s['messages'] > 10_000 and 'without its summary' in s['damage']
+    # every complete message: as many as an independent tolerant reader finds
+    from rosbags.highlevel import AnyReader  # noqa: F401 (rosbags needs the summary)
+    from mcap.stream_reader import StreamReader
+
+    n = 0
+    with open(path, 'rb') as f:
+        try:
+            for record in StreamReader(f).records:
+                n += type(record).__name__ == 'Message'
+        except Exception:
+            pass
+    assert s['messages'] == n
+
+
+@pytest.mark.ros
+def test_a_full_disk_stops_the_recording_with_one_message_and_the_node_runs_on(tmp_path):
+    import resource
+
+    path = tmp_path / 'full.mcap'
+    limit = 1_500_000  # bytes: the second chunk does not fit
+
+    def small_disk():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    proc = subprocess.Popen(
+        _node_cmd(path),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=small_disk,
+    )
+    try:
+        deadline = time.monotonic() + 45.0
+        while time.monotonic() < deadline and not (
+            path.exists() and path.stat().st_size > 1_000_000
+        ):
+            time.sleep(0.05)
+        time.sleep(3.0)  # well past the failed write, still running
+        assert proc.poll() is None, proc.communicate()[1][-2000:]
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err[-3000:]
+    assert 'Traceback' not in err, err[-3000:]
+    stopped = [line for line in err.splitlines() if 'recording to' in line and 'stopped' in line]
+    assert len(stopped) == 1, err[-3000:]
+    assert path.stat().st_size <= limit
+    out = _replay(path, '--no-plot', '--json', '--recover')
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)['messages'] > 1000
+
+
+def test_a_file_being_recorded_is_refused_to_a_second_writer_before_it_starts(tmp_path):
+    path = tmp_path / 'busy.mcap'
+    first = Recorder(path)
+    try:
+        from std_msgs.msg import Bool
+
+        for i in range(100):
+            first.write('/x', Bool(data=bool(i % 2)), i)
+        size = path.stat().st_size
+        out = subprocess.run(_node_cmd(path), capture_output=True, text=True, timeout=60)
+        assert out.returncode == 2, out.stderr[-2000:]
+        lines = out.stderr.strip().splitlines()
+        assert len(lines) == 1 and 'being recorded by another process' in lines[0], lines
+        assert 'record_path' in lines[0]
+        assert path.stat().st_size == size  # not truncated under the first writer
+    finally:
+        first.close()
+    s = replay.summarize(replay.read_recording(path))
+    assert s['messages'] == 100 and s['damage'] is None
+
+
+# ---------------------------------------------------------------- damaged files
+def _small_recording(path: Path) -> None:
+    """A recording of several 4 KiB chunks, shaped as the node writes one."""
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    from geometry_msgs.msg import Pose, PoseArray
+    from std_msgs.msg import UInt32MultiArray
+
+    rec = Recorder(path, chunk_size=4096)
+    rec.add_metadata(replay.METADATA, {'belt_width': '0.7', 'node': '"/sorter_sim"'})
+    for k in range(300):
+        t = k * 10_000_000
+        rec.write('/parcels/ids', UInt32MultiArray(data=[1, 2]), t)
+        poses = PoseArray(poses=[Pose(), Pose()])
+        poses.poses[0].position.x = 0.01 * k
+        rec.write('/parcels/poses', poses, t)
+        if k % 50 == 49:
+            values = [KeyValue(key='id', value=str(k)), KeyValue(key='exit', value='left')]
+            values.append(KeyValue(key='t', value='nan' if k == 99 else str(t * 1e-9)))
+            rec.write('/sort/outcomes', DiagnosticStatus(name='A', values=values), t)
+    rec.close()
+
+
+def _outcome(data: bytes, tmp_path: Path, name: str):
+    """Read damaged bytes as sorter replay does: its summary, or its one-line refusal."""
+    p = tmp_path / name
+    p.write_bytes(data)
+    args = SimpleNamespace(recording=str(p), out=None, no_plot=True, json=True, recover=True)
+    try:
+        rec = replay.read_recording(p)
+    except ValueError as exc:
+        assert '\n' not in str(exc)
+        return 'refused', None
+    s = replay.summarize(rec)
+    json.dumps(replay._finite(s), allow_nan=False)  # always JSON, NaN or not
+    assert replay.run(args) == 0
+    return ('damaged' if s['damage'] else 'clean'), s
+
+
+@pytest.mark.slow
+def test_every_truncation_and_bit_flip_is_refused_read_with_its_damage_or_harmless(
+    tmp_path, capsys
+):
+    clean_path = tmp_path / 'clean.mcap'
+    _small_recording(clean_path)
+    data = clean_path.read_bytes()
+    clean = replay.summarize(replay.read_recording(clean_path))
+    assert clean['damage'] is None and clean['messages'] == 606
+    assert clean['parcel_outcomes']['99']['t_exit_s'] is None  # t = nan: no time, no error
+    rng = random.Random(20261125)
+    tally = Counter()
+    cases = [('cut', n) for n in sorted(rng.sample(range(len(data)), 150))]
+    cases += [('flip', rng.randrange(8 * len(data))) for _ in range(400)]
+    for kind, where in cases:
+        damaged = bytearray(data)
+        if kind == 'cut':
+            damaged = damaged[:where]
+        else:
+            damaged[where // 8] ^= 1 << (where % 8)
+        verdict, s = _outcome(bytes(damaged), tmp_path, 'damaged.mcap')
+        tally[kind, verdict] += 1
+        if verdict == 'clean':
+            # a flip the reader does not see must not change what it reports
+            same = ('messages', 'topics', 'parcel_outcomes', 't_first_s', 't_last_s')
+            assert {k: s[k] for k in same} == {k: clean[k] for k in same}, (kind, where)
+        if verdict == 'damaged':
+            assert s['messages'] <= clean['messages']
+            assert s['t_last_s'] is None or s['t_last_s'] <= clean['t_last_s'], (kind, where)
+    capsys.readouterr()
+    print(dict(tally))
+    assert tally['cut', 'clean'] == 0  # every truncation is seen
+    assert sum(tally.values()) == len(cases)
+
+
+def test_schemas_a_decoder_cannot_build_are_counted_not_fatal(tmp_path):
+    from mcap.writer import Writer
+
+    path = tmp_path / 'odd.mcap'
+    with open(path, 'wb') as f:
+        w = Writer(f)
+        w.start(profile='ros2', library='test')
+        schemas = {
+            'recursive': (
+                'pkg/msg/Loop',
+                'pkg/Loop next\n' + '=' * 80 + '\nMSG: pkg/Loop\npkg/Loop next\n',
+            ),
+            'wstring': ('pkg/msg/W', 'wstring text\n'),
+            'nonsense': ('pkg/msg/N', '%%% not a message %%%\n'),
+        }
+        for i, (topic, (name, text)) in enumerate(schemas.items()):
+            sid = w.register_schema(name=name, encoding='ros2msg', data=text.encode())
+            cid = w.register_channel(topic=f'/{topic}', message_encoding='cdr', schema_id=sid)
+            w.add_message(channel_id=cid, log_time=i, publish_time=i, data=b'\x00\x01\x00\x00' * 3)
+        w.finish()
+    rec = replay.read_recording(path)
+    assert rec['damage'] is None
+    assert rec['undecodable'] == {'/nonsense': 1, '/recursive': 1, '/wstring': 1}
+    out = _replay(path, '--no-plot')
+    assert out.returncode == 0 and 'undecodable' in out.stdout, out.stderr
