@@ -45,6 +45,7 @@ from foxglove.messages import (
 
 PARCEL_HEIGHT = 0.2  # m: the model is planar; only for the boxes (live view and markers)
 PATH_POINTS = 400  # most points kept of a parcel's path
+CLIENT_BACKLOG = 6  # messages queued per client (two frames of the three channels)
 PATH_STEP = 0.01  # m: a path point is added when the parcel moved this far
 CHUTE_WIDTH = 0.5  # m, drawn beside each side wall's opening
 # colour (r, g, b) per parcel state (cell.STATE_NAMES), in the live view and the markers
@@ -152,6 +153,10 @@ class LiveView:
                 host=host,
                 port=port,
                 context=self.context,
+                # a live view needs the newest frame, not a history: a client that stops
+                # reading gets its oldest frames dropped, not the node's memory filled
+                # (the SDK's default keeps 1024 messages per client)
+                message_backlog_size=CLIENT_BACKLOG,
             )
         except RuntimeError as exc:
             raise ValueError(

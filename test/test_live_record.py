@@ -332,3 +332,59 @@ def test_sorter_demo_refuses_a_busy_live_view_port_in_one_line(tmp_path):
     assert out.returncode == 2, out.stderr
     assert 'foxglove_port' in out.stderr and 'in use' in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1 and 'Traceback' not in out.stderr
+
+
+def _rss_mb() -> float:
+    with open('/proc/self/status') as f:
+        for line in f:
+            if line.startswith('VmRSS:'):
+                return int(line.split()[1]) / 1024
+    return float('nan')
+
+
+def test_stalled_live_view_clients_cost_frames_not_memory(ros):
+    """Three clients subscribe and never read: the node drops their frames, keeps its RAM."""
+    from websockets.sync.client import ClientConnection  # noqa: F401 (the client API used)
+
+    port = free_port()
+    node = _sim(ros, foxglove_port=port, foxglove_rate_hz=200.0, arrival_gap=[0.05, 0.1])
+    node.advance(6000)
+    assert node.cell.n_parcels >= 5
+    stalled = []
+    for _ in range(3):
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        sock.connect(('127.0.0.1', port))
+        ws = connect(f'ws://127.0.0.1:{port}', sock=sock, subprotocols=['foxglove.sdk.v1'])
+        channels = _recv_json(ws, 'advertise')['channels']
+        ws.send(
+            json.dumps(
+                {
+                    'op': 'subscribe',
+                    'subscriptions': [
+                        {'id': i, 'channelId': c['id']} for i, c in enumerate(channels)
+                    ],
+                }
+            )
+        )
+        stalled.append(ws)  # and never read again
+    try:
+        ros.spin_until(node.live_view.listening, 5.0, 'the live view to see the clients')
+        node.advance(2000)  # the queues fill
+        rss0 = _rss_mb()
+        sent0 = node.live_view.frames_sent
+        t0 = time.perf_counter()
+        while node.live_view.frames_sent - sent0 < 500 and time.perf_counter() - t0 < 20.0:
+            node.advance(node.params.pose_stride)
+            time.sleep(0.001)
+        wall = time.perf_counter() - t0
+        frames = node.live_view.frames_sent - sent0
+        grown = _rss_mb() - rss0
+        print(f'{frames} frames to 3 stalled clients in {wall:.2f} s, RSS +{grown:.1f} MB')
+        assert frames >= 500
+        # the SDK's default backlog (1024 messages a client) kept 9 MB of this small cell's
+        # frames (a 200-parcel cell: hundreds of MB); a bounded one six messages a client
+        assert grown < 4.0, f'RSS grew {grown:.1f} MB for {frames} frames'
+    finally:
+        for ws in stalled:
+            ws.socket.close()
