@@ -377,24 +377,40 @@ class FieldbusServers:
             except Exception as exc:
                 raise ValueError(f'cannot serve OPC UA: {exc}') from None
 
-    def stop(self) -> None:
-        """Stop both servers and the thread (idempotent)."""
+    def stop(self, wait_s: float = 1.0) -> None:
+        """
+        Stop both servers and the thread (idempotent), in at most about ``wait_s``.
+
+        Connections are dropped, not waited for: asyncua's stop waits on every session's
+        subscriptions and a Modbus client may never close its socket, and a node that is
+        shutting down (ros2 launch kills it after 10 s) must not wait on its clients.
+        """
         if self._thread.is_alive() and self.loop.is_running():
-            fut = asyncio.run_coroutine_threadsafe(self._stop_all(), self.loop)
+            fut = asyncio.run_coroutine_threadsafe(self._stop_all(0.6 * wait_s), self.loop)
             try:
-                fut.result(10.0)
+                fut.result(0.8 * wait_s)
             except Exception:  # a server that will not stop cleanly still goes with the loop
                 pass
             self.loop.call_soon_threadsafe(self.loop.stop)
-            self._thread.join(10.0)
+            self._thread.join(0.2 * wait_s)
 
-    async def _stop_all(self) -> None:
+    async def _stop_all(self, wait_s: float) -> None:
         if self._modbus is not None:
             await self._modbus.stop()
             self._modbus = None
         if self._opcua is not None:
-            await self._opcua.stop()
-            self._opcua = None
+            server, self._opcua = self._opcua, None
+            # the listening socket and every client connection first, at once; then
+            # asyncua's own stop, for as long as it takes within the bound
+            bserver = getattr(server, 'bserver', None)
+            if bserver is not None and getattr(bserver, '_server', None) is not None:
+                bserver._server.close()
+            for transport in list(getattr(server.iserver, 'asyncio_transports', [])):
+                transport.abort()
+            try:
+                await asyncio.wait_for(server.stop(), wait_s)
+            except (asyncio.TimeoutError, Exception):
+                pass
 
     # ---------------------------------------------------------------- Modbus TCP
     async def _start_modbus(self, host: str, port: int) -> None:

@@ -46,6 +46,7 @@ from foxglove.messages import (
 PARCEL_HEIGHT = 0.2  # m: the model is planar; only for the boxes (live view and markers)
 PATH_POINTS = 400  # most points kept of a parcel's path
 CLIENT_BACKLOG = 6  # messages queued per client (two frames of the three channels)
+STOP_WAIT_S = 0.5  # s the node waits for the server to stop when it shuts down
 PATH_STEP = 0.01  # m: a path point is added when the parcel moved this far
 CHUTE_WIDTH = 0.5  # m, drawn beside each side wall's opening
 # colour (r, g, b) per parcel state (cell.STATE_NAMES), in the live view and the markers
@@ -433,5 +434,17 @@ class LiveView:
             )
         return out
 
-    def close(self) -> None:
-        self.server.stop()
+    def close(self, wait_s: float = STOP_WAIT_S) -> None:
+        """
+        Stop the server, waiting at most ``wait_s`` for it.
+
+        The SDK's stop waits for every client's close handshake, which a client that
+        stopped reading never completes (48 s with three such clients): it runs in a
+        thread of its own, and a node that is shutting down does not wait past
+        ``wait_s`` (its process ends the server's threads when it exits).
+        """
+        import threading
+
+        stopper = threading.Thread(target=self.server.stop, name='live-view-stop', daemon=True)
+        stopper.start()
+        stopper.join(wait_s)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import array
 import json
 import math
+import threading
 import time
 from collections import Counter
 
@@ -327,12 +328,18 @@ class SimNode(Node):
         self.io_image.refresh_inputs(values)
 
     def _close_outputs(self) -> None:
+        # the servers stop side by side, each within its bound, so that a node with
+        # clients still connected stops in well under ros2 launch's 10 s
+        stopping = None
         if self.fieldbus is not None:
-            self.fieldbus.stop()
-            self.fieldbus = None
+            stopping = threading.Thread(target=self.fieldbus.stop, name='fieldbus-stop')
+            stopping.start()
         if self.live_view is not None:
             self.live_view.close()
             self.live_view = None
+        if stopping is not None:
+            stopping.join()
+            self.fieldbus = None
         if self.recorder is not None:
             release_recorder(self.recorder)
             self.recorder = None

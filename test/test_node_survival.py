@@ -243,3 +243,97 @@ def test_the_executables_load_nothing_heavy_before_their_handlers():
         [sys.executable, '-c', probe], capture_output=True, text=True, check=True
     ).stdout
     assert out.strip() == '[]'
+
+
+def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_promptly():
+    """OPC UA subscriptions, idle Modbus sockets, WebSocket clients that stopped reading."""
+    import asyncio
+    import json
+    import socket
+    import threading
+
+    from asyncua import Client
+    from pymodbus.client import ModbusTcpClient
+    from ros_harness import free_port
+    from websockets.sync.client import connect
+
+    ports = {'modbus_port': free_port(), 'opcua_port': free_port(), 'foxglove_port': free_port()}
+    args = [a for k, v in ports.items() for a in ('-p', f'{k}:={v}')]
+    proc = _start('sim_node', '-p', 'time_mode:=realtime', *args)
+    endpoint = f'opc.tcp://127.0.0.1:{ports["opcua_port"]}/sorter_cell/'
+    stop_clients = threading.Event()
+    held = []
+    try:
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline:
+            with socket.socket() as s:
+                if s.connect_ex(('127.0.0.1', ports['foxglove_port'])) == 0:
+                    break
+            time.sleep(0.2)
+        time.sleep(2.0)  # the fieldbus servers start after the live view
+
+        async def subscribers():
+            class Quiet:
+                def datachange_notification(self, node, val, data):
+                    pass
+
+            clients = []
+            for _ in range(3):
+                c = Client(endpoint, timeout=10)
+                await c.connect()
+                idx = await c.get_namespace_index('urn:sorter_cell')
+                t = await c.nodes.objects.get_child(
+                    [f'{idx}:cell', f'{idx}:Inputs', f'{idx}:cell.time']
+                )
+                sub = await c.create_subscription(50, Quiet())
+                await sub.subscribe_data_change(t)
+                clients.append(c)
+            while not stop_clients.is_set():
+                await asyncio.sleep(0.1)
+
+        threading.Thread(target=lambda: asyncio.run(subscribers()), daemon=True).start()
+        for _ in range(3):
+            m = ModbusTcpClient('127.0.0.1', port=ports['modbus_port'], timeout=5, retries=0)
+            assert m.connect() and not m.read_input_registers(0, count=10).isError()
+            held.append(m)
+        for _ in range(3):
+            sock = socket.socket()
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            sock.connect(('127.0.0.1', ports['foxglove_port']))
+            ws = connect(
+                f'ws://127.0.0.1:{ports["foxglove_port"]}',
+                sock=sock,
+                subprotocols=['foxglove.sdk.v1'],
+            )
+            while True:
+                msg = ws.recv(timeout=10)
+                if isinstance(msg, str) and json.loads(msg).get('op') == 'advertise':
+                    break
+            channels = json.loads(msg)['channels']
+            subs = [{'id': i, 'channelId': c['id']} for i, c in enumerate(channels)]
+            ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+            held.append(ws)  # never read again
+        time.sleep(5.0)  # frames pile up for the stalled clients
+        assert proc.poll() is None
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        try:
+            out, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+        took = time.monotonic() - t0
+        print(f'SIGTERM to exit: {took:.2f} s')
+        assert proc.returncode == 0 and 'Traceback' not in err, err[-2000:]
+        # 26-31 s before the servers' stops were bounded; ros2 launch kills after 10 s
+        assert took < 5.0, f'{took:.1f} s from SIGTERM to exit'
+    finally:
+        stop_clients.set()
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        for h in held:
+            try:
+                h.close() if hasattr(h, 'connect') else h.socket.close()
+            except Exception:
+                pass
