@@ -312,6 +312,25 @@ def summarize(obs: _Observer, plan: dict, sim_time: float, wall: float, time_mod
     }
 
 
+def exit_code(summary: dict) -> int:
+    """
+    Return the demo's exit code: 0 for a clean run, 1 otherwise.
+
+    Clean: nothing mis-sorted, no jam, and the controller running at the end (a
+    controller that faulted and stayed faulted sorts nothing, whatever the counts say).
+    """
+    if summary["mis_sorted"] or summary["jams"]:
+        return 1
+    if summary.get("controller_state", "running") not in ("running", "unknown"):
+        print(
+            f"sorter demo: the controller ended {summary['controller_state']!r} "
+            f"(faults: {summary.get('controller_faults') or 'none counted'})",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
+
+
 def print_table(s: dict) -> None:
     rows = [
         (
@@ -689,7 +708,7 @@ def run(args) -> int | str:
         print(f"  paths                      {args.out}")
         if args.record:
             print(f"  recording                  {args.record} (sorter replay {args.record})")
-    return 0 if summary["mis_sorted"] == 0 and summary["jams"] == 0 else 1
+    return exit_code(summary)
 
 
 def cell_params(sim) -> dict:
@@ -878,7 +897,7 @@ def run_soft_plc(args) -> int | str:
             f"{summary['io_write_errors']} refused writes"
         )
         print(f"  paths                      {args.out}")
-    return 0 if summary["mis_sorted"] == 0 and summary["jams"] == 0 else 1
+    return exit_code(summary)
 
 
 def _executor(ctx, kind: str = "single"):

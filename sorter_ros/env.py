@@ -168,7 +168,17 @@ def run_node(
     apply_ros_env_defaults()
     # rclpy's own handler would shut the context down at once, before the node could
     # say its last words over it
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # rcl's RCLError: a command line rcl cannot parse
+        detail = str(exc).split(', at ')[0].removeprefix('failed to initialize rcl: ')
+        detail = detail.replace('Error: error not set', '').strip().rstrip('.')
+        print(
+            f'{prog}: the ROS arguments are not valid: {detail}; a parameter is given as '
+            "-p name:=value (an empty string quoted: -p name:=\"''\")",
+            file=sys.stderr,
+        )
+        raise SystemExit(2) from None
     node = None
     code = 0
     try:

@@ -543,7 +543,8 @@ class FieldbusServers:
         # writing the outputs; the server's own internal session alone administers
         server.set_identity_tokens([ua.AnonymousIdentityToken])
         server.iserver.allow_remote_admin = False
-        endpoint = f'opc.tcp://{host}:{port}/sorter_cell/'
+        # an IPv6 address goes in brackets in a URL (RFC 3986), or its colons read as a port
+        endpoint = f'opc.tcp://{f"[{host}]" if ":" in host else host}:{port}/sorter_cell/'
         server.set_endpoint(endpoint)
         server.set_server_name('sorter_cell')
         idx = await server.register_namespace('urn:sorter_cell')

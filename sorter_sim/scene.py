@@ -26,6 +26,7 @@ import numpy as np
 from sorter_ros.strict_yaml import StrictYamlError, load_yaml_text, read_yaml_file
 
 from .core.friction import mu_kinetic
+from .core.integrators import ST_MAX_STEPS
 from .core.simulate import FrictionLaw, Parcel, SimResult, simulate
 from .description import Q, shown
 from .model import LAW_DEFAULTS, V_REF, cell_strips, entry_state, law_problem, zone_law
@@ -287,6 +288,9 @@ def scene_initial_state(scene: dict) -> np.ndarray:
     return entry_state(scene_parcel(scene), scene["belt"]["v"], scene["parcel"]["phi0_deg"])
 
 
+MAX_RECORDS = 5_000_000  # records of a scene's trajectory kept at most
+
+
 def run_scene(scene: dict) -> tuple[SimResult, dict]:
     """Run a validated scene; returns the core result and the JSON-ready summary."""
     solver = scene["solver"]
@@ -317,7 +321,22 @@ def run_scene(scene: dict) -> tuple[SimResult, dict]:
         reductions=solver["reductions"],
         n_quad=solver["n_quad"],
         g=scene["model"]["g"],
+        # a fixed-step method records every step: room for all of them (up to 5 million
+        # records, 280 MB), and beyond that a message in the scene's own keys
+        max_points=min(
+            MAX_RECORDS,
+            max(200_000, int(math.ceil(solver["t_max"] / solver["dt"])) + 10),
+        )
+        if solver["method"] != "accurate"
+        else 200_000,
     )
+    if res.status == ST_MAX_STEPS:
+        res.message = (
+            "ran out of output capacity (a scene keeps at most "
+            f"{MAX_RECORDS if solver['method'] != 'accurate' else 200_000} records): shorten "
+            "solver.t_max, or lengthen solver.dt (implicit, threshold) or loosen solver.rtol "
+            "(accurate)"
+        )
     if sign < 0:
         res.y = res.y * np.array([1, -1, -1, 1, -1, -1])
     return res, summarize(scene, res, y0)

@@ -680,3 +680,16 @@ def test_ctrl_c_ends_the_demo_cleanly(ros, tmp_path, signals):
         assert 0 < summary["sim_time_s"] < 600 and summary["mis_sorted"] == 0
     else:
         assert proc.returncode in (0, 130), err[-2000:]
+
+
+def test_the_demo_exits_1_when_its_controller_ends_faulted(capsys):
+    from sorter_cell.demo import exit_code
+
+    clean = {'mis_sorted': 0, 'jams': 0, 'controller_state': 'running', 'controller_faults': {}}
+    assert exit_code(clean) == 0
+    assert exit_code({**clean, 'mis_sorted': 1}) == 1
+    assert exit_code({**clean, 'jams': 2}) == 1
+    faulted = {**clean, 'controller_state': 'faulted', 'controller_faults': {'watchdog': 1}}
+    assert exit_code(faulted) == 1
+    err = capsys.readouterr().err
+    assert "ended 'faulted'" in err and 'watchdog' in err

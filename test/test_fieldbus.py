@@ -750,3 +750,34 @@ def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_re
     assert wh.table == ['A*=left', '*=straight']
     assert int(_diag(cell)['fieldbus_calls_refused']) == refused
     assert int(_diag(cell)['fieldbus_writes_refused']) == 0
+
+
+def test_the_servers_listen_on_an_ipv6_address(ros):
+    node = ros.add(
+        SimNode(
+            context=ros.context,
+            parameter_overrides=[
+                Parameter(k, value=v)
+                for k, v in {
+                    **SHORT_CELL,
+                    'opcua_host': '::1',
+                    'opcua_port': free_port(),
+                    'modbus_host': '::1',
+                    'modbus_port': free_port(),
+                }.items()
+            ],
+        )
+    )
+    assert node.fieldbus.opcua_endpoint.startswith('opc.tcp://[::1]:')
+    node.advance(500)
+    client = OpcClient(node.fieldbus.opcua_endpoint, timeout=10)
+    client.connect()
+    try:
+        idx = client.get_namespace_index('urn:sorter_cell')
+        t = client.nodes.objects.get_child([f'{idx}:cell', f'{idx}:Inputs', f'{idx}:cell.time'])
+        assert t.read_value() == pytest.approx(0.5)
+    finally:
+        client.disconnect()
+    modbus = ModbusTcpClient('::1', port=node.fieldbus.modbus_port, timeout=5, retries=0)
+    assert modbus.connect() and not modbus.read_input_registers(0, count=2).isError()
+    modbus.close()

@@ -337,3 +337,15 @@ def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_prom
                 h.close() if hasattr(h, 'connect') else h.socket.close()
             except Exception:
                 pass
+
+
+def test_a_command_line_rcl_cannot_parse_is_refused_in_one_line():
+    out = subprocess.run(
+        [str(BIN / 'sim_node'), '--ros-args', '-p', 'modbus_host:='],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2 and 'Traceback' not in out.stderr, out.stderr
+    ours = [line for line in out.stderr.splitlines() if line.startswith('sim_node:')]
+    assert len(ours) == 1 and 'modbus_host' in ours[0] and 'name:=value' in ours[0]

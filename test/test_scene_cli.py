@@ -221,3 +221,20 @@ def test_outputs_are_checked_before_any_work(tmp_path, argv):
     assert r.returncode == 2 and "--out" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
     assert not [p for p in tmp_path.glob("*.csv") if p.is_file()]
+
+
+def test_a_fixed_step_scene_has_room_for_every_step_and_names_its_own_keys_when_not(
+    monkeypatch,
+):
+    from sorter_sim import scene as sc
+
+    base = sc.load_scene(Path(__file__).resolve().parents[1] / 'config/scenes/fig9a.yaml')
+    # 300 000 steps: past the 200 000 records a run once had room for
+    s = sc.apply_overrides(base, ['solver.method=implicit', 'solver.dt=1e-5', 'solver.t_max=3'])
+    res, summary = sc.run_scene(s)
+    assert res.success and summary['t_scrap'] is not None, res.message
+    monkeypatch.setattr(sc, 'MAX_RECORDS', 1000)
+    res, _ = sc.run_scene(s)
+    assert not res.success
+    assert 'solver.t_max' in res.message and 'solver.dt' in res.message
+    assert 'max_points' not in res.message

@@ -64,7 +64,7 @@ EVENT_NAMES = {
 STATUS_MESSAGES = {
     _ig.ST_END: "reached the end of the time span",
     _ig.ST_TARGET: "the centre of gravity reached the scrap line",
-    _ig.ST_MAX_STEPS: "ran out of output capacity (raise max_points)",
+    _ig.ST_MAX_STEPS: "ran out of output capacity (raise simulate's max_points)",
     _ig.ST_STEP_FAIL: "step size fell below round-off",
     _ig.ST_NONFINITE: "a non-finite value appeared",
 }
@@ -522,7 +522,7 @@ def simulate(
         message=STATUS_MESSAGES[int(status)]
         + (
             f" (the trajectory holds the first {max_points - 1} of {int(counters[3])} records"
-            " and the last: raise max_points for all)"
+            " and the last: raise simulate's max_points for all)"
             if counters[3] > max_points
             else ""
         ),
