@@ -61,8 +61,12 @@ setup(
             'ruff>=0.6',
             'ament-lint-pep257>=0.14',
             'hypothesis>=6.100',
-            # independent clients in the suite: a Modbus TCP stack the cell does not use
+            # independent clients in the suite: a Modbus TCP stack the cell does not use,
+            # an independent rosbag2 reader with its own type store, and X.509 certificates
+            # for the OPC UA identity tests
             'pyModbusTCP>=0.3',
+            'rosbags>=0.11',
+            'cryptography>=42',
         ],
     },
     zip_safe=True,

@@ -53,7 +53,7 @@ from sorter_ros.env import run_node
 from sorter_sim.description import Q
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
-from sorter_ros.interface import parameter_problem
+from sorter_ros.interface import accept_integers_for_doubles, parameter_problem
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 
 from .logic import (
@@ -421,6 +421,7 @@ class ControllerNode(Node):
         kwargs.setdefault("parameter_overrides", [])
         super().__init__(NODE_NAME, **kwargs)
         self.values = {}
+        accept_integers_for_doubles(self, {spec.name: descriptor(spec).type for spec in SCHEMA})
         for spec in SCHEMA:
             try:
                 p = self.declare_parameter(spec.name, spec.default, descriptor(spec))

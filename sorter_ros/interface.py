@@ -112,3 +112,43 @@ def parameter_problem(node, parameters) -> str | None:
         if any('\x00' in t for t in texts):
             return f'parameter {p.name!r}: a string may not hold NUL characters'
     return None
+
+
+def _widened(param, declared_type: int):
+    """Return ``param`` as a double (array) when it is an integer (array) given for one."""
+    from rclpy.parameter import Parameter
+
+    t = param.type_
+    if declared_type == ParameterType.PARAMETER_DOUBLE and t == Parameter.Type.INTEGER:
+        return Parameter(param.name, value=float(param.value))
+    if (
+        declared_type == ParameterType.PARAMETER_DOUBLE_ARRAY
+        and t == Parameter.Type.INTEGER_ARRAY
+    ):
+        return Parameter(param.name, value=[float(v) for v in param.value])
+    return param
+
+
+def accept_integers_for_doubles(node, declared: dict[str, int]) -> None:
+    """
+    Take an integer given for a double parameter as that double, as ROS users type them.
+
+    ``declared``: {name: ParameterType} of the node's parameters. rclpy refuses
+    ``-p alpha_deg:=45`` and ``ros2 param set ... alpha_deg 45`` ('expected DOUBLE, got
+    INTEGER'); here the start-up overrides (command line, params files) are widened
+    before the node declares its parameters, and a run-time change before rclpy checks
+    its type (a pre-set callback), so 45 is 45.0 everywhere. Ranges are untouched: the
+    widened value is checked as any double would be. Call before declaring.
+    """
+    overrides = node._parameter_overrides
+    for name, param in list(overrides.items()):
+        if name in declared:
+            overrides[name] = _widened(param, declared[name])
+
+    def widen(parameters):
+        return [
+            _widened(p, declared[p.name]) if p.name in declared else p for p in parameters
+        ]
+
+    node.add_pre_set_parameters_callback(widen)
+

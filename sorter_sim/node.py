@@ -39,7 +39,7 @@ from sorter_ros.env import run_node
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import quiet_publisher_events
 from sorter_ros.interface import descriptor as ros_descriptor
-from sorter_ros.interface import parameter_problem
+from sorter_ros.interface import accept_integers_for_doubles, parameter_problem
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 
 from .cdr import pose_array_cdr, stamp
@@ -351,13 +351,16 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ parameters
     def _declare_parameters(self) -> CellParams:
+        accept_integers_for_doubles(self, {spec.name: descriptor(spec).type for spec in SCHEMA})
         values = {}
         for spec in SCHEMA:
             try:
                 param = self.declare_parameter(spec.name, spec.default, descriptor(spec))
-            except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
+            except (InvalidParameterTypeException, InvalidParameterValueException):
+                given = self._parameter_overrides[spec.name]
                 raise ParamError(
-                    f'parameter {spec.name!r} must be {spec.allowed} ({exc})'
+                    f'parameter {spec.name!r} must be {spec.allowed}, got {plain(given.value)!r} '
+                    f'({given.type_.name.lower()})'
                 ) from None
             values[spec.name] = plain(param.value)
         # rclpy ignores values given for names nobody declares: a misspelt parameter in a
