@@ -1,6 +1,5 @@
 """
-Recordings that survive: read by an independent rosbag2 reader, after a kill, a full disk,
-a second writer, and any damaged byte.
+Recordings that survive a kill, a full disk, a second writer and any damaged byte.
 
 rosbags (its own Jazzy type store, no code shared with this project or with mcap_ros2)
 reads what the cell records; ``sorter replay`` reads every complete message of a file cut
@@ -234,7 +233,7 @@ def test_a_file_being_recorded_is_refused_to_a_second_writer_before_it_starts(tm
 
 # ---------------------------------------------------------------- damaged files
 def _small_recording(path: Path) -> None:
-    """A recording of several 4 KiB chunks, shaped as the node writes one."""
+    """Write a recording of several 4 KiB chunks, shaped as the node writes one."""
     from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
     from geometry_msgs.msg import Pose, PoseArray
     from std_msgs.msg import UInt32MultiArray
