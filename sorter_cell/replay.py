@@ -220,7 +220,7 @@ class _Reading:
 
 
 def _seconds(text) -> float | None:
-    """A time [s] as recorded, or None when it is missing or not a finite number."""
+    """Return a recorded time [s], or None when it is missing or not a finite number."""
     try:
         t = float(text)
     except (TypeError, ValueError):
