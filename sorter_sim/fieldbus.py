@@ -29,20 +29,15 @@ import math
 import re
 import threading
 from collections import deque
+from datetime import datetime, timedelta, timezone
 
 from .description import LABEL_RE
-from .io_map import COIL, DI, HR, INPUT, IR, OUTPUT, by_name, table_size
+from .io_map import COIL, DI, HR, INPUT, IR, OUTPUT, WriteRefused, by_name, table_size
 
 _TABLES = (DI, COIL, IR, HR)
 LABEL_QUEUE = 64  # labels the scanner keeps while the PLC has not acknowledged them
-
-
-class WriteRefused(Exception):
-    """A client's write that the image refuses; ``code`` names why (address/value)."""
-
-    def __init__(self, code: str, message: str):
-        super().__init__(message)
-        self.code = code
+PUSH_S = 0.02  # s between hand-overs of changed inputs to OPC UA subscriptions
+_UNSET = object()
 
 
 class IOImage:
@@ -340,6 +335,12 @@ class FieldbusServers:
         self.warehouse = Warehouse()
         self.modbus_port: int | None = None
         self.opcua_endpoint: str | None = None
+        # simulated time t [s] is served as the UtcTime time_origin + t (SourceTimestamp)
+        self.time_origin = datetime.now(timezone.utc) - timedelta(
+            seconds=float(image.inputs.get('cell.time', 0.0) or 0.0)
+        )
+        self._opc_inputs: list = []
+        self._pusher = None
 
     def start(self) -> None:
         self._thread.start()
@@ -398,6 +399,9 @@ class FieldbusServers:
         if self._modbus is not None:
             await self._modbus.stop()
             self._modbus = None
+        if self._pusher is not None:
+            self._pusher.cancel()
+            self._pusher = None
         if self._opcua is not None:
             server, self._opcua = self._opcua, None
             # the listening socket and every client connection first, at once; then
@@ -568,12 +572,12 @@ class FieldbusServers:
                 await var.add_property(
                     idx,
                     'EngineeringUnits',
-                    ua.EUInformation(DisplayName=ua.LocalizedText(s.unit)),
+                    _eu_information(s.unit),
                 )
             if s.direction == INPUT:
-                aspace.set_attribute_value_callback(
-                    var.nodeid, ua.AttributeIds.Value, _input_reader(image, s, vtype)
-                )
+                reader = _input_reader(image, s, vtype, self.time_origin)
+                aspace.set_attribute_value_callback(var.nodeid, ua.AttributeIds.Value, reader)
+                self._opc_inputs.append((var.nodeid, reader))
             else:
                 if s.lo is not None:
                     await var.add_property(idx, 'EURange', ua.Range(Low=s.lo, High=s.hi))
@@ -593,6 +597,41 @@ class FieldbusServers:
             ) from None
         self._opcua = server
         self.opcua_endpoint = endpoint
+        self._pusher = asyncio.ensure_future(self._push_inputs(aspace))
+
+    async def _push_inputs(self, aspace) -> None:
+        """
+        Hand every input that changed to the OPC UA subscriptions, every PUSH_S.
+
+        A read is answered from the image at once (a value callback), which asyncua's
+        subscriptions never see change: here each input a client monitors is written
+        through the address space when its value changed, so that its MonitoredItems
+        report it at their sampling interval (OPC UA Part 4, 5.12), stamped as a read is.
+        """
+        from asyncua import ua
+
+        value_attr = ua.AttributeIds.Value
+        # the value holders (asyncua keeps no public accessor for them)
+        holders = [
+            (nodeid, read, aspace._nodes[nodeid].attributes[value_attr])
+            for nodeid, read in self._opc_inputs
+        ]
+        last: dict = {}
+        while True:
+            await asyncio.sleep(PUSH_S)
+            for nodeid, read, attval in holders:
+                if not attval.datachange_callbacks:
+                    continue
+                dv = read(nodeid, value_attr)
+                value = dv.Value.Value
+                if last.get(nodeid, _UNSET) == value:
+                    continue
+                last[nodeid] = value
+                try:
+                    await aspace.write_attribute_value(nodeid, value_attr, dv)
+                finally:
+                    # the write replaces the callback with a stored value: reads stay live
+                    attval.value_callback = read
 
 
 class _AnonymousOnly:
@@ -661,13 +700,46 @@ def _opc_value(s, value):
     return int(round(value)) & (0xFFFFFFFF if s.type == 'uint32' else 0xFFFF)
 
 
-def _input_reader(image: IOImage, s, vtype):
+def _input_reader(image: IOImage, s, vtype, origin: datetime):
     from asyncua import ua
 
     def read(nodeid, attr):
-        return ua.DataValue(ua.Variant(_opc_value(s, image.inputs[s.name]), vtype))
+        # SourceTimestamp: when the cell produced the value, on the simulated clock mapped
+        # to UtcTime (origin + simulated time); ServerTimestamp: when the server read it
+        return ua.DataValue(
+            ua.Variant(_opc_value(s, image.inputs[s.name]), vtype),
+            SourceTimestamp=origin + timedelta(seconds=float(image.inputs['cell.time'])),
+            ServerTimestamp=datetime.now(timezone.utc),
+        )
 
     return read
+
+
+# UNECE Recommendation 20 common codes of the map's units (OPC UA Part 8, 5.6.3)
+UNECE = {
+    'm': ('MTR', 'metre'),
+    's': ('SEC', 'second [unit of time]'),
+    'deg': ('DD', 'degree [unit of angle]'),
+    'm/s': ('MTS', 'metre per second'),
+    'deg/s': ('E96', 'degree per second'),
+}
+CEFACT_URI = 'http://www.opcfoundation.org/UA/units/un/cefact'
+
+
+def _eu_information(unit: str):
+    """Return the EUInformation of a unit: its UNECE code as UnitId, in the CEFACT namespace."""
+    from asyncua import ua
+
+    code, description = UNECE[unit]
+    unit_id = 0
+    for c in code:
+        unit_id = (unit_id << 8) | ord(c)
+    return ua.EUInformation(
+        NamespaceUri=CEFACT_URI,
+        UnitId=unit_id,
+        DisplayName=ua.LocalizedText(unit),
+        Description=ua.LocalizedText(description),
+    )
 
 
 def _output_writer(image: IOImage, s):

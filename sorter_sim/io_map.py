@@ -235,3 +235,11 @@ def table_size(signals, table: str) -> int:
     """Return the number of addresses a Modbus table spans (0 .. last used address)."""
     ends = [s.address + s.words for s in signals if s.table == table]
     return max(ends) if ends else 0
+
+
+class WriteRefused(Exception):
+    """A client's write that the image refuses; ``code`` names why (address/value)."""
+
+    def __init__(self, code: str, message: str):
+        super().__init__(message)
+        self.code = code

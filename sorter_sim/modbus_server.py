@@ -24,7 +24,7 @@ from __future__ import annotations
 import asyncio
 import struct
 
-from .io_map import COIL, DI, HR, IR
+from .io_map import COIL, DI, HR, IR, WriteRefused
 
 ILLEGAL_FUNCTION = 1
 ILLEGAL_ADDRESS = 2
@@ -205,8 +205,6 @@ class ModbusTcpImageServer:
         return values[start : start + qty]
 
     def _write(self, table: str, start: int, values: list) -> None:
-        from .fieldbus import WriteRefused
-
         try:
             self.image.write_raw(table, start, values)
         except WriteRefused as exc:

@@ -781,3 +781,78 @@ def test_the_servers_listen_on_an_ipv6_address(ros):
     modbus = ModbusTcpClient('::1', port=node.fieldbus.modbus_port, timeout=5, retries=0)
     assert modbus.connect() and not modbus.read_input_registers(0, count=2).isError()
     modbus.close()
+
+
+# ---------------------------------------------------------------- OPC UA as a SCADA uses it
+def test_an_opc_ua_subscription_sees_the_cell_move(cell):
+    """asyncua's own subscription, as a SCADA makes one: each change, stamped, in order."""
+    import asyncio
+    import threading
+    import time as _time
+
+    notes = {'cell.time': [], 'belt.encoder': [], 'sensor.pe_scan': []}
+    ready, done = threading.Event(), threading.Event()
+
+    class Handler:
+        def datachange_notification(self, node, val, data):
+            dv = data.monitored_item.Value
+            notes[names[node.nodeid]].append((val, dv.SourceTimestamp, dv.ServerTimestamp))
+
+    names = {}
+
+    async def subscribe():
+        from asyncua import Client
+
+        async with Client(cell.fieldbus.opcua_endpoint, timeout=10) as client:
+            idx = await client.get_namespace_index('urn:sorter_cell')
+            inputs = await client.nodes.objects.get_child([f'{idx}:cell', f'{idx}:Inputs'])
+            nodes = [await inputs.get_child([f'{idx}:{n}']) for n in notes]
+            names.update({n.nodeid: name for n, name in zip(nodes, notes)})
+            sub = await client.create_subscription(100, Handler())
+            await sub.subscribe_data_change(nodes, sampling_interval=100)
+            ready.set()
+            while not done.is_set():
+                await asyncio.sleep(0.05)
+            await sub.delete()
+
+    worker = threading.Thread(target=lambda: asyncio.run(subscribe()), daemon=True)
+    worker.start()
+    assert ready.wait(20.0), 'no subscription within 20 s'
+    try:
+        # 3 s of simulated time over about 3 s of wall time, as a real-time cell runs
+        for _ in range(60):
+            cell.advance(50)
+            _time.sleep(0.05)
+        _time.sleep(0.5)
+    finally:
+        done.set()
+        worker.join(20.0)
+    times = [v for v, _, _ in notes['cell.time']]
+    assert len(times) >= 15, f'{len(times)} notifications of cell.time in about 3 s'
+    assert times == sorted(times) and times[-1] > times[0] + 2.0
+    enc = [v for v, _, _ in notes['belt.encoder']]
+    assert len(enc) >= 15 and enc == sorted(enc)
+    assert len(notes['sensor.pe_scan']) >= 2  # the initial value and at least one edge
+    origin = cell.fieldbus.time_origin
+    for value, source, server in notes['cell.time'][1:]:
+        # SourceTimestamp is the cell's time, mapped to UtcTime; the server stamps too
+        assert source is not None and server is not None
+        assert abs((source - origin).total_seconds() - value) < 1e-3
+
+
+def test_engineering_units_carry_their_unece_codes(cell, opcua):
+    def info(name):
+        props = opcua(name).get_properties()
+        (prop,) = [p for p in props if p.read_browse_name().Name == 'EngineeringUnits']
+        return prop.read_value()
+
+    def code(text):  # OPC UA Part 8, 5.6.3: the UNECE common code's characters, 8 bits each
+        value = 0
+        for c in text:
+            value = (value << 8) | ord(c)
+        return value
+
+    for name, unece in (('belt.encoder', 'MTR'), ('cell.time', 'SEC'), ('diverter.alpha', 'DD')):
+        eu = info(name)
+        assert eu.NamespaceUri == 'http://www.opcfoundation.org/UA/units/un/cefact'
+        assert eu.UnitId == code(unece), name

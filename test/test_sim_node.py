@@ -346,7 +346,7 @@ def test_set_parameters_rejects_bad_disk_angles_and_changes_nothing(ros):
         ),
         ParameterMsg(
             name='alpha_deg',
-            value=ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=45),
+            value=ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=95),
         ),
         _double('belt_speed', 1.0),
         ParameterMsg(
@@ -368,9 +368,14 @@ def test_set_parameters_rejects_bad_disk_angles_and_changes_nothing(ros):
     assert _get_param(ros, probe, 'sorter_sim', 'alpha_deg').double_value == 90.0
     assert list(_get_param(ros, probe, 'sorter_sim', 'parcel_A').double_array_value) == [0.3, 0.7]
     assert sim.params.alpha_deg == 90.0 and sim.cell.act[1] == pytest.approx(math.pi / 2)
-    # a good angle is taken, and the disks swing there at the slew rate
-    (result,) = _set_params(ros, probe, 'sorter_sim', _double('alpha_deg', 45.0))
+    # a good angle is taken (an integer as the double it names, as ros2 param set sends
+    # 45), and the disks swing there at the slew rate
+    integer_45 = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=45)
+    (result,) = _set_params(
+        ros, probe, 'sorter_sim', ParameterMsg(name='alpha_deg', value=integer_45)
+    )
     assert result.successful
+    assert _get_param(ros, probe, 'sorter_sim', 'alpha_deg').double_value == 45.0
     probe.step(50)
     probe.settle()
     alpha, stroke = probe.msgs['diverter/state'][-1].position
@@ -572,7 +577,8 @@ def test_a_namespaced_second_cell_does_not_see_the_first(ros):
         ('belt_speed', math.nan, 'belt_speed'),
         ('belt_speed', 30.0, 'belt_speed'),
         ('alpha_deg', 'ninety', 'alpha_deg'),
-        ('alpha_deg', 45, 'alpha_deg'),
+        ('alpha_deg', 95, 'alpha_deg'),  # an integer is taken as a double, range and all
+        ('alpha_deg', True, 'alpha_deg'),
         ('scanner_x', -1.2, 'pe_scan'),
         ('parcel_A', [0.9, 0.3], 'parcel_A'),
         ('time_mode', 'slow', 'time_mode'),
