@@ -785,7 +785,7 @@ def test_the_servers_listen_on_an_ipv6_address(ros):
 
 # ---------------------------------------------------------------- OPC UA as a SCADA uses it
 def test_an_opc_ua_subscription_sees_the_cell_move(cell):
-    """asyncua's own subscription, as a SCADA makes one: each change, stamped, in order."""
+    """Subscribe as a SCADA does (asyncua's own client): each change, stamped, in order."""
     import asyncio
     import threading
     import time as _time
