@@ -49,6 +49,21 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--seconds', type=float, default=240.0, help='wall time to run (240)')
     ap.add_argument('--no-load', action='store_true', help='run on an idle machine')
+    ap.add_argument(
+        '--stall-sim',
+        type=float,
+        default=0.0,
+        metavar='S',
+        help='also stop the simulation process for S seconds every 5 s (SIGSTOP/SIGCONT), '
+        'as a host that deschedules it does',
+    )
+    ap.add_argument(
+        '--stall-controller',
+        type=float,
+        default=0.0,
+        metavar='S',
+        help='stop the controller process for S seconds every 5 s: a PLC that freezes',
+    )
     args = ap.parse_args()
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
     env.setdefault('ROS_DOMAIN_ID', str(40 + os.getpid() % 50))
@@ -81,7 +96,21 @@ def main() -> int:
         for p in load:
             p.start()
     t0 = time.monotonic()
-    time.sleep(max(0.0, stop_at - time.monotonic()))
+    stalls = 0
+    while time.monotonic() < stop_at:
+        stall, victim = (
+            (args.stall_sim, sim) if args.stall_sim > 0 else (args.stall_controller, ctl)
+        )
+        if stall > 0:
+            time.sleep(min(5.0, max(0.0, stop_at - time.monotonic())))
+            if time.monotonic() >= stop_at:
+                break
+            victim.send_signal(signal.SIGSTOP)
+            time.sleep(stall)
+            victim.send_signal(signal.SIGCONT)
+            stalls += 1
+        else:
+            time.sleep(max(0.0, stop_at - time.monotonic()))
     wall = time.monotonic() - t0
     for p in load:
         p.join()
@@ -95,10 +124,18 @@ def main() -> int:
     # a fault the controller latches: '<kind>: <why>; no diverts until reset'
     faults = [line for line in ctl_log.splitlines() if 'no diverts until reset' in line]
     cleared = [line for line in ctl_log.splitlines() if 'cleared' in line.lower()]
+    # what the controller took as a consequence of the cell's watchdog trip, not latched
+    consequences = [line for line in ctl_log.splitlines() if 'not latched' in line]
     per_hour = 3600.0 / wall
     out = {
         'wall_s': round(wall, 1),
         'load': 'none' if args.no_load else 'two busy loops + 2x0.4 s bursts every 3 s',
+        'stalls': (
+            f'{stalls} x {args.stall_sim or args.stall_controller:g} s of the '
+            f'{"simulation" if args.stall_sim else "controller"}'
+            if stalls
+            else 'none'
+        ),
         'cpus': os.cpu_count(),
         'watchdog_trips': trips,
         'watchdog_trips_per_hour': round(trips * per_hour, 1),
@@ -107,7 +144,9 @@ def main() -> int:
         'controller_fault_lines': len(faults),
         'controller_fault_lines_per_hour': round(len(faults) * per_hour, 1),
         'faults_cleared_lines': len(cleared),
+        'consequences_not_latched': len(consequences),
         'first_faults': [f.split(']: ', 1)[-1][:160] for f in faults[:6]],
+        'log_lines': [len(sim_log.splitlines()), len(ctl_log.splitlines())],
     }
     print(json.dumps(out, indent=1))
     return 0

@@ -472,6 +472,7 @@ class ControllerNode(Node):
         self._clock_sources: int | None = None  # publishers of /clock, when on sim time
         self._replies: list[Reply] = []
         self._cell_estop: bool | None = None
+        self._cell_watchdog: bool | None = None
         self._cell_jam: bool | None = None
         self._cell_status_t: float | None = None
         self._in_flight: dict[
@@ -520,6 +521,7 @@ class ControllerNode(Node):
         self.create_subscription(JointState, "diverter/state", self._on_diverter, STREAM_QOS)
         # the cell's state bits (latched, sent on change); its diagnostics are for humans
         self.create_subscription(Bool, "status/estop", self._on_cell_estop, SENSOR_QOS)
+        self.create_subscription(Bool, "status/watchdog", self._on_cell_watchdog, SENSOR_QOS)
         self.create_subscription(Bool, "status/jam", self._on_cell_jam, SENSOR_QOS)
         self.create_subscription(KeyValue, "routing/updates", self._on_routing, EVENT_QOS)
         self.min_gaps = gaps
@@ -632,6 +634,10 @@ class ControllerNode(Node):
 
     # The bits are sent when they change (a reset sends the cleared bits before it
     # answers), so each one received is current: no stamp to check against the last reset.
+    def _on_cell_watchdog(self, msg: Bool) -> None:
+        # a level, not an event: the latched topic always holds the cell's current bit
+        self._cell_watchdog = bool(msg.data)
+
     def _on_cell_estop(self, msg: Bool) -> None:
         self._cell_estop = bool(msg.data)
 
@@ -662,6 +668,7 @@ class ControllerNode(Node):
             routing_updates=self._routing,
             cell_estop=self._cell_estop,
             cell_jam=self._cell_jam,
+            cell_watchdog=self._cell_watchdog,
             cell_status_t=self._cell_status_t,
             clock_sources=self._clock_sources,
         )

@@ -76,6 +76,7 @@ class PlantStub:
         self.alpha_deg = 0.0
         self.alpha_target = 0.0
         self.estop = False
+        self.watchdog: bool | None = None  # the cell's watchdog bit as reported (None: not)
         self.forced: dict[str, bool] = {}
         self.withheld: set[str] = set()
         self.refused: dict[str, str] = {}
@@ -221,6 +222,7 @@ class PlantStub:
             diverter=DiverterState(math.radians(self.alpha_deg), self.stroke),
             replies=replies,
             cell_estop=self.estop,
+            cell_watchdog=self.watchdog,
         )
         self.edges, self.labels = [], []
         return img

@@ -269,6 +269,7 @@ class SoftPLC:
             replies=self._replies,
             cell_estop=bool(x['status.estop']),
             cell_jam=bool(x['status.jam']),
+            cell_watchdog=bool(x['status.watchdog']),
             cell_status_t=t,
         )
         self._replies = []

@@ -159,6 +159,13 @@ class SimNode(Node):
         self._publish_diverter()
         self._publish_clock()
         self._wall_ref = None  # (wall time, period index) of the realtime anchor: first tick
+        # simulated time one realtime tick runs at most: a quarter of the watchdog's
+        # timeout, so that heartbeats are taken between bursts (see _tick_realtime)
+        self._burst_s = (
+            min(MAX_CATCH_UP_S, p.watchdog_timeout / 4)
+            if p.watchdog_timeout > 0
+            else MAX_CATCH_UP_S
+        )
         if p.time_mode == 'realtime':
             self._timer = self.create_timer(p.wall_tick, self._tick_realtime)
         elif p.time_mode == 'fast':
@@ -435,17 +442,24 @@ class SimNode(Node):
         n = target - self.cell.k
         limit = max(1, int(MAX_CATCH_UP_S / self.cell.dt))
         if n > limit:
-            # too slow for this real-time factor: run what we can and re-anchor, rather
-            # than trying to catch up without end
+            # too slow for this real-time factor: keep at most MAX_CATCH_UP_S to catch up
+            # and drop the rest, rather than trying to catch up without end
             self.get_logger().warning(
                 f'cannot keep real_time_factor {p.real_time_factor:g}: dropping '
                 f'{(n - limit) * self.cell.dt:.3f} s of simulated time',
                 throttle_duration_sec=5.0,
             )
+            self._wall_ref = (now, self.cell.k + limit)
             n = limit
-            self._wall_ref = (now, self.cell.k + n)
+        # Catch up in bursts the controller can follow: during one burst no heartbeat can
+        # reach the cell (it waits in the executor's queue) and the controller, on the
+        # cell's clock, sees the burst's simulated time only afterwards. A burst as long as
+        # the watchdog's timeout trips it with a healthy controller, as a host that
+        # stalled the node for a quarter second did; the rest of the lag is run in the
+        # next ticks, after the executor has taken what came in meanwhile.
+        burst = max(1, int(self._burst_s / self.cell.dt))
         if n > 0:
-            self.advance(n)
+            self.advance(min(n, burst))
 
     def _tick_fast(self) -> None:
         self.advance(self.params.fast_slice_periods)

@@ -521,6 +521,31 @@ def test_missed_divert_when_no_chute_sensor_in_time():
     assert _no_raise_after(run, _fault_time(run, "missed_divert"))
 
 
+def test_a_missed_divert_while_the_cells_watchdog_holds_is_its_consequence_not_a_fault():
+    cfg, logic, plant = make()
+    plant.force("chute_left", False)  # the disks the watchdog dropped divert nothing
+    plant.watchdog = True
+    g = safe_gap(logic)
+    plant.add_stream([("L1", 0.4, 0.0), ("L2", 0.4, g)])
+    run = run_cell(plant, logic, 6.0)
+    assert logic.state == "running", logic.fault
+    assert logic.status()["faults"]["after_cell_watchdog"] >= 1
+    assert [c.result for c in run.confirmations][:1] == ["fault"]
+
+
+def test_after_the_watchdog_clears_and_its_grace_passes_a_missed_divert_latches_again():
+    cfg, logic, plant = make()
+    plant.watchdog = True
+    run = run_cell(plant, logic, 0.5)
+    plant.watchdog = False  # heartbeats back: the grace time starts
+    run = run_cell(plant, logic, 4.0, run)
+    plant.force("chute_left", False)
+    g = safe_gap(logic)
+    plant.add_stream([("L1", 0.4, 0.0), ("L2", 0.4, g)])
+    run = run_cell(plant, logic, plant.t + 6.0, run)
+    assert logic.state == "missed_divert" and logic.fault["sensor"] == "chute_left"
+
+
 def test_diverter_timeout_is_not_retried():
     cfg, logic, plant = make()
     plant.withheld.add("popup")

@@ -32,6 +32,8 @@ STATES = (
     "resetting",
 )
 FAULT_STATES = STATES[1:9]
+# faults a trip of the cell's watchdog brings about by itself (see Faults.enter)
+WATCHDOG_CONSEQUENCES = ("stuck_off", "missed_divert")
 
 
 class Faults:
@@ -42,14 +44,41 @@ class Faults:
         self.state = "running"
         self.fault: dict | None = None
         self.counts = {k: 0 for k in FAULT_STATES}
+        self.counts["after_cell_watchdog"] = 0
         self.reset_t = -math.inf  # when the last reset cleared a fault [s]
+        # the cell's watchdog: tripped now, or cleared less than a grace time ago [s]
+        self.cell_watchdog = False
+        self.cell_watchdog_grace_until = -math.inf
 
     @property
     def running(self) -> bool:
         return self.state == "running"
 
+    def after_cell_watchdog(self, t: float) -> bool:
+        """Return True while the cell's watchdog holds, or its consequences may still show."""
+        return self.cell_watchdog or t < self.cell_watchdog_grace_until
+
+    def cell_watchdog_report(self, tripped: bool, t: float, grace: float) -> None:
+        """Take the cell's watchdog bit; when it clears, its consequences last ``grace`` s."""
+        if tripped:
+            self.cell_watchdog = True
+        elif self.cell_watchdog:
+            self.cell_watchdog = False
+            self.cell_watchdog_grace_until = t + grace
+
     def enter(self, io: ScanIO, kind: str, message: str, sensor: str | None = None) -> None:
-        """Enter fault ``kind``, unless a fault (or a reset) is already under way."""
+        """
+        Enter fault ``kind``, unless a fault (or a reset) is already under way.
+
+        A transit or divert the cell's own watchdog spoiled (it dropped the disks, or the
+        cell's clock ran a burst the controller could not follow) is logged and counted
+        as that trip's consequence, not latched: the trip is the cell's to report, and
+        once heartbeats return nothing is left for a person to reset.
+        """
+        if kind in WATCHDOG_CONSEQUENCES and self.after_cell_watchdog(io.t):
+            self.counts["after_cell_watchdog"] += 1
+            io.log("warn", f"{kind}: {message} (after the cell's watchdog trip: not latched)")
+            return
         if self.state in FAULT_STATES or self.state == "resetting":
             io.log("error", f"{kind}: {message} (while in {self.state})")
             return
@@ -191,8 +220,16 @@ class Supervisor:
                 deadline = tr.t_enter(p) + p.prediction.t_chute + cfg.missed_divert_margin
                 if tr.t > deadline:
                     chute = tr.chute_of["left" if side > 0 else "right"]
-                    if not faults.running:
-                        # the disks were dropped by the fault: its fate is not the divert's doing
+                    if not faults.running or faults.after_cell_watchdog(tr.t):
+                        # the disks were dropped by the fault (or by the cell's watchdog): its
+                        # fate is not the divert's doing
+                        if faults.running:
+                            faults.counts["after_cell_watchdog"] += 1
+                            io.log(
+                                "warn",
+                                f"parcel {p.seq} ({p.label}) did not reach {chute}: after "
+                                "the cell's watchdog trip, not latched",
+                            )
                         io.finish(p, "unknown", R_FAULT)
                         continue
                     io.finish(p, "unknown", R_MISSED)

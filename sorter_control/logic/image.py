@@ -55,6 +55,7 @@ class InputImage:
     routing_updates: list = field(default_factory=list)  # (pattern, destination)
     cell_estop: bool | None = None  # as the cell reports it, if known
     cell_jam: bool | None = None
+    cell_watchdog: bool | None = None  # the cell's watchdog bit, if known
     cell_status_t: float | None = None  # the report's time stamp [s]
     clock_sources: int | None = None  # publishers of the simulated clock, if it is used
 

@@ -416,6 +416,13 @@ class SorterLogic:
         self._drop_tracking(io, "e-stop")
 
     def _apply_cell_status(self, io: _Scan, image: InputImage) -> None:
+        if image.cell_watchdog is not None:
+            # after a trip, the parcels then on their way over the field may still show it
+            cfg = self.config
+            grace = (
+                cfg.max_parcel_length + cfg.cell.disk_field_length
+            ) / cfg.belt_speed + cfg.missed_divert_margin
+            self.faults.cell_watchdog_report(image.cell_watchdog, io.t, grace)
         if image.cell_status_t is not None and image.cell_status_t < self.faults.reset_t:
             return  # reported before the last reset: stale
         if image.cell_estop:
