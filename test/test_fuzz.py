@@ -307,3 +307,170 @@ def test_the_nodes_take_any_parameter_request_induct_and_routing_update(ros, dat
     reply = ros.call(rig['getp'], GetParameters.Request(names=['alpha_deg']))
     assert len(reply.values) == 1
     assert rig['sim'].context.ok() and rig['ctl'].context.ok()
+
+
+# ---------------------------------------------------------------- fieldbus frames and calls
+MODBUS_COUNTS = {'tried': 0, 'exceptions': 0, 'writes': 0}
+
+
+def _modbus_image():
+    from sorter_sim.fieldbus import IOImage
+    from sorter_sim.io_map import io_map
+
+    return IOImage(
+        io_map(['pe_scan', 'pe_divert', 'pe_exit', 'chute_left', 'chute_right']),
+        {
+            'diverter.popup': False,
+            'cell.reset': False,
+            'belt.run': True,
+            'scanner.ack': False,
+            'cell.estop': False,
+            'diverter.alpha_setpoint': 45.0,
+            'plc.heartbeat': 0,
+        },
+    )
+
+
+pdus = st.one_of(
+    st.binary(min_size=1, max_size=260),
+    st.tuples(
+        st.sampled_from([1, 2, 3, 4, 5, 6, 15, 16, 17, 22, 23, 43, 0, 7, 8, 24, 127, 128, 255]),
+        st.binary(max_size=40),
+    ).map(lambda t: bytes([t[0]]) + t[1]),
+    st.tuples(
+        st.sampled_from([1, 2, 3, 4, 5, 6]),
+        st.one_of(st.integers(0, 130), st.integers(0, 65535)),
+        st.one_of(st.integers(0, 130), st.sampled_from([0xFF00, 0]), st.integers(0, 65535)),
+    ).map(lambda t: bytes([t[0]]) + t[1].to_bytes(2, 'big') + t[2].to_bytes(2, 'big')),
+    st.tuples(
+        st.sampled_from([15, 16]),
+        st.integers(0, 12),
+        st.lists(st.integers(0, 65535), min_size=1, max_size=8),
+    ).map(
+        lambda t: (
+            bytes([t[0]])
+            + t[1].to_bytes(2, 'big')
+            + len(t[2]).to_bytes(2, 'big')
+            + (
+                bytes([2 * len(t[2])]) + b''.join(v.to_bytes(2, 'big') for v in t[2])
+                if t[0] == 16
+                else bytes([1, sum(1 << i for i, v in enumerate(t[2]) if v & 1)])
+            )
+        )
+    ),
+)
+
+
+@FUZZ
+@given(pdu=pdus)
+def test_any_modbus_request_is_answered_by_the_protocol_and_a_refusal_changes_nothing(pdu):
+    from sorter_sim.io_map import COIL, DI, HR, IR
+    from sorter_sim.modbus_server import ModbusTcpImageServer
+
+    image = _modbus_image()
+    server = ModbusTcpImageServer(image, '127.0.0.1', 0)
+    before = {t: image.snapshot(t) for t in (DI, COIL, IR, HR)}
+    writes = image.stats['writes']
+    reply = server.answer(pdu)
+    MODBUS_COUNTS['tried'] += 1
+    assert isinstance(reply, bytes) and 2 <= len(reply) <= 253
+    if reply[0] & 0x80:
+        # an exception response: the request's code with the high bit, one of codes 1-3
+        assert reply[0] == pdu[0] | 0x80 and reply[1] in (1, 2, 3)
+        assert {t: image.snapshot(t) for t in (DI, COIL, IR, HR)} == before
+        assert image.stats['writes'] == writes
+        MODBUS_COUNTS['exceptions'] += 1
+    else:
+        assert reply[0] == pdu[0]
+        if pdu[0] in (1, 2, 3, 4, 17, 43):  # reads change nothing
+            assert {t: image.snapshot(t) for t in (DI, COIL, IR, HR)} == before
+        MODBUS_COUNTS['writes'] += image.stats['writes'] - writes
+    # inputs are never written by a client, whatever it sends
+    assert image.snapshot(DI) == before[DI] and image.snapshot(IR) == before[IR]
+
+
+def test_modbus_fuzz_counts():
+    print(f'Modbus requests fuzzed: {MODBUS_COUNTS}')
+
+
+VARIANTS = None
+
+
+def _variant_values():
+    from asyncua import ua
+
+    V = ua.VariantType
+    return [
+        ua.Variant(4294967295, V.UInt32),
+        ua.Variant(-1, V.Int64),
+        ua.Variant(True, V.Boolean),
+        ua.Variant(1.5, V.Double),
+        ua.Variant(float('nan'), V.Double),
+        ua.Variant('', V.String),
+        ua.Variant('\x00' * 3, V.String),
+        ua.Variant('A*', V.String),
+        ua.Variant('x' * 5000, V.String),
+        ua.Variant(['A*=left'], V.String, is_array=True),
+        ua.Variant(['accepted: ok'], V.String, is_array=True),
+        ua.Variant([''], V.String, is_array=True),
+        ua.Variant([1, 2, 3], V.Int32, is_array=True),
+        ua.Variant(b'\x01\x02', V.ByteString),
+        ua.Variant(None, V.Null),
+    ]
+
+
+@pytest.mark.ros
+def test_warehouse_methods_take_any_argument_types_and_counts(ros):
+    """Every method x every argument count 0-3 x a spread of Variant types: refused or taken."""
+    import asyncio
+    import itertools
+
+    from asyncua import Client
+    from asyncua import ua as _ua
+    from rclpy.parameter import Parameter
+    from ros_harness import free_port
+
+    from sorter_sim.node import SimNode
+    from test_sim_node import SHORT_CELL
+
+    cell = ros.add(
+        SimNode(
+            context=ros.context,
+            parameter_overrides=[
+                Parameter(k, value=v) for k, v in {**SHORT_CELL, 'opcua_port': free_port()}.items()
+            ],
+        )
+    )
+    wh = cell.fieldbus.warehouse
+    variants = _variant_values()
+    counts = {'tried': 0, 'refused': 0, 'taken': 0, 'other': 0}
+
+    async def run():
+        async with Client(cell.fieldbus.opcua_endpoint, timeout=10) as client:
+            idx = await client.get_namespace_index('urn:sorter_cell')
+            folder = await client.nodes.objects.get_child([f'{idx}:cell', f'{idx}:Warehouse'])
+            for name in ('RequestRoute', 'TakeRoutes', 'Confirm', 'PublishRoutingTable'):
+                combos = [()] + [(v,) for v in variants]
+                combos += list(itertools.product(variants[:8], variants[5:13]))
+                combos += [(variants[0], variants[9], variants[5])]
+                for args in combos:
+                    state = (wh.pending(), list(wh.results), list(wh.confirmations), wh.table)
+                    counts['tried'] += 1
+                    try:
+                        await folder.call_method(f'{idx}:{name}', *args)
+                        counts['taken'] += 1
+                    except _ua.UaStatusCodeError as exc:
+                        counts['refused'] += 1
+                        assert type(exc).__name__ in (
+                            'BadInvalidArgument',
+                            'BadTypeMismatch',
+                            'BadArgumentsMissing',
+                            'BadTooManyArguments',
+                        ), (name, args, exc)
+                        after = (wh.pending(), list(wh.results), list(wh.confirmations), wh.table)
+                        assert after == state, (name, args)
+
+    asyncio.run(run())
+    print(f'warehouse method calls fuzzed: {counts}')
+    assert counts['tried'] > 300 and counts['other'] == 0
+    cell.advance(10)  # the node serves on
