@@ -329,3 +329,57 @@ def test_schemas_a_decoder_cannot_build_are_counted_not_fatal(tmp_path):
     assert rec['undecodable'] == {'/nonsense': 1, '/recursive': 1, '/wstring': 1}
     out = _replay(path, '--no-plot')
     assert out.returncode == 0 and 'undecodable' in out.stdout, out.stderr
+
+
+def test_sorter_replay_reads_a_bag_a_rosbag2_writer_made(tmp_path):
+    """A bag written by rosbags' rosbag2 writer (MCAP storage), none of our code in it."""
+    import numpy as np
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    DiagnosticStatus = store.types['diagnostic_msgs/msg/DiagnosticStatus']
+    KeyValue = store.types['diagnostic_msgs/msg/KeyValue']
+    PoseArray = store.types['geometry_msgs/msg/PoseArray']
+    Pose = store.types['geometry_msgs/msg/Pose']
+    Point = store.types['geometry_msgs/msg/Point']
+    Quaternion = store.types['geometry_msgs/msg/Quaternion']
+    Header = store.types['std_msgs/msg/Header']
+    Time = store.types['builtin_interfaces/msg/Time']
+    UInt32MultiArray = store.types['std_msgs/msg/UInt32MultiArray']
+    Layout = store.types['std_msgs/msg/MultiArrayLayout']
+
+    bag = tmp_path / 'bag'
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        ids = writer.add_connection('/parcels/ids', UInt32MultiArray.__msgtype__, typestore=store)
+        poses = writer.add_connection('/parcels/poses', PoseArray.__msgtype__, typestore=store)
+        outs = writer.add_connection(
+            '/sort/outcomes', DiagnosticStatus.__msgtype__, typestore=store
+        )
+        for k in range(50):
+            t = k * 10_000_000
+            msg = UInt32MultiArray(
+                layout=Layout(dim=[], data_offset=0), data=np.array([7], dtype=np.uint32)
+            )
+            writer.write(ids, t, store.serialize_cdr(msg, msg.__msgtype__))
+            pose = Pose(
+                position=Point(x=0.01 * k, y=0.0, z=0.0),
+                orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+            )
+            msg = PoseArray(
+                header=Header(stamp=Time(sec=0, nanosec=t), frame_id='c'), poses=[pose]
+            )
+            writer.write(poses, t, store.serialize_cdr(msg, msg.__msgtype__))
+        values = [
+            KeyValue(key=k, value=v) for k, v in (('id', '7'), ('exit', 'left'), ('t', '0.49'))
+        ]
+        msg = DiagnosticStatus(level=0, name='A7', message='', hardware_id='', values=values)
+        writer.write(outs, 490_000_000, store.serialize_cdr(msg, msg.__msgtype__))
+    (mcap_file,) = bag.glob('*.mcap')
+    rec = replay.read_recording(mcap_file)
+    assert rec['damage'] is None and rec['undecodable'] == {}
+    s = replay.summarize(rec)
+    assert s['messages'] == 101
+    assert s['topics']['/parcels/poses'] == {'type': 'geometry_msgs/msg/PoseArray', 'count': 50}
+    assert s['exits'] == {'left': 1} and s['parcel_outcomes']['7']['t_exit_s'] == 0.49
+    assert len(rec['paths'][7]) == 50 and rec['paths'][7][-1][0] == pytest.approx(0.49)
