@@ -289,17 +289,17 @@ def run(args) -> int | str:
     try:
         rec = read_recording(args.recording)
     except ValueError as exc:
-        return f"sorter replay: {exc}"
+        return str(exc)
     if rec["damage"] and not args.recover:
         n = sum(t["count"] for t in rec["topics"].values())
         return (
-            f"sorter replay: {str(args.recording)[:200]!r} is damaged: {rec['damage']}; "
+            f"{str(args.recording)[:200]!r} is damaged: {rec['damage']}; "
             f"--recover reads the {n} messages before the damage"
         )
     s = summarize(rec)
     if png:
         if rec["cell"] is None:
-            return "sorter replay: the recording holds no cell parameters to draw the cell from"
+            return "the recording holds no cell parameters to draw the cell from"
         from sorter_cell.demo import plot_paths
 
         title = (
@@ -311,7 +311,7 @@ def run(args) -> int | str:
             plot_paths(rec["paths"], exit_of, rec["cell"], title, Path(png))
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             return (
-                "sorter replay: the recorded cell parameters cannot be drawn "
+                "the recorded cell parameters cannot be drawn "
                 f"({type(exc).__name__}: {str(exc)[:120]}); --no-plot summarises without them"
             )
     if args.json:

@@ -201,8 +201,8 @@ class Recorder:
             self._stream.close()
         except OSError:
             pass  # the buffer that could not be written is lost with the chunk it held
-        for report in self.on_failure:
-            report(self.failure)
+        if self.on_failure:  # said once, by the node that opened the file
+            self.on_failure[0](self.failure)
 
     def _channel(self, topic: str, msg_type: str, qos=None) -> int:
         schema = self._schemas.get(msg_type)
@@ -292,7 +292,8 @@ def open_recorder(path: str, on_failure=None) -> Recorder:
     """
     Return the recorder of ``path``, opening the file if this process has not yet.
 
-    ``on_failure(text)`` is called once if the recording stops early (a write failed).
+    ``on_failure(text)``: how the first opener is told, once, that the recording stopped
+    early (a write failed); the others share the file and the news.
     Raises ValueError with one line when the path cannot take a recording (another
     process records it, no folder, not writable, ...).
     """
@@ -311,8 +312,6 @@ def open_recorder(path: str, on_failure=None) -> Recorder:
         rec._users += 1
         if on_failure is not None:
             rec.on_failure.append(on_failure)
-            if rec.failure:
-                on_failure(rec.failure)
         return rec
 
 
