@@ -238,3 +238,24 @@ def test_a_fixed_step_scene_has_room_for_every_step_and_names_its_own_keys_when_
     assert not res.success
     assert 'solver.t_max' in res.message and 'solver.dt' in res.message
     assert 'max_points' not in res.message
+
+
+def test_a_quick_precision_report_does_not_overwrite_the_committed_one(monkeypatch, tmp_path):
+    import argparse
+
+    from sorter_sim.analysis import bench
+
+    written = []
+    monkeypatch.setattr(
+        bench, 'write_precision_report', lambda out, **kw: written.append(Path(out)) or out
+    )
+    monkeypatch.chdir(tmp_path)
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    for argv, where in (
+        (['precision', '--quick'], Path('out/precision_quick')),
+        (['precision'], Path('docs')),
+        (['precision', '--quick', '--out', 'docs'], Path('docs')),
+    ):
+        assert bench.run(parser.parse_args(argv)) == 0
+        assert written[-1] == where, argv

@@ -87,7 +87,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="coarse sweeps, the matrix's quick subset, 20 s of two-belt positioning "
         "(under a minute)",
     )
-    p.add_argument("--out", default="docs", help="output directory (default: docs)")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="output directory (default: docs for the full report; out/precision_quick for "
+        "--quick, so that a quick run never overwrites the committed report)",
+    )
     p.add_argument(
         "--quiet",
         action="store_true",
@@ -133,7 +138,7 @@ def run(args) -> int | str | None:
         return f"--parts must list some of {', '.join(REPORT_PARTS)}, got {args.parts!r}" + (
             f" (unknown: {', '.join(bad)})" if bad else ""
         )
-    out = Path(args.out)
+    out = Path(args.out or ("out/precision_quick" if args.quick else "docs"))
     problem = dir_problem(out) or dir_problem(out / "img")
     if problem:
         return problem
