@@ -219,10 +219,9 @@ class Warehouse:
         """Queue a routing change; return its sequence number, or raise ValueError (why)."""
         if not isinstance(pattern, str) or not isinstance(destination, str):
             raise ValueError('pattern and destination must be strings')
-        body = pattern[:-1] if pattern.endswith('*') else pattern
-        if pattern != '*' and not LABEL_RE.fullmatch(body):
+        if not _is_pattern(pattern):
             raise ValueError('pattern must be a label, a label followed by * or * alone')
-        if destination not in ('left', 'right', 'straight', ''):
+        if destination not in DESTINATIONS + ('',):
             raise ValueError("destination must be left, right, straight or '' (remove)")
         with self._lock:
             if len(self._pending) >= self.MAX_PENDING:
@@ -279,12 +278,7 @@ class Warehouse:
         for rule in rules:
             _check_line(rule, 'a rule')
             pattern, sep, destination = rule.partition('=')
-            body = pattern[:-1] if pattern.endswith('*') else pattern
-            if (
-                not sep
-                or destination not in DESTINATIONS
-                or (pattern != '*' and not LABEL_RE.fullmatch(body))
-            ):
+            if not sep or destination not in DESTINATIONS or not _is_pattern(pattern):
                 raise ValueError(
                     "a rule is 'pattern=destination' (a label, label* or *; left, right "
                     f'or straight), got {rule[:40]!r}'
@@ -304,6 +298,12 @@ class MethodRefused(Exception):
 DESTINATIONS = ('left', 'right', 'straight')
 LINE_MAX = 256  # characters of a result, confirmation or rule line
 _CONFIRMATION_RE = re.compile(r'(%s)?(;[a-z_-]{1,32}){3}' % LABEL_RE.pattern)
+
+
+def _is_pattern(pattern: str) -> bool:
+    """Return True for a routing pattern: a label, a label followed by *, or * alone."""
+    body = pattern[:-1] if pattern.endswith('*') else pattern
+    return pattern == '*' or bool(LABEL_RE.fullmatch(body))
 
 
 def _check_line(line, what: str) -> None:
