@@ -439,9 +439,9 @@ class LiveView:
         Stop the server, waiting at most ``wait_s`` for it.
 
         The SDK's stop waits for every client's close handshake, which a client that
-        stopped reading never completes (48 s with three such clients): it runs in a
-        thread of its own, and a node that is shutting down does not wait past
-        ``wait_s`` (its process ends the server's threads when it exits).
+        stopped reading completes only when the SDK gives up on it, tens of seconds
+        later: it runs in a thread of its own, and a node that is shutting down does not
+        wait past ``wait_s`` (its process ends the server's threads when it exits).
         """
         import threading
 

@@ -454,8 +454,8 @@ class SimNode(Node):
         # Catch up in bursts the controller can follow: during one burst no heartbeat can
         # reach the cell (it waits in the executor's queue) and the controller, on the
         # cell's clock, sees the burst's simulated time only afterwards. A burst as long as
-        # the watchdog's timeout trips it with a healthy controller, as a host that
-        # stalled the node for a quarter second did; the rest of the lag is run in the
+        # the watchdog's timeout trips it with a healthy controller, as a host that stalls
+        # the node for a quarter second can make it; the rest of the lag is run in the
         # next ticks, after the executor has taken what came in meanwhile.
         burst = max(1, int(self._burst_s / self.cell.dt))
         if n > 0:
