@@ -64,7 +64,15 @@ class IOImage:
             self._store_output(self.by_name[name], value)
         self._pending: dict[str, object] = {}
         self._rises: set[str] = set()
-        self.stats = {'writes': 0, 'refused': 0, 'overwritten': 0, 'refreshes': 0}
+        self.stats = {
+            'writes': 0,
+            'refused': 0,  # writes refused
+            'reads_refused': 0,
+            'illegal_functions': 0,
+            'frames_dropped': 0,
+            'overwritten': 0,
+            'refreshes': 0,
+        }
 
     # ---------------------------------------------------------------- the cell's side
     def refresh_inputs(self, values: dict) -> None:
@@ -128,9 +136,10 @@ class IOImage:
             raise WriteRefused('value', f'{name} = {value} outside [{s.lo}, {s.hi}]')
         self._apply({name: bool(value) if s.type == 'bool' else float(value)})
 
-    def count_refused(self) -> None:
+    def count(self, key: str = 'refused') -> None:
+        """Count one refusal in ``stats``: 'refused' (a write), or a Modbus server's kind."""
         with self._lock:
-            self.stats['refused'] += 1
+            self.stats[key] += 1
 
     def _apply(self, changes: dict) -> None:
         with self._lock:
@@ -213,7 +222,6 @@ class Warehouse:
         self.confirmed = 0
         self.table: list[str] = []
         self.refused = 0  # method calls refused (bad arguments)
-        self.last_refusal = ''
 
     def request(self, pattern, destination) -> int:
         """Queue a routing change; return its sequence number, or raise ValueError (why)."""
@@ -413,7 +421,7 @@ class FieldbusServers:
                 transport.abort()
             try:
                 await asyncio.wait_for(server.stop(), wait_s)
-            except (asyncio.TimeoutError, Exception):
+            except Exception:  # a stop that overruns its bound, or fails: the loop ends it
                 pass
 
     # ---------------------------------------------------------------- Modbus TCP
@@ -467,7 +475,12 @@ class FieldbusServers:
         Bad = ua.StatusCodes
 
         def method(arity, body):
-            """Wrap a method: its argument count checked, a refusal counted and named."""
+            """
+            Wrap a method: its argument count checked, a refusal counted and answered.
+
+            MethodRefused carries its own status; a ValueError of the warehouse (the
+            arguments' content) is BadInvalidArgument.
+            """
 
             def call(parent, *args):
                 if len(args) != arity:
@@ -479,8 +492,10 @@ class FieldbusServers:
                     return body(*args)
                 except MethodRefused as exc:
                     wh.refused += 1
-                    wh.last_refusal = str(exc)
                     return ua.StatusCode(exc.status)
+                except ValueError:
+                    wh.refused += 1
+                    return ua.StatusCode(Bad.BadInvalidArgument)
 
             return call
 
@@ -495,34 +510,20 @@ class FieldbusServers:
         def request_route(pattern, destination):
             if pattern.VariantType != String or destination.VariantType != String:
                 raise MethodRefused(Bad.BadTypeMismatch, 'pattern and destination are Strings')
-            try:
-                seq = wh.request(pattern.Value, destination.Value)
-            except ValueError as exc:
-                raise MethodRefused(Bad.BadInvalidArgument, str(exc)) from None
-            return [ua.Variant(seq, UInt32)]
+            return [ua.Variant(wh.request(pattern.Value, destination.Value), UInt32)]
 
         def take_routes(count, results):
             if count.VariantType != UInt32:
                 raise MethodRefused(Bad.BadTypeMismatch, 'count must be a UInt32')
-            lines = strings(results, 'results', Warehouse.MAX_PENDING)
-            try:
-                wh.take(count.Value, lines)
-            except ValueError as exc:
-                raise MethodRefused(Bad.BadInvalidArgument, str(exc)) from None
+            wh.take(count.Value, strings(results, 'results', Warehouse.MAX_PENDING))
             return []
 
         def confirm(lines):
-            try:
-                wh.confirm(strings(lines, 'lines', Warehouse.KEEP))
-            except ValueError as exc:
-                raise MethodRefused(Bad.BadInvalidArgument, str(exc)) from None
+            wh.confirm(strings(lines, 'lines', Warehouse.KEEP))
             return []
 
         def publish_table(rules):
-            try:
-                wh.set_table(strings(rules, 'rules', Warehouse.MAX_RULES))
-            except ValueError as exc:
-                raise MethodRefused(Bad.BadInvalidArgument, str(exc)) from None
+            wh.set_table(strings(rules, 'rules', Warehouse.MAX_RULES))
             return []
 
         methods = {
@@ -750,7 +751,7 @@ def _output_writer(image: IOImage, s):
         try:
             image.write_value(s.name, v)
         except WriteRefused as exc:
-            image.count_refused()
+            image.count()
             raise ua.UaStatusCodeError(
                 ua.StatusCodes.BadOutOfRange
                 if exc.code == 'value'

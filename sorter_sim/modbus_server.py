@@ -62,8 +62,6 @@ class ModbusTcpImageServer:
         self.port = port
         self._server: asyncio.base_events.Server | None = None
         self._writers: set[asyncio.StreamWriter] = set()
-        for key in ('reads_refused', 'illegal_functions', 'frames_dropped'):
-            image.stats.setdefault(key, 0)
 
     async def start(self) -> int:
         """Listen; return the port (OSError when it cannot)."""
@@ -79,10 +77,6 @@ class ModbusTcpImageServer:
         self._writers.clear()
         self._server = None
 
-    def _count(self, key: str) -> None:
-        with self.image._lock:
-            self.image.stats[key] = self.image.stats.get(key, 0) + 1
-
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         self._writers.add(writer)
         try:
@@ -91,11 +85,11 @@ class ModbusTcpImageServer:
                 tid, protocol, length, unit = struct.unpack('>HHHB', header)
                 if not 2 <= length <= 254:
                     # no way to find the next frame's start: end the connection
-                    self._count('frames_dropped')
+                    self.image.count('frames_dropped')
                     return
                 pdu = await asyncio.wait_for(reader.readexactly(length - 1), _IDLE_S)
                 if protocol != 0:
-                    self._count('frames_dropped')
+                    self.image.count('frames_dropped')
                     continue
                 reply = self.answer(pdu)
                 writer.write(struct.pack('>HHHB', tid, 0, len(reply) + 1, unit) + reply)
@@ -115,7 +109,7 @@ class ModbusTcpImageServer:
         try:
             return bytes([fc]) + self._handle(fc, pdu[1:])
         except ModbusRefusal as exc:
-            self._count(exc.kind)
+            self.image.count(exc.kind)
             return bytes([fc | 0x80, exc.code])
 
     def _handle(self, fc: int, body: bytes) -> bytes:

@@ -729,9 +729,9 @@ class SimNode(Node):
             'fieldbus_writes_refused': str(st['refused']),
             # Modbus reads refused (an address or count no table has), function codes the
             # image does not serve, frames dropped (wrong protocol id, impossible length)
-            'fieldbus_reads_refused': str(st.get('reads_refused', 0)),
-            'fieldbus_illegal_functions': str(st.get('illegal_functions', 0)),
-            'fieldbus_frames_dropped': str(st.get('frames_dropped', 0)),
+            'fieldbus_reads_refused': str(st['reads_refused']),
+            'fieldbus_illegal_functions': str(st['illegal_functions']),
+            'fieldbus_frames_dropped': str(st['frames_dropped']),
             # OPC UA warehouse method calls refused for their arguments
             'fieldbus_calls_refused': str(self.fieldbus.warehouse.refused if self.fieldbus else 0),
             # outputs a newer write replaced before the cell applied them: lost updates
