@@ -31,7 +31,7 @@ setup(
         # sorter sweep / sorter paper: the progress bar over the points of a study
         'tqdm>=4.66',
         # the live view: a Foxglove WebSocket server with Foxglove's own schemas
-        # (sorter_sim/live_view.py), no ROS bridge needed
+        # (sorter_sim/frontends/live_view.py), no ROS bridge needed
         'foxglove-sdk>=0.30',
         # recordings: MCAP files in the ros2 profile (sorter_ros/recording.py); the ROS 2
         # support package decodes them in sorter replay from the definitions inside

@@ -47,8 +47,8 @@ from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
-from sorter_sim.cell import Cell  # noqa: E402
-from sorter_sim.params import CellParams  # noqa: E402
+from sorter_sim.runtime.cell import Cell  # noqa: E402
+from sorter_sim.runtime.params import CellParams  # noqa: E402
 
 BENCH_CELL = {'max_parcels': 256, 'alpha_deg': 90.0}
 # the default stream's pitch (parcel length and arrival gap) is about 2.2 m
@@ -166,7 +166,7 @@ class _FieldbusClients:
 
 def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> dict:
     from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
-    from sorter_sim.node import SimNode
+    from sorter_sim.frontends.node import SimNode
     from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseArray
     from sensor_msgs.msg import JointState, TimeReference

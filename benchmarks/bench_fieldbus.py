@@ -45,8 +45,8 @@ def main() -> int:
     ap.add_argument('--io', choices=('modbus', 'opcua'), default='modbus')
     args = ap.parse_args()
     from sorter_control.soft_plc import ModbusIO, OpcUaIO
-    from sorter_sim.cell import CHUTE_SENSORS
-    from sorter_sim.io_map import by_name
+    from sorter_sim.runtime.cell import CHUTE_SENSORS
+    from sorter_sim.model.io_map import by_name
 
     port = _free_port()
     env = dict(os.environ, ROS_DOMAIN_ID=str(150 + os.getpid() % 50))

@@ -143,7 +143,9 @@ def main(argv=None) -> int:
     if not os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '').strip():
         os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     # a start that compiles the kernels would count as a hang
-    subprocess.run([sys.executable, '-m', 'sorter_sim.warmup'], check=True, capture_output=True)
+    subprocess.run(
+        [sys.executable, '-m', 'sorter_sim.runtime.warmup'], check=True, capture_output=True
+    )
     import rclpy
 
     rclpy.init()

@@ -24,8 +24,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from sorter_sim.core.simulate import Parcel, simulate  # noqa: E402
-from sorter_sim.model import cell_strips, entry_state  # noqa: E402
+from sorter_sim.model.core.simulate import Parcel, simulate  # noqa: E402
+from sorter_sim.model.build import cell_strips, entry_state  # noqa: E402
 
 SPEEDS = (0.05, 0.1, 0.2, 0.5, 1.0, 1.5, 2.0, 3.0)
 

@@ -30,8 +30,8 @@ import math
 import time
 from pathlib import Path
 
-from sorter_sim.description import Q
-from sorter_sim.outpaths import file_problem
+from sorter_sim.model.description import Q
+from sorter_sim.studies.outpaths import file_problem
 
 LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
@@ -481,7 +481,7 @@ class RunningCell:
 
         from rclpy.signals import SignalHandlerOptions
 
-        from sorter_sim.node import SimNode
+        from sorter_sim.frontends.node import SimNode
         from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
 
         from sorter_control.node import ControllerNode
@@ -593,7 +593,7 @@ class RunningCell:
         Returns the wall time. Unless ``quiet``, a progress bar on a terminal shows the
         simulated seconds.
         """
-        from sorter_sim.progress import progress_bar
+        from sorter_sim.studies.progress import progress_bar
 
         wall0 = time.monotonic()
         bar = progress_bar(round(sim_time, 3), "sorter demo", "s", quiet=quiet)
@@ -767,7 +767,7 @@ def run_soft_plc(args) -> int | str:
     from rclpy.signals import SignalHandlerOptions
 
     from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
-    from sorter_sim.node import SimNode
+    from sorter_sim.frontends.node import SimNode
 
     apply_ros_env_defaults()
     config_dir = find_config_dir()
@@ -827,7 +827,7 @@ def run_soft_plc(args) -> int | str:
         sim.set_parameters([Parameter("arrival", value="gap")])
         per_scan = max(1, round(cfg.scan_period / sim.cell.dt))
         t0, wall0 = sim.cell.t, time.monotonic()
-        from sorter_sim.progress import progress_bar
+        from sorter_sim.studies.progress import progress_bar
 
         bar = progress_bar(
             round(args.sim_time, 3), f"sorter demo --io {args.io}", "s", quiet=args.quiet

@@ -145,7 +145,7 @@ def main(argv=None) -> int:
     from rclpy.parameter import Parameter
 
     from sorter_ros.env import apply_ros_env_defaults
-    from sorter_sim.node import SimNode
+    from sorter_sim.frontends.node import SimNode
 
     apply_ros_env_defaults()
     with socket.socket() as probe:

@@ -2,9 +2,9 @@
 The README's tables that are generated from declarations: regenerate or check them.
 
 Three tables are data, declared once in code: the cell description
-(``sorter_sim.description``), the simulation node's parameters (``sorter_sim.params``)
-and the controller's (``sorter_control.node``). In README.md each sits between a
-``<!-- generated: NAME -->`` line and a ``<!-- end: NAME -->`` line.
+(``sorter_sim.model.description``), the simulation node's parameters
+(``sorter_sim.runtime.params``) and the controller's (``sorter_control.node``). In
+README.md each sits between a ``<!-- generated: NAME -->`` line and a ``<!-- end: NAME -->`` line.
 ``python -m sorter_cell.readme`` rewrites them in place; the test suite fails
 when README.md differs from what this module renders.
 """
@@ -30,7 +30,7 @@ def _value(v) -> str:
 
 def sim_node_table() -> str:
     """Return the simulation node's parameter table."""
-    from sorter_sim.params import SCHEMA
+    from sorter_sim.runtime.params import SCHEMA
 
     rows = [
         '| name | type | default | allowed | units | set at run time | meaning |',
@@ -60,9 +60,9 @@ def controller_table() -> str:
 
 def io_map_table() -> str:
     """Return the fieldbus I/O map of the default cell (config/cell.yaml's sensors)."""
-    from sorter_sim.cell import CHUTE_SENSORS
-    from sorter_sim.io_map import io_map
-    from sorter_sim.params import CellParams
+    from sorter_sim.runtime.cell import CHUTE_SENSORS
+    from sorter_sim.model.io_map import io_map
+    from sorter_sim.runtime.params import CellParams
 
     p = CellParams.defaults()
     signals = io_map(list(p.photo_eyes_names) + list(CHUTE_SENSORS))
@@ -91,7 +91,7 @@ def io_map_table() -> str:
 
 def tables() -> dict[str, str]:
     """Return every generated table by name."""
-    from sorter_sim.description import markdown_table
+    from sorter_sim.model.description import markdown_table
 
     return {
         'cell-description': markdown_table(),

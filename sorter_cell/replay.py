@@ -17,9 +17,9 @@ import math
 from collections import Counter
 from pathlib import Path
 
-from sorter_sim.outpaths import file_problem
+from sorter_sim.studies.outpaths import file_problem
 
-METADATA = "sorter_sim parameters"  # written by the simulation node (sorter_sim.node)
+METADATA = "sorter_sim parameters"  # written by the simulation node (sorter_sim.frontends.node)
 
 
 def add_arguments(parser) -> None:

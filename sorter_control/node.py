@@ -50,13 +50,13 @@ from std_msgs.msg import Bool, String, UInt32
 from std_srvs.srv import SetBool, Trigger
 
 from sorter_ros.env import run_node
-from sorter_sim.description import Q
+from sorter_sim.model.description import Q
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
 from sorter_ros.interface import accept_integers_for_doubles, parameter_problem
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 
-from .logic import (
+from sorter_control.logic import (
     ControllerConfig,
     DiverterState,
     Edge,
@@ -66,7 +66,7 @@ from .logic import (
     RoutingTable,
     SorterLogic,
 )
-from .timing import CellModel
+from sorter_control.timing import CellModel
 
 NODE_NAME = "sorter_controller"
 LAST_WORDS_TIMEOUT = 0.5  # [s, wall] to lower the disks when stopping

@@ -23,7 +23,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from .logic import Command, ControllerConfig, DiverterState, Edge, InputImage, Reply, SorterLogic
+from sorter_control.logic import (
+    Command,
+    ControllerConfig,
+    DiverterState,
+    Edge,
+    InputImage,
+    Reply,
+    SorterLogic,
+)
 
 
 @dataclass

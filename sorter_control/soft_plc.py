@@ -8,7 +8,7 @@ client) instead of ROS topics and services: each scan reads every input at once
 handshake, the diverter's feedback, the status bits, the cell's clock), runs the
 logic, and writes the outputs (pop-up coil, α setpoint, e-stop and reset pulses,
 the heartbeat the cell's watchdog expects). Only the declared I/O map
-(``sorter_sim.io_map``, part of the cell description) is shared with the cell.
+(``sorter_sim.model.io_map``, part of the cell description) is shared with the cell.
 
 A write the server refuses (a Modbus exception, an OPC UA bad status) comes back
 to the logic as a refused command, as a refused service call does in the node.
@@ -19,12 +19,12 @@ from __future__ import annotations
 import math
 import time
 
-from sorter_sim.io_map import COIL, DI, INPUT, IR, OUTPUT, Signal, io_map
+from sorter_sim.model.io_map import COIL, DI, INPUT, IR, OUTPUT, Signal, io_map
 
-from .logic import SorterLogic
-from .logic.config import ControllerConfig
-from .logic.image import DiverterState, Edge, InputImage, Reply
-from .logic.routing import RoutingError
+from sorter_control.logic import SorterLogic
+from sorter_control.logic.config import ControllerConfig
+from sorter_control.logic.image import DiverterState, Edge, InputImage, Reply
+from sorter_control.logic.routing import RoutingError
 
 
 class FieldbusError(Exception):

@@ -4,7 +4,7 @@ Divert timing from the model core.
 When a parcel is committed to its chute, and how close parcels may follow.
 
 The controller cannot see a parcel's motion over the disk field; it predicts it.
-``DivertPredictor`` runs the model core (``sorter_sim.core.simulate``, the seed's
+``DivertPredictor`` runs the model core (``sorter_sim.model.core.simulate``, the seed's
 eq. 4.1 with the moment of friction) for a parcel of the measured length A at the
 current belt speed v and disk angle α, starting as the seed's runs do (leading
 edge on the zone a/b border, moving with the belt, φ = 0), and keeps from the
@@ -49,8 +49,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sorter_sim.core.simulate import Parcel, simulate
-from sorter_sim.model import cell_strips, entry_state
+from sorter_sim.model.core.simulate import Parcel, simulate
+from sorter_sim.model.build import cell_strips, entry_state
 
 DESTINATIONS = ("left", "right", "straight")
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from .strict_yaml import StrictYamlError, read_yaml_file
+from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
 
 def _flat(prefix: str, mapping: dict):

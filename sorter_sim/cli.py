@@ -19,15 +19,16 @@ import json
 import math
 import sys
 
+from sorter_sim.model.core.cache import check_kernel_cache
 from sorter_ros.env import apply_ros_env_defaults
-from .scene import SceneError, apply_overrides, load_scene, run_scene
+from sorter_sim.runtime.scene import SceneError, apply_overrides, load_scene, run_scene
 
 # verb -> (module, one-line help)
 VERBS = {
     "run": (__name__, "run one parcel through one scene and print the result"),
-    "paper": ("sorter_sim.analysis.paper_cli", "regenerate the seed's figures (data + PNG)"),
-    "sweep": ("sorter_sim.analysis.sweep", "run a design study over scene keys"),
-    "bench": ("sorter_sim.analysis.bench", "benchmarks and the work-precision report"),
+    "paper": ("sorter_sim.studies.paper_cli", "regenerate the seed's figures (data + PNG)"),
+    "sweep": ("sorter_sim.studies.sweep", "run a design study over scene keys"),
+    "bench": ("sorter_sim.studies.bench", "benchmarks and the work-precision report"),
 }
 
 
@@ -120,6 +121,7 @@ def build_parser(verbs: dict | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None, verbs: dict | None = None) -> int:
     """Parse ``argv``, run the verb, turn its result into an exit code."""
     apply_ros_env_defaults()
+    check_kernel_cache()
     parser = build_parser(verbs)
     args = parser.parse_args(argv)
     if not getattr(args, "_verb_main", None):

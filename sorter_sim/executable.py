@@ -10,4 +10,4 @@ from sorter_ros.env import start_node
 
 def main(args=None) -> None:
     """Entry point of ``sim_node`` (``ros2 run sorter_cell sim_node``)."""
-    start_node('sorter_sim.node', args)
+    start_node('sorter_sim.frontends.node', args)

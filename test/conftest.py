@@ -31,3 +31,10 @@ def ros(ros_context):
 
     with ros_harness_scope(ros_context) as harness:
         yield harness
+
+
+def pytest_configure(config):
+    """Drop the core's stale numba kernels before a test calls one (tests call them directly)."""
+    from sorter_sim.model.core.cache import check_kernel_cache
+
+    check_kernel_cache()

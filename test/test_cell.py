@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import yaml
 
-from sorter_sim.cell import (
+from sorter_sim.runtime.cell import (
     STATE_NAMES,
     Cell,
     LabelRead,
@@ -26,9 +26,15 @@ from sorter_sim.cell import (
     check_parcel,
     WatchdogTrip,
 )
-from sorter_sim.core import cell_kernels as ck
-from sorter_sim.core.simulate import FrictionLaw, Parcel, simulate, strip_array, three_zone_strips
-from sorter_sim.params import SCHEMA, SPECS, CellParams, ParamError
+from sorter_sim.model.core import cell_kernels as ck
+from sorter_sim.model.core.simulate import (
+    FrictionLaw,
+    Parcel,
+    simulate,
+    strip_array,
+    three_zone_strips,
+)
+from sorter_sim.runtime.params import SCHEMA, SPECS, CellParams, ParamError
 
 REPO = Path(__file__).resolve().parents[1]
 G = 9.81
@@ -452,7 +458,10 @@ def test_rate_stream_never_inducts_closer_than_the_minimum_gap():
     assert cell.n_inducted >= 8
 
 
-@pytest.mark.parametrize('module', ['cell.py', 'params.py', 'cdr.py', 'core/cell_kernels.py'])
+@pytest.mark.parametrize(
+    'module',
+    ['runtime/cell.py', 'runtime/params.py', 'frontends/cdr.py', 'model/core/cell_kernels.py'],
+)
 def test_the_cell_imports_no_ros(module):
     from test_core_has_no_ros import ros_imports
 
@@ -551,7 +560,7 @@ def test_watchdog_off_and_ranges():
 
 
 def test_pending_inducts_are_capped_and_the_excess_counted():
-    from sorter_sim.description import PENDING_INDUCTS_MAX
+    from sorter_sim.model.description import PENDING_INDUCTS_MAX
 
     cell = Cell(CellParams.defaults().with_changes({'arrival': 'none'}, runtime=False))
     for _ in range(PENDING_INDUCTS_MAX):

@@ -29,7 +29,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from sorter_control.node import ControllerNode
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
-from sorter_sim.node import SimNode
+from sorter_sim.frontends.node import SimNode
 
 pytestmark = pytest.mark.ros
 
@@ -614,7 +614,7 @@ def test_defaults_agree():
     """The default stream (config/cell.yaml) is one the default controller can sort."""
     from sorter_cell.demo import stream_plan
     from sorter_ros.params_file import read_params_file
-    from sorter_sim.params import SPECS
+    from sorter_sim.runtime.params import SPECS
 
     cell = read_params_file(CONFIG_DIR / "cell.yaml", "sorter_sim")
     plan = stream_plan(tuple(cell["parcel_A"]), CONFIG_DIR)

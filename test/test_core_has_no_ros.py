@@ -1,7 +1,7 @@
 """
 The model core and the controller logic stay free of ROS.
 
-sorter_sim/core/ and sorter_control/logic/ must be usable (and testable)
+sorter_sim/model/core/ and sorter_control/logic/ must be usable (and testable)
 without rclpy or any message package; the ROS nodes wrap them.
 """
 
@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-ROS_FREE_FILES = sorted((REPO / 'sorter_sim' / 'core').rglob('*.py')) + sorted(
+ROS_FREE_FILES = sorted((REPO / 'sorter_sim' / 'model' / 'core').rglob('*.py')) + sorted(
     (REPO / 'sorter_control' / 'logic').rglob('*.py')
 )
 FORBIDDEN_PREFIXES = ('rclpy', 'rcl_interfaces', 'builtin_interfaces')
@@ -68,7 +68,7 @@ def test_checker_flags_ros_imports(source):
         'from scipy.integrate import solve_ivp',
         'from . import friction',
         'from .msgs_like import x',
-        'import sorter_sim.core.geometry',
+        'import sorter_sim.model.core.geometry',
         'import os',
     ],
 )
@@ -92,13 +92,13 @@ def test_importing_all_of_core_loads_no_rclpy():
     code = '\n'.join(
         [
             'import pkgutil, sys',
-            'import sorter_sim.core as core',
+            'import sorter_sim.model.core as core',
             'names = [m.name for m in pkgutil.walk_packages(core.__path__, core.__name__ + ".")]',
             'for name in names:',
             '    __import__(name)',
             'ros = sorted(m for m in sys.modules if m.split(".")[0] == "rclpy"',
             '             or m.split(".")[0].endswith(("_msgs", "_srvs")))',
-            'assert not ros, f"importing sorter_sim.core loaded ROS modules: {ros}"',
+            'assert not ros, f"importing sorter_sim.model.core loaded ROS modules: {ros}"',
             'print(len(names))',
         ]
     )

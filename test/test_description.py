@@ -3,7 +3,7 @@ One description of the cell: every consumer takes its ranges from it, the README
 
 For each physical quantity the scene schema (``sorter run --set``), the simulation
 node's parameters and the controller's parameters that stand for it must declare
-the same range as ``sorter_sim.description``, and refuse a value just outside it
+the same range as ``sorter_sim.model.description``, and refuse a value just outside it
 with a message naming their own key.
 """
 
@@ -14,9 +14,9 @@ import pytest
 from sorter_cell import readme
 from sorter_control.node import SCHEMA as CTL_SCHEMA
 from sorter_control.node import config_from_values
-from sorter_sim.description import Q, QUANTITIES, DescriptionError
-from sorter_sim.params import SPECS, CellParams, ParamError
-from sorter_sim.scene import SceneError, _RULES, validate
+from sorter_sim.model.description import Q, QUANTITIES, DescriptionError
+from sorter_sim.runtime.params import SPECS, CellParams, ParamError
+from sorter_sim.runtime.scene import SceneError, _RULES, validate
 
 CTL_SPECS = {s.name: s for s in CTL_SCHEMA}
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sorter_sim.core import dopri
+from sorter_sim.model.core import dopri
 
 
 def test_tableau_is_consistent():

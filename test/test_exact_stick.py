@@ -17,16 +17,18 @@ import numpy as np
 import pytest
 from regularised_reference import Scene, solve
 
-from sorter_sim.core import integrators as ig
-from sorter_sim.core.simulate import (
+from sorter_sim.model.core.accurate import run_accurate
+from sorter_sim.model.core.common import EV_BREAK, n_surf_of, rhs_slide
+from sorter_sim.model.core.stick import GAUGE_CARRY, inside_limit_set, limit_gauge, stick_margin
+from sorter_sim.model.core.simulate import (
     Parcel,
     gauss_legendre_01,
     parcel_array,
     simulate,
     strip_array,
 )
-from sorter_sim.core.wrench import clip_scratch, evaluate_surfaces, static_surface_wrench
-from sorter_sim.model import cell_strips, entry_state
+from sorter_sim.model.core.wrench import clip_scratch, evaluate_surfaces, static_surface_wrench
+from sorter_sim.model.build import cell_strips, entry_state
 
 # ------------------------------------------------------------------ the limit set
 
@@ -52,7 +54,7 @@ def _seed_limits(arr, par, nodes, weights, y, surf):
 
 
 def _gauge(arr, par, nodes, weights, y, surf, w):
-    return ig.limit_gauge(
+    return limit_gauge(
         y, arr, par, nodes, weights, surf, w[0], w[1], w[2], np.zeros(3), clip_scratch()
     )
 
@@ -115,7 +117,7 @@ def test_force_and_moment_interact_inside_the_seeds_box():
     # the stick margin reads the other surfaces' pull; with none there is nothing to break
     for stick in ("exact", "seed"):
         par_s = parcel_array(Parcel(0.7, 0.2, 5.0), True, 8, True, stick=stick)
-        m, area, *_ = ig.stick_margin(state, arr, par_s, nodes, weights, nsurf, 0, np.zeros(3))
+        m, area, *_ = stick_margin(state, arr, par_s, nodes, weights, nsurf, 0, np.zeros(3))
         assert m < 0.0 and area > 0.0
 
 
@@ -142,11 +144,11 @@ def test_the_inner_bound_of_the_limit_set_never_admits_a_wrench_outside_it(surf)
                 w = np.array(
                     static_surface_wrench(y, arr, par, nodes, weights, surf, *xi, clip_scratch())
                 )
-                assert not ig.inside_limit_set(y, arr, par, surf, *(-1.001 * w))
+                assert not inside_limit_set(y, arr, par, surf, *(-1.001 * w))
                 box = rng.uniform(-1.0, 1.0, size=3) * np.array([f_max, f_max, t_max])
                 for scale in (1.0, 0.3, 0.1):
                     v = box * scale
-                    if ig.inside_limit_set(y, arr, par, surf, *v):
+                    if inside_limit_set(y, arr, par, surf, *v):
                         admitted += 1
                         assert _gauge(arr, par, nodes, weights, y, surf, v) <= 1.0
                     well_inside += _gauge(arr, par, nodes, weights, y, surf, v) < 0.2
@@ -283,7 +285,7 @@ def _balance_pose(stick):
 
     def margin(x):
         y = np.array([x, 0.0, 0.3, 0.0, 1.5, 0.0])
-        return ig.stick_margin(y, arr, par, nodes, weights, 2, 1, np.zeros(3))[0]
+        return stick_margin(y, arr, par, nodes, weights, 2, 1, np.zeros(3))[0]
 
     lo, hi = 0.3, -0.3  # well on the disks (holds) ... mostly on the belt (breaks)
     assert margin(lo) < 0.0 < margin(hi)
@@ -351,11 +353,11 @@ def test_a_slip_growing_slowly_from_a_near_balance_stays_on_its_layer():
     arr = strip_array(strips)
     par = parcel_array(parcel, True, 8, True, stick="exact")
     nodes, weights = gauss_legendre_01(8)
-    nsurf = ig.n_surf_of(arr)
+    nsurf = n_surf_of(arr)
 
     def belt_margin(x):
         y = np.array([x, 0.0, 0.0, 1.5, 0.0, 0.0])
-        return ig.stick_margin(y, arr, par, nodes, weights, nsurf, 0, np.zeros(3))[0]
+        return stick_margin(y, arr, par, nodes, weights, nsurf, 0, np.zeros(3))[0]
 
     lo, hi = -0.34, 0.0  # mostly on the belt (holds) ... half on the disks (breaks)
     assert belt_margin(lo) < 0.0 < belt_margin(hi)
@@ -365,7 +367,7 @@ def test_a_slip_growing_slowly_from_a_near_balance_stays_on_its_layer():
     out = np.empty(6)
 
     def rhs(t, y):
-        ig.rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, clip_scratch(), out)
+        rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, clip_scratch(), out)
         return out.copy()
 
     for slip in (1e-5, 2e-5):
@@ -393,7 +395,7 @@ def test_the_gauge_warm_start_changes_nothing_but_the_work():
     onto the disks (Fig. 9a) breaks away at the same time to 1e-12 s; so does it
     whatever Newton metric it carries (``GAUGE_CARRY``), its own or a wrong one.
     """
-    from sorter_sim.core.simulate import strip_borders
+    from sorter_sim.model.core.simulate import strip_borders
 
     parcel = Parcel(0.7, 0.2, 5.0)
     strips = cell_strips(1.5, 90.0, math.inf, 0.6, 0.6, 0.6)
@@ -408,11 +410,11 @@ def test_the_gauge_warm_start_changes_nothing_but_the_work():
         ms = np.empty(4000, dtype=np.int64)
         ev = np.empty((64, 3))
         counters = np.zeros(8, dtype=np.int64)
-        ig.run_accurate(
+        run_accurate(
             y0, 0, 0.0, 0.3, math.inf, arr, par, nodes, weights, strip_borders(strips),
             1e-8, 1e-10, 0.05, True, ts, ys, ms, ev, counters, xi,
         )  # fmt: skip
-        breaks = [e[0] for e in ev[: counters[4]] if e[1] == ig.EV_BREAK]
+        breaks = [e[0] for e in ev[: counters[4]] if e[1] == EV_BREAK]
         assert len(breaks) == 1
         return breaks[0]
 
@@ -425,7 +427,7 @@ def test_the_gauge_warm_start_changes_nothing_but_the_work():
     # with room for it, the gauge's Newton metric is carried too: the run's own, none,
     # or one that points Newton the wrong way (a wrong sign, a scale 1e6 off) all give
     # the same break, the metric being differenced anew where it fails to converge
-    carry = np.zeros(ig.GAUGE_CARRY)
+    carry = np.zeros(GAUGE_CARRY)
     assert break_time(carry) == pytest.approx(t_cold, abs=1e-12)
     assert carry[3] > 0.0  # a metric was carried: its basis axis + 1
     assert np.linalg.norm(carry[:3]) == pytest.approx(1.0)
@@ -461,7 +463,7 @@ def test_the_break_away_is_the_first_root_of_the_gauge_margin(alpha):
 
     def margin(t):
         y = np.array([y0[0] + 1.5 * t, y0[1], y0[2], 1.5, 0.0, 0.0])
-        return ig.stick_margin(y, arr, par, nodes, weights, 2, 0, np.zeros(3))[0]
+        return stick_margin(y, arr, par, nodes, weights, 2, 0, np.zeros(3))[0]
 
     dt = 0.2 / (16.0 * 1.5) / 8.0  # the scan's step over eight
     grid = np.arange(0.0, t_break + 4 * dt, dt)

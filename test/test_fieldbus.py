@@ -25,10 +25,10 @@ from pymodbus.client import ModbusTcpClient
 from rclpy.parameter import Parameter
 from ros_harness import free_port
 
-from sorter_sim.core import cell_kernels as ck
-from sorter_sim.io_map import by_name, io_map
-from sorter_sim.node import SimNode
-from sorter_sim.params import ParamError
+from sorter_sim.model.core import cell_kernels as ck
+from sorter_sim.model.io_map import by_name, io_map
+from sorter_sim.frontends.node import SimNode
+from sorter_sim.runtime.params import ParamError
 from test_sim_node import SHORT_CELL
 
 pytestmark = pytest.mark.ros

@@ -10,15 +10,15 @@ import math
 import numpy as np
 import pytest
 
-from sorter_sim.core import friction as fr
-from sorter_sim.core.geometry import (
+from sorter_sim.model.core import friction as fr
+from sorter_sim.model.core.geometry import (
     clip_to_strip,
     distance_integrals,
     footprint,
     polygon_area_centroid,
 )
-from sorter_sim.core.simulate import FrictionLaw
-from sorter_sim.core.wrench import gauss_legendre_01, strip_wrench_closed, strip_wrench_quad
+from sorter_sim.model.core.simulate import FrictionLaw
+from sorter_sim.model.core.wrench import gauss_legendre_01, strip_wrench_closed, strip_wrench_quad
 
 
 # ---------------------------------------------------------------- friction laws

@@ -29,10 +29,10 @@ from sorter_control.logic import (
     RoutingTable,
     SorterLogic,
 )
-from sorter_sim.cell import Cell, ParcelSpec, check_parcel
-from sorter_sim.node import induct_spec
-from sorter_sim.params import SPECS, CellParams, ParamError
-from sorter_sim.scene import _RULES, SceneError, apply_overrides, load_scene, validate
+from sorter_sim.runtime.cell import Cell, ParcelSpec, check_parcel
+from sorter_sim.frontends.node import induct_spec
+from sorter_sim.runtime.params import SPECS, CellParams, ParamError
+from sorter_sim.runtime.scene import _RULES, SceneError, apply_overrides, load_scene, validate
 
 pytestmark = pytest.mark.slow
 
@@ -239,7 +239,7 @@ def test_the_nodes_take_any_parameter_request_induct_and_routing_update(ros, dat
 
     from sorter_control.node import ControllerNode
     from sorter_ros.interface import EVENT_QOS
-    from sorter_sim.node import SimNode
+    from sorter_sim.frontends.node import SimNode
 
     # one cell and controller for every example (the fixture lives as long as the test)
     rig = ros.__dict__.setdefault('fuzz_rig', {})
@@ -314,8 +314,8 @@ MODBUS_COUNTS = {'tried': 0, 'exceptions': 0, 'writes': 0}
 
 
 def _modbus_image():
-    from sorter_sim.fieldbus import IOImage
-    from sorter_sim.io_map import io_map
+    from sorter_sim.frontends.fieldbus import IOImage
+    from sorter_sim.model.io_map import io_map
 
     return IOImage(
         io_map(['pe_scan', 'pe_divert', 'pe_exit', 'chute_left', 'chute_right']),
@@ -364,8 +364,8 @@ pdus = st.one_of(
 @FUZZ
 @given(pdu=pdus)
 def test_any_modbus_request_is_answered_by_the_protocol_and_a_refusal_changes_nothing(pdu):
-    from sorter_sim.io_map import COIL, DI, HR, IR
-    from sorter_sim.modbus_server import ModbusTcpImageServer
+    from sorter_sim.model.io_map import COIL, DI, HR, IR
+    from sorter_sim.frontends.modbus_server import ModbusTcpImageServer
 
     image = _modbus_image()
     server = ModbusTcpImageServer(image, '127.0.0.1', 0)
@@ -430,7 +430,7 @@ def test_warehouse_methods_take_any_argument_types_and_counts(ros):
     from rclpy.parameter import Parameter
     from ros_harness import free_port
 
-    from sorter_sim.node import SimNode
+    from sorter_sim.frontends.node import SimNode
     from test_sim_node import SHORT_CELL
 
     cell = ros.add(

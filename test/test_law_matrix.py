@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sorter_sim.core.friction import mu_kinetic_array, mu_static
-from sorter_sim.scene import apply_overrides, load_scene, run_scene, scene_strips
+from sorter_sim.model.core.friction import mu_kinetic_array, mu_static
+from sorter_sim.runtime.scene import apply_overrides, load_scene, run_scene, scene_strips
 
 SCENES = sorted(Path(__file__).resolve().parent.parent.glob('config/scenes/*.yaml'))
 LAWS = ('const2', 'const1', 'linear', 'polynomial', 'stribeck', 'bspline')

@@ -31,8 +31,8 @@ from rclpy.parameter import Parameter
 from ros_harness import free_port
 from websockets.sync.client import connect
 
-from sorter_sim.node import SimNode
-from sorter_sim.params import ParamError
+from sorter_sim.frontends.node import SimNode
+from sorter_sim.runtime.params import ParamError
 from test_sim_node import SHORT_CELL
 
 pytestmark = pytest.mark.ros

@@ -6,10 +6,15 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from sorter_sim.core.oscillator import Oscillator, exact_phases, exact_solution, run_oscillator
-from sorter_sim.core.wrench import clip_scratch
-from sorter_sim.core.simulate import FrictionLaw, Parcel, Strip, simulate, three_zone_strips
-from sorter_sim.scene import apply_overrides, load_scene, run_scene
+from sorter_sim.model.core.oscillator import (
+    Oscillator,
+    exact_phases,
+    exact_solution,
+    run_oscillator,
+)
+from sorter_sim.model.core.wrench import clip_scratch
+from sorter_sim.model.core.simulate import FrictionLaw, Parcel, Strip, simulate, three_zone_strips
+from sorter_sim.runtime.scene import apply_overrides, load_scene, run_scene
 
 G = 9.81
 MU = 0.6
@@ -156,10 +161,10 @@ def test_a_spinning_slide_to_rest_against_an_independent_integration(spin):
     the model's own right-hand side with scipy's DOP853 at rtol 1e-12 down to a slip of
     1e-7 m/s.
     """
-    from sorter_sim.core import integrators as ig
-    from sorter_sim.core.layout import P_INERTIA, P_MASS
-    from sorter_sim.core.simulate import parcel_array, strip_array
-    from sorter_sim.core.wrench import gauss_legendre_01
+    from sorter_sim.model.core.common import rhs_slide
+    from sorter_sim.model.core.layout import P_INERTIA, P_MASS
+    from sorter_sim.model.core.simulate import parcel_array, strip_array
+    from sorter_sim.model.core.wrench import gauss_legendre_01
 
     parcel = Parcel(0.5, 0.3, 4.0)
     still = [Strip(-math.inf, math.inf, 0.0, 0.0, CONST, 1.0, "b")]
@@ -170,7 +175,7 @@ def test_a_spinning_slide_to_rest_against_an_independent_integration(spin):
 
     def rhs(t, y):
         out = np.empty(6)
-        ig.rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, clip_scratch(), out)
+        rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, clip_scratch(), out)
         return out
 
     def slip(t, y):
@@ -293,7 +298,7 @@ def test_oscillator_methods_against_the_exact_solution(method, kw, tol):
 
 def test_threshold_model_first_static_stage_depends_on_v_min():
     # the seed's Fig. 5: t_I (first F(3) stage) grows with v_min, later ones hardly
-    from sorter_sim.core.oscillator import static_stage_durations
+    from sorter_sim.model.core.oscillator import static_stage_durations
 
     osc = Oscillator()
     t1 = []
@@ -380,7 +385,7 @@ def test_a_run_that_outgrows_its_output_still_ends_on_its_final_state(method):
 def test_the_kernel_cache_is_dropped_when_any_core_source_changes(tmp_path):
     # numba checks a cached kernel against its own file only; a kernel calling into another
     # module of the core would keep the old callee. The stamp covers every source.
-    from sorter_sim.core import _drop_stale_kernels
+    from sorter_sim.model.core.cache import drop_stale_kernels
 
     (tmp_path / "a.py").write_text("x = 1\n")
     (tmp_path / "b.py").write_text("y = 2\n")
@@ -392,11 +397,37 @@ def test_the_kernel_cache_is_dropped_when_any_core_source_changes(tmp_path):
             (cache / name).write_bytes(b"kernel")
 
     fill()
-    assert _drop_stale_kernels(tmp_path)  # no stamp yet: nothing cached can be trusted
+    dropped = drop_stale_kernels(tmp_path)  # no stamp yet: nothing cached can be trusted
+    assert sorted(p.name for p in dropped) == sorted(
+        ["a.k-1.py311.nbi", "a.k-1.py311.1.nbc", "b.m-3.py311.nbi"]
+    )
     assert not list(cache.glob("*.nb*"))
     fill()
-    assert not _drop_stale_kernels(tmp_path)  # unchanged: the cache stays
+    assert drop_stale_kernels(tmp_path) == []  # unchanged: the cache stays
     assert len(list(cache.glob("*.nb*"))) == 3
     (tmp_path / "b.py").write_text("y = 3\n")  # a callee's module changes
-    assert _drop_stale_kernels(tmp_path)
+    assert len(drop_stale_kernels(tmp_path)) == 3
     assert not list(cache.glob("*.nb*"))
+
+
+def test_importing_the_model_touches_no_file(tmp_path):
+    # the cache check runs at first use, not at import: a bare import of every module of
+    # the model in a fresh interpreter leaves the core's cache folder as it was
+    import subprocess
+    import sys
+
+    from sorter_sim.model.core.cache import CORE_DIR
+
+    cache = CORE_DIR / "__pycache__"
+    before = {p.name: p.stat().st_mtime_ns for p in cache.glob("*")} if cache.exists() else {}
+    code = (
+        "import pkgutil, importlib, sorter_sim.model as m\n"
+        "for i in pkgutil.walk_packages(m.__path__, 'sorter_sim.model.'):\n"
+        "    importlib.import_module(i.name)\n"
+        "from sorter_sim.model.core import cache\n"
+        "assert not cache._checked\n"
+    )
+    env = {**__import__("os").environ, "PYTHONDONTWRITEBYTECODE": "1"}
+    subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=60)
+    after = {p.name: p.stat().st_mtime_ns for p in cache.glob("*")} if cache.exists() else {}
+    assert {name: after.get(name) for name in before} == before  # nothing dropped or rewritten

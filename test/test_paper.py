@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from sorter_sim.analysis import paper, two_stage
+from sorter_sim.studies import paper, two_stage
 from sorter_sim.cli import main
 
 G = 9.81
@@ -120,7 +120,7 @@ def test_fig11_minimal_width_falls_as_alpha_rises_and_is_a_sharp_threshold():
     # the root is where the criterion switches: just below it the field no longer scrapes
     for al, bm in zip(paper.ALPHAS, b):
         for width, expect in ((bm + 0.01, True), (bm - 0.02, False)):
-            from sorter_sim.scene import run_scene
+            from sorter_sim.runtime.scene import run_scene
 
             res, _ = run_scene(paper.sorting_scene(A=0.4, v=1.5, alpha_deg=al, b=width, t_max=5.0))
             assert paper.scrapes_without_sliding(res, 1.5, al) is expect, (al, width)

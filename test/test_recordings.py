@@ -24,7 +24,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from sorter_cell import replay
 from sorter_ros.recording import Recorder
-from sorter_sim.node import SimNode
+from sorter_sim.frontends.node import SimNode
 from test_sim_node import SHORT_CELL
 
 BIN = Path(sys.executable).parent

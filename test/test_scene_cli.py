@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from sorter_sim.scene import DEFAULTS, SceneError, apply_overrides, load_scene, validate
+from sorter_sim.runtime.scene import DEFAULTS, SceneError, apply_overrides, load_scene, validate
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = sorted((ROOT / "config" / "scenes").glob("*.yaml"))
@@ -162,7 +162,7 @@ def test_numba_kernels_are_cached_on_disk():
     # a second process must load compiled kernels instead of compiling again
     r = sorter("run", "config/scenes/fig7.yaml", "--json")
     assert r.returncode == 0
-    cache = list((ROOT / "sorter_sim" / "core" / "__pycache__").glob("*.nbi"))
+    cache = list((ROOT / "sorter_sim" / "model" / "core" / "__pycache__").glob("*.nbi"))
     assert any("integrators" in p.name for p in cache)
     assert any("wrench" in p.name for p in cache)
 
@@ -188,8 +188,8 @@ def test_laws_and_values_are_checked_whether_used_or_not(overrides, words):
 
 
 def test_every_accepted_law_is_non_negative_over_the_slip_speeds():
-    from sorter_sim.core.friction import mu_kinetic
-    from sorter_sim.core.simulate import FrictionLaw
+    from sorter_sim.model.core.friction import mu_kinetic
+    from sorter_sim.model.core.simulate import FrictionLaw
 
     scene = validate({"belt": {"v": 2.0}})
     for name in ("const2", "const1", "linear", "polynomial", "stribeck", "bspline"):
@@ -243,7 +243,7 @@ def test_a_fixed_step_scene_has_room_for_every_step_and_names_its_own_keys_when_
 def test_a_quick_precision_report_does_not_overwrite_the_committed_one(monkeypatch, tmp_path):
     import argparse
 
-    from sorter_sim.analysis import bench
+    from sorter_sim.studies import bench
 
     written = []
     monkeypatch.setattr(

@@ -5,7 +5,7 @@ Stiff and extreme cases: the quick subset of the matrix, plus the references
 the work-precision report stands on, checked against closed forms and independent solvers.
 
 The full matrix, 10 minutes of two-belt positioning and the quick report run behind the
-``slow`` marker. Bounds and tolerances are stated in ``sorter_sim.analysis.stiff_cases``.
+``slow`` marker. Bounds and tolerances are stated in ``sorter_sim.studies.stiff_cases``.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import sys
 import numpy as np
 import pytest
 
-from sorter_sim.analysis import stiff_cases as sx
-from sorter_sim.analysis.workprecision import (
+from sorter_sim.studies import stiff_cases as sx
+from sorter_sim.studies.workprecision import (
     ParcelCase,
     ScipyParcel,
     Trajectory,
@@ -29,8 +29,8 @@ from sorter_sim.analysis.workprecision import (
     oscillator_scipy,
     oscillator_trajectory,
 )
-from sorter_sim.core.oscillator import Oscillator
-from sorter_sim.core.simulate import three_zone_strips
+from sorter_sim.model.core.oscillator import Oscillator
+from sorter_sim.model.core.simulate import three_zone_strips
 
 
 def _matrix_params(quick: bool):

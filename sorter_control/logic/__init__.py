@@ -10,9 +10,9 @@ The sorter PLC, with no ROS: its program and the parts it is made of, one per PL
 - ``program``: ``SorterLogic``, the scan that runs them in order.
 """
 
-from .config import ControllerConfig
-from .faults import FAULT_STATES, STATES
-from .image import (
+from sorter_control.logic.config import ControllerConfig
+from sorter_control.logic.faults import FAULT_STATES, STATES
+from sorter_control.logic.image import (
     Command,
     Confirmation,
     DiverterState,
@@ -22,9 +22,9 @@ from .image import (
     Reply,
     ScanOutput,
 )
-from .program import SorterLogic
-from .routing import GRAMMAR, RoutingError, RoutingTable
-from .tracking import (
+from sorter_control.logic.program import SorterLogic
+from sorter_control.logic.routing import GRAMMAR, RoutingError, RoutingTable
+from sorter_control.logic.tracking import (
     R_ABORTED,
     R_CANNOT,
     R_FAULT,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from ..timing import Actuators, CellModel
-from .routing import RoutingTable
+from sorter_control.timing import Actuators, CellModel
+from sorter_control.logic.routing import RoutingTable
 
 
 @dataclass(frozen=True)

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import math
 
-from ..timing import side_of
-from .image import ScanIO
-from .tracking import R_FAULT, R_LATE, R_MISSED, Tracker
+from sorter_control.timing import side_of
+from sorter_control.logic.image import ScanIO
+from sorter_control.logic.tracking import R_FAULT, R_LATE, R_MISSED, Tracker
 
 STATES = (
     "running",

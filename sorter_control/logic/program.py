@@ -19,13 +19,27 @@ from __future__ import annotations
 import math
 from collections import deque
 
-from ..timing import DivertPredictor, GapModel
-from .config import ControllerConfig
-from .faults import FAULT_STATES, Faults, Supervisor
-from .image import Command, Confirmation, Edge, EdgeDetector, InputImage, ScanOutput
-from .routing import RoutingError, RoutingTable
-from .sequencing import DiverterSequencer
-from .tracking import R_ABORTED, R_MISSORT, R_REJECTED, R_SORTED, Tracked, Tracker
+from sorter_control.timing import DivertPredictor, GapModel
+from sorter_control.logic.config import ControllerConfig
+from sorter_control.logic.faults import FAULT_STATES, Faults, Supervisor
+from sorter_control.logic.image import (
+    Command,
+    Confirmation,
+    Edge,
+    EdgeDetector,
+    InputImage,
+    ScanOutput,
+)
+from sorter_control.logic.routing import RoutingError, RoutingTable
+from sorter_control.logic.sequencing import DiverterSequencer
+from sorter_control.logic.tracking import (
+    R_ABORTED,
+    R_MISSORT,
+    R_REJECTED,
+    R_SORTED,
+    Tracked,
+    Tracker,
+)
 
 MAX_CLOCK_LAG = 0.5  # [s] how far this node's clock may lag the cell's latched stamps
 

@@ -18,10 +18,10 @@ default) and missing reads go to the reject destination.
 
 from __future__ import annotations
 
-from sorter_sim.description import LABEL_CHARS, LABEL_MAX
-from sorter_sim.description import LABEL_RE as _LABEL
+from sorter_sim.model.description import LABEL_CHARS, LABEL_MAX
+from sorter_sim.model.description import LABEL_RE as _LABEL
 
-from ..timing import DESTINATIONS
+from sorter_control.timing import DESTINATIONS
 
 GRAMMAR = (
     "a rule is 'pattern=destination'; a pattern is a label of 1 to "

@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import math
 
-from ..timing import GapModel, side_of
-from .image import Command, DiverterState, ScanIO, ScanOutput
-from .routing import RoutingTable
-from .tracking import R_CANNOT, R_FAULT, R_GAP, R_LATE, Tracked, Tracker
+from sorter_control.timing import GapModel, side_of
+from sorter_control.logic.image import Command, DiverterState, ScanIO, ScanOutput
+from sorter_control.logic.routing import RoutingTable
+from sorter_control.logic.tracking import R_CANNOT, R_FAULT, R_GAP, R_LATE, Tracked, Tracker
 
 
 class DiverterSequencer:

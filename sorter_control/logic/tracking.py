@@ -15,8 +15,8 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from ..timing import Prediction, side_of
-from .image import Edge, ScanIO
+from sorter_control.timing import Prediction, side_of
+from sorter_control.logic.image import Edge, ScanIO
 
 # a parcel's result, in its sort confirmation
 R_SORTED = "sorted"  # reached what the routing asked for

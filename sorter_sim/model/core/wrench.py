@@ -1,0 +1,664 @@
+"""
+Friction force and moment on the parcel from each conveyor surface (seed eqs. 4.1-4.9).
+
+Every area element dS of the footprint part over a strip opposes its own rubbing
+velocity u(p) = V + φ̇ ẑ×(p - g) - v_surface with dF = -μ(|u|) (m g w / S) û dS.
+Because u is the velocity field of a planar rigid motion it vanishes at one point,
+the instantaneous centre c of the parcel's motion relative to that surface; then
+û = sgn(φ̇) ẑ×(p - c)/|p - c| and, for a constant μ,
+
+    F = -μ p sgn(φ̇) ẑ × ∫ ∇|p - c| dA,
+    T = -μ p sgn(φ̇) [∫ |p - c| dA + (c - g)·∫ ∇|p - c| dA],
+
+exact through ``geometry.distance_integrals``, and for pure translation simply
+F = -μ p S û, T = (q - g)×F. When c is far away but not at infinity those terms
+cancel catastrophically; there the integrand is analytic over the footprint and
+the quadrature below is used instead (see ``SMALL_ROTATION``).
+
+A speed-dependent μ needs quadrature. The fan of triangles from c with a Duffy
+map p = c + s (e_i + t (e_{i+1} - e_i)) puts the kink of û at s = 0, where the
+Jacobian s vanishes, so Gauss-Legendre in (s, t) converges fast (with a sinh
+map along edges that pass close to c); when c is far the fan starts at the
+centroid and the integrand is smooth anyway: no map there (it would slow Gauss's
+convergence on thin slivers), and a constant-μ patch takes only the few points
+per direction its ε = |φ̇| R / |u_q| needs (``smooth_order``: 2-4 points below
+ε = 0.015 instead of 8, the cost of a nearly translating patch cut 4-16x).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+from numba import njit
+
+from sorter_sim.model.core.jit import borrowing
+
+from sorter_sim.model.core.friction import (
+    law_is_constant,
+    law_smooth_reach,
+    mu_kinetic,
+    mu_static,
+)
+from sorter_sim.model.core.geometry import (
+    MAX_VERTS,
+    box_corners,
+    clip_to_strip,
+    distance_integrals,
+    max_radius,
+    polygon_area_centroid,
+)
+from sorter_sim.model.core.layout import (
+    P_CLOSED,
+    P_GRAV,
+    P_HALF_A,
+    P_HALF_B,
+    P_MASS,
+    S_LAW,
+    S_PARAMS,
+    S_SURF,
+    S_VX,
+    S_VY,
+    S_WEIGHT,
+    S_XHI,
+    S_XLO,
+)
+
+# |φ̇| R / |u_q| below which the exact formula is not used: it loses about
+# eps/ε² to cancellation (terms of size r², r = R/ε, cancel to R²), while the
+# integrand is analytic over the footprint and the centroid-fan Gauss rule of
+# order n errs by about ε^(2n): at 0.02 both stay near 1e-13.
+SMALL_ROTATION = 0.02
+
+
+@functools.lru_cache(maxsize=32)
+def _gauss_legendre_01(n: int):
+    x, w = np.polynomial.legendre.leggauss(n)
+    return 0.5 * (x + 1.0), 0.5 * w
+
+
+def gauss_legendre_01(n: int):
+    """Gauss-Legendre nodes and weights on [0, 1] (fresh arrays: the rule is computed once)."""
+    x, w = _gauss_legendre_01(int(n))
+    return x.copy(), w.copy()
+
+
+@borrowing
+def closed_form_applies(poly, n, qx, qy, ux_q, uy_q, omega):
+    """Return True where the exact constant-μ wrench is accurate (translation or a near ICR)."""
+    if omega == 0.0:
+        return True
+    return abs(omega) * max_radius(poly, n, qx, qy) >= SMALL_ROTATION * math.hypot(ux_q, uy_q)
+
+
+@borrowing
+def strip_wrench_closed(poly, n, area, qx, qy, gx, gy, ux_q, uy_q, omega, mu, pressure):
+    """
+    Exact friction wrench (Fx, Fy, T about g) of a constant-μ strip part.
+
+    Valid where ``closed_form_applies``; for φ̇ = 0 it is F = -μ p S û_q, T = (q - g)×F.
+    """
+    scale = mu * pressure
+    if omega == 0.0:
+        uq = math.hypot(ux_q, uy_q)
+        if uq == 0.0:
+            return 0.0, 0.0, 0.0
+        fx = -scale * area * ux_q / uq
+        fy = -scale * area * uy_q / uq
+        return fx, fy, (qx - gx) * fy - (qy - gy) * fx
+    cx = qx - uy_q / omega
+    cy = qy + ux_q / omega
+    i_r, g_x, g_y = distance_integrals(poly, n, cx, cy)
+    sgn = 1.0 if omega > 0.0 else -1.0
+    fx = -scale * sgn * (-g_y)
+    fy = -scale * sgn * g_x
+    t = -scale * sgn * (i_r + (cx - gx) * g_x + (cy - gy) * g_y)
+    return fx, fy, t
+
+
+def _gauss_table(n_max: int):
+    nodes = np.zeros((n_max + 1, n_max))
+    weights = np.zeros((n_max + 1, n_max))
+    for n in range(1, n_max + 1):
+        nodes[n, :n], weights[n, :n] = gauss_legendre_01(n)
+    return nodes, weights
+
+
+# Gauss-Legendre rules of 1..8 points on [0, 1] (row n: the n-point rule)
+_GL_NODES, _GL_WEIGHTS = _gauss_table(8)
+
+# A constant-μ patch whose instantaneous centre is far away (ε = |φ̇| R / |u_q| small)
+# has an integrand analytic over a disk ~R/ε wide, so few points per direction of the
+# centroid fan reach rounding: measured on rectangles, slivers and pentagons, the
+# n-point rule's largest relative wrench error is ~3e-15 for ε up to these bounds.
+_SMOOTH_EPS = (0.0, 0.0, 5e-7, 2e-3, 0.015, 0.05, 0.1, 0.2)
+
+
+@borrowing
+def smooth_order(eps):
+    """Points per direction that integrate a constant-μ patch with far centre to rounding."""
+    for n in range(2, 8):
+        if eps <= _SMOOTH_EPS[n]:
+            return n
+    return 8
+
+
+@borrowing
+def strip_wrench_quad(
+    poly,
+    n,
+    qx,
+    qy,
+    gx,
+    gy,
+    ux_q,
+    uy_q,
+    omega,
+    law,
+    params,
+    pressure,
+    nodes,
+    weights,
+    adapt=False,
+    mu_fixed=-1.0,
+):
+    """
+    Friction wrench (Fx, Fy, T about g) of a strip part by Duffy-fan Gauss quadrature.
+
+    μ is the law's kinetic μ(|u|) at every point, or ``mu_fixed`` where that is >= 0
+    (a coefficient of rest, the same at every speed).
+
+    With ``adapt`` a patch whose instantaneous centre is far away takes the fewer points
+    of ``smooth_order`` (never more than ``nodes`` has) where μ is analytic over its
+    speeds and well beyond (``law_smooth_reach`` at least 3|φ̇|R; ε taken against the
+    nearer of |u_q| and that reach, as a knot just outside the patch's speeds slows
+    Gauss's convergence as the centre does): a constant μ, or a speed-dependent one
+    inside one of its smooth pieces, measured to rounding alike.
+    """
+    radius = max_radius(poly, n, qx, qy)
+    cx = qx
+    cy = qy
+    at_icr = False
+    if omega != 0.0:
+        icx = qx - uy_q / omega
+        icy = qy + ux_q / omega
+        if math.hypot(icx - qx, icy - qy) < 4.0 * radius:
+            cx = icx
+            cy = icy
+            at_icr = True
+    fx = 0.0
+    fy = 0.0
+    t = 0.0
+    nq = nodes.shape[0]
+    constant = mu_fixed >= 0.0 or law_is_constant(law)
+    mu_const = mu_fixed if mu_fixed >= 0.0 else mu_kinetic(law, params, 1.0)
+    if adapt and not at_icr:
+        uq = math.hypot(ux_q, uy_q)
+        ns = nq
+        spread = abs(omega) * radius  # the patch's speeds lie within uq ± spread
+        reach = math.inf if constant else law_smooth_reach(law, params, uq)
+        if uq > 0.0 and spread == 0.0:
+            # a patch in pure translation rubs at one speed: μ is one number over it,
+            # whatever the law (a law not analysed for smoothness has reach 0, and
+            # 0/0 below would be no order at all)
+            ns = smooth_order(0.0)
+        elif uq > 0.0 and reach >= 3.0 * spread:
+            # analytic over a disk ~min(uq, reach)/|φ̇| wide: ε measured against both
+            ns = smooth_order(spread / min(uq, reach))
+        if ns < nq:
+            nq = ns
+            nodes = _GL_NODES[ns, :ns]
+            weights = _GL_WEIGHTS[ns, :ns]
+    for i in range(n):
+        j = (i + 1) % n
+        e0x = poly[i, 0] - cx
+        e0y = poly[i, 1] - cy
+        dex = poly[j, 0] - poly[i, 0]
+        dey = poly[j, 1] - poly[i, 1]
+        det = e0x * dey - e0y * dex
+        if det == 0.0:
+            continue
+        # Fanned from the instantaneous centre, e(t)/|e(t)| along the edge is nearly
+        # singular at t = t_f ± i a, where t_f is the foot of the perpendicular from c
+        # and a its distance in units of t; the sinh map t = t_f + a sinh(u) moves that
+        # singularity far from the real axis. Fanned from the centroid the integrand is
+        # smooth and the map would only slow Gauss's convergence (thin slivers).
+        d2 = dex * dex + dey * dey
+        t_f = -(e0x * dex + e0y * dey) / d2
+        a_t = abs(det) / d2
+        use_map = at_icr and a_t < 0.5
+        u_lo = math.asinh((0.0 - t_f) / a_t) if use_map else 0.0
+        u_hi = math.asinh((1.0 - t_f) / a_t) if use_map else 0.0
+        for a in range(nq):
+            if use_map:
+                u = u_lo + (u_hi - u_lo) * nodes[a]
+                tt = t_f + a_t * math.sinh(u)
+                jac_t = (u_hi - u_lo) * a_t * math.cosh(u)
+            else:
+                tt = nodes[a]
+                jac_t = 1.0
+            ex = e0x + tt * dex
+            ey = e0y + tt * dey
+            w_edge = weights[a] * jac_t * det * pressure
+            for b in range(nq):
+                s = nodes[b]
+                px = cx + s * ex
+                py = cy + s * ey
+                ux = ux_q - omega * (py - qy)
+                uy = uy_q + omega * (px - qx)
+                # speeds are O(1) m/s: no overflow for hypot's scaling to guard against
+                sp = math.sqrt(ux * ux + uy * uy)
+                if sp == 0.0:
+                    continue
+                mu = mu_const if constant else mu_kinetic(law, params, sp)
+                wgt = w_edge * weights[b] * s * mu / sp
+                dfx = -wgt * ux
+                dfy = -wgt * uy
+                fx += dfx
+                fy += dfy
+                t += (px - gx) * dfy - (py - gy) * dfx
+    return fx, fy, t
+
+
+@borrowing
+def add_slip_curvature(out, c, ux, uy, sp, rx, ry):
+    """
+    Add the Hessian of c |u| in the twist, c Jᵀ(I - ûûᵀ)J / |u|, to the upper triangle of ``out``.
+
+    u = (ux, uy) the rubbing velocity of a point at r = (rx, ry) from g, sp = |u| > 0,
+    J = [[1, 0, -r_y], [0, 1, r_x]] its velocity's derivative in the twist. As
+    I - ûûᵀ = n nᵀ with n = ẑ × û, it is one rank-one term.
+    """
+    c = c / sp
+    jn0 = -uy / sp
+    jn1 = ux / sp
+    jn2 = -ry * jn0 + rx * jn1
+    out[0, 0] += c * jn0 * jn0
+    out[0, 1] += c * jn0 * jn1
+    out[0, 2] += c * jn0 * jn2
+    out[1, 1] += c * jn1 * jn1
+    out[1, 2] += c * jn1 * jn2
+    out[2, 2] += c * jn2 * jn2
+
+
+@njit(cache=True)
+def dissipation_hessian(state, strips, parcel, out):
+    """
+    Model the Hessian of the dissipation rate D at the twist in ``state`` (3 x 3, ``out``).
+
+    D(V, φ̇) = Σ ∫ μ p |u| dA over the footprint, so ∇²D = Σ ∫ μ p Jᵀ(I - ûûᵀ)J / |u| dA
+    with J = [[1, 0, -r_y], [0, 1, r_x]], r = p - g (moments about g), μ taken as
+    constant at each point's speed. Summed here at the centroid of each triangle of
+    the centroid fan: the integrand's 1/|u| is integrable but not smooth at an
+    instantaneous centre inside a patch, so this is a model that sets the scale and
+    shape of Newton's steps (the implicit step's), not a value.
+    """
+    x = state[0]
+    y = state[1]
+    half_a = parcel[P_HALF_A]
+    half_b = parcel[P_HALF_B]
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * half_a * half_b)
+    corners = np.empty((4, 2))
+    poly = np.empty((MAX_VERTS, 2))
+    work = np.empty((MAX_VERTS, 2))
+    box_corners(x, y, state[2], half_a, half_b, corners)
+    out[:, :] = 0.0
+    for k in range(strips.shape[0]):
+        w = strips[k, S_WEIGHT]
+        if w <= 0.0:
+            continue
+        n = clip_to_strip(corners, strips[k, S_XLO], strips[k, S_XHI], poly, work)
+        a, qx, qy = polygon_area_centroid(poly, n)
+        if a <= 0.0:
+            continue
+        law = int(strips[k, S_LAW])
+        params = strips[k, S_PARAMS:]
+        for i in range(n):
+            j = (i + 1) % n
+            e0x = poly[i, 0] - qx
+            e0y = poly[i, 1] - qy
+            dex = poly[j, 0] - poly[i, 0]
+            dey = poly[j, 1] - poly[i, 1]
+            det = e0x * dey - e0y * dex
+            rx = qx + (e0x + e0x + dex) / 3.0 - x
+            ry = qy + (e0y + e0y + dey) / 3.0 - y
+            ux = state[3] - state[5] * ry - strips[k, S_VX]
+            uy = state[4] + state[5] * rx - strips[k, S_VY]
+            sp = max(math.sqrt(ux * ux + uy * uy), 1e-300)
+            c = 0.5 * det * p_unit * w * mu_kinetic(law, params, sp)
+            add_slip_curvature(out, c, ux, uy, sp, rx, ry)
+    out[1, 0] = out[0, 1]
+    out[2, 0] = out[0, 2]
+    out[2, 1] = out[1, 2]
+
+
+# A footprint scratch (``clip_scratch``): rows [0, 4) the box's corners, then the part
+# clipped to a strip (rows [4, 4 + MAX_VERTS)) and the clipper's work polygon. The
+# kernels that take one allocate nothing, so they compile without reference counting
+# (``jit.borrowing``); a caller makes one for many evaluations.
+CLIP_ROWS = 4 + 2 * MAX_VERTS
+
+
+@njit(cache=True)
+def clip_scratch():
+    """Return a footprint scratch for the kernels that take ``clip``."""
+    return np.empty((CLIP_ROWS, 2))
+
+
+@borrowing
+def place_box(state, parcel, clip):
+    """Put the corners of the parcel in ``state`` into ``clip``; returns their x range."""
+    c = clip[0:4]
+    box_corners(state[0], state[1], state[2], parcel[P_HALF_A], parcel[P_HALF_B], c)
+    return min(c[0, 0], c[1, 0], c[2, 0], c[3, 0]), max(c[0, 0], c[1, 0], c[2, 0], c[3, 0])
+
+
+@borrowing
+def strip_part(clip, strips, k, xmin, xmax):
+    """
+    Clip the box placed in ``clip`` to strip k, into clip[PART]; returns (n, area, qx, qy).
+
+    A strip of no load share, or beyond the box's x range [xmin, xmax], has none (n = 0,
+    area 0) for the price of two comparisons.
+    """
+    if strips[k, S_WEIGHT] <= 0.0 or strips[k, S_XHI] <= xmin or strips[k, S_XLO] >= xmax:
+        return 0, 0.0, 0.0, 0.0
+    poly = clip[4 : 4 + MAX_VERTS]
+    n = clip_to_strip(clip[0:4], strips[k, S_XLO], strips[k, S_XHI], poly, clip[4 + MAX_VERTS :])
+    a, qx, qy = polygon_area_centroid(poly, n)
+    return n, a, qx, qy
+
+
+@borrowing
+def surface_area(state, strips, parcel, surf, clip):
+    """Footprint area over surface ``surf``, weighted by load share [m²] (clipping only)."""
+    xmin, xmax = place_box(state, parcel, clip)
+    total = 0.0
+    for k in range(strips.shape[0]):
+        if int(strips[k, S_SURF]) == surf:
+            _, a, _, _ = strip_part(clip, strips, k, xmin, xmax)
+            total += strips[k, S_WEIGHT] * a
+    return total
+
+
+@borrowing
+def strip_part_wrench(
+    poly,
+    n,
+    a,
+    qx,
+    qy,
+    gx,
+    gy,
+    ux_q,
+    uy_q,
+    omega,
+    law,
+    params,
+    mu_fixed,
+    pressure,
+    nodes,
+    weights,
+    closed_ok,
+):
+    """
+    Friction wrench (Fx, Fy, T about g) of one strip's part of the footprint.
+
+    Exact (``strip_wrench_closed``) where μ is constant there and the closed form is
+    accurate, Gauss quadrature elsewhere; μ is the law's kinetic μ(|u|), or ``mu_fixed``
+    where that is >= 0 (a coefficient of rest). ``closed_ok`` False forces quadrature
+    (the full model, for checking the reductions).
+    """
+    constant = mu_fixed >= 0.0 or law_is_constant(law)
+    if closed_ok and constant and closed_form_applies(poly, n, qx, qy, ux_q, uy_q, omega):
+        mu = mu_fixed if mu_fixed >= 0.0 else mu_kinetic(law, params, 1.0)
+        return strip_wrench_closed(poly, n, a, qx, qy, gx, gy, ux_q, uy_q, omega, mu, pressure)
+    return strip_wrench_quad(
+        poly,
+        n,
+        qx,
+        qy,
+        gx,
+        gy,
+        ux_q,
+        uy_q,
+        omega,
+        law,
+        params,
+        pressure,
+        nodes,
+        weights,
+        closed_ok,
+        mu_fixed,
+    )
+
+
+@borrowing
+def kinetic_wrench(state, strips, parcel, nodes, weights, skip, clip):
+    """
+    Total kinetic friction wrench (Fx, Fy, T about g) on the parcel in ``state``.
+
+    Every surface but ``skip`` (-1 or less: none) at the law's μ(|u|); the sum of
+    ``evaluate_surfaces``' kinetic rows, without its per-surface bookkeeping.
+    """
+    x = state[0]
+    y = state[1]
+    om = state[5]
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * parcel[P_HALF_A] * parcel[P_HALF_B])
+    closed_ok = parcel[P_CLOSED] > 0.5
+    xmin, xmax = place_box(state, parcel, clip)
+    poly = clip[4 : 4 + MAX_VERTS]
+    fx = 0.0
+    fy = 0.0
+    t = 0.0
+    for k in range(strips.shape[0]):
+        if int(strips[k, S_SURF]) == skip:
+            continue
+        n, a, qx, qy = strip_part(clip, strips, k, xmin, xmax)
+        if a <= 0.0:
+            continue
+        dfx, dfy, dt = strip_part_wrench(
+            poly,
+            n,
+            a,
+            qx,
+            qy,
+            x,
+            y,
+            state[3] - om * (qy - y) - strips[k, S_VX],
+            state[4] + om * (qx - x) - strips[k, S_VY],
+            om,
+            int(strips[k, S_LAW]),
+            strips[k, S_PARAMS:],
+            -1.0,
+            p_unit * strips[k, S_WEIGHT],
+            nodes,
+            weights,
+            closed_ok,
+        )
+        fx += dfx
+        fy += dfy
+        t += dt
+    return fx, fy, t
+
+
+@njit(cache=True)
+def evaluate_surfaces(
+    state, strips, parcel, nodes, weights, skip_kinetic, need_static, kin, stat, area, slip_c
+):
+    """
+    Per-surface kinetic wrench, static limits, contact area and centroid slip speed.
+
+    Fills, for every surface k:
+      kin[k]    = (Fx, Fy, T) of kinetic friction from its strips (zero for
+                  ``skip_kinetic``, whose slip is zero while the parcel sticks to it),
+      stat[k]   = (F_max, T_max) with μ_s: eq. 4.3 and the rest row of eq. 4.5
+                  (only when ``need_static``; sliding needs none),
+      area[k]   = footprint area over it, weighted by load share [m²],
+      slip_c[k] = rubbing speed at the area-weighted centroid of its parts [m/s]
+                  (the zone speed the threshold model compares with v_min).
+    Strips the footprint does not reach cost one clip and nothing else.
+    """
+    x = state[0]
+    y = state[1]
+    vx = state[3]
+    vy = state[4]
+    om = state[5]
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * parcel[P_HALF_A] * parcel[P_HALF_B])
+    closed_ok = parcel[P_CLOSED] > 0.5
+    kin[:, :] = 0.0
+    stat[:, :] = 0.0
+    area[:] = 0.0
+    slip_c[:] = 0.0
+    qsum = np.zeros((kin.shape[0], 2))
+    clip = clip_scratch()
+    poly = clip[4 : 4 + MAX_VERTS]
+    xmin, xmax = place_box(state, parcel, clip)
+    for k in range(strips.shape[0]):
+        n, a, qx, qy = strip_part(clip, strips, k, xmin, xmax)
+        if a <= 0.0:
+            continue
+        surf = int(strips[k, S_SURF])
+        w = strips[k, S_WEIGHT]
+        law = int(strips[k, S_LAW])
+        params = strips[k, S_PARAMS:]
+        pressure = p_unit * w
+        area[surf] += w * a
+        qsum[surf, 0] += w * a * qx
+        qsum[surf, 1] += w * a * qy
+        if need_static:
+            mus = mu_static(law, params)
+            i_r, _, _ = distance_integrals(poly, n, x, y)
+            stat[surf, 0] += mus * pressure * a
+            stat[surf, 1] += mus * pressure * i_r
+        if surf == skip_kinetic:
+            continue
+        fx, fy, t = strip_part_wrench(
+            poly,
+            n,
+            a,
+            qx,
+            qy,
+            x,
+            y,
+            vx - om * (qy - y) - strips[k, S_VX],
+            vy + om * (qx - x) - strips[k, S_VY],
+            om,
+            law,
+            params,
+            -1.0,
+            pressure,
+            nodes,
+            weights,
+            closed_ok,
+        )
+        kin[surf, 0] += fx
+        kin[surf, 1] += fy
+        kin[surf, 2] += t
+    for s in range(kin.shape[0]):
+        if area[s] > 0.0:
+            qx = qsum[s, 0] / area[s]
+            qy = qsum[s, 1] / area[s]
+            # any strip of the surface has its velocity
+            for k in range(strips.shape[0]):
+                if int(strips[k, S_SURF]) == s:
+                    ux = vx - om * (qy - y) - strips[k, S_VX]
+                    uy = vy + om * (qx - x) - strips[k, S_VY]
+                    slip_c[s] = math.hypot(ux, uy)
+                    break
+
+
+@borrowing
+def static_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, clip):
+    """
+    Friction wrench (Fx, Fy, T about g) of surface ``surf`` at its static coefficients.
+
+    For the rigid twist (ux, uy, om) of the parcel relative to the surface (velocity
+    of the centre of gravity relative to the surface [m/s], φ̇ [rad/s]) this is
+    -∇D, D(twist) = Σ μ_s p w ∫ |u| dA the patch's dissipation rate at μ_s: the point
+    of the patch's limit set (Goyal, Ruina and Papadopoulos 1991) whose outward
+    normal is the twist. Exact for polygons (``strip_wrench_closed``) wherever that
+    is accurate, Gauss quadrature at constant μ_s elsewhere. ``clip``: a footprint
+    scratch (``clip_scratch``).
+    """
+    return rest_surface_wrench(
+        state, strips, parcel, nodes, weights, surf, ux, uy, om, False, clip
+    )
+
+
+@borrowing
+def rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, kinetic, clip):
+    """
+    Wrench of surface ``surf`` for the twist direction (ux, uy, om), at the coefficient of rest.
+
+    The coefficient is μ_s (``kinetic`` False: the limit set's support point, see
+    ``static_surface_wrench``) or the kinetic law's limit at vanishing speed μ_k(0)
+    (``kinetic`` True: the friction a patch slipping infinitely slowly with that
+    twist direction feels, which a break-away starts from).
+    """
+    x = state[0]
+    y = state[1]
+    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * parcel[P_HALF_A] * parcel[P_HALF_B])
+    closed_ok = parcel[P_CLOSED] > 0.5
+    xmin, xmax = place_box(state, parcel, clip)
+    poly = clip[4 : 4 + MAX_VERTS]
+    fx = 0.0
+    fy = 0.0
+    t = 0.0
+    for k in range(strips.shape[0]):
+        if int(strips[k, S_SURF]) != surf:
+            continue
+        n, a, qx, qy = strip_part(clip, strips, k, xmin, xmax)
+        if a <= 0.0:
+            continue
+        law = int(strips[k, S_LAW])
+        params = strips[k, S_PARAMS:]
+        mus = mu_kinetic(law, params, 0.0) if kinetic else mu_static(law, params)
+        dfx, dfy, dt = strip_part_wrench(
+            poly,
+            n,
+            a,
+            qx,
+            qy,
+            x,
+            y,
+            ux - om * (qy - y),
+            uy + om * (qx - x),
+            om,
+            law,
+            params,
+            mus,
+            p_unit * strips[k, S_WEIGHT],
+            nodes,
+            weights,
+            closed_ok,
+        )
+        fx += dfx
+        fy += dfy
+        t += dt
+    return fx, fy, t
+
+
+def n_surfaces(strips: np.ndarray) -> int:
+    """Return the number of distinct surfaces referenced by the strips."""
+    return int(strips[:, S_SURF].max()) + 1 if strips.shape[0] else 0
+
+
+__all__ = [
+    "CLIP_ROWS",
+    "clip_scratch",
+    "evaluate_surfaces",
+    "kinetic_wrench",
+    "place_box",
+    "strip_part",
+    "strip_part_wrench",
+    "surface_area",
+    "gauss_legendre_01",
+    "n_surfaces",
+    "smooth_order",
+    "rest_surface_wrench",
+    "static_surface_wrench",
+    "strip_wrench_closed",
+    "strip_wrench_quad",
+]

@@ -1,0 +1,245 @@
+"""
+The cell's fieldbus I/O map: every signal a PLC exchanges with the cell, declared once.
+
+Part of the cell description (no ROS, no protocol library): each signal has a
+name, a direction (``input``: the cell to the PLC; ``output``: the PLC to the
+cell), its Modbus table and address, its type, unit and scaling (engineering value
+= raw register value x ``scale``), the engineering range an output accepts, and
+its meaning. The Modbus and OPC UA servers (``sorter_sim.frontends.fieldbus``) are generic
+over this map, the soft PLC (``sorter_control.fieldbus``) reads it to find its
+I/O, and the README's table is generated from it.
+
+The photo-eyes and chute sensors are the cell's own (``photo_eyes.names`` and the
+two chute sensors): sensor i takes discrete input i and input registers
+``SENSOR_EDGE_BASE + 4 i`` .. ``+ 3`` for the times of its last rising and falling
+edge, as a fast input card latches them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+INPUT, OUTPUT = 'input', 'output'
+DI, COIL, IR, HR = 'discrete_input', 'coil', 'input_register', 'holding_register'
+MAX_SENSORS = 16
+LABEL_REGISTERS = 32  # the label in ASCII, two characters a register: 64 = LABEL_MAX
+SENSOR_EDGE_BASE = 100  # input register of sensor 0's last rising edge time
+EDGE_TIME_SCALE = 1e-4  # s per count of an edge time (0.1 ms; uint32 wraps after 4.97 days)
+
+
+@dataclass(frozen=True)
+class Signal:
+    """One signal of the I/O image."""
+
+    name: str
+    direction: str  # INPUT (cell -> PLC) or OUTPUT (PLC -> cell)
+    table: str  # Modbus table: DI, COIL, IR, HR
+    address: int  # first address in that table (0-based)
+    type: str  # bool, int16, uint16, uint32 (two registers, high word first), string
+    unit: str
+    meaning: str
+    scale: float = 1.0  # engineering value = raw x scale
+    lo: float | None = None  # engineering range an output accepts (inclusive)
+    hi: float | None = None
+    words: int = 1  # registers it spans
+
+    @property
+    def opcua_type(self) -> str:
+        """Return the OPC UA variable type of the engineering value."""
+        if self.type == 'bool':
+            return 'Boolean'
+        if self.type == 'string':
+            return 'String'
+        if self.scale != 1.0:
+            return 'Double'
+        return {'int16': 'Int16', 'uint16': 'UInt16', 'uint32': 'UInt32'}[self.type]
+
+    def raw(self, value: float) -> int:
+        """Return the raw register value of an engineering value (rounded, wrapped)."""
+        r = round(value / self.scale)
+        if self.type == 'int16':
+            return r & 0xFFFF
+        if self.type == 'uint32':
+            return r & 0xFFFFFFFF
+        return r & 0xFFFF
+
+    def value(self, raw: int) -> float:
+        """Return the engineering value of a raw (unsigned) register value."""
+        if self.type == 'int16' and raw >= 0x8000:
+            raw -= 0x10000
+        return raw * self.scale
+
+    def accepts(self, value) -> bool:
+        """Return True if an output may take the engineering ``value``."""
+        if self.type == 'bool':
+            return isinstance(value, bool) or value in (0, 1)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return False
+        if value != value:  # NaN
+            return False
+        return self.lo <= value <= self.hi
+
+
+def io_map(sensor_names) -> tuple[Signal, ...]:
+    """Return the cell's I/O map for its sensors (photo-eyes, then the chute sensors)."""
+    names = list(sensor_names)
+    if len(names) > MAX_SENSORS:
+        raise ValueError(f'the I/O map takes at most {MAX_SENSORS} sensors, got {len(names)}')
+    sig = []
+    for i, name in enumerate(names):
+        sig.append(Signal(f'sensor.{name}', INPUT, DI, i, 'bool', '', f'{name} blocked'))
+    sig += [
+        Signal(
+            'scanner.ready',
+            INPUT,
+            DI,
+            16,
+            'bool',
+            '',
+            'a label waits in scanner.label; the PLC acknowledges it with scanner.ack',
+        ),
+        Signal('diverter.up', INPUT, DI, 17, 'bool', '', 'disks fully up (stroke >= 0.999)'),
+        Signal('diverter.down', INPUT, DI, 18, 'bool', '', 'disks fully down (stroke <= 0.001)'),
+        Signal('status.estop', INPUT, DI, 19, 'bool', '', 'e-stop engaged (belt stopped)'),
+        Signal('status.jam', INPUT, DI, 20, 'bool', '', 'a jam stopped a parcel'),
+        Signal('status.watchdog', INPUT, DI, 21, 'bool', '', 'the watchdog tripped'),
+        Signal('status.fault', INPUT, DI, 22, 'bool', '', 'e-stop, jam or watchdog'),
+        Signal(
+            'belt.encoder',
+            INPUT,
+            IR,
+            0,
+            'uint32',
+            'm',
+            'belt travel since start (0.1 mm counts; wraps after 429 km)',
+            scale=1e-4,
+            words=2,
+        ),
+        Signal(
+            'cell.time',
+            INPUT,
+            IR,
+            2,
+            'uint32',
+            's',
+            "the cell's simulated time (0.1 ms counts), latched with the image",
+            scale=EDGE_TIME_SCALE,
+            words=2,
+        ),
+        Signal(
+            'diverter.alpha',
+            INPUT,
+            IR,
+            4,
+            'int16',
+            'deg',
+            'physical disk angle α',
+            scale=0.01,
+        ),
+        Signal(
+            'diverter.stroke',
+            INPUT,
+            IR,
+            5,
+            'uint16',
+            '',
+            'pop-up position, 0 down .. 1 up',
+            scale=0.001,
+        ),
+        Signal(
+            'scanner.sequence',
+            INPUT,
+            IR,
+            6,
+            'uint16',
+            '',
+            'labels read so far (wraps at 65536)',
+        ),
+        Signal(
+            'scanner.label',
+            INPUT,
+            IR,
+            8,
+            'string',
+            '',
+            'the oldest label not yet acknowledged (ASCII, 2 a register, NUL-padded)',
+            words=LABEL_REGISTERS,
+        ),
+    ]
+    for i, name in enumerate(names):
+        base = SENSOR_EDGE_BASE + 4 * i
+        for k, edge in enumerate(('rise', 'fall')):
+            sig.append(
+                Signal(
+                    f'sensor.{name}.{edge}_time',
+                    INPUT,
+                    IR,
+                    base + 2 * k,
+                    'uint32',
+                    's',
+                    f'simulated time of the last {"rising" if k == 0 else "falling"} edge of '
+                    f'{name} (0.1 ms counts, latched to the physics period)',
+                    scale=EDGE_TIME_SCALE,
+                    words=2,
+                )
+            )
+    sig += [
+        Signal('diverter.popup', OUTPUT, COIL, 0, 'bool', '', 'raise the disks (0: lower)'),
+        Signal('cell.reset', OUTPUT, COIL, 1, 'bool', '', 'a rising edge clears the faults'),
+        Signal('belt.run', OUTPUT, COIL, 2, 'bool', '', 'run the belt (0: stop it)'),
+        Signal(
+            'scanner.ack', OUTPUT, COIL, 3, 'bool', '', 'a rising edge takes the waiting label'
+        ),
+        Signal(
+            'cell.estop',
+            OUTPUT,
+            COIL,
+            4,
+            'bool',
+            '',
+            'a rising edge engages the e-stop (belt stops, disks drop; cell.reset releases it)',
+        ),
+        Signal(
+            'diverter.alpha_setpoint',
+            OUTPUT,
+            HR,
+            0,
+            'int16',
+            'deg',
+            'disk angle α to turn to',
+            scale=0.01,
+            lo=-90.0,
+            hi=90.0,
+        ),
+        Signal(
+            'plc.heartbeat',
+            OUTPUT,
+            HR,
+            1,
+            'uint16',
+            '',
+            "the PLC's heartbeat: every change feeds the cell's watchdog",
+            lo=0,
+            hi=65535,
+        ),
+    ]
+    return tuple(sig)
+
+
+def by_name(signals) -> dict[str, Signal]:
+    """Return {name: signal}."""
+    return {s.name: s for s in signals}
+
+
+def table_size(signals, table: str) -> int:
+    """Return the number of addresses a Modbus table spans (0 .. last used address)."""
+    ends = [s.address + s.words for s in signals if s.table == table]
+    return max(ends) if ends else 0
+
+
+class WriteRefused(Exception):
+    """A client's write that the image refuses; ``code`` names why (address/value)."""
+
+    def __init__(self, code: str, message: str):
+        super().__init__(message)
+        self.code = code

@@ -1,0 +1,680 @@
+"""
+The sorter cell as hardware, without ROS: parcels, actuators, sensors, and the stream.
+
+``Cell`` holds every parcel's state and advances them all a control period at a
+time with ``core.cell_kernels.advance_cell``; it inducts the configured parcel
+stream (and parcels asked for from outside), moves the pop-up and the disk angle
+at their physical rates, and reports only what a real cell would show a PLC:
+sensor edges (exact times on the simulation clock), scanner reads, where parcels
+left (a chute, straight on, or jammed), the actuators' positions and the faults.
+The node (``sorter_sim/frontends/node.py``) turns these into messages.
+
+Time is an integer count of control periods, so stamps are exact nanoseconds.
+Parameters come checked from ``params.CellParams``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from sorter_sim.model.core.cache import check_kernel_cache
+
+from sorter_sim.model.core import cell_kernels as ck
+from sorter_sim.model.core.stick import GAUGE_CARRY
+from sorter_sim.model.core.layout import PARCEL_WIDTH, STRIP_WIDTH
+from sorter_sim.model.core.simulate import Parcel, parcel_array
+from sorter_sim.model.core.wrench import gauss_legendre_01
+from sorter_sim.model.description import PENDING_INDUCTS_MAX, label_problem, shown
+from sorter_sim.runtime.params import (
+    SPECS,
+    CellParams,
+    ParamError,
+    format_label,
+    parcel_half_extents,
+)
+from sorter_sim.model.build import zone_law
+
+EXIT_NAMES = {ck.EV_LEFT: 'left', ck.EV_RIGHT: 'right', ck.EV_STRAIGHT: 'straight'}
+# parcel states for markers, indexed by the kernels' S_* codes
+STATE_NAMES = ('on_belt', 'on_disks', 'sliding', 'diverted', 'straight', 'jammed')
+CHUTE_SENSORS = ('chute_left', 'chute_right')
+N_QUAD = 8
+
+
+@dataclass(frozen=True)
+class SensorEdge:
+    """A sensor became blocked (``blocked`` True: rising edge) or clear, at ``t_ns``."""
+
+    t_ns: int
+    sensor: str
+    blocked: bool
+
+
+@dataclass(frozen=True)
+class LabelRead:
+    """The scanner read ``label`` as the parcel's leading edge crossed the scanner line."""
+
+    t_ns: int
+    parcel_id: int
+    label: str
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """
+    Where a parcel left the cell: exit in left | right | straight | jammed.
+
+    (x, y): the centre of gravity where it crossed the chute entry line or the exit,
+    or where it stopped when jammed [m]; cause says what jammed it.
+    """
+
+    t_ns: int
+    parcel_id: int
+    label: str
+    exit: str
+    x: float
+    y: float
+    cause: str = ''
+
+    @property
+    def jammed(self) -> bool:
+        return self.exit == 'jammed'
+
+
+@dataclass(frozen=True)
+class WatchdogTrip:
+    """The controller's heartbeat stopped: at t_ns the cell went to its safe state."""
+
+    t_ns: int
+    silent_s: float  # simulated time since the last heartbeat [s]
+
+
+WATCHDOG_REFUSAL = 'refused: the controller watchdog holds the disks down (no heartbeat)'
+
+
+@dataclass(frozen=True)
+class ParcelSpec:
+    """
+    Describe a parcel to induct.
+
+    A parcel to induct: A x B [m] (A along the belt at φ = 0), mass m [kg], skew φ0
+    [rad], lateral offset y0 [m] of its centre of gravity, and its label ('' = generated).
+    """
+
+    A: float
+    B: float
+    m: float
+    phi0: float = 0.0
+    y0: float = 0.0
+    label: str = ''
+
+
+def check_parcel(spec: ParcelSpec, belt_width: float) -> ParcelSpec:
+    """Raise ParamError unless the parcel is physical and fits on the belt at induct."""
+    limits = {'A': SPECS['parcel_A'], 'B': SPECS['parcel_B'], 'm': SPECS['parcel_m']}
+    for key, ps in limits.items():
+        v = getattr(spec, key)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and ps.lo <= v <= ps.hi):
+            raise ParamError(
+                f'{key} must be a finite number in [{ps.lo:g}, {ps.hi:g}] {ps.units}, '
+                f'got {shown(v)}'
+            )
+    if not (math.isfinite(spec.phi0) and abs(spec.phi0) <= math.pi / 2):
+        phi = math.degrees(spec.phi0)
+        raise ParamError(f'phi0_deg must be in [-90, 90] deg, got {shown(phi)}')
+    if not math.isfinite(spec.y0):
+        raise ParamError(f'y must be finite, got {shown(spec.y0)}')
+    _, hy = parcel_half_extents(spec.A, spec.B, spec.phi0)
+    if abs(spec.y0) + hy > 0.5 * belt_width + 1e-12:
+        raise ParamError(
+            f'the parcel must fit on the belt: |y| + half its width across the belt '
+            f'= {abs(spec.y0) + hy:.4g} m exceeds belt_width/2 = {0.5 * belt_width:g} m'
+        )
+    if spec.label != '' and label_problem(spec.label) is not None:
+        raise ParamError(label_problem(spec.label))
+    return spec
+
+
+class Cell:
+    """One sorter cell: belt, disk field, pop-up, walls, chutes, sensors and parcels."""
+
+    def __init__(self, params: CellParams):
+        check_kernel_cache()
+        self.params = params
+        cap = params.max_parcels
+        self.sensor_names = list(params.photo_eyes_names) + list(CHUTE_SENSORS)
+        n_sens = len(self.sensor_names)
+        self.eye_x = np.array(params.photo_eyes_x, dtype=float)
+        self.state = np.zeros((cap, 6))
+        self.mode = np.full(cap, ck.MODE_SLIDE, dtype=np.int64)
+        self.phase = np.zeros(cap, dtype=np.int64)
+        self.par = np.zeros((cap, PARCEL_WIDTH))
+        self.scanned = np.zeros(cap, dtype=np.bool_)
+        self.gauge_xi = np.zeros((cap, GAUGE_CARRY))  # each parcel's stick-gauge warm start
+        self.blocked = np.zeros((cap, n_sens), dtype=np.bool_)
+        self.counts = np.zeros(n_sens, dtype=np.int64)
+        self.ids = np.zeros(cap, dtype=np.int64)
+        self.dims = np.zeros((cap, 3))
+        self.labels = [''] * cap
+        self.jam_cause = [''] * cap
+        self.nodes, self.weights = gauss_legendre_01(N_QUAD)
+        self.cfg = np.zeros(ck.CFG_WIDTH)
+        self.laws = np.zeros((2, 0))
+        self._configure(params)
+        self.act = np.zeros(ck.ACT_WIDTH)
+        self.act[ck.A_ALPHA] = self.act[ck.A_ALPHA_CMD] = params.alpha_rad
+        self.act[ck.A_BELT_ON] = 1.0
+        self.belt_run = True  # the belt's run command (a fieldbus output); e-stop overrides it
+        self.k = 0
+        self.estop = False
+        self.jam = False
+        # the controller watchdog: armed by the first heartbeat, tripped when the next one
+        # is later than watchdog_timeout (simulated time), cleared by a heartbeat
+        self.watchdog_tripped = False
+        self.watchdog_trips = 0
+        self._heartbeat_k: int | None = None
+        self._heartbeat_value: int | None = None  # the last counter that fed it
+        self.heartbeats_frozen = 0  # heartbeats that repeated the last counter: not fed
+        self.n_inducted = 0
+        self.outcome_counts = {'left': 0, 'right': 0, 'straight': 0, 'jammed': 0}
+        self._stream_rng = np.random.Generator(np.random.PCG64(params.seed))
+        self._external = deque()
+        self.n_induct_refused = 0  # inducts refused because too many were waiting
+        self._stream_next: tuple[ParcelSpec, float] | None = None
+        self._stream_due_k: int | None = None
+        # one period can log per parcel a few sensor changes, a scan, an exit and a jam
+        self._ev_reserve = cap * (n_sens + 4) + 8
+        self.ev_i = np.zeros((2 * self._ev_reserve + 1024, 4), dtype=np.int64)
+        self.ev_f = np.zeros((2 * self._ev_reserve + 1024, 3))
+        self.stats = np.zeros(4, dtype=np.int64)
+        # the kernel's note of the last period's strips (see ``advance_cell``)
+        self._last_strips = np.zeros((ck.MAX_STRIPS, STRIP_WIDTH))
+        self._last_info = np.array([-1, 0], dtype=np.int64)
+        self._snapshot = np.zeros((cap, 7))
+        self._kernel(0)  # compile (or load from numba's cache) now, not in a callback
+
+    # ------------------------------------------------------------------ set-up
+    def _configure(self, p: CellParams) -> None:
+        # the zones' laws: the parameters are checked already (CellParams), no scene needed
+        law_a = zone_law(p.friction_model, p.mu_belt)
+        law_b = zone_law(p.friction_model, p.mu_disks)
+        self.law_belt, self.law_disks = law_a, law_b
+        self.laws = np.vstack([law_a.row(), law_b.row()])
+        c = self.cfg
+        lo, hi = p.chute_x_range
+        c[ck.C_V] = p.belt_speed
+        c[ck.C_HALF_W] = 0.5 * p.belt_width
+        c[ck.C_B] = p.disk_field_length
+        c[ck.C_OPEN_LO] = lo
+        c[ck.C_OPEN_HI] = hi
+        c[ck.C_EXIT_X] = p.exit_x
+        c[ck.C_SCAN_X] = p.scanner_x
+        c[ck.C_DT] = p.control_period_ns * 1e-9
+        c[ck.C_ALPHA_RATE] = math.radians(p.alpha_slew_rate_deg_s)
+        c[ck.C_STROKE_RATE] = math.inf if p.popup_stroke_time == 0.0 else 1.0 / p.popup_stroke_time
+        c[ck.C_RTOL] = p.integrator_rtol
+        c[ck.C_ATOL] = p.integrator_atol
+        c[ck.C_METHOD] = 0.0 if p.integrator == 'accurate' else 1.0
+        c[ck.C_LAW_A] = law_a.law_id
+        c[ck.C_LAW_B] = law_b.law_id
+
+    def update_params(self, params: CellParams) -> None:
+        """Take run-time parameter changes (disk angle command, the parcel stream)."""
+        changed_alpha = params.alpha_deg != self.params.alpha_deg
+        self.params = params
+        if changed_alpha:
+            self.act[ck.A_ALPHA_CMD] = params.alpha_rad
+        if params.arrival != 'rate':
+            self._stream_due_k = None
+
+    # ------------------------------------------------------------------ time
+    @property
+    def dt(self) -> float:
+        return self.cfg[ck.C_DT]
+
+    @property
+    def t_ns(self) -> int:
+        return self.k * self.params.control_period_ns
+
+    @property
+    def t(self) -> float:
+        return self.t_ns * 1e-9
+
+    # ------------------------------------------------------------------ actuators
+    @property
+    def alpha(self) -> float:
+        """Physical disk angle [rad]."""
+        return float(self.act[ck.A_ALPHA])
+
+    @property
+    def alpha_rate(self) -> float:
+        return float(self.act[ck.A_ALPHA_DOT])
+
+    @property
+    def stroke(self) -> float:
+        """Pop-up position, 0 down .. 1 up."""
+        return float(self.act[ck.A_STROKE])
+
+    @property
+    def stroke_rate(self) -> float:
+        return float(self.act[ck.A_STROKE_DOT])
+
+    @property
+    def belt_velocity(self) -> float:
+        return self.params.belt_speed if self.act[ck.A_BELT_ON] > 0.5 else 0.0
+
+    def popup(self, up: bool) -> tuple[bool, str]:
+        """Raise (True) or lower the disks; refused while the e-stop is engaged."""
+        if self.estop:
+            return False, 'refused: e-stop engaged (call reset first)'
+        if up and self.watchdog_tripped:
+            return False, WATCHDOG_REFUSAL
+        self.act[ck.A_STROKE_TARGET] = 1.0 if up else 0.0
+        return True, 'raising the disks' if up else 'lowering the disks'
+
+    def set_alpha(self, alpha_rad: float) -> tuple[bool, str]:
+        """Command the disk angle [rad]; refused while the e-stop or the watchdog holds it."""
+        if self.estop:
+            return False, 'refused: e-stop engaged (call reset first)'
+        if self.watchdog_tripped:
+            return False, WATCHDOG_REFUSAL
+        if not (math.isfinite(alpha_rad) and abs(alpha_rad) <= math.pi / 2 + 1e-12):
+            return (
+                False,
+                f'disk angle must be finite and in [-90, 90] deg, got {shown(alpha_rad)} rad',
+            )
+        self.act[ck.A_ALPHA_CMD] = alpha_rad
+        return True, ''
+
+    def engage_estop(self) -> None:
+        """Belt stops (v = 0 at once), the disks drop at their stroke rate."""
+        self.estop = True
+        self.act[ck.A_BELT_ON] = 0.0
+        self.act[ck.A_STROKE_TARGET] = 0.0
+
+    def reset(self) -> list[SensorEdge]:
+        """Clear the e-stop and jams: jammed parcels are taken off, the belt restarts."""
+        edges = []
+        for i in np.flatnonzero(self.phase == ck.PH_JAMMED):
+            edges += self._remove(int(i))
+        self.estop = False
+        self.jam = False
+        self.act[ck.A_BELT_ON] = 1.0 if self.belt_run else 0.0
+        return edges
+
+    def run_belt(self, run: bool) -> tuple[bool, str]:
+        """Run or stop the belt (the run command); while the e-stop holds, it stays stopped."""
+        self.belt_run = bool(run)
+        if self.estop:
+            return False, 'the belt stays stopped: e-stop engaged (call reset first)'
+        self.act[ck.A_BELT_ON] = 1.0 if run else 0.0
+        return True, 'belt running' if run else 'belt stopped'
+
+    @property
+    def faults(self) -> list[str]:
+        """Return the names of the active faults: estop, jam, watchdog."""
+        flags = (('estop', self.estop), ('jam', self.jam), ('watchdog', self.watchdog_tripped))
+        return [name for name, on in flags if on]
+
+    # ------------------------------------------------------------------ watchdog
+    def heartbeat(self, counter: int) -> bool:
+        """
+        Take a controller heartbeat carrying ``counter``; return True if it cleared a trip.
+
+        Only a changed counter feeds the watchdog (the first one arms it, whatever its
+        value): a frozen controller that keeps sending or rewriting its last value is a
+        stopped one, and the watchdog must see it as such (``heartbeats_frozen`` counts
+        those repeats). A controller that comes back takes over where the safe state left
+        the cell: the disks down and at safe_alpha_deg, ready for its next command.
+        """
+        if self._heartbeat_value is not None and counter == self._heartbeat_value:
+            self.heartbeats_frozen += 1
+            return False
+        self._heartbeat_value = counter
+        self._heartbeat_k = self.k
+        if self.watchdog_tripped:
+            self.watchdog_tripped = False
+            return True
+        return False
+
+    @property
+    def watchdog_armed(self) -> bool:
+        return self._heartbeat_k is not None and self.params.watchdog_timeout > 0.0
+
+    def _watchdog_deadline(self) -> int | None:
+        """Period index at which the watchdog trips, or None when it cannot."""
+        if not self.watchdog_armed or self.watchdog_tripped:
+            return None
+        late = math.ceil(self.params.watchdog_timeout / self.dt - 1e-9)
+        return self._heartbeat_k + max(1, late)
+
+    def _trip_watchdog(self) -> WatchdogTrip:
+        """Fail safe as a diverter does when its PLC stops: disks down, α to its safe value."""
+        self.watchdog_tripped = True
+        self.watchdog_trips += 1
+        self.act[ck.A_STROKE_TARGET] = 0.0
+        self.act[ck.A_ALPHA_CMD] = math.radians(self.params.safe_alpha_deg)
+        return WatchdogTrip(self.t_ns, (self.k - self._heartbeat_k) * self.dt)
+
+    # ------------------------------------------------------------------ sensors
+    def sensor_states(self) -> dict[str, bool]:
+        return {n: bool(c > 0) for n, c in zip(self.sensor_names, self.counts)}
+
+    def _remove(self, i: int) -> list[SensorEdge]:
+        """Take parcel ``i`` off the cell now; the sensors it blocked may clear."""
+        edges = []
+        for s in np.flatnonzero(self.blocked[i]):
+            self.blocked[i, s] = False
+            self.counts[s] -= 1
+            if self.counts[s] == 0:
+                edges.append(SensorEdge(self.t_ns, self.sensor_names[s], False))
+        self.phase[i] = ck.PH_FREE
+        self.mode[i] = ck.MODE_SLIDE
+        return edges
+
+    # ------------------------------------------------------------------ parcels
+    def induct(self, spec: ParcelSpec) -> None:
+        """
+        Queue a parcel from outside; it appears at induct_x as soon as there is room.
+
+        At most PENDING_INDUCTS_MAX wait: more is refused (ParamError), as a real
+        infeed refuses parcels when its accumulation conveyor is full.
+        """
+        spec = check_parcel(spec, self.params.belt_width)
+        if len(self._external) >= PENDING_INDUCTS_MAX:
+            self.n_induct_refused += 1
+            raise ParamError(
+                f'{PENDING_INDUCTS_MAX} inducts already wait for room on the belt; '
+                'this one is refused'
+            )
+        self._external.append(spec)
+
+    @property
+    def pending_inducts(self) -> int:
+        return len(self._external)
+
+    def _draw_stream_parcel(self) -> ParcelSpec:
+        p = self.params
+        u = self._stream_rng.uniform
+        A = u(*p.parcel_A)
+        B = u(*p.parcel_B)
+        m = u(*p.parcel_m)
+        phi0 = math.radians(u(*p.parcel_phi0_deg))
+        y0 = u(*p.parcel_y0)
+        return ParcelSpec(A, B, m, phi0, y0)
+
+    def _next_candidate(self) -> tuple[str, ParcelSpec, float] | None:
+        """Return the parcel waiting to be placed next, with the belt gap it needs [m]."""
+        p = self.params
+        if self._external:
+            return 'external', self._external[0], p.arrival_gap[0]
+        if p.arrival == 'gap':
+            if self._stream_next is None:
+                spec = self._draw_stream_parcel()
+                self._stream_next = (spec, self._stream_rng.uniform(*p.arrival_gap))
+        elif p.arrival == 'rate':
+            if self._stream_due_k is None:
+                self._stream_due_k = self.k + self._draw_interarrival()
+            if self.k < self._stream_due_k:
+                return None
+            if self._stream_next is None:
+                self._stream_next = (self._draw_stream_parcel(), p.arrival_gap[0])
+        else:
+            return None
+        return 'stream', self._stream_next[0], self._stream_next[1]
+
+    def _draw_interarrival(self) -> int:
+        dt_s = self._stream_rng.exponential(1.0 / self.params.arrival_rate)
+        return max(1, math.ceil(dt_s / self.dt))
+
+    def _upstream_room(self) -> tuple[float, int]:
+        """
+        Return the free belt length in front of the induct point.
+
+        Free belt length in front of the induct point [m], and the slot whose trailing
+        edge limits it (-1: none).
+        """
+        room, slot = ck.upstream_room(self.state, self.phase, self.par, self.params.induct_x)
+        return float(room), int(slot)
+
+    def _place_pending(self) -> list[SensorEdge]:
+        edges: list[SensorEdge] = []
+        if self.estop:
+            return edges
+        cand = self._next_candidate()
+        if cand is None:
+            return edges
+        source, spec, gap = cand
+        room, _ = self._upstream_room()
+        free = np.flatnonzero(self.phase == ck.PH_FREE)
+        if room < gap or free.size == 0:
+            return edges
+        if source == 'external':
+            self._external.popleft()
+        else:
+            self._stream_next = None
+            if self.params.arrival == 'rate':
+                self._stream_due_k = self.k + self._draw_interarrival()
+        i = int(free[0])
+        self.n_inducted += 1
+        pid = self.n_inducted
+        label = spec.label or format_label(
+            self.params.label_pattern,
+            id=pid,
+            n=pid - 1,
+            label=self.params.labels[(pid - 1) % len(self.params.labels)],
+        )
+        hx, _ = parcel_half_extents(spec.A, spec.B, spec.phi0)
+        v = self.belt_velocity
+        self.state[i] = (self.params.induct_x - hx, spec.y0, spec.phi0, v, 0.0, 0.0)
+        self.mode[i] = ck.MODE_BELT
+        self.phase[i] = ck.PH_CELL
+        self.par[i] = parcel_array(Parcel(spec.A, spec.B, spec.m), n_quad=N_QUAD)
+        self.scanned[i] = False
+        self.gauge_xi[i] = 0.0
+        self.ids[i] = pid
+        self.dims[i] = (spec.A, spec.B, spec.m)
+        self.labels[i] = label
+        self.jam_cause[i] = ''
+        for s in range(len(self.sensor_names)):
+            on = ck.sensor_blocked(
+                s,
+                len(self.eye_x),
+                self.eye_x,
+                self.cfg,
+                self.state[i],
+                ck.PH_CELL,
+                self.par[i, 0],
+                self.par[i, 1],
+            )
+            self.blocked[i, s] = on
+            if on:
+                self.counts[s] += 1
+                if self.counts[s] == 1:
+                    edges.append(SensorEdge(self.t_ns, self.sensor_names[s], True))
+        return edges
+
+    def _periods_until_placement(self) -> int:
+        """Return a lower bound on the periods before the next induct can happen (>= 1)."""
+        if self.estop:
+            return 1 << 40
+        p = self.params
+        cand = self._next_candidate()
+        if cand is None:
+            if p.arrival == 'rate' and self._stream_due_k is not None and not self._external:
+                return max(1, self._stream_due_k - self.k)
+            return 1 << 40
+        room, j = self._upstream_room()
+        if j < 0 or not np.any(self.phase == ck.PH_FREE):
+            return 1
+        gap = cand[2]
+        v = self.belt_velocity
+        moving_with_belt = (
+            self.phase[j] == ck.PH_CELL
+            and self.mode[j] == ck.MODE_BELT
+            and self.state[j, 3] == v
+            and v > 0.0
+        )
+        if not moving_with_belt:
+            return 1
+        # the limiting parcel moves at v: room grows by v dt per period
+        return max(1, math.ceil((gap - room) / (v * self.dt) - 1e-9))
+
+    # ------------------------------------------------------------------ stepping
+    def _kernel(self, n: int) -> tuple[int, int]:
+        return ck.advance_cell(
+            n,
+            self.k,
+            self.cfg,
+            self.laws,
+            self.act,
+            self.state,
+            self.mode,
+            self.phase,
+            self.par,
+            self.scanned,
+            self.eye_x,
+            self.blocked,
+            self.counts,
+            self.nodes,
+            self.weights,
+            self.ev_i,
+            self.ev_f,
+            self._ev_reserve,
+            self.stats,
+            self._last_strips,
+            self._last_info,
+            self.gauge_xi,
+        )
+
+    def advance(self, n: int = 1) -> list:
+        """
+        Advance ``n`` control periods and return what happened.
+
+        Advance ``n`` control periods; returns what happened, in time order
+        (SensorEdge, LabelRead, Outcome).
+        """
+        if n < 0:
+            raise ValueError(f'n must be >= 0, got {n}')
+        events: list = []
+        remaining = n
+        while remaining > 0:
+            events += self._place_pending()
+            m = min(remaining, self._periods_until_placement())
+            deadline = self._watchdog_deadline()
+            if deadline is not None:
+                if self.k >= deadline:
+                    events.append(self._trip_watchdog())
+                    continue
+                m = min(m, deadline - self.k)
+            done, n_ev = self._kernel(m)
+            events += self._collect(n_ev)
+            self.k += done
+            remaining -= done
+        deadline = self._watchdog_deadline()
+        if deadline is not None and self.k >= deadline:
+            events.append(self._trip_watchdog())
+        events.sort(key=lambda e: e.t_ns)
+        return events
+
+    def _collect(self, n_ev: int) -> list:
+        out: list = []
+        dt_ns = self.params.control_period_ns
+        for r in range(min(n_ev, self.ev_i.shape[0])):
+            k, kind, a, b = (int(v) for v in self.ev_i[r])
+            tau, x, y = (float(v) for v in self.ev_f[r])
+            t_ns = k * dt_ns + round(tau * 1e9)
+            if kind == ck.EV_EDGE:
+                out.append(SensorEdge(t_ns, self.sensor_names[a], bool(b)))
+            elif kind == ck.EV_SCAN:
+                out.append(LabelRead(t_ns, int(self.ids[a]), self.labels[a]))
+            elif kind in EXIT_NAMES:
+                name = EXIT_NAMES[kind]
+                self.outcome_counts[name] += 1
+                out.append(Outcome(t_ns, int(self.ids[a]), self.labels[a], name, x, y))
+            elif kind == ck.EV_JAM:
+                self.jam = True
+                self.outcome_counts['jammed'] += 1
+                cause = (
+                    'side wall'
+                    if b == -1
+                    else 'integration failed'
+                    if b == -2
+                    else f'parcel {int(self.ids[b])}'
+                )
+                self.jam_cause[a] = cause
+                out.append(Outcome(t_ns, int(self.ids[a]), self.labels[a], 'jammed', x, y, cause))
+        return out
+
+    # ------------------------------------------------------------------ observation
+    def parcels(self) -> dict[str, np.ndarray]:
+        """
+        Return the parcels in the cell.
+
+        Parcels in the cell (on it, jammed, or sliding onto a chute), in id order:
+        id, x, y, phi, A, B, state (index into STATE_NAMES).
+        """
+        n = ck.cell_snapshot(
+            self.phase,
+            self.mode,
+            self.ids,
+            self.state,
+            self.par,
+            self.params.disk_field_length,
+            self._snapshot,
+        )
+        rows = self._snapshot[:n]
+        return {
+            'id': rows[:, 0].astype(np.int64),
+            'x': rows[:, 1].copy(),
+            'y': rows[:, 2].copy(),
+            'phi': rows[:, 3].copy(),
+            'A': rows[:, 4].copy(),
+            'B': rows[:, 5].copy(),
+            'state': rows[:, 6].astype(np.int64),
+        }
+
+    def parcel_motion(self) -> dict:
+        """
+        Return label, speed and slip of each parcel in the cell, in id order (as ``parcels``).
+
+        speed: of the centre of gravity [m/s]; slip_belt, slip_disks: its speed relative to
+        the belt's and to the disks' surface [m/s], the relative speeds the friction zones
+        see at the CoG. Parcels riding a surface are advanced in closed form: their velocity
+        is that surface's.
+        """
+        idx = np.flatnonzero(self.phase != ck.PH_FREE)
+        idx = idx[np.argsort(self.ids[idx], kind='mergesort')]
+        v = self.state[idx, 3:5].copy()
+        mode, phase = self.mode[idx], self.phase[idx]
+        speed = self.belt_velocity
+        belt = np.array([speed, 0.0])
+        disks = speed * np.array([math.cos(self.alpha), math.sin(self.alpha)])
+        riding = phase == ck.PH_CELL
+        v[riding & (mode == ck.MODE_BELT)] = belt
+        v[riding & (mode == ck.MODE_DISKS)] = disks
+        return {
+            'label': [self.labels[i] for i in idx],
+            'speed': np.hypot(v[:, 0], v[:, 1]),
+            'slip_belt': np.hypot(v[:, 0] - belt[0], v[:, 1] - belt[1]),
+            'slip_disks': np.hypot(v[:, 0] - disks[0], v[:, 1] - disks[1]),
+        }
+
+    @property
+    def n_parcels(self) -> int:
+        return int(np.count_nonzero(self.phase != ck.PH_FREE))
+
+
+__all__ = [
+    'Cell',
+    'ParcelSpec',
+    'SensorEdge',
+    'LabelRead',
+    'Outcome',
+    'STATE_NAMES',
+    'check_parcel',
+]

@@ -1,0 +1,1227 @@
+"""
+The seed's numerical experiments as commands: ``sorter paper FIG [--out DIR]``.
+
+One function per figure of Piątkowski (2009), sections 3, 5 and 6. Each computes
+its data from the model core (``sorter_sim.model.core``) through the same scene code
+the simulation node uses (``sorter_sim.runtime.scene``), writes a CSV and a PNG
+(matplotlib, Agg) into ``out`` when given, and returns a ``FigureResult``: the
+headline figures next to the seed's statements, and the seed's qualitative
+claims as measured on this run. ``quick=True`` runs coarse grids (for tests);
+the full grids are the command's default.
+
+Symbols keep the seed's letters: A x B parcel length x width [m] (A along the
+belt at φ = 0), v belt speed [m/s], α disk angle, b disk-field width (zone b),
+s = 0.7 m the lateral distance the centre of gravity must cover to be scrapped,
+x_o the distance it travels along the belt meanwhile, W_t = 3600/t_c capacity
+[pcs/h], μ_a, μ_b the coefficients of the belt and the disks, v_min the
+threshold speed of eq. (3.1).
+
+Figures: 4, 5 (stick-slip body), 7, 8 (a-d), 9, 10, 11, 13, 14 (covers 15 and
+16) and ``two-stage`` (the seed's conclusion, ``two_stage.py``).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import brentq
+
+from sorter_sim.model.core.oscillator import (
+    Oscillator,
+    exact_solution,
+    run_oscillator,
+    static_stage_durations,
+)
+from sorter_sim.model.core.simulate import (
+    FrictionLaw,
+    Parcel,
+    Strip,
+    parcel_array,
+    simulate,
+    strip_array,
+)
+from sorter_sim.model.core.wrench import evaluate_surfaces, gauss_legendre_01
+from sorter_sim.model.core.geometry import (
+    MAX_VERTS,
+    box_corners,
+    clip_to_strip,
+    polygon_area_centroid,
+)
+from sorter_sim.model.build import BSPLINE_DEFAULT
+from sorter_sim.runtime.scene import run_scene, scene_parcel, scene_strips, validate
+
+SEED_S = 0.7  # m, conveyor width the centre of gravity must cross (seed: s)
+SEED_MU = 0.6  # the seed's μ_a = μ_b (= μ_c) of section 5
+SEED_MU0, SEED_MUG = 0.65, 0.46  # section 6: μ_0, μ_G of models 2 and 3
+ALPHAS = (90.0, 45.0, 30.0)  # the seed's disk angles, deg
+
+
+# ---------------------------------------------------------------------------- results
+@dataclass
+class FigureResult:
+    """
+    What one figure produced, scipy-result style.
+
+    headline: the figures to compare with the seed (name -> value);
+    seed: the seed's statements this figure is about, verbatim in spirit;
+    claims: each qualitative statement of the seed -> whether this run shows it;
+    data: the arrays behind the plot; files: CSV/PNG written; wall_s: run time.
+    """
+
+    figure: str
+    title: str
+    headline: dict = field(default_factory=dict)
+    seed: list = field(default_factory=list)
+    claims: dict = field(default_factory=dict)
+    data: dict = field(default_factory=dict)
+    files: list = field(default_factory=list)
+    wall_s: float = 0.0
+
+    @property
+    def success(self) -> bool:
+        """Return True when every qualitative claim of the seed holds on this run."""
+        return all(self.claims.values())
+
+    def report(self) -> str:
+        lines = [f"Fig. {self.figure}: {self.title}"]
+        for k, v in self.headline.items():
+            lines.append(f"  {k:<46} {_fmt(v)}")
+        for s in self.seed:
+            lines.append(f"  seed: {s}")
+        for k, ok in self.claims.items():
+            lines.append(f"  [{'holds' if ok else 'FAILS'}] {k}")
+        for f in self.files:
+            lines.append(f"  wrote {f}")
+        lines.append(f"  ({self.wall_s:.1f} s)")
+        return "\n".join(lines)
+
+
+def _fmt(v) -> str:
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "no"
+    if isinstance(v, (float, np.floating)):
+        if not math.isfinite(v):
+            return str(v)
+        return f"{v:.5g}"
+    return str(v)
+
+
+# ---------------------------------------------------------------------------- helpers
+def sorting_scene(
+    *,
+    A=0.7,
+    B=0.2,
+    m=5.0,
+    v=1.5,
+    alpha_deg=90.0,
+    b=math.inf,
+    mu_a=SEED_MU,
+    mu_b=SEED_MU,
+    mu_c="mu_a",
+    model="const1",
+    law=None,
+    rotation=True,
+    t_max=20.0,
+    s=SEED_S,
+    stick="seed",
+) -> dict:
+    """
+    Return a validated scene of the seed's sorting cell; zone c takes μ_a unless told.
+
+    The figures reproduce the seed's computations, so its decoupled stick test is the
+    default here (``stick="exact"`` for the limit-set stick every other part uses).
+    """
+    fr = {"model": model}
+    if law is not None:
+        fr[model] = list(law)
+    return validate(
+        {
+            "parcel": {"A": A, "B": B, "m": m, "phi0_deg": 0.0},
+            "belt": {"v": v, "s": s},
+            "zones": {
+                "b": b,
+                "mu_a": mu_a,
+                "mu_b": mu_b,
+                "mu_c": mu_a if mu_c == "mu_a" else mu_c,
+            },
+            "diverter": {"alpha_deg": alpha_deg},
+            "friction": fr,
+            "model": {"rotation": rotation, "stick": stick},
+            "solver": {"t_max": t_max},
+        }
+    )
+
+
+def sort_once(**kw) -> dict:
+    """
+    Run one parcel through ``sorting_scene(**kw)``.
+
+    The scene summary (t_scrap, x_scrap, ...).
+    """
+    _, summary = run_scene(sorting_scene(**kw))
+    return summary
+
+
+def _x_o(**kw) -> float:
+    s = sort_once(**kw)
+    return s["x_scrap"] if s["x_scrap"] is not None else math.nan
+
+
+def _capacity(**kw) -> float:
+    s = sort_once(**kw)
+    return s["capacity_pcs_h"] if s["capacity_pcs_h"] is not None else math.nan
+
+
+def _write_csv(path: Path, columns: dict) -> Path:
+    """Columns of equal length (name -> sequence) as one CSV with a header row."""
+    names = list(columns)
+    n = len(next(iter(columns.values()))) if columns else 0
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(names)
+        for i in range(n):
+            w.writerow([_cell(columns[c][i]) for c in names])
+    return path
+
+
+def _cell(v):
+    if isinstance(v, (float, np.floating)):
+        return "" if math.isnan(v) else repr(float(v))
+    if isinstance(v, np.integer):
+        return int(v)
+    return v
+
+
+def _figure(nrows=1, ncols=1, size=(7.0, 4.5)):
+    """Return a matplotlib Figure on the Agg canvas (no pyplot state, no display needed)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size, layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False)
+    return fig, axes
+
+
+def _save(fig, out: Path | None, name: str, files: list) -> None:
+    if out is None:
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / name
+    fig.savefig(path, dpi=110)
+    files.append(path)
+
+
+def _alpha_v_A_table(out: Path, fig_no: str, vs, As, arr, column: str, ylabel: str, files: list):
+    """CSV and three panels (α = 90°, 45°, 30°) of a quantity arr[α, v, A], lines per v."""
+    kk, ii, jj = np.meshgrid(range(3), range(len(vs)), range(len(As)), indexing="ij")
+    files.append(
+        _write_csv(
+            out / f"fig{fig_no}.csv",
+            {
+                "alpha_deg": [ALPHAS[k] for k in kk.ravel()],
+                "v_m_s": [vs[i] for i in ii.ravel()],
+                "A_m": [As[j] for j in jj.ravel()],
+                column: arr.ravel(),
+            },
+        )
+    )
+    fig, ax = _figure(1, 3, (13, 4.2))
+    for k, al in enumerate(ALPHAS):
+        a = ax[0, k]
+        for i, v in enumerate(vs):
+            a.plot(As, arr[k, i], "o-", ms=3, label=f"v = {v:.2f} m/s")
+        a.set(
+            xlabel="A [m]",
+            ylabel=ylabel,
+            title=f"Fig. {fig_no}{'abc'[k]}: α = {al:.0f}°",
+            ylim=(0, 1.05 * np.nanmax(arr)),
+        )
+        a.legend(fontsize=7)
+    return fig, ax
+
+
+def _monotone(values, increasing=True, tol=0.0) -> bool:
+    d = np.diff(np.asarray(values, float))
+    return bool(np.all(d > -tol) if increasing else np.all(d < tol))
+
+
+def disk_surface(res, v: float, alpha: float) -> int | None:
+    """Surface id of the disks (velocity v(cos α, sin α)) in a run's surface list."""
+    want = (v * math.cos(alpha), v * math.sin(alpha))
+    for k, (vx, vy) in enumerate(res.surfaces):
+        if (
+            k > 0
+            and math.isclose(vx, want[0], abs_tol=1e-12)
+            and math.isclose(vy, want[1], abs_tol=1e-12)
+        ):
+            return k
+    return None
+
+
+# ---------------------------------------------------------------------------- Fig. 4
+def fig4(out: Path | None = None, quick: bool = False) -> FigureResult:
+    """
+    Stick-slip of the mass-spring body with eq. (3.1) (threshold method, v_min = 1 mm/s).
+
+    Trajectories of the body and of the spring end B, the friction force, the
+    external force P_ext = k (x_s - x_p), the rubbing speed, and the active row
+    of eq. (3.1) over time; compared with the exact Coulomb solution.
+    """
+    t0 = time.perf_counter()
+    osc = Oscillator()  # the seed's m = 1 kg, F_kin = 1 N, F_stat = 1.5 N, k = 2 N/m, 0.1 m/s
+    v_min = 1e-3
+    t_end = 25.0
+    dt = 1e-4 if quick else 1e-5
+    res = run_oscillator(osc, t_end, "threshold", dt=dt, v_min=v_min)
+    exact = exact_solution(osc, t_end, t_eval=res.t)
+    slips_exact = [t for t, k in exact.events if k == "slip"]
+    row3_starts = [t for t, k in res.events if k == "row3"]
+    durations = static_stage_durations(res)
+    t_first_exact = osc.F_stat / (osc.k * osc.v_drive)
+    # in F(3) the body starts from rest with P - F_stat = k v_s τ, so v = k v_s τ²/(2m)
+    # reaches v_min after τ = sqrt(2 m v_min / (k v_s)): the closed form of t_I
+    t_I_closed = math.sqrt(2 * osc.m * v_min / (osc.k * osc.v_drive))
+    # eq. (3.1) holds the body until |v| > v_min, so each break-away comes late by
+    # about t_I and the cycles drift against the exact ones: compare periods, and
+    # positions over the first slide only
+    first_stick = next((t for t, k in exact.events if k == "stick"), t_end)
+    err = float(np.max(np.abs(res.x - exact.x)[res.t <= first_stick]))
+    period = float(np.mean(np.diff(row3_starts))) if len(row3_starts) > 1 else math.nan
+    period_exact = float(np.mean(np.diff(slips_exact))) if len(slips_exact) > 1 else math.nan
+    r = FigureResult("4", "stick-slip body, eq. (3.1) with v_min = 0.001 m/s")
+    r.headline = {
+        "first break-away (row 3 starts) [s]": row3_starts[0] if row3_starts else math.nan,
+        "first break-away, exact Coulomb [s]": t_first_exact,
+        "t_I, duration of F(3) in cycle I [s]": durations[0] if durations else math.nan,
+        "t_I closed form sqrt(2 m v_min/(k v_s)) [s]": t_I_closed,
+        "stick-slip cycles in 25 s (threshold/exact)": f"{len(row3_starts)}/{len(slips_exact)}",
+        "stick-slip period, threshold / exact [s]": f"{period:.4f} / {period_exact:.4f}",
+        "max |x_p - x_p exact| up to the first stick [m]": err,
+        "integration step dt [s]": dt,
+    }
+    r.seed = [
+        "rows F(1) kinetic, F(2) holding, F(3) breaking away take turns (Fig. 4b-d)",
+        "t_I: duration of F(3) in the first cycle",
+    ]
+    rows_seen = set(int(x) for x in np.unique(res.row))
+    r.claims = {
+        "all three rows of eq. (3.1) become active": rows_seen == {1, 2, 3},
+        "first break-away where P_ext reaches F_stat (7.5 s)": bool(row3_starts)
+        and abs(row3_starts[0] - t_first_exact) <= 2 * dt,
+    }
+    r.data = {
+        "t": res.t,
+        "x": res.x,
+        "x_spring": res.x_spring,
+        "v": res.v,
+        "F": res.F,
+        "P": res.P,
+        "row": res.row,
+        "x_exact": exact.x,
+        "durations": durations,
+    }
+    if out is not None:
+        keep = _decimate(res.t, res.row, 6000)
+        r.files.append(
+            _write_csv(
+                out / "fig4.csv",
+                {
+                    "t_s": res.t[keep],
+                    "x_body_m": res.x[keep],
+                    "x_spring_end_m": res.x_spring[keep],
+                    "v_rubbing_m_s": res.v[keep],
+                    "F_friction_N": res.F[keep],
+                    "P_ext_N": res.P[keep],
+                    "row_eq_3_1": res.row[keep],
+                    "x_body_exact_m": exact.x[keep],
+                },
+            )
+        )
+        fig, ax = _figure(3, 1, (7.5, 8.5))
+        a = ax[0, 0]
+        a.plot(res.t, res.x, label="body x_p (eq. 3.1, threshold)")
+        a.plot(res.t, exact.x, "k:", lw=1, label="body, exact Coulomb")
+        a.plot(res.t, res.x_spring, label="spring end B, x_s")
+        a.set(ylabel="position [m]", title="(b) trajectories")
+        a.legend(fontsize=8)
+        a = ax[1, 0]
+        a.plot(res.t, res.F, label="friction F")
+        a.plot(res.t, res.P, label="external P_ext")
+        a.set(ylabel="force [N]", title="(c) forces, rubbing speed and active row")
+        a2 = a.twinx()
+        a2.plot(res.t, res.v, "g", lw=0.8, label="rubbing speed v_o")
+        a2.set_ylabel("v_o [m/s]")
+        a.legend(loc="upper left", fontsize=8)
+        a2.legend(loc="upper right", fontsize=8)
+        a = ax[2, 0]
+        w = (res.t > t_first_exact - 0.1) & (res.t < t_first_exact + 0.25)
+        a.plot(res.t[w], res.F[w], label="F")
+        a.plot(res.t[w], res.P[w], label="P_ext")
+        a.set(
+            xlabel="t [s]",
+            ylabel="force [N]",
+            title="(d) detail A: leaving rest, row of eq. (3.1)",
+        )
+        a3 = a.twinx()
+        a3.step(res.t[w], res.row[w], "r", where="post", label="row F(1..3)")
+        a3.set(ylabel="row", yticks=[1, 2, 3])
+        a.legend(loc="upper left", fontsize=8)
+        a3.legend(loc="lower right", fontsize=8)
+        _save(fig, out, "fig4.png", r.files)
+    r.wall_s = time.perf_counter() - t0
+    return r
+
+
+def _loglog_slope(x, y) -> float:
+    """Least-squares slope of ln y against ln x over the finite points."""
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    m = np.isfinite(y) & (y > 0)
+    return float(np.polyfit(np.log(x[m]), np.log(y[m]), 1)[0]) if m.sum() >= 2 else math.nan
+
+
+def _decimate(t, row, n_max):
+    """Return the indices of ~n_max uniform samples plus every sample where ``row`` changes."""
+    n = len(t)
+    keep = set(range(0, n, max(1, n // n_max)))
+    ch = np.nonzero(np.diff(row) != 0)[0]
+    keep.update(ch.tolist())
+    keep.update((ch + 1).tolist())
+    keep.add(n - 1)
+    return np.array(sorted(keep))
+
+
+# ---------------------------------------------------------------------------- Fig. 5
+def fig5(out: Path | None = None, quick: bool = False) -> FigureResult:
+    """Duration of the static stage F(3) of the first three stick-slip cycles against v_min."""
+    t0 = time.perf_counter()
+    osc = Oscillator()
+    v_mins = np.array([1e-5, 1e-4, 1e-3]) if quick else np.logspace(-6, -1, 11)
+    # the step must resolve t_I = sqrt(10 v_min) s (3 ms at 1e-6 m/s); 40 s hold three cycles
+    dt = 1e-4 if quick else 2e-5
+    t_end = 40.0
+    table = np.full((len(v_mins), 3), np.nan)
+    for i, vm in enumerate(v_mins):
+        res = run_oscillator(
+            osc, t_end, "threshold", dt=dt, v_min=float(vm), max_points=int(t_end / dt) + 10
+        )
+        d = static_stage_durations(res, 3)
+        table[i, : len(d)] = d
+    closed = np.sqrt(2 * osc.m * v_mins / (osc.k * osc.v_drive))
+    slopes = [_loglog_slope(v_mins, table[:, j]) for j in range(3)]
+    r = FigureResult("5", "duration of the static stage F(3) against the threshold speed v_min")
+    r.headline = {
+        "v_min range [m/s]": f"{v_mins[0]:.0e} .. {v_mins[-1]:.0e}",
+        "t_I range [s]": f"{np.nanmin(table[:, 0]):.4g} .. {np.nanmax(table[:, 0]):.4g}",
+        "t_II range [s]": f"{np.nanmin(table[:, 1]):.4g} .. {np.nanmax(table[:, 1]):.4g}",
+        "t_III range [s]": f"{np.nanmin(table[:, 2]):.4g} .. {np.nanmax(table[:, 2]):.4g}",
+        "log-log slope d ln t / d ln v_min: t_I, t_II, t_III": ", ".join(
+            f"{x:.3f}" for x in slopes
+        ),
+        "t_I vs sqrt(2 m v_min/(k v_s)), worst rel. dev.": float(
+            np.nanmax(np.abs(table[:, 0] / closed - 1)[v_mins <= 1e-2])
+        ),
+        "integration step dt [s]": dt,
+    }
+    r.seed = [
+        "t_I depends strictly on v_min; t_II and t_III do not show such a dependence",
+        "cause: cycle I leaves rest from ẋ_p = 0, later cycles from |ẋ_p| <= v_min",
+    ]
+    r.claims = {
+        "t_I grows with v_min (as sqrt(v_min): slope 0.5)": _monotone(table[:, 0], True)
+        and abs(slopes[0] - 0.5) < 0.05,
+        "t_II and t_III show no trend with v_min (|slope| < 0.2)": abs(slopes[1]) < 0.2
+        and abs(slopes[2]) < 0.2,
+    }
+    r.data = {"v_min": v_mins, "durations": table, "t_I_closed": closed}
+    if out is not None:
+        r.files.append(
+            _write_csv(
+                out / "fig5.csv",
+                {
+                    "v_min_m_s": v_mins,
+                    "t_I_s": table[:, 0],
+                    "t_II_s": table[:, 1],
+                    "t_III_s": table[:, 2],
+                    "t_I_closed_form_s": closed,
+                },
+            )
+        )
+        fig, ax = _figure(1, 1, (6.5, 4.2))
+        a = ax[0, 0]
+        for j, lab in enumerate(("t_I", "t_II", "t_III")):
+            a.loglog(v_mins, table[:, j], "o-", label=lab)
+        a.loglog(v_mins, closed, "k:", label="sqrt(2 m v_min / (k ẋ_s))")
+        a.set(
+            xlabel="v_min [m/s]",
+            ylabel="duration of F(3) [s]",
+            title=f"Fig. 5: static stage F(3) against v_min (RK4, dt = {dt:g} s)",
+        )
+        a.legend(fontsize=8)
+        _save(fig, out, "fig5.png", r.files)
+    r.wall_s = time.perf_counter() - t0
+    return r
+
+
+# ---------------------------------------------------------------------------- Fig. 7
+def fig7(out: Path | None = None, quick: bool = False) -> FigureResult:
+    """Return the CoG path with (line 1) and without (line 2) the moment of friction forces."""
+    t0 = time.perf_counter()
+    kw = dict(A=0.4, B=0.2, v=1.0, alpha_deg=90.0, b=math.inf, mu_a=SEED_MU, mu_b=SEED_MU)
+    runs = {}
+    for rot in (True, False):
+        res, summ = run_scene(sorting_scene(rotation=rot, **kw))
+        runs[rot] = (res, summ)
+    (r1, s1), (r2, s2) = runs[True], runs[False]
+    r = FigureResult(
+        "7",
+        "CoG trajectory with / without the moment of friction forces "
+        "(0.4 x 0.2 m, v = 1 m/s, α = 90°, b = ∞, μ_a = μ_b = 0.6)",
+    )
+    r.headline = {
+        "x_o with the moment (line 1) [m]": s1["x_scrap"],
+        "x_o without the moment (line 2) [m]": s2["x_scrap"],
+        "x_o shortened by the moment [%]": 100 * (1 - s1["x_scrap"] / s2["x_scrap"]),
+        "rotation angle reached φ_k [deg]": s1["phi_scrap_deg"],
+        "t_c with / without the moment [s]": f"{s1['t_scrap']:.4f} / {s2['t_scrap']:.4f}",
+    }
+    r.seed = ["the moment of friction forces rotates the load by φ_k and shortens x_o"]
+    r.claims = {
+        "the load is rotated (φ_k > 1°)": abs(s1["phi_scrap_deg"]) > 1.0,
+        "x_o is shorter with the moment": s1["x_scrap"] < s2["x_scrap"],
+    }
+    r.data = {"with": r1, "without": r2}
+    if out is not None:
+        cols = {"line": [], "t_s": [], "x_o_m": [], "y_o_m": [], "phi_deg": []}
+        for name, res in (("1_with_moment", r1), ("2_without_moment", r2)):
+            cols["line"] += [name] * len(res.t)
+            cols["t_s"] += list(res.t)
+            cols["x_o_m"] += list(res.y[:, 0] - res.y[0, 0])
+            cols["y_o_m"] += list(res.y[:, 1])
+            cols["phi_deg"] += list(np.degrees(res.y[:, 2]))
+        r.files.append(_write_csv(out / "fig7.csv", cols))
+        fig, ax = _figure(1, 1, (6.5, 5.0))
+        a = ax[0, 0]
+        x0 = r1.y[0, 0]
+        for res, lab, st in (
+            (r1, "1: moment of friction forces on", "-"),
+            (r2, "2: moment neglected", "--"),
+        ):
+            a.plot(res.y[:, 0] - x0, res.y[:, 1], st, label=lab)
+        # outlines of the parcel at a few instants (line 1)
+        for t in np.linspace(r1.t[0], r1.t[-1], 5):
+            k = min(np.searchsorted(r1.t, t), len(r1.t) - 1)
+            c = np.empty((4, 2))
+            box_corners(r1.y[k, 0] - x0, r1.y[k, 1], r1.y[k, 2], 0.2, 0.1, c)
+            a.fill(c[:, 0], c[:, 1], alpha=0.12, color="C0")
+        a.axhline(SEED_S, color="k", lw=0.8, ls=":")
+        a.set(
+            xlabel="x_o [m] (along the belt)",
+            ylabel="y_o [m] (towards the chute)",
+            title=f"Fig. 7: φ_k = {s1['phi_scrap_deg']:.1f}°, x_o {s1['x_scrap']:.3f} vs "
+            f"{s2['x_scrap']:.3f} m",
+            aspect="equal",
+        )
+        a.legend(fontsize=8)
+        _save(fig, out, "fig7.png", r.files)
+    r.wall_s = time.perf_counter() - t0
+    return r
+
+
+# ---------------------------------------------------------------------------- Fig. 8
+def fig8(out: Path | None = None, quick: bool = False) -> FigureResult:
+    """
+    Compute Fig. 9: the scrap distance x_o against the cell's parameters.
+
+    Distance x_o while the CoG is moved s = 0.7 m across, against (a) A, B; (b) v, A;
+    (c) α, A; (d) μ_a, μ_b. Defaults elsewhere: 0.7 x 0.2 m, v = 1.5 m/s, α = 90°, μ = 0.6.
+    """
+    t0 = time.perf_counter()
+    if quick:
+        As, Bs, vs, als, mus = [0.3, 0.9], [0.2, 0.6], [0.5, 1.5], [30.0, 90.0], [0.4, 0.8]
+    else:
+        As = [0.2, 0.4, 0.6, 0.8, 1.0, 1.2]
+        Bs = [0.2, 0.4, 0.6, 0.8]
+        vs = [0.5, 0.75, 1.0, 1.25, 1.5]
+        als = [30.0, 45.0, 60.0, 75.0, 90.0]
+        mus = [0.3, 0.45, 0.6, 0.75, 0.9]
+    xa = np.array([[_x_o(A=A, B=B) for B in Bs] for A in As])  # [A, B]
+    xb = np.array([[_x_o(A=A, v=v) for A in As] for v in vs])  # [v, A]
+    xc = np.array([[_x_o(A=A, alpha_deg=al) for A in As] for al in als])  # [α, A]
+    xd = np.array([[_x_o(mu_a=ma, mu_b=mb) for mb in mus] for ma in mus])  # [μa, μb]
+    r = FigureResult(
+        "8", "distance x_o along the belt while scrapped across s = 0.7 m (b = ∞, φ = 0)"
+    )
+    rel = lambda arr, ax: float(np.max(np.ptp(arr, axis=ax) / np.mean(arr, axis=ax)))  # noqa: E731
+    # sensitivity of x_o to μ_b vs μ_a over the same range, at the grid centre
+    c = len(mus) // 2
+    mid = len(As) // 2
+    r.headline = {
+        "x_o range over A (B = 0.2) [m]": f"{xa[0, 0]:.3f} .. {xa[-1, 0]:.3f}",
+        "largest relative change of x_o over B [%]": 100 * rel(xa, 1),
+        "largest relative change of x_o over A [%]": 100 * rel(xa, 0),
+        "x_o at v = min / max (A = mid) [m]": f"{xb[0, mid]:.3f} / {xb[-1, mid]:.3f}",
+        "x_o at α = min / max (A = mid) [m]": f"{xc[0, mid]:.3f} / {xc[-1, mid]:.3f}",
+        "x_o change over μ_b range (μ_a mid) [m]": float(xd[c, -1] - xd[c, 0]),
+        "x_o change over μ_a range (μ_b mid) [m]": float(xd[-1, c] - xd[0, c]),
+    }
+    r.seed = [
+        "(a) x_o depends on A and is not sensitive to B",
+        "(b) the greater v, the greater x_o",
+        "(c) the lower α, the greater x_o",
+        "(d) greater μ_b -> shorter x_o; lower μ_a -> shorter x_o; μ_b matters more",
+    ]
+    r.claims = {
+        "x_o grows with A (every B)": all(_monotone(xa[:, j], True) for j in range(len(Bs))),
+        "x_o hardly depends on B (far less than on A)": rel(xa, 1) < 0.25 * rel(xa, 0),
+        "x_o grows with v (every A)": all(_monotone(xb[:, j], True) for j in range(len(As))),
+        "x_o falls as α rises (every A)": all(_monotone(xc[:, j], False) for j in range(len(As))),
+        "x_o falls as μ_b rises (every μ_a)": all(
+            _monotone(xd[i, :], False) for i in range(len(mus))
+        ),
+        "x_o rises with μ_a (every μ_b)": all(_monotone(xd[:, j], True) for j in range(len(mus))),
+        "μ_b matters more than μ_a": abs(xd[c, -1] - xd[c, 0]) > abs(xd[-1, c] - xd[0, c]),
+    }
+    r.data = {
+        "A": As,
+        "B": Bs,
+        "v": vs,
+        "alpha": als,
+        "mu": mus,
+        "a": xa,
+        "b": xb,
+        "c": xc,
+        "d": xd,
+    }
+    if out is not None:
+        for tag, rows, cols, rname, cname, arr in (
+            ("a", As, Bs, "A_m", "B_m", xa),
+            ("b", vs, As, "v_m_s", "A_m", xb),
+            ("c", als, As, "alpha_deg", "A_m", xc),
+            ("d", mus, mus, "mu_a", "mu_b", xd),
+        ):
+            ii, jj = np.meshgrid(range(len(rows)), range(len(cols)), indexing="ij")
+            r.files.append(
+                _write_csv(
+                    out / f"fig8{tag}.csv",
+                    {
+                        rname: [rows[i] for i in ii.ravel()],
+                        cname: [cols[j] for j in jj.ravel()],
+                        "x_o_m": arr.ravel(),
+                    },
+                )
+            )
+        fig, ax = _figure(2, 2, (10, 7.5))
+        panels = (
+            ("(a)", As, xa.T, Bs, "A [m]", "B = {:.1f} m"),
+            ("(b)", As, xb, vs, "A [m]", "v = {:.2f} m/s"),
+            ("(c)", As, xc, als, "A [m]", "α = {:.0f}°"),
+            ("(d)", mus, xd.T, mus, "μ_a", "μ_b = {:.2f}"),
+        )
+        for a, (tag, xs, arr, lines, xl, fmt) in zip(ax.ravel(), panels):
+            for k, val in enumerate(lines):
+                a.plot(xs, arr[k], "o-", ms=3, label=fmt.format(val))
+            a.set(xlabel=xl, ylabel="x_o [m]", title=f"Fig. 8{tag}")
+            a.legend(fontsize=7)
+        _save(fig, out, "fig8.png", r.files)
+    r.wall_s = time.perf_counter() - t0
+    return r
+
+
+# ---------------------------------------------------------------------------- Fig. 9
+def fig9(out: Path | None = None, quick: bool = False) -> FigureResult:
+    """Capacity W_t = 3600/t_c [pcs/h] against v and A, for α = 90°, 45°, 30°."""
+    t0 = time.perf_counter()
+    As = [0.3, 0.7, 1.1] if quick else [0.2, 0.4, 0.6, 0.7, 0.8, 1.0, 1.2]
+    vs = [1.0, 1.5] if quick else [0.5, 0.75, 1.0, 1.25, 1.5]
+    W = np.array([[[_capacity(A=A, v=v, alpha_deg=al) for A in As] for v in vs] for al in ALPHAS])
+    ref_full = _capacity(A=0.7, v=1.5, alpha_deg=90.0)
+    ref_simple = _capacity(A=0.7, v=1.5, alpha_deg=90.0, rotation=False)
+    iv = vs.index(1.5)
+    loss = lambda k: 100 * (1 - W[k, iv, :] / W[0, iv, :])  # noqa: E731  % below α = 90°
+    r = FigureResult(
+        "9", "sorting capacity W_t against v and A (μ_a = μ_b = 0.6, B = 0.2 m, b = ∞)"
+    )
+    r.headline = {
+        "W_t at v = 1.5, A = 0.7, α = 90° [pcs/h]": ref_full,
+        "  same, moment of friction neglected [pcs/h]": ref_simple,
+        "seed reads [pcs/h]": 3600.0,
+        f"W_t loss α 90->45°, A = {As[0]} / {As[-1]} m (v 1.5) [%]": (
+            f"{loss(1)[0]:.1f} / {loss(1)[-1]:.1f}"
+        ),
+        f"W_t loss α 90->30°, A = {As[0]} / {As[-1]} m (v 1.5) [%]": (
+            f"{loss(2)[0]:.1f} / {loss(2)[-1]:.1f}"
+        ),
+    }
+    r.seed = [
+        "about 3600 pcs/h at v = 1.5 m/s, A = 0.7 m, α = 90°",
+        "α = 45°: capacity slightly deteriorates; α = 30°: the drop is larger for short loads",
+    ]
+    r.claims = {
+        "capacity falls as α falls (every v, A)": bool(
+            np.all(W[0] > W[1]) and np.all(W[1] > W[2])
+        ),
+        "capacity falls with A (every α, v)": all(
+            _monotone(W[k, i, :], False) for k in range(3) for i in range(len(vs))
+        ),
+        "the α = 30° drop is larger for short loads": loss(2)[0] > loss(2)[-1],
+        "reference within 10 % of the seed's 3600": abs(ref_full / 3600 - 1) < 0.10,
+    }
+    r.data = {
+        "A": As,
+        "v": vs,
+        "alpha": ALPHAS,
+        "W": W,
+        "ref_full": ref_full,
+        "ref_simple": ref_simple,
+    }
+    if out is not None:
+        fig, ax = _alpha_v_A_table(out, "9", vs, As, W, "W_t_pcs_h", "W_t [pcs/h]", r.files)
+        ax[0, 0].plot([0.7], [3600], "k*", ms=10, label="seed: ≈ 3600")
+        ax[0, 0].legend(fontsize=7)
+        _save(fig, out, "fig9.png", r.files)
+    r.wall_s = time.perf_counter() - t0
+    return r
+
+
+# ---------------------------------------------------------------------------- Fig. 10
+@dataclass
+class Samples:
+    """A run's records, resampled for plots: t, y (n x 6), mode (the SimResult fields)."""
+
+    t: np.ndarray
+    y: np.ndarray
+    mode: np.ndarray
+
+
+def densify(res, dt: float = 0.005) -> Samples:
+    """
+    Add samples inside the run's stuck stretches, every ``dt`` [s].
+
+    The accurate method advances a stick in closed form as one record pair; the
+    parcel then moves rigidly with a surface (constant velocity, φ̇ = 0), so linear
+    interpolation between the pair is exact. Sliding records are kept as they are.
+    """
+    ts, ys, ms = [res.t[:1]], [res.y[:1]], [res.mode[:1]]
+    for k in range(len(res.t) - 1):
+        t0, t1 = res.t[k], res.t[k + 1]
+        y0, y1 = res.y[k], res.y[k + 1]
+        if t1 - t0 > dt and y0[5] == 0.0 and np.array_equal(y0[3:6], y1[3:6]):
+            tt = np.arange(t0 + dt, t1, dt)
+            ts.append(tt)
+            ys.append(y0 + np.outer((tt - t0) / (t1 - t0), y1 - y0))
+            ms.append(np.full(len(tt), res.mode[k]))
+        ts.append(res.t[k + 1 : k + 2])
+        ys.append(res.y[k + 1 : k + 2])
+        ms.append(res.mode[k + 1 : k + 2])
+    return Samples(np.concatenate(ts), np.vstack(ys), np.concatenate(ms))
+
+
+def zone_rubbing(res, strips: list[Strip], parcel: Parcel, names=("a", "b")) -> dict:
+    """
+    Rubbing-speed components ξ_i, η_i of zone parts over a run (seed eq. 4.7).
+
+    For zone i the footprint part over it (box ∩ strip) is taken at its centroid q;
+    ξ_i = v_surface,x - v_q,x and η_i = v_q,y - v_surface,y with v_q the parcel's
+    velocity at q, the seed's sign convention. NaN where the parcel does not touch
+    the zone. Returns {name: (ξ, η)} arrays over res.t.
+    """
+    out = {}
+    corners = np.empty((4, 2))
+    poly = np.empty((MAX_VERTS, 2))
+    work = np.empty((MAX_VERTS, 2))
+    by_name = {s.name: s for s in strips}
+    for name in names:
+        st = by_name[name]
+        xi = np.full(len(res.t), np.nan)
+        eta = np.full(len(res.t), np.nan)
+        for k, (x, y, phi, vx, vy, om) in enumerate(res.y):
+            box_corners(x, y, phi, 0.5 * parcel.A, 0.5 * parcel.B, corners)
+            n = clip_to_strip(corners, st.x_lo, st.x_hi, poly, work)
+            area, qx, qy = polygon_area_centroid(poly, n)
+            if area <= 1e-12:
+                continue
+            xi[k] = st.vx - (vx - om * (qy - y))
+            eta[k] = (vy + om * (qx - x)) - st.vy
+        out[name] = (xi, eta)
+    return out
+
+
+def fig10(out: Path | None = None, quick: bool = False) -> FigureResult:
+    """Components of the rubbing speed in zones a and b over time, stages E1-E3 marked."""
+    t0 = time.perf_counter()
+    runs = {}
+    for al in ALPHAS:
+        scene = sorting_scene(A=0.7, B=0.2, v=1.5, alpha_deg=al)
+        res, summ = run_scene(scene)
+        res = densify(res)
+        rub = zone_rubbing(res, scene_strips(scene), scene_parcel(scene))
+        runs[al] = (res, summ, rub)
+    e2 = {al: runs[al][1]["stages"]["E3"] - runs[al][1]["stages"]["E2"] for al in ALPHAS}
+    # |η_b| / |ξ_b| while the disks rub, per stage: E1 (parcel held by the belt) and E2
+    ratio = {}
+    for al, (res, summ, rub) in runs.items():
+        xi_b, eta_b = rub["b"]
+        st = summ["stages"]
+        ok = np.isfinite(xi_b) & (np.abs(xi_b) > 1e-6)
+        for name, lo, hi in (("E1", st["E1"], st["E2"]), ("E2", st["E2"], st["E3"])):
+            m = ok & (res.t >= lo) & (res.t < hi)
+            ratio[al, name] = float(np.median(np.abs(eta_b[m]) / np.abs(xi_b[m])))
+    r = FigureResult("10", "rubbing-speed components in zones a and b (0.7 x 0.2 m, v = 1.5 m/s)")
+    for al in ALPHAS:
+        st = runs[al][1]["stages"]
+        r.headline[
+            f"α = {al:.0f}°: E2 from {st['E2']:.3f} s to E3 at {st['E3']:.3f} s, lasting [s]"
+        ] = e2[al]
+    for al in ALPHAS:
+        r.headline[f"α = {al:.0f}°: median |η_b|/|ξ_b| in E1 ; in E2"] = (
+            f"{ratio[al, 'E1']:.3f} ; {ratio[al, 'E2']:.3f}"
+        )
+    r.seed = [
+        "α = 45°, 30°: the load stays in transient motion E2 much shorter than at α = 90°",
+        "α = 45°, 30°: η_b is much greater than ξ_b; α = 90°: ξ_b = η_b",
+    ]
+    r.claims = {
+        "E2 shorter at 45° and 30° than at 90°": e2[45.0] < e2[90.0] and e2[30.0] < e2[90.0],
+        "ξ_b = η_b at α = 90° (E1 exactly, E2 within 10 % in the median)": abs(
+            ratio[90.0, "E1"] - 1
+        )
+        < 1e-9
+        and abs(ratio[90.0, "E2"] - 1) < 0.10,
+        "η_b much greater than ξ_b at α = 45° and 30° (E1 and E2)": min(
+            ratio[a, e] for a in (45.0, 30.0) for e in ("E1", "E2")
+        )
+        > 1.5,
+    }
+    r.data = {"runs": runs, "E2_duration": e2, "eta_over_xi_b": ratio}
+    if out is not None:
+        cols = {
+            "alpha_deg": [],
+            "t_s": [],
+            "xi_a": [],
+            "eta_a": [],
+            "xi_b": [],
+            "eta_b": [],
+            "stage": [],
+        }
+        for al, (res, summ, rub) in runs.items():
+            st = summ["stages"]
+            stage = np.where(res.t >= st["E3"], "E3", np.where(res.t >= st["E2"], "E2", "E1"))
+            cols["alpha_deg"] += [al] * len(res.t)
+            cols["t_s"] += list(res.t)
+            for z in ("a", "b"):
+                cols[f"xi_{z}"] += list(rub[z][0])
+                cols[f"eta_{z}"] += list(rub[z][1])
+            cols["stage"] += list(stage)
+        r.files.append(_write_csv(out / "fig10.csv", cols))
+        fig, ax = _figure(1, 3, (14, 4.3))
+        for k, al in enumerate(ALPHAS):
+            res, summ, rub = runs[al]
+            a = ax[0, k]
+            for z, ls in (("a", "--"), ("b", "-")):
+                a.plot(res.t, rub[z][0], ls, label=f"ξ_{z}")
+                a.plot(res.t, rub[z][1], ls, label=f"η_{z}")
+            st = summ["stages"]
+            for name in ("E2", "E3"):
+                a.axvline(st[name], color="k", lw=0.7, ls=":")
+            ymax = a.get_ylim()[1]
+            for name, ta, tb in (
+                ("E1", st["E1"], st["E2"]),
+                ("E2", st["E2"], st["E3"]),
+                ("E3", st["E3"], res.t[-1]),
+            ):
+                a.text(0.5 * (ta + tb), 0.92 * ymax, name, ha="center", fontsize=9)
+            a.set(
+                xlabel="t [s]",
+                ylabel="rubbing speed [m/s]",
+                title=f"Fig. 10{'abc'[k]}: α = {al:.0f}°",
+            )
+            a.legend(fontsize=7, loc="lower right")
+        _save(fig, out, "fig10.png", r.files)
+    r.wall_s = time.perf_counter() - t0
+    return r
+
+
+# ---------------------------------------------------------------------------- Fig. 11
+def scrapes_without_sliding(res, v: float, alpha_deg: float) -> bool:
+    """
+    Return the seed's criterion for a sufficient disk field (section 5, Fig. 11).
+
+    The disks must make the rubbing against them vanish (v_ob = 0) and keep it so
+    until the parcel leaves zone b across the scrap line: the run reaches the
+    scrap line while the parcel is stuck on the disk surface. With a finite b the
+    belt zone c behind the field takes part, as it drags a parcel that is not yet
+    held by the disks (or, at α < 90°, drifts into it) out of the field.
+    """
+    disk = disk_surface(res, v, math.radians(alpha_deg))
+    return res.t_target is not None and disk is not None and int(res.mode[-1]) == disk
+
+
+@dataclass
+class MinimalWidth:
+    """Result of ``minimal_disk_width``: b_min [m], criterion evaluations, bracket, converged."""
+
+    b_min: float
+    n_evals: int
+    bracket: tuple
+    converged: bool
+    flag: str = ""
+
+
+def step_root(scrapes, b_lo: float, b_hi: float, xtol: float) -> MinimalWidth:
+    """
+    Smallest b in (b_lo, ...) with ``scrapes(b)`` true, for a yes/no criterion monotone in b.
+
+    The criterion becomes a sign (+1 yes, -1 no) for scipy's brentq, which keeps a
+    sign-changing bracket and converges to the step within ``xtol`` (on a step its
+    interpolation steps fall back to bisection). The upper end is doubled until
+    the criterion holds.
+    """
+    n = [0]
+
+    def sign(b):
+        n[0] += 1
+        return 1.0 if scrapes(b) else -1.0
+
+    if sign(b_lo) > 0:
+        return MinimalWidth(b_lo, n[0], (0.0, b_lo), False, "scrapes already at the lower bound")
+    hi = b_hi
+    while sign(hi) < 0:
+        if hi > 50.0:
+            return MinimalWidth(math.nan, n[0], (b_lo, hi), False, "no width up to 50 m scrapes")
+        hi *= 2.0
+    b_min = brentq(sign, b_lo, hi, xtol=xtol)
+    # brentq returns a point within xtol of the step; report the side that scrapes
+    if sign(b_min) < 0:
+        b_min = b_min + xtol
+    return MinimalWidth(float(b_min), n[0], (b_lo, hi), True)
+
+
+def minimal_disk_width(
+    *, A=0.7, B=0.2, v=1.5, alpha_deg=90.0, mu=SEED_MU, xtol=1e-3, b_hi=2.0, b_lo=0.005, **scene_kw
+) -> MinimalWidth:
+    """
+    Smallest disk-field width b that still scrapes (``scrapes_without_sliding``).
+
+    Finite b, zone c present (μ_c = μ_a = μ_b = μ, the seed's Fig. 11 data); found
+    by ``step_root`` (scipy brentq), not by a scan.
+    """
+
+    def scrapes(b):
+        scene = sorting_scene(
+            A=A,
+            B=B,
+            v=v,
+            alpha_deg=alpha_deg,
+            b=b,
+            mu_a=mu,
+            mu_b=mu,
+            mu_c=mu,
+            t_max=max(4.0, 8.0 * SEED_S / max(v, 1e-3)),
+            **scene_kw,
+        )
+        res, _ = run_scene(scene)
+        return scrapes_without_sliding(res, v, alpha_deg)
+
+    return step_root(scrapes, b_lo, b_hi, xtol)
+
+
+def fig11(out: Path | None = None, quick: bool = False) -> FigureResult:
+    """Minimal disk-field width b against v and A for α = 90°, 45°, 30° (brentq per point)."""
+    t0 = time.perf_counter()
+    As = [0.4] if quick else [0.2, 0.4, 0.6, 0.8, 1.0, 1.2]
+    vs = [1.5] if quick else [0.5, 1.0, 1.5]
+    xtol = 5e-3 if quick else 1e-3
+    bmin = np.full((3, len(vs), len(As)), np.nan)
+    evals = 0
+    for k, al in enumerate(ALPHAS):
+        for i, v in enumerate(vs):
+            for j, A in enumerate(As):
+                mw = minimal_disk_width(A=A, v=v, alpha_deg=al, xtol=xtol)
+                bmin[k, i, j] = mw.b_min
+                evals += mw.n_evals
+    r = FigureResult(
+        "11",
+        "minimal disk-field width b that still scrapes (μ_a = μ_b = μ_c = 0.6, φ = 0, B = 0.2 m)",
+    )
+    for k, al in enumerate(ALPHAS):
+        r.headline[f"b_min range at α = {al:.0f}° [m]"] = (
+            f"{np.nanmin(bmin[k]):.3f} .. {np.nanmax(bmin[k]):.3f}"
+        )
+    iv, jA = len(vs) - 1, min(1, len(As) - 1)
+    for k, al in enumerate(ALPHAS):
+        r.headline[f"b_min at v = {vs[iv]}, A = {As[jA]}, α = {al:.0f}° [m]"] = float(
+            bmin[k, iv, jA]
+        )
+    r.headline["criterion evaluations (runs) in total"] = evals
+    r.headline["root finder"] = f"scipy brentq, xtol {xtol:g} m"
+    gap = (bmin[2] - bmin[0]) / bmin[0]
+    r.seed = [
+        "α = 90° needs a narrower field than α = 45° and 30°",
+        "the disadvantage of 45° and 30° is largest at low v and short A",
+    ]
+    r.claims = {
+        "b_min falls as α rises (every v, A)": bool(
+            np.all(bmin[0] < bmin[1]) and np.all(bmin[1] < bmin[2])
+        ),
+    }
+    if not quick:
+        r.claims["the 30°-vs-90° excess is largest at low v and short A"] = bool(
+            np.nanargmax(gap) == 0
+        )
+    r.data = {"A": As, "v": vs, "alpha": ALPHAS, "b_min": bmin, "excess_30_over_90": gap}
+    if out is not None:
+        fig, _ = _alpha_v_A_table(out, "11", vs, As, bmin, "b_min_m", "minimal b [m]", r.files)
+        _save(fig, out, "fig11.png", r.files)
+    r.wall_s = time.perf_counter() - t0
+    return r
+
+
+# ---------------------------------------------------------------------------- Fig. 13
+FIG13_LAWS = {
+    "model 1 (b-spline)": FrictionLaw("bspline", tuple(BSPLINE_DEFAULT)),
+    "model 2 (const2, μ0 0.65, μG 0.46)": FrictionLaw("const2", (SEED_MU0, SEED_MUG)),
+    "model 3 (const1, μ 0.46)": FrictionLaw("const1", (SEED_MUG,)),
+}
+
+
+def two_belt_positioning(
+    law: FrictionLaw, *, v=0.37, A=0.4, B=0.3, m=5.0, x0=0.05, t_end=10.0, method="accurate"
+):
+    """
+    Run a parcel on the Fig. 12 two-belt stand.
+
+    The Fig. 12 stand: belt x < 0 runs at +v, belt x > 0 at -v; parcel released at rest
+    with its centre x0 off the border. Returns the core result.
+    """
+    strips = [
+        Strip(-math.inf, 0.0, +v, 0.0, law, name="forward"),
+        Strip(0.0, math.inf, -v, 0.0, law, name="backward"),
+    ]
+    return simulate(Parcel(A, B, m), strips, [x0, 0.0, 0.0, 0.0, 0.0, 0.0], (0.0, t_end), method)
+
+
+def swing_peaks(t, x):
+    """Return the times and heights |x| of the turning points of an oscillation about x = 0."""
+    t = np.asarray(t)
+    ax_ = np.abs(np.asarray(x))
+    k = np.nonzero((ax_[1:-1] >= ax_[:-2]) & (ax_[1:-1] >= ax_[2:]) & (ax_[1:-1] > 1e-9))[0] + 1
+    return t[k], ax_[k]
+
+
+def fig13(out: Path | None = None, quick: bool = False, laws: dict | None = None) -> FigureResult:
+    """Position a parcel by two belts running against each other (v = 0.37 m/s, 0.4 x 0.3 m)."""
+    t0 = time.perf_counter()
+    laws = laws or FIG13_LAWS
+    t_end = 6.0 if quick else 12.0
+    runs = {name: two_belt_positioning(law, t_end=t_end) for name, law in laws.items()}
+    decay = {}
+    for name, res in runs.items():
+        _, pk = swing_peaks(res.t, res.y[:, 0])
+        decay[name] = float(pk[-1] / pk[0]) if len(pk) >= 2 else math.nan
+    r = FigureResult(
+        "13", "two opposite belts, v = 0.37 m/s, 0.4 x 0.3 m, released 0.05 m off the border"
+    )
+    for name in runs:
+        r.headline[f"{name}: last/first swing after {t_end:g} s"] = decay[name]
+    r.seed = [
+        "model 1: damped oscillation about the border (Fig. 13a)",
+        "models 2 and 3: non-damped oscillation (Fig. 13b)",
+    ]
+    names = list(runs)
+    r.claims = {
+        "model 1 decays (last swing < half the first)": decay[names[0]] < 0.5,
+        "models 2 and 3 do not decay (within 1 %)": all(
+            abs(decay[n] - 1) < 0.01 for n in names[1:]
+        ),
+    }
+    r.data = {"runs": runs, "decay": decay}
+    if out is not None:
+        cols = {"model": [], "t_s": [], "x_m": [], "vx_m_s": []}
+        for name, res in runs.items():
+            cols["model"] += [name] * len(res.t)
+            cols["t_s"] += list(res.t)
+            cols["x_m"] += list(res.y[:, 0])
+            cols["vx_m_s"] += list(res.y[:, 3])
+        r.files.append(_write_csv(out / "fig13.csv", cols))
+        fig, ax = _figure(2, 1, (7.5, 6))
+        res = runs[names[0]]
+        ax[0, 0].plot(res.t, res.y[:, 0])
+        ax[0, 0].set(ylabel="x [m]", title=f"Fig. 13a: {names[0]}")
+        for n, ls in zip(names[1:], ("-", "--")):
+            ax[1, 0].plot(runs[n].t, runs[n].y[:, 0], ls, label=n)
+        ax[1, 0].set(xlabel="t [s]", ylabel="x [m]", title="Fig. 13b: models 2 and 3")
+        ax[1, 0].legend(fontsize=8)
+        _save(fig, out, "fig13.png", r.files)
+    r.wall_s = time.perf_counter() - t0
+    return r
+
+
+# ---------------------------------------------------------------------------- Fig. 14-16
+FIG14_MODELS = {
+    "1": ("bspline", list(BSPLINE_DEFAULT)),
+    "2": ("const2", [SEED_MU0, SEED_MUG]),
+    # model 3, the one-parameter law: μ = μ_G, the sliding value of model 2
+    "3": ("const1", [SEED_MUG]),
+}
+
+
+def friction_forces(res, strips: list[Strip], parcel: Parcel, rotation=True, g=9.81, n_quad=8):
+    """
+    Friction force (Fx, Fy) [N] each surface exerts on the parcel along a run.
+
+    Sliding surfaces give their kinetic force (eqs. 4.2-4.3 with μ(v_o)); the surface
+    the parcel is stuck to holds it at constant velocity, so it carries minus the
+    sum of the others. Returns an array (n, n_surfaces, 2).
+    """
+    arr = strip_array(strips)
+    par = parcel_array(parcel, rotation, n_quad, True, g)
+    nodes, weights = gauss_legendre_01(n_quad)
+    ns = int(arr[:, 5].max()) + 1
+    kin = np.zeros((ns, 3))
+    stat = np.zeros((ns, 2))
+    area = np.zeros(ns)
+    slip = np.zeros(ns)
+    out = np.zeros((len(res.t), ns, 2))
+    for k in range(len(res.t)):
+        mode = int(res.mode[k])
+        evaluate_surfaces(res.y[k], arr, par, nodes, weights, mode, False, kin, stat, area, slip)
+        out[k, :, :] = kin[:, :2]
+        if mode >= 0:
+            out[k, mode, :] = -(kin[:, :2].sum(axis=0) - kin[mode, :2])
+    return out
+
+
+def fig14(out: Path | None = None, quick: bool = False) -> FigureResult:
+    """
+    Friction forces for model 1 vs models 2, 3 (Fig. 14), t_c and L (Fig. 15), ratios (Fig. 16).
+
+    α = 45°, v = 1.5 m/s, m = 5 kg, 0.4 x 0.26 m, s = 0.7 m, b = ∞; every zone takes the
+    law as given. L is the length of belt the centre of gravity covers while scrapped
+    (x_o, the measure Fig. 8 gives the required field width by).
+    """
+    t0 = time.perf_counter()
+    runs = {}
+    for j, (model, values) in FIG14_MODELS.items():
+        scene = validate(
+            {
+                "parcel": {"A": 0.4, "B": 0.26, "m": 5.0},
+                "belt": {"v": 1.5, "s": SEED_S},
+                "zones": {"b": math.inf, "mu_a": None, "mu_b": None, "mu_c": None},
+                "diverter": {"alpha_deg": 45.0},
+                "friction": {"model": model, model: values},
+            }
+        )
+        res, summ = run_scene(scene)
+        res = densify(res)
+        forces = friction_forces(res, scene_strips(scene), scene_parcel(scene))
+        runs[j] = (res, summ, forces)
+    tc = {j: runs[j][1]["t_scrap"] for j in runs}
+    L = {j: runs[j][1]["x_scrap"] for j in runs}
+    rel_t = {j: tc["1"] / tc[j] for j in runs}
+    rel_L = {j: L["1"] / L[j] for j in runs}
+    # model 1's rise of F_b at the end of E2: |F_b| just before E3 over its minimum in E2
+    res1, s1, f1 = runs["1"]
+    st = s1["stages"]
+    mag_b = np.hypot(f1[:, 1, 0], f1[:, 1, 1])
+    in_e2 = (res1.t >= st["E2"]) & (res1.t < st["E3"])
+    rise = float(mag_b[in_e2][-1] / mag_b[in_e2].min()) if in_e2.any() else math.nan
+    r = FigureResult(
+        "14-16",
+        "friction force, t_c and L: model 1 (b-spline) vs models 2, 3 "
+        "(α = 45°, v = 1.5 m/s, 5 kg, 0.4 x 0.26 m)",
+    )
+    for j in runs:
+        r.headline[f"model {j}: t_c [s] / L [m]"] = f"{tc[j]:.4f} / {L[j]:.4f}"
+    for j in ("2", "3"):
+        r.headline[f"t_c(1)/t_c({j}) ; L(1)/L({j})"] = f"{rel_t[j]:.4f} ; {rel_L[j]:.4f}"
+    worst = max(abs(rel_t[j] - 1) for j in ("2", "3")) * 100
+    worst = max(worst, max(abs(rel_L[j] - 1) for j in ("2", "3")) * 100)
+    r.headline["largest discrepancy vs model 1 [%]"] = worst
+    r.headline["model 1: |F_b| at the end of E2 / its minimum in E2"] = rise
+    r.seed = [
+        "model 1: F_b rises rapidly in the final interval of E2 (Fig. 14a)",
+        "t_c and L of models 2 and 3 differ from model 1 by under 1 % (Fig. 16)",
+    ]
+    r.claims = {
+        "model 1: F_b rises at the end of E2": rise > 1.1,
+        "models 2, 3 within 1 % of model 1 (t_c and L)": worst < 1.0,
+    }
+    r.data = {"runs": runs, "t_c": tc, "L": L, "rel_t": rel_t, "rel_L": rel_L, "worst_pct": worst}
+    if out is not None:
+        cols = {"model": [], "t_s": [], "F_a_x_N": [], "F_a_y_N": [], "F_b_x_N": [], "F_b_y_N": []}
+        for j, (res, summ, f) in runs.items():
+            cols["model"] += [j] * len(res.t)
+            cols["t_s"] += list(res.t)
+            cols["F_a_x_N"] += list(f[:, 0, 0])
+            cols["F_a_y_N"] += list(f[:, 0, 1])
+            cols["F_b_x_N"] += list(f[:, 1, 0])
+            cols["F_b_y_N"] += list(f[:, 1, 1])
+        r.files.append(_write_csv(out / "fig14.csv", cols))
+        r.files.append(
+            _write_csv(
+                out / "fig15_16.csv",
+                {
+                    "model": list(runs),
+                    "t_c_s": [tc[j] for j in runs],
+                    "L_m": [L[j] for j in runs],
+                    "t_c1_over_t_cj": [rel_t[j] for j in runs],
+                    "L1_over_Lj": [rel_L[j] for j in runs],
+                },
+            )
+        )
+        fig, ax = _figure(2, 2, (11, 7.5))
+        for a, js, tag in (
+            (ax[0, 0], ("1",), "a: model 1"),
+            (ax[0, 1], ("2", "3"), "b: models 2 and 3"),
+        ):
+            for j, ls in zip(js, ("-", "--")):
+                res, summ, f = runs[j]
+                a.plot(
+                    res.t,
+                    np.hypot(f[:, 0, 0], f[:, 0, 1]),
+                    ls,
+                    color="C0",
+                    label=f"F_a, model {j}",
+                )
+                a.plot(
+                    res.t,
+                    np.hypot(f[:, 1, 0], f[:, 1, 1]),
+                    ls,
+                    color="C1",
+                    label=f"F_b, model {j}",
+                )
+            stg = runs[js[0]][1]["stages"]
+            for name in ("E2", "E3"):
+                a.axvline(stg[name], color="k", lw=0.7, ls=":")
+                a.text(stg[name], a.get_ylim()[1] * 0.95, " " + name, fontsize=8)
+            a.set(
+                xlabel="t [s]",
+                ylabel="|F| [N]",
+                title=f"Fig. 14{tag}",
+                xlim=(0.0, stg["E3"] + 0.15),
+            )
+            a.legend(fontsize=7)
+        js = list(runs)
+        ax[1, 0].bar([f"t_c({j}) [s]" for j in js], [tc[j] for j in js], color="C0")
+        ax[1, 0].bar([f"L({j}) [m]" for j in js], [L[j] for j in js], color="C2")
+        ax[1, 0].set(title="Fig. 15: t_c and L")
+        labels = [f"t_c(1)/t_c({j})" for j in js] + [f"L(1)/L({j})" for j in js]
+        ratios = [rel_t[j] for j in js] + [rel_L[j] for j in js]
+        ax[1, 1].axhspan(0.99, 1.01, color="0.9", zorder=0, label="±1 % (seed)")
+        ax[1, 1].bar(
+            labels, np.array(ratios) - 1.0, bottom=1.0, color=["C0"] * 3 + ["C2"] * 3, zorder=2
+        )
+        ax[1, 1].plot(labels, ratios, "k_", ms=14, zorder=3)
+        ax[1, 1].set(ylim=(0.98, 1.02), title="Fig. 16: relative to model 1")
+        ax[1, 1].legend(fontsize=7)
+        for a in (ax[1, 0], ax[1, 1]):
+            a.tick_params(axis="x", labelsize=7, rotation=30)
+        _save(fig, out, "fig14_16.png", r.files)
+    r.wall_s = time.perf_counter() - t0
+    return r

@@ -1,0 +1,1008 @@
+"""
+Stiff and extreme cases: a matrix of hard scenes, each run through the methods and checked.
+
+The seed integrates a discontinuous friction law and says the threshold speed v_min is
+chosen "on experience and intuition" (section 3). This module measures instead: every
+case of ``matrix()`` runs with the three methods and ``check_run`` tests what must hold
+whatever the scene; ``CHECKS`` states each check and its bound precisely (the report
+prints it).
+
+``two_belt_long`` runs 10 minutes of the seed's Fig. 13 positioning: with constant μ
+the oscillation is a frictional harmonic oscillator (ω² = 2μg/A) and must keep its
+energy (drift per cycle reported), with the B-spline law it must decay.
+``reductions`` measures each "leave out what a scene does not need" against the full
+model. Everything returns plain rows for ``bench.py`` to print and for the tests.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sorter_sim.model.core.accurate import run_accurate
+from sorter_sim.model.core.common import ST_END, ST_TARGET, _contact_surfaces
+from sorter_sim.model.core.simulate import (
+    G_STANDARD,
+    FrictionLaw,
+    Parcel,
+    Strip,
+    initial_mode,
+    parcel_array,
+    strip_array,
+    strip_borders,
+    surface_velocities,
+    three_zone_strips,
+)
+from sorter_sim.model.core.wrench import clip_scratch, evaluate_surfaces, gauss_legendre_01
+from sorter_sim.model.build import BSPLINE_DEFAULT
+from sorter_sim.studies.workprecision import ParcelCase, Trajectory, compare, timed
+
+CHECKS = """\
+- **finite**: no NaN/inf in any record, and the run ended as asked (time span or scrap line).
+- **cog_speed**: the centre of gravity never moves faster than the surfaces can make it.
+  For a parcel in pure translation (ω ≡ 0) this is a theorem and is checked as such: every area
+  element pulls V towards its surface's velocity, so the distance of V from the convex hull of
+  the surface velocities never grows. With rotation it is a checked property, not a theorem
+  (a spinning parcel can trade spin for translation): |V| <= max(S, |V(0)|) + tol, S the largest
+  surface speed. tol: accurate 10·max(atol, rtol·S); implicit 1e-9·S (the backward-Euler step is
+  itself dissipative); threshold μ_max·g·h (one RK4 step's velocity change across the v_min
+  switch).
+- **corner_speed**: every footprint corner, |V + ω×r_c| <= S + 2·max(|σ_C(0)|, σ*) + tol, a
+  theorem:
+  with c the point of the hull C of surface velocities nearest V and σ_C = (V - c, ρω),
+  d/dt ½m|σ_C|² = Σ∫(w - c)·dF <= Σ∫ μ p (D - |u|) dA (D the diameter of C, u the local slip),
+  negative once |σ_C| > σ* = D(1 + μ_hi/μ_lo)/κ, κ the least mean |a + ω×r| over the footprint
+  for unit (a, ρω); and |w_c - c| <= sqrt(1 + R²/ρ²)·|σ_C| = 2|σ_C| for a rectangle. The corners
+  do exceed S itself, physically: the moment of two surfaces spins the parcel while its centre
+  moves at nearly S (Fig. 9a: 1.59 m/s against S = 1.5 m/s, the same with all three methods);
+  the tables list the measured ratio (corner/S).
+- **energy_single_surface**: over every pair of consecutive records at which the footprint lies
+  over one surface k only, T_k = ½m|V - v_k|² + ½Iω² does not grow (dT_k/dt = -∫ μ p |u| dA <= 0),
+  within m·S·tol (tol as for cog_speed).
+- **energy_surface_power**: at every record (400 sampled at most), each surface's friction power in
+  its own frame, P_k = (V - v_k)·F_k + ω·T_k, is <= 1e-9·μ_hi·m·g·S: friction never adds energy
+  relative to the surface it comes from, whatever else pushes the parcel.
+- **chatter**: at most 10 stick/break switches in any 1 s of simulated time. A stick-slip cycle
+  needs one stick and one break, and the fastest physical cycles here last seconds; a chattering
+  integrator switches every step (hundreds to thousands per second).
+- **convergence**: refining the tolerance (accurate: rtol 1e-6, 1e-8, 1e-10 with atol = rtol/100)
+  or the step (implicit: h, h/4, h/16) brings the CoG position at the common end time closer to
+  the finest run: |p2 - p3| <= |p1 - p3| (or both below 1e-12 m).
+"""
+
+SCRAP_S = 0.7  # m, the seed's conveyor width s
+MAX_SWITCHES_PER_S = 10  # chatter bound: stick/break switches in any 1 s window
+DEFAULT_SETTINGS = {
+    "accurate": {"rtol": 1e-8, "atol": 1e-10},  # the scenes' defaults
+    "implicit": {"dt": 1e-3},
+    "threshold": {"dt": 1e-4, "v_min": 1e-6},
+}
+
+
+def const_law(mu: float) -> FrictionLaw:
+    return FrictionLaw("const1", (mu,))
+
+
+def bspline_law() -> FrictionLaw:
+    return FrictionLaw("bspline", tuple(BSPLINE_DEFAULT))
+
+
+def sorting_case(
+    *,
+    v=1.5,
+    alpha_deg=90.0,
+    mu_a=0.6,
+    mu_b=0.6,
+    b=math.inf,
+    A=0.7,
+    B=0.2,
+    m=5.0,
+    phi0_deg=0.0,
+    t_max=3.0,
+    y0=None,
+    rotation=True,
+) -> ParcelCase:
+    """
+    Return a parcel case of the seed's sorting cell.
+
+    The seed's cell (Fig. 6) around the Fig. 9a point, with the leading edge on the
+    a/b border moving with the belt (the start of ``sorter run``) unless y0 is given.
+    """
+    parcel = Parcel(A, B, m)
+    strips = three_zone_strips(v, math.radians(alpha_deg), b, const_law(mu_a), const_law(mu_b))
+    phi = math.radians(phi0_deg)
+    if y0 is None:
+        y0 = [-parcel.leading_edge_offset(phi), 0.0, phi, v, 0.0, 0.0]
+    return ParcelCase(parcel, strips, np.array(y0, float), (0.0, t_max), SCRAP_S, rotation)
+
+
+def two_belt_case(
+    law: FrictionLaw,
+    t_end: float = 20.0,
+    x0: float = 0.05,
+    phi0_deg: float = 0.0,
+    rotation: bool = True,
+    v: float = 0.37,
+    A: float = 0.4,
+    B: float = 0.3,
+    m: float = 5.0,
+) -> ParcelCase:
+    """
+    Return the Fig. 13 two-belt positioning case.
+
+    Seed Fig. 13: two belts driven against each other (x < 0 at +v, x > 0 at -v),
+    v = 0.37 m/s, 0.4 x 0.3 m, the parcel let go at rest x0 off the centre line.
+    """
+    strips = [
+        Strip(-math.inf, 0.0, v, 0.0, law, name="left"),
+        Strip(0.0, math.inf, -v, 0.0, law, name="right"),
+    ]
+    y0 = np.array([x0, 0.0, math.radians(phi0_deg), 0.0, 0.0, 0.0])
+    return ParcelCase(Parcel(A, B, m), strips, y0, (0.0, t_end), math.inf, rotation)
+
+
+def two_belt_exact(case: ParcelCase, mu: float) -> Trajectory:
+    """
+    Return the exact two-belt solution for a constant μ.
+
+    Constant μ, pure translation, |ẋ| < v: m ẍ = -(2μmg/A) x, so x = x0 cos ωt with
+    ω² = 2μg/A (the areas over the two belts differ by 2Bx). Exact while |x| < A/2.
+    """
+    w = math.sqrt(2.0 * mu * G_STANDARD / case.parcel.A)
+    x0 = float(case.y0[0])
+    t0, t1 = case.t_span
+    t = np.linspace(t0, t1, int((t1 - t0) * 200) + 1)
+
+    def exact(tq):
+        tq = np.asarray(tq, float)
+        q = np.zeros((len(tq), 3))
+        dq = np.zeros((len(tq), 3))
+        q[:, 0] = x0 * np.cos(w * tq)
+        dq[:, 0] = -x0 * w * np.sin(w * tq)
+        return q, dq
+
+    q, dq = exact(t)
+    return Trajectory(t, q, dq, [], pieces=[(t0, t1 + 1e-9, exact)])
+
+
+def two_belt_1d(case: ParcelCase, law: FrictionLaw, rtol: float = 1e-13, atol: float = 1e-15):
+    """
+    Solve the two-belt case as an independent 1-D ODE.
+
+    An independent reference for the two-belt case in pure translation: the 1-D ODE
+    ẍ = (g/A)[μ(v - ẋ)(A/2 - x) - μ(v + ẋ)(A/2 + x)] by solve_ivp (DOP853), using only
+    the friction law (no footprint clipping, no wrench code). Valid while |x| < A/2.
+    """
+    from scipy.integrate import solve_ivp
+    from sorter_sim.model.core.friction import mu_kinetic
+
+    v = case.strips[0].vx
+    A = case.parcel.A
+    row = law.row()
+    lid = law.law_id
+
+    def f(t, z):
+        x, xd = z
+        left = mu_kinetic(lid, row, abs(v - xd)) * math.copysign(1.0, v - xd) * (0.5 * A - x)
+        right = mu_kinetic(lid, row, abs(v + xd)) * math.copysign(1.0, v + xd) * (0.5 * A + x)
+        return [xd, G_STANDARD / A * (left - right)]
+
+    sol = solve_ivp(
+        f,
+        case.t_span,
+        [case.y0[0], case.y0[3]],
+        method="DOP853",
+        rtol=rtol,
+        atol=atol,
+        dense_output=True,
+    )
+
+    def dense(tq):
+        z = sol.sol(np.asarray(tq, float))
+        q = np.zeros((z.shape[1], 3))
+        dq = np.zeros((z.shape[1], 3))
+        q[:, 0], dq[:, 0] = z[0], z[1]
+        return q, dq
+
+    q, dq = dense(sol.t)
+    return Trajectory(
+        sol.t, q, dq, [], n_rhs=sol.nfev, pieces=[(sol.t[0], sol.t[-1] + 1e-9, dense)]
+    )
+
+
+# ------------------------------------------------------------------ the matrix
+@dataclass
+class StiffCase:
+    """
+    Hold one scene of the stiff/extreme-case matrix.
+
+    One scene of the matrix, the methods (with settings) it runs, and whether the
+    suite's quick subset includes it.
+    """
+
+    name: str
+    group: str
+    case: ParcelCase
+    methods: dict = field(default_factory=lambda: dict(DEFAULT_SETTINGS))
+    quick: bool = False
+    converge: tuple = ("accurate",)
+    mu_range: tuple = (0.6, 0.6)  # (μ_lo, μ_hi) over every law and speed in the scene
+    note: str = ""
+
+
+def matrix(quick: bool = False) -> list[StiffCase]:
+    """Return the extreme-case matrix. ``quick`` keeps the suite's subset."""
+    cases: list[StiffCase] = []
+
+    def add(name, group, case, quick_=False, **kw):
+        cases.append(StiffCase(name, group, case, quick=quick_, **kw))
+
+    thr = "threshold"
+    for v_min in (1e-3, 1e-5, 1e-7, 1e-9):
+        add(
+            f"v_min={v_min:g}",
+            "threshold speed v_min (Fig. 9a, RK4 h = 1e-4 s)",
+            sorting_case(),
+            v_min in (1e-3, 1e-9),
+            methods={thr: {"dt": 1e-4, "v_min": v_min}},
+            converge=(),
+        )
+    for mu in (0.0, 0.3, 0.6, 1.5):
+        add(
+            f"mu={mu:g}",
+            "friction coefficient μa = μb",
+            sorting_case(mu_a=mu, mu_b=mu),
+            mu in (0.0, 1.5),
+            mu_range=(mu, mu),
+        )
+    add(
+        "mu_b>>mu_a",
+        "friction coefficient μa = μb",
+        sorting_case(mu_a=0.05, mu_b=1.5),
+        True,
+        mu_range=(0.05, 1.5),
+        note="μa = 0.05, μb = 1.5",
+    )
+    add(
+        "mu_b<<mu_a",
+        "friction coefficient μa = μb",
+        sorting_case(mu_a=1.5, mu_b=0.05),
+        True,
+        mu_range=(0.05, 1.5),
+        note="μa = 1.5, μb = 0.05",
+    )
+    for alpha in (0.0, 1.0, 89.9, 90.0):
+        add(
+            f"alpha={alpha:g}",
+            "disk angle α",
+            sorting_case(alpha_deg=alpha),
+            alpha in (0.0, 1.0, 89.9),
+        )
+    for b, label in ((0.0, "0"), (0.05, "0.05 (<< A = 0.7)"), (math.inf, "inf")):
+        add(
+            f"b={label.split()[0]}",
+            "disk field width b",
+            sorting_case(b=b),
+            b in (0.0, 0.05),
+            note=f"b = {label} m",
+            converge=("accurate", "implicit") if b == math.inf else ("accurate",),
+        )
+    add("long_thin", "parcel shape", sorting_case(A=1.2, B=0.05), True, note="1.2 x 0.05 m")
+    add("square", "parcel shape", sorting_case(A=0.4, B=0.4), note="0.4 x 0.4 m")
+    for phi in (0.0, 45.0, 90.0):
+        add(f"phi0={phi:g}", "initial angle φ0", sorting_case(phi0_deg=phi), phi in (45.0, 90.0))
+    for v in (0.05, 0.5, 3.0):
+        add(
+            f"v={v:g}",
+            "belt speed v",
+            sorting_case(v=v, t_max=30.0 if v < 0.1 else 4.0),
+            v in (0.5, 3.0),
+        )
+    add(
+        "resting_on_disks",
+        "parcel at rest on the disks",
+        sorting_case(y0=[1.0, 0.0, 0.0, 0.0, 1.5, 0.0]),
+        True,
+        note="wholly on the disks, moving with them (stuck) from t = 0",
+    )
+    add(
+        "placed_on_disks",
+        "parcel at rest on the disks",
+        sorting_case(y0=[1.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
+        True,
+        note="at rest in the frame, wholly on the running disks",
+    )
+    add(
+        "all_stopped",
+        "parcel at rest on the disks",
+        sorting_case(v=0.0, y0=[0.1, 0.0, 0.3, 0.0, 0.0, 0.0], t_max=2.0),
+        True,
+        note="belt and disks stopped, parcel at rest across the a/b border",
+    )
+    # the fixed-step method from 1e-6 s to 1e-2 s, over a window around the break-away
+    # (the leading edge 0.33 m into the disk field: break-away ~13 ms later)
+    near_break = [0.33 - 0.35, 0.0, 0.0, 1.5, 0.0, 0.0]
+    for dt, span in ((1e-6, 0.05), (1e-5, 1.5), (1e-4, 1.5), (1e-3, 1.5), (1e-2, 1.5)):
+        add(
+            f"implicit_h={dt:g}",
+            "implicit method step h",
+            sorting_case(y0=near_break, t_max=span),
+            dt in (1e-6, 1e-2),
+            methods={"implicit": {"dt": dt}},
+            converge=(),
+            note=f"{span:g} s from 13 ms before the break-away",
+        )
+    two_belt_methods = dict(DEFAULT_SETTINGS, threshold={"dt": 1e-3, "v_min": 1e-6})
+    add(
+        "two_belt_5s",
+        "two-belt positioning (Fig. 13)",
+        two_belt_case(const_law(0.6), 5.0),
+        True,
+        methods=two_belt_methods,
+        converge=("accurate", "implicit"),
+        note="μ = 0.6, rotation on, 5 s",
+    )
+    add(
+        "two_belt_20s_bspline",
+        "two-belt positioning (Fig. 13)",
+        two_belt_case(bspline_law(), 20.0),
+        methods=two_belt_methods,
+        converge=("accurate", "implicit"),
+        mu_range=_law_range(bspline_law()),
+        note="B-spline law, rotation on, 20 s",
+    )
+    return [c for c in cases if c.quick or not quick]
+
+
+# (case, method) -> what goes wrong; the report and the tests keep these as failures
+KNOWN_DEFECTS: dict[tuple[str, str], str] = {}
+
+
+# ------------------------------------------------------------------ checks
+@dataclass
+class Check:
+    name: str
+    passed: bool
+    value: float
+    detail: str = ""
+
+
+@dataclass
+class CaseRun:
+    """One method on one matrix case: its trajectory and the checks."""
+
+    case: str
+    group: str
+    method: str
+    setting: str
+    wall_s: float
+    status: str
+    checks: list
+    figures: dict = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool:
+        return all(c.passed for c in self.checks)
+
+
+@functools.lru_cache(maxsize=64)
+def _kappa(A: float, B: float, n: int = 40) -> float:
+    """
+    Return the constant of the corner-speed bound.
+
+    Min over unit generalized velocities (a, ρω) of the mean |a + ω×r| over the A x B
+    footprint (the constant of the corner bound); minimised over a grid of directions.
+    """
+    xs = (np.arange(n) + 0.5) / n - 0.5
+    X, Y = np.meshgrid(xs * A, xs * B)
+    X, Y = X.ravel(), Y.ravel()
+    rho = math.sqrt((A * A + B * B) / 12.0)
+    best = math.inf
+    for th in np.linspace(0.0, math.pi, 61):  # angle between (a, ρω) and the ω axis
+        for ps in np.linspace(0.0, math.pi, 31):  # direction of a in the plane
+            ax, ay = math.sin(th) * math.cos(ps), math.sin(th) * math.sin(ps)
+            om = math.cos(th) / rho
+            best = min(best, float(np.mean(np.hypot(ax - om * Y, ay + om * X))))
+    return best
+
+
+def _corner_speeds(traj: Trajectory, A: float, B: float) -> np.ndarray:
+    ha, hb = 0.5 * A, 0.5 * B
+    phi, om = traj.q[:, 2], traj.dq[:, 2]
+    out = np.zeros(len(traj.t))
+    for ox, oy in ((ha, -hb), (ha, hb), (-ha, hb), (-ha, -hb)):
+        rx = np.cos(phi) * ox - np.sin(phi) * oy
+        ry = np.sin(phi) * ox + np.cos(phi) * oy
+        out = np.maximum(out, np.hypot(traj.dq[:, 0] - om * ry, traj.dq[:, 1] + om * rx))
+    return out
+
+
+def _hull_distance(V: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Distance of each velocity V (n, 2) from the convex hull of the points (k, 2)."""
+    if len(pts) == 1:
+        return np.linalg.norm(V - pts[0], axis=1)
+    best = np.full(len(V), math.inf)
+    for i in range(len(pts)):
+        for j in range(i, len(pts)):
+            a, b = pts[i], pts[j]
+            d = b - a
+            dd = float(d @ d)
+            s = np.clip(((V - a) @ d) / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(V))
+            best = np.minimum(best, np.linalg.norm(V - (a + s[:, None] * d), axis=1))
+    if len(pts) >= 3:
+        # inside a triangle of surface points (the cells here have at most 3 surfaces)
+        from itertools import combinations
+
+        for a, b, c in combinations(pts, 3):
+            m = np.array([b - a, c - a]).T
+            if abs(np.linalg.det(m)) > 0:
+                lam = np.linalg.solve(m, (V - a).T).T
+                inside = (lam[:, 0] >= 0) & (lam[:, 1] >= 0) & (lam.sum(axis=1) <= 1)
+                best[inside] = 0.0
+    return best
+
+
+def _switch_times(traj: Trajectory) -> np.ndarray:
+    return np.sort(np.array([t for t, k, _ in traj.events if k in ("stick", "break")], float))
+
+
+def _max_in_window(times: np.ndarray, window: float = 1.0) -> int:
+    if len(times) == 0:
+        return 0
+    j = np.searchsorted(times, times + window, side="right")
+    return int(np.max(j - np.arange(len(times))))
+
+
+def check_run(sc: StiffCase, method: str, settings: dict, res, traj: Trajectory) -> list:
+    """Return the checks of the module docstring on one run."""
+    case = sc.case
+    parcel = case.parcel
+    arr = strip_array(case.strips)
+    vel = np.array(surface_velocities(arr))
+    S = float(np.max(np.hypot(vel[:, 0], vel[:, 1])))
+    mu_lo, mu_hi = sc.mu_range
+    g = G_STANDARD
+    if method == "accurate":
+        tol_v = 10.0 * max(settings.get("atol", 1e-10), settings.get("rtol", 1e-8) * max(S, 1e-3))
+    elif method == "implicit":
+        tol_v = 1e-9 * max(S, 1e-3)
+    else:
+        tol_v = mu_hi * g * settings.get("dt", 1e-3) + 1e-12
+    checks = []
+    finite = bool(np.all(np.isfinite(traj.q)) and np.all(np.isfinite(traj.dq)))
+    checks.append(
+        Check("finite", finite and res.success, 0.0, "" if finite and res.success else res.message)
+    )
+    if not finite:
+        return checks
+    V = traj.dq[:, :2]
+    speed = np.hypot(V[:, 0], V[:, 1])
+    rotating = bool(np.any(traj.dq[:, 2] != 0.0))
+    if not rotating:
+        # the theorem: the distance of V from the convex hull of the surface
+        # velocities never grows (and is 0 for a parcel starting on a surface)
+        d_hull = _hull_distance(V, vel)
+        rise = float(max(0.0, np.max(np.diff(d_hull)))) if len(d_hull) > 1 else 0.0
+        checks.append(
+            Check(
+                "cog_speed",
+                rise <= tol_v,
+                rise,
+                f"pure translation: distance of V from the hull of the surface "
+                f"velocities {d_hull[0]:.2g} -> {d_hull[-1]:.2g} m/s, largest rise "
+                f"{rise:.1e} (tol {tol_v:.1e}); max |V| {speed.max():.6g}, S {S:g}",
+            )
+        )
+    else:
+        excess = float(speed.max() - max(S, speed[0]))
+        checks.append(
+            Check(
+                "cog_speed",
+                excess <= tol_v,
+                excess,
+                f"max |V| - max(S, |V0|) = {excess:.1e} m/s (tol {tol_v:.1e}), S = {S:g} m/s",
+            )
+        )
+    corner = _corner_speeds(traj, parcel.A, parcel.B)
+    D = float(max(np.hypot(*(vel[i] - vel[j])) for i in range(len(vel)) for j in range(len(vel))))
+    kappa = _kappa(parcel.A, parcel.B)
+    rho = math.sqrt(parcel.inertia / parcel.m)
+    c0 = _hull_distance(V[:1], vel)[0]
+    sigma0 = math.hypot(c0, rho * traj.dq[0, 2])
+    sigma_star = D * (1.0 + mu_hi / mu_lo) / kappa if mu_lo > 0 else (0.0 if D == 0 else math.inf)
+    bound = S + 2.0 * max(sigma0, sigma_star) + tol_v
+    cmax = float(corner.max())
+    checks.append(
+        Check(
+            "corner_speed",
+            cmax <= bound,
+            cmax,
+            f"max corner speed {cmax:.4g} m/s = {cmax / S if S > 0 else math.inf:.3f} S; "
+            f"bound {bound:.3g} m/s",
+        )
+    )
+    # energy (i): single-surface intervals; (ii) surface power at records
+    nodes, weights = gauss_legendre_01(case.n_quad)
+    par = parcel_array(parcel, case.rotation, case.n_quad)
+    nsurf = len(vel)
+    areas = np.zeros((len(traj.t), nsurf))
+    clip = clip_scratch()
+    for i in range(len(traj.t)):
+        st = np.concatenate([traj.q[i], traj.dq[i]])
+        _contact_surfaces(st, arr, par, clip, areas[i])
+    worst_rise = 0.0
+    for k in range(nsurf):
+        alone = (areas[:, k] > 0) & (np.sum(areas > 0, axis=1) == 1)
+        Tk = (
+            0.5 * parcel.m * np.sum((V - vel[k]) ** 2, axis=1)
+            + 0.5 * parcel.inertia * traj.dq[:, 2] ** 2
+        )
+        both = alone[:-1] & alone[1:]
+        if np.any(both):
+            worst_rise = max(worst_rise, float(np.max(np.diff(Tk)[both])))
+    tol_e = parcel.m * max(S, 1e-3) * tol_v
+    checks.append(
+        Check(
+            "energy_single_surface",
+            worst_rise <= tol_e,
+            worst_rise,
+            f"largest rise of T_k between records on one surface {worst_rise:.1e} J "
+            f"(tol {tol_e:.1e} J)",
+        )
+    )
+    idx = np.unique(np.linspace(0, len(traj.t) - 1, min(400, len(traj.t))).astype(int))
+    kin = np.empty((nsurf, 3))
+    stat = np.empty((nsurf, 2))
+    area = np.empty(nsurf)
+    slip = np.empty(nsurf)
+    worst_p = -math.inf
+    for i in idx:
+        st = np.concatenate([traj.q[i], traj.dq[i]])
+        evaluate_surfaces(st, arr, par, nodes, weights, -2, False, kin, stat, area, slip)
+        for k in range(nsurf):
+            if area[k] > 0:
+                p_k = (
+                    (st[3] - vel[k, 0]) * kin[k, 0]
+                    + (st[4] - vel[k, 1]) * kin[k, 1]
+                    + st[5] * kin[k, 2]
+                )
+                worst_p = max(worst_p, p_k)
+    worst_p = max(worst_p, 0.0) if worst_p > -math.inf else 0.0
+    tol_p = 1e-9 * max(mu_hi, 1e-3) * parcel.m * g * max(S, 1e-3)
+    checks.append(
+        Check(
+            "energy_surface_power",
+            worst_p <= tol_p,
+            worst_p,
+            f"max friction power of a surface in its own frame {worst_p:.1e} W "
+            f"(tol {tol_p:.1e} W)",
+        )
+    )
+    sw = _switch_times(traj)
+    n_win = _max_in_window(sw)
+    span = traj.t_end - traj.t[0]
+    checks.append(
+        Check(
+            "chatter",
+            n_win <= MAX_SWITCHES_PER_S,
+            float(n_win),
+            f"{len(sw)} stick/break switches in {span:.3g} s, at most {n_win} in any 1 s "
+            f"(bound {MAX_SWITCHES_PER_S})",
+        )
+    )
+    return checks
+
+
+def _setting_text(settings: dict) -> str:
+    return ", ".join(f"{k}={v:g}" for k, v in settings.items() if k != "max_points")
+
+
+# the accurate method's step budget in the matrix: simulate() stops after 50 steps per
+# output record, so a run whose steps collapse ends as a failure instead of hanging
+ACCURATE_MAX_POINTS = 20000
+_WARM_METHODS: set = set()
+
+
+def run_case(sc: StiffCase, repeats: int = 1) -> list[CaseRun]:
+    """Every method of a case, with the checks, plus the convergence check."""
+    out = []
+    for method, settings in sc.methods.items():
+        if method == "accurate":
+            settings = dict(settings, max_points=settings.get("max_points", ACCURATE_MAX_POINTS))
+        try:
+            if method not in _WARM_METHODS:  # compilation never enters a figure
+                sorting_case(t_max=0.1).run_core(method, **DEFAULT_SETTINGS[method])
+                _WARM_METHODS.add(method)
+            res, wall, _ = timed(lambda: sc.case.run_core(method, **settings), repeats, 1.0)
+        except Exception as exc:  # kept as a failed run with its reason
+            out.append(
+                CaseRun(
+                    sc.name,
+                    sc.group,
+                    method,
+                    _setting_text(settings),
+                    math.nan,
+                    f"{type(exc).__name__}: {exc}",
+                    [Check("finite", False, 0.0, str(exc))],
+                )
+            )
+            continue
+        traj = sc.case.trajectory(res)
+        checks = check_run(sc, method, settings, res, traj)
+        run = CaseRun(
+            sc.name, sc.group, method, _setting_text(settings), wall, res.message, checks
+        )
+        run.figures["corner_over_S"] = float(
+            _corner_speeds(traj, sc.case.parcel.A, sc.case.parcel.B).max()
+            / max(1e-12, max(math.hypot(s.vx, s.vy) for s in sc.case.strips))
+        )
+        run.figures["t_end"] = traj.t_end
+        run.figures["switches"] = len(_switch_times(traj))
+        if method in sc.converge:
+            run.checks.append(convergence_check(sc, method, settings))
+        out.append(run)
+    return out
+
+
+def convergence_check(sc: StiffCase, method: str, settings: dict) -> Check:
+    """Refine tolerance (accurate) or step (implicit) three times; errors must shrink."""
+    if method == "accurate":
+        seq = [dict(settings, rtol=r, atol=1e-2 * r) for r in (1e-6, 1e-8, 1e-10)]
+        label = "rtol 1e-6/1e-8/1e-10 (atol = rtol/100)"
+    else:
+        h = settings.get("dt", 1e-3)
+        seq = [dict(settings, dt=h / f) for f in (1.0, 4.0, 16.0)]
+        label = f"h {h:g}/{h / 4:g}/{h / 16:g}"
+    results = [sc.case.run_core(method, **s) for s in seq]
+    failed = [
+        f"{label.split(':')[0]} run {i + 1}: {r.message}"
+        for i, r in enumerate(results)
+        if not r.success
+    ]
+    if failed:
+        return Check(f"convergence_{method}", False, math.nan, "; ".join(failed))
+    trajs = [sc.case.trajectory(r) for r in results]
+    t_c = min(tr.t_end for tr in trajs)
+    p = [tr.at(t_c)[0][0, :2] for tr in trajs]
+    d1 = float(np.linalg.norm(p[0] - p[2]))
+    d2 = float(np.linalg.norm(p[1] - p[2]))
+    ok = d2 <= d1 or max(d1, d2) <= 1e-12
+    order = (
+        math.log(d1 / d2, 4.0 if method != "accurate" else 100.0)
+        if d2 > 0 and d1 > 0
+        else math.nan
+    )
+    return Check(
+        f"convergence_{method}",
+        ok,
+        d2,
+        f"{label}: |p1-p3| {d1:.1e} m, |p2-p3| {d2:.1e} m at t = {t_c:.4g} s"
+        + (
+            f" (observed order {order:.2f} per {'decade²' if method == 'accurate' else 'h/4'})"
+            if math.isfinite(order)
+            else ""
+        ),
+    )
+
+
+# ------------------------------------------------------------------ 10 minutes of Fig. 13
+@dataclass
+class LongRun:
+    case: str
+    method: str
+    setting: str
+    wall_s: float
+    status: str
+    figures: dict
+    checks: list
+
+    @property
+    def passed(self) -> bool:
+        return all(c.passed for c in self.checks)
+
+
+LONG_CASES = (
+    ("const μ = 0.6, rotation off", const_law(0.6), False),
+    ("B-spline, rotation off", bspline_law(), False),
+    ("const μ = 0.6, rotation on", const_law(0.6), True),
+    ("B-spline, rotation on", bspline_law(), True),
+)
+
+
+def two_belt_long(
+    t_end: float = 600.0, methods: dict | None = None, cases: tuple | None = None
+) -> list[LongRun]:
+    """
+    Run 10 minutes of two-belt positioning.
+
+    10 minutes of two-belt positioning: energy drift per cycle (constant μ), decay
+    (B-spline), and the matrix checks with rotation on. ``cases``: labels of
+    ``LONG_CASES`` to run (default all).
+    """
+    methods = methods or {
+        "accurate": dict(DEFAULT_SETTINGS["accurate"], max_points=400_000),
+        "implicit": {"dt": 1e-3},
+        "threshold": {"dt": 1e-3, "v_min": 1e-6},
+    }
+    out = []
+    mu = 0.6
+    for label, law, rotation in LONG_CASES:
+        if cases is not None and label not in cases:
+            continue
+        case = two_belt_case(law, t_end, rotation=rotation)
+        sc = StiffCase(label, "two-belt 10 min", case, mu_range=_law_range(law))
+        for method, settings in methods.items():
+            wall = time.perf_counter()
+            try:
+                res = case.run_core(method, **settings)
+                wall = res.wall_s
+            except Exception as exc:
+                out.append(
+                    LongRun(
+                        label,
+                        method,
+                        _setting_text(settings),
+                        math.nan,
+                        f"{type(exc).__name__}: {exc}",
+                        {},
+                        [Check("finite", False, 0.0)],
+                    )
+                )
+                continue
+            traj = case.trajectory(res)
+            checks = check_run(sc, method, settings, res, traj)
+            figs = _oscillation_figures(case, traj, mu)
+            if "const" in label and not rotation:
+                drift = figs["energy_drift_per_cycle"]
+                checks.append(
+                    Check(
+                        "amplitude_kept",
+                        abs(drift) <= 1e-4,
+                        drift,
+                        f"energy drift {drift:.1e} per cycle over {figs['cycles']:.0f} cycles",
+                    )
+                )
+            if "B-spline" in label:
+                ratio = figs["amplitude_ratio"]
+                checks.append(
+                    Check(
+                        "decays",
+                        ratio <= 1e-3,
+                        ratio,
+                        f"amplitude over the last cycle / first: {ratio:.1e}",
+                    )
+                )
+            out.append(
+                LongRun(label, method, _setting_text(settings), wall, res.message, figs, checks)
+            )
+    return out
+
+
+def _law_range(law: FrictionLaw, vmax: float = 3.0) -> tuple:
+    from sorter_sim.model.core.friction import mu_kinetic, mu_static
+
+    row = law.row()
+    mus = [mu_kinetic(law.law_id, row, s) for s in np.linspace(1e-9, vmax, 3001)]
+    mus.append(mu_static(law.law_id, row))
+    return float(min(mus)), float(max(mus))
+
+
+def _oscillation_figures(case: ParcelCase, traj: Trajectory, mu: float) -> dict:
+    """
+    Return the oscillation figures of a two-belt run.
+
+    Energy of the frictional oscillator E = ½mẋ² + ½kx², k = 2μmg/A, per cycle; the
+    amplitude of the first and the last cycle; the final angle.
+    """
+    m, A = case.parcel.m, case.parcel.A
+    k = 2.0 * mu * m * G_STANDARD / A
+    w = math.sqrt(k / m)
+    period = 2 * math.pi / w
+    t0, t1 = case.t_span
+    grid = np.arange(t0, t1, 1e-3)
+    q, dq = traj.at(grid)
+    E = 0.5 * m * dq[:, 0] ** 2 + 0.5 * k * q[:, 0] ** 2
+    cycles = (t1 - t0) / period
+    first_cycle = grid < t0 + period
+    last_cycle = grid > t1 - period
+    first = np.abs(q[first_cycle, 0]).max()
+    last = np.abs(q[last_cycle, 0]).max()
+    # cycle means: a fixed-step method's energy oscillates within a cycle without drifting
+    drift = (E[last_cycle].mean() - E[first_cycle].mean()) / E[first_cycle].mean() / (cycles - 1)
+    return {
+        "cycles": cycles,
+        "energy_drift_per_cycle": float(drift),
+        "amplitude_first": float(first),
+        "amplitude_last": float(last),
+        "amplitude_ratio": float(last / first) if first > 0 else math.nan,
+        "phi_end_deg": float(math.degrees(traj.q[-1, 2])),
+        "phi_max_deg": float(math.degrees(np.abs(traj.q[:, 2]).max())),
+    }
+
+
+# ------------------------------------------------------------------ reductions
+@dataclass
+class ReductionRow:
+    """
+    Hold one reduction measured on one scene.
+
+    One reduction on one scene: kernel times (min of runs), the largest CoG position
+    difference between reduced and full run over a 1 kHz grid, and both runs' errors
+    against a tight reference.
+    """
+
+    reduction: str
+    scene: str
+    how: str
+    t_reduced: float
+    t_full: float
+    diff_grid: float
+    tol: float
+    err_reduced: float
+    err_full: float
+
+    @property
+    def speedup(self) -> float:
+        return self.t_full / self.t_reduced
+
+    @property
+    def agrees(self) -> bool:
+        """Within the tolerance asked: the difference is at most 10 rtol·(1 m)."""
+        return self.diff_grid <= 10.0 * self.tol
+
+
+def run_accurate_flags(
+    case: ParcelCase,
+    closed_wrench: bool,
+    stick_jumps: bool,
+    rtol: float = 1e-8,
+    atol: float = 1e-8,
+    max_points: int = 200_000,
+):
+    """
+    Run the accurate method with chosen reductions.
+
+    The accurate method with the closed-form wrench and the closed-form stick jumps
+    switched separately (``simulate(reductions=...)`` switches both).
+    Returns (Trajectory, kernel wall time [s]).
+    """
+    arr = strip_array(case.strips)
+    par = parcel_array(case.parcel, case.rotation, case.n_quad, closed_wrench)
+    nodes, weights = gauss_legendre_01(case.n_quad)
+    y0 = np.asarray(case.y0, float)
+    ts = np.empty(max_points)
+    ys = np.empty((max_points, 6))
+    ms = np.empty(max_points, dtype=np.int64)
+    ev = np.empty((4096, 3))
+    counters = np.zeros(8, dtype=np.int64)
+    mode0 = initial_mode(y0, arr, par)
+    wall = time.perf_counter()
+    status, _, _ = run_accurate(
+        y0,
+        mode0,
+        case.t_span[0],
+        case.t_span[1],
+        case.y_target,
+        arr,
+        par,
+        nodes,
+        weights,
+        strip_borders(case.strips),
+        rtol,
+        atol,
+        0.05,
+        stick_jumps,
+        ts,
+        ys,
+        ms,
+        ev,
+        counters,
+        np.zeros(3),
+    )
+    wall = time.perf_counter() - wall
+    n = int(counters[3])
+    traj = Trajectory(
+        ts[:n], ys[:n, :3], ys[:n, 3:], [], n_steps=int(counters[0]), n_rhs=int(counters[1])
+    )
+    traj.status = "ok" if status in (ST_END, ST_TARGET) else f"status {status}"
+    return traj, wall
+
+
+def _core_flags(case: ParcelCase, **settings):
+    res = case.run_core("accurate", **settings)
+    return case.trajectory(res), res.wall_s
+
+
+def reductions(repeats: int = 5, rtol: float = 1e-8) -> list[ReductionRow]:
+    """Speed-up and agreement of each reduction against the full model."""
+    rows = []
+    fig9a = sorting_case()
+    placed = sorting_case(y0=[1.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    belt20 = two_belt_case(const_law(0.6), 20.0)
+
+    def best_of(run):
+        run()  # warm-up, discarded
+        best, traj = math.inf, None
+        for _ in range(repeats):
+            traj, wall = run()
+            best = min(best, wall)
+        return traj, best
+
+    def pair(name, scene, how, run_red, run_full, ref):
+        red, t_red = best_of(run_red)
+        full, t_full = best_of(run_full)
+        rows.append(
+            ReductionRow(
+                name,
+                scene,
+                how,
+                t_red,
+                t_full,
+                compare(red, full).grid_max,
+                rtol,
+                compare(red, ref).grid_max,
+                compare(full, ref).grid_max,
+            )
+        )
+
+    for scene, case in (("Fig. 9a", fig9a), ("placed on the disks", placed)):
+        ref = case.core("accurate", rtol=1e-12, atol=1e-12, reductions=False)
+        pair(
+            "closed_form_wrench",
+            scene,
+            "exact edge integrals vs 8x8 Gauss per fan triangle",
+            lambda c=case: run_accurate_flags(c, True, True, rtol, rtol),
+            lambda c=case: run_accurate_flags(c, False, True, rtol, rtol),
+            ref,
+        )
+        pair(
+            "closed_form_stick",
+            scene,
+            "jump to the next border crossing vs scanning the margin",
+            lambda c=case: run_accurate_flags(c, True, True, rtol, rtol),
+            lambda c=case: run_accurate_flags(c, True, False, rtol, rtol),
+            ref,
+        )
+        pair(
+            "both (reductions=True/False)",
+            scene,
+            "simulate(..., reductions=False) as the full model",
+            lambda c=case: _core_flags(c, rtol=rtol, atol=rtol),
+            lambda c=case: _core_flags(c, rtol=rtol, atol=rtol, reductions=False),
+            ref,
+        )
+    resting = sorting_case(y0=[1.0, 0.0, 0.0, 0.0, 1.5, 0.0])
+    ref = resting.core("accurate", rtol=1e-12, atol=1e-12, reductions=False)
+    pair(
+        "closed_form_stick",
+        "resting on the disks",
+        "the whole run is one stick",
+        lambda: run_accurate_flags(resting, True, True, rtol, rtol),
+        lambda: run_accurate_flags(resting, True, False, rtol, rtol),
+        ref,
+    )
+    for scene, case in (("two belts 20 s, φ0 = 0", belt20), ("placed on the disks", placed)):
+        flat = ParcelCase(case.parcel, case.strips, case.y0, case.t_span, case.y_target, False)
+        ref = case.core("accurate", rtol=1e-12, atol=1e-12)
+        pair(
+            "no_rotation",
+            scene,
+            "rotation dropped where symmetry keeps ω = 0",
+            lambda c=flat: _core_flags(c, rtol=rtol, atol=rtol),
+            lambda c=case: _core_flags(c, rtol=rtol, atol=rtol),
+            ref,
+        )
+    far_c = sorting_case(b=1e3)
+    pair(
+        "zone_c_absent",
+        "Fig. 9a",
+        "b = inf (no zone c) vs b = 1000 m (zone c never reached)",
+        lambda: _core_flags(fig9a, rtol=rtol, atol=rtol),
+        lambda: _core_flags(far_c, rtol=rtol, atol=rtol),
+        fig9a.core("accurate", rtol=1e-12, atol=1e-12),
+    )
+    return rows

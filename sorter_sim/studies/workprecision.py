@@ -1,0 +1,1160 @@
+"""
+Work-precision measurement: run a method at a setting, time it, and measure its error.
+
+This module owns the machinery behind ``sorter bench``, in the manner of SciML's
+work-precision diagrams (DiffEqDevTools ``benchmark.jl``): a stated reference, the
+warm-up run discarded, the minimum of several timed runs, failures kept in the table
+with their reason, and the machine and library versions printed with the figures.
+
+- ``Trajectory``: what any method produced, reduced to recorded times, generalized
+  positions q (x, y, φ of the centre of gravity, or the Fig. 4 body's x) and their
+  rates, plus its events. Between records it is read by cubic Hermite interpolation
+  on (q, q̇), the same order as the accurate method's own dense output, so a method
+  is judged at any time without resampling it.
+- ``compare``: final position error, the maximum error over a 1 kHz output grid,
+  and event-time errors (stick, break-away, zone entry, scrap), against a reference
+  trajectory.
+- Runners that turn each method into a ``Trajectory``: the core's three methods,
+  scipy's ``solve_ivp`` on the same model (``ScipyParcel``: sliding phases by
+  ``solve_ivp`` with events, stick phases in closed form), scipy on the seed's
+  threshold model, and the same for the Fig. 4 body.
+- ``measure``: one table row (``WPRow``) per method and setting.
+
+Units: SI (m, s, rad); errors in m (positions) and s (event times).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import platform
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sorter_sim.model.core.common import rhs_slide
+from sorter_sim.model.core.stick import stick_margin
+from sorter_sim.model.core.threshold import rhs_threshold
+
+# the Dormand-Prince tableau and Shampine's dense-output coefficients the core steps with
+from sorter_sim.model.core.dopri import A as _DP_A, B as _DP_B, C as _DP_C, P as _DP_P
+from sorter_sim.model.core.oscillator import Oscillator, exact_phases, run_oscillator
+from sorter_sim.model.core.simulate import (
+    G_STANDARD,
+    Parcel,
+    initial_mode,
+    parcel_array,
+    simulate,
+    strip_array,
+    strip_borders,
+    surface_velocities,
+)
+from sorter_sim.model.core.wrench import clip_scratch, gauss_legendre_01
+
+EVENT_KINDS = ("stick", "break", "zone", "scrap")
+
+
+# ------------------------------------------------------------------ machine and versions
+def machine_info() -> dict:
+    """CPU model, core count and library versions, for the report's header."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    import numba
+    import scipy
+
+    info = {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "os": platform.platform(terse=True),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "numba": numba.__version__,
+    }
+    try:
+        import matplotlib
+
+        info["matplotlib"] = matplotlib.__version__
+    except ImportError:
+        pass
+    return info
+
+
+def machine_line(info: dict | None = None) -> str:
+    info = info or machine_info()
+    libs = ", ".join(
+        f"{k} {info[k]}" for k in ("python", "numpy", "scipy", "numba", "matplotlib") if k in info
+    )
+    return f"{info['cpu']}, {info['cores']} cores, {info['os']}; {libs}"
+
+
+class one_core:
+    """Pin this process to one CPU while timing (the targets are per core)."""
+
+    def __enter__(self):
+        self._saved = None
+        if hasattr(os, "sched_getaffinity"):
+            self._saved = os.sched_getaffinity(0)
+            os.sched_setaffinity(0, {min(self._saved)})
+        return self
+
+    def __exit__(self, *exc):
+        if self._saved is not None:
+            os.sched_setaffinity(0, self._saved)
+        return False
+
+
+# ------------------------------------------------------------------ trajectories
+@dataclass
+class Trajectory:
+    """
+    Records of one run: t (n,), q (n, k) positions, dq (n, k) their rates.
+
+    events: [(t, kind, key)] with kind in EVENT_KINDS; keys identify the same event
+    in two runs (the surface for stick/break, (corner, border) for a zone entry).
+    n_rhs counts right-hand-side evaluations (or implicit steps).
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    events: list = field(default_factory=list)
+    n_steps: int = 0
+    n_rhs: int = 0
+    status: str = "ok"
+    pieces: list = field(default_factory=list)  # [(t0, t1, fn(tq) -> (q, dq))], sorted
+    make_pieces: object = None  # built on first use, outside any timing
+
+    def __post_init__(self):
+        self.t = np.asarray(self.t, float)
+        self.q = np.asarray(self.q, float).reshape(len(self.t), -1)
+        self.dq = np.asarray(self.dq, float).reshape(len(self.t), -1)
+
+    @property
+    def t_end(self) -> float:
+        return float(self.t[-1])
+
+    def at(self, tq) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Return (q, q̇) at times tq.
+
+        (q, q̇) at times tq: the method's own dense output where it has one
+        (``pieces``), else cubic Hermite interpolation on (q, q̇) between records.
+
+        A record pair at one time (a velocity jump at an event) splits the pieces:
+        times after it use the later record. Past the last record the motion is
+        continued at the last velocity (used only to read a run that stopped a
+        hair before the reference's end, e.g. at the scrap line).
+        """
+        tq = np.atleast_1d(np.asarray(tq, float))
+        q, dq = self._hermite(tq)
+        if self.make_pieces is not None:
+            self.pieces, self.make_pieces = self.make_pieces(self), None
+        if self.pieces:
+            starts = np.array([p[0] for p in self.pieces])
+            k = np.searchsorted(starts, tq, side="right") - 1
+            # group the query times by piece once (a mask per piece would cost
+            # pieces x queries: minutes for a 10-minute run read on a 1 ms grid)
+            order = np.argsort(k, kind="stable")
+            groups = np.split(order, np.flatnonzero(np.diff(k[order])) + 1)
+            for grp in groups:
+                j = k[grp[0]]
+                if j < 0:
+                    continue
+                t0, t1, fn = self.pieces[j]
+                sel = grp[(tq[grp] >= t0) & (tq[grp] < t1)]
+                if sel.size:
+                    q[sel], dq[sel] = fn(tq[sel])
+        return q, dq
+
+    def _hermite(self, tq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = len(self.t)
+        i = np.searchsorted(self.t, tq, side="right") - 1
+        i = np.clip(i, 0, n - 1)
+        last = i >= n - 1
+        i2 = np.minimum(i + 1, n - 1)
+        h = self.t[i2] - self.t[i]
+        ok = (~last) & (h > 0)
+        s = np.where(ok, (tq - self.t[i]) / np.where(ok, h, 1.0), 0.0)[:, None]
+        hh = np.where(ok, h, 0.0)[:, None]
+        q0, q1, d0, d1 = self.q[i], self.q[i2], self.dq[i], self.dq[i2]
+        h00 = 2 * s**3 - 3 * s**2 + 1
+        h10 = s**3 - 2 * s**2 + s
+        h01 = -2 * s**3 + 3 * s**2
+        h11 = s**3 - s**2
+        q = h00 * q0 + h10 * hh * d0 + h01 * q1 + h11 * hh * d1
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dq = np.where(
+                ok[:, None],
+                (
+                    (6 * s**2 - 6 * s) * (q0 - q1) / np.where(hh > 0, hh, 1.0)
+                    + (3 * s**2 - 4 * s + 1) * d0
+                    + (3 * s**2 - 2 * s) * d1
+                ),
+                self.dq[i],
+            )
+        beyond = tq > self.t[-1]
+        if np.any(beyond):
+            q[beyond] = self.q[-1] + self.dq[-1] * (tq[beyond] - self.t[-1])[:, None]
+            dq[beyond] = self.dq[-1]
+        before = tq < self.t[0]
+        q[before] = self.q[0]
+        dq[before] = self.dq[0]
+        return q, dq
+
+    def with_zone_events(self, A: float, B: float, borders) -> "Trajectory":
+        """
+        Add 'zone' events: each footprint corner crossing each strip border.
+
+        Times come from the interpolated trajectory (a sign change of corner x -
+        border between records, refined by bisection on the Hermite pieces), so
+        every method is read the same way. Key: (corner, border index, n-th crossing).
+        """
+        borders = np.asarray(borders, float)
+        if borders.size == 0 or self.q.shape[1] < 3:
+            return self
+        ha, hb = 0.5 * A, 0.5 * B
+        offs = np.array([(ha, -hb), (ha, hb), (-ha, hb), (-ha, -hb)])
+
+        def corner_x(q, c):
+            return q[:, 0] + np.cos(q[:, 2]) * offs[c, 0] - np.sin(q[:, 2]) * offs[c, 1]
+
+        found = []
+        for c in range(4):
+            cx = corner_x(self.q, c)
+            for b, xb in enumerate(borders):
+                g = cx - xb
+                idx = np.nonzero((g[:-1] < 0) != (g[1:] < 0))[0]
+                for n_cross, k in enumerate(idx):
+                    lo, hi = self.t[k], self.t[k + 1]
+                    glo = g[k]
+                    for _ in range(60):
+                        if hi - lo <= 1e-14 * max(1.0, abs(hi)):
+                            break
+                        mid = 0.5 * (lo + hi)
+                        qm, _ = self.at(mid)
+                        gm = corner_x(qm, c)[0] - xb
+                        if (gm < 0) == (glo < 0):
+                            lo = mid
+                        else:
+                            hi = mid
+                    found.append((float(hi), "zone", (c, b, n_cross)))
+        self.events = sorted(
+            [e for e in self.events if e[1] != "zone"] + found, key=lambda e: e[0]
+        )
+        return self
+
+
+# ------------------------------------------------------------------ errors
+@dataclass
+class Errors:
+    """Errors of one run against the reference [m, s]; nan where not measurable."""
+
+    final: float
+    grid_max: float
+    events: dict  # kind -> max |Δt| over the reference's events of that kind
+    missing: dict  # kind -> count of reference events the run did not produce
+    extra: dict  # kind -> count of events beyond the reference's
+
+    def event_text(self, kind: str) -> str:
+        e = self.events.get(kind, math.nan)
+        miss = self.missing.get(kind, 0)
+        if miss:
+            return f"missed {miss}"
+        return "–" if not math.isfinite(e) else f"{e:.1e}"
+
+
+def _position(q: np.ndarray) -> np.ndarray:
+    """Return the positional part compared: CoG (x, y) for the parcel, x for the Fig. 4 body."""
+    return q[:, :2] if q.shape[1] >= 3 else q[:, :1]
+
+
+def compare(run: Trajectory, ref: Trajectory, grid_hz: float = 1000.0) -> Errors:
+    """
+    Errors of ``run`` against ``ref`` (see the module docstring).
+
+    final: |p(t_f) - p_ref(t_f)| at the reference's last time t_f (CoG position);
+    grid_max: max of the same over t0, t0 + 1/grid_hz, ... up to the common end;
+    events: for each reference event, the nearest run event with the same kind and
+    key; the largest such |Δt| per kind.
+    """
+    t_f = ref.t_end
+    p_run, _ = run.at(t_f)
+    p_ref, _ = ref.at(t_f)
+    final = float(np.linalg.norm(_position(p_run) - _position(p_ref)))
+    t_common = min(ref.t_end, run.t_end)
+    grid = np.arange(ref.t[0], t_common, 1.0 / grid_hz)
+    grid = np.append(grid, t_common)
+    qa, _ = run.at(grid)
+    qb, _ = ref.at(grid)
+    grid_max = float(np.max(np.linalg.norm(_position(qa) - _position(qb), axis=1)))
+    ev_err: dict = {}
+    missing: dict = {}
+    extra: dict = {}
+    for kind in EVENT_KINDS:
+        ref_ev = [(t, k) for t, kd, k in ref.events if kd == kind]
+        run_ev = [(t, k) for t, kd, k in run.events if kd == kind]
+        if not ref_ev:
+            if run_ev:
+                extra[kind] = len(run_ev)
+            continue
+        worst = 0.0
+        miss = 0
+        for t, key in ref_ev:
+            cands = [abs(tr - t) for tr, kr in run_ev if kr == key]
+            if cands:
+                worst = max(worst, min(cands))
+            else:
+                miss += 1
+        ev_err[kind] = worst if miss < len(ref_ev) else math.nan
+        if miss:
+            missing[kind] = miss
+        if len(run_ev) > len(ref_ev):
+            extra[kind] = len(run_ev) - len(ref_ev)
+    return Errors(final, grid_max, ev_err, missing, extra)
+
+
+# ------------------------------------------------------------------ dense output of DP5 records
+def dp5_pieces(t: np.ndarray, Y: np.ndarray, rhs_for_step, n_pos: int) -> list:
+    """
+    Return the dense output of Dormand-Prince 5(4) steps that ended at consecutive records.
+
+    The accurate methods record step ends only. Each interval between records is
+    redone as one Dormand-Prince step from record i with h = t[i+1] - t[i] (same
+    state, same h: the same stages), kept only if it lands on record i+1's position
+    (velocities may have been set at a stick), and read through the 4th-order
+    interpolant of Shampine (1986) that the core uses to locate events. Intervals
+    that are not such a step (a stick advanced in closed form, the break-away
+    layer) fail the check and keep cubic Hermite interpolation.
+    rhs_for_step(t_i, y_i) -> f(t, y) = y', the right-hand side of the step starting at
+    record i (the Fig. 4 body's friction sign is fixed per step). Returns the pieces.
+    """
+    pieces = []
+    n = len(t)
+    K = np.empty((7, Y.shape[1]))
+    for i in range(n - 1):
+        h = t[i + 1] - t[i]
+        if not h > 0.0:
+            continue
+        y0 = Y[i]
+        f = rhs_for_step(t[i], y0)
+        K[0] = f(t[i], y0)
+        for st in range(1, 6):
+            K[st] = f(t[i] + _DP_C[st] * h, y0 + h * (_DP_A[st, :st] @ K[:st]))
+        y1 = y0 + h * (_DP_B @ K[:6])
+        scale = 1.0 + np.max(np.abs(y1[:n_pos]))
+        if not np.max(np.abs(y1[:n_pos] - Y[i + 1, :n_pos])) <= 1e-9 * scale:
+            continue
+        K[6] = f(t[i] + h, y1)
+        pieces.append((t[i], t[i + 1], _dp5_eval(t[i], h, y0.copy(), K.copy(), n_pos)))
+    return pieces
+
+
+def _dp5_eval(t0, h, y0, K, n_pos):
+    def fn(tq):
+        th = (np.asarray(tq) - t0) / h
+        powers = np.vstack([th, th**2, th**3, th**4])  # (4, m)
+        y = y0[None, :] + h * (K.T @ (_DP_P @ powers)).T
+        return y[:, :n_pos], y[:, n_pos : 2 * n_pos]
+
+    return fn
+
+
+# ------------------------------------------------------------------ runners: the core model
+def core_trajectory(res, mode0: int | None = None) -> Trajectory:
+    """
+    Return a ``SimResult`` as a Trajectory, its events named as ``compare`` matches them.
+
+    The threshold method logs the set of 'static' surfaces as a bit mask; it is
+    turned into per-surface stick (surface becomes static) and break events.
+    """
+    events = []
+    if res.method == "threshold":
+        prev = 0 if mode0 is None or mode0 < 0 else (1 << mode0)
+        for t, kind, code in res.events:
+            if kind in ("stick", "break"):
+                for s in range(len(res.surfaces)):
+                    bit = 1 << s
+                    if code & bit and not prev & bit:
+                        events.append((t, "stick", s))
+                    if prev & bit and not code & bit:
+                        events.append((t, "break", s))
+                prev = code
+            elif kind == "target":
+                events.append((t, "scrap", None))
+    else:
+        for t, kind, info in res.events:
+            if kind in ("stick", "break"):
+                events.append((t, kind, info))
+            elif kind == "target":
+                events.append((t, "scrap", None))
+    return Trajectory(
+        res.t,
+        res.y[:, :3],
+        res.y[:, 3:],
+        events,
+        n_steps=res.n_steps,
+        n_rhs=res.n_rhs,
+        status="ok" if res.success else res.message,
+    )
+
+
+@dataclass
+class ParcelCase:
+    """One parcel over one set of strips: what every runner of a study needs."""
+
+    parcel: Parcel
+    strips: list
+    y0: np.ndarray
+    t_span: tuple
+    y_target: float = math.inf
+    rotation: bool = True
+    n_quad: int = 8
+
+    @property
+    def borders(self) -> np.ndarray:
+        return strip_borders(self.strips)
+
+    def run_core(self, method: str, **settings):
+        """One run of a core method (settings: rtol/atol, dt, v_min, reductions ...)."""
+        settings.setdefault("max_points", _capacity(self.t_span, settings.get("dt")))
+        return simulate(
+            self.parcel,
+            self.strips,
+            self.y0,
+            self.t_span,
+            method,
+            y_target=self.y_target,
+            rotation=self.rotation,
+            n_quad=self.n_quad,
+            **settings,
+        )
+
+    def trajectory(self, res) -> Trajectory:
+        """
+        Return a core result as a Trajectory with zone events.
+
+        A core result as a Trajectory with zone events; the accurate method's records
+        are read through its own dense output (``dp5_pieces``).
+        """
+        par = parcel_array(self.parcel, self.rotation, self.n_quad)
+        arr = strip_array(self.strips)
+        traj = core_trajectory(res, initial_mode(np.asarray(self.y0, float), arr, par))
+        if res.method == "accurate":
+            nodes, weights = gauss_legendre_01(self.n_quad)
+            clip = clip_scratch()
+
+            def f(t, y):
+                out = np.empty(6)
+                rhs_slide(y, arr, par, nodes, weights, clip, out)
+                return out
+
+            traj.make_pieces = lambda tr: dp5_pieces(
+                tr.t, np.hstack([tr.q, tr.dq]), lambda t0, y0: f, 3
+            )
+        return traj.with_zone_events(self.parcel.A, self.parcel.B, self.borders)
+
+    def core(self, method: str, **settings) -> Trajectory:
+        return self.trajectory(self.run_core(method, **settings))
+
+
+def _capacity(t_span, dt) -> int:
+    if dt is None:
+        return 200_000
+    return int((t_span[1] - t_span[0]) / dt) + 1000
+
+
+class BudgetExceeded(RuntimeError):
+    """A scipy run used more right-hand-side evaluations than it was allowed."""
+
+
+class ScipyParcel:
+    """
+    scipy's ``solve_ivp`` on the core's planar model, stick/slip handled around it.
+
+    solve_ivp integrates smooth ODEs; this model is a hybrid system. What scipy can
+    do: the sliding phases, with the core's right-hand side ``rhs_slide`` (the same
+    wrench code) and terminal events for the scrap line, each footprint corner
+    crossing each strip border (the area functions have kinks there) and each
+    surface's slip reaching zero (the slip projected on its direction at the
+    segment start changes sign; a surface whose slip starts at zero, just after
+    breaking away, watches |slip| falling below ``eps``; a sign change with the slip
+    still large means it turned by more than 90 degrees, and the segment restarts
+    aimed along it). What it cannot do is the
+    stuck phase, a differential-algebraic mode with an inequality constraint: that
+    is done here in closed form (rigid translation with the surface) with the
+    break-away located by bracketing and ``brentq`` on the core's stick margin
+    (eqs. 4.3/4.5) along that path, sampled at every corner/border crossing. After
+    break-away the slide restarts from exactly zero slip; the stiff layer where the
+    slip direction settles is left to solve_ivp's step control (no closed form),
+    which is what an implicit method such as Radau must resolve by itself.
+    """
+
+    def __init__(self, case: ParcelCase, g: float = G_STANDARD):
+        self.case = case
+        self.arr = strip_array(case.strips)
+        self.par = parcel_array(case.parcel, case.rotation, case.n_quad, True, g)
+        self.nodes, self.weights = gauss_legendre_01(case.n_quad)
+        self.nsurf = int(self.arr[:, 5].max()) + 1
+        self.borders = case.borders
+        self.vel = surface_velocities(self.arr)
+        self.rho = math.sqrt(case.parcel.inertia / case.parcel.m)
+        self.n_rhs = 0
+        self.max_rhs = math.inf
+        self._out = np.empty(6)
+        self._clip = clip_scratch()
+
+    # the model, as scipy sees it
+    def f(self, t, y):
+        self.n_rhs += 1
+        if self.n_rhs > self.max_rhs:
+            raise BudgetExceeded(f"more than {self.max_rhs:.0f} right-hand-side evaluations")
+        out = np.empty(6)
+        rhs_slide(
+            np.asarray(y, float), self.arr, self.par, self.nodes, self.weights, self._clip, out
+        )
+        return out
+
+    def f_threshold(self, v_min):
+        modes = np.zeros(self.nsurf, dtype=np.int64)
+
+        def f(t, y):
+            self.n_rhs += 1
+            if self.n_rhs > self.max_rhs:
+                raise BudgetExceeded(f"more than {self.max_rhs:.0f} right-hand-side evaluations")
+            out = np.empty(6)
+            rhs_threshold(
+                np.asarray(y, float),
+                self.arr,
+                self.par,
+                self.nodes,
+                self.weights,
+                self.nsurf,
+                v_min,
+                out,
+                modes,
+            )
+            return out
+
+        return f
+
+    def slip(self, y, s) -> np.ndarray:
+        vx, vy = self.vel[s]
+        return np.array([y[3] - vx, y[4] - vy, self.rho * y[5] if self.case.rotation else 0.0])
+
+    def margin(self, y, s) -> tuple[float, float]:
+        # the limit-set gauge's warm start: a fresh twist per check keeps every call
+        # independent of the order brentq asks them in
+        m, a, _, _, _ = stick_margin(
+            np.asarray(y, float),
+            self.arr,
+            self.par,
+            self.nodes,
+            self.weights,
+            self.nsurf,
+            s,
+            np.zeros(3),
+        )
+        return m, a
+
+    def _corner_offsets(self):
+        ha, hb = 0.5 * self.case.parcel.A, 0.5 * self.case.parcel.B
+        return ((ha, -hb), (ha, hb), (-ha, hb), (-ha, -hb))
+
+    # stuck: rigid translation with the surface until the stick fails
+    def _stick_phase(self, t, y, s, t_end, y_target):
+        from scipy.optimize import brentq
+
+        vx, vy = self.vel[s]
+        y = y.copy()
+        y[3], y[4], y[5] = vx, vy, 0.0
+        t_stop, reason = t_end, "end"
+        if vy > 0 and y_target < math.inf and y[1] < y_target:
+            tt = t + (y_target - y[1]) / vy
+            if tt < t_stop:
+                t_stop, reason = tt, "scrap"
+        t0, y_start = t, y.copy()
+
+        def state(tt):
+            z = y_start.copy()
+            z[0] += vx * (tt - t0)
+            z[1] += vy * (tt - t0)
+            return z
+
+        def fails(tt):
+            m, a = self.margin(state(tt), s)
+            return m if a > 0.0 else 1.0
+
+        # the margin is smooth between corner/border crossings: sample each piece
+        knots = {t0, t_stop}
+        if vx != 0.0:
+            c, sn = math.cos(y[2]), math.sin(y[2])
+            for ox, oy in self._corner_offsets():
+                cx = y[0] + c * ox - sn * oy
+                for b in self.borders:
+                    tc = t0 + (b - cx) / vx
+                    if t0 < tc < t_stop:
+                        knots.add(tc)
+        knots = sorted(knots)
+        grid = [t0]
+        for a, b in zip(knots[:-1], knots[1:]):
+            grid.extend(np.linspace(a, b, 17)[1:])
+        g_prev = fails(grid[0])
+        if g_prev > 0.0:
+            return t0, state(t0), "break"
+        for ta, tb in zip(grid[:-1], grid[1:]):
+            if fails(tb) > 0.0:
+                tr = brentq(fails, ta, tb, xtol=1e-15, rtol=1e-15)
+                while fails(tr) <= 0.0:  # take the first instant the stick has failed
+                    tr = np.nextafter(tr, math.inf)
+                return tr, state(tr), "break"
+        return t_stop, state(t_stop), reason
+
+    def run(
+        self,
+        method: str = "DOP853",
+        rtol: float = 1e-8,
+        atol: float = 1e-10,
+        eps: float | None = None,
+        max_rhs: float = math.inf,
+        max_segments: int = 20000,
+        dense: bool = False,
+    ) -> Trajectory:
+        """
+        Integrate the case; returns a Trajectory (raises on solver failure).
+
+        dense: keep solve_ivp's own dense output of every sliding segment as the
+        trajectory's pieces (what ``compare`` reads between steps).
+        """
+        from scipy.integrate import solve_ivp
+
+        case = self.case
+        self.n_rhs = 0
+        self.max_rhs = max_rhs
+        t, t_end = float(case.t_span[0]), float(case.t_span[1])
+        y = np.array(case.y0, float)
+        y_target = case.y_target
+        vscale = max(max(math.hypot(*v) for v in self.vel), math.hypot(y[3], y[4]), 1e-3)
+        eps = eps if eps is not None else max(1e-3 * atol, 1e-3 * rtol * vscale, 1e-14)
+        mode = initial_mode(y, self.arr, self.par)
+        T, Y, events, pieces = [t], [y.copy()], [], []
+        offs = self._corner_offsets()
+        direction_next: dict = {}
+        n_steps = 0
+        for _ in range(max_segments):
+            if t >= t_end:
+                break
+            if mode >= 0:
+                t, y, reason = self._stick_phase(t, y, mode, t_end, y_target)
+                T.append(t)
+                Y.append(y.copy())
+                if reason == "scrap":
+                    events.append((t, "scrap", None))
+                    break
+                if reason == "break":
+                    events.append((t, "break", mode))
+                    mode = -1
+                continue
+            evs, kinds = [], []
+            if y_target < math.inf:
+
+                def e_target(tt, z):
+                    return z[1] - y_target
+
+                e_target.terminal, e_target.direction = True, 1
+                evs.append(e_target)
+                kinds.append(("scrap", None))
+            for c, (ox, oy) in enumerate(offs):
+                for b, xb in enumerate(self.borders):
+
+                    def e_border(tt, z, ox=ox, oy=oy, xb=xb):
+                        return z[0] + math.cos(z[2]) * ox - math.sin(z[2]) * oy - xb
+
+                    e_border.terminal = True
+                    # right after a crossing only a crossing back counts
+                    e_border.direction = direction_next.get((c, b), 0)
+                    evs.append(e_border)
+                    kinds.append(("border", (c, b)))
+            slip_start = {}
+            for s in range(self.nsurf):
+                sig0 = self.slip(y, s)
+                n0 = float(np.linalg.norm(sig0))
+                slip_start[s] = n0
+                if n0 > 10.0 * eps:
+                    d = sig0 / n0
+
+                    def e_stick(tt, z, s=s, d=d):
+                        return float(self.slip(z, s) @ d)
+                else:
+
+                    def e_stick(tt, z, s=s):
+                        return float(np.linalg.norm(self.slip(z, s))) - eps
+
+                e_stick.terminal, e_stick.direction = True, -1
+                evs.append(e_stick)
+                kinds.append(("stick", s))
+            direction_next = {}
+            sol = solve_ivp(
+                self.f,
+                (t, t_end),
+                y,
+                method=method,
+                rtol=rtol,
+                atol=atol,
+                events=evs,
+                dense_output=dense,
+            )
+            if sol.status == -1:
+                raise RuntimeError(sol.message)
+            if dense and sol.t[-1] > sol.t[0]:
+                pieces.append((float(sol.t[0]), float(sol.t[-1]), _ode_piece(sol.sol)))
+            n_steps += len(sol.t) - 1
+            T.extend(sol.t[1:])
+            Y.extend(sol.y.T[1:])
+            t, y = float(sol.t[-1]), sol.y[:, -1].copy()
+            if sol.status == 0:
+                break
+            k = next(i for i, te in enumerate(sol.t_events) if len(te))
+            kind, info = kinds[k]
+            if kind == "scrap":
+                events.append((t, "scrap", None))
+                break
+            if kind == "border":
+                g0 = evs[k](sol.t[0], sol.y[:, 0])
+                direction_next[info] = 1 if g0 > 0 else -1
+                continue
+            s = info
+            # the projection also changes sign when the slip turns by more than 90 degrees
+            # within one segment: that is no stick; restart aimed along the new slip
+            if np.linalg.norm(self.slip(y, s)) > 1e-2 * slip_start[s] + 10.0 * (
+                atol + rtol * vscale
+            ):
+                continue
+            z = y.copy()
+            z[3], z[4], z[5] = self.vel[s][0], self.vel[s][1], 0.0
+            m, a = self.margin(z, s)
+            y = z
+            if a > 0.0 and m <= 0.0:
+                events.append((t, "stick", s))
+                mode = s
+                T.append(t)
+                Y.append(y.copy())
+        else:
+            raise RuntimeError(f"more than {max_segments} phases")
+        Y = np.array(Y)
+        return Trajectory(
+            np.array(T),
+            Y[:, :3],
+            Y[:, 3:],
+            events,
+            n_steps=n_steps,
+            n_rhs=self.n_rhs,
+            pieces=pieces,
+        )
+
+    def run_threshold(
+        self,
+        method: str = "RK45",
+        rtol: float = 1e-6,
+        atol: float = 1e-8,
+        v_min: float = 1e-6,
+        max_rhs: float = math.inf,
+        dense: bool = False,
+    ) -> Trajectory:
+        """
+        Run solve_ivp on the seed's threshold model.
+
+        solve_ivp straight on the seed's threshold model (eqs. 3.1/4.2/4.4): no events
+        but the scrap line; the switch at |slip| = v_min is left to step control.
+        """
+        from scipy.integrate import solve_ivp
+
+        case = self.case
+        self.n_rhs = 0
+        self.max_rhs = max_rhs
+        evs = []
+        if case.y_target < math.inf:
+
+            def e_target(tt, z):
+                return z[1] - case.y_target
+
+            e_target.terminal, e_target.direction = True, 1
+            evs.append(e_target)
+        sol = solve_ivp(
+            self.f_threshold(v_min),
+            case.t_span,
+            np.array(case.y0, float),
+            method=method,
+            rtol=rtol,
+            atol=atol,
+            events=evs or None,
+            dense_output=dense,
+        )
+        if sol.status == -1:
+            raise RuntimeError(sol.message)
+        events = [(float(sol.t[-1]), "scrap", None)] if sol.status == 1 else []
+        pieces = [(float(sol.t[0]), float(sol.t[-1]), _ode_piece(sol.sol))] if dense else []
+        return Trajectory(
+            sol.t,
+            sol.y[:3].T,
+            sol.y[3:].T,
+            events,
+            n_steps=len(sol.t) - 1,
+            n_rhs=self.n_rhs,
+            pieces=pieces,
+        )
+
+    def finish(self, traj: Trajectory) -> Trajectory:
+        """Zone events of a run (outside the timing)."""
+        return traj.with_zone_events(self.case.parcel.A, self.case.parcel.B, self.borders)
+
+
+def _ode_piece(sol, n_pos: int = 3):
+    """Return a solve_ivp OdeSolution as a Trajectory piece (its own interpolant)."""
+
+    def fn(tq):
+        y = sol(tq)
+        return y[:n_pos].T, y[n_pos : 2 * n_pos].T
+
+    return fn
+
+
+# ------------------------------------------------------------------ runners: the Fig. 4 body
+def oscillator_exact(osc: Oscillator, t_end: float) -> Trajectory:
+    """Return the exact piecewise Coulomb solution as a Trajectory, read exactly at any time."""
+    from sorter_sim.model.core.oscillator import exact_solution
+
+    phases = exact_phases(osc, t_end)
+    starts = [p[0] for p in phases if 0.0 < p[0] < t_end]
+    t = np.unique(np.concatenate([np.linspace(0.0, t_end, int(t_end * 100) + 1), starts]))
+    ex = exact_solution(osc, t_end, t_eval=t)
+    events = [
+        (p[0], "break" if p[1] == "slide" else "stick", 0) for p in phases[1:] if p[0] < t_end
+    ]
+
+    def exact(tq):
+        e = exact_solution(osc, t_end, t_eval=tq)
+        return e.x[:, None], e.v[:, None]
+
+    return Trajectory(ex.t, ex.x, ex.v, events, pieces=[(0.0, t_end, exact)])
+
+
+def _oscillator_rhs(osc: Oscillator):
+    """Sliding right-hand side of the Fig. 4 body for a step starting at (t0, y0)."""
+
+    def for_step(t0, y0):
+        p0 = osc.k * (osc.v_drive * t0 - y0[0])
+        sigma = 1.0 if (y0[1] > 0 or (y0[1] == 0 and p0 > 0)) else -1.0
+
+        def f(t, y):
+            return np.array([y[1], (osc.k * (osc.v_drive * t - y[0]) - sigma * osc.F_kin) / osc.m])
+
+        return f
+
+    return for_step
+
+
+def oscillator_core(osc: Oscillator, t_end: float, method: str, **settings):
+    """
+    Run the Fig. 4 body with a core method.
+
+    One core run of the Fig. 4 body (``oscillator_trajectory`` reads it); room for every
+    fixed step's record (run_oscillator drops records beyond max_points).
+    """
+    if method != "accurate":
+        settings.setdefault("max_points", int(t_end / settings.get("dt", 1e-3)) + 10)
+    return run_oscillator(osc, t_end, method, **settings)
+
+
+def oscillator_trajectory(osc: Oscillator, res) -> Trajectory:
+    """
+    Return a core oscillator run as a Trajectory.
+
+    A core oscillator run as a Trajectory; eq. 3.1 rows of the threshold method map to
+    events as the seed reads them: entering row 3 = leaving rest, entering row 2 = rest.
+    """
+    events = []
+    for t, kind in res.events:
+        k = {"slip": "break", "row3": "break", "stick": "stick", "row2": "stick"}.get(kind)
+        if k:
+            events.append((t, k, 0))
+    traj = Trajectory(res.t, res.x, res.v, events, n_steps=res.n_steps, n_rhs=res.n_rhs)
+    if res.method == "accurate":
+        traj.make_pieces = lambda tr: dp5_pieces(
+            tr.t, np.hstack([tr.q, tr.dq]), _oscillator_rhs(osc), 1
+        )
+    return traj
+
+
+def oscillator_scipy(
+    osc: Oscillator,
+    t_end: float,
+    method: str = "DOP853",
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    dense: bool = False,
+) -> Trajectory:
+    """
+    Run solve_ivp on the Fig. 4 body, phase by phase.
+
+    solve_ivp on each sliding phase (terminal event: speed back to zero); rests in
+    closed form (P = k (ẋ_s t - x) reaches F_stat at a known time).
+    """
+    from scipy.integrate import solve_ivp
+
+    m, f_kin, f_stat, k, vd = osc.m, osc.F_kin, osc.F_stat, osc.k, osc.v_drive
+    t, x, v = 0.0, 0.0, 0.0
+    T, X, V, events, pieces = [0.0], [0.0], [0.0], [], []
+    n_rhs = n_steps = 0
+    resting = True
+    while t < t_end:
+        if resting:
+            # the spring force k (ẋ_s t - x) only grows: the rest ends at +F_stat
+            t_b = max(t, (x + f_stat / k) / vd)
+            if t_b >= t_end:
+                T.append(t_end), X.append(x), V.append(0.0)
+                break
+            t = t_b
+            T.append(t), X.append(x), V.append(0.0)
+            events.append((t, "break", 0))
+            resting = False
+            continue
+        sigma = 1.0 if (v > 0 or (v == 0 and k * (vd * t - x) > 0)) else -1.0
+
+        def f(tt, z, sigma=sigma):
+            return [z[1], (k * (vd * tt - z[0]) - sigma * f_kin) / m]
+
+        def stop(tt, z, sigma=sigma):
+            return z[1] * sigma
+
+        stop.terminal, stop.direction = True, -1
+        # the speed starts at 0: skip the start by looking for it only once it moved
+        sol = solve_ivp(
+            f,
+            (t, t_end),
+            [x, v],
+            method=method,
+            rtol=rtol,
+            atol=atol,
+            events=stop if v != 0.0 else _after_start(stop, t),
+            dense_output=dense,
+        )
+        if sol.status == -1:
+            raise RuntimeError(sol.message)
+        if dense and sol.t[-1] > sol.t[0]:
+            pieces.append((float(sol.t[0]), float(sol.t[-1]), _ode_piece(sol.sol, 1)))
+        n_rhs += sol.nfev
+        n_steps += len(sol.t) - 1
+        T.extend(sol.t[1:]), X.extend(sol.y[0, 1:]), V.extend(sol.y[1, 1:])
+        t, x, v = float(sol.t[-1]), float(sol.y[0, -1]), float(sol.y[1, -1])
+        if sol.status == 0:
+            break
+        v = 0.0
+        V[-1] = 0.0
+        if abs(k * (vd * t - x)) <= f_stat:
+            resting = True
+            events.append((t, "stick", 0))
+    return Trajectory(T, X, V, events, n_steps=n_steps, n_rhs=n_rhs, pieces=pieces)
+
+
+def _after_start(event, t0, skip=1e-12):
+    """Return an event that cannot fire within ``skip`` of the segment start (where it is 0)."""
+
+    def e(tt, z):
+        return event(tt, z) if tt > t0 + skip else 1.0
+
+    e.terminal, e.direction = event.terminal, event.direction
+    return e
+
+
+# ------------------------------------------------------------------ timing and table rows
+@dataclass
+class WPRow:
+    """One method at one setting: wall time (min of n_runs, warm-up discarded), errors."""
+
+    case: str
+    family: str
+    setting: str
+    wall_s: float = math.nan
+    n_runs: int = 0
+    n_rhs: int = 0
+    errors: Errors | None = None
+    failure: str = ""
+    traj: Trajectory | None = None
+
+    @property
+    def ok(self) -> bool:
+        return not self.failure
+
+
+def timed(fn, repeats: int = 3, budget_s: float = 2.0):
+    """
+    Run ``fn`` repeatedly: returns (last result, min wall time, number of timed runs).
+
+    The caller discards a warm-up run per method beforehand (``measure`` does);
+    repeats stop early once ``budget_s`` has been spent, after at least one run.
+    """
+    best = math.inf
+    out = None
+    spent = 0.0
+    n = 0
+    for _ in range(max(1, repeats)):
+        w = time.perf_counter()
+        out = fn()
+        w = time.perf_counter() - w
+        best = min(best, w)
+        spent += w
+        n += 1
+        if spent >= budget_s:
+            break
+    return out, best, n
+
+
+_WARM: set = set()
+
+
+def measure(
+    case_name: str,
+    family: str,
+    setting: str,
+    run,
+    ref: Trajectory | None,
+    finish=None,
+    repeats: int = 3,
+    budget_s: float = 2.0,
+    warm_key=None,
+) -> WPRow:
+    """
+    Time ``run()`` and compare ``finish(result)`` (a Trajectory) with ``ref``.
+
+    Only ``run`` is timed; ``finish`` turns its result into a Trajectory (dense
+    output, zone events) afterwards. The first call for each ``warm_key`` (default:
+    the family) runs once untimed, so compilation never enters a figure. A failure
+    (an exception, a non-finite state, an unsuccessful status) is kept in the row
+    with its reason.
+    """
+    row = WPRow(case_name, family, setting)
+    key = warm_key or family
+    try:
+        if key not in _WARM:
+            run()
+            _WARM.add(key)
+        out, wall, n = timed(run, repeats, budget_s)
+        traj = finish(out) if finish is not None else out
+    except Exception as exc:  # kept in the table with its reason, as the report promises
+        row.failure = f"{type(exc).__name__}: {exc}".splitlines()[0][:120]
+        return row
+    row.wall_s, row.n_runs, row.n_rhs, row.traj = wall, n, traj.n_rhs, traj
+    if traj.status != "ok":
+        row.failure = traj.status
+    if not np.all(np.isfinite(traj.q)) or not np.all(np.isfinite(traj.dq)):
+        row.failure = "non-finite state"
+        return row
+    if ref is not None:
+        scrapped = any(k == "scrap" for _, k, _ in traj.events)
+        if traj.t_end < ref.t_end - 1e-2 and not scrapped:
+            row.failure = (
+                f"output ends at t = {traj.t_end:.4g} s, before the reference's {ref.t_end:.4g} s"
+            )
+            return row
+        row.errors = compare(traj, ref)
+    return row
+
+
+def cheapest_within(rows: list[WPRow], error: float, attr: str = "final") -> WPRow | None:
+    """Return the fastest successful row whose error ``attr`` is at most ``error``."""
+    ok = [r for r in rows if r.ok and r.errors is not None and getattr(r.errors, attr) <= error]
+    return min(ok, key=lambda r: r.wall_s) if ok else None
+
+
+def fmt_e(x: float) -> str:
+    return "–" if x is None or not math.isfinite(x) else f"{x:.1e}"
+
+
+def fmt_ms(x: float) -> str:
+    if not math.isfinite(x):
+        return "–"
+    return f"{x * 1e3:.3g}"
+
+
+def rows_markdown(rows: list[WPRow], kinds=EVENT_KINDS) -> str:
+    """Return a markdown table of rows: family, setting, time, errors, events, failures."""
+    head = (
+        ["method", "setting", "time [ms]", "runs", "rhs", "final CoG err [m]", "max err 1 kHz [m]"]
+        + [f"{k} Δt [s]" for k in kinds]
+        + ["status"]
+    )
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        e = r.errors
+        cells = [
+            r.family,
+            r.setting,
+            fmt_ms(r.wall_s),
+            str(r.n_runs or "–"),
+            str(r.n_rhs or "–"),
+            fmt_e(e.final) if e else "–",
+            fmt_e(e.grid_max) if e else "–",
+        ]
+        cells += [e.event_text(k) if e else "–" for k in kinds]
+        status = r.failure or "ok"
+        if e and e.extra:
+            status += "; extra events: " + ", ".join(f"{k} +{n}" for k, n in e.extra.items())
+        cells.append(status.replace("|", "/"))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def plot_work_precision(rows: list[WPRow], path, title: str, attr: str = "final", ax=None) -> None:
+    """
+    Plot error against wall time.
+
+    Error (log x) against wall time (log y), one line per family; failures left out.
+    Draws into ``ax`` when given, else writes a PNG to ``path``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    own = ax is None
+    if own:
+        fig, ax = plt.subplots(figsize=(7.5, 5.0))
+    families: dict = {}
+    for r in rows:
+        if r.ok and r.errors is not None:
+            err = getattr(r.errors, attr)
+            if math.isfinite(err) and math.isfinite(r.wall_s):
+                families.setdefault(r.family, []).append((max(err, 1e-16), r.wall_s))
+    markers = "osD^v<>pP*Xh"
+    styles = ("-", "--", ":", "-.")
+    for i, (fam, pts) in enumerate(families.items()):
+        pts.sort()
+        ax.loglog(
+            [p[0] for p in pts],
+            [p[1] for p in pts],
+            marker=markers[i % len(markers)],
+            ls=styles[(i // 10) % len(styles)],
+            label=fam,
+            lw=1.2,
+            ms=4,
+        )
+    ax.set_xlabel(
+        "error [m]" + (" (max over 1 kHz grid)" if attr == "grid_max" else " (final CoG position)")
+    )
+    ax.set_ylabel("wall time [s]")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=6, loc="best")
+    if own:
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
