@@ -469,9 +469,9 @@ def test_the_cell_imports_no_ros(module):
     assert ros_imports(path.read_text(), str(path)) == []
 
 
-def test_the_readme_documents_every_parameter():
-    text = (REPO / 'README.md').read_text()
-    section = text.split('## Simulation node', 1)[1].split('\n## ', 1)[0]
+def test_the_docs_document_every_parameter():
+    text = (REPO / 'docs' / 'simulation-node.md').read_text()
+    section = text.split('\n## Parameters', 1)[1].split('\n## ', 1)[0]
     for spec in SCHEMA:
         assert f'| `{spec.name}` |' in section, spec.name
 

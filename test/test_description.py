@@ -11,7 +11,7 @@ import math
 
 import pytest
 
-from sorter_cell import readme
+from sorter_cell import docs
 from sorter_control.node import SCHEMA as CTL_SCHEMA
 from sorter_control.node import config_from_values
 from sorter_sim.model.description import Q, QUANTITIES, DescriptionError
@@ -106,8 +106,11 @@ def test_a_quantity_refuses_with_its_key_the_value_and_the_range():
     assert Q['friction.mu'].check(3) == 3.0
 
 
-def test_the_readme_tables_are_the_generated_ones():
-    text = readme.README.read_text()
-    assert readme.render(text) == text, (
-        'README.md differs from the declarations: run python -m sorter_cell.readme'
-    )
+def test_the_documented_tables_are_the_generated_ones():
+    for name, where in docs.placement().items():
+        assert len(where) == 1, (name, where)
+    for page in docs.pages():
+        text = page.read_text()
+        assert docs.render(text) == text, (
+            f'{page.name} differs from the declarations: run python -m sorter_cell.docs'
+        )

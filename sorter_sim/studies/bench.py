@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sorter_sim.studies.outpaths import dir_problem
+from sorter_sim.studies.markdown import CONTENTS_END, CONTENTS_START, with_contents
 from sorter_sim.studies.progress import progress_bar
 
 
@@ -827,6 +828,8 @@ def _report_markdown(
     )
     L.append(f"Machine: {machine_line(info)}.")
     L.append("")
+    L.append("")
+    L.extend([CONTENTS_START, CONTENTS_END, ""])
     L.append(_DEFINITIONS)
     if cases:
         L.extend(_headline_markdown(cases))
@@ -842,7 +845,7 @@ def _report_markdown(
     if red_rows:
         L.append(_reductions_markdown(red_rows))
     L.append(_findings_markdown(cases, matrix_runs, long_runs, core_fig, quad))
-    return "\n".join(L) + "\n"
+    return with_contents("\n".join(L) + "\n")
 
 
 def _headline_markdown(cases) -> list[str]:

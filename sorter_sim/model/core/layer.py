@@ -466,8 +466,8 @@ def _layer(
         # at rtol 1e-8, an eighth at 1e-6): on in ln s, exactly (``_approach`` with
         # ``grow``), where the turning's stiffness in ln s, F/(m ṡ), is at most the
         # inverse ratio, the same at which the full model goes over to ln s on the way
-        # down. Measured against a fixed twentieth: Fig. 9a at rtol 1e-6 675 -> 576
-        # evaluations for the same error, the same run at 1e-8
+        # down (a fixed ratio, tight enough for tight tolerances, wastes evaluations at
+        # loose ones)
         if grow_exit and u[3] > 0.0 and K[0, 3] > 0.0 and K[0, 3] * mass >= grow_ratio * fmag:
             healthy = True
             break

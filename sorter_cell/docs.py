@@ -1,12 +1,15 @@
 """
-The README's tables that are generated from declarations: regenerate or check them.
+The documentation's generated parts: regenerate them, or check them.
 
-Three tables are data, declared once in code: the cell description
-(``sorter_sim.model.description``), the simulation node's parameters
-(``sorter_sim.runtime.params``) and the controller's (``sorter_control.node``). In
-README.md each sits between a ``<!-- generated: NAME -->`` line and a ``<!-- end: NAME -->`` line.
-``python -m sorter_cell.readme`` rewrites them in place; the test suite fails
-when README.md differs from what this module renders.
+Four tables are data, declared once in code: the cell description
+(``sorter_sim.model.description``, in docs/model.md), the simulation node's parameters
+(``sorter_sim.runtime.params``, docs/simulation-node.md), the controller's
+(``sorter_control.node``, docs/controller.md) and the fieldbus I/O map
+(``sorter_sim.model.io_map``, docs/fieldbus.md). Each sits between a
+``<!-- generated: NAME -->`` line and a ``<!-- end: NAME -->`` line; every page of
+docs/ also opens with its contents list, generated from its headings the same way.
+``python -m sorter_cell.docs`` rewrites them in place; the test suite fails when a
+page differs from what this module renders.
 """
 
 from __future__ import annotations
@@ -15,7 +18,11 @@ from pathlib import Path
 import re
 import sys
 
-README = Path(__file__).resolve().parents[1] / 'README.md'
+from sorter_sim.studies.markdown import with_contents
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / 'README.md'
+DOCS = ROOT / 'docs'
 
 
 def _value(v) -> str:
@@ -101,28 +108,58 @@ def tables() -> dict[str, str]:
     }
 
 
+def pages() -> list[Path]:
+    """Return the README and every page of docs/, in order."""
+    return [README, *sorted(DOCS.glob('*.md'))]
+
+
 def render(text: str) -> str:
-    """Return ``text`` with every generated table replaced by its current rendering."""
+    """
+    Return a page with its generated tables and contents list rendered anew.
+
+    Parameters
+    ----------
+    text : str
+        A page of the documentation; the tables it has markers for are rendered, and its
+        contents list if it has one.
+
+    Returns
+    -------
+    str
+        The page as it should be.
+    """
     for name, table in tables().items():
         tag = re.escape(name)
         pattern = re.compile(
             rf'(<!-- generated: {tag} -->\n)(?:.*?\n)?(<!-- end: {tag} -->)', re.S
         )
-        if not pattern.search(text):
-            raise ValueError(f'README.md has no generated section {name!r}')
         text = pattern.sub(lambda m: m.group(1) + table + '\n' + m.group(2), text)
-    return text
+    return with_contents(text)
+
+
+def placement() -> dict[str, list[str]]:
+    """Return, for each generated table, the pages that hold it (each must hold one)."""
+    found: dict[str, list[str]] = {name: [] for name in tables()}
+    for page in pages():
+        text = page.read_text()
+        for name in found:
+            if f'<!-- generated: {name} -->' in text:
+                found[name].append(page.name)
+    return found
 
 
 def main() -> int:
-    """Rewrite README.md's generated tables."""
-    text = README.read_text()
-    new = render(text)
-    if new != text:
-        README.write_text(new)
-        print(f'updated {README}')
-    else:
-        print(f'{README} is up to date')
+    """Rewrite the generated parts of README.md and docs/*.md."""
+    for name, where in placement().items():
+        if len(where) != 1:
+            print(f'the table {name!r} must be on exactly one page, found on {where}')
+            return 1
+    for page in pages():
+        text = page.read_text()
+        new = render(text)
+        if new != text:
+            page.write_text(new)
+            print(f'updated {page}')
     return 0
 
 
