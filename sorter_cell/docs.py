@@ -127,6 +127,7 @@ def render(text: str) -> str:
     -------
     str
         The page as it should be.
+
     """
     for name, table in tables().items():
         tag = re.escape(name)

@@ -29,6 +29,7 @@ def headings(text: str) -> list[tuple[int, str, str]]:
     list of (int, str, str)
         Each heading's level (1 for ``#``), its text, and its anchor (unique in the page,
         as ``-1``, ``-2`` ... suffixes make repeated ones).
+
     """
     out = []
     seen: dict[str, int] = {}
@@ -61,6 +62,7 @@ def anchor(title: str) -> str:
     -------
     str
         The fragment a link to the heading uses (without ``#``).
+
     """
     text = re.sub(r'\[([^\]]*)\]\([^)]*\)', r'\1', title)  # a link: its text
     text = text.replace('`', '').strip().lower()
@@ -81,6 +83,7 @@ def contents(text: str) -> str:
     -------
     str
         A Markdown list, one line per heading, level-3 ones indented under their section.
+
     """
     lines = []
     for level, title, ref in headings(text):
@@ -102,6 +105,7 @@ def with_contents(text: str) -> str:
     -------
     str
         The page with the list rendered from its headings.
+
     """
     pattern = re.compile(
         rf'({re.escape(CONTENTS_START)}\n)(?:.*?\n)?({re.escape(CONTENTS_END)})', re.S

@@ -36,6 +36,7 @@ def drop_stale_kernels(here: Path = CORE_DIR) -> list[Path]:
     list of Path
         The cached kernel files removed (empty when the stamp matched, or nothing was cached).
         A missing stamp counts as a change: nothing cached without one can be trusted.
+
     """
     cache = here / '__pycache__'
     digest = hashlib.sha256()
@@ -68,6 +69,7 @@ def check_kernel_cache() -> int:
     -------
     int
         How many cached kernel files this call removed (0 after the first call).
+
     """
     global _checked
     if _checked:
