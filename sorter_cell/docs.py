@@ -57,7 +57,7 @@ def controller_table() -> str:
 
     rows = ['| name | type | default | range | run time | meaning |', '|---|---|---|---|---|---|']
     for s in SCHEMA:
-        rng = s.allowed.removeprefix('a finite number in ') if s.lo is not None else ''
+        rng = s.entry_allowed.removeprefix('a finite number in ') if s.lo is not None else ''
         rows.append(
             f'| `{s.name}` | {s.type} | `{_value(s.default)}` | {rng} | '
             f'{"no" if s.read_only else "yes"} | {s.description} |'

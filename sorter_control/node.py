@@ -31,7 +31,6 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter, deque
-from dataclasses import dataclass
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -50,6 +49,15 @@ from std_msgs.msg import Bool, String, UInt32
 from std_srvs.srv import SetBool, Trigger
 
 from sorter_ros.env import run_node
+from sorter_ros.param_spec import (
+    BOOL,
+    DOUBLE,
+    DOUBLE_ARRAY,
+    STRING,
+    STRING_ARRAY,
+    ParamSpec,
+    quantity_spec,
+)
 from sorter_sim.model.description import Q
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
 from sorter_ros.interface import descriptor as ros_descriptor
@@ -70,122 +78,114 @@ from sorter_control.timing import CellModel
 
 NODE_NAME = "sorter_controller"
 LAST_WORDS_TIMEOUT = 0.5  # [s, wall] to lower the disks when stopping
-D, B, S, SA, DA = "double", "bool", "string", "string_array", "double_array"
-
-
-@dataclass(frozen=True)
-class Spec:
-    name: str
-    type: str
-    default: object
-    description: str
-    lo: float | None = None
-    hi: float | None = None
-    read_only: bool = True
-    lo_open: bool = False  # lo itself excluded
-
-    @property
-    def allowed(self) -> str:
-        """Return the range in words."""
-        return f"a finite number in {'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}]"
-
-    def in_range(self, v: float) -> bool:
-        """Return True if the finite number ``v`` lies in the range."""
-        return (self.lo < v if self.lo_open else self.lo <= v) and v <= self.hi
-
-
-def _cell_spec(name, key, type_=D, default=None, extra="") -> Spec:
-    """Return the spec of one of the cell's quantities: range and meaning from the description."""
-    q = Q[key]
-    unit = f" [{q.unit}]" if q.unit else ""
-    return Spec(
-        name,
-        type_,
-        q.default if default is None else default,
-        q.meaning + (f" ({extra})" if extra else "") + unit,
-        q.lo,
-        q.hi,
-        True,
-        q.lo_open,
-    )
+D, B, S, SA, DA = DOUBLE, BOOL, STRING, STRING_ARRAY, DOUBLE_ARRAY
 
 
 # The controller's parameters. The cell group is what the PLC knows of the machine;
 # with cell_node set it is taken from the simulation node instead (names there match).
 SCHEMA = (
-    Spec("scan_period", D, 0.01, "PLC scan period on the simulation clock [s]", 0.001, 0.1),
-    Spec(
+    ParamSpec(
+        "scan_period", D, 0.01, "PLC scan period on the simulation clock [s]", lo=0.001, hi=0.1
+    ),
+    ParamSpec(
         "cell_node",
         S,
         "sorter_sim",
         "node whose get_parameters gives the cell's geometry and "
         "actuator times (same namespace); empty: use this node's cell parameters",
     ),
-    Spec(
+    ParamSpec(
         "cell_timeout",
         D,
         10.0,
         "how long to wait for cell_node's parameters at start-up, wall [s]",
-        0.1,
-        600.0,
+        lo=0.1,
+        hi=600.0,
     ),
-    _cell_spec("belt_speed", "belt.speed", extra="the encoder scale"),
-    _cell_spec("belt_width", "belt.width"),
-    _cell_spec("disk_field_length", "disk_field.length", extra="finite here"),
-    _cell_spec("chute_margin", "disk_field.chute_margin"),
-    Spec(
+    quantity_spec(
+        "belt_speed", Q["belt.speed"], extra="the encoder scale", unit_in_description=True
+    ),
+    quantity_spec("belt_width", Q["belt.width"], unit_in_description=True),
+    quantity_spec(
+        "disk_field_length", Q["disk_field.length"], extra="finite here", unit_in_description=True
+    ),
+    quantity_spec("chute_margin", Q["disk_field.chute_margin"], unit_in_description=True),
+    ParamSpec(
         "photo_eyes.names",
         SA,
         ["pe_scan", "pe_divert", "pe_exit"],
         "photo-eye names (topics sensors/<name>)",
     ),
-    _cell_spec("photo_eyes.x", "sensors.x", DA, [-2.0, -0.3, 2.0], "one per name"),
-    Spec("scan_eye", S, "pe_scan", "the photo-eye on the scanner line (tracking starts there)"),
-    Spec("divert_eye", S, "pe_divert", "the photo-eye just upstream of the disk field"),
-    _cell_spec("popup_stroke_time", "diverter.stroke_time"),
-    _cell_spec("alpha_slew_rate_deg_s", "diverter.alpha_slew_rate"),
-    Spec("friction_model", S, "const1", "friction law for the divert prediction (Fig. 3)"),
-    _cell_spec("mu_belt", "friction.mu", extra="parcel/belt, for the prediction"),
-    _cell_spec("mu_disks", "friction.mu", extra="parcel/disks, for the prediction"),
-    _cell_spec(
+    quantity_spec(
+        "photo_eyes.x",
+        Q["sensors.x"],
+        DA,
+        [-2.0, -0.3, 2.0],
+        "one per name",
+        unit_in_description=True,
+    ),
+    ParamSpec(
+        "scan_eye", S, "pe_scan", "the photo-eye on the scanner line (tracking starts there)"
+    ),
+    ParamSpec("divert_eye", S, "pe_divert", "the photo-eye just upstream of the disk field"),
+    quantity_spec("popup_stroke_time", Q["diverter.stroke_time"], unit_in_description=True),
+    quantity_spec(
+        "alpha_slew_rate_deg_s", Q["diverter.alpha_slew_rate"], unit_in_description=True
+    ),
+    ParamSpec("friction_model", S, "const1", "friction law for the divert prediction (Fig. 3)"),
+    quantity_spec(
+        "mu_belt",
+        Q["friction.mu"],
+        extra="parcel/belt, for the prediction",
+        unit_in_description=True,
+    ),
+    quantity_spec(
+        "mu_disks",
+        Q["friction.mu"],
+        extra="parcel/disks, for the prediction",
+        unit_in_description=True,
+    ),
+    quantity_spec(
         "nominal_parcel_width",
-        "parcel.width",
+        Q["parcel.width"],
         default=0.4,
         extra="assumed by the prediction: the photo-eyes measure only the length",
+        unit_in_description=True,
     ),
-    _cell_spec(
+    quantity_spec(
         "nominal_parcel_length",
-        "parcel.length",
+        Q["parcel.length"],
         default=0.4,
         extra="the length the minimum gap is reported for",
+        unit_in_description=True,
     ),
-    Spec(
+    ParamSpec(
         "warm_lengths",
         DA,
         [0.2, 0.8],
         "[min, max] parcel lengths to predict at start-up, so scans "
         "find the model's answers ready [m]",
-        0.0,
-        10.0,
+        lo=0.0,
+        hi=10.0,
     ),
-    Spec(
+    ParamSpec(
         "divert_alpha_deg",
         D,
         90.0,
         "disk angle for a divert (+ to left, - to right) [deg]",
-        1.0,
-        90.0,
+        lo=1.0,
+        hi=90.0,
     ),
-    Spec(
+    ParamSpec(
         "commit_margin",
         D,
         0.05,
         "the centre of gravity must be this far past the chute entry line "
         "before the disks drop [m]",
-        0.0,
-        1.0,
+        lo=0.0,
+        hi=1.0,
     ),
-    Spec(
+    ParamSpec(
         "routing.rules",
         SA,
         ["A*=left", "B*=right", "C*=straight"],
@@ -193,75 +193,103 @@ SCHEMA = (
         "'label=destination' or 'prefix*=destination' (destinations left, right, straight)",
         read_only=False,
     ),
-    Spec(
+    ParamSpec(
         "routing.default",
         S,
         "",
         "destination of labels no rule matches; empty: the reject destination",
         read_only=False,
     ),
-    Spec(
+    ParamSpec(
         "reject_destination",
         S,
         "straight",
         "destination of unknown labels and no-reads",
         read_only=False,
     ),
-    Spec(
+    ParamSpec(
         "service_timeout",
         D,
         0.5,
         "a service call without an answer after this long fails (not retried), wall [s]",
+        lo=0.005,
+        hi=60.0,
+    ),
+    ParamSpec(
+        "service_latency",
+        D,
         0.005,
-        60.0,
+        "allowance for a command to reach the cell, sim [s]",
+        lo=0.0,
+        hi=1.0,
     ),
-    Spec(
-        "service_latency", D, 0.005, "allowance for a command to reach the cell, sim [s]", 0.0, 1.0
+    ParamSpec(
+        "timing_margin", D, 0.02, "extra lead for a scan that comes late, sim [s]", lo=0.0, hi=1.0
     ),
-    Spec("timing_margin", D, 0.02, "extra lead for a scan that comes late, sim [s]", 0.0, 1.0),
-    Spec(
-        "tracking_tolerance", D, 0.05, "half width of a photo-eye's transit window [m]", 0.001, 2.0
+    ParamSpec(
+        "tracking_tolerance",
+        D,
+        0.05,
+        "half width of a photo-eye's transit window [m]",
+        lo=0.001,
+        hi=2.0,
     ),
-    Spec(
+    ParamSpec(
         "label_window",
         D,
         0.1,
         "a label belongs to the scanner eye's edge this close in time [s]",
-        0.001,
-        2.0,
+        lo=0.001,
+        hi=2.0,
     ),
-    Spec(
+    ParamSpec(
         "jam_margin",
         D,
         0.5,
         "an eye may stay blocked this much longer than its parcel explains [s]",
-        0.01,
-        60.0,
+        lo=0.01,
+        hi=60.0,
     ),
-    _cell_spec(
-        "max_parcel_length", "parcel.length", default=1.2, extra="the longest the cell takes"
+    quantity_spec(
+        "max_parcel_length",
+        Q["parcel.length"],
+        default=1.2,
+        extra="the longest the cell takes",
+        unit_in_description=True,
     ),
-    Spec(
+    ParamSpec(
         "missed_divert_margin",
         D,
         0.3,
         "a diverted parcel must reach its chute sensor this soon after the predicted time [s]",
-        0.01,
-        60.0,
+        lo=0.01,
+        hi=60.0,
     ),
-    Spec(
-        "clearance", D, 0.02, "least distance between parcels the spacing rules keep [m]", 0.0, 1.0
+    ParamSpec(
+        "clearance",
+        D,
+        0.02,
+        "least distance between parcels the spacing rules keep [m]",
+        lo=0.0,
+        hi=1.0,
     ),
-    Spec("estop_on_jam", B, True, "stop the belt (the cell's e-stop) on a jam"),
-    Spec(
+    ParamSpec("estop_on_jam", B, True, "stop the belt (the cell's e-stop) on a jam"),
+    ParamSpec(
         "open_chains",
         B,
         False,
         "divert a same-side chain even when the scanner cannot see what "
         "follows it (more throughput, risk of a forced divert)",
     ),
-    Spec("diagnostics_period", D, 1.0, "period of the diagnostics message, wall [s]", 0.05, 60.0),
-    Spec(
+    ParamSpec(
+        "diagnostics_period",
+        D,
+        1.0,
+        "period of the diagnostics message, wall [s]",
+        lo=0.05,
+        hi=60.0,
+    ),
+    ParamSpec(
         "record_path",
         S,
         "",
@@ -288,7 +316,7 @@ CELL_KEYS = (
 ROUTING_KEYS = ("routing.rules", "routing.default", "reject_destination")
 
 
-def descriptor(spec: Spec) -> ParameterDescriptor:
+def descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """Return the ROS descriptor of a controller parameter."""
     ranged = spec.type == D and spec.lo is not None
     return ros_descriptor(
@@ -345,7 +373,7 @@ def config_from_values(values: dict) -> ControllerConfig:
                 raise ValueError(f"parameter {name!r} must be a list of finite numbers, got {v!r}")
             if spec.lo is not None and not all(spec.in_range(float(x)) for x in v):
                 raise ValueError(
-                    f"parameter {name!r}: every entry must be {spec.allowed}, got {v!r}"
+                    f"parameter {name!r}: every entry must be {spec.entry_allowed}, got {v!r}"
                 )
         elif spec.type == SA:
             if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):

@@ -1,6 +1,7 @@
 """
-The documentation as a newcomer meets it: a short README, pages that open with their
-contents, and links that lead somewhere.
+Check the documentation as a newcomer meets it.
+
+A short README, pages that open with their contents, and links that lead somewhere.
 """
 
 from pathlib import Path

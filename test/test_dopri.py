@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from numba import njit
 
 from sorter_sim.model.core import dopri
 
@@ -79,3 +80,67 @@ def test_sign_change_skips_values_at_round_off_of_zero():
     assert dopri.sign_change(np.array([1.0, -2.0]), np.array([0.5, 1.0])) == 1
     assert dopri.sign_change(np.array([1e-13, 1.0]), np.array([-1.0, 0.5])) == -1
     assert dopri.sign_change(np.array([1.0, 1.0]), np.array([0.5, 2.0])) == -1
+
+
+# a right-hand side of t, through the stage's node: y' = cos(t) y (y = exp(sin t))
+@njit(cache=True)
+def _cos_rhs(y, c, h, ctx, out):
+    (t0,) = ctx
+    out[0] = math.cos(t0 + c * h) * y[0]
+    return True
+
+
+@njit(cache=True)
+def _refuses_negative(y, c, h, ctx, out):
+    out[0] = -10.0
+    return y[0] > 0.0  # the stage's state is 1 - 10 c h from y = 1
+
+
+_cos_step = dopri.make_step(_cos_rhs)
+_refusing_step = dopri.make_step(_refuses_negative)
+
+
+def test_the_step_driver_places_stages_in_time_and_keeps_fsal():
+    t0 = 0.3
+    y = np.array([math.exp(math.sin(t0))])
+    rows = []
+    for h in (0.2, 0.1, 0.05):
+        K = np.empty((7, 1))
+        _cos_rhs(y, 0.0, h, (t0,), K[0])
+        y_new = np.empty(1)
+        err = np.empty(1)
+        assert _cos_step(y, h, K, (t0,), y_new, err)
+        exact = math.exp(math.sin(t0 + h))
+        rows.append((abs(y_new[0] - exact), abs(err[0])))
+        # FSAL: the last stage is f at the step's end, the next step's first
+        assert K[6, 0] == pytest.approx(math.cos(t0 + h) * y_new[0], rel=1e-15)
+    for coarse, fine in zip(rows, rows[1:]):
+        # a stage placed at the wrong time would be first order wrong: the orders show it
+        assert 0.7 * 64 < coarse[0] / fine[0] < 1.4 * 64, (coarse, fine)
+        assert 0.7 * 32 < coarse[1] / fine[1] < 1.4 * 32, (coarse, fine)
+
+
+def test_a_stage_the_right_hand_side_refuses_fails_the_step():
+    y = np.array([1.0])
+    K = np.full((7, 1), -10.0)
+    y_new = np.empty(1)
+    err = np.empty(1)
+    assert _refusing_step(y, 0.05, K, (), y_new, err)  # every stage at y >= 0.5
+    assert not _refusing_step(y, 0.2, K, (), y_new, err)  # the last stages below zero
+
+
+def test_the_error_norm_takes_its_scales_as_arguments():
+    err = np.array([1e-6, 2e-6, 3e-6])
+    y0 = np.array([1.0, -4.0, 0.5])
+    y1 = np.array([2.0, 0.0, 0.25])
+    rtol, atol = 1e-3, 1e-5
+    ones, rel = dopri.error_scales(3)
+    plain = dopri.error_norm(err, y0, y1, rtol, atol, ones, rel)
+    sc = atol + rtol * np.maximum(abs(y0), abs(y1))
+    assert plain == pytest.approx(math.sqrt(np.mean((err / sc) ** 2)), rel=1e-15)
+    # a finer absolute floor on one component, a fixed size on another
+    a, r = dopri.error_scales(3, atol_scale={2: 1e-3}, rtol_ref={1: 1.0})
+    assert list(a) == [1.0, 1.0, 1e-3] and list(r) == [-1.0, 1.0, -1.0]
+    sc = np.array([atol + rtol * 2.0, atol + rtol * 1.0, 1e-3 * atol + rtol * 0.5])
+    got = dopri.error_norm(err, y0, y1, rtol, atol, a, r)
+    assert got == pytest.approx(math.sqrt(np.mean((err / sc) ** 2)), rel=1e-15)

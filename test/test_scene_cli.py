@@ -163,7 +163,7 @@ def test_numba_kernels_are_cached_on_disk():
     r = sorter("run", "config/scenes/fig7.yaml", "--json")
     assert r.returncode == 0
     cache = list((ROOT / "sorter_sim" / "model" / "core" / "__pycache__").glob("*.nbi"))
-    assert any("integrators" in p.name for p in cache)
+    assert any("accurate" in p.name for p in cache)
     assert any("wrench" in p.name for p in cache)
 
 
@@ -226,7 +226,7 @@ def test_outputs_are_checked_before_any_work(tmp_path, argv):
 def test_a_fixed_step_scene_has_room_for_every_step_and_names_its_own_keys_when_not(
     monkeypatch,
 ):
-    from sorter_sim import scene as sc
+    from sorter_sim.runtime import scene as sc
 
     base = sc.load_scene(Path(__file__).resolve().parents[1] / 'config/scenes/fig9a.yaml')
     # 300 000 steps: past the 200 000 records a run once had room for

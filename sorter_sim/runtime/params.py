@@ -30,13 +30,17 @@ from typing import Any
 from sorter_sim.model.core.friction import LAW_NAMES
 from sorter_sim.model.description import LABEL_MAX, Q, label_problem, shown
 from sorter_sim.model.io_map import MAX_SENSORS
+from sorter_ros.param_spec import (
+    BOOL,
+    DOUBLE,
+    DOUBLE_ARRAY,
+    INTEGER,
+    STRING,
+    STRING_ARRAY,
+    ParamSpec,
+    quantity_spec,
+)
 
-DOUBLE = 'double'
-INTEGER = 'integer'
-STRING = 'string'
-BOOL = 'bool'
-DOUBLE_ARRAY = 'double_array'
-STRING_ARRAY = 'string_array'
 
 TIME_MODES = ('realtime', 'fast', 'lockstep')
 ARRIVAL_MODES = ('gap', 'rate', 'none')
@@ -50,50 +54,6 @@ LABEL_FIELDS = ('id', 'n', 'label')
 
 class ParamError(ValueError):
     """A parameter value is of the wrong type, out of range, or inconsistent with another."""
-
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """One declared parameter: name, type, default, allowed range and meaning."""
-
-    name: str
-    type: str
-    default: Any
-    description: str
-    units: str = ''
-    lo: float | None = None  # inclusive bounds for numbers and array entries
-    hi: float | None = None
-    choices: tuple = ()
-    read_only: bool = True
-    length: tuple[int, int] | None = None  # allowed array length (min, max)
-    lo_open: bool = False  # lo itself excluded
-
-    @property
-    def _bracket(self) -> str:
-        return '(' if self.lo_open else '['
-
-    def in_range(self, v: float) -> bool:
-        """Return True if the finite number ``v`` lies in the declared range."""
-        return (self.lo < v if self.lo_open else self.lo <= v) and v <= self.hi
-
-    @property
-    def allowed(self) -> str:
-        """Return what is allowed, in words, for error messages and the README table."""
-        unit = f' {self.units}' if self.units else ''
-        if self.choices:
-            return 'one of ' + ', '.join(self.choices)
-        if self.type == BOOL:
-            return 'true or false'
-        if self.type in (DOUBLE, INTEGER):
-            kind = 'an integer' if self.type == INTEGER else 'a finite number'
-            return f'{kind} in {self._bracket}{self.lo:g}, {self.hi:g}]{unit}'
-        if self.type == DOUBLE_ARRAY:
-            n = self.length
-            count = f'{n[0]}' if n[0] == n[1] else f'{n[0]} to {n[1]}'
-            return f'{count} finite numbers in {self._bracket}{self.lo:g}, {self.hi:g}]{unit}'
-        if self.type == STRING_ARRAY:
-            return f'a list of {self.length[0]} to {self.length[1]} strings'
-        return 'a string'
 
 
 def _p(
@@ -113,30 +73,7 @@ def _p(
     )
 
 
-def _cellp(name, key, type_=DOUBLE, default=None, extra='', read_only=True, length=None):
-    """
-    Return the spec of a parameter that is one of the cell's quantities (``description``).
-
-    Its unit, range and meaning come from the cell description; ``default`` (else the
-    quantity's) and ``extra`` say what is particular to the node.
-    """
-    q = Q[key]
-    return ParamSpec(
-        name,
-        type_,
-        q.default if default is None else default,
-        q.meaning + (f' ({extra})' if extra else ''),
-        q.unit,
-        q.lo,
-        q.hi,
-        (),
-        read_only,
-        length,
-        q.lo_open,
-    )
-
-
-# The order here is the order of the README table.
+# The order here is the order of the documentation's table.
 SCHEMA: tuple[ParamSpec, ...] = (
     # -- time
     _p(
@@ -188,10 +125,10 @@ SCHEMA: tuple[ParamSpec, ...] = (
         0.1,
     ),
     # -- cell geometry (conveyor frame)
-    _cellp('belt_speed', 'belt.speed'),
-    _cellp('belt_width', 'belt.width'),
-    _cellp('disk_field_length', 'disk_field.length', extra='finite here'),
-    _cellp('chute_margin', 'disk_field.chute_margin'),
+    quantity_spec('belt_speed', Q['belt.speed']),
+    quantity_spec('belt_width', Q['belt.width']),
+    quantity_spec('disk_field_length', Q['disk_field.length'], extra='finite here'),
+    quantity_spec('chute_margin', Q['disk_field.chute_margin']),
     _p(
         'induct_x',
         DOUBLE,
@@ -228,30 +165,30 @@ SCHEMA: tuple[ParamSpec, ...] = (
         'the disk field)',
         length=(2, 32),
     ),
-    _cellp(
+    quantity_spec(
         'photo_eyes.x',
-        'sensors.x',
+        Q['sensors.x'],
         DOUBLE_ARRAY,
         [-2.0, -0.3, 2.0],
         extra='one per name; each beam spans the belt',
         length=(2, 32),
     ),
     # -- diverter
-    _cellp(
+    quantity_spec(
         'alpha_deg',
-        'diverter.alpha_deg',
+        Q['diverter.alpha_deg'],
         extra='commanded; the physical angle follows at alpha_slew_rate_deg_s',
         read_only=False,
     ),
-    _cellp('alpha_slew_rate_deg_s', 'diverter.alpha_slew_rate'),
-    _cellp('popup_stroke_time', 'diverter.stroke_time'),
-    _cellp(
+    quantity_spec('alpha_slew_rate_deg_s', Q['diverter.alpha_slew_rate']),
+    quantity_spec('popup_stroke_time', Q['diverter.stroke_time']),
+    quantity_spec(
         'watchdog_timeout',
-        'diverter.watchdog_timeout',
+        Q['diverter.watchdog_timeout'],
         extra='armed by the first heartbeat on controller/heartbeat; tripped, the disks drop '
         'and turn to safe_alpha_deg until heartbeats return',
     ),
-    _cellp('safe_alpha_deg', 'diverter.safe_alpha_deg'),
+    quantity_spec('safe_alpha_deg', Q['diverter.safe_alpha_deg']),
     # -- friction (seed Fig. 3 laws, scaled to these coefficients at 1 m/s)
     _p(
         'friction_model',
@@ -261,8 +198,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
         'as in config/scenes; const1 is the seed\'s sorting runs)',
         choices=tuple(LAW_NAMES),
     ),
-    _cellp('mu_belt', 'friction.mu', extra='parcel/belt, zones a and c, at 1 m/s'),
-    _cellp('mu_disks', 'friction.mu', extra='parcel/disks, zone b, at 1 m/s'),
+    quantity_spec('mu_belt', Q['friction.mu'], extra='parcel/belt, zones a and c, at 1 m/s'),
+    quantity_spec('mu_disks', Q['friction.mu'], extra='parcel/disks, zone b, at 1 m/s'),
     _p(
         'integrator',
         STRING,
@@ -301,9 +238,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
         choices=ARRIVAL_MODES,
         read_only=False,
     ),
-    _cellp(
+    quantity_spec(
         'arrival_gap',
-        'stream.gap',
+        Q['stream.gap'],
         DOUBLE_ARRAY,
         # the least gap the default controller (config/controller.yaml) needs for the
         # default stream, 1.40 m, and some: test_defaults_agree keeps it so
@@ -312,37 +249,37 @@ SCHEMA: tuple[ParamSpec, ...] = (
         read_only=False,
         length=(2, 2),
     ),
-    _cellp('arrival_rate', 'stream.rate', extra='in rate mode', read_only=False),
-    _cellp(
+    quantity_spec('arrival_rate', Q['stream.rate'], extra='in rate mode', read_only=False),
+    quantity_spec(
         'parcel_A',
-        'parcel.length',
+        Q['parcel.length'],
         DOUBLE_ARRAY,
         [0.3, 0.7],
         extra='[min, max] of the stream',
         read_only=False,
         length=(2, 2),
     ),
-    _cellp(
+    quantity_spec(
         'parcel_B',
-        'parcel.width',
+        Q['parcel.width'],
         DOUBLE_ARRAY,
         [0.2, 0.4],
         extra='[min, max] of the stream',
         read_only=False,
         length=(2, 2),
     ),
-    _cellp(
+    quantity_spec(
         'parcel_m',
-        'parcel.mass',
+        Q['parcel.mass'],
         DOUBLE_ARRAY,
         [1.0, 10.0],
         extra='[min, max] of the stream',
         read_only=False,
         length=(2, 2),
     ),
-    _cellp(
+    quantity_spec(
         'parcel_phi0_deg',
-        'parcel.skew_deg',
+        Q['parcel.skew_deg'],
         DOUBLE_ARRAY,
         [-3.0, 3.0],
         extra='initial skew φ0, [min, max] of the stream',

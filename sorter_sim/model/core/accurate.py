@@ -35,16 +35,16 @@ from sorter_sim.model.core.common import (
     STIFF_RATIO,
     _contact_surfaces,
     _corner_event_values,
-    _dp_step,
     _gen_slip,
     _log_event,
     _record,
     _record_new,
     n_surf_of,
     rhs_slide,
+    slide_step,
     surface_velocity,
 )
-from sorter_sim.model.core.dopri import dense, rms_norm, step_factor
+from sorter_sim.model.core.dopri import dense, error_norm, step_factor
 from sorter_sim.model.core.friction import mu_kinetic, mu_static
 from sorter_sim.model.core.layout import (
     MODE_SLIDE,
@@ -114,6 +114,8 @@ def run_accurate(
     K = np.empty((7, 6))
     y_new = np.empty(6)
     err = np.empty(6)
+    atol_scale = np.ones(6)  # atol on every component, rtol against its size
+    rtol_ref = -np.ones(6)
     yd = np.empty(6)
     sig = np.empty(3)
     sig0 = np.empty(nsurf * 3)
@@ -122,6 +124,7 @@ def run_accurate(
     rec = np.zeros(1, dtype=np.int64)
     area = np.empty(nsurf)
     clip = clip_scratch()
+    slide = (strips, parcel, nodes, weights, clip)  # the sliding model's step context
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
@@ -298,9 +301,9 @@ def run_accurate(
             break
         if nb > 0:
             _corner_event_values(y, parcel, borders, ev0)
-        _dp_step(y, h, K, strips, parcel, nodes, weights, clip, y_new, err)
+        slide_step(y, h, K, slide, y_new, err)
         n_rhs += 6
-        enorm = rms_norm(err, y, y_new, rtol, atol)
+        enorm = error_norm(err, y, y_new, rtol, atol, atol_scale, rtol_ref)
         if not np.isfinite(enorm):
             h *= 0.2
             n_rej += 1
@@ -393,7 +396,7 @@ def run_accurate(
             # redo the step to the event, so no stage sees past it
             h_next = h
             h = theta_ev * h
-            _dp_step(y, h, K, strips, parcel, nodes, weights, clip, y_new, err)
+            slide_step(y, h, K, slide, y_new, err)
             n_rhs += 6
         n_steps += 1
         t = t + h

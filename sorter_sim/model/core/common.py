@@ -19,7 +19,7 @@ import math
 
 from numba import njit
 
-from sorter_sim.model.core.dopri import stage_state, step_error
+from sorter_sim.model.core.dopri import make_step
 from sorter_sim.model.core.geometry import corner_x
 from sorter_sim.model.core.jit import borrowing
 from sorter_sim.model.core.layout import (
@@ -97,15 +97,15 @@ STIFF_RATIO = 2.0  # x rtol^(1/5): where a 5th-order step's error in the turning
 
 
 @borrowing
-def _dp_step(y, h, K, strips, parcel, nodes, weights, clip, y_new, err):
-    """One Dormand-Prince step of the sliding model; K[0] holds f(y); fills K[1..6], y_new, err."""
-    for i in range(1, 6):
-        # y_new holds each stage's state until it takes the step's end
-        stage_state(y, K, h, i, y_new)
-        rhs_slide(y_new, strips, parcel, nodes, weights, clip, K[i])
-    stage_state(y, K, h, 6, y_new)
-    rhs_slide(y_new, strips, parcel, nodes, weights, clip, K[6])
-    step_error(K, h, err)
+def _slide_rhs(y, c, h, ctx, out):
+    """Evaluate ``rhs_slide`` as a step's rhs; ctx: strips, parcel, nodes, weights, clip."""
+    strips, parcel, nodes, weights, clip = ctx
+    rhs_slide(y, strips, parcel, nodes, weights, clip, out)
+    return True
+
+
+# one Dormand-Prince step of the sliding model: K[0] holds f(y); fills K[1..6], y_new, err
+slide_step = make_step(_slide_rhs)
 
 
 @borrowing

@@ -1,13 +1,22 @@
 """
 The Dormand-Prince 5(4) pair every explicit stepper of the core takes its steps with.
 
-One tableau (Dormand & Prince 1980), one dense output (Shampine 1986) and one set of
-step pieces, for any state length: the parcel's accurate method (``integrators``),
-its break-away layer, the cell's period runs and the Fig. 4 oscillator all step and
-interpolate through these, and the work-precision study reads their records through
-the same dense output. The caller owns the right-hand side (numba has no cheap
-function arguments): it fills stage i of K (7 x n, K[0] = f(y), FSAL) at
-``stage_state(y, K, h, i, ys)``, then calls ``finish_step``.
+One tableau (Dormand & Prince 1980), one dense output (Shampine 1986) and one step
+driver, for any state length: the parcel's accurate method (``accurate``), its
+break-away layer (``layer``), its approach to a stick (``transitions``), the cell's
+period runs and the Fig. 4 oscillator all step and interpolate through these, and the
+work-precision study reads their records through the same dense output.
+
+Like scipy's ``rk_step``, one function takes a step: ``make_step(rhs)`` compiles the
+step for a right-hand side ``rhs(y, c, h, ctx, out) -> valid`` (``c`` the stage's
+node, so that a right-hand side of t or of a stage-dependent parameter can place the
+stage; ``ctx`` a tuple of whatever else it needs; False: it cannot be evaluated there,
+which fails the step). numba compiles the step for each right-hand side as it would a
+hand-written loop: the right-hand side is a constant of the step's closure, not a
+function value passed at run time (which numba would neither inline nor cache). The
+caller keeps K[0] = f(y) (FSAL: the step's K[6] is the next step's K[0]), measures the
+step with ``error_norm``, whose scales are its arguments, and sizes the next one with
+``step_factor``.
 """
 
 from __future__ import annotations
@@ -15,6 +24,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from sorter_sim.model.core.jit import borrowing
 
@@ -88,13 +98,106 @@ def step_error(K, h, err):
 
 
 @borrowing
-def rms_norm(err, y0, y1, rtol, atol):
-    """Hairer's scaled RMS norm: each component against atol + rtol max(|y0|, |y1|)."""
+def error_norm(err, y0, y1, rtol, atol, atol_scale, rtol_ref):
+    """
+    Hairer's scaled RMS norm of a step's error estimate, with per-component scales.
+
+    Parameters
+    ----------
+    err : ndarray, shape (n,)
+        The embedded error estimate (``step_error``).
+    y0, y1 : ndarray, shape (n,) or longer
+        The state at the step's start and end (their first n components count).
+    rtol, atol : float
+        The tolerances.
+    atol_scale : ndarray, shape (n,)
+        Each component's absolute tolerance is ``atol * atol_scale[j]`` (1: atol itself;
+        smaller where a component's zero must be resolved finer).
+    rtol_ref : ndarray, shape (n,)
+        Each component's relative tolerance applies to ``rtol_ref[j]`` where it is >= 0
+        (a component of known size, as a unit direction's), else to max(|y0|, |y1|).
+
+    Returns
+    -------
+    float
+        sqrt(mean_j (err_j / (atol atol_scale_j + rtol ref_j))²): <= 1 accepts the step.
+
+    """
     acc = 0.0
-    for i in range(err.shape[0]):
-        sc = atol + rtol * max(abs(y0[i]), abs(y1[i]))
-        acc += (err[i] / sc) ** 2
-    return math.sqrt(acc / err.shape[0])
+    n = err.shape[0]
+    for j in range(n):
+        ref = max(abs(y0[j]), abs(y1[j])) if rtol_ref[j] < 0.0 else rtol_ref[j]
+        sc = atol * atol_scale[j] + rtol * ref
+        acc += (err[j] / sc) ** 2
+    return math.sqrt(acc / n)
+
+
+def error_scales(n, atol_scale=None, rtol_ref=None):
+    """
+    Return the (atol_scale, rtol_ref) arrays of ``error_norm`` for a state of length n.
+
+    Parameters
+    ----------
+    n : int
+        The state's length.
+    atol_scale : dict of int to float, optional
+        Components whose absolute tolerance differs from atol, and their factor.
+    rtol_ref : dict of int to float, optional
+        Components whose relative tolerance applies to a fixed size, and that size.
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        The two arrays, ones and -1 (max(|y0|, |y1|)) where nothing is said.
+
+    """
+    a = np.ones(n)
+    r = -np.ones(n)
+    for j, v in (atol_scale or {}).items():
+        a[j] = v
+    for j, v in (rtol_ref or {}).items():
+        r[j] = v
+    return a, r
+
+
+def make_step(rhs, allocates=False):
+    """
+    Compile one Dormand-Prince step over the right-hand side ``rhs``.
+
+    Parameters
+    ----------
+    rhs : numba function
+        ``rhs(y, c, h, ctx, out) -> bool``: fill ``out`` with f at the stage state ``y``,
+        whose node is ``c`` (its time is t0 + c h); return False if f cannot be
+        evaluated there.
+    allocates : bool
+        Whether ``rhs`` allocates (needs numba's runtime); a step over one that does not
+        is compiled without it (``jit.borrowing``), as the stages' kernels are.
+
+    Returns
+    -------
+    numba function
+        ``step(y, h, K, ctx, y_new, err) -> bool``: with K[0] = f(y) given, fills K[1..6]
+        (K[6] = f(y_new), the next step's K[0]), the 5th-order solution ``y_new`` and the
+        embedded error estimate ``err``; returns whether every stage was valid.
+
+    """
+
+    jit = njit(cache=True) if allocates else borrowing
+
+    @jit
+    def step(y, h, K, ctx, y_new, err):
+        valid = True
+        for i in range(1, 7):
+            # y_new holds each stage's state until it takes the step's end
+            stage_state(y, K, h, i, y_new)
+            c = C[i] if i < 6 else 1.0
+            if not rhs(y_new, c, h, ctx, K[i]):
+                valid = False
+        step_error(K, h, err)
+        return valid
+
+    return step
 
 
 @borrowing

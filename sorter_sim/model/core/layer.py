@@ -22,7 +22,7 @@ from sorter_sim.model.core.common import (
     rhs_slide,
     surface_velocity,
 )
-from sorter_sim.model.core.dopri import dense, sign_change, stage_state, step_error, step_factor
+from sorter_sim.model.core.dopri import dense, error_norm, make_step, sign_change, step_factor
 from sorter_sim.model.core.jit import borrowing
 from sorter_sim.model.core.layout import P_INERTIA, P_MASS, P_ROTATION
 from sorter_sim.model.core.stick import limit_gauge
@@ -291,6 +291,25 @@ def _layer_rhs(u, strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, hess,
 
 
 @njit(cache=True)
+def _layer_stage(us, c, h, ctx, out):
+    """
+    Evaluate ``_layer_rhs`` at a stage of a layer step.
+
+    Each stage starts its pull direction from the step's start (``z``, copied to
+    ``zs``), so that the step's end leaves in ``zs`` the direction it settled to there.
+    """
+    strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, zs, hess, yv, acc = ctx
+    for j in range(3):
+        zs[j] = z[j]
+    _layer_rhs(us, strips, parcel, nodes, weights, clip, surf, vsx, vsy, zs, hess, yv, acc, out)
+    return True
+
+
+# one Dormand-Prince step of the layer's state (x, y, φ, s)
+_layer_step = make_step(_layer_stage, allocates=True)
+
+
+@njit(cache=True)
 def _layer(
     y,
     t,
@@ -355,6 +374,12 @@ def _layer(
     hess = np.zeros(4)  # _pull_direction's Newton metric, carried from stage to stage
     grow_ratio = STIFF_RATIO * rtol**0.2
     clip = clip_scratch()
+    stage = (strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, zs, hess, yv, acc)
+    # the slip relative to itself: the trajectory after a break is sensitive to when
+    # the slip grows (its growth starts from λ = 0), so an absolute slip error of the
+    # full model's velocity scale put Fig. 9a 100 rtol m off; atol 1e-3 x: a floor
+    # only where the slip is zero
+    atol_scale, rtol_ref = np.array([1.0, 1.0, 1.0, 1e-3]), -np.ones(4)
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
@@ -366,26 +391,11 @@ def _layer(
         if t >= t_end or h <= 1e-14 * max(1.0, abs(t)):
             break
         h = min(h, t_end - t)
-        for i in range(1, 7):
-            stage_state(u, K, h, i, us)
-            for j in range(3):
-                zs[j] = z[j]
-            _layer_rhs(
-                us, strips, parcel, nodes, weights, clip, surf, vsx, vsy, zs, hess, yv, acc, K[i]
-            )
+        _layer_step(u, h, K, stage, us, err)
         for j in range(4):
             un[j] = us[j]
         counters[0] += 6
-        step_error(K, h, err)
-        # the slip relative to itself: the trajectory after a break is sensitive to when
-        # the slip grows (its growth starts from λ = 0), so an absolute slip error of the
-        # full model's velocity scale put Fig. 9a 100 rtol m off; atol 1e-3 x: a floor
-        # only where the slip is zero
-        en = 0.0
-        for j in range(4):
-            sc = (atol if j < 3 else 1e-3 * atol) + rtol * max(abs(u[j]), abs(un[j]))
-            en += (err[j] / sc) ** 2
-        en = math.sqrt(en / 4.0)
+        en = error_norm(err, u, un, rtol, atol, atol_scale, rtol_ref)
         crossed = y_target < math.inf and u[1] < y_target <= un[1]
         if nb > 0 and not crossed:
             yv[:3] = u[:3]
@@ -415,26 +425,7 @@ def _layer(
                 if hi - lo < 1e-15:
                     break
             h *= hi
-            for i in range(1, 7):
-                stage_state(u, K, h, i, us)
-                for j in range(3):
-                    zs[j] = z[j]
-                _layer_rhs(
-                    us,
-                    strips,
-                    parcel,
-                    nodes,
-                    weights,
-                    clip,
-                    surf,
-                    vsx,
-                    vsy,
-                    zs,
-                    hess,
-                    yv,
-                    acc,
-                    K[i],
-                )
+            _layer_step(u, h, K, stage, us, err)
             for j in range(4):
                 un[j] = us[j]
             un[3] = 0.0

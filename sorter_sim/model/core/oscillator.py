@@ -27,15 +27,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sorter_sim.model.core.cache import check_kernel_cache
 from numba import njit
 
-from sorter_sim.model.core.dopri import (
-    A as _A,
-    B as _B,
-    C as _C,
-    E as _E,
-)  # the core's one DP 5(4) tableau
+from sorter_sim.model.core.cache import check_kernel_cache
+from sorter_sim.model.core.dopri import error_norm, make_step, step_factor
+from sorter_sim.model.core.jit import borrowing
 
 # rows of eq. (3.1), as the seed numbers them
 ROW_KINETIC = 1  # F(1): |v| > v_min, F = F_kin sgn(v)
@@ -189,6 +185,19 @@ def _accel(x, v, t, p, sigma):
     return (k * (vd * t - x) - sigma * f_kin) / m
 
 
+@borrowing
+def _osc_rhs(y, c, h, ctx, out):
+    """Evaluate the sliding body's (x, v)' at a stage; ctx: the step's start t, p, σ."""
+    t, p, sigma = ctx
+    out[0] = y[1]
+    out[1] = _accel(y[0], y[1], t + c * h, p, sigma)
+    return True
+
+
+# one Dormand-Prince step of the sliding body (x, v)
+_osc_step = make_step(_osc_rhs)
+
+
 @njit(cache=True)
 def _run_accurate(p, t_end, rtol, atol, h_max, ts, xs, vs, rows, ev_t, ev_k, counters):
     f_stat, k, vd = p[2], p[3], p[4]
@@ -207,8 +216,11 @@ def _run_accurate(p, t_end, rtol, atol, h_max, ts, xs, vs, rows, ev_t, ev_k, cou
     rows[0] = 2
     n = 1
     h = 1e-2
-    kx = np.empty(7)
-    kv = np.empty(7)
+    y = np.empty(2)
+    y_new = np.empty(2)
+    y_err = np.empty(2)
+    K = np.empty((7, 2))
+    atol_scale, rtol_ref = np.ones(2), -np.ones(2)
     while t < t_end and n < cap:
         if resting:
             # P = k (vd t - x) reaches ±F_stat at a time known in closed form
@@ -236,38 +248,17 @@ def _run_accurate(p, t_end, rtol, atol, h_max, ts, xs, vs, rows, ev_t, ev_k, cou
         # sliding: Dormand-Prince on (x, v); ends when v returns to 0
         sigma = 1.0 if v > 0 or (v == 0 and k * (vd * t - x) > 0) else -1.0
         h = min(h, t_end - t, h_max)
-        for i in range(7):
-            xi = x
-            vi = v
-            for j in range(min(i, 6)):
-                if i < 6:
-                    xi += h * _A[i, j] * kx[j]
-                    vi += h * _A[i, j] * kv[j]
-            if i == 6:
-                xi = x
-                vi = v
-                for j in range(6):
-                    xi += h * _B[j] * kx[j]
-                    vi += h * _B[j] * kv[j]
-            ti = t + (_C[i] if i < 6 else 1.0) * h
-            kx[i] = vi
-            kv[i] = _accel(xi, vi, ti, p, sigma)
+        y[0] = x
+        y[1] = v
+        stage = (t, p, sigma)
+        _osc_rhs(y, 0.0, h, stage, K[0])
+        _osc_step(y, h, K, stage, y_new, y_err)
         nrhs += 7
-        x_new = x
-        v_new = v
-        x_err = 0.0
-        v_err = 0.0
-        for j in range(6):
-            x_new += h * _B[j] * kx[j]
-            v_new += h * _B[j] * kv[j]
-        for j in range(7):
-            x_err += h * _E[j] * kx[j]
-            v_err += h * _E[j] * kv[j]
-        ex = x_err / (atol + rtol * max(abs(x), abs(x_new)))
-        ev = v_err / (atol + rtol * max(abs(v), abs(v_new)))
-        err = math.sqrt(0.5 * (ex * ex + ev * ev))
-        if err > 1.0:
-            h *= max(0.2, 0.9 * err**-0.2)
+        x_new = y_new[0]
+        v_new = y_new[1]
+        err = error_norm(y_err, y, y_new, rtol, atol, atol_scale, rtol_ref)
+        if not err <= 1.0:
+            h *= step_factor(err)
             continue
         if v_new * sigma <= 0.0 and abs(v) > 0.0:
             # the slide ends inside this step: shrink to the zero of v (secant on the
@@ -303,7 +294,7 @@ def _run_accurate(p, t_end, rtol, atol, h_max, ts, xs, vs, rows, ev_t, ev_k, cou
         vs[n] = v
         rows[n] = 1
         n += 1
-        h *= min(5.0, max(0.2, 0.9 * (err if err > 0 else 1e-10) ** -0.2))
+        h *= step_factor(err)
     counters[0] = n
     counters[1] = ne
     counters[2] = steps

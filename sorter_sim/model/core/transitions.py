@@ -23,7 +23,7 @@ from sorter_sim.model.core.common import (
     rhs_slide,
     surface_velocity,
 )
-from sorter_sim.model.core.dopri import C, sign_change, stage_state, step_error, step_factor
+from sorter_sim.model.core.dopri import error_norm, make_step, sign_change, step_factor
 from sorter_sim.model.core.jit import borrowing
 from sorter_sim.model.core.layer import _layer
 from sorter_sim.model.core.layout import MODE_SLIDE, P_INERTIA, P_MASS, P_ROTATION
@@ -178,6 +178,24 @@ def _approach_rhs(u, s, sgn, strips, parcel, nodes, weights, clip, vsx, vsy, yv,
     return r
 
 
+@borrowing
+def _approach_stage(un, c, h, ctx, out):
+    """
+    Evaluate ``_approach_rhs`` at a stage of a step in τ; valid while the slip's rate has its sign.
+
+    The stage's slip is s_e e^(sgn (τ + c h)): the step runs in τ, and the slip is
+    its known function.
+    """
+    s_e, sgn, tau, strips, parcel, nodes, weights, clip, vsx, vsy, yv, acc = ctx
+    s = s_e * math.exp(sgn * (tau + c * h))
+    ri = _approach_rhs(un, s, sgn, strips, parcel, nodes, weights, clip, vsx, vsy, yv, acc, out)
+    return sgn * ri > 0.0
+
+
+# one Dormand-Prince step in τ of (x, y, φ, t, d)
+_approach_step = make_step(_approach_stage)
+
+
 @njit(cache=True)
 def _approach(
     y,
@@ -233,6 +251,8 @@ def _approach(
     u = np.array([y[0], y[1], y[2], t, sig[0] / s_e, sig[1] / s_e, sig[2] / s_e])
     un = np.empty(7)
     err = np.empty(7)
+    # the pose and the time against their size, the unit direction against 1
+    atol_scale, rtol_ref = np.ones(7), np.array([-1.0, -1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
     K = np.empty((7, 7))
     clip = clip_scratch()
     yv = np.empty(6)
@@ -255,32 +275,10 @@ def _approach(
         if tau >= tau_end:
             break
         h = min(h, tau_end - tau)
-        ok = True
-        for i in range(1, 7):
-            stage_state(u, K, h, i, un)
-            ri = _approach_rhs(
-                un,
-                s_e * math.exp(sgn * (tau + (C[i] if i < 6 else 1.0) * h)),
-                sgn,
-                strips,
-                parcel,
-                nodes,
-                weights,
-                clip,
-                vsx,
-                vsy,
-                yv,
-                acc,
-                K[i],
-            )
-            ok = ok and sgn * ri > 0.0
+        stage = (s_e, sgn, tau, strips, parcel, nodes, weights, clip, vsx, vsy, yv, acc)
+        ok = _approach_step(u, h, K, stage, un, err)
         counters[0] += 6
-        step_error(K, h, err)
-        en = 0.0
-        for j in range(7):
-            sc = atol + rtol * (max(abs(u[j]), abs(un[j])) if j < 4 else 1.0)
-            en += (err[j] / sc) ** 2
-        en = math.sqrt(en / 7.0)
+        en = error_norm(err, u, un, rtol, atol, atol_scale, rtol_ref)
         if not ok or not math.isfinite(en) or en > 1.0:
             h *= 0.25 if not ok or not math.isfinite(en) else step_factor(en)
             if h < 1e-6:
