@@ -53,7 +53,7 @@ def sim_node_table() -> str:
 
 def controller_table() -> str:
     """Return the controller's parameter table."""
-    from sorter_control.node import SCHEMA
+    from sorter_control.parameters import SCHEMA
 
     rows = ['| name | type | default | range | run time | meaning |', '|---|---|---|---|---|---|']
     for s in SCHEMA:

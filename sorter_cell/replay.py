@@ -300,7 +300,7 @@ def run(args) -> int | str:
     if png:
         if rec["cell"] is None:
             return "the recording holds no cell parameters to draw the cell from"
-        from sorter_cell.demo import plot_paths
+        from sorter_cell.demo_summary import plot_paths
 
         title = (
             f"replay of {Path(args.recording).name}: {s['parcels']} parcels, "

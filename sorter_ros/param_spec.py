@@ -114,6 +114,7 @@ def quantity_spec(
     -------
     ParamSpec
         The declared parameter.
+
     """
     q = quantity
     meaning = q.meaning + (f' ({extra})' if extra else '')

@@ -276,7 +276,7 @@ def test_raised_disks_divert_as_the_model_core_predicts(alpha_deg, chute):
     t_at_field = -p.induct_x / p.belt_speed  # leading edge from induct_x to the disk field
     # the cell integrates at its own tolerances (rtol 1e-6, atol 1e-8) and restarts every
     # period: a single core run at those tolerances is 1e-7 s off the reference; the cell,
-    # re-entering the break-away layer (``integrators._layer``) at each period's end, 5e-7 s
+    # re-entering the break-away layer (``layer._layer``) at each period's end, 5e-7 s
     assert out.t_ns * 1e-9 == pytest.approx(t_at_field + t_ref, abs=1e-6)
     assert out.x == pytest.approx(y_ref[0], abs=1e-6)
     # the chute-entry sensor of that side: blocked when the footprint first reaches past the

@@ -683,7 +683,7 @@ def test_ctrl_c_ends_the_demo_cleanly(ros, tmp_path, signals):
 
 
 def test_the_demo_exits_1_when_its_controller_ends_faulted(capsys):
-    from sorter_cell.demo import exit_code
+    from sorter_cell.demo_summary import exit_code
 
     clean = {'mis_sorted': 0, 'jams': 0, 'controller_state': 'running', 'controller_faults': {}}
     assert exit_code(clean) == 0

@@ -12,8 +12,8 @@ import math
 import pytest
 
 from sorter_cell import docs
-from sorter_control.node import SCHEMA as CTL_SCHEMA
-from sorter_control.node import config_from_values
+from sorter_control.parameters import SCHEMA as CTL_SCHEMA
+from sorter_control.parameters import config_from_values
 from sorter_sim.model.description import Q, QUANTITIES, DescriptionError
 from sorter_sim.runtime.params import SPECS, CellParams, ParamError
 from sorter_sim.runtime.scene import SceneError, _RULES, validate

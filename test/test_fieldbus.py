@@ -303,7 +303,7 @@ def test_the_soft_plc_sorts_the_demo_stream_as_the_ros_controller_does(io, tmp_p
 
 def test_the_warehouse_link_over_opc_ua_routes_and_confirms(ros):
     from sorter_cell.demo import _controller_values
-    from sorter_control.node import config_from_values
+    from sorter_control.parameters import config_from_values
     from sorter_control.soft_plc import OpcUaIO, SoftPLC
 
     config = Path(__file__).resolve().parents[1] / 'config'

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from sorter_sim.studies import paper, two_stage
+from sorter_sim.studies import paper, paper_support, two_stage
 from sorter_sim.cli import main
 
 G = 9.81
@@ -118,18 +118,20 @@ def test_fig11_minimal_width_falls_as_alpha_rises_and_is_a_sharp_threshold():
     b = r.data["b_min"][:, 0, 0]  # α = 90, 45, 30 at v = 1.5, A = 0.4
     assert b[0] < b[1] < b[2]
     # the root is where the criterion switches: just below it the field no longer scrapes
-    for al, bm in zip(paper.ALPHAS, b):
+    for al, bm in zip(paper_support.ALPHAS, b):
         for width, expect in ((bm + 0.01, True), (bm - 0.02, False)):
             from sorter_sim.runtime.scene import run_scene
 
-            res, _ = run_scene(paper.sorting_scene(A=0.4, v=1.5, alpha_deg=al, b=width, t_max=5.0))
-            assert paper.scrapes_without_sliding(res, 1.5, al) is expect, (al, width)
+            res, _ = run_scene(
+                paper_support.sorting_scene(A=0.4, v=1.5, alpha_deg=al, b=width, t_max=5.0)
+            )
+            assert paper_support.scrapes_without_sliding(res, 1.5, al) is expect, (al, width)
 
 
 def test_fig11_needs_more_width_than_the_distance_to_the_stick():
     # a field narrower than half the parcel can never hold it against the belt
     # (equal μ: the disks' static limit is below the belt's kinetic pull)
-    mw = paper.minimal_disk_width(A=0.8, v=1.0, alpha_deg=90.0, xtol=5e-3)
+    mw = paper_support.minimal_disk_width(A=0.8, v=1.0, alpha_deg=90.0, xtol=5e-3)
     assert mw.converged and mw.b_min > 0.4
 
 
@@ -146,7 +148,9 @@ def test_two_belts_with_constant_mu_oscillate_harmonically():
     # both belts slide under the parcel while |ẋ| < v: F = -μ m g (2x/A), a harmonic
     # oscillator with ω² = 2 μ g / A and the amplitude kept
     mu, A = 0.46, 0.4
-    res = paper.two_belt_positioning(paper.FrictionLaw("const1", (mu,)), A=A, x0=0.03, t_end=4.0)
+    res = paper_support.two_belt_positioning(
+        paper.FrictionLaw("const1", (mu,)), A=A, x0=0.03, t_end=4.0
+    )
     x, vx, t = res.y[:, 0], res.y[:, 3], res.t
     omega = math.sqrt(2 * mu * G / A)
     # zero crossings, interpolated where x'' = -ω² x vanishes: half a period apart
@@ -178,7 +182,7 @@ def test_two_stage_shortens_the_final_field_at_30_degrees():
     r = two_stage.two_stage_figure(None, quick=True)
     rows = {x["d_over_s"]: x for x in r.data["rows"]}
     assert rows[0.0]["b2_min_m"] == pytest.approx(rows[0.0]["b_single_m"], abs=0.011)
-    assert rows[0.4]["d_m"] == pytest.approx(0.4 * paper.SEED_S, abs=1e-3)
+    assert rows[0.4]["d_m"] == pytest.approx(0.4 * paper_support.SEED_S, abs=1e-3)
     assert rows[0.4]["b2_min_m"] < 0.85 * rows[0.4]["b_single_m"]
 
 

@@ -18,15 +18,14 @@ import numpy as np
 import pytest
 
 from sorter_sim.studies import stiff_cases as sx
+from sorter_sim.studies.scipy_baseline import ScipyParcel, oscillator_scipy
 from sorter_sim.studies.workprecision import (
     ParcelCase,
-    ScipyParcel,
     Trajectory,
     compare,
     dp5_pieces,
     oscillator_core,
     oscillator_exact,
-    oscillator_scipy,
     oscillator_trajectory,
 )
 from sorter_sim.model.core.oscillator import Oscillator

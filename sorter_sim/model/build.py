@@ -1,7 +1,7 @@
 """
 The model of one cell, built from its quantities without a scene.
 
-A scene (``scene.py``) is a user's YAML-backed configuration of one run; the
+A scene (``runtime/scene.py``) is a user's YAML-backed configuration of one run; the
 controller's timing predictor, the cell runtime and the scene loader all need the
 same thing underneath: the friction law of each zone and the three-zone cell of
 the seed's Fig. 6 with one parcel on it. This module builds those from plain

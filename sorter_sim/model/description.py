@@ -5,7 +5,7 @@ A sorter cell is a belt, a field of torsional disks (zone b of the seed's Fig. 6
 with its chute openings, the friction between parcel and surfaces, a pop-up
 diverter, photo-eyes along the belt and the parcels themselves. Every place that
 takes one of these quantities from a user reads its range and meaning here: the
-scene schema (``scene.py``, hence ``sorter run --set`` and the design sweeps), the
+scene schema (``runtime/scene.py``, hence ``sorter run --set`` and the design sweeps), the
 simulation node's parameters (``params.py``), the controller's configuration
 (``sorter_control.node``), and the README's table (``markdown_table``; a test
 keeps the two equal). So the node, the controller and the model accept the same

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from sorter_sim.model.core.simulate import FrictionLaw, Parcel, Strip, simulate
-from sorter_sim.studies.paper import (
+from sorter_sim.studies.paper_support import (
     SEED_MU,
     SEED_S,
     FigureResult,

@@ -2,7 +2,7 @@
 The on-disk numba cache of the core: dropped whole when any core source changes.
 
 numba checks a cached kernel against its own source file only: a kernel of
-``cell_kernels.py`` that calls ``integrators.py`` would keep the old callee after an
+``cell_kernels.py`` that calls ``accurate.py`` would keep the old callee after an
 edit there. So the core's cache is stamped with a hash of all its sources, and
 dropped whole when they change (after an update or an edit; a fresh clone has none).
 

@@ -182,7 +182,6 @@ def make_step(rhs, allocates=False):
         embedded error estimate ``err``; returns whether every stage was valid.
 
     """
-
     jit = njit(cache=True) if allocates else borrowing
 
     @jit
