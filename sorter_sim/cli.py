@@ -19,8 +19,8 @@ import json
 import math
 import sys
 
-from sorter_sim.model.core.cache import check_kernel_cache
 from sorter_ros.env import apply_ros_env_defaults
+from sorter_sim.model.core.cache import check_kernel_cache
 from sorter_sim.runtime.scene import SceneError, apply_overrides, load_scene, run_scene
 
 # verb -> (module, one-line help)

@@ -16,16 +16,6 @@ import numpy as np
 import pytest
 import yaml
 
-from sorter_sim.runtime.cell import (
-    STATE_NAMES,
-    Cell,
-    LabelRead,
-    Outcome,
-    ParcelSpec,
-    SensorEdge,
-    check_parcel,
-    WatchdogTrip,
-)
 from sorter_sim.model.core import cell_kernels as ck
 from sorter_sim.model.core.simulate import (
     FrictionLaw,
@@ -33,6 +23,16 @@ from sorter_sim.model.core.simulate import (
     simulate,
     strip_array,
     three_zone_strips,
+)
+from sorter_sim.runtime.cell import (
+    STATE_NAMES,
+    Cell,
+    LabelRead,
+    Outcome,
+    ParcelSpec,
+    SensorEdge,
+    WatchdogTrip,
+    check_parcel,
 )
 from sorter_sim.runtime.params import SCHEMA, SPECS, CellParams, ParamError
 

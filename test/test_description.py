@@ -14,9 +14,9 @@ import pytest
 from sorter_cell import docs
 from sorter_control.parameters import SCHEMA as CTL_SCHEMA
 from sorter_control.parameters import config_from_values
-from sorter_sim.model.description import Q, QUANTITIES, DescriptionError
+from sorter_sim.model.description import QUANTITIES, DescriptionError, Q
 from sorter_sim.runtime.params import SPECS, CellParams, ParamError
-from sorter_sim.runtime.scene import SceneError, _RULES, validate
+from sorter_sim.runtime.scene import _RULES, SceneError, validate
 
 CTL_SPECS = {s.name: s for s in CTL_SCHEMA}
 

@@ -4,8 +4,8 @@ Check the documentation as a newcomer meets it.
 A short README, pages that open with their contents, and links that lead somewhere.
 """
 
-from pathlib import Path
 import re
+from pathlib import Path
 
 import pytest
 

@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 from regularised_reference import Scene, solve
 
+from sorter_sim.model.build import cell_strips, entry_state
 from sorter_sim.model.core.accurate import run_accurate
-from sorter_sim.model.core.common import EV_BREAK, n_surf_of, rhs_slide
-from sorter_sim.model.core.stick import GAUGE_CARRY, inside_limit_set, limit_gauge, stick_margin
+from sorter_sim.model.core.common import EV_BREAK, N_COUNTERS, N_EVENTS, n_surf_of, rhs_slide
+from sorter_sim.model.core.layout import Contact, Slide, Trail
 from sorter_sim.model.core.simulate import (
     Parcel,
     gauss_legendre_01,
@@ -27,8 +28,8 @@ from sorter_sim.model.core.simulate import (
     simulate,
     strip_array,
 )
+from sorter_sim.model.core.stick import GAUGE_CARRY, inside_limit_set, limit_gauge, stick_margin
 from sorter_sim.model.core.wrench import clip_scratch, evaluate_surfaces, static_surface_wrench
-from sorter_sim.model.build import cell_strips, entry_state
 
 # ------------------------------------------------------------------ the limit set
 
@@ -49,13 +50,13 @@ def _seed_limits(arr, par, nodes, weights, y, surf):
     stat = np.zeros((nsurf, 2))
     area = np.zeros(nsurf)
     slip = np.zeros(nsurf)
-    evaluate_surfaces(y, arr, par, nodes, weights, -2, True, kin, stat, area, slip)
+    evaluate_surfaces(y, Contact(arr, par, nodes, weights), -2, True, kin, stat, area, slip)
     return stat[surf, 0], stat[surf, 1]
 
 
 def _gauge(arr, par, nodes, weights, y, surf, w):
     return limit_gauge(
-        y, arr, par, nodes, weights, surf, w[0], w[1], w[2], np.zeros(3), clip_scratch()
+        y, Contact(arr, par, nodes, weights), surf, w[0], w[1], w[2], np.zeros(3), clip_scratch()
     )
 
 
@@ -95,7 +96,13 @@ def test_the_gauge_is_symmetric_and_homogeneous_and_one_on_the_limit_surface():
     for _ in range(20):
         twist = rng.normal(size=3)
         fx, fy, t = static_surface_wrench(
-            y, arr, par, nodes, weights, 1, twist[0], twist[1], twist[2] / rho, clip_scratch()
+            y,
+            Contact(arr, par, nodes, weights),
+            1,
+            twist[0],
+            twist[1],
+            twist[2] / rho,
+            clip_scratch(),
         )
         # -F is the patch's limit-surface point with normal `twist` (the friction
         # opposes the twist): its gauge is 1 whatever the twist's size
@@ -117,7 +124,9 @@ def test_force_and_moment_interact_inside_the_seeds_box():
     # the stick margin reads the other surfaces' pull; with none there is nothing to break
     for stick in ("exact", "seed"):
         par_s = parcel_array(Parcel(0.7, 0.2, 5.0), True, 8, True, stick=stick)
-        m, area, *_ = stick_margin(state, arr, par_s, nodes, weights, nsurf, 0, np.zeros(3))
+        m, area, *_ = stick_margin(
+            state, Contact(arr, par_s, nodes, weights), nsurf, 0, np.zeros(3)
+        )
         assert m < 0.0 and area > 0.0
 
 
@@ -142,7 +151,9 @@ def test_the_inner_bound_of_the_limit_set_never_admits_a_wrench_outside_it(surf)
             for _ in range(40):
                 xi = rng.normal(size=3) * np.array([1.0, 1.0, 5.0])
                 w = np.array(
-                    static_surface_wrench(y, arr, par, nodes, weights, surf, *xi, clip_scratch())
+                    static_surface_wrench(
+                        y, Contact(arr, par, nodes, weights), surf, *xi, clip_scratch()
+                    )
                 )
                 assert not inside_limit_set(y, arr, par, surf, *(-1.001 * w))
                 box = rng.uniform(-1.0, 1.0, size=3) * np.array([f_max, f_max, t_max])
@@ -285,7 +296,7 @@ def _balance_pose(stick):
 
     def margin(x):
         y = np.array([x, 0.0, 0.3, 0.0, 1.5, 0.0])
-        return stick_margin(y, arr, par, nodes, weights, 2, 1, np.zeros(3))[0]
+        return stick_margin(y, Contact(arr, par, nodes, weights), 2, 1, np.zeros(3))[0]
 
     lo, hi = 0.3, -0.3  # well on the disks (holds) ... mostly on the belt (breaks)
     assert margin(lo) < 0.0 < margin(hi)
@@ -357,7 +368,7 @@ def test_a_slip_growing_slowly_from_a_near_balance_stays_on_its_layer():
 
     def belt_margin(x):
         y = np.array([x, 0.0, 0.0, 1.5, 0.0, 0.0])
-        return stick_margin(y, arr, par, nodes, weights, nsurf, 0, np.zeros(3))[0]
+        return stick_margin(y, Contact(arr, par, nodes, weights), nsurf, 0, np.zeros(3))[0]
 
     lo, hi = -0.34, 0.0  # mostly on the belt (holds) ... half on the disks (breaks)
     assert belt_margin(lo) < 0.0 < belt_margin(hi)
@@ -367,7 +378,7 @@ def test_a_slip_growing_slowly_from_a_near_balance_stays_on_its_layer():
     out = np.empty(6)
 
     def rhs(t, y):
-        rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, clip_scratch(), out)
+        rhs_slide(np.ascontiguousarray(y), Contact(arr, par, nodes, weights), clip_scratch(), out)
         return out.copy()
 
     for slip in (1e-5, 2e-5):
@@ -409,12 +420,18 @@ def test_the_gauge_warm_start_changes_nothing_but_the_work():
         ys = np.empty((4000, 6))
         ms = np.empty(4000, dtype=np.int64)
         ev = np.empty((64, 3))
-        counters = np.zeros(8, dtype=np.int64)
-        run_accurate(
-            y0, 0, 0.0, 0.3, math.inf, arr, par, nodes, weights, strip_borders(strips),
-            1e-8, 1e-10, 0.05, True, ts, ys, ms, ev, counters, xi,
-        )  # fmt: skip
-        breaks = [e[0] for e in ev[: counters[4]] if e[1] == EV_BREAK]
+        counters = np.zeros(N_COUNTERS, dtype=np.int64)
+        slide = Slide(
+            y_target=math.inf,
+            contact=Contact(arr, par, nodes, weights),
+            nsurf=n_surf_of(arr),
+            borders=strip_borders(strips),
+            rtol=1e-8,
+            atol=1e-10,
+            h_max=0.05,
+        )
+        run_accurate(y0, 0, 0.0, 0.3, slide, True, Trail(ts, ys, ms), ev, counters, xi)
+        breaks = [e[0] for e in ev[: counters[N_EVENTS]] if e[1] == EV_BREAK]
         assert len(breaks) == 1
         return breaks[0]
 
@@ -463,7 +480,7 @@ def test_the_break_away_is_the_first_root_of_the_gauge_margin(alpha):
 
     def margin(t):
         y = np.array([y0[0] + 1.5 * t, y0[1], y0[2], 1.5, 0.0, 0.0])
-        return stick_margin(y, arr, par, nodes, weights, 2, 0, np.zeros(3))[0]
+        return stick_margin(y, Contact(arr, par, nodes, weights), 2, 0, np.zeros(3))[0]
 
     dt = 0.2 / (16.0 * 1.5) / 8.0  # the scan's step over eight
     grid = np.arange(0.0, t_break + 4 * dt, dt)

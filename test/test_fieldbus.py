@@ -24,12 +24,12 @@ from asyncua.sync import Client as OpcClient
 from pymodbus.client import ModbusTcpClient
 from rclpy.parameter import Parameter
 from ros_harness import free_port
+from test_sim_node import SHORT_CELL
 
+from sorter_sim.frontends.node import SimNode
 from sorter_sim.model.core import cell_kernels as ck
 from sorter_sim.model.io_map import by_name, io_map
-from sorter_sim.frontends.node import SimNode
 from sorter_sim.runtime.params import ParamError
-from test_sim_node import SHORT_CELL
 
 pytestmark = pytest.mark.ros
 BIN = Path(sys.executable).parent

@@ -17,10 +17,10 @@ from __future__ import annotations
 import copy
 import math
 
-from hypothesis import HealthCheck, Phase, given, settings
-from hypothesis import strategies as st
 import pytest
 import yaml
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
 
 from sorter_control.logic import (
     ControllerConfig,
@@ -29,8 +29,8 @@ from sorter_control.logic import (
     RoutingTable,
     SorterLogic,
 )
-from sorter_sim.runtime.cell import Cell, ParcelSpec, check_parcel
 from sorter_sim.frontends.node import induct_spec
+from sorter_sim.runtime.cell import Cell, ParcelSpec, check_parcel
 from sorter_sim.runtime.params import SPECS, CellParams, ParamError
 from sorter_sim.runtime.scene import _RULES, SceneError, apply_overrides, load_scene, validate
 
@@ -364,8 +364,8 @@ pdus = st.one_of(
 @FUZZ
 @given(pdu=pdus)
 def test_any_modbus_request_is_answered_by_the_protocol_and_a_refusal_changes_nothing(pdu):
-    from sorter_sim.model.io_map import COIL, DI, HR, IR
     from sorter_sim.frontends.modbus_server import ModbusTcpImageServer
+    from sorter_sim.model.io_map import COIL, DI, HR, IR
 
     image = _modbus_image()
     server = ModbusTcpImageServer(image, '127.0.0.1', 0)
@@ -429,9 +429,9 @@ def test_warehouse_methods_take_any_argument_types_and_counts(ros):
     from asyncua import ua as _ua
     from rclpy.parameter import Parameter
     from ros_harness import free_port
+    from test_sim_node import SHORT_CELL
 
     from sorter_sim.frontends.node import SimNode
-    from test_sim_node import SHORT_CELL
 
     cell = ros.add(
         SimNode(

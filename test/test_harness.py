@@ -3,10 +3,9 @@
 import os
 
 import pytest
+from ros_harness import ros_context_scope, ros_harness_scope
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool
-
-from ros_harness import ros_context_scope, ros_harness_scope
 
 pytestmark = pytest.mark.ros
 

@@ -9,10 +9,10 @@ breaks its own contract.
 """
 
 import os
-from pathlib import Path
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ('sorter_sim', 'sorter_control', 'sorter_ros', 'sorter_cell')
@@ -50,9 +50,7 @@ def test_an_rclpy_import_in_the_core_breaks_its_contract(tmp_path):
     out = _lint_imports(tmp_path)
     assert out.returncode == 1, out.stdout[-4000:]
     assert 'Contracts: 5 kept, 2 broken.' in out.stdout, out.stdout[-2000:]
-    assert (
-'The model imports no ROS, no messages, no YAML BROKEN' in out.stdout
-    )
+    assert 'The model imports no ROS, no messages, no YAML BROKEN' in out.stdout
     assert (
         "The controller's PLC logic and timing import no ROS and no messages BROKEN" in out.stdout
     )

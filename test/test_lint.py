@@ -6,9 +6,9 @@ at ament's line length of 99) and pep257 docstrings (ament_pep257 with its defau
 ignores) over every Python file of the project.
 """
 
-from pathlib import Path
 import subprocess
 import sys
+from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

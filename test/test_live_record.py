@@ -29,11 +29,11 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.parameter import Parameter
 from ros_harness import free_port
+from test_sim_node import SHORT_CELL
 from websockets.sync.client import connect
 
 from sorter_sim.frontends.node import SimNode
 from sorter_sim.runtime.params import ParamError
-from test_sim_node import SHORT_CELL
 
 pytestmark = pytest.mark.ros
 BIN = Path(sys.executable).parent

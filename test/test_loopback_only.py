@@ -10,13 +10,13 @@ open a packet socket (root or CAP_NET_RAW) and a network interface besides lo.
 """
 
 import os
-from pathlib import Path
 import signal
 import socket
 import struct
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 

@@ -6,14 +6,15 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from sorter_sim.model.core.layout import Contact
 from sorter_sim.model.core.oscillator import (
     Oscillator,
     exact_phases,
     exact_solution,
     run_oscillator,
 )
-from sorter_sim.model.core.wrench import clip_scratch
 from sorter_sim.model.core.simulate import FrictionLaw, Parcel, Strip, simulate, three_zone_strips
+from sorter_sim.model.core.wrench import clip_scratch
 from sorter_sim.runtime.scene import apply_overrides, load_scene, run_scene
 
 G = 9.81
@@ -175,7 +176,7 @@ def test_a_spinning_slide_to_rest_against_an_independent_integration(spin):
 
     def rhs(t, y):
         out = np.empty(6)
-        rhs_slide(np.ascontiguousarray(y), arr, par, nodes, weights, clip_scratch(), out)
+        rhs_slide(np.ascontiguousarray(y), Contact(arr, par, nodes, weights), clip_scratch(), out)
         return out
 
     def slip(t, y):

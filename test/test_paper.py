@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from sorter_sim.studies import paper, paper_support, two_stage
 from sorter_sim.cli import main
+from sorter_sim.studies import paper, paper_support, two_stage
 
 G = 9.81
 

@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
+from test_sim_node import make_sim
 
 from sorter_control.node import ControllerNode
-from test_sim_node import make_sim
 
 pytestmark = pytest.mark.ros
 BIN = Path(sys.executable).parent

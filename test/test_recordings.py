@@ -21,11 +21,11 @@ from types import SimpleNamespace
 import pytest
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
+from test_sim_node import SHORT_CELL
 
 from sorter_cell import replay
 from sorter_ros.recording import Recorder
 from sorter_sim.frontends.node import SimNode
-from test_sim_node import SHORT_CELL
 
 BIN = Path(sys.executable).parent
 
@@ -155,8 +155,8 @@ def test_a_killed_recording_replays_every_complete_chunk_and_says_what_was_lost(
     s = json.loads(out.stdout)
     assert s['messages'] > 10_000 and 'without its summary' in s['damage']
     # every complete message: as many as an independent tolerant reader finds
-    from rosbags.highlevel import AnyReader  # noqa: F401 (rosbags needs the summary)
     from mcap.stream_reader import StreamReader
+    from rosbags.highlevel import AnyReader  # noqa: F401 (rosbags needs the summary)
 
     n = 0
     with open(path, 'rb') as f:

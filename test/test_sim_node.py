@@ -28,8 +28,8 @@ from std_msgs.msg import Bool, String, UInt32, UInt32MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
-from sorter_sim.frontends.cdr import pose_array_cdr
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
+from sorter_sim.frontends.cdr import pose_array_cdr
 from sorter_sim.frontends.node import SimNode, main
 from sorter_sim.runtime.params import ParamError
 

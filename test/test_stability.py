@@ -17,6 +17,8 @@ import sys
 import numpy as np
 import pytest
 
+from sorter_sim.model.core.oscillator import Oscillator
+from sorter_sim.model.core.simulate import three_zone_strips
 from sorter_sim.studies import stiff_cases as sx
 from sorter_sim.studies.scipy_baseline import ScipyParcel, oscillator_scipy
 from sorter_sim.studies.workprecision import (
@@ -28,8 +30,6 @@ from sorter_sim.studies.workprecision import (
     oscillator_exact,
     oscillator_trajectory,
 )
-from sorter_sim.model.core.oscillator import Oscillator
-from sorter_sim.model.core.simulate import three_zone_strips
 
 
 def _matrix_params(quick: bool):

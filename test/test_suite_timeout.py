@@ -9,10 +9,10 @@ timeout, the tests before and after it must pass, and pytest must end normally
 """
 
 import os
-from pathlib import Path
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from sorter_sim.studies import sweep
 from sorter_sim.cli import main
 from sorter_sim.runtime.scene import run_scene, validate
+from sorter_sim.studies import sweep
 
 REPO = Path(__file__).resolve().parents[1]
 TIMING = {"wall_s"}  # the only column that may differ between two runs of a point

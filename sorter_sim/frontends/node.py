@@ -36,13 +36,23 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from sorter_ros.env import run_node
-from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, SERVICE_QOS, STREAM_QOS, plain
-from sorter_ros.interface import quiet_publisher_events
+from sorter_ros.interface import (
+    EVENT_QOS,
+    SENSOR_QOS,
+    SERVICE_QOS,
+    STREAM_QOS,
+    accept_integers_for_doubles,
+    parameter_problem,
+    plain,
+    quiet_publisher_events,
+)
 from sorter_ros.interface import descriptor as ros_descriptor
-from sorter_ros.interface import accept_integers_for_doubles, parameter_problem
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
-
 from sorter_sim.frontends.cdr import pose_array_cdr, stamp
+from sorter_sim.frontends.fieldbus import FieldbusServers, IOImage, ScannerQueue
+from sorter_sim.frontends.live_view import PARCEL_HEIGHT, STATE_COLOURS, CellLayout, LiveView
+from sorter_sim.model.description import shown
+from sorter_sim.model.io_map import io_map
 from sorter_sim.runtime.cell import (
     STATE_NAMES,
     WATCHDOG_REFUSAL,
@@ -53,12 +63,8 @@ from sorter_sim.runtime.cell import (
     SensorEdge,
     WatchdogTrip,
 )
-from sorter_sim.model.description import shown
-from sorter_sim.frontends.fieldbus import FieldbusServers, IOImage, ScannerQueue
-from sorter_sim.model.io_map import io_map
-from sorter_sim.frontends.live_view import PARCEL_HEIGHT, STATE_COLOURS, CellLayout, LiveView
-from sorter_sim.runtime.warmup import warm_cell
 from sorter_sim.runtime.params import SCHEMA, SPECS, CellParams, ParamError
+from sorter_sim.runtime.warmup import warm_cell
 
 NODE_NAME = 'sorter_sim'
 FRAME_ID = 'conveyor'  # the cell's frame in the root namespace (see frame_id)

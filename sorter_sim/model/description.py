@@ -24,11 +24,10 @@ This module is plain Python: no ROS, no YAML, no numba.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
 import re
+from dataclasses import dataclass
 from typing import Any
-
 
 # A parcel's label, as the scanner reads it and the routing table names it: 1 to
 # LABEL_MAX letters, digits and - _ . : / # (no spaces, '=', ';' or '*', which the

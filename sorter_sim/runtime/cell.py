@@ -21,12 +21,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sorter_sim.model.core.cache import check_kernel_cache
-
+from sorter_sim.model.build import zone_law
 from sorter_sim.model.core import cell_kernels as ck
-from sorter_sim.model.core.stick import GAUGE_CARRY
+from sorter_sim.model.core.cache import check_kernel_cache
 from sorter_sim.model.core.layout import PARCEL_WIDTH, STRIP_WIDTH
 from sorter_sim.model.core.simulate import Parcel, parcel_array
+from sorter_sim.model.core.stick import GAUGE_CARRY
 from sorter_sim.model.core.wrench import gauss_legendre_01
 from sorter_sim.model.description import PENDING_INDUCTS_MAX, label_problem, shown
 from sorter_sim.runtime.params import (
@@ -36,7 +36,6 @@ from sorter_sim.runtime.params import (
     format_label,
     parcel_half_extents,
 )
-from sorter_sim.model.build import zone_law
 
 EXIT_NAMES = {ck.EV_LEFT: 'left', ck.EV_RIGHT: 'right', ck.EV_STRAIGHT: 'straight'}
 # parcel states for markers, indexed by the kernels' S_* codes
@@ -529,26 +528,12 @@ class Cell:
         return ck.advance_cell(
             n,
             self.k,
-            self.cfg,
-            self.laws,
+            ck.CellSetup(self.cfg, self.laws, self.nodes, self.weights),
             self.act,
-            self.state,
-            self.mode,
-            self.phase,
-            self.par,
-            self.scanned,
-            self.eye_x,
-            self.blocked,
-            self.counts,
-            self.nodes,
-            self.weights,
-            self.ev_i,
-            self.ev_f,
-            self._ev_reserve,
-            self.stats,
-            self._last_strips,
-            self._last_info,
-            self.gauge_xi,
+            ck.Parcels(self.state, self.mode, self.phase, self.par, self.scanned, self.gauge_xi),
+            ck.Sensors(self.eye_x, self.blocked, self.counts),
+            ck.EventLog(self.ev_i, self.ev_f, self._ev_reserve),
+            ck.Memo(self.stats, self._last_strips, self._last_info),
         )
 
     def advance(self, n: int = 1) -> list:

@@ -21,15 +21,12 @@ seed's 0.5-1.5 m/s, μ = 0.6) and equal config/cell.yaml.
 from __future__ import annotations
 
 import math
-import string
 import re
+import string
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
 
-from sorter_sim.model.core.friction import LAW_NAMES
-from sorter_sim.model.description import LABEL_MAX, Q, label_problem, shown
-from sorter_sim.model.io_map import MAX_SENSORS
 from sorter_ros.param_spec import (
     BOOL,
     DOUBLE,
@@ -40,7 +37,9 @@ from sorter_ros.param_spec import (
     ParamSpec,
     quantity_spec,
 )
-
+from sorter_sim.model.core.friction import LAW_NAMES
+from sorter_sim.model.description import LABEL_MAX, Q, label_problem, shown
+from sorter_sim.model.io_map import MAX_SENSORS
 
 TIME_MODES = ('realtime', 'fast', 'lockstep')
 ARRIVAL_MODES = ('gap', 'rate', 'none')

@@ -23,12 +23,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from sorter_ros.strict_yaml import StrictYamlError, load_yaml_text, read_yaml_file
 
-from sorter_sim.model.core.friction import mu_kinetic
-from sorter_sim.model.core.common import ST_MAX_STEPS
-from sorter_sim.model.core.simulate import FrictionLaw, Parcel, SimResult, simulate
-from sorter_sim.model.description import Q, shown
+from sorter_ros.strict_yaml import StrictYamlError, load_yaml_text, read_yaml_file
 from sorter_sim.model.build import (
     LAW_DEFAULTS,
     V_REF,
@@ -37,6 +33,10 @@ from sorter_sim.model.build import (
     law_problem,
     zone_law,
 )
+from sorter_sim.model.core.common import ST_MAX_STEPS
+from sorter_sim.model.core.friction import mu_kinetic
+from sorter_sim.model.core.simulate import FrictionLaw, Parcel, SimResult, simulate
+from sorter_sim.model.description import Q, shown
 
 
 class SceneError(ValueError):

@@ -21,8 +21,8 @@ import time
 def warm_up() -> float:
     """Run the representative workloads; return the wall time they took [s]."""
     t0 = time.perf_counter()
-    from sorter_sim.runtime.scene import DEFAULTS, run_scene, validate
     from sorter_sim.model.core.cache import check_kernel_cache
+    from sorter_sim.runtime.scene import DEFAULTS, run_scene, validate
 
     check_kernel_cache()
     from sorter_sim.model.core.oscillator import Oscillator, run_oscillator

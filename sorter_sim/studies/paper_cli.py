@@ -13,11 +13,9 @@ import argparse
 from pathlib import Path
 
 from sorter_sim.studies.outpaths import dir_problem
-from sorter_sim.studies.progress import progress_bar
-
 from sorter_sim.studies.paper import fig4, fig5, fig7, fig8, fig9, fig10, fig11, fig13, fig14
+from sorter_sim.studies.progress import progress_bar
 from sorter_sim.studies.two_stage import two_stage_figure
-
 
 FIGURES = {
     "4": fig4,

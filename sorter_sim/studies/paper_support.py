@@ -24,6 +24,7 @@ from sorter_sim.model.core.geometry import (
     clip_to_strip,
     polygon_area_centroid,
 )
+from sorter_sim.model.core.layout import Contact
 from sorter_sim.model.core.simulate import (
     FrictionLaw,
     Parcel,
@@ -452,7 +453,9 @@ def friction_forces(res, strips: list[Strip], parcel: Parcel, rotation=True, g=9
     out = np.zeros((len(res.t), ns, 2))
     for k in range(len(res.t)):
         mode = int(res.mode[k])
-        evaluate_surfaces(res.y[k], arr, par, nodes, weights, mode, False, kin, stat, area, slip)
+        evaluate_surfaces(
+            res.y[k], Contact(arr, par, nodes, weights), mode, False, kin, stat, area, slip
+        )
         out[k, :, :] = kin[:, :2]
         if mode >= 0:
             out[k, mode, :] = -(kin[:, :2].sum(axis=0) - kin[mode, :2])

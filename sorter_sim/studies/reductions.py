@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from sorter_sim.model.core.accurate import run_accurate
-from sorter_sim.model.core.common import ST_END, ST_TARGET
+from sorter_sim.model.core.common import N_COUNTERS, ST_END, ST_TARGET, n_surf_of
+from sorter_sim.model.core.layout import Contact, Slide, Trail
 from sorter_sim.model.core.simulate import initial_mode, parcel_array, strip_array, strip_borders
 from sorter_sim.model.core.wrench import gauss_legendre_01
 from sorter_sim.studies.stiff_cases import const_law, sorting_case, two_belt_case
@@ -77,7 +78,7 @@ def run_accurate_flags(
     ys = np.empty((max_points, 6))
     ms = np.empty(max_points, dtype=np.int64)
     ev = np.empty((4096, 3))
-    counters = np.zeros(8, dtype=np.int64)
+    counters = np.zeros(N_COUNTERS, dtype=np.int64)
     mode0 = initial_mode(y0, arr, par)
     wall = time.perf_counter()
     status, _, _ = run_accurate(
@@ -85,19 +86,17 @@ def run_accurate_flags(
         mode0,
         case.t_span[0],
         case.t_span[1],
-        case.y_target,
-        arr,
-        par,
-        nodes,
-        weights,
-        strip_borders(case.strips),
-        rtol,
-        atol,
-        0.05,
+        Slide(
+            case.y_target,
+            Contact(arr, par, nodes, weights),
+            n_surf_of(arr),
+            strip_borders(case.strips),
+            rtol,
+            atol,
+            0.05,
+        ),
         stick_jumps,
-        ts,
-        ys,
-        ms,
+        Trail(ts, ys, ms),
         ev,
         counters,
         np.zeros(3),

@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from sorter_sim.model.core.common import rhs_slide
+from sorter_sim.model.core.layout import Contact
 from sorter_sim.model.core.oscillator import Oscillator
 from sorter_sim.model.core.simulate import (
     G_STANDARD,
@@ -76,7 +77,10 @@ class ScipyParcel:
             raise BudgetExceeded(f"more than {self.max_rhs:.0f} right-hand-side evaluations")
         out = np.empty(6)
         rhs_slide(
-            np.asarray(y, float), self.arr, self.par, self.nodes, self.weights, self._clip, out
+            np.asarray(y, float),
+            Contact(self.arr, self.par, self.nodes, self.weights),
+            self._clip,
+            out,
         )
         return out
 
@@ -90,10 +94,7 @@ class ScipyParcel:
             out = np.empty(6)
             rhs_threshold(
                 np.asarray(y, float),
-                self.arr,
-                self.par,
-                self.nodes,
-                self.weights,
+                Contact(self.arr, self.par, self.nodes, self.weights),
                 self.nsurf,
                 v_min,
                 out,
@@ -112,10 +113,7 @@ class ScipyParcel:
         # independent of the order brentq asks them in
         m, a, _, _, _ = stick_margin(
             np.asarray(y, float),
-            self.arr,
-            self.par,
-            self.nodes,
-            self.weights,
+            Contact(self.arr, self.par, self.nodes, self.weights),
             self.nsurf,
             s,
             np.zeros(3),

@@ -25,6 +25,7 @@ import numpy as np
 
 from sorter_sim.model.build import BSPLINE_DEFAULT
 from sorter_sim.model.core.common import _contact_surfaces
+from sorter_sim.model.core.layout import Contact
 from sorter_sim.model.core.simulate import (
     G_STANDARD,
     FrictionLaw,
@@ -560,7 +561,7 @@ def check_run(sc: StiffCase, method: str, settings: dict, res, traj: Trajectory)
     worst_p = -math.inf
     for i in idx:
         st = np.concatenate([traj.q[i], traj.dq[i]])
-        evaluate_surfaces(st, arr, par, nodes, weights, -2, False, kin, stat, area, slip)
+        evaluate_surfaces(st, Contact(arr, par, nodes, weights), -2, False, kin, stat, area, slip)
         for k in range(nsurf):
             if area[k] > 0:
                 p_k = (

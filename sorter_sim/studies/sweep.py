@@ -53,12 +53,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 from sorter_sim.model.description import shown
+from sorter_sim.runtime.scene import DEFAULTS, SceneError, load_scene, run_scene, validate
 from sorter_sim.studies.outpaths import file_problem
 from sorter_sim.studies.progress import progress_bar
-from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
-
-from sorter_sim.runtime.scene import DEFAULTS, SceneError, load_scene, run_scene, validate
 
 SPEC_KEYS = ("scene", "set", "parameters", "sampling", "samples", "seed", "outputs", "out")
 # what each point reports (from the scene summary)

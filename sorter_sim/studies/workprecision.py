@@ -38,6 +38,7 @@ from sorter_sim.model.core.dopri import A as _DP_A
 from sorter_sim.model.core.dopri import B as _DP_B
 from sorter_sim.model.core.dopri import C as _DP_C
 from sorter_sim.model.core.dopri import P as _DP_P
+from sorter_sim.model.core.layout import Contact
 from sorter_sim.model.core.oscillator import Oscillator, exact_phases, run_oscillator
 from sorter_sim.model.core.simulate import (
     Parcel,
@@ -451,7 +452,7 @@ class ParcelCase:
 
             def f(t, y):
                 out = np.empty(6)
-                rhs_slide(y, arr, par, nodes, weights, clip, out)
+                rhs_slide(y, Contact(arr, par, nodes, weights), clip, out)
                 return out
 
             traj.make_pieces = lambda tr: dp5_pieces(

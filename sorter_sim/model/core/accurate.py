@@ -27,6 +27,13 @@ from sorter_sim.model.core.common import (
     EV_LEAVE,
     EV_STICK,
     EV_TARGET,
+    N_EVENTS,
+    N_JUMPS,
+    N_OUT,
+    N_REJECTED,
+    N_RHS,
+    N_STEPS,
+    N_STICK_SCANS,
     ST_END,
     ST_MAX_STEPS,
     ST_NONFINITE,
@@ -68,19 +75,9 @@ def run_accurate(
     mode0,
     t0,
     t_end,
-    y_target,
-    strips,
-    parcel,
-    nodes,
-    weights,
-    borders,
-    rtol,
-    atol,
-    h_max,
+    slide,
     reductions,
-    ts,
-    ys,
-    ms,
+    trail,
     ev,
     counters,
     xi,
@@ -95,13 +92,23 @@ def run_accurate(
     a parcel period by period and keeps each one's); zeros: none. The result does not
     depend on it beyond rounding.
     """
+    y_target, contact, borders, rtol, atol, h_max = (
+        slide.y_target,
+        slide.contact,
+        slide.borders,
+        slide.rtol,
+        slide.atol,
+        slide.h_max,
+    )
+    ts = trail.ts
+    strips, parcel = contact.strips, contact.parcel
     nsurf = n_surf_of(strips)
     rot = parcel[P_ROTATION] > 0.5
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     y = y0.copy()
     t = t0
     mode = mode0
-    n_out = _record(ts, ys, ms, 0, t, y, mode)
+    n_out = _record(trail, 0, t, y, mode)
     n_ev = 0
     n_steps = 0
     n_rhs = 0
@@ -124,7 +131,7 @@ def run_accurate(
     rec = np.zeros(1, dtype=np.int64)
     area = np.empty(nsurf)
     clip = clip_scratch()
-    slide = (strips, parcel, nodes, weights, clip)  # the sliding model's step context
+    slide_ctx = (contact, clip)  # the sliding model's step context
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
@@ -158,10 +165,7 @@ def run_accurate(
                 t,
                 t_end,
                 y_target,
-                strips,
-                parcel,
-                nodes,
-                weights,
+                contact,
                 nsurf,
                 borders,
                 reductions,
@@ -169,7 +173,7 @@ def run_accurate(
                 xi,
             )
             t = t_new
-            n_out = _record(ts, ys, ms, n_out, t, y, mode)
+            n_out = _record(trail, n_out, t, y, mode)
             if reason == 1:
                 n_ev = _log_event(ev, n_ev, t, EV_TARGET, mode)
                 status = ST_TARGET
@@ -184,32 +188,22 @@ def run_accurate(
                         y,
                         t,
                         t_end,
-                        y_target,
-                        strips,
-                        parcel,
-                        nodes,
-                        weights,
-                        nsurf,
+                        slide,
                         broke_from,
                         0.0,
                         s_check,
-                        rtol,
-                        atol,
-                        borders,
                         stick_counters,
                         rec,
-                        ts,
-                        ys,
-                        ms,
+                        trail,
                     )
                     armed[broke_from] = False
                     n_out = rec[0]
                 fresh = True
-                n_out = _record_new(ts, ys, ms, n_out, t, y, mode)
+                n_out = _record_new(trail, n_out, t, y, mode)
             continue
         # ---- sliding: one Dormand-Prince step with event location ----
         if fresh:
-            rhs_slide(y, strips, parcel, nodes, weights, clip, K[0])
+            rhs_slide(y, contact, clip, K[0])
             n_rhs += 1
             fresh = False
         _contact_surfaces(y, strips, parcel, clip, area)
@@ -236,10 +230,7 @@ def run_accurate(
                     if sig0n[s] < s_soon or sig0n[s] * stiff_ratio < slip_bound * h_try:
                         fx, fy, ft = rest_surface_wrench(
                             y,
-                            strips,
-                            parcel,
-                            nodes,
-                            weights,
+                            contact,
                             s,
                             sig0[3 * s],
                             sig0[3 * s + 1],
@@ -262,22 +253,12 @@ def run_accurate(
                 y,
                 t,
                 t_end,
-                y_target,
-                strips,
-                parcel,
-                nodes,
-                weights,
-                nsurf,
+                slide,
                 s_check,
                 s_stiff,
-                rtol,
-                atol,
-                borders,
                 stick_counters,
                 rec,
-                ts,
-                ys,
-                ms,
+                trail,
             )
             n_out = rec[0]
             if stuck:
@@ -285,12 +266,12 @@ def run_accurate(
                 n_ev = _log_event(ev, n_ev, t, EV_STICK, s_act)
                 mode = s_act
                 fresh = True
-                n_out = _record(ts, ys, ms, n_out, t, y, mode)
+                n_out = _record(trail, n_out, t, y, mode)
                 continue
             if t_new > t:
                 t = t_new
                 fresh = True
-                n_out = _record_new(ts, ys, ms, n_out, t, y, mode)
+                n_out = _record_new(trail, n_out, t, y, mode)
                 continue
         if not np.all(np.isfinite(K[0])):
             status = ST_NONFINITE
@@ -301,7 +282,7 @@ def run_accurate(
             break
         if nb > 0:
             _corner_event_values(y, parcel, borders, ev0)
-        slide_step(y, h, K, slide, y_new, err)
+        slide_step(y, h, K, slide_ctx, y_new, err)
         n_rhs += 6
         enorm = error_norm(err, y, y_new, rtol, atol, atol_scale, rtol_ref)
         if not np.isfinite(enorm):
@@ -396,7 +377,7 @@ def run_accurate(
             # redo the step to the event, so no stage sees past it
             h_next = h
             h = theta_ev * h
-            slide_step(y, h, K, slide, y_new, err)
+            slide_step(y, h, K, slide_ctx, y_new, err)
             n_rhs += 6
         n_steps += 1
         t = t + h
@@ -409,7 +390,7 @@ def run_accurate(
             break
         if theta_ev <= 1.0:
             if ev_kind == EV_TARGET:
-                n_out = _record(ts, ys, ms, n_out, t, y, mode)
+                n_out = _record(trail, n_out, t, y, mode)
                 n_ev = _log_event(ev, n_ev, t, EV_TARGET, -1)
                 status = ST_TARGET
                 break
@@ -425,14 +406,14 @@ def run_accurate(
                     y[4] = vsy
                     y[5] = 0.0
                     fresh = True
-        n_out = _record(ts, ys, ms, n_out, t, y, mode)
+        n_out = _record(trail, n_out, t, y, mode)
         # after a step cut at an event, resume with the size the controller had
         h = h_next
-    counters[0] = n_steps
-    counters[1] = n_rhs + stick_counters[0]
-    counters[2] = n_rej
-    counters[3] = n_out
-    counters[4] = n_ev
-    counters[5] = stick_counters[1]
-    counters[6] = stick_counters[0]
+    counters[N_STEPS] = n_steps
+    counters[N_RHS] = n_rhs + stick_counters[0]
+    counters[N_REJECTED] = n_rej
+    counters[N_OUT] = n_out
+    counters[N_EVENTS] = n_ev
+    counters[N_JUMPS] = stick_counters[1]
+    counters[N_STICK_SCANS] = stick_counters[0]
     return status, t, mode

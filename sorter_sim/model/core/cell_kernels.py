@@ -42,13 +42,22 @@ Units: SI (m, s, rad, kg); sensor edge offsets tau in s from the period start.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
-from sorter_sim.model.core.geometry import box_corners
 from sorter_sim.model.core.accurate import run_accurate
-from sorter_sim.model.core.common import ST_END, ST_TARGET
+from sorter_sim.model.core.common import (
+    N_COUNTERS,
+    N_OUT,
+    N_RHS,
+    N_STEPS,
+    ST_END,
+    ST_TARGET,
+    n_surf_of,
+)
+from sorter_sim.model.core.geometry import box_corners
 from sorter_sim.model.core.implicit import run_implicit
 from sorter_sim.model.core.layout import (
     P_HALF_A,
@@ -62,6 +71,9 @@ from sorter_sim.model.core.layout import (
     S_XHI,
     S_XLO,
     STRIP_WIDTH,
+    Contact,
+    Slide,
+    Trail,
 )
 
 # ---- configuration row (float64) ---------------------------------------------------
@@ -133,6 +145,14 @@ F_YCOG = 5
 CONTACT_TOL = 1e-9
 MAX_STRIPS = 4  # strips of a period at most (``cell_strips``)
 _INT_BUF = 512  # integrator output rows per parcel-period (a few are used)
+
+
+# what ``advance_cell`` takes, by name
+CellSetup = namedtuple('CellSetup', ['cfg', 'laws', 'nodes', 'weights'])
+Parcels = namedtuple('Parcels', ['state', 'mode', 'phase', 'par', 'scanned', 'gauge_xi'])
+Sensors = namedtuple('Sensors', ['eye_x', 'blocked', 'counts'])
+EventLog = namedtuple('EventLog', ['ev_i', 'ev_f', 'reserve'])
+Memo = namedtuple('Memo', ['stats', 'last_strips', 'last_info'])
 
 
 @njit(cache=True)
@@ -463,48 +483,33 @@ def _emit(ev_i, ev_f, n_ev, k, kind, a, b, tau, x, y):
 
 
 @njit(cache=True)
-def advance_cell(
-    n_periods,
-    k0,
-    cfg,
-    laws,
-    act,
-    state,
-    mode,
-    phase,
-    par,
-    scanned,
-    eye_x,
-    blocked,
-    counts,
-    nodes,
-    weights,
-    ev_i,
-    ev_f,
-    ev_reserve,
-    stats,
-    last_strips,
-    last_info,
-    gauge_xi,
-):
+def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
     """
     Advance the cell over up to ``n_periods`` control periods from period index ``k0``.
 
-    cfg: configuration row (C_*); laws: (2, N) law parameter rows of belt and disks;
-    act: actuator state (A_*), updated; state (cap, 6), mode, phase, par (cap,
-    PARCEL_WIDTH), scanned: the parcels, updated; eye_x: photo-eye x [m]; blocked
-    (cap, n_sensors) and counts (n_sensors): which parcel blocks which sensor, updated.
-    Sensors are the photo-eyes, then chute_left, chute_right. Events go to ev_i/ev_f;
-    the kernel stops after a period that leaves fewer than ``ev_reserve`` free rows.
-    stats (int64): [parcel-periods in closed form, integrated, integrator steps, rhs].
-    last_strips (MAX_STRIPS, STRIP_WIDTH) and last_info (int64 [period index, count]):
-    the strips of the last period advanced, updated (a stick that held through it holds
-    through the next under the same strips where nothing about the parcel changes).
-    gauge_xi (cap, GAUGE_CARRY): each parcel's limit-set gauge twist and Newton metric,
-    updated: a stick checked period after period (riding the belt onto raised disks)
-    starts each Newton solve from the last one's.
+    setup (``CellSetup``): the configuration row cfg (C_*), the (2, N) law parameter
+    rows of belt and disks, and the footprint quadrature's nodes and weights.
+    act: actuator state (A_*), updated. parcels (``Parcels``): state (cap, 6), mode,
+    phase, par (cap, PARCEL_WIDTH), scanned, and gauge_xi (cap, GAUGE_CARRY), each
+    parcel's limit-set gauge twist and Newton metric (a stick checked period after
+    period, riding the belt onto raised disks, starts each Newton solve from the last
+    one's); all updated. sensors (``Sensors``): photo-eye x [m], and which parcel
+    blocks which sensor (blocked (cap, n_sensors), counts (n_sensors)), updated;
+    sensors are the photo-eyes, then chute_left, chute_right. log (``EventLog``):
+    events go to ev_i/ev_f; the kernel stops after a period that leaves fewer than
+    ``reserve`` free rows. memo (``Memo``): stats (int64: parcel-periods in closed
+    form, integrated, integrator steps, rhs), and last_strips (MAX_STRIPS,
+    STRIP_WIDTH) with last_info (int64 [period index, count]): the strips of the last
+    period advanced, updated (a stick that held through it holds through the next
+    under the same strips where nothing about the parcel changes).
     Returns (periods done, events written).
     """
+    cfg, laws, nodes, weights = setup.cfg, setup.laws, setup.nodes, setup.weights
+    state, mode, phase, par = parcels.state, parcels.mode, parcels.phase, parcels.par
+    scanned, gauge_xi = parcels.scanned, parcels.gauge_xi
+    eye_x, blocked, counts = sensors.eye_x, sensors.blocked, sensors.counts
+    ev_i, ev_f, ev_reserve = log.ev_i, log.ev_f, log.reserve
+    stats, last_strips, last_info = memo.stats, memo.last_strips, memo.last_info
     cap = state.shape[0]
     n_eyes = eye_x.shape[0]
     n_sens = n_eyes + 2
@@ -521,7 +526,7 @@ def advance_cell(
     ys = np.empty((_INT_BUF, 6))
     ms = np.empty(_INT_BUF, dtype=np.int64)
     evb = np.empty((_INT_BUF, 3))
-    counters = np.zeros(8, dtype=np.int64)
+    counters = np.zeros(N_COUNTERS, dtype=np.int64)
     s0 = np.empty(6)
     s1 = np.empty(6)
     rigid = np.zeros(cap, dtype=np.bool_)
@@ -631,19 +636,17 @@ def advance_cell(
                             m,
                             0.0,
                             h,
-                            math.inf,
-                            strip_view,
-                            par[i],
-                            nodes,
-                            weights,
-                            borders,
-                            cfg[C_RTOL],
-                            cfg[C_ATOL],
-                            h,
+                            Slide(
+                                math.inf,
+                                Contact(strip_view, par[i], nodes, weights),
+                                n_surf_of(strip_view),
+                                borders,
+                                cfg[C_RTOL],
+                                cfg[C_ATOL],
+                                h,
+                            ),
                             True,
-                            ts,
-                            ys,
-                            ms,
+                            Trail(ts, ys, ms),
                             evb,
                             counters,
                             gauge_xi[i],
@@ -655,21 +658,16 @@ def advance_cell(
                             0.0,
                             h,
                             math.inf,
-                            strip_view,
-                            par[i],
-                            nodes,
-                            weights,
+                            Contact(strip_view, par[i], nodes, weights),
                             h,
-                            ts,
-                            ys,
-                            ms,
+                            Trail(ts, ys, ms),
                             evb,
                             counters,
                         )
                     stats[1] += 1
-                    stats[2] += counters[0]
-                    stats[3] += counters[1]
-                    last = counters[3] - 1
+                    stats[2] += counters[N_STEPS]
+                    stats[3] += counters[N_RHS]
+                    last = counters[N_OUT] - 1
                     if (status != ST_END and status != ST_TARGET) or not 0 <= last < _INT_BUF:
                         # the physics failed for this parcel: stop it and say so
                         phase[i] = PH_JAMMED

@@ -46,6 +46,16 @@ ST_MAX_STEPS = 2  # ran out of output capacity / step budget
 ST_STEP_FAIL = 3  # step size underflow
 ST_NONFINITE = 4  # a NaN or inf appeared
 
+# a run's counters (its int64 ``counters`` array, written at its end), by name
+N_STEPS = 0  # accepted steps
+N_RHS = 1  # right-hand-side (wrench) evaluations
+N_REJECTED = 2  # rejected steps
+N_OUT = 3  # trajectory records written
+N_EVENTS = 4  # events logged
+N_JUMPS = 5  # sticks advanced in closed form to the next border
+N_STICK_SCANS = 6  # stick checks of the limit set
+N_COUNTERS = 8
+
 # event kinds in the event log
 EV_STICK = 1
 EV_BREAK = 2
@@ -71,13 +81,14 @@ def surface_velocity(strips, surf):
 
 
 @borrowing
-def rhs_slide(state, strips, parcel, nodes, weights, clip, out):
+def rhs_slide(state, contact, clip, out):
     """
     Time derivative of the state while sliding (eq. 4.1 with kinetic friction).
 
     ``clip``: a footprint scratch (``wrench.clip_scratch``), so that it allocates nothing.
     """
-    fx, fy, t = kinetic_wrench(state, strips, parcel, nodes, weights, -1, clip)
+    parcel = contact.parcel
+    fx, fy, t = kinetic_wrench(state, contact, -1, clip)
     out[0] = state[3]
     out[1] = state[4]
     out[2] = state[5]
@@ -98,9 +109,9 @@ STIFF_RATIO = 2.0  # x rtol^(1/5): where a 5th-order step's error in the turning
 
 @borrowing
 def _slide_rhs(y, c, h, ctx, out):
-    """Evaluate ``rhs_slide`` as a step's rhs; ctx: strips, parcel, nodes, weights, clip."""
-    strips, parcel, nodes, weights, clip = ctx
-    rhs_slide(y, strips, parcel, nodes, weights, clip, out)
+    """Evaluate ``rhs_slide`` as a step's right-hand side; ctx: (contact, clip)."""
+    contact, clip = ctx
+    rhs_slide(y, contact, clip, out)
     return True
 
 
@@ -117,13 +128,14 @@ def _gen_slip(state, vsx, vsy, rho, rot, out):
 
 
 @borrowing
-def _record_new(ts, ys, ms, n_out, t, y, mode):
+def _record_new(trail, n_out, t, y, mode):
     """``_record``, unless the last record is this one (a slip carried in ln s records it)."""
+    ts, ys, ms = trail.ts, trail.ys, trail.ms
     last = min(n_out, ts.shape[0]) - 1
     same = n_out > 0 and ts[last] == t and ms[last] == mode
     for j in range(6):
         same = same and ys[last, j] == y[j]
-    return n_out if same else _record(ts, ys, ms, n_out, t, y, mode)
+    return n_out if same else _record(trail, n_out, t, y, mode)
 
 
 @borrowing
@@ -146,7 +158,7 @@ def _log_event(ev, n_ev, t, kind, info):
 
 
 @borrowing
-def _record(ts, ys, ms, n_out, t, y, mode):
+def _record(trail, n_out, t, y, mode):
     """
     Record (t, y, mode) as record ``n_out``; returns the count.
 
@@ -154,6 +166,7 @@ def _record(ts, ys, ms, n_out, t, y, mode):
     always holds the latest state: a run that outgrows its output (the accurate
     method may take many times more steps) still ends on its true final state.
     """
+    ts, ys, ms = trail.ts, trail.ys, trail.ms
     i = min(n_out, ts.shape[0] - 1)
     ts[i] = t
     for j in range(6):

@@ -23,6 +23,11 @@ from sorter_sim.model.core.common import (
     EV_BREAK,
     EV_STICK,
     EV_TARGET,
+    N_EVENTS,
+    N_OUT,
+    N_REJECTED,
+    N_RHS,
+    N_STEPS,
     ST_END,
     ST_MAX_STEPS,
     ST_NONFINITE,
@@ -77,7 +82,7 @@ PT_X, PT_Y, PT_C, PT_SURF, PT_VX, PT_VY = 0, 1, 2, 3, 4, 5
 
 
 @njit(cache=True)
-def _build_points(y, strips, parcel, nodes, weights, pts, stat, pull, area):
+def _build_points(y, contact, pts, stat, pull, area):
     """
     Quadrature points of the footprint (centroid fans, Gauss n x n per triangle).
 
@@ -88,6 +93,7 @@ def _build_points(y, strips, parcel, nodes, weights, pts, stat, pull, area):
     most its kinetic friction can pull (Σ ck, Σ ck |r|), area its share of the
     footprint. Returns the number of points.
     """
+    strips, parcel, nodes, weights = contact
     corners = np.empty((4, 2))
     poly = np.empty((MAX_VERTS, 2))
     work = np.empty((MAX_VERTS, 2))
@@ -190,9 +196,7 @@ def _points_hessian(st, npt, pts, out):
 # inlined: a call would count references to the point set and the other arrays at every
 # evaluation, a tenth of an exact step's cost
 @njit(cache=True, inline="always")
-def _step_wrenches(
-    exact, st, skip, need, strips, parcel, nodes, weights, npt, pts, kin, stat, area, slip
-):
+def _step_wrenches(exact, st, skip, need, contact, npt, pts, kin, stat, area, slip):
     """
     Every surface's kinetic wrench at the twist in ``st`` (``skip`` left out) into ``kin``.
 
@@ -202,7 +206,7 @@ def _step_wrenches(
     if exact:
         # (evaluate_surfaces clears the limits it is not asked for: keep them)
         lim = stat if need else np.empty((0, 2))
-        evaluate_surfaces(st, strips, parcel, nodes, weights, skip, need, kin, lim, area, slip)
+        evaluate_surfaces(st, contact, skip, need, kin, lim, area, slip)
     else:
         _points_wrench(st, npt, pts, skip, kin)
 
@@ -239,7 +243,7 @@ def _ratio(load, limit):
 
 
 @njit(cache=True)
-def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi, clip):
+def _stick_load(y, contact, s, rfx, rfy, rt, stat, xi, clip):
     """
     How far the wrench (rfx, rfy, rt) that surface ``s`` must supply loads its stick.
 
@@ -250,6 +254,7 @@ def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi, cl
     ratios, or the gauge where those hold. The gauge's Newton solve runs only where
     ``inside_limit_set`` cannot tell the wrench is inside.
     """
+    strips, parcel = contact.strips, contact.parcel
     rot = parcel[P_ROTATION] > 0.5
     tol = 1.0 + STICK_RTOL
     load = _ratio(math.hypot(rfx, rfy), stat[s, 0] * tol)
@@ -259,7 +264,7 @@ def _stick_load(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, stat, xi, cl
     # about g at most the pure spin's): the gauge runs only where they hold
     if load <= 1.0 and rot and parcel[P_STICK] > 0.5:
         if not inside_limit_set(y, strips, parcel, s, rfx, rfy, rt):
-            gamma = limit_gauge(y, strips, parcel, nodes, weights, s, rfx, rfy, rt, xi, clip)
+            gamma = limit_gauge(y, contact, s, rfx, rfy, rt, xi, clip)
             load = gamma / tol
     return load
 
@@ -347,10 +352,7 @@ def implicit_step(
     y,
     h,
     mode,
-    strips,
-    parcel,
-    nodes,
-    weights,
+    contact,
     exact,
     mu_ratio,
     pts,
@@ -383,6 +385,7 @@ def implicit_step(
     GAUGE_CARRY): each surface's limit-set gauge twist and Newton metric, carried from
     step to step.
     """
+    strips, parcel = contact.strips, contact.parcel
     m = parcel[P_MASS]
     rot = parcel[P_ROTATION] > 0.5
     nsurf = xis.shape[0]
@@ -409,7 +412,7 @@ def implicit_step(
             _stuck_step(y, h, vsx, vsy, y_out)
             return mode, 0
     st = y.copy()
-    npt = 0 if exact else _build_points(y, strips, parcel, nodes, weights, pts, stat, pull, area)
+    npt = 0 if exact else _build_points(y, contact, pts, stat, pull, area)
     # the Newton start and the wrenches there: the guess, or while stuck the surface's
     # velocity (the stuck surface's own wrench left out: zero slip, and the stick test
     # needs the others' alone)
@@ -423,9 +426,7 @@ def implicit_step(
         if not rot:
             W[2] = 0.0
     _set_twist(st, W)
-    _step_wrenches(
-        exact, st, mode, True, strips, parcel, nodes, weights, npt, pts, kin, stat, area, slip
-    )
+    _step_wrenches(exact, st, mode, True, contact, npt, pts, kin, stat, area, slip)
     n_eval = 1
     if exact:
         for s in range(nsurf):
@@ -464,10 +465,7 @@ def implicit_step(
                 st,
                 cand,
                 False,
-                strips,
-                parcel,
-                nodes,
-                weights,
+                contact,
                 npt,
                 pts,
                 others,
@@ -487,9 +485,7 @@ def implicit_step(
                 wfx -= src[o, 0]
                 wfy -= src[o, 1]
                 wt -= src[o, 2]
-        load = _stick_load(
-            y, strips, parcel, nodes, weights, cand, wfx, wfy, wt, stat, xis[cand], clip
-        )
+        load = _stick_load(y, contact, cand, wfx, wfy, wt, stat, xis[cand], clip)
         if load <= 1.0:
             _stuck_step(y, h, vsx, vsy, y_out)
             return cand, n_eval
@@ -513,10 +509,7 @@ def implicit_step(
                 st,
                 -1,
                 False,
-                strips,
-                parcel,
-                nodes,
-                weights,
+                contact,
                 npt,
                 pts,
                 kin,
@@ -583,10 +576,7 @@ def implicit_step(
                 st,
                 -1,
                 False,
-                strips,
-                parcel,
-                nodes,
-                weights,
+                contact,
                 npt,
                 pts,
                 kin,
@@ -661,10 +651,10 @@ def _constant_friction(strips):
 
 
 @njit(cache=True)
-def run_implicit(
-    y0, mode0, t0, t_end, y_target, strips, parcel, nodes, weights, h, ts, ys, ms, ev, counters
-):
+def run_implicit(y0, mode0, t0, t_end, y_target, contact, h, trail, ev, counters):
     """Fixed-step implicit integration; the scrap line is located by linear interpolation."""
+    ts = trail.ts
+    strips, nodes = contact.strips, contact.nodes
     nsurf = n_surf_of(strips)
     # constant μ everywhere: the exact step (no point set); its bound on the others' pull
     exact, mu_ratio = _constant_friction(strips)
@@ -679,7 +669,7 @@ def run_implicit(
     y_new = np.empty(6)
     t = t0
     mode = mode0
-    n_out = _record(ts, ys, ms, 0, t, y, mode)
+    n_out = _record(trail, 0, t, y, mode)
     n_ev = 0
     n_steps = 0
     n_rhs = 0
@@ -699,10 +689,7 @@ def run_implicit(
             y,
             hh,
             mode,
-            strips,
-            parcel,
-            nodes,
-            weights,
+            contact,
             exact,
             mu_ratio,
             pts,
@@ -728,7 +715,7 @@ def run_implicit(
             break
         mode = new_mode
         t, crossed = _take_fixed_step(y, y_new, t, t_next, y_target)
-        n_out = _record(ts, ys, ms, n_out, t, y, mode)
+        n_out = _record(trail, n_out, t, y, mode)
         if crossed:
             n_ev = _log_event(ev, n_ev, t, EV_TARGET, -1)
             status = ST_TARGET
@@ -736,9 +723,9 @@ def run_implicit(
         if n_out >= ts.shape[0]:
             status = ST_MAX_STEPS
             break
-    counters[0] = n_steps
-    counters[1] = n_rhs
-    counters[2] = 0  # a fixed step is never rejected
-    counters[3] = n_out
-    counters[4] = n_ev
+    counters[N_STEPS] = n_steps
+    counters[N_RHS] = n_rhs
+    counters[N_REJECTED] = 0  # a fixed step is never rejected
+    counters[N_OUT] = n_out
+    counters[N_EVENTS] = n_ev
     return status, t, mode

@@ -35,7 +35,7 @@ from sorter_sim.model.core.wrench import (
 
 
 @borrowing
-def _kinetic_pull(y, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, clip, out):
+def _kinetic_pull(y, contact, surf, ox, oy, ow, rho, z, clip, out):
     """
     Growth term W_o·σ - D_k(σ) of a unit slip σ (generalized) on ``surf``, and its gradient.
 
@@ -43,9 +43,7 @@ def _kinetic_pull(y, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, c
     stuck patch's kinetic dissipation at vanishing slip (μ_k(0), 1-homogeneous in σ).
     ``out`` gets W_o - ∇D_k(σ). Generalized coordinates (x, y, ρφ): the mass matrix is m I.
     """
-    fx, fy, ft = rest_surface_wrench(
-        y, strips, parcel, nodes, weights, surf, z[0], z[1], z[2] / rho, True, clip
-    )
+    fx, fy, ft = rest_surface_wrench(y, contact, surf, z[0], z[1], z[2] / rho, True, clip)
     out[0] = ox + fx
     out[1] = oy + fy
     out[2] = ow + ft / rho
@@ -53,20 +51,21 @@ def _kinetic_pull(y, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, c
 
 
 @borrowing
-def _others_wrench(y, strips, parcel, nodes, weights, surf, clip):
+def _others_wrench(y, contact, surf, clip):
     """
     Kinetic wrench of every surface but ``surf`` at the state y, generalized (Fx, Fy, T/ρ).
 
     Returns it and ``surf``'s contact area (0: the parcel has left it).
     """
+    strips, parcel = contact.strips, contact.parcel
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
-    fx, fy, t = kinetic_wrench(y, strips, parcel, nodes, weights, surf, clip)
+    fx, fy, t = kinetic_wrench(y, contact, surf, clip)
     ow = t / rho if parcel[P_ROTATION] > 0.5 else 0.0
     return fx, fy, ow, surface_area(y, strips, parcel, surf, clip)
 
 
 @njit(cache=True)
-def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hess, clip):
+def _pull_direction(yp, contact, surf, ox, oy, ow, z, hess, clip):
     """
     Find the unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow).
 
@@ -88,6 +87,7 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
     is where the exact gradient vanishes). It is differenced anew whenever a step with
     it backtracks or fails to cut the gradient tenfold.
     """
+    parcel = contact.parcel
     mass = parcel[P_MASS]
     rho = math.sqrt(parcel[P_INERTIA] / mass)
     rot = parcel[P_ROTATION] > 0.5
@@ -96,7 +96,7 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
     if norm == 0.0 and zn == 0.0:
         return 0.0, 0.0
     if zn == 0.0 and rot:
-        limit_gauge(yp, strips, parcel, nodes, weights, surf, ox, oy, ow * rho, z, clip)
+        limit_gauge(yp, contact, surf, ox, oy, ow * rho, z, clip)
         zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
         if zn > 0.0 and (ox * z[0] + oy * z[1] + ow * z[2]) <= 0.0:
             zn = 0.0
@@ -115,7 +115,7 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
     g = np.empty(3)
     gp = np.empty(3)
     zt = np.empty(3)
-    f = _kinetic_pull(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, z, clip, g)
+    f = _kinetic_pull(yp, contact, surf, ox, oy, ow, rho, z, clip, g)
     p = np.empty(3)
     q = np.empty(3)
     ndim = 2 if rot else 1
@@ -170,9 +170,7 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
                 # forward differences of the exact gradient, as in ``limit_gauge``
                 for i in range(3):
                     zt[i] = z[i] + hstep * (p[i] if jd == 0 else q[i])
-                _kinetic_pull(
-                    yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, clip, gp
-                )
+                _kinetic_pull(yp, contact, surf, ox, oy, ow, rho, zt, clip, gp)
                 c0 = (gp[0] - g[0]) * p[0] + (gp[1] - g[1]) * p[1] + (gp[2] - g[2]) * p[2]
                 c1 = (gp[0] - g[0]) * q[0] + (gp[1] - g[1]) * q[1] + (gp[2] - g[2]) * q[2]
                 if jd == 0:
@@ -212,9 +210,7 @@ def _pull_direction(yp, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hes
             tn = math.sqrt(zt[0] * zt[0] + zt[1] * zt[1] + zt[2] * zt[2])
             for i in range(3):
                 zt[i] /= tn
-            ft = _kinetic_pull(
-                yp, strips, parcel, nodes, weights, surf, ox, oy, ow, rho, zt, clip, gp
-            )
+            ft = _kinetic_pull(yp, contact, surf, ox, oy, ow, rho, zt, clip, gp)
             if ft >= f:
                 break
             step *= 0.5
@@ -254,7 +250,7 @@ def _layer_state(u, z, vsx, vsy, parcel, out):
 
 
 @njit(cache=True)
-def _layer_rhs(u, strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, hess, yv, acc, out):
+def _layer_rhs(u, contact, clip, surf, vsx, vsy, z, hess, yv, acc, out):
     """
     Right-hand side of the slip layer on ``surf``: u = (x, y, φ, s), s the slip magnitude.
 
@@ -265,14 +261,13 @@ def _layer_rhs(u, strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, hess,
     acceleration at that motion. ``yv`` gets the full state. Returns the stuck
     patch's friction magnitude |∇D_k| [N] (its stiffness is that over m s).
     """
+    parcel = contact.parcel
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     sl = _layer_state(u, z, vsx, vsy, parcel, yv)
-    ox, oy, ow, _ = _others_wrench(yv, strips, parcel, nodes, weights, surf, clip)
-    lam, fmag = _pull_direction(
-        yv, strips, parcel, nodes, weights, surf, ox, oy, ow, z, hess, clip
-    )
+    ox, oy, ow, _ = _others_wrench(yv, contact, surf, clip)
+    lam, fmag = _pull_direction(yv, contact, surf, ox, oy, ow, z, hess, clip)
     _layer_state(u, z, vsx, vsy, parcel, yv)  # at the settled direction
-    rhs_slide(yv, strips, parcel, nodes, weights, clip, acc)
+    rhs_slide(yv, contact, clip, acc)
     out[0] = yv[3]
     out[1] = yv[4]
     out[2] = yv[5]
@@ -298,10 +293,10 @@ def _layer_stage(us, c, h, ctx, out):
     Each stage starts its pull direction from the step's start (``z``, copied to
     ``zs``), so that the step's end leaves in ``zs`` the direction it settled to there.
     """
-    strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, zs, hess, yv, acc = ctx
+    contact, clip, surf, vsx, vsy, z, zs, hess, yv, acc = ctx
     for j in range(3):
         zs[j] = z[j]
-    _layer_rhs(us, strips, parcel, nodes, weights, clip, surf, vsx, vsy, zs, hess, yv, acc, out)
+    _layer_rhs(us, contact, clip, surf, vsx, vsy, zs, hess, yv, acc, out)
     return True
 
 
@@ -314,18 +309,10 @@ def _layer(
     y,
     t,
     t_end,
-    y_target,
-    strips,
-    parcel,
-    nodes,
-    weights,
-    nsurf,
+    slide,
     surf,
     s0,
     z,
-    rtol,
-    atol,
-    borders,
     counters,
     grow_exit,
     s_floor,
@@ -361,6 +348,14 @@ def _layer(
     ``y`` (in: the pose; out: the full state at the end, velocity = surface + s σ̂),
     ``z`` (in: a start for σ̂, may be zero; out: σ̂). counters[0] += rhs evaluations.
     """
+    y_target, contact, borders, rtol, atol = (
+        slide.y_target,
+        slide.contact,
+        slide.borders,
+        slide.rtol,
+        slide.atol,
+    )
+    strips, parcel = contact.strips, contact.parcel
     mass = parcel[P_MASS]
     vsx, vsy = surface_velocity(strips, surf)
     u = np.array([y[0], y[1], y[2], s0])
@@ -374,7 +369,7 @@ def _layer(
     hess = np.zeros(4)  # _pull_direction's Newton metric, carried from stage to stage
     grow_ratio = STIFF_RATIO * rtol**0.2
     clip = clip_scratch()
-    stage = (strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, zs, hess, yv, acc)
+    stage = (contact, clip, surf, vsx, vsy, z, zs, hess, yv, acc)
     # the slip relative to itself: the trajectory after a break is sensitive to when
     # the slip grows (its growth starts from λ = 0), so an absolute slip error of the
     # full model's velocity scale put Fig. 9a 100 rtol m off; atol 1e-3 x: a floor
@@ -383,7 +378,7 @@ def _layer(
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
-    _layer_rhs(u, strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, hess, yv, acc, K[0])
+    _layer_rhs(u, contact, clip, surf, vsx, vsy, z, hess, yv, acc, K[0])
     counters[0] += 1
     h = min(1e-5, t_end - t)
     healthy = False
@@ -437,9 +432,7 @@ def _layer(
             z[j] = zs[j]
         for j in range(4):
             K[0, j] = K[6, j]
-        fmag = _layer_rhs(
-            u, strips, parcel, nodes, weights, clip, surf, vsx, vsy, z, hess, yv, acc, K[0]
-        )
+        fmag = _layer_rhs(u, contact, clip, surf, vsx, vsy, z, hess, yv, acc, K[0])
         counters[0] += 1
         h *= step_factor(en)
         # hand over once the full model's explicit step would be stiff-bound by the

@@ -21,7 +21,17 @@ full model; 0 = Fig. 7 line 2), Gauss order per direction, closed-form flag
 its patch's limit set; 0 = the seed's decoupled test |F| <= F_max, |T| <= T_max).
 
 State vector (6): x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+
+``Contact`` bundles what every kernel that evaluates friction takes: the strips, the
+parcel's row, and the Gauss-Legendre nodes and weights on [0, 1] of the footprint's
+quadrature (a numba named tuple: its fields cost nothing over separate arguments).
+``Slide`` is one accurate run's problem: the scrap line y_target, the contact, its
+number of surfaces, the strip borders where steps restart, and the tolerances.
+``Trail`` is the trajectory a run writes into caller-owned arrays: times, states and
+modes.
 """
+
+from collections import namedtuple
 
 from sorter_sim.model.core.friction import N_LAW_PARAMS
 
@@ -51,3 +61,10 @@ STICK_EXACT = 1
 
 # Modes of the hybrid model: sliding, or stuck to surface k (k >= 0).
 MODE_SLIDE = -1
+
+# what a parcel slides on, and how its footprint is integrated
+Contact = namedtuple('Contact', ['strips', 'parcel', 'nodes', 'weights'])
+# one accurate run's problem and tolerances
+Slide = namedtuple('Slide', ['y_target', 'contact', 'nsurf', 'borders', 'rtol', 'atol', 'h_max'])
+# the trajectory records a run writes: times, states (6) and modes
+Trail = namedtuple('Trail', ['ts', 'ys', 'ms'])

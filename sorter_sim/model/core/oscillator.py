@@ -26,7 +26,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from numba import njit
 
 from sorter_sim.model.core.cache import check_kernel_cache

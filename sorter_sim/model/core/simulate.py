@@ -17,9 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sorter_sim.model.core.cache import check_kernel_cache
-
 from sorter_sim.model.core.accurate import run_accurate
+from sorter_sim.model.core.cache import check_kernel_cache
 from sorter_sim.model.core.common import (
     EV_BORDER,
     EV_BREAK,
@@ -29,16 +28,21 @@ from sorter_sim.model.core.common import (
     METHOD_ACCURATE,
     METHOD_IMPLICIT,
     METHOD_THRESHOLD,
+    N_COUNTERS,
+    N_EVENTS,
+    N_JUMPS,
+    N_OUT,
+    N_REJECTED,
+    N_RHS,
+    N_STEPS,
     ST_END,
     ST_MAX_STEPS,
     ST_NONFINITE,
     ST_STEP_FAIL,
     ST_TARGET,
     _contact_surfaces,
+    n_surf_of,
 )
-from sorter_sim.model.core.implicit import run_implicit
-from sorter_sim.model.core.stick import GAUGE_CARRY
-from sorter_sim.model.core.threshold import run_threshold
 from sorter_sim.model.core.friction import (
     LAW_BSPLINE,
     LAW_NAMES,
@@ -46,12 +50,10 @@ from sorter_sim.model.core.friction import (
     law_is_constant,
     law_row,
 )
+from sorter_sim.model.core.implicit import run_implicit
 from sorter_sim.model.core.layout import (
     MODE_SLIDE,
     P_CLOSED,
-    P_STICK,
-    STICK_EXACT,
-    STICK_SEED,
     P_GRAV,
     P_HALF_A,
     P_HALF_B,
@@ -59,6 +61,7 @@ from sorter_sim.model.core.layout import (
     P_MASS,
     P_NQUAD,
     P_ROTATION,
+    P_STICK,
     PARCEL_WIDTH,
     S_LAW,
     S_PARAMS,
@@ -68,8 +71,15 @@ from sorter_sim.model.core.layout import (
     S_WEIGHT,
     S_XHI,
     S_XLO,
+    STICK_EXACT,
+    STICK_SEED,
     STRIP_WIDTH,
+    Contact,
+    Slide,
+    Trail,
 )
+from sorter_sim.model.core.stick import GAUGE_CARRY
+from sorter_sim.model.core.threshold import run_threshold
 from sorter_sim.model.core.wrench import clip_scratch, gauss_legendre_01
 
 G_STANDARD = 9.81  # m/s², the seed's g
@@ -457,7 +467,7 @@ def simulate(
     ys = np.empty((max_points, 6))
     ms = np.empty(max_points, dtype=np.int64)
     ev = np.empty((4096, 3))
-    counters = np.zeros(8, dtype=np.int64)
+    counters = np.zeros(N_COUNTERS, dtype=np.int64)
     y_target_eff = y_target if math.isfinite(y_target) else math.inf
     velocities = surface_velocities(arr)
     mode0 = initial_mode(y0, arr, par, velocities)
@@ -468,19 +478,17 @@ def simulate(
             mode0,
             t0,
             t_end,
-            y_target_eff,
-            arr,
-            par,
-            nodes,
-            weights,
-            borders,
-            rtol,
-            atol,
-            h_max,
+            Slide(
+                y_target_eff,
+                Contact(arr, par, nodes, weights),
+                n_surf_of(arr),
+                borders,
+                rtol,
+                atol,
+                h_max,
+            ),
             reductions,
-            ts,
-            ys,
-            ms,
+            Trail(ts, ys, ms),
             ev,
             counters,
             np.zeros(GAUGE_CARRY),
@@ -492,14 +500,9 @@ def simulate(
             t0,
             t_end,
             y_target_eff,
-            arr,
-            par,
-            nodes,
-            weights,
+            Contact(arr, par, nodes, weights),
             dt,
-            ts,
-            ys,
-            ms,
+            Trail(ts, ys, ms),
             ev,
             counters,
         )
@@ -510,21 +513,16 @@ def simulate(
             t0,
             t_end,
             y_target_eff,
-            arr,
-            par,
-            nodes,
-            weights,
+            Contact(arr, par, nodes, weights),
             dt,
             v_min,
-            ts,
-            ys,
-            ms,
+            Trail(ts, ys, ms),
             ev,
             counters,
         )
     wall = time.perf_counter() - wall
-    n_out = min(int(counters[3]), max_points)
-    n_ev = min(int(counters[4]), ev.shape[0])
+    n_out = min(int(counters[N_OUT]), max_points)
+    n_ev = min(int(counters[N_EVENTS]), ev.shape[0])
     events = [
         (float(ev[i, 0]), EVENT_NAMES.get(int(ev[i, 1]), str(int(ev[i, 1]))), int(ev[i, 2]))
         for i in range(n_ev)
@@ -532,7 +530,7 @@ def simulate(
     used = []
     if reductions and all(s.law.is_constant for s in strips):
         used.append("closed_form_wrench")
-    if method == "accurate" and counters[5] > 0:
+    if method == "accurate" and counters[N_JUMPS] > 0:
         used.append("closed_form_stick")
     if not rotation:
         used.append("no_rotation")
@@ -549,15 +547,15 @@ def simulate(
         status=int(status),
         message=STATUS_MESSAGES[int(status)]
         + (
-            f" (the trajectory holds the first {max_points - 1} of {int(counters[3])} records"
+            f" (the trajectory holds the first {max_points - 1} of {int(counters[N_OUT])} records"
             " and the last: raise simulate's max_points for all)"
-            if counters[3] > max_points
+            if counters[N_OUT] > max_points
             else ""
         ),
         method=method,
-        n_steps=int(counters[0]),
-        n_rhs=int(counters[1]),
-        n_rejected=int(counters[2]),
+        n_steps=int(counters[N_STEPS]),
+        n_rhs=int(counters[N_RHS]),
+        n_rejected=int(counters[N_REJECTED]),
         wall_s=wall,
         reductions=used,
         surfaces=velocities,

@@ -64,11 +64,9 @@ GAUGE_CARRY = 7
 
 
 @borrowing
-def _dissipation_gradient(state, strips, parcel, nodes, weights, surf, rho, z0, z1, z2, clip, out):
+def _dissipation_gradient(state, contact, surf, rho, z0, z1, z2, clip, out):
     """∇D at the generalized twist (z0, z1, z2) = (ẋ, ẏ, ρφ̇) relative to ``surf``; returns D."""
-    fx, fy, ft = static_surface_wrench(
-        state, strips, parcel, nodes, weights, surf, z0, z1, z2 / rho, clip
-    )
+    fx, fy, ft = static_surface_wrench(state, contact, surf, z0, z1, z2 / rho, clip)
     # the friction wrench is -∇D; D = ξ·∇D by Euler's relation (D is 1-homogeneous)
     out[0] = -fx
     out[1] = -fy
@@ -77,7 +75,7 @@ def _dissipation_gradient(state, strips, parcel, nodes, weights, surf, rho, z0, 
 
 
 @njit(cache=True)
-def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi, clip):
+def limit_gauge(state, contact, surf, wx, wy, wt, xi, clip):
     """
     Gauge of the wrench (wx, wy, wt) in the limit set of ``surf``'s patch: <= 1 iff it holds.
 
@@ -100,6 +98,7 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi, cli
 
     Returns γ (0 for W = 0; inf when the patch supplies no friction at all).
     """
+    parcel = contact.parcel
     mass = parcel[P_MASS]
     rho = math.sqrt(parcel[P_INERTIA] / mass)
     w = np.array([wx, wy, wt / rho])
@@ -140,9 +139,7 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi, cli
     g = np.empty(3)
     gp = np.empty(3)
     zt = np.empty(3)
-    d = _dissipation_gradient(
-        state, strips, parcel, nodes, weights, surf, rho, z[0], z[1], z[2], clip, g
-    )
+    d = _dissipation_gradient(state, contact, surf, rho, z[0], z[1], z[2], clip, g)
     if not d > 0.0:
         return math.inf
     carry = xi.shape[0] >= GAUGE_CARRY
@@ -177,9 +174,7 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi, cli
             for i in range(3):
                 dirn = p[i] if j == 0 else q[i]
                 zt[i] = z[i] + hstep * dirn
-            _dissipation_gradient(
-                state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], clip, gp
-            )
+            _dissipation_gradient(state, contact, surf, rho, zt[0], zt[1], zt[2], clip, gp)
             c0 = ((gp[0] - g[0]) * p[0] + (gp[1] - g[1]) * p[1] + (gp[2] - g[2]) * p[2]) / hstep
             c1 = ((gp[0] - g[0]) * q[0] + (gp[1] - g[1]) * q[1] + (gp[2] - g[2]) * q[2]) / hstep
             if j == 0:
@@ -215,9 +210,7 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi, cli
         for _ls in range(40):
             for i in range(3):
                 zt[i] = z[i] + step * (s0 * p[i] + s1 * q[i])
-            dt_ = _dissipation_gradient(
-                state, strips, parcel, nodes, weights, surf, rho, zt[0], zt[1], zt[2], clip, gp
-            )
+            dt_ = _dissipation_gradient(state, contact, surf, rho, zt[0], zt[1], zt[2], clip, gp)
             if dt_ <= d + 1e-4 * step * slope:
                 break
             step *= 0.5
@@ -238,7 +231,7 @@ def limit_gauge(state, strips, parcel, nodes, weights, surf, wx, wy, wt, xi, cli
 
 
 @njit(cache=True)
-def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf, xi):
+def stick_margin(state, contact, nsurf, surf, xi):
     """
     Break-away margin of sticking to ``surf`` at this pose (> 0: the stick breaks).
 
@@ -251,22 +244,23 @@ def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf, xi):
     |T| <= T_max separately, in force units. ``xi`` (3, or GAUGE_CARRY to carry its
     Newton metric too): the gauge's warm start.
     """
+    strips, parcel = contact.strips, contact.parcel
     # a pull equal to the capacity within STICK_RTOL holds: at an exact balance (the
     # disks carrying half the load at the belt's μ, a stroke of 0.5) rounding would
     # otherwise break the stick and make it again at every step, without end
     if parcel[P_ROTATION] > 0.5 and parcel[P_STICK] > 0.5:
         clip = clip_scratch()
-        fx, fy, t = kinetic_wrench(state, strips, parcel, nodes, weights, surf, clip)
+        fx, fy, t = kinetic_wrench(state, contact, surf, clip)
         a = surface_area(state, strips, parcel, surf, clip)
         if a <= 0.0:
             return (math.inf if fx != 0.0 or fy != 0.0 or t != 0.0 else 0.0), 0.0, fx, fy, t
-        gamma = limit_gauge(state, strips, parcel, nodes, weights, surf, fx, fy, t, xi, clip)
+        gamma = limit_gauge(state, contact, surf, fx, fy, t, xi, clip)
         return gamma - (1.0 + STICK_RTOL), a, fx, fy, t
     kin = np.empty((nsurf, 3))
     stat = np.empty((nsurf, 2))
     area = np.empty(nsurf)
     slip = np.empty(nsurf)
-    evaluate_surfaces(state, strips, parcel, nodes, weights, surf, True, kin, stat, area, slip)
+    evaluate_surfaces(state, contact, surf, True, kin, stat, area, slip)
     fx = 0.0
     fy = 0.0
     t = 0.0
@@ -282,7 +276,7 @@ def stick_margin(state, strips, parcel, nodes, weights, nsurf, surf, xi):
 
 
 @njit(cache=True)
-def _margin_at(tt, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi):
+def _margin_at(tt, y0x, y0y, t0, vsx, vsy, ys, contact, nsurf, surf, xi):
     """
     Stick margin and contact area on ``surf`` at time tt of a parcel carried from t0.
 
@@ -291,7 +285,7 @@ def _margin_at(tt, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, n
     """
     ys[0] = y0x + vsx * (tt - t0)
     ys[1] = y0y + vsy * (tt - t0)
-    m, a, _, _, _ = stick_margin(ys, strips, parcel, nodes, weights, nsurf, surf, xi)
+    m, a, _, _, _ = stick_margin(ys, contact, nsurf, surf, xi)
     return m, a
 
 
@@ -306,10 +300,7 @@ def _break_time(
     vsx,
     vsy,
     ys,
-    strips,
-    parcel,
-    nodes,
-    weights,
+    contact,
     nsurf,
     surf,
     xi,
@@ -323,9 +314,7 @@ def _break_time(
     carried pose, so ~8 gauges locate the break where bisection takes ~45. Returns a
     time on the breaking side (margin > 0), within the tolerance of the root.
     """
-    fpre, _ = _margin_at(
-        lo, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi
-    )
+    fpre, _ = _margin_at(lo, y0x, y0y, t0, vsx, vsy, ys, contact, nsurf, surf, xi)
     counters[0] += 1
     if fpre > 0.0:
         return lo  # broken at the scan's first point already (round-off)
@@ -376,9 +365,7 @@ def _break_time(
         xpre = xcur
         fpre = fcur
         xcur += scur if abs(scur) > delta else (delta if sbis > 0.0 else -delta)
-        fcur, _ = _margin_at(
-            xcur, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi
-        )
+        fcur, _ = _margin_at(xcur, y0x, y0y, t0, vsx, vsy, ys, contact, nsurf, surf, xi)
         counters[0] += 1
     # the breaking side of the final bracket, within the tolerance of the root
     return xcur if fcur > 0.0 else xblk
@@ -391,10 +378,7 @@ def _stick_advance(
     t,
     t_end,
     y_target,
-    strips,
-    parcel,
-    nodes,
-    weights,
+    contact,
     nsurf,
     borders,
     reductions,
@@ -410,6 +394,7 @@ def _stick_advance(
     gauge's twist and Newton metric, carried along the stick from scan to scan (a warm
     start; zero: none).
     """
+    strips, parcel = contact.strips, contact.parcel
     vsx, vsy = surface_velocity(strips, surf)
     y[3] = vsx
     y[4] = vsy
@@ -425,7 +410,7 @@ def _stick_advance(
     if speed == 0.0:
         # a stopped surface holds the parcel for good (only the other surfaces could
         # move it, and they are checked at the start)
-        m, a, _, _, _ = stick_margin(y, strips, parcel, nodes, weights, nsurf, surf, xi)
+        m, a, _, _, _ = stick_margin(y, contact, nsurf, surf, xi)
         counters[0] += 1
         if m > 0.0:
             return t, 2
@@ -464,16 +449,14 @@ def _stick_advance(
             # search below takes the gauge's values)
             ys[0] = y0x + vsx * (t_next - t0)
             ys[1] = y0y + vsy * (t_next - t0)
-            fx, fy, tq = kinetic_wrench(ys, strips, parcel, nodes, weights, surf, clip)
+            fx, fy, tq = kinetic_wrench(ys, contact, surf, clip)
             counters[0] += 1
             if inside_limit_set(ys, strips, parcel, surf, fx, fy, tq):
                 t = t_next
                 y[0] = ys[0]
                 y[1] = ys[1]
                 continue
-        m, a = _margin_at(
-            t_next, y0x, y0y, t0, vsx, vsy, ys, strips, parcel, nodes, weights, nsurf, surf, xi
-        )
+        m, a = _margin_at(t_next, y0x, y0y, t0, vsx, vsy, ys, contact, nsurf, surf, xi)
         counters[0] += 1
         if m > 0.0 or a <= 0.0:
             if a <= 0.0:
@@ -505,10 +488,7 @@ def _stick_advance(
                     vsx,
                     vsy,
                     ys,
-                    strips,
-                    parcel,
-                    nodes,
-                    weights,
+                    contact,
                     nsurf,
                     surf,
                     xi,

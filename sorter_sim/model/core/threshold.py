@@ -18,6 +18,11 @@ from sorter_sim.model.core.common import (
     EV_BREAK,
     EV_STICK,
     EV_TARGET,
+    N_EVENTS,
+    N_OUT,
+    N_REJECTED,
+    N_RHS,
+    N_STEPS,
     ST_END,
     ST_MAX_STEPS,
     ST_NONFINITE,
@@ -33,7 +38,7 @@ from sorter_sim.model.core.wrench import evaluate_surfaces
 
 # ---------------------------------------------------------------- the seed's threshold model
 @njit(cache=True)
-def rhs_threshold(state, strips, parcel, nodes, weights, nsurf, v_min, out, modes_out):
+def rhs_threshold(state, contact, nsurf, v_min, out, modes_out):
     """
     Eqs. 4.1/4.2/4.4: kinetic where a surface slips faster than v_min, else static.
 
@@ -41,11 +46,12 @@ def rhs_threshold(state, strips, parcel, nodes, weights, nsurf, v_min, out, mode
     (middle rows of eqs. 4.2 and 4.4); its own kinetic wrench is not applied.
     modes_out[s] = 1 where surface s is static in force.
     """
+    parcel = contact.parcel
     kin = np.empty((nsurf, 3))
     stat = np.empty((nsurf, 2))
     area = np.empty(nsurf)
     slip = np.empty(nsurf)
-    evaluate_surfaces(state, strips, parcel, nodes, weights, -2, True, kin, stat, area, slip)
+    evaluate_surfaces(state, contact, -2, True, kin, stat, area, slip)
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     om_min = v_min / rho
     rot = parcel[P_ROTATION] > 0.5
@@ -95,19 +101,16 @@ def run_threshold(
     t0,
     t_end,
     y_target,
-    strips,
-    parcel,
-    nodes,
-    weights,
+    contact,
     h,
     v_min,
-    ts,
-    ys,
-    ms,
+    trail,
     ev,
     counters,
 ):
     """Classic RK4 at a fixed step on the seed's threshold model."""
+    ts = trail.ts
+    strips = contact.strips
     nsurf = n_surf_of(strips)
     y = y0.copy()
     k1 = np.empty(6)
@@ -120,7 +123,7 @@ def run_threshold(
     t = t0
     mode_code = 0 if mode0 < 0 else (1 << mode0)
     rec_mode = mode0
-    n_out = _record(ts, ys, ms, 0, t, y, mode0)
+    n_out = _record(trail, 0, t, y, mode0)
     n_ev = 0
     n_steps = 0
     status = ST_END
@@ -128,19 +131,19 @@ def run_threshold(
     for i_step in range(n_total):
         t_next = t_end if i_step == n_total - 1 else t0 + (i_step + 1) * h
         hh = t_next - t
-        rhs_threshold(y, strips, parcel, nodes, weights, nsurf, v_min, k1, mo)
+        rhs_threshold(y, contact, nsurf, v_min, k1, mo)
         code = 0
         for s in range(nsurf):
             code += mo[s] << s
         for j in range(6):
             yt[j] = y[j] + 0.5 * hh * k1[j]
-        rhs_threshold(yt, strips, parcel, nodes, weights, nsurf, v_min, k2, mo)
+        rhs_threshold(yt, contact, nsurf, v_min, k2, mo)
         for j in range(6):
             yt[j] = y[j] + 0.5 * hh * k2[j]
-        rhs_threshold(yt, strips, parcel, nodes, weights, nsurf, v_min, k3, mo)
+        rhs_threshold(yt, contact, nsurf, v_min, k3, mo)
         for j in range(6):
             yt[j] = y[j] + hh * k3[j]
-        rhs_threshold(yt, strips, parcel, nodes, weights, nsurf, v_min, k4, mo)
+        rhs_threshold(yt, contact, nsurf, v_min, k4, mo)
         for j in range(6):
             y_new[j] = y[j] + hh / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
         n_steps += 1
@@ -156,7 +159,7 @@ def run_threshold(
             status = ST_NONFINITE
             break
         t, crossed = _take_fixed_step(y, y_new, t, t_next, y_target)
-        n_out = _record(ts, ys, ms, n_out, t, y, rec_mode)
+        n_out = _record(trail, n_out, t, y, rec_mode)
         if crossed:
             n_ev = _log_event(ev, n_ev, t, EV_TARGET, -1)
             status = ST_TARGET
@@ -164,9 +167,9 @@ def run_threshold(
         if n_out >= ts.shape[0]:
             status = ST_MAX_STEPS
             break
-    counters[0] = n_steps
-    counters[1] = 4 * n_steps
-    counters[2] = 0
-    counters[3] = n_out
-    counters[4] = n_ev
+    counters[N_STEPS] = n_steps
+    counters[N_RHS] = 4 * n_steps
+    counters[N_REJECTED] = 0
+    counters[N_OUT] = n_out
+    counters[N_EVENTS] = n_ev
     return status, t, MODE_SLIDE

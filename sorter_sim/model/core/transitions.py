@@ -36,23 +36,13 @@ def _break_away(
     y,
     t,
     t_end,
-    y_target,
-    strips,
-    parcel,
-    nodes,
-    weights,
-    nsurf,
+    slide,
     surf,
     s0,
     s_floor,
-    rtol,
-    atol,
-    borders,
     counters,
     rec,
-    ts,
-    ys,
-    ms,
+    trail,
 ):
     """
     Leave a stick to ``surf`` (s0 = 0), or continue a small slip s0 on it; returns the time.
@@ -65,6 +55,8 @@ def _break_away(
     1e-8) it goes on exactly in ln s (``_approach`` with ``grow``), until the full model
     can take over.
     """
+    contact = slide.contact
+    strips, parcel = contact.strips, contact.parcel
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
     vsx, vsy = surface_velocity(strips, surf)
@@ -77,18 +69,10 @@ def _break_away(
         y,
         t,
         t_end,
-        y_target,
-        strips,
-        parcel,
-        nodes,
-        weights,
-        nsurf,
+        slide,
         surf,
         s0,
         z,
-        rtol,
-        atol,
-        borders,
         counters,
         True,
         s_floor,
@@ -98,22 +82,12 @@ def _break_away(
             y,
             t,
             t_end,
-            y_target,
-            strips,
-            parcel,
-            nodes,
-            weights,
-            nsurf,
+            slide,
             surf,
             0.0,
-            rtol,
-            atol,
-            borders,
             counters,
             rec,
-            ts,
-            ys,
-            ms,
+            trail,
             True,
         )
         t = t_new
@@ -144,7 +118,7 @@ def _approach_state(u, s, vsx, vsy, parcel, out):
 
 
 @borrowing
-def _approach_rhs(u, s, sgn, strips, parcel, nodes, weights, clip, vsx, vsy, yv, acc, out):
+def _approach_rhs(u, s, sgn, contact, clip, vsx, vsy, yv, acc, out):
     """
     Right-hand side of a slip on one surface in τ = sgn ln(s / s_e).
 
@@ -155,10 +129,11 @@ def _approach_rhs(u, s, sgn, strips, parcel, nodes, weights, clip, vsx, vsy, yv,
     velocity times that, and dd/dτ = (a - r d̂) / q: the direction's turning, which in
     t runs at a rate ~F/(m s), is O(1) per unit of τ. Returns r.
     """
+    parcel = contact.parcel
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
     d0, d1, d2 = _approach_state(u, s, vsx, vsy, parcel, yv)
-    rhs_slide(yv, strips, parcel, nodes, weights, clip, acc)
+    rhs_slide(yv, contact, clip, acc)
     a2 = rho * acc[5] if rot else 0.0
     r = d0 * acc[3] + d1 * acc[4] + d2 * a2
     q = sgn * r
@@ -186,9 +161,9 @@ def _approach_stage(un, c, h, ctx, out):
     The stage's slip is s_e e^(sgn (τ + c h)): the step runs in τ, and the slip is
     its known function.
     """
-    s_e, sgn, tau, strips, parcel, nodes, weights, clip, vsx, vsy, yv, acc = ctx
+    s_e, sgn, tau, contact, clip, vsx, vsy, yv, acc = ctx
     s = s_e * math.exp(sgn * (tau + c * h))
-    ri = _approach_rhs(un, s, sgn, strips, parcel, nodes, weights, clip, vsx, vsy, yv, acc, out)
+    ri = _approach_rhs(un, s, sgn, contact, clip, vsx, vsy, yv, acc, out)
     return sgn * ri > 0.0
 
 
@@ -201,22 +176,12 @@ def _approach(
     y,
     t,
     t_end,
-    y_target,
-    strips,
-    parcel,
-    nodes,
-    weights,
-    nsurf,
+    slide,
     surf,
     s_end,
-    rtol,
-    atol,
-    borders,
     counters,
     rec,
-    ts,
-    ys,
-    ms,
+    trail,
     grow,
 ):
     """
@@ -241,6 +206,14 @@ def _approach(
     counters[0] += right-hand-side evaluations; every accepted step is recorded
     (``_record``, sliding) into ts/ys/ms from rec[0] on, rec[0] the count.
     """
+    y_target, contact, borders, rtol, atol = (
+        slide.y_target,
+        slide.contact,
+        slide.borders,
+        slide.rtol,
+        slide.atol,
+    )
+    strips, parcel = contact.strips, contact.parcel
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
     vsx, vsy = surface_velocity(strips, surf)
@@ -263,7 +236,7 @@ def _approach(
     tau_end = math.inf if grow else (math.log(s_e / s_end) if s_end < s_e else 0.0)
     tau = 0.0
     sgn = 1.0 if grow else -1.0
-    r = _approach_rhs(u, s_e, sgn, strips, parcel, nodes, weights, clip, vsx, vsy, yv, acc, K[0])
+    r = _approach_rhs(u, s_e, sgn, contact, clip, vsx, vsy, yv, acc, K[0])
     counters[0] += 1
     r_min = (0.25 if grow else 0.05) * abs(r)
     reason = 2 if grow else 0
@@ -275,7 +248,7 @@ def _approach(
         if tau >= tau_end:
             break
         h = min(h, tau_end - tau)
-        stage = (s_e, sgn, tau, strips, parcel, nodes, weights, clip, vsx, vsy, yv, acc)
+        stage = (s_e, sgn, tau, contact, clip, vsx, vsy, yv, acc)
         ok = _approach_step(u, h, K, stage, un, err)
         counters[0] += 6
         en = error_norm(err, u, un, rtol, atol, atol_scale, rtol_ref)
@@ -305,10 +278,7 @@ def _approach(
             u,
             s_e * math.exp(sgn * tau),
             sgn,
-            strips,
-            parcel,
-            nodes,
-            weights,
+            contact,
             clip,
             vsx,
             vsy,
@@ -317,7 +287,7 @@ def _approach(
             K[0],
         )
         counters[0] += 1
-        rec[0] = _record(ts, ys, ms, rec[0], u[3], yv, MODE_SLIDE)
+        rec[0] = _record(trail, rec[0], u[3], yv, MODE_SLIDE)
         h *= step_factor(en)
     t = u[3]
     s = s_e * math.exp(sgn * tau)
@@ -346,22 +316,12 @@ def _small_slip(
     y,
     t,
     t_end,
-    y_target,
-    strips,
-    parcel,
-    nodes,
-    weights,
-    nsurf,
+    slide,
     s_check,
     s_stiff,
-    rtol,
-    atol,
-    borders,
     counters,
     rec,
-    ts,
-    ys,
-    ms,
+    trail,
 ):
     """
     Settle a surface whose slip is small: stick to it, or carry the slip on its layer.
@@ -385,6 +345,8 @@ def _small_slip(
     Returns (t, surf, stuck): the new time, the surface acted on (-1 none) and
     whether the parcel now sticks to it (``y`` then carries the stuck motion).
     """
+    contact, nsurf = slide.contact, slide.nsurf
+    strips, parcel = contact.strips, contact.parcel
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     rot = parcel[P_ROTATION] > 0.5
     area = np.empty(nsurf)
@@ -404,7 +366,7 @@ def _small_slip(
         stuck[4] = vsy
         stuck[5] = 0.0
         if n < s_check:
-            m, _, _, _, _ = stick_margin(stuck, strips, parcel, nodes, weights, nsurf, s, xi)
+            m, _, _, _, _ = stick_margin(stuck, contact, nsurf, s, xi)
             counters[0] += 1
             if m <= 0.0:
                 for j in range(6):
@@ -416,22 +378,12 @@ def _small_slip(
                 yl,
                 t,
                 t_end,
-                y_target,
-                strips,
-                parcel,
-                nodes,
-                weights,
-                nsurf,
+                slide,
                 s,
                 s_check,
-                rtol,
-                atol,
-                borders,
                 counters,
                 rec,
-                ts,
-                ys,
-                ms,
+                trail,
                 False,
             )
             if reason != 0:
@@ -447,23 +399,13 @@ def _small_slip(
                 yl,
                 t,
                 t_end,
-                y_target,
-                strips,
-                parcel,
-                nodes,
-                weights,
-                nsurf,
+                slide,
                 s,
                 n,
                 s_check,
-                rtol,
-                atol,
-                borders,
                 counters,
                 rec,
-                ts,
-                ys,
-                ms,
+                trail,
             )
             if not t_new > t:
                 continue
@@ -472,7 +414,7 @@ def _small_slip(
             y[j] = yl[j]
         if at_zero:
             # the slip reached zero: the limit set decides, stick or break away from there
-            m, _, _, _, _ = stick_margin(y, strips, parcel, nodes, weights, nsurf, s, xi)
+            m, _, _, _, _ = stick_margin(y, contact, nsurf, s, xi)
             counters[0] += 1
             if m <= 0.0:
                 return t_new, s, True
@@ -480,23 +422,13 @@ def _small_slip(
                 y,
                 t_new,
                 t_end,
-                y_target,
-                strips,
-                parcel,
-                nodes,
-                weights,
-                nsurf,
+                slide,
                 s,
                 0.0,
                 s_check,
-                rtol,
-                atol,
-                borders,
                 counters,
                 rec,
-                ts,
-                ys,
-                ms,
+                trail,
             )
         return t_new, s, False
     return t, -1, False

@@ -33,8 +33,6 @@ import math
 import numpy as np
 from numba import njit
 
-from sorter_sim.model.core.jit import borrowing
-
 from sorter_sim.model.core.friction import (
     law_is_constant,
     law_smooth_reach,
@@ -49,6 +47,7 @@ from sorter_sim.model.core.geometry import (
     max_radius,
     polygon_area_centroid,
 )
+from sorter_sim.model.core.jit import borrowing
 from sorter_sim.model.core.layout import (
     P_CLOSED,
     P_GRAV,
@@ -435,13 +434,14 @@ def strip_part_wrench(
 
 
 @borrowing
-def kinetic_wrench(state, strips, parcel, nodes, weights, skip, clip):
+def kinetic_wrench(state, contact, skip, clip):
     """
     Total kinetic friction wrench (Fx, Fy, T about g) on the parcel in ``state``.
 
     Every surface but ``skip`` (-1 or less: none) at the law's μ(|u|); the sum of
     ``evaluate_surfaces``' kinetic rows, without its per-surface bookkeeping.
     """
+    strips, parcel, nodes, weights = contact
     x = state[0]
     y = state[1]
     om = state[5]
@@ -484,9 +484,7 @@ def kinetic_wrench(state, strips, parcel, nodes, weights, skip, clip):
 
 
 @njit(cache=True)
-def evaluate_surfaces(
-    state, strips, parcel, nodes, weights, skip_kinetic, need_static, kin, stat, area, slip_c
-):
+def evaluate_surfaces(state, contact, skip_kinetic, need_static, kin, stat, area, slip_c):
     """
     Per-surface kinetic wrench, static limits, contact area and centroid slip speed.
 
@@ -500,6 +498,7 @@ def evaluate_surfaces(
                   (the zone speed the threshold model compares with v_min).
     Strips the footprint does not reach cost one clip and nothing else.
     """
+    strips, parcel, nodes, weights = contact
     x = state[0]
     y = state[1]
     vx = state[3]
@@ -570,7 +569,7 @@ def evaluate_surfaces(
 
 
 @borrowing
-def static_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, clip):
+def static_surface_wrench(state, contact, surf, ux, uy, om, clip):
     """
     Friction wrench (Fx, Fy, T about g) of surface ``surf`` at its static coefficients.
 
@@ -582,13 +581,11 @@ def static_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, o
     is accurate, Gauss quadrature at constant μ_s elsewhere. ``clip``: a footprint
     scratch (``clip_scratch``).
     """
-    return rest_surface_wrench(
-        state, strips, parcel, nodes, weights, surf, ux, uy, om, False, clip
-    )
+    return rest_surface_wrench(state, contact, surf, ux, uy, om, False, clip)
 
 
 @borrowing
-def rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om, kinetic, clip):
+def rest_surface_wrench(state, contact, surf, ux, uy, om, kinetic, clip):
     """
     Wrench of surface ``surf`` for the twist direction (ux, uy, om), at the coefficient of rest.
 
@@ -597,6 +594,7 @@ def rest_surface_wrench(state, strips, parcel, nodes, weights, surf, ux, uy, om,
     (``kinetic`` True: the friction a patch slipping infinitely slowly with that
     twist direction feels, which a break-away starts from).
     """
+    strips, parcel, nodes, weights = contact
     x = state[0]
     y = state[1]
     p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * parcel[P_HALF_A] * parcel[P_HALF_B])
