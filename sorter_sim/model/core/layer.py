@@ -24,6 +24,7 @@ from sorter_sim.model.core.common import (
 )
 from sorter_sim.model.core.dopri import dense, error_norm, make_step, sign_change, step_factor
 from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.newton import make_plane_newton
 from sorter_sim.model.core.layout import P_INERTIA, P_MASS, P_ROTATION
 from sorter_sim.model.core.stick import limit_gauge
 from sorter_sim.model.core.wrench import (
@@ -65,6 +66,20 @@ def _others_wrench(y, contact, surf, clip):
 
 
 @njit(cache=True)
+def _negative_pull(z, ctx, g):
+    """Return -f, and -∇f in g, of ``_kinetic_pull`` at the unit slip z (a minimisation)."""
+    y, contact, surf, ox, oy, ow, rho, clip = ctx
+    f = _kinetic_pull(y, contact, surf, ox, oy, ow, rho, z, clip, g)
+    for i in range(3):
+        g[i] = -g[i]
+    return -f
+
+
+# the pull direction's maximisation on the unit sphere of slips
+_pull_newton = make_plane_newton(_negative_pull, True)
+
+
+@njit(cache=True)
 def _pull_direction(yp, contact, surf, ox, oy, ow, z, hess, clip):
     """
     Find the unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow).
@@ -76,9 +91,9 @@ def _pull_direction(yp, contact, surf, ox, oy, ow, z, hess, clip):
     direction a small slip on ``surf`` settles to (its own acceleration W_o - ∇D_k(σ̂)
     = m λ σ̂ is along it) and λ its growth rate [m/s², generalized; negative: a slip
     there decays, along σ̂, at -λ, as it approaches a stick]: a concave problem,
-    solved by Newton's method on the unit sphere (exact gradient, differenced Hessian,
-    backtracking line search). ``z`` carries a start (a zero vector: the limit set's
-    maximal-dissipation twist for W_o, else W_o's direction) and returns σ̂.
+    solved by Newton's method on the unit sphere (``newton.make_plane_newton``).
+    ``z`` carries a start (a zero vector: the limit set's maximal-dissipation twist
+    for W_o, else W_o's direction) and returns σ̂.
 
     ``hess`` (4, in/out) carries the last differenced Hessian, [k + 1 (0: none), h00,
     h01, h11] in the tangent basis built on axis k: a layer solves this at every stage
@@ -113,122 +128,11 @@ def _pull_direction(yp, contact, surf, ox, oy, ow, z, hess, clip):
         z[0] /= zn
         z[1] /= zn
     g = np.empty(3)
-    gp = np.empty(3)
-    zt = np.empty(3)
-    f = _kinetic_pull(yp, contact, surf, ox, oy, ow, rho, z, clip, g)
-    p = np.empty(3)
-    q = np.empty(3)
-    ndim = 2 if rot else 1
-    gn_last = math.inf
-    carried = False
-    for _ in range(60):
-        # a basis of the tangent plane at z (the line, without rotation)
-        k = 0
-        for i in range(1, 3):
-            if abs(z[i]) < abs(z[k]):
-                k = i
-        for i in range(3):
-            p[i] = (1.0 if i == k else 0.0) - z[k] * z[i]
-        if not rot:
-            p[0] = -z[1]
-            p[1] = z[0]
-            p[2] = 0.0
-        pn = math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
-        for i in range(3):
-            p[i] /= pn
-        q[0] = z[1] * p[2] - z[2] * p[1]
-        q[1] = z[2] * p[0] - z[0] * p[2]
-        q[2] = z[0] * p[1] - z[1] * p[0]
-        g0 = g[0] * p[0] + g[1] * p[1] + g[2] * p[2]
-        g1 = (g[0] * q[0] + g[1] * q[1] + g[2] * q[2]) if ndim == 2 else 0.0
-        radial = g[0] * z[0] + g[1] * z[1] + g[2] * z[2]  # = f, m λ at the optimum
-        gscale = math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
-        gn = math.hypot(g0, g1)
-        # converged: relative to the wrenches whose difference the gradient is (W_o and
-        # the patch's friction, each ~ norm), not to that difference, which vanishes at
-        # a balance. Their quadratures agree to ~1e-10 there (the point sets move with
-        # the pose), so below that f is flat to rounding and a line search on it could
-        # only halve its step some twenty times before giving up. f's error is second
-        # order in σ̂'s: the growth λ is exact to rounding all the same.
-        if gn <= 1e-9 * max(gscale, norm):
-            break
-        if carried and gn > 0.1 * gn_last:
-            hess[0] = 0.0  # the carried metric no longer serves: difference it anew
-        gn_last = gn
-        carried = hess[0] == k + 1.0
-        if carried:
-            h00 = hess[1]
-            h01 = hess[2]
-            h11 = hess[3]
-        else:
-            hstep = 1e-5
-            h00 = 0.0
-            h01 = 0.0
-            h10 = 0.0
-            h11 = 0.0
-            for jd in range(ndim):
-                # forward differences of the exact gradient, as in ``limit_gauge``
-                for i in range(3):
-                    zt[i] = z[i] + hstep * (p[i] if jd == 0 else q[i])
-                _kinetic_pull(yp, contact, surf, ox, oy, ow, rho, zt, clip, gp)
-                c0 = (gp[0] - g[0]) * p[0] + (gp[1] - g[1]) * p[1] + (gp[2] - g[2]) * p[2]
-                c1 = (gp[0] - g[0]) * q[0] + (gp[1] - g[1]) * q[1] + (gp[2] - g[2]) * q[2]
-                if jd == 0:
-                    h00 = c0 / hstep
-                    h10 = c1 / hstep
-                else:
-                    h01 = c0 / hstep
-                    h11 = c1 / hstep
-            h01 = 0.5 * (h01 + h10)
-            hess[0] = k + 1.0
-            hess[1] = h00
-            hess[2] = h01
-            hess[3] = h11
-        # the Riemannian Hessian of f on the sphere: the ambient one minus the radial term
-        h00 -= radial
-        h11 -= radial
-        if ndim == 1:
-            s0 = -g0 / h00 if h00 < 0.0 else g0 * 1.0 / max(gscale, 1e-300)
-            s1 = 0.0
-        else:
-            det = h00 * h11 - h01 * h01
-            if h00 < 0.0 and h11 < 0.0 and det > 0.0:
-                s0 = -(h11 * g0 - h01 * g1) / det
-                s1 = -(h00 * g1 - h01 * g0) / det
-            else:
-                s0 = g0 / max(gscale, 1e-300)
-                s1 = g1 / max(gscale, 1e-300)
-        if not carried and 0.5 * (g0 * s0 + g1 * s1) <= 1e-15 * max(gscale, norm):
-            # Newton's predicted gain is below f's rounding (some ulps of the wrenches it
-            # is the difference of): no line search can resolve the rest
-            break
-        step = 1.0
-        ft = f
-        for _ls in range(40):
-            for i in range(3):
-                zt[i] = z[i] + step * (s0 * p[i] + s1 * q[i])
-            tn = math.sqrt(zt[0] * zt[0] + zt[1] * zt[1] + zt[2] * zt[2])
-            for i in range(3):
-                zt[i] /= tn
-            ft = _kinetic_pull(yp, contact, surf, ox, oy, ow, rho, zt, clip, gp)
-            if ft >= f:
-                break
-            step *= 0.5
-        if step < 1.0 and carried:
-            hess[0] = 0.0
-        if not ft >= f:
-            if carried:
-                continue  # retry from here with a fresh Hessian
-            break
-        moved = step * math.hypot(s0, s1)
-        for i in range(3):
-            z[i] = zt[i]
-            g[i] = gp[i]
-        f = ft
-        if moved <= 1e-15:
-            break
-    # g = W_o - ∇D_k(σ̂) at the final σ̂ (accepted points only carry their gradient)
-    return f / mass, math.sqrt((g[0] - ox) ** 2 + (g[1] - oy) ** 2 + (g[2] - ow) ** 2)
+    ctx = (yp, contact, surf, ox, oy, ow, rho, clip)
+    # maximise f: minimise -f (its gradient negated), a concave problem on the sphere
+    f = -_pull_newton(z, ctx, z, not rot, norm, hess, g)
+    # ∇f = W_o - ∇D_k(σ̂) at the final σ̂: |∇D_k| is the patch's friction there
+    return f / mass, math.sqrt((-g[0] - ox) ** 2 + (-g[1] - oy) ** 2 + (-g[2] - ow) ** 2)
 
 
 @borrowing

@@ -34,6 +34,7 @@ from sorter_sim.model.core.geometry import (
     polygon_area_centroid,
 )
 from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.newton import make_plane_newton
 from sorter_sim.model.core.layout import (
     P_GRAV,
     P_HALF_A,
@@ -58,7 +59,6 @@ from sorter_sim.model.core.wrench import (
 )
 
 STICK_RTOL = 1e-13  # relative: a balance to rounding (a few ulps of the wrench sums) holds
-GAUGE_ITERATIONS = 60
 # a limit-set gauge's warm start (``limit_gauge``'s xi): its twist, then its Hessian
 GAUGE_CARRY = 7
 
@@ -75,6 +75,17 @@ def _dissipation_gradient(state, contact, surf, rho, z0, z1, z2, clip, out):
 
 
 @njit(cache=True)
+def _dissipation(z, ctx, g):
+    """D and ∇D at the generalized twist z; ctx: (state, contact, surf, rho, clip)."""
+    state, contact, surf, rho, clip = ctx
+    return _dissipation_gradient(state, contact, surf, rho, z[0], z[1], z[2], clip, g)
+
+
+# the gauge's minimisation of D on the plane W·ξ = 1
+_gauge_newton = make_plane_newton(_dissipation, False)
+
+
+@njit(cache=True)
 def limit_gauge(state, contact, surf, wx, wy, wt, xi, clip):
     """
     Gauge of the wrench (wx, wy, wt) in the limit set of ``surf``'s patch: <= 1 iff it holds.
@@ -84,8 +95,8 @@ def limit_gauge(state, contact, surf, wx, wy, wt, xi, clip):
     (``static_surface_wrench``): a convex set whose support function is D. Its gauge
     is γ(W) = max_ξ W·ξ / D(ξ) = 1 / min {D(ξ) : W·ξ = 1}, the minimum of a convex
     function on a plane. It is found by Newton's method in that plane (generalized
-    twists (ẋ, ẏ, ρφ̇)): the gradient is exact (the closed-form wrench), the 2 x 2
-    Hessian a forward difference of it, with a backtracking line search on D. At the
+    twists (ẋ, ẏ, ρφ̇), ``newton.make_plane_newton``): the gradient is exact (the
+    closed-form wrench), the Hessian a forward difference of it. At the
     minimiser ξ* the limit-surface point ∇D(ξ*) = W / γ: ξ* is the twist the patch
     slips with when the stick breaks (maximal dissipation). ``xi`` (in/out) carries
     ξ* between calls: a stick scanned along its path starts each solve next to the
@@ -99,34 +110,11 @@ def limit_gauge(state, contact, surf, wx, wy, wt, xi, clip):
     Returns γ (0 for W = 0; inf when the patch supplies no friction at all).
     """
     parcel = contact.parcel
-    mass = parcel[P_MASS]
-    rho = math.sqrt(parcel[P_INERTIA] / mass)
+    rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     w = np.array([wx, wy, wt / rho])
     w2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
     if w2 == 0.0:
         return 0.0
-    wn = math.sqrt(w2)
-    # an orthonormal basis (p, q) of the plane's directions, W⊥
-    e = np.zeros(3)
-    k = 0
-    for i in range(1, 3):
-        if abs(w[i]) < abs(w[k]):
-            k = i
-    e[k] = 1.0
-    p = np.empty(3)
-    dot = (e[0] * w[0] + e[1] * w[1] + e[2] * w[2]) / w2
-    for i in range(3):
-        p[i] = e[i] - dot * w[i]
-    pn = math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
-    for i in range(3):
-        p[i] /= pn
-    q = np.array(
-        [
-            (w[1] * p[2] - w[2] * p[1]) / wn,
-            (w[2] * p[0] - w[0] * p[2]) / wn,
-            (w[0] * p[1] - w[1] * p[0]) / wn,
-        ]
-    )
     # start: the carried twist scaled onto the plane, else W itself (W·ξ = 1 both)
     z = np.empty(3)
     wx_ = w[0] * xi[0] + w[1] * xi[1] + w[2] * xi[2]
@@ -137,92 +125,12 @@ def limit_gauge(state, contact, surf, wx, wy, wt, xi, clip):
         for i in range(3):
             z[i] = w[i] / w2
     g = np.empty(3)
-    gp = np.empty(3)
-    zt = np.empty(3)
-    d = _dissipation_gradient(state, contact, surf, rho, z[0], z[1], z[2], clip, g)
-    if not d > 0.0:
+    ctx = (state, contact, surf, rho, clip)
+    if not _dissipation(z, ctx, g) > 0.0:
         return math.inf
-    carry = xi.shape[0] >= GAUGE_CARRY
-    carried = carry and xi[3] == k + 1.0
-    gn_last = math.inf
-    step = 1.0
-    for _ in range(GAUGE_ITERATIONS):
-        # reduced gradient and Hessian in the plane
-        g0 = g[0] * p[0] + g[1] * p[1] + g[2] * p[2]
-        g1 = g[0] * q[0] + g[1] * q[1] + g[2] * q[2]
-        zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
-        gn = math.hypot(g0, g1)
-        # at the minimum the reduced gradient vanishes: ∇D ∥ W, |∇D| ~ D/|ξ|
-        if gn <= 1e-14 * d / zn:
-            break
-        if carried and (step < 1.0 or gn > 0.1 * gn_last):
-            carried = False  # the carried metric no longer converges fast: difference
-        gn_last = gn
-        h00 = 0.0
-        h01 = 0.0
-        h10 = 0.0
-        h11 = 0.0
-        if carried:
-            h00 = xi[4] / zn
-            h01 = xi[5] / zn
-            h10 = h01
-            h11 = xi[6] / zn
-        hstep = 1e-5 * zn
-        for j in range(0 if carried else 2):
-            # a forward difference of the exact gradient: the Hessian only shapes Newton's
-            # step (the minimiser is where the exact gradient vanishes), at half the cost
-            for i in range(3):
-                dirn = p[i] if j == 0 else q[i]
-                zt[i] = z[i] + hstep * dirn
-            _dissipation_gradient(state, contact, surf, rho, zt[0], zt[1], zt[2], clip, gp)
-            c0 = ((gp[0] - g[0]) * p[0] + (gp[1] - g[1]) * p[1] + (gp[2] - g[2]) * p[2]) / hstep
-            c1 = ((gp[0] - g[0]) * q[0] + (gp[1] - g[1]) * q[1] + (gp[2] - g[2]) * q[2]) / hstep
-            if j == 0:
-                h00 = c0
-                h10 = c1
-            else:
-                h01 = c0
-                h11 = c1
-        h01 = 0.5 * (h01 + h10)
-        if carry and not carried:
-            xi[3] = k + 1.0
-            xi[4] = h00 * zn
-            xi[5] = h01 * zn
-            xi[6] = h11 * zn
-            carried = True
-        det = h00 * h11 - h01 * h01
-        if h00 > 0.0 and h11 > 0.0 and det > 1e-12 * h00 * h11:
-            s0 = -(h11 * g0 - h01 * g1) / det
-            s1 = -(h00 * g1 - h01 * g0) / det
-            if -0.5 * (g0 * s0 + g1 * s1) <= 1e-15 * d:
-                # Newton's predicted decrease is below D's rounding (the gradient's
-                # quadrature is exact only to ~1e-10 of it): no line search can resolve
-                # the rest, and γ, stationary here, is exact to second order
-                break
-        else:
-            # not positive definite (rounding near a kink): a gradient step of Newton's scale
-            scale = zn * zn / d
-            s0 = -scale * g0
-            s1 = -scale * g1
-        slope = g0 * s0 + g1 * s1
-        step = 1.0
-        dt_ = d
-        for _ls in range(40):
-            for i in range(3):
-                zt[i] = z[i] + step * (s0 * p[i] + s1 * q[i])
-            dt_ = _dissipation_gradient(state, contact, surf, rho, zt[0], zt[1], zt[2], clip, gp)
-            if dt_ <= d + 1e-4 * step * slope:
-                break
-            step *= 0.5
-        if not dt_ <= d:
-            break  # no descent left at rounding level: z is the minimiser
-        moved = step * math.hypot(s0, s1)
-        for i in range(3):
-            z[i] = zt[i]
-            g[i] = gp[i]
-        d = dt_
-        if moved <= 1e-15 * zn:
-            break
+    # the metric is carried where xi has room for it, else it serves this solve only
+    metric = xi[3:GAUGE_CARRY] if xi.shape[0] >= GAUGE_CARRY else np.zeros(4)
+    d = _gauge_newton(z, ctx, w, False, 0.0, metric, g)
     zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
     for i in range(3):
         xi[i] = z[i] / zn
