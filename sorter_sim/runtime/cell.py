@@ -380,8 +380,18 @@ class Cell:
         """
         Queue a parcel from outside; it appears at induct_x as soon as there is room.
 
-        At most PENDING_INDUCTS_MAX wait: more is refused (ParamError), as a real
-        infeed refuses parcels when its accumulation conveyor is full.
+        Parameters
+        ----------
+        spec : ParcelSpec
+            Its length A, width B [m], mass [kg], skew [deg], lateral offset [m] and label.
+
+        Raises
+        ------
+        ParamError
+            A size, mass or label out of range, or PENDING_INDUCTS_MAX parcels waiting
+            already (as a real infeed refuses parcels when its accumulation conveyor is
+            full); nothing is queued then.
+
         """
         spec = check_parcel(spec, self.params.belt_width)
         if len(self._external) >= PENDING_INDUCTS_MAX:
@@ -538,10 +548,19 @@ class Cell:
 
     def advance(self, n: int = 1) -> list:
         """
-        Advance ``n`` control periods and return what happened.
+        Advance the cell ``n`` control periods.
 
-        Advance ``n`` control periods; returns what happened, in time order
-        (SensorEdge, LabelRead, Outcome).
+        Parameters
+        ----------
+        n : int
+            How many control periods.
+
+        Returns
+        -------
+        list
+            What happened, in time order: ``SensorEdge``, ``LabelRead`` and ``Outcome``
+            records.
+
         """
         if n < 0:
             raise ValueError(f'n must be >= 0, got {n}')

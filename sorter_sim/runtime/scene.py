@@ -192,7 +192,26 @@ def _check(key: str, value: Any) -> Any:
 
 
 def validate(scene: dict) -> dict:
-    """Return a complete, checked copy of ``scene`` (defaults filled in)."""
+    """
+    Return a complete, checked copy of a scene, its defaults filled in.
+
+    Parameters
+    ----------
+    scene : dict
+        A scene as read from YAML: sections ``model``, ``parcel``, ``zones``,
+        ``friction``, ``solver`` ... (``DEFAULTS`` lists every key).
+
+    Returns
+    -------
+    dict
+        The scene with every key, each checked against the cell description.
+
+    Raises
+    ------
+    SceneError
+        A key unknown or a value out of its range, naming the key and what is allowed.
+
+    """
     if not isinstance(scene, dict):
         raise SceneError(f"a scene must be a mapping of sections, got {type(scene).__name__}")
     out = copy.deepcopy(DEFAULTS)
@@ -229,7 +248,25 @@ def validate(scene: dict) -> dict:
 
 
 def load_scene(path: str | Path) -> dict:
-    """Read and validate a scene YAML file (read strictly: see ``sorter_ros.strict_yaml``)."""
+    """
+    Read and validate a scene YAML file, strictly (``sorter_ros.strict_yaml``).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    dict
+        The validated scene (``validate``).
+
+    Raises
+    ------
+    SceneError
+        The file unreadable or not a scene, in one line naming what is wrong.
+
+    """
     try:
         data = read_yaml_file(path, "scene file")
     except StrictYamlError as exc:
@@ -240,7 +277,22 @@ def load_scene(path: str | Path) -> dict:
 
 
 def apply_overrides(scene: dict, overrides: list[str]) -> dict:
-    """Apply ``section.key=value`` strings (values in YAML syntax) and re-validate."""
+    """
+    Apply ``section.key=value`` strings (values in YAML syntax) and validate again.
+
+    Parameters
+    ----------
+    scene : dict
+        A validated scene.
+    overrides : list of str
+        ``section.key=value`` each, as ``sorter run --set`` takes them.
+
+    Returns
+    -------
+    dict
+        A new validated scene; ``scene`` is not changed.
+
+    """
     raw = copy.deepcopy(scene)
     for item in overrides:
         if "=" not in item:
@@ -299,7 +351,21 @@ MAX_RECORDS = 5_000_000  # records of a scene's trajectory kept at most
 
 
 def run_scene(scene: dict) -> tuple[SimResult, dict]:
-    """Run a validated scene; returns the core result and the JSON-ready summary."""
+    """
+    Run a validated scene.
+
+    Parameters
+    ----------
+    scene : dict
+        A scene from ``validate``, ``load_scene`` or ``apply_overrides``.
+
+    Returns
+    -------
+    (SimResult, dict)
+        The core's result, and the JSON-ready summary ``sorter run --json`` prints
+        (t_scrap, x_scrap, φ at the scrap line, the stages, the capacity, the events).
+
+    """
     solver = scene["solver"]
     y0 = scene_initial_state(scene)
     s = scene["belt"]["s"]

@@ -19,7 +19,7 @@ Per parcel and period:
   integrated by the model core over the period with the strips of that period
   (α and stroke at the period's midpoint, the actuators moving at their rate).
   The default, ``accurate``, restarts the event-located Dormand-Prince method of
-  ``integrators.run_accurate`` every period: measured on the seed's Fig. 9a
+  ``accurate.run_accurate`` every period: measured on the seed's Fig. 9a
   parcel through a 1.0 m disk field (0.5 s of diversion, 1 ms periods) it costs
   about 9 us per parcel-period at rtol 1e-6 and ends 4e-11 m from a 1e-12
   reference, where one backward-Euler step per period (``implicit``, exact

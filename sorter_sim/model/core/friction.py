@@ -147,7 +147,24 @@ def _bspline_mu(params, speed):
 
 @borrowing
 def mu_kinetic(law, params, speed):
-    """Kinetic friction coefficient at rubbing speed ``speed`` > 0 [m/s]."""
+    """
+    Return the kinetic friction coefficient at a rubbing speed.
+
+    Parameters
+    ----------
+    law : int
+        The law's id (``LAW_IDS``).
+    params : ndarray
+        Its parameters (``N_LAW_PARAMS``).
+    speed : float
+        The rubbing speed [m/s], > 0.
+
+    Returns
+    -------
+    float
+        μ at that speed.
+
+    """
     s = abs(speed)
     if law == LAW_CONST2:
         return params[1]
@@ -178,7 +195,22 @@ def mu_kinetic(law, params, speed):
 
 @borrowing
 def mu_static(law, params):
-    """Limiting static coefficient μ_s: the law's value as v_o -> 0+ (eq. 3.1, F_stat)."""
+    """
+    Return the limiting static coefficient μ_s: the law's value as v_o -> 0+ (eq. 3.1).
+
+    Parameters
+    ----------
+    law : int
+        The law's id (``LAW_IDS``).
+    params : ndarray
+        Its parameters (``N_LAW_PARAMS``).
+
+    Returns
+    -------
+    float
+        μ_s, which F_stat of eq. (3.1) is.
+
+    """
     if law == LAW_CONST2:
         return params[0]
     if law == LAW_CONST1:

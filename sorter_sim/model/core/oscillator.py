@@ -143,7 +143,26 @@ def exact_phases(osc: Oscillator, t_end: float):
 
 
 def exact_solution(osc: Oscillator, t_end: float, n: int = 2001, t_eval=None) -> OscResult:
-    """Return the exact piecewise trajectory, sampled at ``t_eval`` (or n uniform points)."""
+    """
+    Return the Fig. 4 body's exact piecewise trajectory.
+
+    Parameters
+    ----------
+    osc : Oscillator
+        The body.
+    t_end : float
+        The end [s].
+    n : int
+        Uniform samples over [0, t_end], where ``t_eval`` is not given.
+    t_eval : array_like, optional
+        The times to sample at.
+
+    Returns
+    -------
+    OscResult
+        The closed-form trajectory between its phase changes, sampled.
+
+    """
     phases = exact_phases(osc, t_end)
     ts = np.linspace(0.0, t_end, n) if t_eval is None else np.asarray(t_eval, float)
     w0 = osc.omega0
@@ -432,13 +451,35 @@ def run_oscillator(
     """
     Integrate the Fig. 4 body with one of the three methods (see the module docstring).
 
-    h_max caps the accurate method's steps (a denser output; rests are still one record).
-    The fixed-step methods record every step (``max_points`` defaults to that count);
-    the accurate method records up to 2 000 000 steps by default. Records beyond
-    ``max_points`` are dropped (the run itself completes) and ``extra['truncated']``
-    says so.
-    Events: 'slip' (leaves rest) and 'stick' (comes to rest). For the threshold method
-    the event log records every change of the active row of eq. (3.1) as 'row<N>'.
+    Parameters
+    ----------
+    osc : Oscillator
+        The body, its spring and the friction it slides with.
+    t_end : float
+        The end of the run [s].
+    method : {'accurate', 'implicit', 'threshold'}
+        The method, as ``simulate``'s.
+    dt : float
+        The fixed-step methods' step [s].
+    v_min : float
+        The threshold method's threshold speed [m/s].
+    rtol, atol : float
+        The accurate method's tolerances.
+    h_max : float
+        The accurate method's longest step [s] (a denser output; rests are still one
+        record).
+    max_points : int, optional
+        Room for records: the fixed-step methods' step count by default, 2 000 000 for
+        the accurate method.
+
+    Returns
+    -------
+    OscResult
+        The trajectory and the events: 'slip' (leaves rest) and 'stick' (comes to
+        rest); for the threshold method every change of the active row of eq. (3.1), as
+        'row<N>'. Records beyond ``max_points`` are dropped (the run itself completes),
+        and ``extra['truncated']`` says so.
+
     """
     if method not in ("accurate", "implicit", "threshold"):
         raise ValueError(f"method must be one of accurate, implicit, threshold, got {method!r}")

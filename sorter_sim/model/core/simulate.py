@@ -241,10 +241,25 @@ def three_zone_strips(
     """
     Return the seed's cell (Fig. 6): belt zone a (x < 0), disks b (0..b), belt zone c (x > b).
 
-    v: belt speed [m/s]; alpha: disk angle [rad] (disk surface velocity v(cos α, sin α));
-    b: disk-field width [m], ``inf`` for the seed's b -> ∞ (zone c is then absent);
-    stroke: pop-up position 0..1, the share of the load the disks carry in zone b
-    (the belt between the disks carries the rest; 0 = disks down).
+    Parameters
+    ----------
+    v : float
+        Belt speed [m/s]; the disks turn at the same surface speed.
+    alpha : float
+        Disk angle [rad]: the disks' surface velocity is v (cos α, sin α).
+    b : float
+        Disk-field width [m]; ``inf`` for the seed's b -> ∞ (zone c is then absent).
+    law_a, law_b, law_c : FrictionLaw
+        The friction law of each zone.
+    stroke : float
+        Pop-up position 0..1: the share of the load the disks carry in zone b (the belt
+        between the disks carries the rest; 0 = disks down).
+
+    Returns
+    -------
+    list of Strip
+        The zones, upstream first.
+
     """
     _finite("belt.v", v, -10.0, 10.0)
     _finite("diverter.alpha", alpha, -math.pi / 2 - 1e-12, math.pi / 2 + 1e-12)
@@ -427,19 +442,62 @@ def simulate(
     stick: str = "exact",
 ) -> SimResult:
     """
-    Run one parcel over ``strips`` from state ``y0`` over ``t_span`` = (t0, t_end).
+    Run one parcel over ``strips`` from state ``y0`` over ``t_span``.
 
-    method: 'accurate' (rtol/atol), 'implicit' (dt) or 'threshold' (dt, v_min).
-    y_target: stop when the centre of gravity reaches y = y_target [m] (scrap line).
-    reductions: False forces quadrature for constant-μ strips and stepping through
-    sticks on a single surface, i.e. the full model, for checking the reductions.
-    h_max: the accurate method's longest step [s], a net under its error estimate
-    (which at two or three steps a cycle of an oscillation is no longer to be trusted);
-    0.05 s held Fig. 13's 20 s slide to 400 steps whatever the tolerance.
-    stick: 'exact' (a stick holds while the wrench the stuck surface must supply is in
-    its patch's limit set) or 'seed' (the paper's decoupled |F| <= F_max, |T| <= T_max);
-    it decides the accurate and the implicit method's sticks (the threshold method is
-    the seed's model, decoupled by construction).
+    Parameters
+    ----------
+    parcel : Parcel
+        The box: its length A, width B and mass.
+    strips : list of Strip
+        The bands of the conveyor plane it slides on (``three_zone_strips`` for the
+        seed's cell), each with its surface velocity and friction law.
+    y0 : array_like, shape (6,)
+        The start: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+    t_span : (float, float)
+        (t0, t_end) [s].
+    method : {'accurate', 'implicit', 'threshold'}
+        'accurate': event-located Dormand-Prince 5(4) under ``rtol``/``atol``;
+        'implicit': backward Euler in velocity at the step ``dt``; 'threshold': the
+        seed's model with the threshold speed ``v_min``, RK4 at ``dt``.
+    rtol, atol : float
+        The accurate method's tolerances.
+    dt : float
+        The fixed-step methods' step [s].
+    v_min : float
+        The threshold method's threshold speed [m/s] (eq. 3.1).
+    y_target : float
+        Stop when the centre of gravity reaches y = y_target [m] (the scrap line).
+    rotation : bool
+        The moment of friction forces on (the seed's full model) or off (Fig. 7 line 2).
+    reductions : bool
+        False forces quadrature for constant-μ strips and stepping through sticks on a
+        single surface: the full model, for checking the reductions.
+    n_quad : int
+        Gauss points per direction of the footprint's quadrature.
+    h_max : float
+        The accurate method's longest step [s], a net under its error estimate (which
+        at two or three steps a cycle of an oscillation is no longer to be trusted).
+    max_points : int
+        Room for the trajectory's records.
+    g : float
+        Gravity [m/s²].
+    stick : {'exact', 'seed'}
+        'exact': a stick holds while the wrench the stuck surface must supply is in its
+        patch's limit set; 'seed': the paper's decoupled |F| <= F_max, |T| <= T_max. It
+        decides the accurate and the implicit method's sticks (the threshold method is
+        the seed's model, decoupled by construction).
+
+    Returns
+    -------
+    SimResult
+        The trajectory (t, y, modes), the events (stick, break, zone, scrap), the
+        counters and the status; ``t_target`` is when the scrap line was reached.
+
+    Raises
+    ------
+    ValueError
+        An argument out of its range, naming it and what is allowed.
+
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
