@@ -20,6 +20,7 @@ import pytest
 from sorter_sim.model.core.oscillator import Oscillator
 from sorter_sim.model.core.simulate import three_zone_strips
 from sorter_sim.studies import stiff_cases as sx
+from sorter_sim.studies.reductions import reductions
 from sorter_sim.studies.scipy_baseline import ScipyParcel, oscillator_scipy
 from sorter_sim.studies.workprecision import (
     ParcelCase,
@@ -289,7 +290,7 @@ def test_ten_minutes_of_two_belt_positioning(label, method):
 
 @pytest.mark.slow
 def test_reductions_agree_with_the_full_model():
-    rows = sx.reductions(repeats=2)
+    rows = reductions(repeats=2)
     bad = [f"{r.reduction} on {r.scene}: {r.diff_grid:.1e} m" for r in rows if not r.agrees]
     assert not bad, bad
 

@@ -41,6 +41,7 @@ from sorter_sim.studies.precision_report import (
     _scipy_rows,
 )
 from sorter_sim.studies.progress import progress_bar
+from sorter_sim.studies.reductions import reductions
 from sorter_sim.studies.scipy_baseline import ScipyParcel, oscillator_scipy
 from sorter_sim.studies.workprecision import (
     ParcelCase,
@@ -730,7 +731,7 @@ def write_precision_report(
             done("long")
         if "reductions" in parts:
             log("reductions")
-            red_rows = sx.reductions(repeats=2 if quick else 7)
+            red_rows = reductions(repeats=2 if quick else 7)
             done("reductions")
         if "quadrature" in parts:
             log("implicit method: quadrature order")
