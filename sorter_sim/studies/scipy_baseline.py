@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from sorter_sim.model.core.common import rhs_slide
 from sorter_sim.model.core.layout import Contact
@@ -32,6 +33,19 @@ from sorter_sim.studies.workprecision import ParcelCase, Trajectory, _after_star
 
 class BudgetExceeded(RuntimeError):
     """A scipy run used more right-hand-side evaluations than it was allowed."""
+
+
+# The baseline calls the core's right-hand sides through these: numba's dispatch of a
+# named tuple from Python costs about a microsecond a call more than of its arrays, which
+# the baseline, calling once per evaluation, would otherwise pay and the core does not.
+@njit(cache=True)
+def _rhs_slide(y, strips, parcel, nodes, weights, clip, out):
+    rhs_slide(y, Contact(strips, parcel, nodes, weights), clip, out)
+
+
+@njit(cache=True)
+def _rhs_threshold(y, strips, parcel, nodes, weights, nsurf, v_min, out, modes):
+    rhs_threshold(y, Contact(strips, parcel, nodes, weights), nsurf, v_min, out, modes)
 
 
 class ScipyParcel:
@@ -76,11 +90,8 @@ class ScipyParcel:
         if self.n_rhs > self.max_rhs:
             raise BudgetExceeded(f"more than {self.max_rhs:.0f} right-hand-side evaluations")
         out = np.empty(6)
-        rhs_slide(
-            np.asarray(y, float),
-            Contact(self.arr, self.par, self.nodes, self.weights),
-            self._clip,
-            out,
+        _rhs_slide(
+            np.asarray(y, float), self.arr, self.par, self.nodes, self.weights, self._clip, out
         )
         return out
 
@@ -92,9 +103,12 @@ class ScipyParcel:
             if self.n_rhs > self.max_rhs:
                 raise BudgetExceeded(f"more than {self.max_rhs:.0f} right-hand-side evaluations")
             out = np.empty(6)
-            rhs_threshold(
+            _rhs_threshold(
                 np.asarray(y, float),
-                Contact(self.arr, self.par, self.nodes, self.weights),
+                self.arr,
+                self.par,
+                self.nodes,
+                self.weights,
                 self.nsurf,
                 v_min,
                 out,
