@@ -17,6 +17,7 @@ import pytest
 import yaml
 
 from sorter_sim.model.core import cell_kernels as ck
+from sorter_sim.model.core.cell_kernels import Motion
 from sorter_sim.model.core.simulate import (
     FrictionLaw,
     Parcel,
@@ -194,7 +195,7 @@ def test_separating_axis_overlap():
 def test_crossing_time_is_exact_for_linear_motion_and_located_for_curved():
     s0 = np.array([-0.5, 0.0, 0.0, 1.5, 0.0, 0.0])
     s1 = s0 + np.array([1.5e-3, 0, 0, 0, 0, 0])
-    tau = ck.crossing_time(ck.F_XMAX, -0.2, s0, s1, 1e-3, 0.3, 0.1)
+    tau = ck.crossing_time(ck.F_XMAX, -0.2, Motion(s0, s1, 1e-3), 0.3, 0.1)
     assert tau == pytest.approx((-0.2 - (-0.5 + 0.3)) / 1.5, abs=1e-15)
     # uniformly decelerated motion: x(t) = x0 + v t - a t²/2 is reproduced by the Hermite cubic
     a, h = 5.0, 1e-3
@@ -203,7 +204,7 @@ def test_crossing_time_is_exact_for_linear_motion_and_located_for_curved():
     s0[5] = s1[5] = 0.0
     s0b = s0.copy()
     s0b[5] = 1e-30  # force the interpolating branch
-    tau = ck.crossing_time(ck.F_XMAX, level, s0b, s1, h, 0.3, 0.1)
+    tau = ck.crossing_time(ck.F_XMAX, level, Motion(s0b, s1, h), 0.3, 0.1)
     assert tau == pytest.approx(4e-4, abs=1e-12)
 
 

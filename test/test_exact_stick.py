@@ -20,7 +20,7 @@ from regularised_reference import Scene, solve
 from sorter_sim.model.build import cell_strips, entry_state
 from sorter_sim.model.core.accurate import run_accurate
 from sorter_sim.model.core.common import EV_BREAK, N_COUNTERS, N_EVENTS, n_surf_of, rhs_slide
-from sorter_sim.model.core.layout import Contact, Slide, Trail
+from sorter_sim.model.core.layout import Contact, Log, Slide, Trail
 from sorter_sim.model.core.simulate import (
     Parcel,
     gauss_legendre_01,
@@ -430,7 +430,7 @@ def test_the_gauge_warm_start_changes_nothing_but_the_work():
             atol=1e-10,
             h_max=0.05,
         )
-        run_accurate(y0, 0, 0.0, 0.3, slide, True, Trail(ts, ys, ms), ev, counters, xi)
+        run_accurate(y0, 0, 0.0, 0.3, slide, True, Trail(ts, ys, ms), Log(ev, counters), xi)
         breaks = [e[0] for e in ev[: counters[N_EVENTS]] if e[1] == EV_BREAK]
         assert len(breaks) == 1
         return breaks[0]

@@ -17,23 +17,29 @@ from numba import njit
 from sorter_sim.model.core.newton import make_plane_newton
 
 
+# objectives allocate nothing (the solver is compiled without numba's runtime)
 @njit(cache=True)
 def _norm_a(z, ctx, g):
     (a,) = ctx
-    az = a @ z
-    v = math.sqrt(z @ az)
+    v2 = 0.0
     for i in range(3):
-        g[i] = az[i] / v
+        g[i] = a[i, 0] * z[0] + a[i, 1] * z[1] + a[i, 2] * z[2]
+        v2 += z[i] * g[i]
+    v = math.sqrt(v2)
+    for i in range(3):
+        g[i] /= v
     return v
 
 
 @njit(cache=True)
 def _quadratic(z, ctx, g):
     (b,) = ctx
-    bz = b @ z
+    v = 0.0
     for i in range(3):
-        g[i] = 2.0 * bz[i]
-    return z @ bz
+        bz = b[i, 0] * z[0] + b[i, 1] * z[1] + b[i, 2] * z[2]
+        g[i] = 2.0 * bz
+        v += z[i] * bz
+    return v
 
 
 _plane = make_plane_newton(_norm_a, False)
@@ -56,7 +62,7 @@ def test_the_minimum_of_a_norm_on_a_plane_is_its_dual_norm(seed):
     for start in (w / (w @ w), xi_star + 0.3 * np.cross(w, rng.normal(size=3))):
         z = start.copy()
         g = np.empty(3)
-        value = _plane(z, (a,), w, False, 0.0, metric, g)
+        value = _plane(z, (a,), w, False, 0.0, metric, g, np.empty((4, 3)))
         assert value == pytest.approx(1.0 / dual, rel=1e-12)
         assert w @ z == pytest.approx(1.0, rel=1e-12)  # the steps stay on the plane
         np.testing.assert_allclose(z, xi_star, rtol=0, atol=1e-7 * np.linalg.norm(xi_star))
@@ -73,11 +79,11 @@ def test_a_wrong_carried_metric_costs_iterations_not_the_answer(wrong):
     dual = math.sqrt(w @ np.linalg.solve(a, w))
     fresh = np.zeros(4)
     z = w / (w @ w)
-    _plane(z, (a,), w, False, 0.0, fresh, np.empty(3))
+    _plane(z, (a,), w, False, 0.0, fresh, np.empty(3), np.empty((4, 3)))
     for axis in (fresh[0], 1.0, 2.0, 3.0):  # its own basis, or another one's
         metric = np.array([axis, *wrong])
         z = w / (w @ w)
-        value = _plane(z, (a,), w, False, 0.0, metric, np.empty(3))
+        value = _plane(z, (a,), w, False, 0.0, metric, np.empty(3), np.empty((4, 3)))
         assert value == pytest.approx(1.0 / dual, rel=1e-12), (axis, wrong)
 
 
@@ -91,7 +97,7 @@ def test_the_minimum_of_a_quadratic_on_the_sphere_is_its_least_eigenvalue(seed):
     if z @ vec[:, 0] < 0:
         z = -z  # start in the least eigenvector's hemisphere
     g = np.empty(3)
-    value = _sphere(z, (b,), z.copy(), False, 0.0, np.zeros(4), g)
+    value = _sphere(z, (b,), z.copy(), False, 0.0, np.zeros(4), g, np.empty((4, 3)))
     assert value == pytest.approx(lam[0], rel=1e-12)
     assert np.linalg.norm(z) == pytest.approx(1.0, rel=1e-14)  # retracted onto the sphere
     assert abs(z @ vec[:, 0]) == pytest.approx(1.0, abs=1e-9)
@@ -100,7 +106,7 @@ def test_the_minimum_of_a_quadratic_on_the_sphere_is_its_least_eigenvalue(seed):
 def test_on_the_great_circle_it_stays_in_the_plane():
     b = np.diag([2.0, 0.7, 0.1])  # the least eigenvector, z, is off the circle
     z = np.array([0.6, 0.8, 0.0])
-    value = _sphere(z, (b,), z.copy(), True, 0.0, np.zeros(4), np.empty(3))
+    value = _sphere(z, (b,), z.copy(), True, 0.0, np.zeros(4), np.empty(3), np.empty((4, 3)))
     assert z[2] == 0.0
     assert value == pytest.approx(0.7, rel=1e-12)
     assert abs(z[1]) == pytest.approx(1.0, abs=1e-9)

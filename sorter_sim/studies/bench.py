@@ -740,16 +740,16 @@ def write_precision_report(
     bar.close()
     md = _report_markdown(
         cases,
-        core_text,
-        core_fig,
-        matrix_runs,
-        long_runs,
-        red_rows,
-        info,
-        quick,
-        img,
-        time.perf_counter() - t_start,
-        quad,
+        core_text=core_text,
+        core_fig=core_fig,
+        matrix_runs=matrix_runs,
+        long_runs=long_runs,
+        red_rows=red_rows,
+        info=info,
+        quick=quick,
+        img=img,
+        elapsed=time.perf_counter() - t_start,
+        quad=quad,
     )
     path = out / "accuracy.md"
     path.write_text(md)

@@ -81,6 +81,7 @@ _DEFINITIONS = """\
 
 def _report_markdown(
     cases,
+    *,
     core_text,
     core_fig,
     matrix_runs,

@@ -17,7 +17,7 @@ import numpy as np
 
 from sorter_sim.model.core.accurate import run_accurate
 from sorter_sim.model.core.common import N_COUNTERS, ST_END, ST_TARGET, n_surf_of
-from sorter_sim.model.core.layout import Contact, Slide, Trail
+from sorter_sim.model.core.layout import Contact, Log, Slide, Trail
 from sorter_sim.model.core.simulate import initial_mode, parcel_array, strip_array, strip_borders
 from sorter_sim.model.core.wrench import gauss_legendre_01
 from sorter_sim.studies.stiff_cases import const_law, sorting_case, two_belt_case
@@ -97,8 +97,7 @@ def run_accurate_flags(
         ),
         stick_jumps,
         Trail(ts, ys, ms),
-        ev,
-        counters,
+        Log(ev, counters),
         np.zeros(3),
     )
     wall = time.perf_counter() - wall

@@ -78,8 +78,7 @@ def run_accurate(
     slide,
     reductions,
     trail,
-    ev,
-    counters,
+    log,
     xi,
 ):
     """
@@ -92,6 +91,7 @@ def run_accurate(
     a parcel period by period and keeps each one's); zeros: none. The result does not
     depend on it beyond rounding.
     """
+    ev, counters = log.ev, log.counters
     y_target, contact, borders, rtol, atol, h_max = (
         slide.y_target,
         slide.contact,
@@ -164,10 +164,7 @@ def run_accurate(
                 mode,
                 t,
                 t_end,
-                y_target,
-                contact,
-                nsurf,
-                borders,
+                slide,
                 reductions,
                 stick_counters,
                 xi,

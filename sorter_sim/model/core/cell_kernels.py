@@ -72,9 +72,15 @@ from sorter_sim.model.core.layout import (
     S_XLO,
     STRIP_WIDTH,
     Contact,
+    Log,
     Slide,
     Trail,
 )
+
+# a period's motion of a parcel: its state at the start and the end, and the period
+Motion = namedtuple('Motion', ['s0', 's1', 'h'])
+# the conditions a sensor's blocked set is made of (scratch): feature kinds, levels, signs
+Conditions = namedtuple('Conditions', ['kinds', 'levels', 'signs'])
 
 # ---- configuration row (float64) ---------------------------------------------------
 C_V = 0  # belt speed v [m/s] while the belt runs
@@ -250,7 +256,8 @@ def _feature(kind, x, y, phi, half_a, half_b):
 
 
 @njit(cache=True)
-def _feature_at(kind, s0, s1, h, tau, half_a, half_b):
+def _feature_at(kind, motion, tau, half_a, half_b):
+    s0, s1, h = motion.s0, motion.s1, motion.h
     x = _hermite(s0[0], s0[3], s1[0], s1[3], h, tau)
     y = _hermite(s0[1], s0[4], s1[1], s1[4], h, tau)
     phi = _hermite(s0[2], s0[5], s1[2], s1[5], h, tau)
@@ -258,7 +265,7 @@ def _feature_at(kind, s0, s1, h, tau, half_a, half_b):
 
 
 @njit(cache=True)
-def crossing_time(kind, level, s0, s1, h, half_a, half_b):
+def crossing_time(kind, level, motion, half_a, half_b):
     """
     When in [0, h] the feature crosses ``level`` (it must be on opposite sides at the ends).
 
@@ -266,6 +273,7 @@ def crossing_time(kind, level, s0, s1, h, half_a, half_b):
     every feature linear in time, solved exactly; otherwise bisection on the cubic Hermite
     interpolant of (x, y, φ) with the velocities at both ends.
     """
+    s0, s1, h = motion.s0, motion.s1, motion.h
     f0 = _feature(kind, s0[0], s0[1], s0[2], half_a, half_b) - level
     f1 = _feature(kind, s1[0], s1[1], s1[2], half_a, half_b) - level
     if f0 == f1:
@@ -276,7 +284,7 @@ def crossing_time(kind, level, s0, s1, h, half_a, half_b):
     hi = h
     for _ in range(100):
         mid = 0.5 * (lo + hi)
-        fm = _feature_at(kind, s0, s1, h, mid, half_a, half_b) - level
+        fm = _feature_at(kind, motion, mid, half_a, half_b) - level
         if (fm > 0.0) == (f1 > 0.0):
             hi = mid
         else:
@@ -287,26 +295,27 @@ def crossing_time(kind, level, s0, s1, h, half_a, half_b):
 
 
 @njit(cache=True)
-def _condition(kinds, levels, signs, c, kind, level, sign):
+def _condition(conditions, c, kind, level, sign):
+    kinds, levels, signs = conditions.kinds, conditions.levels, conditions.signs
     kinds[c] = kind
     levels[c] = level
     signs[c] = sign
 
 
 @njit(cache=True)
-def _conditions(sensor, n_eyes, eye_x, cfg, kinds, levels, signs):
+def _conditions(sensor, n_eyes, eye_x, cfg, conditions):
     """Return the conditions that block a sensor: every sign*(feature - level) > 0."""
     if sensor < n_eyes:
         # the footprint spans the beam's x
-        _condition(kinds, levels, signs, 0, F_XMAX, eye_x[sensor], 1.0)
-        _condition(kinds, levels, signs, 1, F_XMIN, eye_x[sensor], -1.0)
+        _condition(conditions, 0, F_XMAX, eye_x[sensor], 1.0)
+        _condition(conditions, 1, F_XMIN, eye_x[sensor], -1.0)
         return 2
     # the footprint spans the entry line y = ±w/2, inside the opening's x range
     line = cfg[C_HALF_W] if sensor == n_eyes else -cfg[C_HALF_W]
-    _condition(kinds, levels, signs, 0, F_YMAX, line, 1.0)
-    _condition(kinds, levels, signs, 1, F_YMIN, line, -1.0)
-    _condition(kinds, levels, signs, 2, F_XMAX, cfg[C_OPEN_LO], 1.0)
-    _condition(kinds, levels, signs, 3, F_XMIN, cfg[C_OPEN_HI], -1.0)
+    _condition(conditions, 0, F_YMAX, line, 1.0)
+    _condition(conditions, 1, F_YMIN, line, -1.0)
+    _condition(conditions, 2, F_XMAX, cfg[C_OPEN_LO], 1.0)
+    _condition(conditions, 3, F_XMIN, cfg[C_OPEN_HI], -1.0)
     return 4
 
 
@@ -344,9 +353,7 @@ def sensor_blocked(sensor, n_eyes, eye_x, cfg, s, phase, half_a, half_b):
 
 
 @njit(cache=True)
-def _edge_time(
-    sensor, n_eyes, eye_x, cfg, s0, s1, h, half_a, half_b, rising, tau_phase, kinds, levels, signs
-):
+def _edge_time(sensor, n_eyes, eye_x, cfg, motion, half_a, half_b, rising, tau_phase, conditions):
     """
     Time of a parcel's own block/unblock of a sensor inside the period.
 
@@ -354,17 +361,19 @@ def _edge_time(
     the last condition becomes true and left when the first becomes false. A parcel leaving
     the sensor's view by changing phase (off the cell) clears it at ``tau_phase``.
     """
-    nc = _conditions(sensor, n_eyes, eye_x, cfg, kinds, levels, signs)
+    s0, s1, h = motion.s0, motion.s1, motion.h
+    kinds, levels, signs = conditions.kinds, conditions.levels, conditions.signs
+    nc = _conditions(sensor, n_eyes, eye_x, cfg, conditions)
     best = 0.0 if rising else h
     any_geo = False
     for c in range(nc):
         g0 = signs[c] * (_feature(kinds[c], s0[0], s0[1], s0[2], half_a, half_b) - levels[c]) > 0.0
         g1 = signs[c] * (_feature(kinds[c], s1[0], s1[1], s1[2], half_a, half_b) - levels[c]) > 0.0
         if rising and g1 and not g0:
-            best = max(best, crossing_time(kinds[c], levels[c], s0, s1, h, half_a, half_b))
+            best = max(best, crossing_time(kinds[c], levels[c], motion, half_a, half_b))
             any_geo = True
         elif not rising and g0 and not g1:
-            best = min(best, crossing_time(kinds[c], levels[c], s0, s1, h, half_a, half_b))
+            best = min(best, crossing_time(kinds[c], levels[c], motion, half_a, half_b))
             any_geo = True
     if not rising and tau_phase >= 0.0 and (tau_phase < best or not any_geo):
         best = tau_phase
@@ -647,8 +656,7 @@ def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
                             ),
                             True,
                             Trail(ts, ys, ms),
-                            evb,
-                            counters,
+                            Log(evb, counters),
                             gauge_xi[i],
                         )
                     else:
@@ -661,8 +669,7 @@ def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
                             Contact(strip_view, par[i], nodes, weights),
                             h,
                             Trail(ts, ys, ms),
-                            evb,
-                            counters,
+                            Log(evb, counters),
                         )
                     stats[1] += 1
                     stats[2] += counters[N_STEPS]
@@ -690,13 +697,13 @@ def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
                             hx0, _ = half_extents(s0[2], ha, hb)
                         hx1 = hx0 if s1[2] == s0[2] else half_extents(s1[2], ha, hb)[0]
                         if s1[0] + hx1 >= cfg[C_SCAN_X]:
-                            tau = crossing_time(F_XMAX, cfg[C_SCAN_X], s0, s1, h, ha, hb)
+                            tau = crossing_time(F_XMAX, cfg[C_SCAN_X], Motion(s0, s1, h), ha, hb)
                             n_ev = _emit(ev_i, ev_f, n_ev, k, EV_SCAN, i, 0, tau, s1[0], s1[1])
                             scanned[i] = True
                     # leaving: the centre of gravity crosses a chute entry line or the exit
                     if abs(s1[1]) >= half_w:
                         side = 1.0 if s1[1] > 0.0 else -1.0
-                        tau = crossing_time(F_YCOG, side * half_w, s0, s1, h, ha, hb)
+                        tau = crossing_time(F_YCOG, side * half_w, Motion(s0, s1, h), ha, hb)
                         x_at = _hermite(s0[0], s0[3], s1[0], s1[3], h, tau)
                         if cfg[C_OPEN_LO] <= x_at <= cfg[C_OPEN_HI]:
                             new_phase = PH_CHUTE_LEFT if side > 0.0 else PH_CHUTE_RIGHT
@@ -714,7 +721,7 @@ def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
                                 side * half_w,
                             )
                     elif s1[0] > cfg[C_EXIT_X]:
-                        tau = crossing_time(F_XCOG, cfg[C_EXIT_X], s0, s1, h, ha, hb)
+                        tau = crossing_time(F_XCOG, cfg[C_EXIT_X], Motion(s0, s1, h), ha, hb)
                         y_at = _hermite(s0[1], s0[4], s1[1], s1[4], h, tau)
                         new_phase = PH_FREE
                         tau_phase = tau
@@ -756,16 +763,12 @@ def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
                         n_eyes,
                         eye_x,
                         cfg,
-                        s0,
-                        s1,
-                        h,
+                        Motion(s0, s1, h),
                         ha,
                         hb,
                         b1,
                         tau_phase,
-                        kinds,
-                        levels,
-                        signs,
+                        Conditions(kinds, levels, signs),
                     )
                     tr_s[ntr] = s
                     tr_d[ntr] = 1 if b1 else -1

@@ -15,6 +15,7 @@ D = Σ_k c_k |u_k(W+)|. Positions follow with the new velocity (symplectic Euler
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -71,6 +72,12 @@ from sorter_sim.model.core.wrench import (
     dissipation_hessian,
     evaluate_surfaces,
 )
+
+# what an implicit step carries to the next: the footprint's point set, the twist guess,
+# the Newton metric, and each surface's limit-set gauge twist
+Carry = namedtuple('Carry', ['pts', 'guess', 'hess', 'xis'])
+# each surface's kinetic wrench, static limits, contact area and slip
+Loads = namedtuple('Loads', ['kin', 'stat', 'area', 'slip'])
 
 F_NOISE = 1e-13  # relative rounding of a sum of wrench-based dissipations (closed form)
 SOLVE_RATIO = 1e-2  # the implicit solve's error bound, relative to how far it moved
@@ -196,13 +203,14 @@ def _points_hessian(st, npt, pts, out):
 # inlined: a call would count references to the point set and the other arrays at every
 # evaluation, a tenth of an exact step's cost
 @njit(cache=True, inline="always")
-def _step_wrenches(exact, st, skip, need, contact, npt, pts, kin, stat, area, slip):
+def _step_wrenches(exact, st, skip, need, contact, npt, pts, loads):
     """
     Every surface's kinetic wrench at the twist in ``st`` (``skip`` left out) into ``kin``.
 
     The exact wrench (``evaluate_surfaces``; with ``need`` also the static limits and
     areas) or the step's point set (whose limits and areas come with it).
     """
+    kin, stat, area, slip = loads.kin, loads.stat, loads.area, loads.slip
     if exact:
         # (evaluate_surfaces clears the limits it is not asked for: keep them)
         lim = stat if need else np.empty((0, 2))
@@ -355,11 +363,8 @@ def implicit_step(
     contact,
     exact,
     mu_ratio,
-    pts,
-    guess,
-    hess,
+    carry,
     fresh,
-    xis,
     y_out,
 ):
     """
@@ -385,6 +390,7 @@ def implicit_step(
     GAUGE_CARRY): each surface's limit-set gauge twist and Newton metric, carried from
     step to step.
     """
+    pts, guess, hess, xis = carry.pts, carry.guess, carry.hess, carry.xis
     strips, parcel = contact.strips, contact.parcel
     m = parcel[P_MASS]
     rot = parcel[P_ROTATION] > 0.5
@@ -426,7 +432,7 @@ def implicit_step(
         if not rot:
             W[2] = 0.0
     _set_twist(st, W)
-    _step_wrenches(exact, st, mode, True, contact, npt, pts, kin, stat, area, slip)
+    _step_wrenches(exact, st, mode, True, contact, npt, pts, Loads(kin, stat, area, slip))
     n_eval = 1
     if exact:
         for s in range(nsurf):
@@ -468,10 +474,7 @@ def implicit_step(
                 contact,
                 npt,
                 pts,
-                others,
-                stat,
-                area,
-                slip,
+                Loads(others, stat, area, slip),
             )
             n_eval += 1
             src = others
@@ -512,10 +515,7 @@ def implicit_step(
                 contact,
                 npt,
                 pts,
-                kin,
-                stat,
-                area,
-                slip,
+                Loads(kin, stat, area, slip),
             )
             n_eval += 1
     # --- slide: Newton on f with a backtracking line search
@@ -579,10 +579,7 @@ def implicit_step(
                 contact,
                 npt,
                 pts,
-                kin,
-                stat,
-                area,
-                slip,
+                Loads(kin, stat, area, slip),
             )
             n_eval += 1
             ft = _implicit_objective(Wt, W0, mass, h, kin, nsurf, strips, rot, gt)
@@ -651,8 +648,9 @@ def _constant_friction(strips):
 
 
 @njit(cache=True)
-def run_implicit(y0, mode0, t0, t_end, y_target, contact, h, trail, ev, counters):
+def run_implicit(y0, mode0, t0, t_end, y_target, contact, h, trail, log):
     """Fixed-step implicit integration; the scrap line is located by linear interpolation."""
+    ev, counters = log.ev, log.counters
     ts = trail.ts
     strips, nodes = contact.strips, contact.nodes
     nsurf = n_surf_of(strips)
@@ -692,11 +690,8 @@ def run_implicit(y0, mode0, t0, t_end, y_target, contact, h, trail, ev, counters
             contact,
             exact,
             mu_ratio,
-            pts,
-            guess,
-            hess,
-            h_last == 0.0,  # the Hessian carried from a sliding step, or a fresh model
-            xis,
+            Carry(pts, guess, hess, xis),
+            h_last == 0.0,
             y_new,
         )
         h_last = hh if new_mode < 0 else 0.0

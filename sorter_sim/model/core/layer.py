@@ -12,6 +12,7 @@ method's Dormand-Prince steps to take over.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -24,8 +25,8 @@ from sorter_sim.model.core.common import (
 )
 from sorter_sim.model.core.dopri import dense, error_norm, make_step, sign_change, step_factor
 from sorter_sim.model.core.jit import borrowing
-from sorter_sim.model.core.newton import make_plane_newton
 from sorter_sim.model.core.layout import P_INERTIA, P_MASS, P_ROTATION
+from sorter_sim.model.core.newton import make_plane_newton
 from sorter_sim.model.core.stick import limit_gauge
 from sorter_sim.model.core.wrench import (
     clip_scratch,
@@ -33,6 +34,9 @@ from sorter_sim.model.core.wrench import (
     rest_surface_wrench,
     surface_area,
 )
+
+# the pull direction after a break, and its Newton metric, carried from solve to solve
+Pull = namedtuple('Pull', ['z', 'hess'])
 
 
 @borrowing
@@ -65,7 +69,7 @@ def _others_wrench(y, contact, surf, clip):
     return fx, fy, ow, surface_area(y, strips, parcel, surf, clip)
 
 
-@njit(cache=True)
+@borrowing
 def _negative_pull(z, ctx, g):
     """Return -f, and -∇f in g, of ``_kinetic_pull`` at the unit slip z (a minimisation)."""
     y, contact, surf, ox, oy, ow, rho, clip = ctx
@@ -80,7 +84,7 @@ _pull_newton = make_plane_newton(_negative_pull, True)
 
 
 @njit(cache=True)
-def _pull_direction(yp, contact, surf, ox, oy, ow, z, hess, clip):
+def _pull_direction(yp, contact, surf, ox, oy, ow, pull, clip):
     """
     Find the unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow).
 
@@ -102,6 +106,7 @@ def _pull_direction(yp, contact, surf, ox, oy, ow, z, hess, clip):
     is where the exact gradient vanishes). It is differenced anew whenever a step with
     it backtracks or fails to cut the gradient tenfold.
     """
+    z, hess = pull.z, pull.hess
     parcel = contact.parcel
     mass = parcel[P_MASS]
     rho = math.sqrt(parcel[P_INERTIA] / mass)
@@ -130,7 +135,7 @@ def _pull_direction(yp, contact, surf, ox, oy, ow, z, hess, clip):
     g = np.empty(3)
     ctx = (yp, contact, surf, ox, oy, ow, rho, clip)
     # maximise f: minimise -f (its gradient negated), a concave problem on the sphere
-    f = -_pull_newton(z, ctx, z, not rot, norm, hess, g)
+    f = -_pull_newton(z, ctx, z, not rot, norm, hess, g, np.empty((4, 3)))
     # ∇f = W_o - ∇D_k(σ̂) at the final σ̂: |∇D_k| is the patch's friction there
     return f / mass, math.sqrt((-g[0] - ox) ** 2 + (-g[1] - oy) ** 2 + (-g[2] - ow) ** 2)
 
@@ -154,7 +159,7 @@ def _layer_state(u, z, vsx, vsy, parcel, out):
 
 
 @njit(cache=True)
-def _layer_rhs(u, contact, clip, surf, vsx, vsy, z, hess, yv, acc, out):
+def _layer_rhs(u, contact, clip, surf, vsx, vsy, pull, yv, acc, out):
     """
     Right-hand side of the slip layer on ``surf``: u = (x, y, φ, s), s the slip magnitude.
 
@@ -165,11 +170,12 @@ def _layer_rhs(u, contact, clip, surf, vsx, vsy, z, hess, yv, acc, out):
     acceleration at that motion. ``yv`` gets the full state. Returns the stuck
     patch's friction magnitude |∇D_k| [N] (its stiffness is that over m s).
     """
+    z = pull.z
     parcel = contact.parcel
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
     sl = _layer_state(u, z, vsx, vsy, parcel, yv)
     ox, oy, ow, _ = _others_wrench(yv, contact, surf, clip)
-    lam, fmag = _pull_direction(yv, contact, surf, ox, oy, ow, z, hess, clip)
+    lam, fmag = _pull_direction(yv, contact, surf, ox, oy, ow, pull, clip)
     _layer_state(u, z, vsx, vsy, parcel, yv)  # at the settled direction
     rhs_slide(yv, contact, clip, acc)
     out[0] = yv[3]
@@ -200,7 +206,7 @@ def _layer_stage(us, c, h, ctx, out):
     contact, clip, surf, vsx, vsy, z, zs, hess, yv, acc = ctx
     for j in range(3):
         zs[j] = z[j]
-    _layer_rhs(us, contact, clip, surf, vsx, vsy, zs, hess, yv, acc, out)
+    _layer_rhs(us, contact, clip, surf, vsx, vsy, Pull(zs, hess), yv, acc, out)
     return True
 
 
@@ -282,7 +288,7 @@ def _layer(
     nb = borders.shape[0]
     ev0 = np.empty(4 * nb)
     ev1 = np.empty(4 * nb)
-    _layer_rhs(u, contact, clip, surf, vsx, vsy, z, hess, yv, acc, K[0])
+    _layer_rhs(u, contact, clip, surf, vsx, vsy, Pull(z, hess), yv, acc, K[0])
     counters[0] += 1
     h = min(1e-5, t_end - t)
     healthy = False
@@ -336,7 +342,7 @@ def _layer(
             z[j] = zs[j]
         for j in range(4):
             K[0, j] = K[6, j]
-        fmag = _layer_rhs(u, contact, clip, surf, vsx, vsy, z, hess, yv, acc, K[0])
+        fmag = _layer_rhs(u, contact, clip, surf, vsx, vsy, Pull(z, hess), yv, acc, K[0])
         counters[0] += 1
         h *= step_factor(en)
         # hand over once the full model's explicit step would be stiff-bound by the

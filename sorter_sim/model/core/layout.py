@@ -28,7 +28,7 @@ quadrature (a numba named tuple: its fields cost nothing over separate arguments
 ``Slide`` is one accurate run's problem: the scrap line y_target, the contact, its
 number of surfaces, the strip borders where steps restart, and the tolerances.
 ``Trail`` is the trajectory a run writes into caller-owned arrays: times, states and
-modes.
+modes; ``Log`` its events and counters.
 """
 
 from collections import namedtuple
@@ -68,3 +68,5 @@ Contact = namedtuple('Contact', ['strips', 'parcel', 'nodes', 'weights'])
 Slide = namedtuple('Slide', ['y_target', 'contact', 'nsurf', 'borders', 'rtol', 'atol', 'h_max'])
 # the trajectory records a run writes: times, states (6) and modes
 Trail = namedtuple('Trail', ['ts', 'ys', 'ms'])
+# a run's event log (rows t, kind, info) and its counters (``common.N_*``)
+Log = namedtuple('Log', ['ev', 'counters'])

@@ -13,7 +13,8 @@ without differences, and differenced anew wherever a step with it backtracks or 
 to cut the gradient tenfold.
 
 ``make_plane_newton(objective, sphere)`` compiles the solver for an objective
-``objective(z, ctx, g) -> value`` (fills the ambient gradient ``g``; a maximisation
+``objective(z, ctx, g) -> value`` (fills the ambient gradient ``g``; it must allocate
+nothing, as ``jit.borrowing`` kernels do; a maximisation
 returns the negated function and gradient). ``sphere`` False: the affine plane through
 the start with normal ``normal`` (z moves along p, q ⊥ normal); True: the unit sphere
 (the basis is rebuilt at each z, a step is retracted onto the sphere, and the Hessian
@@ -25,8 +26,9 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
+
+from sorter_sim.model.core.jit import borrowing
 
 NEWTON_ITERATIONS = 60
 LINE_SEARCH_HALVINGS = 40
@@ -82,23 +84,26 @@ def make_plane_newton(objective, sphere):
     Returns
     -------
     numba function
-        ``solve(z, ctx, normal, planar, scale_floor, metric, g) -> value``. ``z`` (in:
+        ``solve(z, ctx, normal, planar, scale_floor, metric, g, work) -> value``. ``z`` (in:
         the start, on the plane or the sphere; out: the minimiser), ``g`` (out: the
         gradient there), ``planar`` (sphere only: stay on the great circle of the (x, y)
         plane, a 1-D problem), ``scale_floor`` (a floor under the gradient's scale, which
         convergence is measured against), ``metric`` (4, in/out: [axis + 1 (0: none),
-        h00, h01, h11] x |z|, the carried Hessian in the basis built on that axis).
-        Returns the minimum. A non-positive-definite metric (rounding near a kink) gives
-        a gradient step of Newton's scale instead.
+        h00, h01, h11] x |z|, the carried Hessian in the basis built on that axis),
+        ``work`` (4, 3): scratch. Returns the minimum. A non-positive-definite metric
+        (rounding near a kink) gives a gradient step of Newton's scale instead.
 
     """
-
-    @njit(cache=True)
-    def solve(z, ctx, normal, planar, scale_floor, metric, g):
-        gp = np.empty(3)
-        zt = np.empty(3)
-        p = np.empty(3)
-        q = np.empty(3)
+    # compiled without numba's runtime (``jit.borrowing``): it allocates nothing (the
+    # caller's ``work`` holds its vectors), so no call of it, or of the objective, counts
+    # references to the arrays it is handed, which a solve next to the last one would
+    # spend a third of its time on
+    @borrowing
+    def solve(z, ctx, normal, planar, scale_floor, metric, g, work):
+        gp = work[0]
+        zt = work[1]
+        p = work[2]
+        q = work[3]
         ndim = 1 if planar else 2
         f = objective(z, ctx, g)
         k = _basis(z, normal, sphere, planar, p, q)
@@ -172,7 +177,7 @@ def make_plane_newton(objective, sphere):
                     s0 = -g0 * zn / scale
                     s1 = -g1 * zn / scale
             slope = g0 * s0 + g1 * s1
-            if newton and not carried and -0.5 * slope <= ROUNDING * scale * zn:
+            if newton and -0.5 * slope <= ROUNDING * scale * zn:
                 # Newton's predicted decrease is below the objective's rounding: no line
                 # search can resolve the rest, and the value, stationary here, is exact
                 # to second order
@@ -193,8 +198,6 @@ def make_plane_newton(objective, sphere):
             if carried and step < 1.0:
                 metric[0] = 0.0
             if not ft <= f:
-                if carried:
-                    continue  # retry from here with a fresh metric
                 break  # no descent left at rounding level: z is the minimiser
             moved = step * math.hypot(s0, s1)
             for i in range(3):

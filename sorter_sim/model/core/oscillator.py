@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import namedtuple
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,6 +32,10 @@ from numba import njit
 from sorter_sim.model.core.cache import check_kernel_cache
 from sorter_sim.model.core.dopri import error_norm, make_step, step_factor
 from sorter_sim.model.core.jit import borrowing
+
+# what a run of the body writes: its records (t, x, v, the active row of eq. 3.1) and events
+OscRecord = namedtuple('OscRecord', ['ts', 'xs', 'vs', 'rows'])
+OscEvents = namedtuple('OscEvents', ['ev_t', 'ev_k'])
 
 # rows of eq. (3.1), as the seed numbers them
 ROW_KINETIC = 1  # F(1): |v| > v_min, F = F_kin sgn(v)
@@ -217,7 +222,9 @@ _osc_step = make_step(_osc_rhs)
 
 
 @njit(cache=True)
-def _run_accurate(p, t_end, rtol, atol, h_max, ts, xs, vs, rows, ev_t, ev_k, counters):
+def _run_accurate(p, t_end, rtol, atol, h_max, oscrecord, oscevents, counters):
+    ev_t, ev_k = oscevents.ev_t, oscevents.ev_k
+    ts, xs, vs, rows = oscrecord.ts, oscrecord.xs, oscrecord.vs, oscrecord.rows
     f_stat, k, vd = p[2], p[3], p[4]
     t = 0.0
     x = 0.0
@@ -320,8 +327,10 @@ def _run_accurate(p, t_end, rtol, atol, h_max, ts, xs, vs, rows, ev_t, ev_k, cou
 
 
 @njit(cache=True)
-def _run_implicit(p, t_end, dt, ts, xs, vs, rows, ev_t, ev_k, counters):
+def _run_implicit(p, t_end, dt, oscrecord, oscevents, counters):
     """Backward Euler in velocity with set-valued friction (Kikuuwe et al. 2005)."""
+    ev_t, ev_k = oscevents.ev_t, oscevents.ev_k
+    ts, xs, vs, rows = oscrecord.ts, oscrecord.xs, oscrecord.vs, oscrecord.rows
     m, f_kin, f_stat, k, vd = p[0], p[1], p[2], p[3], p[4]
     t = 0.0
     x = 0.0
@@ -384,7 +393,9 @@ def _threshold_force(x, v, t, p, v_min):
 
 
 @njit(cache=True)
-def _run_threshold(p, t_end, dt, v_min, ts, xs, vs, rows, ev_t, ev_k, counters):
+def _run_threshold(p, t_end, dt, v_min, oscrecord, oscevents, counters):
+    ev_t, ev_k = oscevents.ev_t, oscevents.ev_k
+    ts, xs, vs, rows = oscrecord.ts, oscrecord.xs, oscrecord.vs, oscrecord.rows
     m, k, vd = p[0], p[3], p[4]
     t = 0.0
     x = 0.0
@@ -509,11 +520,22 @@ def run_oscillator(
     counters = np.zeros(4, dtype=np.int64)
     wall = time.perf_counter()
     if method == "accurate":
-        _run_accurate(p, t_end, rtol, atol, float(h_max), ts, xs, vs, rows, ev_t, ev_k, counters)
+        _run_accurate(
+            p,
+            t_end,
+            rtol,
+            atol,
+            float(h_max),
+            OscRecord(ts, xs, vs, rows),
+            OscEvents(ev_t, ev_k),
+            counters,
+        )
     elif method == "implicit":
-        _run_implicit(p, t_end, dt, ts, xs, vs, rows, ev_t, ev_k, counters)
+        _run_implicit(p, t_end, dt, OscRecord(ts, xs, vs, rows), OscEvents(ev_t, ev_k), counters)
     else:
-        _run_threshold(p, t_end, dt, v_min, ts, xs, vs, rows, ev_t, ev_k, counters)
+        _run_threshold(
+            p, t_end, dt, v_min, OscRecord(ts, xs, vs, rows), OscEvents(ev_t, ev_k), counters
+        )
     wall = time.perf_counter() - wall
     n, ne = int(counters[0]), int(counters[1])
     t, x, v, row = ts[:n].copy(), xs[:n].copy(), vs[:n].copy(), rows[:n].copy()

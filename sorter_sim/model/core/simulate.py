@@ -75,6 +75,7 @@ from sorter_sim.model.core.layout import (
     STICK_SEED,
     STRIP_WIDTH,
     Contact,
+    Log,
     Slide,
     Trail,
 )
@@ -547,8 +548,7 @@ def simulate(
             ),
             reductions,
             Trail(ts, ys, ms),
-            ev,
-            counters,
+            Log(ev, counters),
             np.zeros(GAUGE_CARRY),
         )
     elif method == "implicit":
@@ -561,8 +561,7 @@ def simulate(
             Contact(arr, par, nodes, weights),
             dt,
             Trail(ts, ys, ms),
-            ev,
-            counters,
+            Log(ev, counters),
         )
     else:
         status, t_fin, mode = run_threshold(
@@ -575,8 +574,7 @@ def simulate(
             dt,
             v_min,
             Trail(ts, ys, ms),
-            ev,
-            counters,
+            Log(ev, counters),
         )
     wall = time.perf_counter() - wall
     n_out = min(int(counters[N_OUT]), max_points)

@@ -16,6 +16,7 @@ break-away instant is located by root finding on the margin (``_break_time``).
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -34,7 +35,6 @@ from sorter_sim.model.core.geometry import (
     polygon_area_centroid,
 )
 from sorter_sim.model.core.jit import borrowing
-from sorter_sim.model.core.newton import make_plane_newton
 from sorter_sim.model.core.layout import (
     P_GRAV,
     P_HALF_A,
@@ -50,6 +50,7 @@ from sorter_sim.model.core.layout import (
     S_XHI,
     S_XLO,
 )
+from sorter_sim.model.core.newton import make_plane_newton
 from sorter_sim.model.core.wrench import (
     clip_scratch,
     evaluate_surfaces,
@@ -57,6 +58,10 @@ from sorter_sim.model.core.wrench import (
     static_surface_wrench,
     surface_area,
 )
+
+# a parcel riding its surface while stuck: from (y0x, y0y) at t0 with the surface's
+# velocity (vsx, vsy); ys is a pose scratch
+Ride = namedtuple('Ride', ['y0x', 'y0y', 't0', 'vsx', 'vsy', 'ys'])
 
 STICK_RTOL = 1e-13  # relative: a balance to rounding (a few ulps of the wrench sums) holds
 # a limit-set gauge's warm start (``limit_gauge``'s xi): its twist, then its Hessian
@@ -74,7 +79,7 @@ def _dissipation_gradient(state, contact, surf, rho, z0, z1, z2, clip, out):
     return z0 * out[0] + z1 * out[1] + z2 * out[2]
 
 
-@njit(cache=True)
+@borrowing
 def _dissipation(z, ctx, g):
     """D and ∇D at the generalized twist z; ctx: (state, contact, surf, rho, clip)."""
     state, contact, surf, rho, clip = ctx
@@ -130,7 +135,7 @@ def limit_gauge(state, contact, surf, wx, wy, wt, xi, clip):
         return math.inf
     # the metric is carried where xi has room for it, else it serves this solve only
     metric = xi[3:GAUGE_CARRY] if xi.shape[0] >= GAUGE_CARRY else np.zeros(4)
-    d = _gauge_newton(z, ctx, w, False, 0.0, metric, g)
+    d = _gauge_newton(z, ctx, w, False, 0.0, metric, g, np.empty((4, 3)))
     zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
     for i in range(3):
         xi[i] = z[i] / zn
@@ -184,13 +189,14 @@ def stick_margin(state, contact, nsurf, surf, xi):
 
 
 @njit(cache=True)
-def _margin_at(tt, y0x, y0y, t0, vsx, vsy, ys, contact, nsurf, surf, xi):
+def _margin_at(tt, ride, contact, nsurf, surf, xi):
     """
     Stick margin and contact area on ``surf`` at time tt of a parcel carried from t0.
 
     The parcel translates rigidly with the surface from (y0x, y0y); ``ys`` (the stuck
     state) gets the pose at tt.
     """
+    y0x, y0y, t0, vsx, vsy, ys = ride.y0x, ride.y0y, ride.t0, ride.vsx, ride.vsy, ride.ys
     ys[0] = y0x + vsx * (tt - t0)
     ys[1] = y0y + vsy * (tt - t0)
     m, a, _, _, _ = stick_margin(ys, contact, nsurf, surf, xi)
@@ -202,12 +208,7 @@ def _break_time(
     lo,
     hi,
     m_hi,
-    y0x,
-    y0y,
-    t0,
-    vsx,
-    vsy,
-    ys,
+    ride,
     contact,
     nsurf,
     surf,
@@ -222,7 +223,7 @@ def _break_time(
     carried pose, so ~8 gauges locate the break where bisection takes ~45. Returns a
     time on the breaking side (margin > 0), within the tolerance of the root.
     """
-    fpre, _ = _margin_at(lo, y0x, y0y, t0, vsx, vsy, ys, contact, nsurf, surf, xi)
+    fpre, _ = _margin_at(lo, ride, contact, nsurf, surf, xi)
     counters[0] += 1
     if fpre > 0.0:
         return lo  # broken at the scan's first point already (round-off)
@@ -273,7 +274,7 @@ def _break_time(
         xpre = xcur
         fpre = fcur
         xcur += scur if abs(scur) > delta else (delta if sbis > 0.0 else -delta)
-        fcur, _ = _margin_at(xcur, y0x, y0y, t0, vsx, vsy, ys, contact, nsurf, surf, xi)
+        fcur, _ = _margin_at(xcur, ride, contact, nsurf, surf, xi)
         counters[0] += 1
     # the breaking side of the final bracket, within the tolerance of the root
     return xcur if fcur > 0.0 else xblk
@@ -285,10 +286,7 @@ def _stick_advance(
     surf,
     t,
     t_end,
-    y_target,
-    contact,
-    nsurf,
-    borders,
+    slide,
     reductions,
     counters,
     xi,
@@ -302,6 +300,7 @@ def _stick_advance(
     gauge's twist and Newton metric, carried along the stick from scan to scan (a warm
     start; zero: none).
     """
+    y_target, contact, nsurf, borders = slide.y_target, slide.contact, slide.nsurf, slide.borders
     strips, parcel = contact.strips, contact.parcel
     vsx, vsy = surface_velocity(strips, surf)
     y[3] = vsx
@@ -364,7 +363,7 @@ def _stick_advance(
                 y[0] = ys[0]
                 y[1] = ys[1]
                 continue
-        m, a = _margin_at(t_next, y0x, y0y, t0, vsx, vsy, ys, contact, nsurf, surf, xi)
+        m, a = _margin_at(t_next, Ride(y0x, y0y, t0, vsx, vsy, ys), contact, nsurf, surf, xi)
         counters[0] += 1
         if m > 0.0 or a <= 0.0:
             if a <= 0.0:
@@ -390,12 +389,7 @@ def _stick_advance(
                     t,
                     t_next,
                     m,
-                    y0x,
-                    y0y,
-                    t0,
-                    vsx,
-                    vsy,
-                    ys,
+                    Ride(y0x, y0y, t0, vsx, vsy, ys),
                     contact,
                     nsurf,
                     surf,

@@ -105,10 +105,10 @@ def run_threshold(
     h,
     v_min,
     trail,
-    ev,
-    counters,
+    log,
 ):
     """Classic RK4 at a fixed step on the seed's threshold model."""
+    ev, counters = log.ev, log.counters
     ts = trail.ts
     strips = contact.strips
     nsurf = n_surf_of(strips)
