@@ -81,7 +81,21 @@ class Signal:
 
 
 def io_map(sensor_names) -> tuple[Signal, ...]:
-    """Return the cell's I/O map for its sensors (photo-eyes, then the chute sensors)."""
+    """
+    Return the cell's I/O map for its sensors.
+
+    Parameters
+    ----------
+    sensor_names : list of str
+        The photo-eyes, then the chute sensors, in the cell's order.
+
+    Returns
+    -------
+    list of Signal
+        Every signal of the image: its name, direction, Modbus table and address, type,
+        unit, scaling, accepted range and meaning.
+
+    """
     names = list(sensor_names)
     if len(names) > MAX_SENSORS:
         raise ValueError(f'the I/O map takes at most {MAX_SENSORS} sensors, got {len(names)}')

@@ -82,14 +82,37 @@ def run_accurate(
     xi,
 ):
     """
-    Event-located Dormand-Prince integration of the hybrid model.
+    Integrate the hybrid model from y0 by event-located Dormand-Prince steps.
 
-    counters (out): [n_steps, n_rhs, n_rejected, n_out, n_events, closed_form_jumps,
-                     stick_scans]. Returns (status, t, mode) with the final state in ys.
-    xi (GAUGE_CARRY, in/out): the limit-set gauge's twist of a stick and its Newton
-    metric, a warm start for its solve carried from call to call (the cell integrates
-    a parcel period by period and keeps each one's); zeros: none. The result does not
-    depend on it beyond rounding.
+    Parameters
+    ----------
+    y0 : ndarray, shape (6,)
+        The start (``layout``'s state vector).
+    mode0 : int
+        The start's mode: MODE_SLIDE, or the surface it is stuck to.
+    t0, t_end : float
+        The span [s].
+    slide : Slide
+        The problem: the scrap line, the contact, its surfaces, the strip borders, the
+        tolerances and the longest step.
+    reductions : bool
+        Closed-form sticks and the exact constant-μ wrench where they apply.
+    trail : Trail
+        Receives the trajectory (t, state, mode), a record per step.
+    log : Log
+        Receives the events (t, kind, info) and the counters (``common.N_*``).
+    xi : ndarray, shape (GAUGE_CARRY,), in/out
+        The limit-set gauge's twist of a stick and its Newton metric, a warm start
+        carried from call to call (the cell integrates a parcel period by period and
+        keeps each one's); zeros: none. The result does not depend on it beyond
+        rounding.
+
+    Returns
+    -------
+    (int, float, int)
+        The status (``common.ST_*``), the time reached and the mode there; the final
+        state is the trajectory's last record.
+
     """
     ev, counters = log.ev, log.counters
     y_target, contact, borders, rtol, atol, h_max = (

@@ -70,10 +70,24 @@ MAX_FACTOR = 5.0
 @borrowing
 def stage_state(y, K, h, i, out):
     """
-    Fill ``out`` with the state stage i (1..6) is evaluated at; i = 6 is the step's end.
+    Fill ``out`` with the state stage i is evaluated at.
 
     Stages 1-5 are y + h Σ_{k<i} a_ik K_k; stage 6 (the FSAL point) y + h Σ b_k K_k, the
     5th-order solution, whose derivative is K[6] and the next step's K[0].
+
+    Parameters
+    ----------
+    y : ndarray, shape (n,)
+        The state at the step's start.
+    K : ndarray, shape (7, n)
+        The stages so far (K[0] = f(y)).
+    h : float
+        The step.
+    i : int
+        The stage, 1..6 (6: the step's end).
+    out : ndarray, shape (n,)
+        Receives the stage's state.
+
     """
     n = y.shape[0]
     for j in range(n):
@@ -89,7 +103,19 @@ def stage_state(y, K, h, i, out):
 
 @borrowing
 def step_error(K, h, err):
-    """Fill ``err`` with the embedded error estimate h Σ e_k K_k (all seven stages)."""
+    """
+    Fill ``err`` with the embedded error estimate h Σ e_k K_k (all seven stages).
+
+    Parameters
+    ----------
+    K : ndarray, shape (7, n)
+        The step's stages, K[6] = f at its end.
+    h : float
+        The step.
+    err : ndarray, shape (n,)
+        Receives the difference of the 5th- and the 4th-order solutions.
+
+    """
     for j in range(err.shape[0]):
         acc = 0.0
         for k in range(N_STAGES):
@@ -201,7 +227,21 @@ def make_step(rhs, allocates=False):
 
 @borrowing
 def step_factor(enorm):
-    """Factor on the step size after a step with error norm ``enorm`` (5th order: ^-1/5)."""
+    """
+    Return the factor on the step size after a step with error norm ``enorm``.
+
+    Parameters
+    ----------
+    enorm : float
+        The step's ``error_norm`` (<= 1: accepted).
+
+    Returns
+    -------
+    float
+        SAFETY enorm^(-1/5) (5th order), within [MIN_FACTOR, MAX_FACTOR]; MAX_FACTOR at
+        zero error, MIN_FACTOR at a non-finite one.
+
+    """
     if enorm == 0.0:
         return MAX_FACTOR
     if not math.isfinite(enorm):
@@ -211,7 +251,23 @@ def step_factor(enorm):
 
 @borrowing
 def dense(y0, K, h, theta, out):
-    """Dense output y(t0 + θh), θ in [0, 1], of the step from y0 with stages K."""
+    """
+    Fill ``out`` with the dense output y(t0 + θh) of a step.
+
+    Parameters
+    ----------
+    y0 : ndarray, shape (n,)
+        The state at the step's start.
+    K : ndarray, shape (7, n)
+        The step's stages.
+    h : float
+        The step.
+    theta : float
+        Where in the step, 0..1.
+    out : ndarray, shape (n,)
+        Receives the 4th-order interpolant's value (Shampine 1986).
+
+    """
     q0 = theta
     q1 = theta * theta
     q2 = q1 * theta
@@ -226,10 +282,21 @@ def dense(y0, K, h, theta, out):
 @borrowing
 def sign_change(ev0, ev1):
     """
-    First index whose event value changes sign between a step's ends, else -1.
+    Return the first index whose event value changes sign between a step's ends.
 
     A value within round-off of zero at the start has crossed already (two corners of an
     aligned box cross a border together), so it does not count again.
+
+    Parameters
+    ----------
+    ev0, ev1 : ndarray
+        The event values at the step's start and end.
+
+    Returns
+    -------
+    int
+        The first such index, or -1.
+
     """
     for q in range(ev0.shape[0]):
         if abs(ev0[q]) > 1e-12 and ev0[q] * ev1[q] < 0.0:

@@ -35,7 +35,21 @@ def corner_x(x, phi, half_a, half_b, i):
 
 @borrowing
 def box_corners(x, y, phi, half_a, half_b, out):
-    """Corners of the A x B box (A along x at φ = 0) centred at (x, y), counter-clockwise."""
+    """
+    Fill ``out`` with the corners of a box, counter-clockwise.
+
+    Parameters
+    ----------
+    x, y : float
+        Its centre [m].
+    phi : float
+        Its turn [rad] (A along x at φ = 0).
+    half_a, half_b : float
+        Half its length A and width B [m].
+    out : ndarray, shape (4, 2)
+        Receives the corners.
+
+    """
     c = math.cos(phi)
     s = math.sin(phi)
     # order (a,-b) -> (a,b) -> (-a,b) -> (-a,-b) is counter-clockwise
@@ -76,7 +90,24 @@ def _clip_halfplane(src, n_src, dst, bound, keep_above):
 
 @borrowing
 def clip_to_strip(corners, x_lo, x_hi, out, work):
-    """Polygon corners ∩ {x_lo <= x <= x_hi} into ``out``; returns the vertex count."""
+    """
+    Clip a convex polygon to the strip x_lo <= x <= x_hi.
+
+    Parameters
+    ----------
+    corners : ndarray, shape (m, 2)
+        The polygon, counter-clockwise.
+    x_lo, x_hi : float
+        The strip's borders [m] (infinite for a half-plane).
+    out, work : ndarray, shape (MAX_VERTS, 2)
+        ``out`` receives the clipped polygon; ``work`` is scratch.
+
+    Returns
+    -------
+    int
+        The clipped polygon's vertex count (0: no overlap).
+
+    """
     n = 4
     for i in range(4):
         work[i, 0] = corners[i, 0]
@@ -97,7 +128,22 @@ def clip_to_strip(corners, x_lo, x_hi, out, work):
 
 @borrowing
 def polygon_area_centroid(poly, n):
-    """Signed-positive area and centroid of a counter-clockwise polygon."""
+    """
+    Return the area and the centroid of a counter-clockwise polygon.
+
+    Parameters
+    ----------
+    poly : ndarray, shape (>= n, 2)
+        The polygon's vertices.
+    n : int
+        How many of them.
+
+    Returns
+    -------
+    (float, float, float)
+        Its area [m²] (positive) and its centroid's x, y [m].
+
+    """
     if n < 3:
         return 0.0, 0.0, 0.0
     # shift to the first vertex for round-off
@@ -210,7 +256,24 @@ def max_radius(poly, n, qx, qy):
 
 
 def footprint(x: float, y: float, phi: float, A: float, B: float) -> np.ndarray:
-    """Corners (4 x 2) of the parcel footprint; a convenience for callers outside numba."""
+    """
+    Return the corners of a parcel's outline (a convenience for callers outside numba).
+
+    Parameters
+    ----------
+    x, y : float
+        The centre of gravity [m].
+    phi : float
+        The turn [rad].
+    A, B : float
+        Length and width [m].
+
+    Returns
+    -------
+    ndarray, shape (4, 2)
+        The corners, counter-clockwise.
+
+    """
     out = np.empty((4, 2))
     box_corners(x, y, phi, 0.5 * A, 0.5 * B, out)
     return out

@@ -649,7 +649,34 @@ def _constant_friction(strips):
 
 @njit(cache=True)
 def run_implicit(y0, mode0, t0, t_end, y_target, contact, h, trail, log):
-    """Fixed-step implicit integration; the scrap line is located by linear interpolation."""
+    """
+    Integrate at a fixed step by backward Euler in velocity (``implicit_step``).
+
+    Parameters
+    ----------
+    y0 : ndarray, shape (6,)
+        The start.
+    mode0 : int
+        The start's mode.
+    t0, t_end : float
+        The span [s].
+    y_target : float
+        The scrap line [m], located inside a step by linear interpolation.
+    contact : Contact
+        What the parcel slides on.
+    h : float
+        The step [s].
+    trail : Trail
+        Receives a record per step.
+    log : Log
+        Receives the events and the counters.
+
+    Returns
+    -------
+    (int, float, int)
+        The status, the time reached and the mode there.
+
+    """
     ev, counters = log.ev, log.counters
     ts = trail.ts
     strips, nodes = contact.strips, contact.nodes

@@ -93,11 +93,15 @@ def make_plane_newton(objective, sphere):
         ``work`` (4, 3): scratch. Returns the minimum. A non-positive-definite metric
         (rounding near a kink) gives a gradient step of Newton's scale instead.
 
+    Notes
+    -----
+    The solver is compiled without numba's runtime (``jit.borrowing``): it allocates
+    nothing (the caller's ``work`` holds its vectors), so no call of it, or of the
+    objective, counts references to the arrays it is handed, which a solve next to the
+    last one would spend a third of its time on.
+
     """
-    # compiled without numba's runtime (``jit.borrowing``): it allocates nothing (the
-    # caller's ``work`` holds its vectors), so no call of it, or of the objective, counts
-    # references to the arrays it is handed, which a solve next to the last one would
-    # spend a third of its time on
+
     @borrowing
     def solve(z, ctx, normal, planar, scale_floor, metric, g, work):
         gp = work[0]

@@ -281,7 +281,20 @@ def three_zone_strips(
 
 
 def strip_array(strips: list[Strip]) -> np.ndarray:
-    """Pack strips into the kernels' array; strips moving alike share a surface id."""
+    """
+    Pack strips into the kernels' array (``layout``); strips moving alike share a surface.
+
+    Parameters
+    ----------
+    strips : list of Strip
+        The bands of the conveyor plane.
+
+    Returns
+    -------
+    ndarray, shape (len(strips), STRIP_WIDTH)
+        One row per strip, its surface id numbering the distinct velocities.
+
+    """
     return _strip_array(tuple(strips)).copy()
 
 
@@ -330,7 +343,30 @@ def parcel_array(
     g: float = G_STANDARD,
     stick: str = "exact",
 ) -> np.ndarray:
-    """Return the parcel row the kernels read (``layout``); ``stick``: 'exact' or 'seed'."""
+    """
+    Return the parcel row the kernels read (``layout``).
+
+    Parameters
+    ----------
+    parcel : Parcel
+        The box.
+    rotation : bool
+        The moment of friction forces on.
+    n_quad : int
+        Gauss points per direction of the footprint's quadrature.
+    closed_form : bool
+        The exact wrench on constant-μ strips.
+    g : float
+        Gravity [m/s²].
+    stick : {'exact', 'seed'}
+        The stick law.
+
+    Returns
+    -------
+    ndarray, shape (PARCEL_WIDTH,)
+        The row.
+
+    """
     if stick not in STICK_LAWS:
         raise ValueError(f"stick must be one of {sorted(STICK_LAWS)}, got {stick!r}")
     arr = np.zeros(PARCEL_WIDTH)

@@ -107,7 +107,37 @@ def run_threshold(
     trail,
     log,
 ):
-    """Classic RK4 at a fixed step on the seed's threshold model."""
+    """
+    Integrate the seed's threshold model by classic RK4 at a fixed step.
+
+    Parameters
+    ----------
+    y0 : ndarray, shape (6,)
+        The start.
+    mode0 : int
+        The start's mode.
+    t0, t_end : float
+        The span [s].
+    y_target : float
+        The scrap line [m].
+    contact : Contact
+        What the parcel slides on.
+    h : float
+        The step [s].
+    v_min : float
+        The threshold speed [m/s] of eq. (3.1).
+    trail : Trail
+        Receives a record per step.
+    log : Log
+        Receives the events (every change of a surface between static and kinetic) and
+        the counters.
+
+    Returns
+    -------
+    (int, float, int)
+        The status, the time reached and the mode there.
+
+    """
     ev, counters = log.ev, log.counters
     ts = trail.ts
     strips = contact.strips
