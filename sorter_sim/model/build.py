@@ -48,6 +48,23 @@ def zone_law(model: str, mu: float | None, params=None, v_ref: float | None = No
     ``params`` are the law's own values (default: ``LAW_DEFAULTS``, the seed's
     where it gives them); ``mu`` None takes the law as given. The law must not be 0
     at ``v_ref`` when it is scaled (``scene.validate`` checks a scene for that).
+
+    Parameters
+    ----------
+    model : str
+        The friction law's name (``LAW_NAMES``).
+    mu : float
+        The constant friction coefficient.
+    params : list of float, optional
+        The law's own values (default: ``LAW_DEFAULTS``).
+    v_ref : float
+        The speed at which ``mu`` holds [m/s].
+
+    Returns
+    -------
+    FrictionLaw
+        The law, shaped as its parameters say and scaled to ``mu`` at ``v_ref``.
+
     """
     law = FrictionLaw(model, tuple(LAW_DEFAULTS[model] if params is None else params))
     if mu is None:
@@ -65,6 +82,21 @@ def law_problem(model: str, params, v_max: float) -> str | None:
 
     See ``_law_problem``; the answer is remembered per law and speed range, so a
     sweep that validates every point pays for each law once.
+
+    Parameters
+    ----------
+    model : str
+        The friction law's name (``LAW_NAMES``).
+    params : list of float, optional
+        The law's own values (default: ``LAW_DEFAULTS``).
+    v_max : float
+        The highest rubbing speed checked [m/s].
+
+    Returns
+    -------
+    str or None
+        What is wrong (a negative or non-finite μ below ``v_max``), or None.
+
     """
     return _law_problem(model, tuple(float(p) for p in params), float(v_max))
 
@@ -112,7 +144,38 @@ def cell_strips(
     params=None,
     v_ref: float | None = None,
 ) -> list[Strip]:
-    """Return the three zones (Fig. 6) at belt speed v [m/s], disks at α [deg], field b [m]."""
+    """
+    Return the three zones (Fig. 6) at belt speed v [m/s], disks at α [deg], field b [m].
+
+    Parameters
+    ----------
+    v : float
+        The belt speed [m/s].
+    alpha_deg : float
+        The disk angle [deg].
+    b : float
+        The disk field's length [m] (inf: the seed's b -> ∞).
+    mu_a : float
+        The belt's μ before the disks.
+    mu_b : float
+        The disks' μ.
+    mu_c : float
+        The belt's μ after them.
+    friction_model : str
+        The friction law's name.
+    stroke : float
+        The pop-up position, 0 down .. 1 up.
+    params : list of float, optional
+        The law's own values (default: ``LAW_DEFAULTS``).
+    v_ref : float
+        The speed at which ``mu`` holds [m/s].
+
+    Returns
+    -------
+    list of Strip or ndarray
+        The zones a, b, c.
+
+    """
     return three_zone_strips(
         v,
         math.radians(alpha_deg),
@@ -125,6 +188,23 @@ def cell_strips(
 
 
 def entry_state(parcel: Parcel, v: float, phi0_deg: float = 0.0) -> np.ndarray:
-    """Leading edge on the zone a/b border, moving with the belt, φ̇ = 0."""
+    """
+    Leading edge on the zone a/b border, moving with the belt, φ̇ = 0.
+
+    Parameters
+    ----------
+    parcel : Parcel
+        The box.
+    v : float
+        The belt speed [m/s].
+    phi0_deg : float
+        The parcel's skew [deg].
+
+    Returns
+    -------
+    ndarray, shape (6,)
+        The state with the leading edge on the zone a/b border, moving with the belt.
+
+    """
     phi = math.radians(phi0_deg)
     return np.array([-parcel.leading_edge_offset(phi), 0.0, phi, v, 0.0, 0.0])

@@ -39,7 +39,20 @@ PENDING_INDUCTS_MAX = 1000  # parcels parcels/induct may queue while the belt is
 
 
 def label_problem(label) -> str | None:
-    """Say why ``label`` is not a parcel label, or None."""
+    """
+    Say why ``label`` is not a parcel label, or None.
+
+    Parameters
+    ----------
+    label : str
+        A label.
+
+    Returns
+    -------
+    str or None
+        Why it is not a label, or None.
+
+    """
     if not isinstance(label, str):
         return f'a label must be a string, got {shown(label)}'
     if not LABEL_RE.fullmatch(label):
@@ -48,7 +61,22 @@ def label_problem(label) -> str | None:
 
 
 def shown(value, limit: int = 60) -> str:
-    """Quote a value for an error message, cut short: no message echoes a large input whole."""
+    """
+    Quote a value for an error message, cut short: no message echoes a large input whole.
+
+    Parameters
+    ----------
+    value : object
+        The value, as given.
+    limit : int
+        The most characters shown.
+
+    Returns
+    -------
+    str
+        The value quoted, cut short.
+
+    """
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + '...'
 
@@ -77,14 +105,42 @@ class Quantity:
         return f'a finite number in {bracket}{self.lo:g}, {self.hi:g}]{unit}'
 
     def contains(self, value: float) -> bool:
-        """Return True if ``value`` is a finite number in the range."""
+        """
+        Return True if ``value`` is a finite number in the range.
+
+        Parameters
+        ----------
+        value : object
+            The value, as given.
+
+        Returns
+        -------
+        bool
+            True if it is a finite number in the range.
+
+        """
         if not math.isfinite(value):
             return False
         above = value > self.lo if self.lo_open else value >= self.lo
         return above and value <= self.hi
 
     def check(self, value: Any, name: str | None = None) -> float:
-        """Return ``value`` as a float, or raise DescriptionError naming ``name`` (or the key)."""
+        """
+        Return ``value`` as a float, or raise DescriptionError naming ``name`` (or the key).
+
+        Parameters
+        ----------
+        value : object
+            The value, as given.
+        name : str, optional
+            The name the message uses (default: the quantity's key).
+
+        Returns
+        -------
+        float
+            The value.
+
+        """
         what = f'{name or self.key}: must be {self.allowed}, got {shown(value)}'
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise DescriptionError(what)

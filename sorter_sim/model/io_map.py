@@ -55,7 +55,20 @@ class Signal:
         return {'int16': 'Int16', 'uint16': 'UInt16', 'uint32': 'UInt32'}[self.type]
 
     def raw(self, value: float) -> int:
-        """Return the raw register value of an engineering value (rounded, wrapped)."""
+        """
+        Return the raw register value of an engineering value (rounded, wrapped).
+
+        Parameters
+        ----------
+        value : float
+            An engineering value.
+
+        Returns
+        -------
+        int
+            The raw register value.
+
+        """
         r = round(value / self.scale)
         if self.type == 'int16':
             return r & 0xFFFF
@@ -64,13 +77,39 @@ class Signal:
         return r & 0xFFFF
 
     def value(self, raw: int) -> float:
-        """Return the engineering value of a raw (unsigned) register value."""
+        """
+        Return the engineering value of a raw (unsigned) register value.
+
+        Parameters
+        ----------
+        raw : int
+            A raw register value (unsigned).
+
+        Returns
+        -------
+        float
+            The engineering value.
+
+        """
         if self.type == 'int16' and raw >= 0x8000:
             raw -= 0x10000
         return raw * self.scale
 
     def accepts(self, value) -> bool:
-        """Return True if an output may take the engineering ``value``."""
+        """
+        Return True if an output may take the engineering ``value``.
+
+        Parameters
+        ----------
+        value : float
+            An engineering value.
+
+        Returns
+        -------
+        bool
+            True if the output may take it.
+
+        """
         if self.type == 'bool':
             return isinstance(value, bool) or value in (0, 1)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -241,12 +280,40 @@ def io_map(sensor_names) -> tuple[Signal, ...]:
 
 
 def by_name(signals) -> dict[str, Signal]:
-    """Return {name: signal}."""
+    """
+    Return {name: signal}.
+
+    Parameters
+    ----------
+    signals : list of Signal
+        The I/O map.
+
+    Returns
+    -------
+    dict
+        {name: signal}.
+
+    """
     return {s.name: s for s in signals}
 
 
 def table_size(signals, table: str) -> int:
-    """Return the number of addresses a Modbus table spans (0 .. last used address)."""
+    """
+    Return the number of addresses a Modbus table spans (0 .. last used address).
+
+    Parameters
+    ----------
+    signals : list of Signal
+        The I/O map.
+    table : str
+        A Modbus table.
+
+    Returns
+    -------
+    int
+        The number of addresses.
+
+    """
     ends = [s.address + s.words for s in signals if s.table == table]
     return max(ends) if ends else 0
 

@@ -188,6 +188,33 @@ def cell_strips(v, alpha, b, stroke, law_a_id, law_a, law_b_id, law_b, out):
     Zone a (x < 0, belt), zone b (0..b: disks at v(cos α, sin α) carrying ``stroke`` of
     the load, the belt between them the rest), zone c (x > b, belt). Returns (number of
     strips, surface id of the disks: 1, 0 when they move with the belt, -1 when down).
+
+    Parameters
+    ----------
+    v : float
+        The belt speed [m/s].
+    alpha : float
+        The disk angle [rad].
+    b : float
+        The disk field's length [m].
+    stroke : float
+        The pop-up position, 0 down .. 1 up.
+    law_a_id : int
+        The belt's law id.
+    law_a : ndarray
+        Its parameters.
+    law_b_id : int
+        The disks' law id.
+    law_b : ndarray
+        Their parameters.
+    out : ndarray
+        Receives the result.
+
+    Returns
+    -------
+    list of Strip or ndarray
+        The zones a, b, c.
+
     """
     _set_strip(out, 0, -math.inf, 0.0, v, 0.0, 1.0, 0, law_a_id, law_a)
     n = 1
@@ -212,7 +239,24 @@ def cell_strips(v, alpha, b, stroke, law_a_id, law_a, law_b_id, law_b, out):
 
 @njit(cache=True)
 def toward(value, target, max_step):
-    """Move ``value`` toward ``target`` by at most ``max_step`` (a slew-rate limit)."""
+    """
+    Move ``value`` toward ``target`` by at most ``max_step`` (a slew-rate limit).
+
+    Parameters
+    ----------
+    value : float
+        The value.
+    target : float
+        Where it moves to.
+    max_step : float
+        The most it may move.
+
+    Returns
+    -------
+    float
+        The value moved.
+
+    """
     if target > value:
         return min(target, value + max_step)
     return max(target, value - max_step)
@@ -220,7 +264,24 @@ def toward(value, target, max_step):
 
 @njit(cache=True)
 def half_extents(phi, half_a, half_b):
-    """Half extents along x and y of the footprint turned by φ [m]."""
+    """
+    Half extents along x and y of the footprint turned by φ [m].
+
+    Parameters
+    ----------
+    phi : float
+        The turn [rad].
+    half_a : float
+        Half the parcel's length A [m].
+    half_b : float
+        Half the parcel's width B [m].
+
+    Returns
+    -------
+    (float, float)
+        The half extents along x and y [m].
+
+    """
     c = abs(math.cos(phi))
     s = abs(math.sin(phi))
     return half_a * c + half_b * s, half_a * s + half_b * c
@@ -272,6 +333,25 @@ def crossing_time(kind, level, motion, half_a, half_b):
     Motion at constant velocity without rotation (a parcel on the belt, or on a chute) makes
     every feature linear in time, solved exactly; otherwise bisection on the cubic Hermite
     interpolant of (x, y, φ) with the velocities at both ends.
+
+    Parameters
+    ----------
+    kind : int
+        The feature (``_feature``'s kinds).
+    level : float
+        The level it must cross.
+    motion : Motion
+        The period's motion: the state at its start and end, and the period.
+    half_a : float
+        Half the parcel's length A [m].
+    half_b : float
+        Half the parcel's width B [m].
+
+    Returns
+    -------
+    float
+        The time in [0, h] [s].
+
     """
     s0, s1, h = motion.s0, motion.s1, motion.h
     f0 = _feature(kind, s0[0], s0[1], s0[2], half_a, half_b) - level
@@ -337,6 +417,31 @@ def sensor_blocked(sensor, n_eyes, eye_x, cfg, s, phase, half_a, half_b):
 
     Whether a parcel in pose ``s`` and ``phase`` blocks ``sensor`` (the conditions of
     ``_conditions``, written out: this runs for every parcel and period).
+
+    Parameters
+    ----------
+    sensor : int
+        The sensor's index (photo-eyes, then chute_left, chute_right).
+    n_eyes : int
+        The number of photo-eyes.
+    eye_x : ndarray
+        The photo-eyes' x [m].
+    cfg : ndarray
+        The cell's configuration row (``C_*``).
+    s : ndarray, shape (6,)
+        The parcel's state.
+    phase : ndarray
+        Every parcel's phase.
+    half_a : float
+        Half the parcel's length A [m].
+    half_b : float
+        Half the parcel's width B [m].
+
+    Returns
+    -------
+    bool
+        Whether it blocks the sensor.
+
     """
     if not _phase_counts(sensor, n_eyes, phase):
         return False
@@ -382,7 +487,32 @@ def _edge_time(sensor, n_eyes, eye_x, cfg, motion, half_a, half_b, rising, tau_p
 
 @njit(cache=True)
 def rectangles_overlap(s1, ha1, hb1, s2, ha2, hb2, tol):
-    """Separating-axis test of two turned rectangles: True if they interpenetrate by > tol."""
+    """
+    Separating-axis test of two turned rectangles: True if they interpenetrate by > tol.
+
+    Parameters
+    ----------
+    s1 : ndarray, shape (6,)
+        The first footprint's state.
+    ha1 : float
+        Its half length [m].
+    hb1 : float
+        Its half width [m].
+    s2 : ndarray, shape (6,)
+        The second footprint's state.
+    ha2 : float
+        Its half length [m].
+    hb2 : float
+        Its half width [m].
+    tol : float
+        The overlap or reach that counts [m].
+
+    Returns
+    -------
+    bool
+        True if they interpenetrate by more than ``tol``.
+
+    """
     dx = s2[0] - s1[0]
     dy = s2[1] - s1[1]
     c1 = math.cos(s1[2])
@@ -401,7 +531,32 @@ def rectangles_overlap(s1, ha1, hb1, s2, ha2, hb2, tol):
 
 @njit(cache=True)
 def crosses_wall(s, half_a, half_b, half_w, open_lo, open_hi, tol):
-    """Return True if the footprint reaches past a side wall y = ±w/2 beside the chute openings."""
+    """
+    Return True if the footprint reaches past a side wall y = ±w/2 beside the chute openings.
+
+    Parameters
+    ----------
+    s : ndarray, shape (6,)
+        The parcel's state.
+    half_a : float
+        Half the parcel's length A [m].
+    half_b : float
+        Half the parcel's width B [m].
+    half_w : float
+        Half the belt's width [m].
+    open_lo : float
+        Where the chute openings begin, x [m].
+    open_hi : float
+        Where they end, x [m].
+    tol : float
+        The overlap or reach that counts [m].
+
+    Returns
+    -------
+    bool
+        True if the footprint reaches past a wall where there is no opening.
+
+    """
     corners = np.empty((4, 2))
     box_corners(s[0], s[1], s[2], half_a, half_b, corners)
     for side in (1.0, -1.0):
@@ -427,6 +582,23 @@ def upstream_room(state, phase, par, induct_x):
 
     Free belt length in front of the induct point [m] and the slot whose trailing edge
     bounds it (-1 and inf when no parcel is on the cell).
+
+    Parameters
+    ----------
+    state : ndarray, shape (cap, 6)
+        Every parcel's state.
+    phase : ndarray
+        Every parcel's phase.
+    par : ndarray, shape (cap, PARCEL_WIDTH)
+        Every parcel's row.
+    induct_x : float
+        The induct point's x [m].
+
+    Returns
+    -------
+    (float, float)
+        The free belt length [m] and the slowest parcel's speed there [m/s].
+
     """
     room = math.inf
     slot = -1
@@ -447,6 +619,29 @@ def cell_snapshot(phase, mode, ids, state, par, b, out):
 
     Rows (id, x, y, φ, A, B, state code) of the parcels in the cell, in id order, into
     ``out``; returns their number. Past the disk field on the belt counts as straight.
+
+    Parameters
+    ----------
+    phase : ndarray
+        Every parcel's phase.
+    mode : ndarray
+        Every parcel's mode.
+    ids : ndarray
+        The parcels' ids.
+    state : ndarray, shape (cap, 6)
+        Every parcel's state.
+    par : ndarray, shape (cap, PARCEL_WIDTH)
+        Every parcel's row.
+    b : float
+        The disk field's length [m].
+    out : ndarray
+        Receives the result.
+
+    Returns
+    -------
+    int
+        The number of rows written.
+
     """
     n = 0
     for i in range(phase.shape[0]):
@@ -496,22 +691,41 @@ def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
     """
     Advance the cell over up to ``n_periods`` control periods from period index ``k0``.
 
-    setup (``CellSetup``): the configuration row cfg (C_*), the (2, N) law parameter
-    rows of belt and disks, and the footprint quadrature's nodes and weights.
-    act: actuator state (A_*), updated. parcels (``Parcels``): state (cap, 6), mode,
-    phase, par (cap, PARCEL_WIDTH), scanned, and gauge_xi (cap, GAUGE_CARRY), each
-    parcel's limit-set gauge twist and Newton metric (a stick checked period after
-    period, riding the belt onto raised disks, starts each Newton solve from the last
-    one's); all updated. sensors (``Sensors``): photo-eye x [m], and which parcel
-    blocks which sensor (blocked (cap, n_sensors), counts (n_sensors)), updated;
-    sensors are the photo-eyes, then chute_left, chute_right. log (``EventLog``):
-    events go to ev_i/ev_f; the kernel stops after a period that leaves fewer than
-    ``reserve`` free rows. memo (``Memo``): stats (int64: parcel-periods in closed
-    form, integrated, integrator steps, rhs), and last_strips (MAX_STRIPS,
-    STRIP_WIDTH) with last_info (int64 [period index, count]): the strips of the last
-    period advanced, updated (a stick that held through it holds through the next
-    under the same strips where nothing about the parcel changes).
-    Returns (periods done, events written).
+    Parameters
+    ----------
+    n_periods : int
+        The most periods to advance.
+    k0 : int
+        The index of the first.
+    setup : CellSetup
+        The configuration row cfg (``C_*``), the (2, N) law parameter rows of belt and
+        disks, and the footprint quadrature's nodes and weights.
+    act : ndarray
+        The actuators' state (``A_*``), updated.
+    parcels : Parcels
+        state (cap, 6), mode, phase, par (cap, PARCEL_WIDTH), scanned, and gauge_xi
+        (cap, GAUGE_CARRY): each parcel's limit-set gauge twist and Newton metric (a
+        stick checked period after period, riding the belt onto raised disks, starts
+        each Newton solve from the last one's); all updated.
+    sensors : Sensors
+        The photo-eyes' x [m], and which parcel blocks which sensor (blocked (cap,
+        n_sensors), counts (n_sensors)), updated; the sensors are the photo-eyes, then
+        chute_left, chute_right.
+    log : EventLog
+        Events go to ev_i/ev_f; the kernel stops after a period that leaves fewer than
+        ``reserve`` free rows.
+    memo : Memo
+        stats (int64: parcel-periods in closed form, integrated, integrator steps, rhs),
+        and last_strips (MAX_STRIPS, STRIP_WIDTH) with last_info (int64 [period index,
+        count]): the strips of the last period advanced, updated (a stick that held
+        through it holds through the next under the same strips where nothing about
+        the parcel changes).
+
+    Returns
+    -------
+    (int, int)
+        The periods done and the events written.
+
     """
     cfg, laws, nodes, weights = setup.cfg, setup.laws, setup.nodes, setup.weights
     state, mode, phase, par = parcels.state, parcels.mode, parcels.phase, parcels.par

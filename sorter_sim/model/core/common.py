@@ -66,6 +66,20 @@ EV_LEAVE = 5
 
 @borrowing
 def n_surf_of(strips):
+    """
+    Return the number of surfaces the strips reference.
+
+    Parameters
+    ----------
+    strips : ndarray, shape (n, STRIP_WIDTH)
+        The strips (``layout``).
+
+    Returns
+    -------
+    int
+        The number of surfaces the strips reference.
+
+    """
     n = 0
     for k in range(strips.shape[0]):
         n = max(n, int(strips[k, S_SURF]) + 1)
@@ -74,6 +88,22 @@ def n_surf_of(strips):
 
 @borrowing
 def surface_velocity(strips, surf):
+    """
+    Return a surface's velocity.
+
+    Parameters
+    ----------
+    strips : ndarray, shape (n, STRIP_WIDTH)
+        The strips (``layout``).
+    surf : int
+        A surface id.
+
+    Returns
+    -------
+    (float, float)
+        The surface's velocity [m/s].
+
+    """
     for k in range(strips.shape[0]):
         if int(strips[k, S_SURF]) == surf:
             return strips[k, S_VX], strips[k, S_VY]
@@ -86,6 +116,18 @@ def rhs_slide(state, contact, clip, out):
     Time derivative of the state while sliding (eq. 4.1 with kinetic friction).
 
     ``clip``: a footprint scratch (``wrench.clip_scratch``), so that it allocates nothing.
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+    contact : Contact
+        What the parcel slides on (``layout.Contact``).
+    clip : ndarray
+        A footprint scratch (``wrench.clip_scratch``).
+    out : ndarray, shape (6,)
+        Receives the state's time derivative.
+
     """
     parcel = contact.parcel
     fx, fy, t = kinetic_wrench(state, contact, -1, clip)

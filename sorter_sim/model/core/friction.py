@@ -74,7 +74,24 @@ def _bspline_basis(t: float) -> np.ndarray:
 
 
 def bspline_curve(control_v, control_mu, t) -> tuple[np.ndarray, np.ndarray]:
-    """Points (v(t), μ(t)) of the b-spline through its control polygon, t in [0, 1]."""
+    """
+    Points (v(t), μ(t)) of the b-spline through its control polygon, t in [0, 1].
+
+    Parameters
+    ----------
+    control_v : ndarray
+        The control polygon's speeds [m/s].
+    control_mu : ndarray
+        Its coefficients.
+    t : ndarray
+        Curve parameters in [0, 1].
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        The curve's speeds and coefficients.
+
+    """
     basis = np.array([_bspline_basis(float(ti)) for ti in np.atleast_1d(t)])
     return basis @ np.asarray(control_v, float), basis @ np.asarray(control_mu, float)
 
@@ -228,7 +245,20 @@ def mu_static(law, params):
 
 @borrowing
 def law_is_constant(law):
-    """Return True where μ does not depend on the rubbing speed (closed-form wrench)."""
+    """
+    Return True where μ does not depend on the rubbing speed (closed-form wrench).
+
+    Parameters
+    ----------
+    law : int
+        The friction law's id (``friction.LAW_IDS``).
+
+    Returns
+    -------
+    bool
+        True where μ does not depend on the rubbing speed.
+
+    """
     return law == LAW_CONST1 or law == LAW_CONST2
 
 
@@ -241,6 +271,21 @@ def law_smooth_reach(law, params, speed):
     distance to its nearest knot (inside a span μ is a cubic of the inverse of a cubic);
     0 for the laws not analysed here (the polynomial's clipping at zero, the Stribeck
     law's steep exponential and knee).
+
+    Parameters
+    ----------
+    law : int
+        The friction law's id (``friction.LAW_IDS``).
+    params : ndarray
+        The law's parameters (``friction.N_LAW_PARAMS``).
+    speed : float
+        The rubbing speed [m/s].
+
+    Returns
+    -------
+    float
+        How far from ``speed`` μ(v) stays analytic [m/s] (inf: everywhere).
+
     """
     if law_is_constant(law):
         return math.inf
@@ -257,12 +302,44 @@ def law_smooth_reach(law, params, speed):
 
 
 def mu_kinetic_array(law: int, params: np.ndarray, speeds) -> np.ndarray:
-    """Vectorised helper for plots and checks: μ at each speed of ``speeds``."""
+    """
+    Vectorised helper for plots and checks: μ at each speed of ``speeds``.
+
+    Parameters
+    ----------
+    law : int
+        The friction law's id (``friction.LAW_IDS``).
+    params : ndarray
+        The law's parameters (``friction.N_LAW_PARAMS``).
+    speeds : ndarray
+        Rubbing speeds [m/s].
+
+    Returns
+    -------
+    ndarray
+        μ at each speed.
+
+    """
     return np.array([mu_kinetic(law, params, float(s)) for s in np.atleast_1d(speeds)])
 
 
 def law_row(law: int, values) -> np.ndarray:
-    """Return a parameter row of length N_LAW_PARAMS for ``law`` from its listed values."""
+    """
+    Return a parameter row of length N_LAW_PARAMS for ``law`` from its listed values.
+
+    Parameters
+    ----------
+    law : int
+        The friction law's id (``friction.LAW_IDS``).
+    values : list of float
+        The law's listed values.
+
+    Returns
+    -------
+    ndarray
+        The parameter row.
+
+    """
     if law == LAW_BSPLINE:
         return _bspline_row(values)
     row = np.zeros(N_LAW_PARAMS)

@@ -27,7 +27,28 @@ MAX_VERTS = 8
 
 @borrowing
 def corner_x(x, phi, half_a, half_b, i):
-    """Return the x of corner i (``box_corners``' order) of the box centred at x, turned by φ."""
+    """
+    Return the x of corner i (``box_corners``' order) of the box centred at x, turned by φ.
+
+    Parameters
+    ----------
+    x : float
+        The centre's x [m].
+    phi : float
+        The turn [rad].
+    half_a : float
+        Half the parcel's length A [m].
+    half_b : float
+        Half the parcel's width B [m].
+    i : int
+        The corner's index, in ``box_corners``' order.
+
+    Returns
+    -------
+    float
+        The corner's x [m].
+
+    """
     ox = half_a if i < 2 else -half_a
     oy = -half_b if i == 0 or i == 3 else half_b
     return x + math.cos(phi) * ox - math.sin(phi) * oy
@@ -210,6 +231,23 @@ def distance_integrals(poly, n, cx, cy):
     Returns (I_r, Gx, Gy). Each edge contributes ∫ r ds = ∫ sqrt(τ² + h²) dτ with
     h its signed distance from c: ∫ r dA = (1/3) Σ h_e ∫_e r ds (since ∇·((p-c) r) = 3r)
     and ∫ ∇r dA = Σ n_e ∫_e r ds. A vertex's distance from c serves both its edges.
+
+    Parameters
+    ----------
+    poly : ndarray, shape (MAX_VERTS, 2)
+        A convex polygon's vertices, counter-clockwise [m].
+    n : int
+        Its vertex count.
+    cx : float
+        The centre's x [m].
+    cy : float
+        The centre's y [m].
+
+    Returns
+    -------
+    (float, float, float)
+        ∫_P |p-c| dA and the two components of ∫_P (p-c)/|p-c| dA.
+
     """
     i_r = 0.0
     gx = 0.0
@@ -246,7 +284,26 @@ def distance_integrals(poly, n, cx, cy):
 
 @borrowing
 def max_radius(poly, n, qx, qy):
-    """Largest vertex distance from (qx, qy)."""
+    """
+    Largest vertex distance from (qx, qy).
+
+    Parameters
+    ----------
+    poly : ndarray, shape (MAX_VERTS, 2)
+        A convex polygon's vertices, counter-clockwise [m].
+    n : int
+        Its vertex count.
+    qx : float
+        Its centroid's x [m].
+    qy : float
+        Its centroid's y [m].
+
+    Returns
+    -------
+    float
+        The largest distance [m].
+
+    """
     r2 = 0.0
     for i in range(n):
         dx = poly[i, 0] - qx

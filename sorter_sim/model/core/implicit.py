@@ -389,6 +389,33 @@ def implicit_step(
     about 1.5 wrench evaluations a step on Fig. 9a. ``xis`` (nsurf x
     GAUGE_CARRY): each surface's limit-set gauge twist and Newton metric, carried from
     step to step.
+
+    Parameters
+    ----------
+    y : ndarray, shape (6,)
+        The state (``layout``).
+    h : float
+        The step [s].
+    mode : int
+        The mode: MODE_SLIDE, or the surface stuck to.
+    contact : Contact
+        What the parcel slides on (``layout.Contact``).
+    exact : bool
+        Constant μ: the exact wrench; else the lagged point set.
+    mu_ratio : ndarray
+        Each surface's μ_k/μ_s, lagged one step.
+    carry : Carry
+        What a step carries to the next (point set, guess, metric, gauge twists).
+    fresh : bool
+        Recompute the point set.
+    y_out : ndarray, shape (6,)
+        Receives the state after the step.
+
+    Returns
+    -------
+    (int, int)
+        The mode after the step and the friction evaluations it took.
+
     """
     pts, guess, hess, xis = carry.pts, carry.guess, carry.hess, carry.xis
     strips, parcel = contact.strips, contact.parcel

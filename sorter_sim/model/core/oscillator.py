@@ -97,7 +97,22 @@ class OscResult:
 
 
 def exact_phases(osc: Oscillator, t_end: float):
-    """Return the exact sequence of phases up to t_end: list of (t_start, kind, x0, v0, sigma)."""
+    """
+    Return the exact sequence of phases up to t_end: list of (t_start, kind, x0, v0, sigma).
+
+    Parameters
+    ----------
+    osc : Oscillator
+        The body.
+    t_end : float
+        The end [s].
+
+    Returns
+    -------
+    list of tuple
+        (t_start, kind, x0, v0, σ) of each phase.
+
+    """
     if not (math.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end must be a finite time > 0 s, got {t_end}")
     w0 = osc.omega0
@@ -566,7 +581,22 @@ def run_oscillator(
 
 
 def static_stage_durations(res: OscResult, n_cycles: int = 3) -> list[float]:
-    """Durations of the F(3) stage (row 3 of eq. 3.1) of the first stick-slip cycles (Fig. 5)."""
+    """
+    Durations of the F(3) stage (row 3 of eq. 3.1) of the first stick-slip cycles (Fig. 5).
+
+    Parameters
+    ----------
+    res : SimResult or OscResult
+        A run's result.
+    n_cycles : int
+        How many cycles.
+
+    Returns
+    -------
+    ndarray
+        The durations [s].
+
+    """
     out = []
     inside = False
     start = 0.0

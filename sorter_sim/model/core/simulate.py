@@ -174,7 +174,20 @@ class FrictionLaw:
         return LAW_NAMES[self.model]
 
     def scaled(self, factor: float) -> "FrictionLaw":
-        """Return the same shape with every coefficient multiplied by ``factor`` (speeds kept)."""
+        """
+        Return the same shape with every coefficient multiplied by ``factor`` (speeds kept).
+
+        Parameters
+        ----------
+        factor : float
+            The factor.
+
+        Returns
+        -------
+        FrictionLaw
+            The same shape, every coefficient times ``factor``.
+
+        """
         v = list(self.values)
         if self.model in ("const2", "const1", "polynomial"):
             v = [x * factor for x in v]
@@ -213,7 +226,20 @@ class Parcel:
         return self.m * (self.A**2 + self.B**2) / 12.0
 
     def leading_edge_offset(self, phi: float) -> float:
-        """Distance from the centre of gravity to the foremost corner along x [m]."""
+        """
+        Distance from the centre of gravity to the foremost corner along x [m].
+
+        Parameters
+        ----------
+        phi : float
+            The turn [rad].
+
+        Returns
+        -------
+        float
+            The distance [m].
+
+        """
         return 0.5 * (self.A * abs(math.cos(phi)) + self.B * abs(math.sin(phi)))
 
 
@@ -383,6 +409,20 @@ def parcel_array(
 
 
 def strip_borders(strips: list[Strip]) -> np.ndarray:
+    """
+    Return the x of every finite strip border.
+
+    Parameters
+    ----------
+    strips : list of Strip
+        The strips.
+
+    Returns
+    -------
+    ndarray
+        The x of every finite strip border [m], sorted.
+
+    """
     xs = sorted({x for s in strips for x in (s.x_lo, s.x_hi) if math.isfinite(x)})
     return np.array(xs, dtype=float)
 
@@ -431,6 +471,22 @@ class SimResult:
         return None
 
     def first_event(self, kind: str, info=None) -> float | None:
+        """
+        Return the time of the first event of ``kind`` (and ``info``).
+
+        Parameters
+        ----------
+        kind : str
+            The event's kind ('stick', 'break', 'zone', 'scrap').
+        info : int, optional
+            The event's info (a surface id), or any.
+
+        Returns
+        -------
+        float or None
+            The first such event's time [s], or None.
+
+        """
         for t, k, i in self.events:
             if k == kind and (info is None or i == info):
                 return t
@@ -438,7 +494,20 @@ class SimResult:
 
 
 def surface_velocities(arr: np.ndarray) -> list[tuple[float, float]]:
-    """Return each surface's velocity (vx, vy), by surface id."""
+    """
+    Return each surface's velocity (vx, vy), by surface id.
+
+    Parameters
+    ----------
+    arr : ndarray, shape (n, STRIP_WIDTH)
+        The strips (``layout``).
+
+    Returns
+    -------
+    list of (float, float)
+        Each surface's velocity, by surface id.
+
+    """
     velocities: dict[int, tuple[float, float]] = {}
     for row in arr[:, : S_SURF + 1].tolist():
         velocities.setdefault(int(row[S_SURF]), (row[S_VX], row[S_VY]))
@@ -446,7 +515,26 @@ def surface_velocities(arr: np.ndarray) -> list[tuple[float, float]]:
 
 
 def initial_mode(y0, arr: np.ndarray, parcel_arr: np.ndarray, velocities=None) -> int:
-    """Stuck to the surface whose velocity the parcel has (φ̇ = 0) and touches, else sliding."""
+    """
+    Stuck to the surface whose velocity the parcel has (φ̇ = 0) and touches, else sliding.
+
+    Parameters
+    ----------
+    y0 : ndarray, shape (6,)
+        The start's state (``layout``).
+    arr : ndarray, shape (n, STRIP_WIDTH)
+        The strips (``layout``).
+    parcel_arr : ndarray, shape (PARCEL_WIDTH,)
+        The parcel's row (``layout``).
+    velocities : list of (float, float), optional
+        Each surface's velocity; computed from ``arr`` when not given.
+
+    Returns
+    -------
+    int
+        The surface it is stuck to, or MODE_SLIDE.
+
+    """
     if y0[5] != 0.0:
         return MODE_SLIDE
     velocities = velocities or surface_velocities(arr)

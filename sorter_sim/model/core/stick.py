@@ -112,7 +112,30 @@ def limit_gauge(state, contact, surf, wx, wy, wt, xi, clip):
     tenfold (it is only Newton's metric). ``clip``: a footprint scratch
     (``wrench.clip_scratch``).
 
-    Returns γ (0 for W = 0; inf when the patch supplies no friction at all).
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The pose the stick is checked at (``layout``).
+    contact : Contact
+        What the parcel slides on (``layout.Contact``).
+    surf : int
+        A surface id.
+    wx : float
+        The wrench's force x [N].
+    wy : float
+        The wrench's force y [N].
+    wt : float
+        Its moment about the centre of gravity [N m].
+    xi : ndarray, shape (3,) or (GAUGE_CARRY,), in/out
+        The limit-set gauge's warm start: its twist, and (with room) its Newton metric.
+    clip : ndarray
+        A footprint scratch (``wrench.clip_scratch``).
+
+    Returns
+    -------
+    float
+        γ (0 for W = 0; inf when the patch supplies no friction at all).
+
     """
     parcel = contact.parcel
     rho = math.sqrt(parcel[P_INERTIA] / parcel[P_MASS])
@@ -148,7 +171,6 @@ def stick_margin(state, contact, nsurf, surf, xi):
     """
     Break-away margin of sticking to ``surf`` at this pose (> 0: the stick breaks).
 
-    Returns (margin, area of surf, Fx, Fy, T of the other surfaces' kinetic wrench).
     ``state`` must carry the stuck velocity (surface velocity, φ̇ = 0), so the stuck
     surface must supply exactly the opposite of the others' wrench. Exact stick
     (``P_STICK``): margin = γ - 1, γ that wrench's gauge in the surface's limit set
@@ -156,6 +178,26 @@ def stick_margin(state, contact, nsurf, surf, xi):
     |F| <= F_max). Seed stick: the decoupled test of eqs. 4.2/4.4, |F| <= F_max and
     |T| <= T_max separately, in force units. ``xi`` (3, or GAUGE_CARRY to carry its
     Newton metric too): the gauge's warm start.
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The pose the stick is checked at (``layout``).
+    contact : Contact
+        What the parcel slides on (``layout.Contact``).
+    nsurf : int
+        The number of surfaces.
+    surf : int
+        A surface id.
+    xi : ndarray, shape (3,) or (GAUGE_CARRY,), in/out
+        The limit-set gauge's warm start: its twist, and (with room) its Newton metric.
+
+    Returns
+    -------
+    (float, float, float, float, float)
+        The margin (> 0: the stick breaks), the area of ``surf``, and Fx, Fy, T of
+        the other surfaces' kinetic wrench.
+
     """
     strips, parcel = contact.strips, contact.parcel
     # a pull equal to the capacity within STICK_RTOL holds: at an exact balance (the
@@ -422,6 +464,29 @@ def inside_limit_set(state, strips, parcel, surf, fx, fy, t):
     densest into a disk about c). Mixing the two bounds with the weights |F|/F_max and
     1 - |F|/F_max gives D >= |F||V| + |T||ω| >= F·V + Tω for every twist, i.e. the
     wrench is in the set, where |T| + |F| d <= (1 - |F|/F_max) J.
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The pose the stick is checked at (``layout``).
+    strips : ndarray, shape (n, STRIP_WIDTH)
+        The strips (``layout``).
+    parcel : ndarray, shape (PARCEL_WIDTH,)
+        The parcel's row (``layout``).
+    surf : int
+        A surface id.
+    fx : float
+        The wrench's force x [N].
+    fy : float
+        The wrench's force y [N].
+    t : float
+        Its moment about the centre of gravity [N m].
+
+    Returns
+    -------
+    bool
+        True if the bound shows the wrench inside (False decides nothing).
+
     """
     x = state[0]
     y = state[1]

@@ -45,6 +45,22 @@ def rhs_threshold(state, contact, nsurf, v_min, out, modes_out):
     A 'static' surface answers the kinetic pull of the others with at most its limit
     (middle rows of eqs. 4.2 and 4.4); its own kinetic wrench is not applied.
     modes_out[s] = 1 where surface s is static in force.
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+    contact : Contact
+        What the parcel slides on (``layout.Contact``).
+    nsurf : int
+        The number of surfaces.
+    v_min : float
+        The threshold speed [m/s] of eq. (3.1).
+    out : ndarray, shape (6,)
+        Receives the state's time derivative.
+    modes_out : ndarray, shape (nsurf,)
+        Receives 1 where a surface is static in force.
+
     """
     parcel = contact.parcel
     kin = np.empty((nsurf, 3))

@@ -78,14 +78,52 @@ def _gauss_legendre_01(n: int):
 
 
 def gauss_legendre_01(n: int):
-    """Gauss-Legendre nodes and weights on [0, 1] (fresh arrays: the rule is computed once)."""
+    """
+    Gauss-Legendre nodes and weights on [0, 1] (fresh arrays: the rule is computed once).
+
+    Parameters
+    ----------
+    n : int
+        Its vertex count.
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        The nodes and the weights.
+
+    """
     x, w = _gauss_legendre_01(int(n))
     return x.copy(), w.copy()
 
 
 @borrowing
 def closed_form_applies(poly, n, qx, qy, ux_q, uy_q, omega):
-    """Return True where the exact constant-μ wrench is accurate (translation or a near ICR)."""
+    """
+    Return True where the exact constant-μ wrench is accurate (translation or a near ICR).
+
+    Parameters
+    ----------
+    poly : ndarray, shape (MAX_VERTS, 2)
+        A convex polygon's vertices, counter-clockwise [m].
+    n : int
+        Its vertex count.
+    qx : float
+        Its centroid's x [m].
+    qy : float
+        Its centroid's y [m].
+    ux_q : float
+        The rubbing velocity's x at the centroid [m/s].
+    uy_q : float
+        The rubbing velocity's y at the centroid [m/s].
+    omega : float
+        The angular velocity [rad/s] relative to the surface.
+
+    Returns
+    -------
+    bool
+        True where the exact constant-μ wrench is accurate.
+
+    """
     if omega == 0.0:
         return True
     return abs(omega) * max_radius(poly, n, qx, qy) >= SMALL_ROTATION * math.hypot(ux_q, uy_q)
@@ -97,6 +135,39 @@ def strip_wrench_closed(poly, n, area, qx, qy, gx, gy, ux_q, uy_q, omega, mu, pr
     Exact friction wrench (Fx, Fy, T about g) of a constant-μ strip part.
 
     Valid where ``closed_form_applies``; for φ̇ = 0 it is F = -μ p S û_q, T = (q - g)×F.
+
+    Parameters
+    ----------
+    poly : ndarray, shape (MAX_VERTS, 2)
+        A convex polygon's vertices, counter-clockwise [m].
+    n : int
+        Its vertex count.
+    area : float
+        Its area [m²].
+    qx : float
+        Its centroid's x [m].
+    qy : float
+        Its centroid's y [m].
+    gx : float
+        The centre of gravity's x [m].
+    gy : float
+        The centre of gravity's y [m].
+    ux_q : float
+        The rubbing velocity's x at the centroid [m/s].
+    uy_q : float
+        The rubbing velocity's y at the centroid [m/s].
+    omega : float
+        The angular velocity [rad/s] relative to the surface.
+    mu : float
+        The constant friction coefficient.
+    pressure : float
+        The normal pressure on the part [N/m²] (its load share included).
+
+    Returns
+    -------
+    (float, float, float)
+        Fx, Fy [N] and T about the centre of gravity [N m].
+
     """
     scale = mu * pressure
     if omega == 0.0:
@@ -136,7 +207,20 @@ _SMOOTH_EPS = (0.0, 0.0, 5e-7, 2e-3, 0.015, 0.05, 0.1, 0.2)
 
 @borrowing
 def smooth_order(eps):
-    """Points per direction that integrate a constant-μ patch with far centre to rounding."""
+    """
+    Points per direction that integrate a constant-μ patch with far centre to rounding.
+
+    Parameters
+    ----------
+    eps : float
+        The relative accuracy wanted.
+
+    Returns
+    -------
+    int
+        The points per direction.
+
+    """
     for n in range(2, 8):
         if eps <= _SMOOTH_EPS[n]:
             return n
@@ -174,6 +258,47 @@ def strip_wrench_quad(
     nearer of |u_q| and that reach, as a knot just outside the patch's speeds slows
     Gauss's convergence as the centre does): a constant μ, or a speed-dependent one
     inside one of its smooth pieces, measured to rounding alike.
+
+    Parameters
+    ----------
+    poly : ndarray, shape (MAX_VERTS, 2)
+        A convex polygon's vertices, counter-clockwise [m].
+    n : int
+        Its vertex count.
+    qx : float
+        Its centroid's x [m].
+    qy : float
+        Its centroid's y [m].
+    gx : float
+        The centre of gravity's x [m].
+    gy : float
+        The centre of gravity's y [m].
+    ux_q : float
+        The rubbing velocity's x at the centroid [m/s].
+    uy_q : float
+        The rubbing velocity's y at the centroid [m/s].
+    omega : float
+        The angular velocity [rad/s] relative to the surface.
+    law : int
+        The friction law's id (``friction.LAW_IDS``).
+    params : ndarray
+        The law's parameters (``friction.N_LAW_PARAMS``).
+    pressure : float
+        The normal pressure on the part [N/m²] (its load share included).
+    nodes : ndarray
+        Gauss-Legendre nodes on [0, 1].
+    weights : ndarray
+        Their weights.
+    adapt : bool
+        Refine the fan near the instantaneous centre of rotation.
+    mu_fixed : float
+        μ to use everywhere; < 0: the law's at each point.
+
+    Returns
+    -------
+    (float, float, float)
+        Fx, Fy [N] and T about the centre of gravity [N m].
+
     """
     radius = max_radius(poly, n, qx, qy)
     cx = qx
@@ -268,6 +393,24 @@ def add_slip_curvature(out, c, ux, uy, sp, rx, ry):
     u = (ux, uy) the rubbing velocity of a point at r = (rx, ry) from g, sp = |u| > 0,
     J = [[1, 0, -r_y], [0, 1, r_x]] its velocity's derivative in the twist. As
     I - ûûᵀ = n nᵀ with n = ẑ × û, it is one rank-one term.
+
+    Parameters
+    ----------
+    out : ndarray
+        Receives the result.
+    c : float
+        The coefficient of |u|.
+    ux : float
+        The twist's velocity x [m/s].
+    uy : float
+        The twist's velocity y [m/s].
+    sp : float
+        The rubbing speed |u| [m/s].
+    rx : float
+        The point's offset x from the centre of gravity [m].
+    ry : float
+        Its offset y [m].
+
     """
     c = c / sp
     jn0 = -uy / sp
@@ -292,6 +435,18 @@ def dissipation_hessian(state, strips, parcel, out):
     the centroid fan: the integrand's 1/|u| is integrable but not smooth at an
     instantaneous centre inside a patch, so this is a model that sets the scale and
     shape of Newton's steps (the implicit step's), not a value.
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+    strips : ndarray, shape (n, STRIP_WIDTH)
+        The strips (``layout``).
+    parcel : ndarray, shape (PARCEL_WIDTH,)
+        The parcel's row (``layout``).
+    out : ndarray
+        Receives the result.
+
     """
     x = state[0]
     y = state[1]
@@ -347,7 +502,24 @@ def clip_scratch():
 
 @borrowing
 def place_box(state, parcel, clip):
-    """Put the corners of the parcel in ``state`` into ``clip``; returns their x range."""
+    """
+    Put the corners of the parcel in ``state`` into ``clip``; returns their x range.
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+    parcel : ndarray, shape (PARCEL_WIDTH,)
+        The parcel's row (``layout``).
+    clip : ndarray
+        A footprint scratch (``wrench.clip_scratch``).
+
+    Returns
+    -------
+    (float, float)
+        The corners' x range [m].
+
+    """
     c = clip[0:4]
     box_corners(state[0], state[1], state[2], parcel[P_HALF_A], parcel[P_HALF_B], c)
     return min(c[0, 0], c[1, 0], c[2, 0], c[3, 0]), max(c[0, 0], c[1, 0], c[2, 0], c[3, 0])
@@ -360,6 +532,25 @@ def strip_part(clip, strips, k, xmin, xmax):
 
     A strip of no load share, or beyond the box's x range [xmin, xmax], has none (n = 0,
     area 0) for the price of two comparisons.
+
+    Parameters
+    ----------
+    clip : ndarray
+        A footprint scratch (``wrench.clip_scratch``).
+    strips : ndarray, shape (n, STRIP_WIDTH)
+        The strips (``layout``).
+    k : int
+        The strip's row.
+    xmin : float
+        The box's x range, low [m].
+    xmax : float
+        High [m].
+
+    Returns
+    -------
+    (int, float, float, float)
+        The part's vertex count, area [m²] and centroid [m].
+
     """
     if strips[k, S_WEIGHT] <= 0.0 or strips[k, S_XHI] <= xmin or strips[k, S_XLO] >= xmax:
         return 0, 0.0, 0.0, 0.0
@@ -371,7 +562,28 @@ def strip_part(clip, strips, k, xmin, xmax):
 
 @borrowing
 def surface_area(state, strips, parcel, surf, clip):
-    """Footprint area over surface ``surf``, weighted by load share [m²] (clipping only)."""
+    """
+    Footprint area over surface ``surf``, weighted by load share [m²] (clipping only).
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+    strips : ndarray, shape (n, STRIP_WIDTH)
+        The strips (``layout``).
+    parcel : ndarray, shape (PARCEL_WIDTH,)
+        The parcel's row (``layout``).
+    surf : int
+        A surface id.
+    clip : ndarray
+        A footprint scratch (``wrench.clip_scratch``).
+
+    Returns
+    -------
+    float
+        The area [m²].
+
+    """
     xmin, xmax = place_box(state, parcel, clip)
     total = 0.0
     for k in range(strips.shape[0]):
@@ -408,6 +620,49 @@ def strip_part_wrench(
     accurate, Gauss quadrature elsewhere; μ is the law's kinetic μ(|u|), or ``mu_fixed``
     where that is >= 0 (a coefficient of rest). ``closed_ok`` False forces quadrature
     (the full model, for checking the reductions).
+
+    Parameters
+    ----------
+    poly : ndarray, shape (MAX_VERTS, 2)
+        A convex polygon's vertices, counter-clockwise [m].
+    n : int
+        Its vertex count.
+    a : float
+        Its area [m²].
+    qx : float
+        Its centroid's x [m].
+    qy : float
+        Its centroid's y [m].
+    gx : float
+        The centre of gravity's x [m].
+    gy : float
+        The centre of gravity's y [m].
+    ux_q : float
+        The rubbing velocity's x at the centroid [m/s].
+    uy_q : float
+        The rubbing velocity's y at the centroid [m/s].
+    omega : float
+        The angular velocity [rad/s] relative to the surface.
+    law : int
+        The friction law's id (``friction.LAW_IDS``).
+    params : ndarray
+        The law's parameters (``friction.N_LAW_PARAMS``).
+    mu_fixed : float
+        μ to use everywhere; < 0: the law's at each point.
+    pressure : float
+        The normal pressure on the part [N/m²] (its load share included).
+    nodes : ndarray
+        Gauss-Legendre nodes on [0, 1].
+    weights : ndarray
+        Their weights.
+    closed_ok : bool
+        The exact constant-μ wrench may be used where it applies.
+
+    Returns
+    -------
+    (float, float, float)
+        Fx, Fy [N] and T about the centre of gravity [N m].
+
     """
     constant = mu_fixed >= 0.0 or law_is_constant(law)
     if closed_ok and constant and closed_form_applies(poly, n, qx, qy, ux_q, uy_q, omega):
@@ -440,6 +695,23 @@ def kinetic_wrench(state, contact, skip, clip):
 
     Every surface but ``skip`` (-1 or less: none) at the law's μ(|u|); the sum of
     ``evaluate_surfaces``' kinetic rows, without its per-surface bookkeeping.
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+    contact : Contact
+        What the parcel slides on (``layout.Contact``).
+    skip : int
+        A surface left out (-1 or less: none).
+    clip : ndarray
+        A footprint scratch (``wrench.clip_scratch``).
+
+    Returns
+    -------
+    (float, float, float)
+        Fx, Fy [N] and T about the centre of gravity [N m].
+
     """
     strips, parcel, nodes, weights = contact
     x = state[0]
@@ -497,6 +769,27 @@ def evaluate_surfaces(state, contact, skip_kinetic, need_static, kin, stat, area
       slip_c[k] = rubbing speed at the area-weighted centroid of its parts [m/s]
                   (the zone speed the threshold model compares with v_min).
     Strips the footprint does not reach cost one clip and nothing else.
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+    contact : Contact
+        What the parcel slides on (``layout.Contact``).
+    skip_kinetic : int
+        A surface whose kinetic wrench is left out (-1 or less: none; -2: none, and
+        every surface's static limits too).
+    need_static : bool
+        Compute the static limits too.
+    kin : ndarray, shape (nsurf, 3)
+        Receives each surface's kinetic wrench.
+    stat : ndarray, shape (nsurf, 2)
+        Receives each surface's static limits (F_max, T_max).
+    area : float
+        Its area [m²].
+    slip_c : ndarray, shape (nsurf,)
+        Receives each surface's slip speed at the footprint's centroid [m/s].
+
     """
     strips, parcel, nodes, weights = contact
     x = state[0]
@@ -580,6 +873,29 @@ def static_surface_wrench(state, contact, surf, ux, uy, om, clip):
     normal is the twist. Exact for polygons (``strip_wrench_closed``) wherever that
     is accurate, Gauss quadrature at constant μ_s elsewhere. ``clip``: a footprint
     scratch (``clip_scratch``).
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+    contact : Contact
+        What the parcel slides on (``layout.Contact``).
+    surf : int
+        A surface id.
+    ux : float
+        The twist's velocity x [m/s].
+    uy : float
+        The twist's velocity y [m/s].
+    om : float
+        Its angular velocity [rad/s].
+    clip : ndarray
+        A footprint scratch (``wrench.clip_scratch``).
+
+    Returns
+    -------
+    (float, float, float)
+        Fx, Fy [N] and T about the centre of gravity [N m].
+
     """
     return rest_surface_wrench(state, contact, surf, ux, uy, om, False, clip)
 
@@ -593,6 +909,31 @@ def rest_surface_wrench(state, contact, surf, ux, uy, om, kinetic, clip):
     ``static_surface_wrench``) or the kinetic law's limit at vanishing speed μ_k(0)
     (``kinetic`` True: the friction a patch slipping infinitely slowly with that
     twist direction feels, which a break-away starts from).
+
+    Parameters
+    ----------
+    state : ndarray, shape (6,)
+        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
+    contact : Contact
+        What the parcel slides on (``layout.Contact``).
+    surf : int
+        A surface id.
+    ux : float
+        The twist's velocity x [m/s].
+    uy : float
+        The twist's velocity y [m/s].
+    om : float
+        Its angular velocity [rad/s].
+    kinetic : bool
+        At μ_k(0) (kinetic, vanishing slip) rather than μ_s.
+    clip : ndarray
+        A footprint scratch (``wrench.clip_scratch``).
+
+    Returns
+    -------
+    (float, float, float)
+        Fx, Fy [N] and T about the centre of gravity [N m].
+
     """
     strips, parcel, nodes, weights = contact
     x = state[0]
@@ -639,7 +980,20 @@ def rest_surface_wrench(state, contact, surf, ux, uy, om, kinetic, clip):
 
 
 def n_surfaces(strips: np.ndarray) -> int:
-    """Return the number of distinct surfaces referenced by the strips."""
+    """
+    Return the number of distinct surfaces referenced by the strips.
+
+    Parameters
+    ----------
+    strips : ndarray, shape (n, STRIP_WIDTH)
+        The strips (``layout``).
+
+    Returns
+    -------
+    int
+        The number of distinct surfaces.
+
+    """
     return int(strips[:, S_SURF].max()) + 1 if strips.shape[0] else 0
 
 
