@@ -40,6 +40,15 @@ class _Parser(argparse.ArgumentParser):
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """
+    Add ``sorter run``'s arguments to its parser.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's parser.
+
+    """
     parser.add_argument("scene", help="scene YAML file (see config/scenes/)")
     parser.add_argument(
         "--set",
@@ -69,7 +78,20 @@ def _json_safe(obj):
 
 
 def run(args) -> int | str:
-    """``sorter run``."""
+    """
+    Run ``sorter run``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Its parsed arguments.
+
+    Returns
+    -------
+    int or str
+        The exit code, or a message for a refused input (exit 2).
+
+    """
     scene = load_scene(args.scene)
     if args.overrides:
         scene = apply_overrides(scene, args.overrides)
@@ -102,7 +124,20 @@ def run(args) -> int | str:
 
 
 def build_parser(verbs: dict | None = None) -> argparse.ArgumentParser:
-    """Return the parser of ``verbs`` (verb -> (module, help); default: this package's)."""
+    """
+    Return the parser of the ``sorter`` command.
+
+    Parameters
+    ----------
+    verbs : dict, optional
+        verb -> (module, help); default: this package's.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The parser, one sub-parser per verb.
+
+    """
     parser = _Parser(
         prog="sorter", description="Parcel sorter cell: model, studies and the running cell."
     )
@@ -119,7 +154,22 @@ def build_parser(verbs: dict | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None, verbs: dict | None = None) -> int:
-    """Parse ``argv``, run the verb, turn its result into an exit code."""
+    """
+    Parse ``argv``, run the verb, turn its result into an exit code.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments (default: the process's).
+    verbs : dict, optional
+        The verbs (default: this package's).
+
+    Returns
+    -------
+    int
+        The exit code: 0 done, 1 a run that failed, 2 a refused input.
+
+    """
     apply_ros_env_defaults()
     check_kernel_cache()
     parser = build_parser(verbs)

@@ -9,5 +9,13 @@ from sorter_ros.env import start_node
 
 
 def main(args=None) -> None:
-    """Entry point of ``sim_node`` (``ros2 run sorter_cell sim_node``)."""
+    """
+    Run ``sim_node`` (``ros2 run sorter_cell sim_node``).
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The command line (default: the process's).
+
+    """
     start_node('sorter_sim.frontends.node', args)

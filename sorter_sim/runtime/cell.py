@@ -113,7 +113,27 @@ class ParcelSpec:
 
 
 def check_parcel(spec: ParcelSpec, belt_width: float) -> ParcelSpec:
-    """Raise ParamError unless the parcel is physical and fits on the belt at induct."""
+    """
+    Raise ParamError unless the parcel is physical and fits on the belt at induct.
+
+    Parameters
+    ----------
+    spec : ParcelSpec
+        The parcel.
+    belt_width : float
+        The belt's width [m].
+
+    Returns
+    -------
+    ParcelSpec
+        The parcel, its numbers as floats.
+
+    Raises
+    ------
+    ParamError
+        A size, mass, skew or offset out of range, or a bad label, named.
+
+    """
     limits = {'A': SPECS['parcel_A'], 'B': SPECS['parcel_B'], 'm': SPECS['parcel_m']}
     for key, ps in limits.items():
         v = getattr(spec, key)
@@ -222,7 +242,16 @@ class Cell:
         c[ck.C_LAW_B] = law_b.law_id
 
     def update_params(self, params: CellParams) -> None:
-        """Take run-time parameter changes (disk angle command, the parcel stream)."""
+        """
+        Take run-time parameter changes (the disk angle command, the parcel stream).
+
+        Parameters
+        ----------
+        params : CellParams
+            The new set, checked (``CellParams.with_changes``); its structural parameters are
+            the running cell's.
+
+        """
         changed_alpha = params.alpha_deg != self.params.alpha_deg
         self.params = params
         if changed_alpha:
@@ -267,7 +296,20 @@ class Cell:
         return self.params.belt_speed if self.act[ck.A_BELT_ON] > 0.5 else 0.0
 
     def popup(self, up: bool) -> tuple[bool, str]:
-        """Raise (True) or lower the disks; refused while the e-stop is engaged."""
+        """
+        Raise (True) or lower the disks; refused while the e-stop is engaged.
+
+        Parameters
+        ----------
+        up : bool
+            Raise (True) or lower (False); the stroke then moves over ``popup_stroke_time``.
+
+        Returns
+        -------
+        (bool, str)
+            Whether it was taken, and the reason (why not, or what it does).
+
+        """
         if self.estop:
             return False, 'refused: e-stop engaged (call reset first)'
         if up and self.watchdog_tripped:
@@ -276,7 +318,20 @@ class Cell:
         return True, 'raising the disks' if up else 'lowering the disks'
 
     def set_alpha(self, alpha_rad: float) -> tuple[bool, str]:
-        """Command the disk angle [rad]; refused while the e-stop or the watchdog holds it."""
+        """
+        Command the disk angle; refused while the e-stop or the watchdog holds it.
+
+        Parameters
+        ----------
+        alpha_rad : float
+            The angle [rad]; the disks slew to it at ``alpha_slew_rate_deg_s``.
+
+        Returns
+        -------
+        (bool, str)
+            Whether it was taken, and the reason (why not, or what it does).
+
+        """
         if self.estop:
             return False, 'refused: e-stop engaged (call reset first)'
         if self.watchdog_tripped:
@@ -306,7 +361,20 @@ class Cell:
         return edges
 
     def run_belt(self, run: bool) -> tuple[bool, str]:
-        """Run or stop the belt (the run command); while the e-stop holds, it stays stopped."""
+        """
+        Run or stop the belt (the run command); while the e-stop holds, it stays stopped.
+
+        Parameters
+        ----------
+        run : bool
+            Run (True) or stop.
+
+        Returns
+        -------
+        (bool, str)
+            Whether it was taken, and the reason (why not, or what it does).
+
+        """
         self.belt_run = bool(run)
         if self.estop:
             return False, 'the belt stays stopped: e-stop engaged (call reset first)'
@@ -329,6 +397,17 @@ class Cell:
         stopped one, and the watchdog must see it as such (``heartbeats_frozen`` counts
         those repeats). A controller that comes back takes over where the safe state left
         the cell: the disks down and at safe_alpha_deg, ready for its next command.
+
+        Parameters
+        ----------
+        counter : int
+            The heartbeat's counter.
+
+        Returns
+        -------
+        bool
+            True if it cleared a watchdog trip.
+
         """
         if self._heartbeat_value is not None and counter == self._heartbeat_value:
             self.heartbeats_frozen += 1

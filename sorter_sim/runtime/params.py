@@ -476,7 +476,26 @@ def _range_pair(name: str, pair: tuple) -> None:
 
 
 def format_label(pattern: str, *, id: int, n: int, label: str) -> str:
-    """Return a parcel's label from ``label_pattern``."""
+    """
+    Return a parcel's label from ``label_pattern``.
+
+    Parameters
+    ----------
+    pattern : str
+        The pattern, with the fields ``{id}``, ``{n}`` and ``{label}``.
+    id : int
+        The parcel's id.
+    n : int
+        Its number in the stream.
+    label : str
+        The label drawn from ``labels``.
+
+    Returns
+    -------
+    str
+        The label.
+
+    """
     return pattern.format(id=id, n=n, label=label)
 
 
@@ -492,6 +511,19 @@ def check_label_pattern(pattern: str, labels=('A',)) -> None:
     with each of them and with ids up to a billion, must give one (so a pattern
     cannot index past a label's end, pad a label to megabytes, or insert a
     separator the routing grammar uses).
+
+    Parameters
+    ----------
+    pattern : str
+        The label pattern.
+    labels : sequence of str
+        The labels it may be given.
+
+    Raises
+    ------
+    ParamError
+        A label, or a label the pattern could make, outside the label grammar.
+
     """
     if len(pattern) > PATTERN_MAX:
         raise ParamError(
@@ -539,7 +571,22 @@ def check_label_pattern(pattern: str, labels=('A',)) -> None:
 
 
 def parcel_half_extents(A: float, B: float, phi: float) -> tuple[float, float]:
-    """Half extents (along x, along y) of the A x B footprint turned by φ [m]."""
+    """
+    Return the half extents of the A x B footprint turned by φ.
+
+    Parameters
+    ----------
+    A, B : float
+        Length and width [m].
+    phi : float
+        The turn [rad].
+
+    Returns
+    -------
+    (float, float)
+        The half extents along x and along y [m].
+
+    """
     c = abs(math.cos(phi))
     s = abs(math.sin(phi))
     return 0.5 * (A * c + B * s), 0.5 * (A * s + B * c)
@@ -551,6 +598,19 @@ def max_half_width(A_max: float, B_max: float, phi_lo_deg: float, phi_hi_deg: fl
 
     Largest half extent across the belt over the skew range (it is maximal at an end or
     where tan φ = A/B).
+
+    Parameters
+    ----------
+    A_max, B_max : float
+        The largest length and width of the stream [m].
+    phi_lo_deg, phi_hi_deg : float
+        The skew range [deg].
+
+    Returns
+    -------
+    float
+        The largest half extent across the belt [m].
+
     """
     lo, hi = math.radians(phi_lo_deg), math.radians(phi_hi_deg)
     cands = [lo, hi, 0.0]
@@ -624,7 +684,26 @@ class CellParams:
 
     @classmethod
     def from_values(cls, values: dict[str, Any]) -> 'CellParams':
-        """Check a mapping {parameter name: value}; missing names take their defaults."""
+        """
+        Check a mapping {parameter name: value}; missing names take their defaults.
+
+        Parameters
+        ----------
+        values : dict
+            Parameter values by name (``SCHEMA``).
+
+        Returns
+        -------
+        CellParams
+            The checked set.
+
+        Raises
+        ------
+        ParamError
+            An unknown name, a value of the wrong type or out of range, or values that
+            contradict each other; the message names the parameter and what is allowed.
+
+        """
         unknown = sorted(set(values) - set(SPECS))
         if unknown:
             raise ParamError(
@@ -639,7 +718,20 @@ class CellParams:
         return params
 
     def value(self, name: str) -> Any:
-        """Return the value of parameter ``name`` (lists for arrays, as ROS holds them)."""
+        """
+        Return the value of one parameter.
+
+        Parameters
+        ----------
+        name : str
+            The parameter.
+
+        Returns
+        -------
+        object
+            Its value (lists for arrays, as ROS holds them).
+
+        """
         v = getattr(self, _field(name))
         return list(v) if isinstance(v, tuple) else v
 
@@ -651,6 +743,19 @@ class CellParams:
         Return a new, checked parameter set with ``changes`` applied; raises ParamError otherwise.
 
         runtime: refuse changes to structural (read-only) parameters.
+
+        Parameters
+        ----------
+        changes : dict
+            Parameter values by name.
+        runtime : bool
+            Refuse changes to structural (read-only) parameters.
+
+        Returns
+        -------
+        CellParams
+            The new set; this one is not changed.
+
         """
         if runtime:
             fixed = sorted(n for n in changes if n in SPECS and n not in RUNTIME_NAMES)
@@ -695,6 +800,20 @@ class CellParams:
         return round(self.control_period * 1e9)
 
     def photo_eye(self, name: str) -> float:
+        """
+        Return the x of a photo-eye.
+
+        Parameters
+        ----------
+        name : str
+            The photo-eye's name (``photo_eyes.names``).
+
+        Returns
+        -------
+        float
+            Its x [m].
+
+        """
         return self.photo_eyes_x[self.photo_eyes_names.index(name)]
 
     # -- cross-checks --------------------------------------------------------

@@ -322,11 +322,39 @@ def _zone_law(scene: dict, zone: str) -> FrictionLaw:
 
 
 def scene_parcel(scene: dict) -> Parcel:
+    """
+    Return a scene's parcel.
+
+    Parameters
+    ----------
+    scene : dict
+        A validated scene.
+
+    Returns
+    -------
+    Parcel
+        Its box.
+
+    """
     p = scene["parcel"]
     return Parcel(p["A"], p["B"], p["m"])
 
 
 def scene_strips(scene: dict):
+    """
+    Return a scene's three zones (Fig. 6).
+
+    Parameters
+    ----------
+    scene : dict
+        A validated scene.
+
+    Returns
+    -------
+    list of Strip
+        Zones a, b, c with their laws, the disks at the scene's angle and stroke.
+
+    """
     fr, zones = scene["friction"], scene["zones"]
     return cell_strips(
         scene["belt"]["v"],
@@ -343,7 +371,20 @@ def scene_strips(scene: dict):
 
 
 def scene_initial_state(scene: dict) -> np.ndarray:
-    """Leading edge on the zone a/b border, moving with the belt, φ̇ = 0."""
+    """
+    Return a scene's start: leading edge on the zone a/b border, moving with the belt.
+
+    Parameters
+    ----------
+    scene : dict
+        A validated scene.
+
+    Returns
+    -------
+    ndarray, shape (6,)
+        The state (φ̇ = 0).
+
+    """
     return entry_state(scene_parcel(scene), scene["belt"]["v"], scene["parcel"]["phi0_deg"])
 
 
@@ -421,6 +462,22 @@ def stage_starts(res: SimResult, belt_surface: int = 0, disk_surface: int | None
 
     E1: steady motion I (stuck on the belt while the disks rub); E2: transient
     (sliding on both); E3: steady motion II (stuck on the disks).
+
+    Parameters
+    ----------
+    res : SimResult
+        A run.
+    belt_surface : int
+        The belt's surface id.
+    disk_surface : int, optional
+        The disks' surface id (None: no disks).
+
+    Returns
+    -------
+    dict
+        The start time of each stage [s] by name (E1, E2, E3); None for one that did
+        not occur.
+
     """
     stages: dict[str, float | None] = {"E1": None, "E2": None, "E3": None}
     if len(res.mode) and res.mode[0] == belt_surface:
@@ -434,6 +491,25 @@ def stage_starts(res: SimResult, belt_surface: int = 0, disk_surface: int | None
 
 
 def summarize(scene: dict, res: SimResult, y0) -> dict:
+    """
+    Return the JSON-ready summary of a run.
+
+    Parameters
+    ----------
+    scene : dict
+        The scene it ran.
+    res : SimResult
+        Its result.
+    y0 : ndarray, shape (6,)
+        Its start.
+
+    Returns
+    -------
+    dict
+        t_scrap, x_scrap, φ at the scrap line, the stages of Fig. 10, the capacity, the
+        events and the final state.
+
+    """
     t_scrap = res.t_target
     final = res.y[-1]
     disk = None

@@ -53,6 +53,17 @@ def warm_cell(params) -> float:
     The simulation node calls it before its clock starts, so that compiling (or
     loading) the kernels a parcel needs is start-up time, not simulated time a
     real-time cell would have to drop when the first parcel arrives.
+
+    Parameters
+    ----------
+    params : CellParams
+        The cell's parameters.
+
+    Returns
+    -------
+    float
+        The wall time it took [s].
+
     """
     from sorter_sim.runtime.cell import Cell, ParcelSpec
 
