@@ -159,6 +159,20 @@ def run_node(
     executable passes the ``stop`` it installed first thing (``start_node``), so that
     a signal while the node's modules still load is a clean stop too: a stop asked
     for before the node exists skips building it.
+
+    Parameters
+    ----------
+    make_node : callable
+        Builds the node (after rclpy is initialised); raises ValueError for a bad parameter.
+    prog : str
+        The executable's name, for messages.
+    config_errors : tuple of type
+        The exceptions that mean a bad configuration (one line, exit 2).
+    args : list of str, optional
+        The command line (default: the process's).
+    stop : StopSignals, optional
+        The executable's signal handlers, when it installed them first.
+
     """
     import sys
 
@@ -221,6 +235,14 @@ def start_node(node_module: str, args=None) -> None:
     clean stop (exit 0, no traceback) rather than a KeyboardInterrupt out of an
     import or death by SIGTERM. ``node_module`` names a module with
     ``main(args, stop)``; it is imported here, so this module stays light.
+
+    Parameters
+    ----------
+    node_module : str
+        The module whose ``main(args, stop)`` runs the node.
+    args : list of str, optional
+        The command line.
+
     """
     import importlib
 
@@ -242,6 +264,19 @@ def spin_surviving(node, stop=None) -> int:
     When ``stop`` (``StopSignals``, or any object with ``is_set()``) ends the loop, the node's
     ``last_words(executor)``, if it has one, runs before the executor goes: the
     context is still up, so it can still call a service.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node.
+    stop : threading.Event
+        Set to end the spin.
+
+    Returns
+    -------
+    int
+        The number of callback exceptions survived.
+
     """
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 

@@ -67,6 +67,27 @@ def descriptor(
 
     ``kind`` is a key of PARAMETER_TYPES; ``lo``/``hi`` become the range of a double
     or an integer (rclpy refuses values outside it before any callback runs).
+
+    Parameters
+    ----------
+    name : str
+        The parameter.
+    kind : str
+        Its type (a key of PARAMETER_TYPES).
+    description : str
+        Its meaning.
+    lo, hi : float, optional
+        Its range.
+    read_only : bool
+        Fixed once the node runs.
+    constraints : str
+        What is allowed, in words.
+
+    Returns
+    -------
+    ParameterDescriptor
+        The descriptor.
+
     """
     d = ParameterDescriptor(
         name=name,
@@ -85,7 +106,20 @@ def descriptor(
 
 
 def plain(value):
-    """Return a parameter value as plain Python (rclpy may hold arrays as array.array)."""
+    """
+    Return a parameter value as plain Python (rclpy may hold arrays as array.array).
+
+    Parameters
+    ----------
+    value : object
+        A parameter value as rclpy holds it.
+
+    Returns
+    -------
+    object
+        The value as plain Python (lists for arrays).
+
+    """
     if value is None or isinstance(value, (str, bool, int, float)):
         return value
     return list(value)
@@ -98,6 +132,19 @@ def parameter_problem(node, parameters) -> str | None:
     rclpy lets a parameter named '' through to exist afterwards, undeclared, and
     passes strings with NUL characters that the middleware then cuts at the NUL
     ('A\\0B' is stored as 'A'): both are refused here, with a reason.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node.
+    parameters : list of rclpy.parameter.Parameter
+        The request.
+
+    Returns
+    -------
+    str or None
+        Why it cannot be taken, or None.
+
     """
     for p in parameters:
         if not p.name or not node.has_parameter(p.name):
@@ -121,10 +168,7 @@ def _widened(param, declared_type: int):
     t = param.type_
     if declared_type == ParameterType.PARAMETER_DOUBLE and t == Parameter.Type.INTEGER:
         return Parameter(param.name, value=float(param.value))
-    if (
-        declared_type == ParameterType.PARAMETER_DOUBLE_ARRAY
-        and t == Parameter.Type.INTEGER_ARRAY
-    ):
+    if declared_type == ParameterType.PARAMETER_DOUBLE_ARRAY and t == Parameter.Type.INTEGER_ARRAY:
         return Parameter(param.name, value=[float(v) for v in param.value])
     return param
 
@@ -139,6 +183,14 @@ def accept_integers_for_doubles(node, declared: dict[str, int]) -> None:
     before the node declares its parameters, and a run-time change before rclpy checks
     its type (a pre-set callback), so 45 is 45.0 everywhere. Ranges are untouched: the
     widened value is checked as any double would be. Call before declaring.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node, before it declares its parameters.
+    declared : dict
+        {name: ParameterType} of the parameters it will declare.
+
     """
     overrides = node._parameter_overrides
     for name, param in list(overrides.items()):
@@ -146,9 +198,6 @@ def accept_integers_for_doubles(node, declared: dict[str, int]) -> None:
             overrides[name] = _widened(param, declared[name])
 
     def widen(parameters):
-        return [
-            _widened(p, declared[p.name]) if p.name in declared else p for p in parameters
-        ]
+        return [_widened(p, declared[p.name]) if p.name in declared else p for p in parameters]
 
     node.add_pre_set_parameters_callback(widen)
-

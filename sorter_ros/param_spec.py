@@ -43,7 +43,20 @@ class ParamSpec:
         return '(' if self.lo_open else '['
 
     def in_range(self, v: float) -> bool:
-        """Return True if the finite number ``v`` lies in the declared range."""
+        """
+        Return True if the finite number ``v`` lies in the declared range.
+
+        Parameters
+        ----------
+        v : float
+            A finite number.
+
+        Returns
+        -------
+        bool
+            True if it lies in the range.
+
+        """
         return (self.lo < v if self.lo_open else self.lo <= v) and v <= self.hi
 
     @property

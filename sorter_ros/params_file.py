@@ -30,6 +30,24 @@ def read_params_file(path: Path, node_name: str) -> dict[str, Any]:
 
     The node's section may be written ``node_name``, ``/node_name`` or
     ``/**/node_name`` (any namespace), as rcl accepts them.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ROS 2 parameters file.
+    node_name : str
+        The node.
+
+    Returns
+    -------
+    dict
+        {dotted name: value}.
+
+    Raises
+    ------
+    StrictYamlError
+        The file unreadable, not a parameters file, or without the node's section.
+
     """
     path = Path(path)
     try:

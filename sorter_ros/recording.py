@@ -45,6 +45,18 @@ def publish_recorded(publisher, msg, recorder: Recorder | None, t_ns: int) -> No
     With a recorder the message is serialized once, here, and published as those bytes
     (rclpy publishes serialized messages as they are): the recording holds exactly
     what went out, and recording costs no second serialization.
+
+    Parameters
+    ----------
+    publisher : rclpy.publisher.Publisher
+        The publisher.
+    msg : message or bytes
+        The message, or its CDR bytes.
+    recorder : Recorder, optional
+        The recording, if any.
+    t_ns : int
+        The simulated time [ns] it is stamped with in the recording.
+
     """
     if recorder is None or recorder.closed:
         publisher.publish(msg)
@@ -58,7 +70,20 @@ def publish_recorded(publisher, msg, recorder: Recorder | None, t_ns: int) -> No
 
 
 def type_name(msg_class) -> str:
-    """Return 'pkg/msg/Type' of a rosidl message class."""
+    """
+    Return 'pkg/msg/Type' of a rosidl message class.
+
+    Parameters
+    ----------
+    msg_class : type
+        A rosidl message class.
+
+    Returns
+    -------
+    str
+        Its name, ``pkg/msg/Type``.
+
+    """
     pkg = msg_class.__module__.split('.')[0]
     return f'{pkg}/msg/{msg_class.__name__}'
 
@@ -87,6 +112,17 @@ def message_definition(name: str) -> str:
 
     The format rosbag2 writes into MCAP schemas: the type's own text, then each type
     it uses (depth first, once each) after a line of 80 '=' and ``MSG: pkg/Type``.
+
+    Parameters
+    ----------
+    name : str
+        ``pkg/msg/Type``.
+
+    Returns
+    -------
+    str
+        The definition, its dependencies appended.
+
     """
     pkg, _, short = name.split('/')
     order: list[tuple[str, str]] = []
@@ -116,6 +152,17 @@ def qos_profiles_yaml(qos) -> str:
     A YAML list of one profile: policies by name (keep_last, reliable, transient_local,
     automatic, ...), durations as sec/nsec, as rosbag2's ``serialize_rclcpp_qos_vector``
     gives them and rosbag2's player (and rosbags) read them back.
+
+    Parameters
+    ----------
+    qos : rclpy.qos.QoSProfile
+        The publisher's profile.
+
+    Returns
+    -------
+    str
+        The YAML.
+
     """
     if qos is None:
         return ''
@@ -229,6 +276,20 @@ class Recorder:
         ``msg`` is a message, or its CDR bytes with ``msg_type`` (the message class or
         'pkg/msg/Type'), which is needed only the first time a topic is written; ``qos``
         is the publisher's QoS profile, recorded with the topic's channel.
+
+        Parameters
+        ----------
+        topic : str
+            The topic.
+        msg : message or bytes
+            The message, or its CDR bytes.
+        t_ns : int
+            The simulated time [ns].
+        msg_type : type, optional
+            The message class, with CDR bytes.
+        qos : rclpy.qos.QoSProfile, optional
+            The publisher's profile, recorded with the channel.
+
         """
         if isinstance(msg, (bytes, bytearray)):
             data = bytes(msg)
@@ -253,7 +314,17 @@ class Recorder:
             self.messages += 1
 
     def add_metadata(self, name: str, values: dict[str, str]) -> None:
-        """Write a metadata record (``name`` and string key/values), e.g. a node's parameters."""
+        """
+        Write a metadata record (``name`` and string key/values), e.g. a node's parameters.
+
+        Parameters
+        ----------
+        name : str
+            The record's name.
+        values : dict
+            Its string keys and values.
+
+        """
         with self._lock:
             self._guarded(self._writer.add_metadata, name=name, data=dict(values))
 
@@ -274,7 +345,20 @@ _open_lock = threading.Lock()
 
 
 def recording_problem(path: str) -> str | None:
-    """Say why ``path`` cannot take a recording (None when it can), without touching it."""
+    """
+    Say why ``path`` cannot take a recording (None when it can), without touching it.
+
+    Parameters
+    ----------
+    path : str or Path
+        Where the recording would go.
+
+    Returns
+    -------
+    str or None
+        Why it cannot, or None.
+
+    """
     p = Path(path)
     if p.suffix.lower() != '.mcap':
         return f'must name a .mcap file, got {path[:200]!r}'
@@ -296,6 +380,19 @@ def open_recorder(path: str, on_failure=None) -> Recorder:
     early (a write failed); the others share the file and the news.
     Raises ValueError with one line when the path cannot take a recording (another
     process records it, no folder, not writable, ...).
+
+    Parameters
+    ----------
+    path : str or Path
+        The MCAP file.
+    on_failure : callable
+        ``on_failure(text)``: how a failure to write is reported.
+
+    Returns
+    -------
+    Recorder
+        The recorder, shared by every user in this process.
+
     """
     problem = recording_problem(path)
     key = Path(path).resolve()
@@ -316,7 +413,15 @@ def open_recorder(path: str, on_failure=None) -> Recorder:
 
 
 def release_recorder(rec: Recorder) -> None:
-    """Give back a recorder from ``open_recorder``; the last user finishes the file."""
+    """
+    Give back a recorder from ``open_recorder``; the last user finishes the file.
+
+    Parameters
+    ----------
+    rec : Recorder
+        A recorder from ``open_recorder``.
+
+    """
     with _open_lock:
         rec._users -= 1
         if rec._users > 0:

@@ -80,7 +80,27 @@ def _show(value: Any, limit: int = 60) -> str:
 
 
 def load_yaml_text(text: str, what: str) -> Any:
-    """Parse ``text`` (from ``what``, for messages) strictly; raise StrictYamlError."""
+    """
+    Parse ``text`` (from ``what``, for messages) strictly; raise StrictYamlError.
+
+    Parameters
+    ----------
+    text : str
+        The YAML.
+    what : str
+        What it is, for messages.
+
+    Returns
+    -------
+    object
+        The parsed document.
+
+    Raises
+    ------
+    StrictYamlError
+        A duplicate key, an alias, a tag or a syntax error, in one line.
+
+    """
     if len(text) > MAX_BYTES:
         raise StrictYamlError(f'{what}: longer than {MAX_BYTES} characters')
     try:
@@ -98,7 +118,27 @@ def load_yaml_text(text: str, what: str) -> Any:
 
 
 def read_yaml_file(path: str | Path, what: str = 'file') -> Any:
-    """Read and parse a YAML file strictly (size first, then the text)."""
+    """
+    Read and parse a YAML file strictly (size first, then the text).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    what : str
+        What it is, for messages.
+
+    Returns
+    -------
+    object
+        The parsed document.
+
+    Raises
+    ------
+    StrictYamlError
+        The file missing, too large, unreadable, or not strict YAML.
+
+    """
     p = Path(path)
     label = f'{what} {str(p)!r}'
     try:

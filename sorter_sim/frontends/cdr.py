@@ -27,14 +27,46 @@ _ENCAPSULATION_CDR_LE = b'\x00\x01\x00\x00'
 
 
 def stamp(t_ns: int) -> tuple[int, int]:
-    """(sec, nanosec) of a non-negative time in integer nanoseconds."""
+    """
+    (sec, nanosec) of a non-negative time in integer nanoseconds.
+
+    Parameters
+    ----------
+    t_ns : int
+        A time [ns], >= 0.
+
+    Returns
+    -------
+    (int, int)
+        Seconds and nanoseconds.
+
+    """
     return t_ns // 1_000_000_000, t_ns % 1_000_000_000
 
 
 def pose_array_cdr(
     t_ns: int, frame_id: str, x: np.ndarray, y: np.ndarray, phi: np.ndarray, z: float = 0.0
 ) -> bytes:
-    """Serialize PoseArray of planar poses (x, y [m], yaw φ [rad]) at height z [m]."""
+    """
+    Serialize PoseArray of planar poses (x, y [m], yaw φ [rad]) at height z [m].
+
+    Parameters
+    ----------
+    t_ns : int
+        The stamp [ns].
+    frame_id : str
+        The frame.
+    x, y, phi : ndarray
+        The poses.
+    z : float
+        Their height [m].
+
+    Returns
+    -------
+    bytes
+        The message's CDR serialization.
+
+    """
     sec, nsec = stamp(t_ns)
     fid = frame_id.encode('utf-8') + b'\x00'
     body = bytearray(struct.pack('<iII', sec, nsec, len(fid)))

@@ -86,7 +86,15 @@ class IOImage:
 
     # ---------------------------------------------------------------- the cell's side
     def refresh_inputs(self, values: dict) -> None:
-        """Set input signals (engineering values) and their raw registers."""
+        """
+        Set input signals (engineering values) and their raw registers.
+
+        Parameters
+        ----------
+        values : dict
+            {signal name: engineering value}.
+
+        """
         with self._lock:
             for name, value in values.items():
                 s = self.by_name[name]
@@ -108,7 +116,20 @@ class IOImage:
 
     # ---------------------------------------------------------------- the clients' side
     def snapshot(self, table: str) -> list[int]:
-        """Return a copy of a Modbus table's raw values."""
+        """
+        Return a copy of a Modbus table's raw values.
+
+        Parameters
+        ----------
+        table : str
+            The Modbus table.
+
+        Returns
+        -------
+        list of int
+            Its raw values.
+
+        """
         with self._lock:
             return list(self.raw[table])
 
@@ -118,6 +139,16 @@ class IOImage:
 
         Raises WriteRefused('address') when an address holds no output (inputs are read
         only), WriteRefused('value') when a value is outside its output's range.
+
+        Parameters
+        ----------
+        table : str
+            ``coil`` or ``holding_register``.
+        address : int
+            The first address.
+        values : list of int
+            The raw values.
+
         """
         owners = self._owner.get(table)
         if owners is None:
@@ -136,7 +167,17 @@ class IOImage:
         self._apply(changes)
 
     def write_value(self, name: str, value) -> None:
-        """Write one output by name in engineering units (OPC UA); WriteRefused if not."""
+        """
+        Write one output by name in engineering units (OPC UA); WriteRefused if not.
+
+        Parameters
+        ----------
+        name : str
+            The output.
+        value : object
+            Its engineering value.
+
+        """
         s = self.by_name.get(name)
         if s is None or s.direction != OUTPUT:
             raise WriteRefused('address', f'{name} is not an output')
@@ -147,7 +188,15 @@ class IOImage:
         self._apply({name: bool(value) if s.type == 'bool' else float(value)})
 
     def count(self, key: str = 'refused') -> None:
-        """Count one refusal in ``stats``: 'refused' (a write), or a Modbus server's kind."""
+        """
+        Count one refusal in ``stats``: 'refused' (a write), or a Modbus server's kind.
+
+        Parameters
+        ----------
+        key : str
+            The counter (one of the image's declared ``stats`` keys).
+
+        """
         with self._lock:
             self.stats[key] += 1
 
@@ -196,6 +245,15 @@ class ScannerQueue:
         self.dropped = 0
 
     def read(self, label: str) -> None:
+        """
+        Take a label the scanner read.
+
+        Parameters
+        ----------
+        label : str
+            A label the scanner read.
+
+        """
         self.sequence = (self.sequence + 1) & 0xFFFF
         if len(self.waiting) >= LABEL_QUEUE:
             self.waiting.popleft()
@@ -234,7 +292,22 @@ class Warehouse:
         self.refused = 0  # method calls refused (bad arguments)
 
     def request(self, pattern, destination) -> int:
-        """Queue a routing change; return its sequence number, or raise ValueError (why)."""
+        """
+        Queue a routing change; return its sequence number, or raise ValueError (why).
+
+        Parameters
+        ----------
+        pattern : str
+            A label pattern of the routing grammar.
+        destination : str
+            Where its parcels go.
+
+        Returns
+        -------
+        int
+            The request's sequence number.
+
+        """
         if not isinstance(pattern, str) or not isinstance(destination, str):
             raise ValueError('pattern and destination must be strings')
         if not _is_pattern(pattern):
@@ -260,6 +333,14 @@ class Warehouse:
         Raises ValueError, changing nothing, unless there is one result line per request
         taken, each 'accepted: ...' or 'refused: ...' (printable, at most LINE_MAX
         characters), and ``count`` requests wait.
+
+        Parameters
+        ----------
+        count : int
+            How many requests the PLC took.
+        results : list of str
+            Its result line for each.
+
         """
         if len(results) != count:
             raise ValueError(
@@ -279,7 +360,15 @@ class Warehouse:
                 self.results.append(f'{n}|{p}={d}: {why}')
 
     def confirm(self, lines: list[str]) -> None:
-        """Keep the PLC's sort confirmations; ValueError, changing nothing, on a bad line."""
+        """
+        Keep the PLC's sort confirmations; ValueError, changing nothing, on a bad line.
+
+        Parameters
+        ----------
+        lines : list of str
+            The PLC's sort confirmations.
+
+        """
         for line in lines:
             _check_line(line, 'a confirmation')
             if not _CONFIRMATION_RE.fullmatch(line):
@@ -292,7 +381,15 @@ class Warehouse:
             self.confirmed += len(lines)
 
     def set_table(self, rules: list[str]) -> None:
-        """Keep the PLC's live routing table; ValueError, changing nothing, on a bad rule."""
+        """
+        Keep the PLC's live routing table; ValueError, changing nothing, on a bad rule.
+
+        Parameters
+        ----------
+        rules : list of str
+            The PLC's live routing rules.
+
+        """
         for rule in rules:
             _check_line(rule, 'a rule')
             pattern, sep, destination = rule.partition('=')
@@ -403,6 +500,12 @@ class FieldbusServers:
         Connections are dropped, not waited for: asyncua's stop waits on every session's
         subscriptions and a Modbus client may never close its socket, and a node that is
         shutting down (ros2 launch kills it after 10 s) must not wait on its clients.
+
+        Parameters
+        ----------
+        wait_s : float
+            The most to wait [s, wall].
+
         """
         if self._thread.is_alive() and self.loop.is_running():
             fut = asyncio.run_coroutine_threadsafe(self._stop_all(0.6 * wait_s), self.loop)

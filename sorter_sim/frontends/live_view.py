@@ -202,6 +202,24 @@ class LiveView:
         Send one frame: the scene, the frame transform and the plottable values.
 
         ``parcels`` as ``Cell.parcels()`` gives them, ``motion`` as ``Cell.parcel_motion()``.
+
+        Parameters
+        ----------
+        t_ns : int
+            The simulated time [ns].
+        parcels : ndarray
+            The parcels' rows, as ``Cell.parcels()`` gives them.
+        motion : ndarray
+            Their velocities and slips.
+        alpha : float
+            The disk angle [rad].
+        stroke : float
+            The pop-up position, 0..1.
+        sensors : dict
+            {sensor name: blocked}.
+        state_names : sequence of str
+            The parcel states' names.
+
         """
         self._last_wall = time.monotonic()
         stamp = _stamp(t_ns)
@@ -442,6 +460,12 @@ class LiveView:
         stopped reading completes only when the SDK gives up on it, tens of seconds
         later: it runs in a thread of its own, and a node that is shutting down does not
         wait past ``wait_s`` (its process ends the server's threads when it exits).
+
+        Parameters
+        ----------
+        wait_s : float
+            The most to wait [s, wall].
+
         """
         import threading
 

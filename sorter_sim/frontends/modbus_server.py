@@ -104,7 +104,20 @@ class ModbusTcpImageServer:
 
     # ---------------------------------------------------------------- one request
     def answer(self, pdu: bytes) -> bytes:
-        """Return the response PDU to the request PDU ``pdu`` (an exception response too)."""
+        """
+        Return the response PDU to the request PDU ``pdu`` (an exception response too).
+
+        Parameters
+        ----------
+        pdu : bytes
+            The request PDU (function code and data).
+
+        Returns
+        -------
+        bytes
+            The response PDU.
+
+        """
         fc = pdu[0]
         try:
             return bytes([fc]) + self._handle(fc, pdu[1:])

@@ -79,7 +79,20 @@ INDUCT_KEYS = ('label', 'A', 'B', 'm', 'phi0_deg', 'y')
 
 
 def descriptor(spec) -> ParameterDescriptor:
-    """Return the ROS descriptor of a schema entry: type, description, range, read-only."""
+    """
+    Return the ROS descriptor of a schema entry: type, description, range, read-only.
+
+    Parameters
+    ----------
+    spec : ParamSpec
+        The schema entry.
+
+    Returns
+    -------
+    ParameterDescriptor
+        Its descriptor.
+
+    """
     units = f' [{spec.units}]' if spec.units else ''
     return ros_descriptor(
         spec.name,
@@ -471,7 +484,15 @@ class SimNode(Node):
         self.advance(self.params.fast_slice_periods)
 
     def advance(self, n: int) -> None:
-        """Advance ``n`` control periods, publishing everything that falls due on the way."""
+        """
+        Advance ``n`` control periods, publishing everything that falls due on the way.
+
+        Parameters
+        ----------
+        n : int
+            How many control periods.
+
+        """
         p = self.params
         strides = (p.pose_stride, p.marker_stride, p.heartbeat_stride)
         while n > 0:
@@ -822,6 +843,19 @@ def induct_spec(pairs, p: CellParams) -> ParcelSpec:
     Raises ParamError naming what is wrong: an unknown or repeated key, a value that
     is not a finite number. Missing sizes take the middle of the stream's ranges;
     the parcel itself is checked when it is queued (``Cell.induct``).
+
+    Parameters
+    ----------
+    pairs : list of (str, str)
+        The message's key/value pairs.
+    p : CellParams
+        The cell's parameters (the stream's ranges, the belt).
+
+    Returns
+    -------
+    ParcelSpec
+        The parcel.
+
     """
     given = {}
     for key, value in pairs:
@@ -851,7 +885,17 @@ def induct_spec(pairs, p: CellParams) -> ParcelSpec:
 
 
 def main(args=None, stop=None):
-    """Run the node; ``stop``: the executable's StopSignals, when it installed them first."""
+    """
+    Run the node; ``stop``: the executable's StopSignals, when it installed them first.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The command line.
+    stop : StopSignals, optional
+        The executable's signal handlers.
+
+    """
     run_node(SimNode, 'sim_node', (ParamError,), args, stop)
 
 
