@@ -19,7 +19,30 @@ VERBS = dict(
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``sorter``."""
+    """
+    Entry point of ``sorter``.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments (default: the process's).
+
+    Returns
+    -------
+    int
+        The exit code.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments (default: the process's).
+
+    Returns
+    -------
+    int
+        The exit code.
+
+    """
     return model_cli.main(argv, VERBS)
 
 

@@ -41,6 +41,20 @@ FAST_SLICE = 0.005  # s of simulated time per executor pass of the cell in fast 
 
 
 def add_arguments(parser) -> None:
+    """
+    Add the verb's arguments to its parser.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's parser.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's parser.
+
+    """
     parser.add_argument(
         "--sim-time",
         type=float,
@@ -170,7 +184,34 @@ def _controller_values(config_dir: Path) -> dict:
 
 
 def stream_plan(parcel_lengths: tuple[float, float], config_dir: Path) -> dict:
-    """Return the least gap of a mixed stream of these lengths, and the seed's capacity."""
+    """
+    Return the least gap of a mixed stream of these lengths, and the seed's capacity.
+
+    Parameters
+    ----------
+    parcel_lengths : (float, float)
+        The stream's range of parcel lengths [m].
+    config_dir : Path
+        The folder of cell.yaml and controller.yaml.
+
+    Returns
+    -------
+    dict
+        The least gap, the gap range and the seed's capacity.
+
+    Parameters
+    ----------
+    parcel_lengths : (float, float)
+        The stream's range of parcel lengths [m].
+    config_dir : Path
+        The folder of cell.yaml and controller.yaml.
+
+    Returns
+    -------
+    dict
+        The least gap, the gap range and the seed's capacity.
+
+    """
     from sorter_control.logic import SorterLogic
     from sorter_control.parameters import config_from_values
     from sorter_control.timing import seed_capacity
@@ -383,6 +424,34 @@ class RunningCell:
             )
 
     def spin_until(self, predicate, timeout_wall: float = math.inf) -> bool:
+        """
+        Spin the nodes until ``predicate()`` holds.
+
+        Parameters
+        ----------
+        predicate : callable
+            What to wait for.
+        timeout_wall : float
+            The most to wait [s, wall].
+
+        Returns
+        -------
+        bool
+            Whether the predicate came true in time.
+
+        Parameters
+        ----------
+        predicate : callable
+            What to wait for.
+        timeout_wall : float
+            The most to wait [s, wall].
+
+        Returns
+        -------
+        bool
+            Whether the predicate came true in time.
+
+        """
         deadline = time.monotonic() + timeout_wall
         while not predicate():
             if self.stop.is_set():
@@ -400,6 +469,31 @@ class RunningCell:
 
         Returns the wall time. Unless ``quiet``, a progress bar on a terminal shows the
         simulated seconds.
+
+        Parameters
+        ----------
+        sim_time : float
+            Simulated seconds.
+        quiet : bool
+            No progress bar.
+
+        Returns
+        -------
+        float
+            The wall time it took [s].
+
+        Parameters
+        ----------
+        sim_time : float
+            Simulated seconds.
+        quiet : bool
+            No progress bar.
+
+        Returns
+        -------
+        float
+            The wall time it took [s].
+
         """
         from sorter_sim.studies.progress import progress_bar
 
@@ -454,7 +548,20 @@ class RunningCell:
 
 
 def run(args) -> int | str:
-    """``sorter demo``."""
+    """
+    ``sorter demo``.
+
+    Parameters
+    ----------
+    args : list of str or argparse.Namespace
+        The command line, or the parsed arguments.
+
+    Returns
+    -------
+    int or str
+        The exit code, or a message for a refused input (exit 2).
+
+    """
     err = _check_args(args)
     if err:
         return err
@@ -520,7 +627,20 @@ def run(args) -> int | str:
 
 
 def cell_params(sim) -> dict:
-    """Return what ``plot_paths`` needs of the cell, from the simulation node's parameters."""
+    """
+    Return what ``plot_paths`` needs of the cell, from the simulation node's parameters.
+
+    Parameters
+    ----------
+    sim : rclpy.node.Node
+        The simulation node.
+
+    Returns
+    -------
+    dict
+        The cell's geometry.
+
+    """
     out = {
         k: sim.get_parameter(k).value
         for k in ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")
@@ -562,6 +682,17 @@ def run_soft_plc(args) -> int | str:
     (the two step together, so the run is as fast as the machine and as repeatable as
     the ROS demo). An observer node watches the cell's outcomes over ROS, as a
     warehouse would.
+
+    Parameters
+    ----------
+    args : list of str or argparse.Namespace
+        The command line, or the parsed arguments.
+
+    Returns
+    -------
+    int or str
+        The exit code, or a message.
+
     """
     import socket
 

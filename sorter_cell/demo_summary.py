@@ -18,6 +18,28 @@ EXIT_COLOURS = {"left": "tab:green", "right": "tab:blue", "straight": "0.45", "j
 
 
 def summarize(obs, plan: dict, sim_time: float, wall: float, time_mode: str) -> dict:
+    """
+    Return the demo's summary.
+
+    Parameters
+    ----------
+    obs : _Observer
+        What the demo's observer saw.
+    plan : dict
+        The stream plan (``stream_plan``).
+    sim_time : float
+        Simulated seconds.
+    wall : float
+        The wall time it took [s].
+    time_mode : str
+        fast or realtime.
+
+    Returns
+    -------
+    dict
+        The summary (JSON-ready).
+
+    """
     exits = {"left": 0, "right": 0, "straight": 0, "jammed": 0}
     mis_sorted, untracked = [], 0
     flagged = {"gap_too_short": 0, "late": 0, "cannot_divert": 0, "fault": 0}
@@ -85,6 +107,17 @@ def exit_code(summary: dict) -> int:
 
     Clean: nothing mis-sorted, no jam, and the controller running at the end (a
     controller that faulted and stayed faulted sorts nothing, whatever the counts say).
+
+    Parameters
+    ----------
+    summary : dict
+        The demo's summary.
+
+    Returns
+    -------
+    int
+        0 for a clean run, 1 otherwise.
+
     """
     if summary["mis_sorted"] or summary["jams"]:
         return 1
@@ -99,6 +132,15 @@ def exit_code(summary: dict) -> int:
 
 
 def print_table(s: dict) -> None:
+    """
+    Print the demo's summary as a table.
+
+    Parameters
+    ----------
+    s : dict
+        The summary.
+
+    """
     rows = [
         (
             "simulated time",
@@ -145,7 +187,20 @@ def print_table(s: dict) -> None:
 
 
 def exits_by_id(outcomes) -> dict[int, str]:
-    """Return {parcel id: exit} from outcome values (the cell's sort/outcomes key/values)."""
+    """
+    Return {parcel id: exit} from outcome values (the cell's sort/outcomes key/values).
+
+    Parameters
+    ----------
+    outcomes : list
+        The outcomes' key/values.
+
+    Returns
+    -------
+    dict
+        {parcel id: exit}.
+
+    """
     exit_of = {}
     for o in outcomes:
         try:
@@ -163,6 +218,20 @@ def plot_paths(
 
     ``paths``: {parcel id: [(x, y), ...]} in the conveyor frame [m]; ``params``: the cell's
     belt_width, disk_field_length, chute_margin, induct_x, exit_x and photo-eyes.
+
+    Parameters
+    ----------
+    paths : dict
+        {parcel id: its path}.
+    exit_of : dict
+        {parcel id: exit}.
+    params : dict
+        The cell's parameters (``cell_params``).
+    title : str
+        The picture's title.
+    out : Path
+        The PNG.
+
     """
     import matplotlib
 

@@ -66,7 +66,19 @@ def _yaw(q) -> float:
 
 
 def draw_scene(scene, out: Path, title: str) -> None:
-    """Draw a decoded foxglove.SceneUpdate from above (x right, y up) into a PNG."""
+    """
+    Draw a decoded foxglove.SceneUpdate from above (x right, y up) into a PNG.
+
+    Parameters
+    ----------
+    scene : SceneUpdate
+        A decoded foxglove.SceneUpdate.
+    out : Path
+        The PNG.
+    title : str
+        The picture's title.
+
+    """
     import matplotlib
 
     matplotlib.use('Agg')
@@ -136,6 +148,20 @@ def draw_scene(scene, out: Path, title: str) -> None:
 
 
 def main(argv=None) -> int:
+    """
+    Run the command.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments (default: the process's).
+
+    Returns
+    -------
+    int
+        The exit code.
+
+    """
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument('--out', default='docs/img/live_view.png', help='PNG to write')
     ap.add_argument('--sim-time', type=float, default=9.0, help='simulated seconds before it')

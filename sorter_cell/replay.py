@@ -23,6 +23,15 @@ METADATA = "sorter_sim parameters"  # written by the simulation node (sorter_sim
 
 
 def add_arguments(parser) -> None:
+    """
+    Add the verb's arguments to its parser.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's parser.
+
+    """
     parser.add_argument("recording", help="MCAP file written by sorter demo --record")
     parser.add_argument(
         "--out",
@@ -53,6 +62,17 @@ def read_recording(path: str | Path) -> dict:
     the disk full) or a damaged one is read up to its last intact chunk and the damage
     is named; messages whose schema cannot be decoded are counted, not decoded.
     Raises ValueError with one line when nothing of the file is a readable recording.
+
+    Parameters
+    ----------
+    path : str or Path
+        The MCAP recording.
+
+    Returns
+    -------
+    dict
+        What the recording holds.
+
     """
     from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema, Statistics
     from mcap.stream_reader import StreamReader
@@ -229,7 +249,20 @@ def _seconds(text) -> float | None:
 
 
 def summarize(rec: dict) -> dict:
-    """Return the summary of a recording read by ``read_recording`` (JSON-ready)."""
+    """
+    Return the summary of a recording read by ``read_recording`` (JSON-ready).
+
+    Parameters
+    ----------
+    rec : dict
+        A recording read by ``read_recording``.
+
+    Returns
+    -------
+    dict
+        The summary (JSON-ready).
+
+    """
     exits = Counter(p["exit"] for p in rec["parcels"].values())
     results = Counter(p["controller"] for p in rec["parcels"].values() if p["controller"])
     span = (rec["t_last_ns"] - rec["t_first_ns"]) * 1e-9 if rec["t_first_ns"] is not None else 0.0
@@ -277,7 +310,20 @@ def _print(s: dict, png: str | None) -> None:
 
 
 def run(args) -> int | str:
-    """``sorter replay``."""
+    """
+    ``sorter replay``.
+
+    Parameters
+    ----------
+    args : list of str or argparse.Namespace
+        The command line, or the parsed arguments.
+
+    Returns
+    -------
+    int or str
+        The exit code, or a message for a refused input (exit 2).
+
+    """
     png = None
     if not args.no_plot:
         png = args.out or str(Path(args.recording).with_suffix("")) + "_paths.png"

@@ -9,5 +9,13 @@ from sorter_ros.env import start_node
 
 
 def main(args=None) -> None:
-    """Entry point of ``controller_node`` (``ros2 run sorter_cell controller_node``)."""
+    """
+    Entry point of ``controller_node`` (``ros2 run sorter_cell controller_node``).
+
+    Parameters
+    ----------
+    args : list of str or argparse.Namespace
+        The command line, or the parsed arguments.
+
+    """
     start_node("sorter_control.node", args)

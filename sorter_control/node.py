@@ -391,6 +391,19 @@ class ControllerNode(Node):
         cell's watchdog: the disks drop within one service round trip. Waits at most
         ``timeout`` seconds of wall time; if the cell does not answer, its watchdog
         still drops the disks once the heartbeat stops.
+
+        Parameters
+        ----------
+        executor : rclpy.executors.Executor
+            The executor that spins the node.
+        timeout : float
+            The most to wait [s, wall].
+
+        Returns
+        -------
+        bool
+            Whether the cell confirmed the disks down.
+
         """
         client = self._svc["popup"]
         if not client.service_is_ready():
@@ -625,7 +638,17 @@ class ControllerNode(Node):
 
 
 def main(args=None, stop=None):
-    """Run the node; ``stop``: the executable's StopSignals, when it installed them first."""
+    """
+    Run the node; ``stop``: the executable's StopSignals, when it installed them first.
+
+    Parameters
+    ----------
+    args : list of str or argparse.Namespace
+        The command line, or the parsed arguments.
+    stop : StopSignals, optional
+        The executable's signal handlers.
+
+    """
     run_node(ControllerNode, "controller_node", (ValueError,), args, stop)
 
 

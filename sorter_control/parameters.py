@@ -267,7 +267,20 @@ ROUTING_KEYS = ("routing.rules", "routing.default", "reject_destination")
 
 
 def descriptor(spec: ParamSpec) -> ParameterDescriptor:
-    """Return the ROS descriptor of a controller parameter."""
+    """
+    Return the ROS descriptor of a controller parameter.
+
+    Parameters
+    ----------
+    spec : ParamSpec
+        A schema entry.
+
+    Returns
+    -------
+    ParameterDescriptor
+        The descriptor.
+
+    """
     ranged = spec.type == D and spec.lo is not None
     return ros_descriptor(
         spec.name,
@@ -302,6 +315,17 @@ def config_from_values(values: dict) -> ControllerConfig:
     Return a ControllerConfig from parameter values.
 
     ValueError names the parameter that is wrong.
+
+    Parameters
+    ----------
+    values : dict
+        Parameter values by name.
+
+    Returns
+    -------
+    ControllerConfig
+        The configuration.
+
     """
     for name, v in values.items():
         spec = SPECS.get(name)

@@ -101,6 +101,28 @@ class PlantStub:
     def add_parcel(
         self, label: str | None, A: float, lead_x: float, B: float = 0.3, y: float = 0.0
     ) -> StubParcel:
+        """
+        Put a parcel on the belt.
+
+        Parameters
+        ----------
+        label : str
+            Its label.
+        A : float
+            A parcel's length [m].
+        lead_x : float
+            Its leading edge's x [m].
+        B : float
+            Its width [m].
+        y : float
+            Its lateral offset [m].
+
+        Returns
+        -------
+        StubParcel
+            The parcel.
+
+        """
         self._next_id += 1
         p = StubParcel(self._next_id, label, A, B, lead_x - 0.5 * A, y)
         self.parcels.append(p)
@@ -109,7 +131,24 @@ class PlantStub:
     def add_stream(
         self, items, first_lead_x: float | None = None, B: float = 0.3
     ) -> list[StubParcel]:
-        """items: (label, A, gap before it [m]); placed upstream of the scanner, nose to tail."""
+        """
+        items: (label, A, gap before it [m]); placed upstream of the scanner, nose to tail.
+
+        Parameters
+        ----------
+        items : list of (str, float, float)
+            (label, A, gap before it [m]) each.
+        first_lead_x : float
+            The first parcel's leading edge [m].
+        B : float
+            Its width [m].
+
+        Returns
+        -------
+        list of StubParcel
+            The parcels.
+
+        """
         lead = first_lead_x if first_lead_x is not None else self.eyes[self.scan_eye] - 0.05
         out = []
         for label, A, gap in items:
@@ -144,7 +183,17 @@ class PlantStub:
         return bits
 
     def force(self, sensor: str, value: bool | None) -> None:
-        """Force a sensor's bit (None releases it)."""
+        """
+        Force a sensor's bit (None releases it).
+
+        Parameters
+        ----------
+        sensor : str
+            The sensor.
+        value : bool or None
+            The bit, or None to release it.
+
+        """
         if value is None:
             self.forced.pop(sensor, None)
         else:
@@ -214,6 +263,15 @@ class PlantStub:
         self._bits = bits
 
     def advance(self, seconds: float) -> None:
+        """
+        Advance the plant.
+
+        Parameters
+        ----------
+        seconds : float
+            The time [s].
+
+        """
         n = max(1, int(round(seconds / self.dt)))
         for _ in range(n):
             self._step()
@@ -236,7 +294,15 @@ class PlantStub:
         return img
 
     def handle(self, cmd: Command) -> None:
-        """Serve a command as the simulation node's services would (answered by the next scan)."""
+        """
+        Serve a command as the simulation node's services would (answered by the next scan).
+
+        Parameters
+        ----------
+        cmd : Command
+            A service call of the controller.
+
+        """
         self.calls.append((self.t, cmd.kind, cmd.value))
         if cmd.kind in self.withheld:
             self.pending.append(
@@ -287,6 +353,25 @@ def run_cell(
     Scan the logic against the plant until plant time ``until``; returns (and extends) ``run``.
 
     on_scan(plant, logic), if given, runs after every scan (to watch, or to make trouble).
+
+    Parameters
+    ----------
+    plant : PlantStub
+        The plant.
+    logic : SorterLogic
+        The PLC program.
+    until : float
+        The plant time to run to [s].
+    run : CellRun, optional
+        A run to extend.
+    on_scan : callable, optional
+        Called after every scan.
+
+    Returns
+    -------
+    CellRun
+        The run.
+
     """
     run = run or CellRun()
     period = logic.config.scan_period

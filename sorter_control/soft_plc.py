@@ -81,7 +81,22 @@ class ModbusIO:
         return values
 
     def write(self, s: Signal, value) -> str | None:
-        """Write one output; return None, or why the server refused it."""
+        """
+        Write one output; return None, or why the server refused it.
+
+        Parameters
+        ----------
+        s : Signal
+            An output signal.
+        value : object
+            Its engineering value.
+
+        Returns
+        -------
+        str or None
+            None, or why the server refused it.
+
+        """
         if s.table == COIL:
             r = self.client.write_coil(s.address, bool(value))
         else:
@@ -157,6 +172,15 @@ class OpcUaIO:
         return out
 
     def take_routes(self, results: list[str]) -> None:
+        """
+        Report the PLC's results for the routing requests it took.
+
+        Parameters
+        ----------
+        results : list of str
+            The PLC's result line for each request taken.
+
+        """
         ua = self.ua
         self._wh_folder.call_method(
             self._wh['TakeRoutes'],
@@ -166,6 +190,15 @@ class OpcUaIO:
         self.requests += 1
 
     def confirm(self, lines: list[str]) -> None:
+        """
+        Send sort confirmations.
+
+        Parameters
+        ----------
+        lines : list of str
+            Sort confirmations.
+
+        """
         ua = self.ua
         self._wh_folder.call_method(
             self._wh['Confirm'], ua.Variant(lines, ua.VariantType.String, is_array=True)
@@ -173,6 +206,15 @@ class OpcUaIO:
         self.requests += 1
 
     def publish_table(self, rules: list[str]) -> None:
+        """
+        Publish the live routing table.
+
+        Parameters
+        ----------
+        rules : list of str
+            Routing rules.
+
+        """
         ua = self.ua
         self._wh_folder.call_method(
             self._wh['PublishRoutingTable'],
@@ -181,6 +223,22 @@ class OpcUaIO:
         self.requests += 1
 
     def write(self, s: Signal, value) -> str | None:
+        """
+        Write one output; return None, or why the server refused it.
+
+        Parameters
+        ----------
+        s : Signal
+            An output signal.
+        value : object
+            Its engineering value.
+
+        Returns
+        -------
+        str or None
+            None, or why the server refused it.
+
+        """
         ua = self.ua
         if s.type == 'bool':
             variant = ua.Variant(bool(value), ua.VariantType.Boolean)

@@ -56,7 +56,20 @@ DESTINATIONS = ("left", "right", "straight")
 
 
 def side_of(destination: str) -> int:
-    """+1 for the +y chute (α > 0), -1 for the -y chute, 0 for straight on."""
+    """
+    +1 for the +y chute (α > 0), -1 for the -y chute, 0 for straight on.
+
+    Parameters
+    ----------
+    destination : str
+        A destination (left, right, straight, or a chute name).
+
+    Returns
+    -------
+    int
+        +1, -1 or 0.
+
+    """
     return {"left": 1, "right": -1, "straight": 0}[destination]
 
 
@@ -156,6 +169,21 @@ class Prediction:
 
         Either its rear has passed the eye, or its centre of gravity has crossed the
         chute entry line and the parcel has gone onto the chute.
+
+        Parameters
+        ----------
+        x_eye : float
+            The photo-eye's x [m].
+        belt_width : float
+            The belt's width [m].
+        parcel_width : float
+            The parcel's width [m].
+
+        Returns
+        -------
+        float
+            The time [s].
+
         """
         tr = self.trajectory
         xmin, _, _, _ = _corner_extents(tr[:, 1], tr[:, 2], tr[:, 3], self.A, parcel_width)
@@ -167,6 +195,17 @@ class Prediction:
         (len(t), 3) poses x, y, φ at relative times t (belt motion before 0.
 
         The last pose after the end).
+
+        Parameters
+        ----------
+        t : ndarray
+            Times relative to entry [s].
+
+        Returns
+        -------
+        ndarray, shape (len(t), 3)
+            The poses x, y, φ.
+
         """
         t = np.asarray(t, dtype=float)
         tr = self.trajectory
@@ -194,6 +233,29 @@ def boxes_overlap(p, q, A1, B1, A2, B2, clearance=0.0) -> np.ndarray:
     Separating-axis test of two rectangles per row of poses p, q (n x 3: x, y, φ).
 
     Each box is inflated by clearance/2 on every side; True where they overlap.
+
+    Parameters
+    ----------
+    p : ndarray, shape (n, 3)
+        One rectangle's poses (x, y, φ).
+    q : ndarray, shape (n, 3)
+        The other rectangle's poses.
+    A1 : float
+        The first rectangle's (or parcel's) length [m].
+    B1 : float
+        Its width [m].
+    A2 : float
+        The second's length [m].
+    B2 : float
+        Its width [m].
+    clearance : float
+        The clearance they must keep [m].
+
+    Returns
+    -------
+    ndarray of bool
+        Per row, whether they overlap.
+
     """
     p = np.atleast_2d(p)
     q = np.atleast_2d(q)
@@ -248,6 +310,20 @@ class DivertPredictor:
         self.wall_s = 0.0
 
     def key_length(self, A: float) -> float:
+        """
+        Return the prediction grid's length for A.
+
+        Parameters
+        ----------
+        A : float
+            A parcel's length [m].
+
+        Returns
+        -------
+        float
+            The grid's length [m] for A.
+
+        """
         step = self.cell.length_step
         return round(math.ceil(A / step - 1e-9) * step, 6)
 
@@ -257,6 +333,21 @@ class DivertPredictor:
 
         A negative α is the mirror image of the positive one (the model is
         symmetric), so both share one run.
+
+        Parameters
+        ----------
+        A : float
+            A parcel's length [m].
+        v : float
+            The belt speed [m/s].
+        alpha_deg : float
+            The disk angle [deg].
+
+        Returns
+        -------
+        Prediction
+            The divert.
+
         """
         if not (math.isfinite(A) and A > 0):
             raise ValueError(f"parcel length must be a finite number > 0 m, got {A!r}")
@@ -398,6 +489,22 @@ class Actuators:
     margin: float = 0.02
 
     def slew_time(self, alpha_from_deg: float, alpha_to_deg: float) -> float:
+        """
+        Return the time the disks take to turn.
+
+        Parameters
+        ----------
+        alpha_from_deg : float
+            The angle the disks start from [deg].
+        alpha_to_deg : float
+            The angle they turn to [deg].
+
+        Returns
+        -------
+        float
+            The time [s].
+
+        """
         return abs(alpha_to_deg - alpha_from_deg) / self.alpha_slew_rate_deg_s
 
     @property
@@ -406,6 +513,22 @@ class Actuators:
         return self.popup_stroke_time + self.scan_period + self.latency + self.margin
 
     def slew_total(self, alpha_from_deg: float, alpha_to_deg: float) -> float:
+        """
+        Return the time the disks take to turn and settle.
+
+        Parameters
+        ----------
+        alpha_from_deg : float
+            The angle the disks start from [deg].
+        alpha_to_deg : float
+            The angle they turn to [deg].
+
+        Returns
+        -------
+        float
+            The time [s], settling included.
+
+        """
         if alpha_from_deg == alpha_to_deg:
             return 0.0
         return (
@@ -442,9 +565,41 @@ class GapModel:
         return self.predictor.cell
 
     def alpha_for(self, destination: str) -> float:
+        """
+        Return the disk angle for a destination.
+
+        Parameters
+        ----------
+        destination : str
+            A destination (left, right, straight, or a chute name).
+
+        Returns
+        -------
+        float
+            The disk angle [deg] for the destination.
+
+        """
         return side_of(destination) * self.divert_alpha_deg
 
     def prediction(self, A: float, v: float, destination: str) -> Prediction | None:
+        """
+        Return the divert for a destination.
+
+        Parameters
+        ----------
+        A : float
+            A parcel's length [m].
+        v : float
+            The belt speed [m/s].
+        destination : str
+            A destination (left, right, straight, or a chute name).
+
+        Returns
+        -------
+        Prediction or None
+            The divert, or None for straight on.
+
+        """
         if side_of(destination) == 0:
             return None
         return self.predictor.predict(A, v, self.alpha_for(destination))
@@ -458,6 +613,25 @@ class GapModel:
         leader moves on at belt speed and needs just the clearance. Lengths are
         rounded up to ``geometry_step`` (a longer pair needs more room), so a stream
         of similar parcels costs a handful of these searches.
+
+        Parameters
+        ----------
+        A1 : float
+            The first rectangle's (or parcel's) length [m].
+        dest1 : str
+            The first parcel's destination.
+        A2 : float
+            The second's length [m].
+        dest2 : str
+            The second's.
+        v : float
+            The belt speed [m/s].
+
+        Returns
+        -------
+        float
+            The time [s].
+
         """
         step = self.geometry_step
         A1 = round(math.ceil(A1 / step - 1e-9) * step, 6)
@@ -520,6 +694,27 @@ class GapModel:
         alpha_before_deg: the disk angle before the leader (only matters when the
         leader goes straight and the follower is diverted: the disks may swing
         while down).
+
+        Parameters
+        ----------
+        A1 : float
+            The first rectangle's (or parcel's) length [m].
+        dest1 : str
+            The first parcel's destination.
+        A2 : float
+            The second's length [m].
+        dest2 : str
+            The second's.
+        v : float
+            The belt speed [m/s].
+        alpha_before_deg : float
+            The disks' angle before the first parcel [deg].
+
+        Returns
+        -------
+        float
+            The time [s].
+
         """
         s1, s2 = side_of(dest1), side_of(dest2)
         b = self.cell.disk_field_length
@@ -549,13 +744,47 @@ class GapModel:
         v: float,
         alpha_before_deg: float | None = None,
     ) -> float:
+        """
+        Return the least headway between two parcels.
+
+        Parameters
+        ----------
+        A1 : float
+            The first rectangle's (or parcel's) length [m].
+        dest1 : str
+            The first parcel's destination.
+        A2 : float
+            The second's length [m].
+        dest2 : str
+            The second's.
+        v : float
+            The belt speed [m/s].
+        alpha_before_deg : float
+            The disks' angle before the first parcel [deg].
+
+        Returns
+        -------
+        float
+            The least headway [s], geometric or actuator.
+
+        """
         return max(
             self.geometric_headway(A1, dest1, A2, dest2, v),
             self.actuator_headway(A1, dest1, A2, dest2, v, alpha_before_deg),
         )
 
     def warm(self, lengths, v: float) -> None:
-        """Fill the caches for parcels of these lengths [m] so that scans find them ready."""
+        """
+        Fill the caches for parcels of these lengths [m] so that scans find them ready.
+
+        Parameters
+        ----------
+        lengths : sequence of float
+            Parcel lengths [m].
+        v : float
+            The belt speed [m/s].
+
+        """
         for A in lengths:
             for d1 in ("left", "right"):
                 self.predictor.predict(A, v, self.alpha_for(d1))
@@ -571,6 +800,23 @@ class GapModel:
         With dest1/dest2 given, for that pair; otherwise for every pair of
         destinations, with the worst case (the gap a mixed stream needs) under
         "worst" and the matching capacity in pcs/h.
+
+        Parameters
+        ----------
+        A : float
+            A parcel's length [m].
+        v : float
+            The belt speed [m/s].
+        dest1 : str
+            The first parcel's destination.
+        dest2 : str
+            The second's.
+
+        Returns
+        -------
+        dict
+            The least gap [m] by pair of destinations, and the worst.
+
         """
         pairs = (
             [(dest1, dest2)]
@@ -595,6 +841,25 @@ def seed_capacity(
     t_scrap: from the leading edge on the zone a/b border until the centre of gravity
     has covered the belt width s, on this cell's disk field and friction (the model
     is mirror-symmetric, so ±α give the same), within the scenes' 20 s horizon.
+
+    Parameters
+    ----------
+    cell : CellModel
+        The cell as the controller knows it.
+    A : float
+        A parcel's length [m].
+    v : float
+        The belt speed [m/s].
+    alpha_deg : float
+        The disk angle [deg].
+    B : float
+        Its width [m].
+
+    Returns
+    -------
+    float
+        W_t [pcs/h].
+
     """
     strips = cell_strips(
         v,

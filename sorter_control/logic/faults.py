@@ -55,11 +55,36 @@ class Faults:
         return self.state == "running"
 
     def after_cell_watchdog(self, t: float) -> bool:
-        """Return True while the cell's watchdog holds, or its consequences may still show."""
+        """
+        Return True while the cell's watchdog holds, or its consequences may still show.
+
+        Parameters
+        ----------
+        t : float
+            The scan time [s, simulated].
+
+        Returns
+        -------
+        bool
+            True while the watchdog holds or its consequences may show.
+
+        """
         return self.cell_watchdog or t < self.cell_watchdog_grace_until
 
     def cell_watchdog_report(self, tripped: bool, t: float, grace: float) -> None:
-        """Take the cell's watchdog bit; when it clears, its consequences last ``grace`` s."""
+        """
+        Take the cell's watchdog bit; when it clears, its consequences last ``grace`` s.
+
+        Parameters
+        ----------
+        tripped : bool
+            The cell's watchdog bit.
+        t : float
+            The scan time [s, simulated].
+        grace : float
+            How long its consequences may still show after it clears [s].
+
+        """
         if tripped:
             self.cell_watchdog = True
         elif self.cell_watchdog:
@@ -74,6 +99,18 @@ class Faults:
         cell's clock ran a burst the controller could not follow) is logged and counted
         as that trip's consequence, not latched: the trip is the cell's to report, and
         once heartbeats return nothing is left for a person to reset.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        kind : str
+            The fault's kind.
+        message : str
+            What happened, for the log.
+        sensor : str, optional
+            The sensor concerned.
+
         """
         if kind in WATCHDOG_CONSEQUENCES and self.after_cell_watchdog(io.t):
             self.counts["after_cell_watchdog"] += 1
@@ -90,7 +127,22 @@ class Faults:
             io.command("estop", True)
 
     def enter_estop(self, io: ScanIO, message: str) -> bool:
-        """Enter the e-stop state (over any fault); False if already in it."""
+        """
+        Enter the e-stop state (over any fault); False if already in it.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        message : str
+            What happened, for the log.
+
+        Returns
+        -------
+        bool
+            False if already in it.
+
+        """
         if self.state == "estop":
             return False
         if self.state in FAULT_STATES:
@@ -102,13 +154,36 @@ class Faults:
         return True
 
     def restore(self, io: ScanIO, message: str) -> None:
-        """Go back to the fault a failed reset was to clear."""
+        """
+        Go back to the fault a failed reset was to clear.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        message : str
+            What happened, for the log.
+
+        """
         if self.fault is not None:
             self.state = self.fault["kind"]
         io.log("error", message)
 
     def clear(self, t: float) -> str:
-        """Back to running at time t [s]; returns what was cleared."""
+        """
+        Back to running at time t [s]; returns what was cleared.
+
+        Parameters
+        ----------
+        t : float
+            The scan time [s, simulated].
+
+        Returns
+        -------
+        str
+            What was cleared.
+
+        """
         was = self.fault["kind"] if self.fault else self.state
         self.state = "running"
         self.fault = None
@@ -130,6 +205,19 @@ class Supervisor:
         self.counts = counts
 
     def check(self, io: ScanIO, tr: Tracker, faults: Faults) -> None:
+        """
+        Check the parcels against the faults they could show.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        tr : Tracker
+            The parcel tracker.
+        faults : Faults
+            The fault state.
+
+        """
         cfg = self.config
         v = tr.v
         tol_x = cfg.tracking_tolerance + v * cfg.scan_period

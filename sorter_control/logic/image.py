@@ -97,16 +97,65 @@ class ScanIO(Protocol):
     t: float
 
     def log(self, level: str, text: str) -> None:
-        """Add a log line (level info | warn | error)."""
+        """
+        Add a log line (level info | warn | error).
+
+        Parameters
+        ----------
+        level : str
+            info, warn or error.
+        text : str
+            The line.
+
+        """
 
     def fault(self, kind: str, message: str, sensor: str | None = None) -> None:
-        """Report a fault of this kind (the first one defines the state)."""
+        """
+        Report a fault of this kind (the first one defines the state).
+
+        Parameters
+        ----------
+        kind : str
+            The command (popup, alpha) or the fault's kind.
+        message : str
+            What happened, for the log.
+        sensor : str, optional
+            The sensor concerned.
+
+        """
 
     def command(self, kind: str, value) -> Command:
-        """Queue a service call to the cell."""
+        """
+        Queue a service call to the cell.
+
+        Parameters
+        ----------
+        kind : str
+            The command (popup, alpha) or the fault's kind.
+        value : object
+            The command's value.
+
+        Returns
+        -------
+        Command
+            The queued call.
+
+        """
 
     def finish(self, parcel, reached: str, result: str | None = None) -> None:
-        """Record a parcel's outcome (a sort confirmation)."""
+        """
+        Record a parcel's outcome (a sort confirmation).
+
+        Parameters
+        ----------
+        parcel : int
+            The parcel's sequence number.
+        reached : str
+            Where it went.
+        result : str
+            The outcome's code.
+
+        """
 
 
 class EdgeDetector:
@@ -123,7 +172,22 @@ class EdgeDetector:
         self.bits: dict[str, bool | None] = {s: None for s in self.sensors}
 
     def detect(self, image: InputImage, t: float) -> tuple[list[Edge], dict[str, bool]]:
-        """Return (edges of this scan in time order, first known bits) for a scan at t [s]."""
+        """
+        Return (edges of this scan in time order, first known bits) for a scan at t [s].
+
+        Parameters
+        ----------
+        image : InputImage
+            The inputs of this scan.
+        t : float
+            The scan time [s].
+
+        Returns
+        -------
+        (list of Edge, dict)
+            The edges of this scan in time order, and the first known bits.
+
+        """
         stamped: dict[str, list[Edge]] = {}
         for e in image.edges:
             if (

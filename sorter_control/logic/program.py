@@ -152,6 +152,7 @@ class SorterLogic:
 
     @property
     def routing(self) -> RoutingTable:
+        """Return the routing table the program sorts by; assigning one replaces it."""
         return self.sequencer.routing
 
     @routing.setter
@@ -160,6 +161,7 @@ class SorterLogic:
 
     @property
     def commanded_up(self) -> bool | None:
+        """Return the disks' commanded position (True up, False down, None: not known)."""
         return self.sequencer.commanded_up
 
     @commanded_up.setter
@@ -172,21 +174,70 @@ class SorterLogic:
 
     # --- configuration facts -----------------------------------------------------------------
     def warm_lengths(self, lo: float, hi: float) -> list[float]:
-        """Return the prediction grid's lengths in [lo, hi] m."""
+        """
+        Return the prediction grid's lengths in [lo, hi] m.
+
+        Parameters
+        ----------
+        lo : float
+            The shortest length [m].
+        hi : float
+            The longest [m].
+
+        Returns
+        -------
+        list of float
+            The lengths [m].
+
+        """
         step = self.predictor.cell.length_step
         n = int(math.floor((hi - lo) / step + 1e-9)) + 1
         return [lo + i * step for i in range(max(n, 1))]
 
     def warm_up(self, lengths) -> None:
-        """Predict ahead for these lengths [m] (outside the scan), so scans find them ready."""
+        """
+        Predict ahead for these lengths [m] (outside the scan), so scans find them ready.
+
+        Parameters
+        ----------
+        lengths : sequence of float
+            Parcel lengths [m].
+
+        """
         self.gaps.warm(lengths, self.v)
 
     def min_gap(self, length: float) -> dict:
-        """Return the least gap [m] for parcels of ``length`` m at the configured belt speed."""
+        """
+        Return the least gap [m] for parcels of ``length`` m at the configured belt speed.
+
+        Parameters
+        ----------
+        length : float
+            The parcel's length [m].
+
+        Returns
+        -------
+        dict
+            The least gap [m] by pair of destinations, and the worst.
+
+        """
         return self.gaps.min_gap(length, self.v)
 
     def lookahead_ok(self, length: float) -> bool:
-        """Whether the scanner sits far enough upstream to see the follower before a decision."""
+        """
+        Whether the scanner sits far enough upstream to see the follower before a decision.
+
+        Parameters
+        ----------
+        length : float
+            The parcel's length [m].
+
+        Returns
+        -------
+        bool
+            Whether the scanner sits far enough upstream.
+
+        """
         lead = self.gaps.act.stroke_total + self.config.scan_period
         distance = -self.x_scan - self.v * lead
         need = length + self.min_gap(length)["worst"]
@@ -206,6 +257,12 @@ class SorterLogic:
         Record how long a scan took in wall time, as the node measured it.
 
         Longer than a period is an overrun.
+
+        Parameters
+        ----------
+        seconds : float
+            The time [s].
+
         """
         self.scan_wall.append(seconds)
         if seconds > self.config.scan_period:
@@ -216,6 +273,19 @@ class SorterLogic:
         Return a routing change from a warehouse controller.
 
         Raises RoutingError if not allowed.
+
+        Parameters
+        ----------
+        pattern : str
+            A label pattern of the routing grammar.
+        destination : str
+            A destination (left, right, straight, or a chute name).
+
+        Returns
+        -------
+        str
+            What was done.
+
         """
         done = self.routing.set(pattern, destination)
         self.counts["routing_updates"] += 1
@@ -223,6 +293,20 @@ class SorterLogic:
 
     # --- the scan ------------------------------------------------------------------------------
     def scan(self, image: InputImage) -> ScanOutput:
+        """
+        Run one PLC scan.
+
+        Parameters
+        ----------
+        image : InputImage
+            The inputs of this scan.
+
+        Returns
+        -------
+        ScanOutput
+            This scan's outputs: commands, logs, faults, outcomes.
+
+        """
         out = ScanOutput()
         raw = float(image.t)
         if not math.isfinite(raw):
@@ -335,7 +419,21 @@ class SorterLogic:
         self.log_history.append((self.t, "error", text))
 
     def finish(self, io: _Scan, p: Tracked, reached: str, result: str | None = None) -> None:
-        """Record where parcel p went, and how that compares with the plan."""
+        """
+        Record where parcel p went, and how that compares with the plan.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        p : Tracked
+            The parcel.
+        reached : str
+            Where it went.
+        result : str
+            The outcome's code.
+
+        """
         if p.done:
             return
         p.done = True

@@ -41,7 +41,20 @@ def _show(value) -> str:
 
 
 def check_pattern(pattern) -> str:
-    """Return the pattern stripped, or raise RoutingError naming the grammar."""
+    """
+    Return the pattern stripped, or raise RoutingError naming the grammar.
+
+    Parameters
+    ----------
+    pattern : str
+        A label pattern of the routing grammar.
+
+    Returns
+    -------
+    str
+        The pattern, stripped.
+
+    """
     if not isinstance(pattern, str):
         raise RoutingError(f"routing pattern must be a string; got {_show(pattern)}")
     pattern = pattern.strip()
@@ -54,7 +67,24 @@ def check_pattern(pattern) -> str:
 
 
 def check_destination(dest, what: str, allow_empty: bool = False) -> str:
-    """Return the destination stripped, or raise RoutingError naming what is allowed."""
+    """
+    Return the destination stripped, or raise RoutingError naming what is allowed.
+
+    Parameters
+    ----------
+    dest : str
+        A destination.
+    what : str
+        What it is, for the message.
+    allow_empty : bool
+        An empty destination is allowed (it removes a rule).
+
+    Returns
+    -------
+    str
+        The destination, stripped.
+
+    """
     if not isinstance(dest, str):
         raise RoutingError(
             f"{what} must be a string, one of {', '.join(DESTINATIONS)}; got {_show(dest)}"
@@ -99,7 +129,20 @@ class RoutingTable:
 
     @staticmethod
     def parse_rule(rule) -> tuple[str, str]:
-        """Split 'pattern=destination' and check both halves."""
+        """
+        Split 'pattern=destination' and check both halves.
+
+        Parameters
+        ----------
+        rule : str
+            ``pattern=destination``.
+
+        Returns
+        -------
+        (str, str)
+            The pattern and the destination.
+
+        """
         if not isinstance(rule, str) or "=" not in rule:
             raise RoutingError(
                 f"routing rule {_show(rule)}: expected 'label=destination' or "
@@ -110,7 +153,22 @@ class RoutingTable:
         return pattern, check_destination(dest, f"destination for {pattern!r}", allow_empty=True)
 
     def set(self, pattern: str, destination: str) -> str:
-        """Add, change or (destination '') remove a rule; returns what was done."""
+        """
+        Add, change or (destination '') remove a rule; returns what was done.
+
+        Parameters
+        ----------
+        pattern : str
+            A label pattern of the routing grammar.
+        destination : str
+            A destination (left, right, straight, or a chute name).
+
+        Returns
+        -------
+        str
+            What was done.
+
+        """
         pattern = check_pattern(pattern)
         dest = check_destination(destination, f"destination for {pattern!r}", allow_empty=True)
         if pattern == "*":
@@ -130,7 +188,20 @@ class RoutingTable:
         return f"{pattern} -> {dest}"
 
     def lookup(self, label: str | None) -> tuple[str, str]:
-        """(destination, how) with how in exact | prefix | default | unknown | no_read."""
+        """
+        (destination, how) with how in exact | prefix | default | unknown | no_read.
+
+        Parameters
+        ----------
+        label : str
+            A parcel label (empty: no read).
+
+        Returns
+        -------
+        (str, str)
+            The destination, and how it was found (exact, prefix, default, unknown, no_read).
+
+        """
         if label is None or label == "":
             return self.reject, "no_read"
         if label in self.exact:
@@ -151,6 +222,17 @@ class RoutingTable:
 
         ``with_default=False`` leaves the default out: the form of the
         ``routing.rules`` parameter, which holds the default on its own.
+
+        Parameters
+        ----------
+        with_default : bool
+            Include the default as ``*=destination``.
+
+        Returns
+        -------
+        list of str
+            The rules.
+
         """
         out = [f"{k}={v}" for k, v in sorted(self.exact.items())]
         out += [f"{k}*={v}" for k, v in sorted(self.prefixes.items())]

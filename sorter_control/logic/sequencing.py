@@ -44,6 +44,26 @@ class DiverterSequencer:
 
     # --- service calls -------------------------------------------------------------------------
     def command(self, out: ScanOutput, kind: str, value, t: float) -> Command:
+        """
+        Queue a diverter command.
+
+        Parameters
+        ----------
+        out : ScanOutput
+            This scan's outputs.
+        kind : str
+            The command (popup, alpha).
+        value : object
+            Its value.
+        t : float
+            The scan time [s].
+
+        Returns
+        -------
+        Command
+            The queued call.
+
+        """
         self.cmd_id += 1
         cmd = Command(self.cmd_id, kind, value, t)
         self.in_flight[cmd.id] = cmd
@@ -52,6 +72,20 @@ class DiverterSequencer:
         return cmd
 
     def busy(self, kind: str) -> bool:
+        """
+        Return whether a call of that kind is under way.
+
+        Parameters
+        ----------
+        kind : str
+            The command (popup, alpha).
+
+        Returns
+        -------
+        bool
+            Whether a call of that kind is under way.
+
+        """
         return any(c.kind == kind for c in self.in_flight.values())
 
     def forget_outputs(self) -> None:
@@ -74,11 +108,35 @@ class DiverterSequencer:
         The stroke only: the disk angle is set ahead for the next divert in line
         whenever no committed divert holds it (see ``desired_outputs``), so it does
         not force decisions early; ``alpha_ready`` checks it made it in time.
+
+        Parameters
+        ----------
+        dest : str
+            A destination.
+
+        Returns
+        -------
+        float
+            The lead [s].
+
         """
         return 0.0 if side_of(dest) == 0 else self.gaps.act.stroke_total
 
     def alpha_ready(self, dest: str) -> float:
-        """When the disks can be at the angle for ``dest`` if nothing committed holds them [s]."""
+        """
+        When the disks can be at the angle for ``dest`` if nothing committed holds them [s].
+
+        Parameters
+        ----------
+        dest : str
+            A destination.
+
+        Returns
+        -------
+        float
+            The time [s].
+
+        """
         act = self.gaps.act
         target = self.gaps.alpha_for(dest)
         t = self.tr.t
@@ -110,7 +168,15 @@ class DiverterSequencer:
 
     # --- decisions -----------------------------------------------------------------------------
     def decide(self, io: ScanIO) -> None:
-        """Commit every parcel whose last moment to decide has come."""
+        """
+        Commit every parcel whose last moment to decide has come.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+
+        """
         tr = self.tr
         pending = [p for p in tr.parcels if not p.committed and not p.done]
         if not pending:
@@ -146,7 +212,17 @@ class DiverterSequencer:
                 self.last_decided = p
 
     def commit(self, io: ScanIO, p: Tracked) -> None:
-        """Decide parcel p for good: its destination and whether the disks can serve it."""
+        """
+        Decide parcel p for good: its destination and whether the disks can serve it.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        p : Tracked
+            A tracked parcel.
+
+        """
         tr = self.tr
         v = tr.v
         asked, how = self.routing.lookup(p.label)
@@ -232,6 +308,18 @@ class DiverterSequencer:
         Parcels too close behind to go straight past raised disks must follow p to
         the same side (a chain, each bound to it); a chain that breaks refuses p.
         A bound p (forced) cannot be refused: a break behind it binds the next one.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        p : Tracked
+            A tracked parcel.
+        dest : str
+            A destination.
+        forced : bool
+            Divert whatever follows.
+
         """
         tr = self.tr
         v = tr.v
@@ -293,6 +381,21 @@ class DiverterSequencer:
         p.alpha = self.gaps.alpha_for(dest)
 
     def refuse(self, io: ScanIO, p: Tracked, asked: str, why: str) -> None:
+        """
+        Refuse a parcel's destination, with the reason.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        p : Tracked
+            A tracked parcel.
+        asked : str
+            The destination asked for.
+        why : str
+            The reason.
+
+        """
         p.plan = "straight"
         p.result = R_GAP
         self.counts["gap_too_short"] += 1
@@ -337,7 +440,17 @@ class DiverterSequencer:
         return up, alpha
 
     def write_outputs(self, out: ScanOutput, state: str) -> None:
-        """Call the services that bring the diverter to what the plan (or the fault) wants."""
+        """
+        Call the services that bring the diverter to what the plan (or the fault) wants.
+
+        Parameters
+        ----------
+        out : ScanOutput
+            This scan's outputs.
+        state : str
+            The controller's state.
+
+        """
         t = self.tr.t
         if self.diverter_silent:
             return  # the diverter did not answer: leave it alone until reset, whatever the state

@@ -86,7 +86,15 @@ class Tracker:
 
     # --- the encoder ---------------------------------------------------------------------------
     def advance(self, t: float) -> None:
-        """Move to scan time t [s]: the belt carries the encoder on while it runs."""
+        """
+        Move to scan time t [s]: the belt carries the encoder on while it runs.
+
+        Parameters
+        ----------
+        t : float
+            The scan time [s, simulated].
+
+        """
         if self.t is not None and self.belt_running:
             self.encoder += self.v * (t - self.t)
         self.t = t
@@ -101,21 +109,76 @@ class Tracker:
         )
 
     def enc_at(self, t: float) -> float:
-        """Return the encoder reading at an edge time inside (or just before) the current scan."""
+        """
+        Return the encoder reading at an edge time inside (or just before) the current scan.
+
+        Parameters
+        ----------
+        t : float
+            The scan time [s, simulated].
+
+        Returns
+        -------
+        float
+            The encoder reading [m].
+
+        """
         if not self.belt_running:
             return self.encoder
         return self.encoder - self.v * (self.t - t)
 
     def lead_x(self, p: Tracked, enc: float | None = None) -> float:
-        """Position of the parcel's leading edge [m, conveyor frame]."""
+        """
+        Position of the parcel's leading edge [m, conveyor frame].
+
+        Parameters
+        ----------
+        p : Tracked
+            A tracked parcel.
+        enc : float
+            An encoder reading [m].
+
+        Returns
+        -------
+        float
+            The position [m].
+
+        """
         return self.x_scan + ((self.encoder if enc is None else enc) - p.enc_rise)
 
     def t_enter(self, p: Tracked) -> float:
-        """When the leading edge reaches (reached) the disk field, x = 0 [s]."""
+        """
+        When the leading edge reaches (reached) the disk field, x = 0 [s].
+
+        Parameters
+        ----------
+        p : Tracked
+            A tracked parcel.
+
+        Returns
+        -------
+        float
+            The time [s].
+
+        """
         return self.t + (0.0 - self.lead_x(p)) / self.v
 
     # --- the list ------------------------------------------------------------------------------
     def by_seq(self, seq) -> Tracked | None:
+        """
+        Return the parcel of a sequence number.
+
+        Parameters
+        ----------
+        seq : int
+            A sequence number.
+
+        Returns
+        -------
+        Tracked or None
+            The parcel, or None.
+
+        """
         if seq is None:
             return None
         for p in self.parcels:
@@ -124,6 +187,20 @@ class Tracker:
         return None
 
     def next_after(self, p: Tracked) -> Tracked | None:
+        """
+        Return the parcel behind p.
+
+        Parameters
+        ----------
+        p : Tracked
+            A tracked parcel.
+
+        Returns
+        -------
+        Tracked or None
+            The next parcel, or None.
+
+        """
         seen = False
         for q in self.parcels:
             if seen:
@@ -132,7 +209,22 @@ class Tracker:
         return None
 
     def checkpoint(self, p: Tracked, eye: str) -> bool:
-        """Return whether the parcel should pass this photo-eye (diverted ones miss later eyes)."""
+        """
+        Return whether the parcel should pass this photo-eye (diverted ones miss later eyes).
+
+        Parameters
+        ----------
+        p : Tracked
+            A tracked parcel.
+        eye : str
+            A photo-eye's name.
+
+        Returns
+        -------
+        bool
+            Whether it should pass the eye.
+
+        """
         x = self.eye_x[eye]
         if eye == self.config.scan_eye:
             return False
@@ -141,7 +233,22 @@ class Tracker:
         return p.committed and side_of(p.plan) == 0
 
     def expected_at(self, eye: str, t: float) -> Tracked | None:
-        """Return the oldest parcel whose transit window at ``eye`` holds time t."""
+        """
+        Return the oldest parcel whose transit window at ``eye`` holds time t.
+
+        Parameters
+        ----------
+        eye : str
+            A photo-eye's name.
+        t : float
+            The scan time [s, simulated].
+
+        Returns
+        -------
+        Tracked or None
+            The parcel, or None.
+
+        """
         enc = self.enc_at(t)
         tol = self.config.tracking_tolerance + self.v * self.config.scan_period
         for p in self.parcels:
@@ -152,7 +259,24 @@ class Tracker:
         return None
 
     def expected_clear(self, p: Tracked, eye: str, t_rise: float) -> float:
-        """When a parcel that blocked ``eye`` at t_rise should clear it [s]."""
+        """
+        When a parcel that blocked ``eye`` at t_rise should clear it [s].
+
+        Parameters
+        ----------
+        p : Tracked
+            A tracked parcel.
+        eye : str
+            A photo-eye's name.
+        t_rise : float
+            When it blocked the eye [s].
+
+        Returns
+        -------
+        float
+            The time [s].
+
+        """
         length = p.length if p.length is not None else self.config.max_parcel_length
         t_clear = t_rise + length / self.v
         x_e = self.eye_x[eye]
@@ -166,7 +290,20 @@ class Tracker:
         return t_clear
 
     def retired(self, p: Tracked) -> bool:
-        """Done, and no longer needed for the disk schedule or the photo-eyes."""
+        """
+        Done, and no longer needed for the disk schedule or the photo-eyes.
+
+        Parameters
+        ----------
+        p : Tracked
+            A tracked parcel.
+
+        Returns
+        -------
+        bool
+            Whether it is no longer needed.
+
+        """
         if not p.done:
             return False
         if self.belt_running and p.reached == "straight" and p.plan == "straight":
@@ -187,7 +324,17 @@ class Tracker:
         self.parcels = [p for p in self.parcels if not self.retired(p)]
 
     def clear(self, io: ScanIO, why: str) -> None:
-        """Forget every parcel (their outcome: aborted) and flush the belt of what is left."""
+        """
+        Forget every parcel (their outcome: aborted) and flush the belt of what is left.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        why : str
+            The reason.
+
+        """
         for p in self.parcels:
             if not p.done:
                 io.finish(p, "unknown", R_ABORTED)
@@ -207,7 +354,15 @@ class Tracker:
 
     # --- inputs --------------------------------------------------------------------------------
     def first_seen(self, first: dict) -> None:
-        """Take each sensor's first known bit as its state (no edge, nothing explains it)."""
+        """
+        Take each sensor's first known bit as its state (no edge, nothing explains it).
+
+        Parameters
+        ----------
+        first : dict
+            {sensor: first known bit}.
+
+        """
         for s, blocked in first.items():
             eye = self.eyes[s]
             eye.blocked = blocked
@@ -215,6 +370,17 @@ class Tracker:
             eye.unexpected = blocked
 
     def on_edge(self, io: ScanIO, edge: Edge) -> None:
+        """
+        Take a sensor edge.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        edge : Edge
+            A sensor edge.
+
+        """
         s = edge.sensor
         eye = self.eyes[s]
         eye.blocked = edge.rising
@@ -252,6 +418,15 @@ class Tracker:
             eye.unexpected = False
 
     def on_scan_eye(self, edge: Edge) -> None:
+        """
+        Take an edge of the scanner's photo-eye.
+
+        Parameters
+        ----------
+        edge : Edge
+            A sensor edge.
+
+        """
         eye = self.eyes[self.config.scan_eye]
         if edge.rising:
             self.seq += 1
@@ -276,7 +451,19 @@ class Tracker:
             eye.by = None
 
     def apply_labels(self, io: ScanIO, labels, running: bool) -> None:
-        """Give scanner labels to their parcels; a label with no parcel is the eye's fault."""
+        """
+        Give scanner labels to their parcels; a label with no parcel is the eye's fault.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        labels : list of str
+            The labels read this scan.
+        running : bool
+            The belt runs.
+
+        """
         for item in labels:
             try:
                 t_l, label = item
@@ -318,7 +505,19 @@ class Tracker:
                 )
 
     def on_chute(self, io: ScanIO, dest: str, t: float) -> None:
-        """Finish the parcel planned for the chute that blocked, or the one over the field."""
+        """
+        Finish the parcel planned for the chute that blocked, or the one over the field.
+
+        Parameters
+        ----------
+        io : ScanIO
+            This scan's inputs and outputs.
+        dest : str
+            The chute's destination.
+        t : float
+            The scan time [s, simulated].
+
+        """
         side = side_of(dest)
         b = self.config.cell.disk_field_length
         tol = self.config.tracking_tolerance / self.v + self.config.scan_period

@@ -72,6 +72,15 @@ REPORT_PARTS = ("cases", "core", "matrix", "long", "reductions", "quadrature")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """
+    Add the verb's arguments to its parser.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's parser.
+
+    """
     sub = parser.add_subparsers(dest="bench_what", metavar="WHAT")
     p = sub.add_parser(
         "precision",
@@ -118,6 +127,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int | str | None:
+    """
+    run.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The verb's parsed arguments.
+
+    Returns
+    -------
+    int or str
+        The exit code, or a message for a refused input.
+
+    """
     what = getattr(args, "bench_what", None)
     if what is None:
         return (
@@ -175,7 +198,22 @@ class Sweeps:
 
 
 def sweeps(quick: bool, long_case: bool) -> Sweeps:
-    """Return the settings per family; a long case (20 s or more) skips the finest fixed steps."""
+    """
+    Return the settings per family; a long case (20 s or more) skips the finest fixed steps.
+
+    Parameters
+    ----------
+    quick : bool
+        Coarse grids, for tests and quick looks.
+    long_case : bool
+        Include the long two-belt case.
+
+    Returns
+    -------
+    Sweeps
+        The settings swept for each method.
+
+    """
     if quick:
         return Sweeps(
             acc_rtol=(1e-4, 1e-6, 1e-8, 1e-10),
@@ -292,6 +330,17 @@ def cross_check_tol(quick: bool) -> float:
     1e-13 resolves an exact stick's break-away layer to round-off but costs 20-50 s a
     parcel case on this model; the quick report cross-checks at 1e-11 (a few seconds,
     agreement to ~1e-9 m), which still catches any model or event defect.
+
+    Parameters
+    ----------
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    float
+        The tolerance [m].
+
     """
     return 1e-11 if quick else 1e-13
 
@@ -317,6 +366,22 @@ def _reference(case: ParcelCase, label: str, log, quick: bool) -> tuple[Trajecto
 
 
 def precision_cases(quick: bool, log=print) -> list[PrecisionCase]:
+    """
+    precision_cases.
+
+    Parameters
+    ----------
+    quick : bool
+        Coarse grids, for tests and quick looks.
+    log : callable, optional
+        Progress lines go here.
+
+    Returns
+    -------
+    list of PrecisionCase
+        The measured cases.
+
+    """
     out = []
     # ---- Fig. 4: exact reference
     osc = Oscillator()
@@ -471,6 +536,21 @@ def implicit_exact_convergence(
 
     With constant μ its step takes the exact wrench, so the error should fall at first
     order with no floor; the smallest step shows whether it gets below 1e-7 m.
+
+    Parameters
+    ----------
+    case : ParcelCase
+        The case.
+    ref : Trajectory
+        The reference trajectory.
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    list of (float, float)
+        (h, error) pairs.
+
     """
     steps = (1e-4, 1e-5) if quick else (1e-5, 1e-6, 5e-7)
     return [(h, compare(case.core("implicit", dt=h), ref).final) for h in steps]
@@ -485,6 +565,17 @@ def implicit_quadrature_floor(quick: bool) -> list[tuple[int, float, float]]:
     order: the error stops falling. Fig. 9a with the default B-spline law on both
     belts and disks at a small step, final CoG error against the accurate method at
     rtol 1e-12 for several n_quad: (n_quad, h, error).
+
+    Parameters
+    ----------
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    list of (int, float, float)
+        (points, h, error) rows.
+
     """
     base = fig9a_case()
     law = sx.bspline_law()
@@ -501,7 +592,24 @@ def implicit_quadrature_floor(quick: bool) -> list[tuple[int, float, float]]:
 
 # ---------------------------------------------------------------------------- bench core
 def bench_core(repeats: int = 7, quick: bool = False, log=None) -> tuple[str, dict]:
-    """Return the core benchmark on Fig. 9a; returns the printed text and the headline figures."""
+    """
+    Return the core benchmark on Fig. 9a; returns the printed text and the headline figures.
+
+    Parameters
+    ----------
+    repeats : int
+        Timed repeats; the best counts.
+    quick : bool
+        Coarse grids, for tests and quick looks.
+    log : callable, optional
+        Progress lines go here.
+
+    Returns
+    -------
+    (str, dict)
+        The report's text and its figures.
+
+    """
     log = log or (lambda s: None)
     case = fig9a_case()
     lines = []
@@ -675,6 +783,25 @@ def write_precision_report(
 
     Unless ``quiet``, a progress bar on a terminal counts the parts (each case of the
     matrix one part); ``log`` lines are written above it.
+
+    Parameters
+    ----------
+    out : Path
+        The report's folder.
+    quick : bool
+        Coarse grids, for tests and quick looks.
+    log : callable, optional
+        Progress lines go here.
+    parts : sequence of str, optional
+        The report's parts to run (default: all).
+    quiet : bool
+        No bar.
+
+    Returns
+    -------
+    Path
+        The report.
+
     """
     t_start = time.perf_counter()
     matrix = sx.matrix(quick=quick) if "matrix" in parts else []

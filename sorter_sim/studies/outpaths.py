@@ -25,7 +25,22 @@ def _probe(folder: Path) -> str | None:
 
 
 def dir_problem(path: str | Path, flag: str = '--out') -> str | None:
-    """Make sure ``path`` is a folder this process can write in; else say why."""
+    """
+    Make sure ``path`` is a folder this process can write in; else say why.
+
+    Parameters
+    ----------
+    path : str or Path
+        The path.
+    flag : str
+        The option that names it, for the message.
+
+    Returns
+    -------
+    str or None
+        What is wrong, or None.
+
+    """
     p = Path(path)
     if p.exists() and not p.is_dir():
         return f'{flag} {str(p)!r} exists and is not a folder'
@@ -38,7 +53,22 @@ def dir_problem(path: str | Path, flag: str = '--out') -> str | None:
 
 
 def file_problem(path: str | Path, flag: str = '--out') -> str | None:
-    """Make sure the file ``path`` can be written (its folder made if need be); else say why."""
+    """
+    Make sure the file ``path`` can be written (its folder made if need be); else say why.
+
+    Parameters
+    ----------
+    path : str or Path
+        The path.
+    flag : str
+        The option that names it, for the message.
+
+    Returns
+    -------
+    str or None
+        What is wrong, or None.
+
+    """
     p = Path(path)
     if p.exists() and p.is_dir():
         return f'{flag} {str(p)!r} is a folder, not a file'

@@ -72,6 +72,19 @@ def fig4(out: Path | None = None, quick: bool = False) -> FigureResult:
     Trajectories of the body and of the spring end B, the friction force, the
     external force P_ext = k (x_s - x_p), the rubbing speed, and the active row
     of eq. (3.1) over time; compared with the exact Coulomb solution.
+
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+
     """
     t0 = time.perf_counter()
     osc = Oscillator()  # the seed's m = 1 kg, F_kin = 1 N, F_stat = 1.5 N, k = 2 N/m, 0.1 m/s
@@ -180,7 +193,22 @@ def fig4(out: Path | None = None, quick: bool = False) -> FigureResult:
 
 # ---------------------------------------------------------------------------- Fig. 5
 def fig5(out: Path | None = None, quick: bool = False) -> FigureResult:
-    """Duration of the static stage F(3) of the first three stick-slip cycles against v_min."""
+    """
+    Duration of the static stage F(3) of the first three stick-slip cycles against v_min.
+
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+
+    """
     t0 = time.perf_counter()
     osc = Oscillator()
     v_mins = np.array([1e-5, 1e-4, 1e-3]) if quick else np.logspace(-6, -1, 11)
@@ -252,7 +280,22 @@ def fig5(out: Path | None = None, quick: bool = False) -> FigureResult:
 
 # ---------------------------------------------------------------------------- Fig. 7
 def fig7(out: Path | None = None, quick: bool = False) -> FigureResult:
-    """Return the CoG path with (line 1) and without (line 2) the moment of friction forces."""
+    """
+    Return the CoG path with (line 1) and without (line 2) the moment of friction forces.
+
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+
+    """
     t0 = time.perf_counter()
     kw = dict(A=0.4, B=0.2, v=1.0, alpha_deg=90.0, b=math.inf, mu_a=SEED_MU, mu_b=SEED_MU)
     runs = {}
@@ -322,6 +365,19 @@ def fig8(out: Path | None = None, quick: bool = False) -> FigureResult:
 
     Distance x_o while the CoG is moved s = 0.7 m across, against (a) A, B; (b) v, A;
     (c) α, A; (d) μ_a, μ_b. Defaults elsewhere: 0.7 x 0.2 m, v = 1.5 m/s, α = 90°, μ = 0.6.
+
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+
     """
     t0 = time.perf_counter()
     if quick:
@@ -417,7 +473,22 @@ def fig8(out: Path | None = None, quick: bool = False) -> FigureResult:
 
 # ---------------------------------------------------------------------------- Fig. 9
 def fig9(out: Path | None = None, quick: bool = False) -> FigureResult:
-    """Capacity W_t = 3600/t_c [pcs/h] against v and A, for α = 90°, 45°, 30°."""
+    """
+    Capacity W_t = 3600/t_c [pcs/h] against v and A, for α = 90°, 45°, 30°.
+
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+
+    """
     t0 = time.perf_counter()
     As = [0.3, 0.7, 1.1] if quick else [0.2, 0.4, 0.6, 0.7, 0.8, 1.0, 1.2]
     vs = [1.0, 1.5] if quick else [0.5, 0.75, 1.0, 1.25, 1.5]
@@ -472,7 +543,22 @@ def fig9(out: Path | None = None, quick: bool = False) -> FigureResult:
 
 
 def fig10(out: Path | None = None, quick: bool = False) -> FigureResult:
-    """Components of the rubbing speed in zones a and b over time, stages E1-E3 marked."""
+    """
+    Components of the rubbing speed in zones a and b over time, stages E1-E3 marked.
+
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+
+    """
     t0 = time.perf_counter()
     runs = {}
     for al in ALPHAS:
@@ -567,7 +653,22 @@ def fig10(out: Path | None = None, quick: bool = False) -> FigureResult:
 
 
 def fig11(out: Path | None = None, quick: bool = False) -> FigureResult:
-    """Minimal disk-field width b against v and A for α = 90°, 45°, 30° (brentq per point)."""
+    """
+    Minimal disk-field width b against v and A for α = 90°, 45°, 30° (brentq per point).
+
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+
+    """
     t0 = time.perf_counter()
     As = [0.4] if quick else [0.2, 0.4, 0.6, 0.8, 1.0, 1.2]
     vs = [1.5] if quick else [0.5, 1.0, 1.5]
@@ -626,7 +727,24 @@ FIG13_LAWS = {
 
 
 def fig13(out: Path | None = None, quick: bool = False, laws: dict | None = None) -> FigureResult:
-    """Position a parcel by two belts running against each other (v = 0.37 m/s, 0.4 x 0.3 m)."""
+    """
+    Position a parcel by two belts running against each other (v = 0.37 m/s, 0.4 x 0.3 m).
+
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+    laws : dict, optional
+        {label: FrictionLaw} of the laws to compare.
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+
+    """
     t0 = time.perf_counter()
     laws = laws or FIG13_LAWS
     t_end = 6.0 if quick else 12.0
@@ -689,6 +807,19 @@ def fig14(out: Path | None = None, quick: bool = False) -> FigureResult:
     α = 45°, v = 1.5 m/s, m = 5 kg, 0.4 x 0.26 m, s = 0.7 m, b = ∞; every zone takes the
     law as given. L is the length of belt the centre of gravity covers while scrapped
     (x_o, the measure Fig. 8 gives the required field width by).
+
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+
     """
     t0 = time.perf_counter()
     runs = {}

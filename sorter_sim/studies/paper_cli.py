@@ -33,6 +33,15 @@ ALIASES = {"14-16": "14", "15": "14", "16": "14", "two_stage": "two-stage"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """
+    Add the verb's arguments to its parser.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's parser.
+
+    """
     choices = sorted(
         set(FIGURES) | set(ALIASES) | {"all"}, key=lambda s: (not s[0].isdigit(), len(s), s)
     )
@@ -56,7 +65,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int | str:
-    """``sorter paper FIG``: compute, write and print one figure (or all of them)."""
+    """
+    ``sorter paper FIG``: compute, write and print one figure (or all of them).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The verb's parsed arguments.
+
+    Returns
+    -------
+    int or str
+        The exit code, or a message for a refused input.
+
+    """
     out = Path(args.out)
     problem = dir_problem(out)
     if problem:

@@ -116,6 +116,45 @@ def sorting_scene(
 
     The figures reproduce the seed's computations, so its decoupled stick test is the
     default here (``stick="exact"`` for the limit-set stick every other part uses).
+
+    Parameters
+    ----------
+    A : float
+        The parcel's length [m].
+    B : float
+        Its width [m].
+    m : float
+        The parcel's mass [kg].
+    v : float
+        The belt speed [m/s].
+    alpha_deg : float
+        The disk angle [deg].
+    b : float
+        The disk field's length [m].
+    mu_a : float
+        μ of the belt before the disks.
+    mu_b : float
+        μ of the disks.
+    mu_c : float
+        μ of the belt after them.
+    model : str
+        The friction law's name.
+    law : FrictionLaw
+        The friction law.
+    rotation : bool
+        The moment of friction forces on.
+    t_max : float
+        The longest run [s].
+    s : float
+        The scrap distance across the belt [m].
+    stick : str
+        The stick law, exact or seed.
+
+    Returns
+    -------
+    dict
+        The scene.
+
     """
     fr = {"model": model}
     if law is not None:
@@ -232,7 +271,24 @@ def _monotone(values, increasing=True, tol=0.0) -> bool:
 
 
 def disk_surface(res, v: float, alpha: float) -> int | None:
-    """Surface id of the disks (velocity v(cos α, sin α)) in a run's surface list."""
+    """
+    Surface id of the disks (velocity v(cos α, sin α)) in a run's surface list.
+
+    Parameters
+    ----------
+    res : SimResult
+        A run.
+    v : float
+        The belt speed [m/s].
+    alpha : float
+        The disk angle [rad].
+
+    Returns
+    -------
+    int or None
+        The disks' surface id, or None.
+
+    """
     want = (v * math.cos(alpha), v * math.sin(alpha))
     for k, (vx, vy) in enumerate(res.surfaces):
         if (
@@ -280,6 +336,19 @@ def densify(res, dt: float = 0.005) -> Samples:
     The accurate method advances a stick in closed form as one record pair; the
     parcel then moves rigidly with a surface (constant velocity, φ̇ = 0), so linear
     interpolation between the pair is exact. Sliding records are kept as they are.
+
+    Parameters
+    ----------
+    res : SimResult
+        A run.
+    dt : float
+        The sampling step [s].
+
+    Returns
+    -------
+    Samples
+        The dense samples.
+
     """
     ts, ys, ms = [res.t[:1]], [res.y[:1]], [res.mode[:1]]
     for k in range(len(res.t) - 1):
@@ -304,6 +373,23 @@ def zone_rubbing(res, strips: list[Strip], parcel: Parcel, names=("a", "b")) -> 
     ξ_i = v_surface,x - v_q,x and η_i = v_q,y - v_surface,y with v_q the parcel's
     velocity at q, the seed's sign convention. NaN where the parcel does not touch
     the zone. Returns {name: (ξ, η)} arrays over res.t.
+
+    Parameters
+    ----------
+    res : SimResult
+        A run.
+    strips : list of Strip
+        The strips.
+    parcel : Parcel
+        The parcel.
+    names : sequence of str
+        The zones' names.
+
+    Returns
+    -------
+    dict
+        Each zone's rubbing-speed components.
+
     """
     out = {}
     corners = np.empty((4, 2))
@@ -336,6 +422,21 @@ def scrapes_without_sliding(res, v: float, alpha_deg: float) -> bool:
     scrap line while the parcel is stuck on the disk surface. With a finite b the
     belt zone c behind the field takes part, as it drags a parcel that is not yet
     held by the disks (or, at α < 90°, drifts into it) out of the field.
+
+    Parameters
+    ----------
+    res : SimResult
+        A run.
+    v : float
+        The belt speed [m/s].
+    alpha_deg : float
+        The disk angle [deg].
+
+    Returns
+    -------
+    bool
+        Whether it does.
+
     """
     disk = disk_surface(res, v, math.radians(alpha_deg))
     return res.t_target is not None and disk is not None and int(res.mode[-1]) == disk
@@ -360,6 +461,23 @@ def step_root(scrapes, b_lo: float, b_hi: float, xtol: float) -> MinimalWidth:
     sign-changing bracket and converges to the step within ``xtol`` (on a step its
     interpolation steps fall back to bisection). The upper end is doubled until
     the criterion holds.
+
+    Parameters
+    ----------
+    scrapes : callable
+        b -> whether a disk field of length b scrapes the parcel.
+    b_lo : float
+        The bracket's low end [m].
+    b_hi : float
+        Its high end [m].
+    xtol : float
+        The bracket's tolerance [m].
+
+    Returns
+    -------
+    MinimalWidth
+        The bracket and the width.
+
     """
     n = [0]
 
@@ -389,6 +507,31 @@ def minimal_disk_width(
 
     Finite b, zone c present (μ_c = μ_a = μ_b = μ, the seed's Fig. 11 data); found
     by ``step_root`` (scipy brentq), not by a scan.
+
+    Parameters
+    ----------
+    A : float
+        The parcel's length [m].
+    B : float
+        Its width [m].
+    v : float
+        The belt speed [m/s].
+    alpha_deg : float
+        The disk angle [deg].
+    mu : float
+        The friction coefficient.
+    xtol : float
+        The bracket's tolerance [m].
+    b_hi : float
+        Its high end [m].
+    b_lo : float
+        The bracket's low end [m].
+
+    Returns
+    -------
+    MinimalWidth
+        The least width.
+
     """
 
     def scrapes(b):
@@ -418,6 +561,26 @@ def two_belt_positioning(
 
     The Fig. 12 stand: belt x < 0 runs at +v, belt x > 0 at -v; parcel released at rest
     with its centre x0 off the border. Returns the core result.
+
+    Parameters
+    ----------
+    law : FrictionLaw
+        The friction law.
+    v : float
+        The belt speed [m/s].
+    A : float
+        The parcel's length [m].
+    B : float
+        Its width [m].
+    m : float
+        The parcel's mass [kg].
+    x0 : float
+        The start's offset [m].
+    t_end : float
+        The end [s].
+    method : str
+        The method.
+
     """
     strips = [
         Strip(-math.inf, 0.0, +v, 0.0, law, name="forward"),
@@ -427,7 +590,17 @@ def two_belt_positioning(
 
 
 def swing_peaks(t, x):
-    """Return the times and heights |x| of the turning points of an oscillation about x = 0."""
+    """
+    Return the times and heights |x| of the turning points of an oscillation about x = 0.
+
+    Parameters
+    ----------
+    t : ndarray
+        Times [s].
+    x : ndarray
+        Positions [m].
+
+    """
     t = np.asarray(t)
     ax_ = np.abs(np.asarray(x))
     k = np.nonzero((ax_[1:-1] >= ax_[:-2]) & (ax_[1:-1] >= ax_[2:]) & (ax_[1:-1] > 1e-9))[0] + 1
@@ -441,6 +614,22 @@ def friction_forces(res, strips: list[Strip], parcel: Parcel, rotation=True, g=9
     Sliding surfaces give their kinetic force (eqs. 4.2-4.3 with μ(v_o)); the surface
     the parcel is stuck to holds it at constant velocity, so it carries minus the
     sum of the others. Returns an array (n, n_surfaces, 2).
+
+    Parameters
+    ----------
+    res : SimResult
+        A run.
+    strips : list of Strip
+        The strips.
+    parcel : Parcel
+        The parcel.
+    rotation : bool
+        The moment of friction forces on.
+    g : float
+        Gravity [m/s²].
+    n_quad : int
+        Gauss points per direction.
+
     """
     arr = strip_array(strips)
     par = parcel_array(parcel, rotation, n_quad, True, g)

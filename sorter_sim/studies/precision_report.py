@@ -367,6 +367,17 @@ def stagnation(rows: list[WPRow]) -> list[tuple[str, float, float]]:
     Families whose error stops falling as the setting is refined: (family, error two
     settings before the finest, error at the finest), where the finest is not below a third
     of it (a converging method of order >= 1 gains at least that over a 10x refinement).
+
+    Parameters
+    ----------
+    rows : list of WPRow
+        Measured rows.
+
+    Returns
+    -------
+    list of (str, float, float)
+        (setting, error, time) where the error stops falling.
+
     """
     out = []
     fams: dict = {}

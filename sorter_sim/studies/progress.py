@@ -12,7 +12,21 @@ import sys
 
 
 def progress_bar(total: float, desc: str, unit: str, *, quiet: bool = False, **kw):
-    """Return a tqdm bar on stderr; disabled with ``quiet`` or when stderr is no terminal."""
+    """
+    Return a tqdm bar on stderr; disabled with ``quiet`` or when stderr is no terminal.
+
+    Parameters
+    ----------
+    total : int
+        The number of steps.
+    desc : str
+        What the bar counts.
+    unit : str
+        Its unit.
+    quiet : bool
+        No bar.
+
+    """
     from tqdm import tqdm
 
     return tqdm(

@@ -69,6 +69,22 @@ def run_accurate_flags(
     The accurate method with the closed-form wrench and the closed-form stick jumps
     switched separately (``simulate(reductions=...)`` switches both).
     Returns (Trajectory, kernel wall time [s]).
+
+    Parameters
+    ----------
+    case : ParcelCase
+        The case.
+    closed_wrench : bool
+        The exact constant-μ wrench on.
+    stick_jumps : bool
+        Closed-form sticks on.
+    rtol : float
+        The relative tolerance.
+    atol : float
+        The absolute tolerance.
+    max_points : int
+        Room for records.
+
     """
     arr = strip_array(case.strips)
     par = parcel_array(case.parcel, case.rotation, case.n_quad, closed_wrench)
@@ -115,7 +131,22 @@ def _core_flags(case: ParcelCase, **settings):
 
 
 def reductions(repeats: int = 5, rtol: float = 1e-8) -> list[ReductionRow]:
-    """Speed-up and agreement of each reduction against the full model."""
+    """
+    Speed-up and agreement of each reduction against the full model.
+
+    Parameters
+    ----------
+    repeats : int
+        Timed repeats; the best counts.
+    rtol : float
+        The relative tolerance.
+
+    Returns
+    -------
+    list of ReductionRow
+        The rows.
+
+    """
     rows = []
     fig9a = sorting_case()
     placed = sorting_case(y0=[1.0, 0.0, 0.0, 0.0, 0.0, 0.0])

@@ -86,6 +86,17 @@ class ScipyParcel:
 
     # the model, as scipy sees it
     def f(self, t, y):
+        """
+        f.
+
+        Parameters
+        ----------
+        t : float
+            The time [s].
+        y : ndarray, shape (6,)
+            The state.
+
+        """
         self.n_rhs += 1
         if self.n_rhs > self.max_rhs:
             raise BudgetExceeded(f"more than {self.max_rhs:.0f} right-hand-side evaluations")
@@ -96,6 +107,15 @@ class ScipyParcel:
         return out
 
     def f_threshold(self, v_min):
+        """
+        f_threshold.
+
+        Parameters
+        ----------
+        v_min : float
+            The threshold speed [m/s].
+
+        """
         modes = np.zeros(self.nsurf, dtype=np.int64)
 
         def f(t, y):
@@ -119,12 +139,44 @@ class ScipyParcel:
         return f
 
     def slip(self, y, s) -> np.ndarray:
+        """
+        slip.
+
+        Parameters
+        ----------
+        y : ndarray, shape (6,)
+            The state.
+        s : int
+            A surface id.
+
+        Returns
+        -------
+        ndarray
+            The generalized slip.
+
+        """
         vx, vy = self.vel[s]
         return np.array([y[3] - vx, y[4] - vy, self.rho * y[5] if self.case.rotation else 0.0])
 
     def margin(self, y, s) -> tuple[float, float]:
         # the limit-set gauge's warm start: a fresh twist per check keeps every call
         # independent of the order brentq asks them in
+        """
+        margin.
+
+        Parameters
+        ----------
+        y : ndarray, shape (6,)
+            The state.
+        s : int
+            A surface id.
+
+        Returns
+        -------
+        (float, float)
+            The margin and the area.
+
+        """
         m, a, _, _, _ = stick_margin(
             np.asarray(y, float),
             Contact(self.arr, self.par, self.nodes, self.weights),
@@ -202,6 +254,29 @@ class ScipyParcel:
 
         dense: keep solve_ivp's own dense output of every sliding segment as the
         trajectory's pieces (what ``compare`` reads between steps).
+
+        Parameters
+        ----------
+        method : str
+            The method.
+        rtol : float
+            The relative tolerance.
+        atol : float
+            The absolute tolerance.
+        eps : float
+            The stick band [m/s].
+        max_rhs : float
+            The evaluation budget.
+        max_segments : int
+            The most slide/stick segments.
+        dense : bool
+            Keep the dense output.
+
+        Returns
+        -------
+        int or str
+            The exit code, or a message for a refused input.
+
         """
         from scipy.integrate import solve_ivp
 
@@ -343,6 +418,27 @@ class ScipyParcel:
 
         solve_ivp straight on the seed's threshold model (eqs. 3.1/4.2/4.4): no events
         but the scrap line; the switch at |slip| = v_min is left to step control.
+
+        Parameters
+        ----------
+        method : str
+            The method.
+        rtol : float
+            The relative tolerance.
+        atol : float
+            The absolute tolerance.
+        v_min : float
+            The threshold speed [m/s].
+        max_rhs : float
+            The evaluation budget.
+        dense : bool
+            Keep the dense output.
+
+        Returns
+        -------
+        Trajectory
+            The trajectory.
+
         """
         from scipy.integrate import solve_ivp
 
@@ -382,7 +478,20 @@ class ScipyParcel:
         )
 
     def finish(self, traj: Trajectory) -> Trajectory:
-        """Zone events of a run (outside the timing)."""
+        """
+        Zone events of a run (outside the timing).
+
+        Parameters
+        ----------
+        traj : Trajectory
+            The trajectory.
+
+        Returns
+        -------
+        Trajectory
+            The trajectory.
+
+        """
         return traj.with_zone_events(self.case.parcel.A, self.case.parcel.B, self.borders)
 
 
@@ -409,6 +518,27 @@ def oscillator_scipy(
 
     solve_ivp on each sliding phase (terminal event: speed back to zero); rests in
     closed form (P = k (ẋ_s t - x) reaches F_stat at a known time).
+
+    Parameters
+    ----------
+    osc : Oscillator
+        The Fig. 4 body.
+    t_end : float
+        The end [s].
+    method : str
+        The method.
+    rtol : float
+        The relative tolerance.
+    atol : float
+        The absolute tolerance.
+    dense : bool
+        Keep the dense output.
+
+    Returns
+    -------
+    Trajectory
+        The trajectory.
+
     """
     from scipy.integrate import solve_ivp
 

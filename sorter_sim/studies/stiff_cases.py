@@ -82,6 +82,20 @@ DEFAULT_SETTINGS = {
 
 
 def const_law(mu: float) -> FrictionLaw:
+    """
+    const_law.
+
+    Parameters
+    ----------
+    mu : float
+        The friction coefficient.
+
+    Returns
+    -------
+    FrictionLaw
+        The law.
+
+    """
     return FrictionLaw("const1", (mu,))
 
 
@@ -109,6 +123,39 @@ def sorting_case(
 
     The seed's cell (Fig. 6) around the Fig. 9a point, with the leading edge on the
     a/b border moving with the belt (the start of ``sorter run``) unless y0 is given.
+
+    Parameters
+    ----------
+    v : float
+        The belt speed [m/s].
+    alpha_deg : float
+        The disk angle [deg].
+    mu_a : float
+        μ of the belt before the disks.
+    mu_b : float
+        μ of the disks.
+    b : float
+        The disk field's length [m].
+    A : float
+        The parcel's length [m].
+    B : float
+        The parcel's width [m].
+    m : float
+        Its mass [kg].
+    phi0_deg : float
+        The parcel's skew [deg].
+    t_max : float
+        The longest run [s].
+    y0 : float
+        The parcel's lateral offset [m].
+    rotation : bool
+        The moment of friction forces on.
+
+    Returns
+    -------
+    ParcelCase
+        The case.
+
     """
     parcel = Parcel(A, B, m)
     strips = three_zone_strips(v, math.radians(alpha_deg), b, const_law(mu_a), const_law(mu_b))
@@ -134,6 +181,33 @@ def two_belt_case(
 
     Seed Fig. 13: two belts driven against each other (x < 0 at +v, x > 0 at -v),
     v = 0.37 m/s, 0.4 x 0.3 m, the parcel let go at rest x0 off the centre line.
+
+    Parameters
+    ----------
+    law : FrictionLaw
+        The law of both belts.
+    t_end : float
+        The end [s].
+    x0 : float
+        The start's offset [m].
+    phi0_deg : float
+        The parcel's skew [deg].
+    rotation : bool
+        The moment of friction forces on.
+    v : float
+        The belt speed [m/s].
+    A : float
+        The parcel's length [m].
+    B : float
+        The parcel's width [m].
+    m : float
+        Its mass [kg].
+
+    Returns
+    -------
+    ParcelCase
+        The case.
+
     """
     strips = [
         Strip(-math.inf, 0.0, v, 0.0, law, name="left"),
@@ -149,6 +223,19 @@ def two_belt_exact(case: ParcelCase, mu: float) -> Trajectory:
 
     Constant μ, pure translation, |ẋ| < v: m ẍ = -(2μmg/A) x, so x = x0 cos ωt with
     ω² = 2μg/A (the areas over the two belts differ by 2Bx). Exact while |x| < A/2.
+
+    Parameters
+    ----------
+    case : ParcelCase
+        The case.
+    mu : float
+        The friction coefficient.
+
+    Returns
+    -------
+    Trajectory
+        The exact trajectory.
+
     """
     w = math.sqrt(2.0 * mu * G_STANDARD / case.parcel.A)
     x0 = float(case.y0[0])
@@ -174,6 +261,18 @@ def two_belt_1d(case: ParcelCase, law: FrictionLaw, rtol: float = 1e-13, atol: f
     An independent reference for the two-belt case in pure translation: the 1-D ODE
     ẍ = (g/A)[μ(v - ẋ)(A/2 - x) - μ(v + ẋ)(A/2 + x)] by solve_ivp (DOP853), using only
     the friction law (no footprint clipping, no wrench code). Valid while |x| < A/2.
+
+    Parameters
+    ----------
+    case : ParcelCase
+        The case.
+    law : FrictionLaw
+        The law of both belts.
+    rtol : float
+        The relative tolerance.
+    atol : float
+        The absolute tolerance.
+
     """
     from scipy.integrate import solve_ivp
 
@@ -234,7 +333,20 @@ class StiffCase:
 
 
 def matrix(quick: bool = False) -> list[StiffCase]:
-    """Return the extreme-case matrix. ``quick`` keeps the suite's subset."""
+    """
+    Return the extreme-case matrix. ``quick`` keeps the suite's subset.
+
+    Parameters
+    ----------
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    list of StiffCase
+        The cases.
+
+    """
     cases: list[StiffCase] = []
 
     def add(name, group, case, quick_=False, **kw):
@@ -457,7 +569,28 @@ def _max_in_window(times: np.ndarray, window: float = 1.0) -> int:
 
 
 def check_run(sc: StiffCase, method: str, settings: dict, res, traj: Trajectory) -> list:
-    """Return the checks of the module docstring on one run."""
+    """
+    Return the checks of the module docstring on one run.
+
+    Parameters
+    ----------
+    sc : StiffCase
+        The case.
+    method : str
+        The method.
+    settings : dict
+        The method's settings.
+    res : SimResult
+        A run.
+    traj : Trajectory
+        The trajectory.
+
+    Returns
+    -------
+    list of Check
+        The checks.
+
+    """
     case = sc.case
     parcel = case.parcel
     arr = strip_array(case.strips)
@@ -607,7 +740,22 @@ _WARM_METHODS: set = set()
 
 
 def run_case(sc: StiffCase, repeats: int = 1) -> list[CaseRun]:
-    """Every method of a case, with the checks, plus the convergence check."""
+    """
+    Every method of a case, with the checks, plus the convergence check.
+
+    Parameters
+    ----------
+    sc : StiffCase
+        The case.
+    repeats : int
+        Timed repeats; the best counts.
+
+    Returns
+    -------
+    list of CaseRun
+        The runs.
+
+    """
     out = []
     for method, settings in sc.methods.items():
         if method == "accurate":
@@ -648,7 +796,24 @@ def run_case(sc: StiffCase, repeats: int = 1) -> list[CaseRun]:
 
 
 def convergence_check(sc: StiffCase, method: str, settings: dict) -> Check:
-    """Refine tolerance (accurate) or step (implicit) three times; errors must shrink."""
+    """
+    Refine tolerance (accurate) or step (implicit) three times; errors must shrink.
+
+    Parameters
+    ----------
+    sc : StiffCase
+        The case.
+    method : str
+        The method.
+    settings : dict
+        The method's settings.
+
+    Returns
+    -------
+    Check
+        The check.
+
+    """
     if method == "accurate":
         seq = [dict(settings, rtol=r, atol=1e-2 * r) for r in (1e-6, 1e-8, 1e-10)]
         label = "rtol 1e-6/1e-8/1e-10 (atol = rtol/100)"
@@ -721,6 +886,21 @@ def two_belt_long(
     10 minutes of two-belt positioning: energy drift per cycle (constant μ), decay
     (B-spline), and the matrix checks with rotation on. ``cases``: labels of
     ``LONG_CASES`` to run (default all).
+
+    Parameters
+    ----------
+    t_end : float
+        The end [s].
+    methods : sequence of str
+        The methods.
+    cases : sequence, optional
+        The cases (default: all).
+
+    Returns
+    -------
+    list of LongRun
+        The runs.
+
     """
     methods = methods or {
         "accurate": dict(DEFAULT_SETTINGS["accurate"], max_points=400_000),

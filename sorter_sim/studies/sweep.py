@@ -107,7 +107,20 @@ class Study:
         return ["point"] + list(self.keys) + list(self.outputs)
 
     def scene(self, values) -> dict:
-        """Return the validated scene of the design point with these values."""
+        """
+        Return the validated scene of the design point with these values.
+
+        Parameters
+        ----------
+        values : dict
+            {scene key: value} of one point.
+
+        Returns
+        -------
+        dict
+            The scene.
+
+        """
         return _point_scene(self.base, self.keys, values)
 
 
@@ -222,7 +235,22 @@ def _set_key(scene: dict, key: str, value) -> None:
 
 
 def load_study(path: str | Path, out: str | None = None) -> Study:
-    """Read and check a study spec; every design point is validated as a scene up front."""
+    """
+    Read and check a study spec; every design point is validated as a scene up front.
+
+    Parameters
+    ----------
+    path : str or Path
+        The study file.
+    out : str or Path, optional
+        Where the results go.
+
+    Returns
+    -------
+    Study
+        The study.
+
+    """
     p = Path(path)
     try:
         raw = read_yaml_file(p, "study spec")
@@ -336,7 +364,20 @@ def load_study(path: str | Path, out: str | None = None) -> Study:
 
 # ---------------------------------------------------------------------------- one point
 def param_text(v) -> str:
-    """Return a parameter value as written in the table and used in the resume key."""
+    """
+    Return a parameter value as written in the table and used in the resume key.
+
+    Parameters
+    ----------
+    v : object
+        A parameter value.
+
+    Returns
+    -------
+    str
+        The text.
+
+    """
     if v is None:
         return "null"
     if isinstance(v, bool):
@@ -349,11 +390,38 @@ def param_text(v) -> str:
 
 
 def point_key(values) -> tuple:
+    """
+    point_key.
+
+    Parameters
+    ----------
+    values : dict
+        {scene key: value} of one point.
+
+    Returns
+    -------
+    tuple
+        The key.
+
+    """
     return tuple(param_text(v) for v in values)
 
 
 def run_point(scene: dict) -> dict:
-    """One design point: run the scene; every output of OUTPUTS (a failed run is a row too)."""
+    """
+    One design point: run the scene; every output of OUTPUTS (a failed run is a row too).
+
+    Parameters
+    ----------
+    scene : dict
+        A validated scene.
+
+    Returns
+    -------
+    dict
+        The result row.
+
+    """
     try:
         _, s = run_scene(scene)
     except Exception as exc:  # noqa: BLE001 - a point that cannot run is a result, not a crash
@@ -421,9 +489,27 @@ class CsvStore:
 
     def append(self, row: dict) -> None:
         # one write() on an O_APPEND descriptor: the line lands whole or not at all
+        """
+        append.
+
+        Parameters
+        ----------
+        row : dict
+            A result row.
+
+        """
         os.write(self.fd, self._line([row[c] for c in self.columns]).encode())
 
     def close(self, rows_in_order: list[dict] | None = None) -> None:
+        """
+        close.
+
+        Parameters
+        ----------
+        rows_in_order : list of dict
+            Every row, in the study's order.
+
+        """
         if self.fd is not None:
             os.fsync(self.fd)
             os.close(self.fd)
@@ -487,10 +573,28 @@ class ParquetStore:
         self.fd = os.open(self.journal, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
 
     def append(self, row: dict) -> None:
+        """
+        append.
+
+        Parameters
+        ----------
+        row : dict
+            A result row.
+
+        """
         os.write(self.fd, (json.dumps(row) + "\n").encode())
         self.rows[tuple(row[k] for k in self.keys)] = row
 
     def close(self, rows_in_order: list[dict] | None = None) -> None:
+        """
+        close.
+
+        Parameters
+        ----------
+        rows_in_order : list of dict
+            Every row, in the study's order.
+
+        """
         import pyarrow as pa
         import pyarrow.parquet as pq
 
@@ -594,7 +698,30 @@ def run_study(
     progress: bool = True,
     scheduler_timeout: float = 10.0,
 ) -> SweepResult:
-    """Run the study's unfinished points, appending each row as it finishes."""
+    """
+    Run the study's unfinished points, appending each row as it finishes.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    workers : int
+        Local worker processes.
+    scheduler : str, optional
+        A Dask scheduler's address.
+    max_points : int
+        Room for records.
+    progress : bool
+        Show a progress bar.
+    scheduler_timeout : float
+        How long to wait for the scheduler [s].
+
+    Returns
+    -------
+    SweepResult
+        The result.
+
+    """
     t0 = time.perf_counter()
     out = study.out
     store = (
@@ -671,6 +798,15 @@ def run_study(
 
 # ---------------------------------------------------------------------------- command
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """
+    Add the verb's arguments to its parser.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's parser.
+
+    """
     parser.add_argument(
         "spec", metavar="SPEC.yaml", help="study spec (see config/sweeps/example.yaml)"
     )
@@ -715,7 +851,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int | str:
-    """``sorter sweep``."""
+    """
+    ``sorter sweep``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The verb's parsed arguments.
+
+    Returns
+    -------
+    int or str
+        The exit code, or a message for a refused input.
+
+    """
     if args.workers is not None and args.workers < 1:
         return f"--workers must be >= 1, got {args.workers}"
     if not args.scheduler_timeout > 0:

@@ -72,7 +72,26 @@ class DiskField:
 def disk_field_strips(
     v: float, fields: list[DiskField], law_belt: FrictionLaw, law_disks: FrictionLaw | None = None
 ) -> list[Strip]:
-    """Belt at (v, 0) everywhere, with disk fields in series (sorted, not overlapping)."""
+    """
+    Belt at (v, 0) everywhere, with disk fields in series (sorted, not overlapping).
+
+    Parameters
+    ----------
+    v : float
+        The belt speed [m/s].
+    fields : list of (float, float, float)
+        (x_lo, x_hi, α [deg]) of each disk field.
+    law_belt : FrictionLaw
+        The belt's law.
+    law_disks : FrictionLaw
+        The disks' law.
+
+    Returns
+    -------
+    list of Strip
+        The strips.
+
+    """
     law_disks = law_disks or law_belt
     fields = sorted(fields, key=lambda f: f.start)
     for f, g in zip(fields, fields[1:]):
@@ -128,7 +147,34 @@ class PreShift:
 def pre_shift(
     b1: float, *, A=0.7, B=0.2, m=5.0, v=1.5, alpha1_deg=90.0, mu=SEED_MU, s=SEED_S
 ) -> PreShift:
-    """Run the parcel over a preliminary field of width b1 until it rides the belt again."""
+    """
+    Run the parcel over a preliminary field of width b1 until it rides the belt again.
+
+    Parameters
+    ----------
+    b1 : float
+        The first field's length [m].
+    A : float
+        The parcel's length [m].
+    B : float
+        Its width [m].
+    m : float
+        Its mass [kg].
+    v : float
+        The belt speed [m/s].
+    alpha1_deg : float
+        Its disk angle [deg].
+    mu : float
+        The friction coefficient.
+    s : float
+        The scrap distance across the belt [m].
+
+    Returns
+    -------
+    PreShift
+        The shift.
+
+    """
     law = FrictionLaw("const1", (mu,))
     strips = disk_field_strips(v, [DiskField(0.0, b1, alpha1_deg, "pre")], law)
     res = _run(strips, A, B, m, v, 4.0 + 8.0 * s / v, s)
@@ -144,7 +190,24 @@ def pre_shift(
 
 
 def size_pre_field(d_target: float, *, b1_hi=None, xtol=1e-4, **kw) -> PreShift:
-    """Width b1 of the preliminary field that shifts the parcel by d_target (brentq on d(b1))."""
+    """
+    Width b1 of the preliminary field that shifts the parcel by d_target (brentq on d(b1)).
+
+    Parameters
+    ----------
+    d_target : float
+        The lateral shift wanted [m].
+    b1_hi : float
+        The longest first field tried [m].
+    xtol : float
+        The bracket's tolerance [m].
+
+    Returns
+    -------
+    PreShift
+        The sized field.
+
+    """
     if d_target <= 0.0:
         return PreShift(0.0, 0.0, 0.0, 0.5 * kw.get("A", 0.7), True)
     if b1_hi is None:
@@ -180,7 +243,33 @@ def final_min_width(
     s=SEED_S,
     xtol=1e-3,
 ):
-    """Minimal width of the final field behind a preliminary one (the Fig. 11 criterion)."""
+    """
+    Minimal width of the final field behind a preliminary one (the Fig. 11 criterion).
+
+    Parameters
+    ----------
+    pre : PreShift
+        The first field's result.
+    A : float
+        The parcel's length [m].
+    B : float
+        Its width [m].
+    m : float
+        Its mass [kg].
+    v : float
+        The belt speed [m/s].
+    alpha1_deg : float
+        Its disk angle [deg].
+    alpha2_deg : float
+        The final field's [deg].
+    mu : float
+        The friction coefficient.
+    s : float
+        The scrap distance across the belt [m].
+    xtol : float
+        The bracket's tolerance [m].
+
+    """
     law = FrictionLaw("const1", (mu,))
     x2 = pre.x_front + GAP_MARGIN
 
@@ -196,7 +285,22 @@ def final_min_width(
 
 
 def two_stage_figure(out: Path | None = None, quick: bool = False) -> FigureResult:
-    """Compute how much a preliminary field (α_1 = 90°) shortens the final one (Fig. 9a parcel)."""
+    """
+    Compute how much a preliminary field (α_1 = 90°) shortens the final one (Fig. 9a parcel).
+
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go.
+    quick : bool
+        Coarse grids, for tests and quick looks.
+
+    Returns
+    -------
+    FigureResult
+        The figure.
+
+    """
     t0 = time.perf_counter()
     kw = dict(A=0.7, B=0.2, v=1.5)
     alphas = (30.0,) if quick else (90.0, 45.0, 30.0)

@@ -87,6 +87,20 @@ def machine_info() -> dict:
 
 
 def machine_line(info: dict | None = None) -> str:
+    """
+    machine_line.
+
+    Parameters
+    ----------
+    info : dict, optional
+        The machine's description (``machine_info``).
+
+    Returns
+    -------
+    str
+        The line.
+
+    """
     info = info or machine_info()
     libs = ", ".join(
         f"{k} {info[k]}" for k in ("python", "numpy", "scipy", "numba", "matplotlib") if k in info
@@ -151,6 +165,17 @@ class Trajectory:
         times after it use the later record. Past the last record the motion is
         continued at the last velocity (used only to read a run that stopped a
         hair before the reference's end, e.g. at the scrap line).
+
+        Parameters
+        ----------
+        tq : ndarray
+            Query times [s].
+
+        Returns
+        -------
+        (ndarray, ndarray)
+            The positions and velocities.
+
         """
         tq = np.atleast_1d(np.asarray(tq, float))
         q, dq = self._hermite(tq)
@@ -215,6 +240,21 @@ class Trajectory:
         Times come from the interpolated trajectory (a sign change of corner x -
         border between records, refined by bisection on the Hermite pieces), so
         every method is read the same way. Key: (corner, border index, n-th crossing).
+
+        Parameters
+        ----------
+        A : float
+            The parcel's length [m].
+        B : float
+            Its width [m].
+        borders : sequence of float
+            The strip borders [m].
+
+        Returns
+        -------
+        Trajectory
+            The trajectory with its zone events.
+
         """
         borders = np.asarray(borders, float)
         if borders.size == 0 or self.q.shape[1] < 3:
@@ -263,6 +303,20 @@ class Errors:
     extra: dict  # kind -> count of events beyond the reference's
 
     def event_text(self, kind: str) -> str:
+        """
+        event_text.
+
+        Parameters
+        ----------
+        kind : str
+            The event's kind.
+
+        Returns
+        -------
+        str
+            The text.
+
+        """
         e = self.events.get(kind, math.nan)
         miss = self.missing.get(kind, 0)
         if miss:
@@ -283,6 +337,21 @@ def compare(run: Trajectory, ref: Trajectory, grid_hz: float = 1000.0) -> Errors
     grid_max: max of the same over t0, t0 + 1/grid_hz, ... up to the common end;
     events: for each reference event, the nearest run event with the same kind and
     key; the largest such |Δt| per kind.
+
+    Parameters
+    ----------
+    run : Trajectory or callable
+        The run, or what makes it.
+    ref : Trajectory
+        The reference.
+    grid_hz : float
+        The comparison grid's rate [Hz].
+
+    Returns
+    -------
+    Errors
+        The errors.
+
     """
     t_f = ref.t_end
     p_run, _ = run.at(t_f)
@@ -334,6 +403,23 @@ def dp5_pieces(t: np.ndarray, Y: np.ndarray, rhs_for_step, n_pos: int) -> list:
     layer) fail the check and keep cubic Hermite interpolation.
     rhs_for_step(t_i, y_i) -> f(t, y) = y', the right-hand side of the step starting at
     record i (the Fig. 4 body's friction sign is fixed per step). Returns the pieces.
+
+    Parameters
+    ----------
+    t : ndarray
+        The step times [s].
+    Y : ndarray
+        The states at the steps.
+    rhs_for_step : callable
+        The right-hand side at a step.
+    n_pos : int
+        The number of position components.
+
+    Returns
+    -------
+    list
+        The dense-output pieces.
+
     """
     pieces = []
     n = len(t)
@@ -373,6 +459,19 @@ def core_trajectory(res, mode0: int | None = None) -> Trajectory:
 
     The threshold method logs the set of 'static' surfaces as a bit mask; it is
     turned into per-surface stick (surface becomes static) and break events.
+
+    Parameters
+    ----------
+    res : SimResult
+        A run.
+    mode0 : int, optional
+        The start's mode.
+
+    Returns
+    -------
+    Trajectory
+        The trajectory.
+
     """
     events = []
     if res.method == "threshold":
@@ -422,7 +521,15 @@ class ParcelCase:
         return strip_borders(self.strips)
 
     def run_core(self, method: str, **settings):
-        """One run of a core method (settings: rtol/atol, dt, v_min, reductions ...)."""
+        """
+        One run of a core method (settings: rtol/atol, dt, v_min, reductions ...).
+
+        Parameters
+        ----------
+        method : str
+            The method.
+
+        """
         settings.setdefault("max_points", _capacity(self.t_span, settings.get("dt")))
         return simulate(
             self.parcel,
@@ -442,6 +549,17 @@ class ParcelCase:
 
         A core result as a Trajectory with zone events; the accurate method's records
         are read through its own dense output (``dp5_pieces``).
+
+        Parameters
+        ----------
+        res : SimResult
+            A run.
+
+        Returns
+        -------
+        Trajectory
+            The trajectory.
+
         """
         par = parcel_array(self.parcel, self.rotation, self.n_quad)
         arr = strip_array(self.strips)
@@ -461,6 +579,20 @@ class ParcelCase:
         return traj.with_zone_events(self.parcel.A, self.parcel.B, self.borders)
 
     def core(self, method: str, **settings) -> Trajectory:
+        """
+        core.
+
+        Parameters
+        ----------
+        method : str
+            The method.
+
+        Returns
+        -------
+        Trajectory
+            The trajectory.
+
+        """
         return self.trajectory(self.run_core(method, **settings))
 
 
@@ -472,7 +604,22 @@ def _capacity(t_span, dt) -> int:
 
 # ------------------------------------------------------------------ runners: the Fig. 4 body
 def oscillator_exact(osc: Oscillator, t_end: float) -> Trajectory:
-    """Return the exact piecewise Coulomb solution as a Trajectory, read exactly at any time."""
+    """
+    Return the exact piecewise Coulomb solution as a Trajectory, read exactly at any time.
+
+    Parameters
+    ----------
+    osc : Oscillator
+        The Fig. 4 body.
+    t_end : float
+        The end [s].
+
+    Returns
+    -------
+    Trajectory
+        The trajectory.
+
+    """
     from sorter_sim.model.core.oscillator import exact_solution
 
     phases = exact_phases(osc, t_end)
@@ -511,6 +658,16 @@ def oscillator_core(osc: Oscillator, t_end: float, method: str, **settings):
 
     One core run of the Fig. 4 body (``oscillator_trajectory`` reads it); room for every
     fixed step's record (run_oscillator drops records beyond max_points).
+
+    Parameters
+    ----------
+    osc : Oscillator
+        The Fig. 4 body.
+    t_end : float
+        The end [s].
+    method : str
+        The method.
+
     """
     if method != "accurate":
         settings.setdefault("max_points", int(t_end / settings.get("dt", 1e-3)) + 10)
@@ -523,6 +680,19 @@ def oscillator_trajectory(osc: Oscillator, res) -> Trajectory:
 
     A core oscillator run as a Trajectory; eq. 3.1 rows of the threshold method map to
     events as the seed reads them: entering row 3 = leaving rest, entering row 2 = rest.
+
+    Parameters
+    ----------
+    osc : Oscillator
+        The Fig. 4 body.
+    res : SimResult
+        A run.
+
+    Returns
+    -------
+    Trajectory
+        The trajectory.
+
     """
     events = []
     for t, kind in res.events:
@@ -573,6 +743,16 @@ def timed(fn, repeats: int = 3, budget_s: float = 2.0):
 
     The caller discards a warm-up run per method beforehand (``measure`` does);
     repeats stop early once ``budget_s`` has been spent, after at least one run.
+
+    Parameters
+    ----------
+    fn : callable
+        What to time.
+    repeats : int
+        Timed repeats; the best counts.
+    budget_s : float
+        The most time to spend [s].
+
     """
     best = math.inf
     out = None
@@ -612,6 +792,33 @@ def measure(
     the family) runs once untimed, so compilation never enters a figure. A failure
     (an exception, a non-finite state, an unsuccessful status) is kept in the row
     with its reason.
+
+    Parameters
+    ----------
+    case_name : str
+        The case.
+    family : str
+        The method family.
+    setting : str
+        The setting.
+    run : Trajectory or callable
+        The run, or what makes it.
+    ref : Trajectory
+        The reference.
+    finish : callable, optional
+        Turns the run's result into a trajectory.
+    repeats : int
+        Timed repeats; the best counts.
+    budget_s : float
+        The most time to spend [s].
+    warm_key : object, optional
+        Warm up once per key.
+
+    Returns
+    -------
+    WPRow
+        The row.
+
     """
     row = WPRow(case_name, family, setting)
     key = warm_key or family
@@ -642,23 +849,83 @@ def measure(
 
 
 def cheapest_within(rows: list[WPRow], error: float, attr: str = "final") -> WPRow | None:
-    """Return the fastest successful row whose error ``attr`` is at most ``error``."""
+    """
+    Return the fastest successful row whose error ``attr`` is at most ``error``.
+
+    Parameters
+    ----------
+    rows : list of WPRow
+        Measured rows.
+    error : float
+        The error level [m].
+    attr : str
+        Which error: final or max.
+
+    Returns
+    -------
+    WPRow or None
+        The row, or None.
+
+    """
     ok = [r for r in rows if r.ok and r.errors is not None and getattr(r.errors, attr) <= error]
     return min(ok, key=lambda r: r.wall_s) if ok else None
 
 
 def fmt_e(x: float) -> str:
+    """
+    fmt_e.
+
+    Parameters
+    ----------
+    x : float
+        A number.
+
+    Returns
+    -------
+    str
+        The text.
+
+    """
     return "–" if x is None or not math.isfinite(x) else f"{x:.1e}"
 
 
 def fmt_ms(x: float) -> str:
+    """
+    fmt_ms.
+
+    Parameters
+    ----------
+    x : float
+        A number.
+
+    Returns
+    -------
+    str
+        The text.
+
+    """
     if not math.isfinite(x):
         return "–"
     return f"{x * 1e3:.3g}"
 
 
 def rows_markdown(rows: list[WPRow], kinds=EVENT_KINDS) -> str:
-    """Return a markdown table of rows: family, setting, time, errors, events, failures."""
+    """
+    Return a markdown table of rows: family, setting, time, errors, events, failures.
+
+    Parameters
+    ----------
+    rows : list of WPRow
+        Measured rows.
+    kinds : sequence of str
+        The event kinds to show.
+
+    Returns
+    -------
+    str
+        The table.
+
+    """
     head = (
         ["method", "setting", "time [ms]", "runs", "rhs", "final CoG err [m]", "max err 1 kHz [m]"]
         + [f"{k} Δt [s]" for k in kinds]
@@ -691,6 +958,20 @@ def plot_work_precision(rows: list[WPRow], path, title: str, attr: str = "final"
 
     Error (log x) against wall time (log y), one line per family; failures left out.
     Draws into ``ax`` when given, else writes a PNG to ``path``.
+
+    Parameters
+    ----------
+    rows : list of WPRow
+        Measured rows.
+    path : str or Path
+        The path.
+    title : str
+        The plot's title.
+    attr : str
+        Which error: final or max.
+    ax : matplotlib Axes, optional
+        Where to draw.
+
     """
     import matplotlib
 
