@@ -42,8 +42,18 @@ def _quadratic(z, ctx, g):
     return v
 
 
-_plane = make_plane_newton(_norm_a, False)
-_sphere = make_plane_newton(_quadratic, True)
+_plane_solver = make_plane_newton(_norm_a, False)
+_sphere_solver = make_plane_newton(_quadratic, True)
+
+
+def _plane(z, ctx, normal, planar, scale_floor, metric, g, work):
+    # the solver starts from the objective the caller evaluated to choose its start
+    return _plane_solver(z, ctx, normal, planar, scale_floor, metric, _norm_a(z, ctx, g), g, work)
+
+
+def _sphere(z, ctx, normal, planar, scale_floor, metric, g, work):
+    f = _quadratic(z, ctx, g)
+    return _sphere_solver(z, ctx, normal, planar, scale_floor, metric, f, g, work)
 
 
 def _spd(rng, spread):

@@ -135,7 +135,8 @@ def _pull_direction(yp, contact, surf, ox, oy, ow, pull, clip):
     g = np.empty(3)
     ctx = (yp, contact, surf, ox, oy, ow, rho, clip)
     # maximise f: minimise -f (its gradient negated), a concave problem on the sphere
-    f = -_pull_newton(z, ctx, z, not rot, norm, hess, g, np.empty((4, 3)))
+    f0 = _negative_pull(z, ctx, g)
+    f = -_pull_newton(z, ctx, z, not rot, norm, hess, f0, g, np.empty((4, 3)))
     # ∇f = W_o - ∇D_k(σ̂) at the final σ̂: |∇D_k| is the patch's friction there
     return f / mass, math.sqrt((-g[0] - ox) ** 2 + (-g[1] - oy) ** 2 + (-g[2] - ow) ** 2)
 

@@ -84,10 +84,12 @@ def make_plane_newton(objective, sphere):
     Returns
     -------
     numba function
-        ``solve(z, ctx, normal, planar, scale_floor, metric, g, work) -> value``. ``z`` (in:
-        the start, on the plane or the sphere; out: the minimiser), ``g`` (out: the
-        gradient there), ``planar`` (sphere only: stay on the great circle of the (x, y)
-        plane, a 1-D problem), ``scale_floor`` (a floor under the gradient's scale, which
+        ``solve(z, ctx, normal, planar, scale_floor, metric, f, g, work) -> value``. ``z``
+        (in: the start, on the plane or the sphere; out: the minimiser), ``f`` and ``g``
+        (in: the objective and its gradient at the start, which the caller has evaluated
+        to choose the start; out, ``g``: the gradient at the minimiser), ``planar``
+        (sphere only: stay on the great circle of the (x, y) plane, a 1-D problem),
+        ``scale_floor`` (a floor under the gradient's scale, which
         convergence is measured against), ``metric`` (4, in/out: [axis + 1 (0: none),
         h00, h01, h11] x |z|, the carried Hessian in the basis built on that axis),
         ``work`` (4, 3): scratch. Returns the minimum. A non-positive-definite metric
@@ -103,14 +105,14 @@ def make_plane_newton(objective, sphere):
     """
 
     @borrowing
-    def solve(z, ctx, normal, planar, scale_floor, metric, g, work):
+    def solve(z, ctx, normal, planar, scale_floor, metric, f, g, work):
         gp = work[0]
         zt = work[1]
         p = work[2]
         q = work[3]
         ndim = 1 if planar else 2
-        f = objective(z, ctx, g)
-        k = _basis(z, normal, sphere, planar, p, q)
+        # the plane's basis is fixed; the sphere's is built at each z
+        k = 0 if sphere else _basis(z, normal, sphere, planar, p, q)
         gn_last = math.inf
         carried = False
         for _ in range(NEWTON_ITERATIONS):

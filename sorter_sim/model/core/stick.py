@@ -154,11 +154,12 @@ def limit_gauge(state, contact, surf, wx, wy, wt, xi, clip):
             z[i] = w[i] / w2
     g = np.empty(3)
     ctx = (state, contact, surf, rho, clip)
-    if not _dissipation(z, ctx, g) > 0.0:
+    d = _dissipation(z, ctx, g)
+    if not d > 0.0:
         return math.inf
     # the metric is carried where xi has room for it, else it serves this solve only
     metric = xi[3:GAUGE_CARRY] if xi.shape[0] >= GAUGE_CARRY else np.zeros(4)
-    d = _gauge_newton(z, ctx, w, False, 0.0, metric, g, np.empty((4, 3)))
+    d = _gauge_newton(z, ctx, w, False, 0.0, metric, d, g, np.empty((4, 3)))
     zn = math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
     for i in range(3):
         xi[i] = z[i] / zn
