@@ -14,6 +14,7 @@ page differs from what this module renders.
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 import re
 import sys
@@ -96,6 +97,7 @@ def io_map_table() -> str:
     return '\n'.join(rows)
 
 
+@functools.cache
 def tables() -> dict[str, str]:
     """Return every generated table by name."""
     from sorter_sim.model.description import markdown_table

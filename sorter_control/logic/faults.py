@@ -206,7 +206,7 @@ class Supervisor:
 
     def check(self, io: ScanIO, tr: Tracker, faults: Faults) -> None:
         """
-        Check the parcels against the faults they could show.
+        Report the faults this scan shows: eyes blocked too long, parcels missing their eyes.
 
         Parameters
         ----------

@@ -128,7 +128,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args) -> int | str | None:
     """
-    run.
+    Run ``sorter bench``: the precision report or the core benchmark.
 
     Parameters
     ----------
@@ -367,7 +367,7 @@ def _reference(case: ParcelCase, label: str, log, quick: bool) -> tuple[Trajecto
 
 def precision_cases(quick: bool, log=print) -> list[PrecisionCase]:
     """
-    precision_cases.
+    Measure every case of the work-precision report, each method swept against its reference.
 
     Parameters
     ----------

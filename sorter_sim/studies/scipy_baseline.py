@@ -35,12 +35,21 @@ class BudgetExceeded(RuntimeError):
     """A scipy run used more right-hand-side evaluations than it was allowed."""
 
 
-# The baseline calls the core's right-hand sides through these: numba's dispatch of a
-# named tuple from Python costs about a microsecond a call more than of its arrays, which
-# the baseline, calling once per evaluation, would otherwise pay and the core does not.
+# The baseline calls the core's right-hand sides and stick margin through these: numba's
+# dispatch of a named tuple from Python costs about a microsecond a call more than of its
+# arrays, which the baseline, calling once per evaluation, would otherwise pay and the core
+# does not.
 @njit(cache=True)
 def _rhs_slide(y, strips, parcel, nodes, weights, clip, out):
     rhs_slide(y, Contact(strips, parcel, nodes, weights), clip, out)
+
+
+@njit(cache=True)
+def _stick_margin(y, strips, parcel, nodes, weights, nsurf, surf):
+    m, a, _, _, _ = stick_margin(
+        y, Contact(strips, parcel, nodes, weights), nsurf, surf, np.zeros(3)
+    )
+    return m, a
 
 
 @njit(cache=True)
@@ -87,7 +96,7 @@ class ScipyParcel:
     # the model, as scipy sees it
     def f(self, t, y):
         """
-        f.
+        Return the sliding model's right-hand side at (t, y), as ``solve_ivp`` calls it.
 
         Parameters
         ----------
@@ -108,7 +117,7 @@ class ScipyParcel:
 
     def f_threshold(self, v_min):
         """
-        f_threshold.
+        Return the threshold model's right-hand side at this v_min, as ``solve_ivp`` calls it.
 
         Parameters
         ----------
@@ -140,7 +149,7 @@ class ScipyParcel:
 
     def slip(self, y, s) -> np.ndarray:
         """
-        slip.
+        Return the generalized slip of the state y on surface s.
 
         Parameters
         ----------
@@ -159,10 +168,8 @@ class ScipyParcel:
         return np.array([y[3] - vx, y[4] - vy, self.rho * y[5] if self.case.rotation else 0.0])
 
     def margin(self, y, s) -> tuple[float, float]:
-        # the limit-set gauge's warm start: a fresh twist per check keeps every call
-        # independent of the order brentq asks them in
         """
-        margin.
+        Return the break-away margin of a stick to surface s at y, and the surface's area.
 
         Parameters
         ----------
@@ -177,12 +184,10 @@ class ScipyParcel:
             The margin and the area.
 
         """
-        m, a, _, _, _ = stick_margin(
-            np.asarray(y, float),
-            Contact(self.arr, self.par, self.nodes, self.weights),
-            self.nsurf,
-            s,
-            np.zeros(3),
+        # a fresh gauge twist per check (``_stick_margin``) keeps every call independent
+        # of the order brentq asks them in
+        m, a = _stick_margin(
+            np.asarray(y, float), self.arr, self.par, self.nodes, self.weights, self.nsurf, s
         )
         return m, a
 

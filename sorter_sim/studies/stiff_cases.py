@@ -83,7 +83,7 @@ DEFAULT_SETTINGS = {
 
 def const_law(mu: float) -> FrictionLaw:
     """
-    const_law.
+    Return the constant friction law of coefficient mu.
 
     Parameters
     ----------

@@ -391,7 +391,7 @@ def param_text(v) -> str:
 
 def point_key(values) -> tuple:
     """
-    point_key.
+    Return a point's key: its values as the results file writes them.
 
     Parameters
     ----------
@@ -488,9 +488,8 @@ class CsvStore:
         return buf.getvalue()
 
     def append(self, row: dict) -> None:
-        # one write() on an O_APPEND descriptor: the line lands whole or not at all
         """
-        append.
+        Append one result row to the file.
 
         Parameters
         ----------
@@ -498,11 +497,12 @@ class CsvStore:
             A result row.
 
         """
+        # one write() on an O_APPEND descriptor: the line lands whole or not at all
         os.write(self.fd, self._line([row[c] for c in self.columns]).encode())
 
     def close(self, rows_in_order: list[dict] | None = None) -> None:
         """
-        close.
+        Finish the file; with ``rows_in_order``, rewrite it in the study's order.
 
         Parameters
         ----------
@@ -574,7 +574,7 @@ class ParquetStore:
 
     def append(self, row: dict) -> None:
         """
-        append.
+        Append one result row to the file.
 
         Parameters
         ----------
@@ -587,7 +587,7 @@ class ParquetStore:
 
     def close(self, rows_in_order: list[dict] | None = None) -> None:
         """
-        close.
+        Finish the file; with ``rows_in_order``, rewrite it in the study's order.
 
         Parameters
         ----------

@@ -88,7 +88,7 @@ def machine_info() -> dict:
 
 def machine_line(info: dict | None = None) -> str:
     """
-    machine_line.
+    Return one line describing the machine and the library versions.
 
     Parameters
     ----------
@@ -304,7 +304,7 @@ class Errors:
 
     def event_text(self, kind: str) -> str:
         """
-        event_text.
+        Return a table cell for the error of one kind of event (or what was missed).
 
         Parameters
         ----------
@@ -580,7 +580,7 @@ class ParcelCase:
 
     def core(self, method: str, **settings) -> Trajectory:
         """
-        core.
+        Run the core's method on this case and return its trajectory.
 
         Parameters
         ----------
@@ -873,7 +873,7 @@ def cheapest_within(rows: list[WPRow], error: float, attr: str = "final") -> WPR
 
 def fmt_e(x: float) -> str:
     """
-    fmt_e.
+    Return an error for a table: one significant decimal, '–' where there is none.
 
     Parameters
     ----------
@@ -891,7 +891,7 @@ def fmt_e(x: float) -> str:
 
 def fmt_ms(x: float) -> str:
     """
-    fmt_ms.
+    Return a time in ms for a table, '–' where there is none.
 
     Parameters
     ----------

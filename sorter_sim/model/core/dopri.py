@@ -158,34 +158,6 @@ def error_norm(err, y0, y1, rtol, atol, atol_scale, rtol_ref):
     return math.sqrt(acc / n)
 
 
-def error_scales(n, atol_scale=None, rtol_ref=None):
-    """
-    Return the (atol_scale, rtol_ref) arrays of ``error_norm`` for a state of length n.
-
-    Parameters
-    ----------
-    n : int
-        The state's length.
-    atol_scale : dict of int to float, optional
-        Components whose absolute tolerance differs from atol, and their factor.
-    rtol_ref : dict of int to float, optional
-        Components whose relative tolerance applies to a fixed size, and that size.
-
-    Returns
-    -------
-    (ndarray, ndarray)
-        The two arrays, ones and -1 (max(|y0|, |y1|)) where nothing is said.
-
-    """
-    a = np.ones(n)
-    r = -np.ones(n)
-    for j, v in (atol_scale or {}).items():
-        a[j] = v
-    for j, v in (rtol_ref or {}).items():
-        r[j] = v
-    return a, r
-
-
 def make_step(rhs, allocates=False):
     """
     Compile one Dormand-Prince step over the right-hand side ``rhs``.
