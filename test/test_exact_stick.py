@@ -20,7 +20,7 @@ from regularised_reference import Scene, solve
 from sorter_sim.model.build import cell_strips, entry_state
 from sorter_sim.model.core.accurate import run_accurate
 from sorter_sim.model.core.common import EV_BREAK, N_COUNTERS, N_EVENTS, n_surf_of, rhs_slide
-from sorter_sim.model.core.layout import Contact, Log, Slide, Trail
+from sorter_sim.model.core.layout import P_GRAV, P_INERTIA, P_MASS, Contact, Log, Slide, Trail
 from sorter_sim.model.core.simulate import (
     Parcel,
     gauss_legendre_01,
@@ -45,7 +45,7 @@ def _patch(x_cg=0.3, phi=0.4, stick="exact"):
 
 
 def _seed_limits(arr, par, nodes, weights, y, surf):
-    nsurf = int(arr[:, 5].max()) + 1
+    nsurf = n_surf_of(arr)
     kin = np.zeros((nsurf, 3))
     stat = np.zeros((nsurf, 2))
     area = np.zeros(nsurf)
@@ -80,7 +80,7 @@ def test_a_patch_centred_on_g_has_the_seeds_force_intercept():
     # a parcel wholly on one surface: its patch is the footprint, centroid at g
     _, arr, par, nodes, weights, y = _patch(x_cg=-1.0, phi=0.3)
     f_max, t_max = _seed_limits(arr, par, nodes, weights, y, 0)
-    assert f_max == pytest.approx(0.6 * 5.0 * par[4])  # μ m g
+    assert f_max == pytest.approx(0.6 * 5.0 * par[P_GRAV])  # μ m g
     for direction in (0.0, 0.7, 2.0):
         w = (f_max * math.cos(direction), f_max * math.sin(direction), 0.0)
         assert _gauge(arr, par, nodes, weights, y, 0, w) == pytest.approx(1.0, abs=1e-9)
@@ -92,7 +92,7 @@ def test_a_patch_centred_on_g_has_the_seeds_force_intercept():
 def test_the_gauge_is_symmetric_and_homogeneous_and_one_on_the_limit_surface():
     _, arr, par, nodes, weights, y = _patch()
     rng = np.random.default_rng(7)
-    rho = math.sqrt(par[3] / par[2])
+    rho = math.sqrt(par[P_INERTIA] / par[P_MASS])
     for _ in range(20):
         twist = rng.normal(size=3)
         fx, fy, t = static_surface_wrench(

@@ -207,10 +207,10 @@ class LiveView:
         ----------
         t_ns : int
             The simulated time [ns].
-        parcels : ndarray
-            The parcels' rows, as ``Cell.parcels()`` gives them.
-        motion : ndarray
-            Their velocities and slips.
+        parcels : dict of str to ndarray
+            The parcels' columns, as ``Cell.parcels()`` gives them.
+        motion : dict
+            Their labels, speeds and slips, as ``Cell.parcel_motion()`` gives them.
         alpha : float
             The disk angle [rad].
         stroke : float

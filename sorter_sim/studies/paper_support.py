@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import brentq
 
+from sorter_sim.model.core.common import n_surf_of
 from sorter_sim.model.core.geometry import (
     MAX_VERTS,
     box_corners,
@@ -634,7 +635,7 @@ def friction_forces(res, strips: list[Strip], parcel: Parcel, rotation=True, g=9
     arr = strip_array(strips)
     par = parcel_array(parcel, rotation, n_quad, True, g)
     nodes, weights = gauss_legendre_01(n_quad)
-    ns = int(arr[:, 5].max()) + 1
+    ns = n_surf_of(arr)
     kin = np.zeros((ns, 3))
     stat = np.zeros((ns, 2))
     area = np.zeros(ns)

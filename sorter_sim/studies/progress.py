@@ -17,8 +17,8 @@ def progress_bar(total: float, desc: str, unit: str, *, quiet: bool = False, **k
 
     Parameters
     ----------
-    total : int
-        The number of steps.
+    total : float
+        The amount the bar counts to.
     desc : str
         What the bar counts.
     unit : str

@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sorter_sim.model.core.common import rhs_slide
+from sorter_sim.model.core.common import n_surf_of, rhs_slide
 from sorter_sim.model.core.layout import Contact
 from sorter_sim.model.core.oscillator import Oscillator
 from sorter_sim.model.core.simulate import (
@@ -84,7 +84,7 @@ class ScipyParcel:
         self.arr = strip_array(case.strips)
         self.par = parcel_array(case.parcel, case.rotation, case.n_quad, True, g)
         self.nodes, self.weights = gauss_legendre_01(case.n_quad)
-        self.nsurf = int(self.arr[:, 5].max()) + 1
+        self.nsurf = n_surf_of(self.arr)
         self.borders = case.borders
         self.vel = surface_velocities(self.arr)
         self.rho = math.sqrt(case.parcel.inertia / case.parcel.m)

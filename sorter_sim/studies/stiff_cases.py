@@ -146,8 +146,9 @@ def sorting_case(
         The parcel's skew [deg].
     t_max : float
         The longest run [s].
-    y0 : float
-        The parcel's lateral offset [m].
+    y0 : array_like, shape (6,), optional
+        The start's state (default: the leading edge on the a/b border, moving with
+        the belt).
     rotation : bool
         The moment of friction forces on.
 
@@ -891,10 +892,12 @@ def two_belt_long(
     ----------
     t_end : float
         The end [s].
-    methods : sequence of str
-        The methods.
-    cases : sequence, optional
-        The cases (default: all).
+    methods : dict, optional
+        {method: settings} to run (default: the implicit and threshold methods at
+        1 ms steps, the accurate one at the matrix's tolerances with room for 400 000
+        records).
+    cases : tuple of str, optional
+        Labels of ``LONG_CASES`` to run (default: all).
 
     Returns
     -------

@@ -112,8 +112,8 @@ class Study:
 
         Parameters
         ----------
-        values : dict
-            {scene key: value} of one point.
+        values : tuple
+            The point's values, one per key of the study, in its order.
 
         Returns
         -------
@@ -395,8 +395,8 @@ def point_key(values) -> tuple:
 
     Parameters
     ----------
-    values : dict
-        {scene key: value} of one point.
+    values : tuple
+        The point's values, one per key of the study, in its order.
 
     Returns
     -------

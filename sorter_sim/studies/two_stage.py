@@ -45,7 +45,7 @@ GAP_MARGIN = 0.1  # m between the settled parcel's leading corner and the final 
 @dataclass(frozen=True)
 class DiskField:
     """
-    Return the strip of a field of driven disks.
+    One field of driven disks across the belt.
 
     A field of driven disks across the belt: x from ``start`` to start + ``width`` [m],
     disk surface velocity v(cos α, sin α) with α = ``alpha_deg``; width may be inf.
@@ -79,8 +79,8 @@ def disk_field_strips(
     ----------
     v : float
         The belt speed [m/s].
-    fields : list of (float, float, float)
-        (x_lo, x_hi, α [deg]) of each disk field.
+    fields : list of DiskField
+        The disk fields, upstream first.
     law_belt : FrictionLaw
         The belt's law.
     law_disks : FrictionLaw

@@ -430,8 +430,8 @@ def sensor_blocked(sensor, n_eyes, eye_x, cfg, s, phase, half_a, half_b):
         The cell's configuration row (``C_*``).
     s : ndarray, shape (6,)
         The parcel's state.
-    phase : ndarray
-        Every parcel's phase.
+    phase : int
+        The parcel's phase (on the cell, leaving, gone).
     half_a : float
         Half the parcel's length A [m].
     half_b : float

@@ -777,16 +777,16 @@ def evaluate_surfaces(state, contact, skip_kinetic, need_static, kin, stat, area
     contact : Contact
         What the parcel slides on (``layout.Contact``).
     skip_kinetic : int
-        A surface whose kinetic wrench is left out (-1 or less: none; -2: none, and
-        every surface's static limits too).
+        A surface whose kinetic wrench is left out (the one the parcel sticks to);
+        negative: none.
     need_static : bool
         Compute the static limits too.
     kin : ndarray, shape (nsurf, 3)
         Receives each surface's kinetic wrench.
     stat : ndarray, shape (nsurf, 2)
         Receives each surface's static limits (F_max, T_max).
-    area : float
-        Its area [m²].
+    area : ndarray, shape (nsurf,)
+        Receives each surface's footprint area, weighted by load share [m²].
     slip_c : ndarray, shape (nsurf,)
         Receives each surface's slip speed at the footprint's centroid [m/s].
 
@@ -979,24 +979,6 @@ def rest_surface_wrench(state, contact, surf, ux, uy, om, kinetic, clip):
     return fx, fy, t
 
 
-def n_surfaces(strips: np.ndarray) -> int:
-    """
-    Return the number of distinct surfaces referenced by the strips.
-
-    Parameters
-    ----------
-    strips : ndarray, shape (n, STRIP_WIDTH)
-        The strips (``layout``).
-
-    Returns
-    -------
-    int
-        The number of distinct surfaces.
-
-    """
-    return int(strips[:, S_SURF].max()) + 1 if strips.shape[0] else 0
-
-
 __all__ = [
     "CLIP_ROWS",
     "clip_scratch",
@@ -1007,7 +989,6 @@ __all__ = [
     "strip_part_wrench",
     "surface_area",
     "gauss_legendre_01",
-    "n_surfaces",
     "smooth_order",
     "rest_surface_wrench",
     "static_surface_wrench",
