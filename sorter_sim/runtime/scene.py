@@ -458,10 +458,12 @@ def run_scene(scene: dict) -> tuple[SimResult, dict]:
 
 def stage_starts(res: SimResult, belt_surface: int = 0, disk_surface: int | None = 1) -> dict:
     """
-    Start times of the stages of Fig. 10 from the mode history.
+    Start times of the stages of Fig. 10 from the run's events.
 
     E1: steady motion I (stuck on the belt while the disks rub); E2: transient
-    (sliding on both); E3: steady motion II (stuck on the disks).
+    (sliding on both), from the break-away off the belt; E3: steady motion II (stuck
+    on the disks), from the stick on them. A run without those events (a parcel
+    released sliding) takes them from its mode history.
 
     Parameters
     ----------
@@ -482,6 +484,15 @@ def stage_starts(res: SimResult, belt_surface: int = 0, disk_surface: int | None
     stages: dict[str, float | None] = {"E1": None, "E2": None, "E3": None}
     if len(res.mode) and res.mode[0] == belt_surface:
         stages["E1"] = float(res.t[0])
+    # the break event is where the parcel leaves the belt: the record there still
+    # carries the belt's mode (the step it ends), the first sliding record comes a
+    # step later, so the mode history alone would start E2 one step late
+    for t, kind, info in res.events:
+        if kind == "break" and info == belt_surface and stages["E2"] is None:
+            stages["E2"] = float(t)
+        if kind == "stick" and disk_surface is not None and info == disk_surface:
+            if stages["E3"] is None:
+                stages["E3"] = float(t)
     for t, m in zip(res.t, res.mode):
         if m == -1 and stages["E2"] is None:
             stages["E2"] = float(t)

@@ -3,8 +3,10 @@
 
 The figures live in ``paper`` (the seed's own) and ``two_stage`` (the two-stage
 design built on them); this module only picks and runs them, so that neither
-figure module imports the other's caller. The exit code is 1 when any figure
-does not reproduce what the seed states.
+figure module imports the other's caller. ``--stick`` picks the stick law (the
+seed's by default, ``both`` for each in turn); ``all --doc DIR`` writes
+DIR/paper.md from a run under both (``paper_doc``). The exit code is 1 when any
+figure does not reproduce what the seed states.
 """
 
 from __future__ import annotations
@@ -13,11 +15,25 @@ import argparse
 from pathlib import Path
 
 from sorter_sim.studies.outpaths import dir_problem
-from sorter_sim.studies.paper import fig4, fig5, fig7, fig8, fig9, fig10, fig11, fig13, fig14
+from sorter_sim.studies.paper import (
+    fig3,
+    fig4,
+    fig5,
+    fig7,
+    fig8,
+    fig9,
+    fig10,
+    fig11,
+    fig13,
+    fig14,
+)
+from sorter_sim.studies.paper_doc import write_doc
+from sorter_sim.studies.paper_support import STICK_LAWS
 from sorter_sim.studies.progress import progress_bar
 from sorter_sim.studies.two_stage import two_stage_figure
 
 FIGURES = {
+    "3": fig3,
     "4": fig4,
     "5": fig5,
     "7": fig7,
@@ -58,6 +74,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--quick", action="store_true", help="coarse grids and shorter runs (seconds per figure)"
     )
     parser.add_argument(
+        "--stick",
+        choices=(*STICK_LAWS, "both"),
+        default="seed",
+        help="stick law: seed (the seed's decoupled test, its own computation; default), "
+        "exact (the patch's limit set; files in DIR/exact), or both in turn",
+    )
+    parser.add_argument(
+        "--doc",
+        metavar="DOCDIR",
+        help="with FIG all: run every figure under both stick laws and write "
+        "DOCDIR/paper.md with its pictures in DOCDIR/img (docs/paper.md is `--doc docs`)",
+    )
+    parser.add_argument(
         "--quiet",
         action="store_true",
         help="no progress bar (there is none either when stderr is not a terminal)",
@@ -84,18 +113,45 @@ def run(args) -> int | str:
     if problem:
         return problem
     which = ALIASES.get(args.figure, args.figure)
+    if args.doc is not None:
+        if which != "all":
+            return f"--doc writes every figure's page: use `sorter paper all --doc {args.doc}`"
+        if args.stick != "seed":
+            return "--doc runs both stick laws itself: leave out --stick"
+        doc = Path(args.doc)
+        problem = dir_problem(doc, "--doc")
+        if problem:
+            return problem
+        reports = []
+        path = write_doc(FIGURES, doc, out, args.quick, log=lambda text: reports.append(text))
+        print("\n".join(reports))
+        print(f"wrote {path}")
+        return _verdict(reports)
     names = list(FIGURES) if which == "all" else [which]
+    laws = STICK_LAWS if args.stick == "both" else (args.stick,)
     failed = []
     bar = progress_bar(len(names), "sorter paper", "fig", quiet=args.quiet or len(names) == 1)
     for name in names:
         bar.set_postfix_str(f"Fig. {name}")
-        res = FIGURES[name](out, quick=args.quick)
-        bar.write(res.report())
+        for law in laws:
+            res = FIGURES[name](out, quick=args.quick, stick=law)
+            bar.write(res.report())
+            if not res.success:
+                failed.append(name if res.stick is None else f"{name} ({law} stick)")
+            if res.stick is None:
+                break  # the figure has no stick law: once is all
         bar.update(1)
-        if not res.success:
-            failed.append(name)
     bar.close()
     if failed:
         print(f"seed statements not reproduced in: Fig. {', '.join(failed)} (see [FAILS] above)")
+        return 1
+    return 0
+
+
+def _verdict(reports: list) -> int:
+    """Exit code of a run whose reports are ``reports``: 1 when any statement FAILS."""
+    failed = [text.splitlines()[0] for text in reports if "[FAILS]" in text]
+    if failed:
+        print("seed statements not reproduced in:\n  " + "\n  ".join(failed))
         return 1
     return 0

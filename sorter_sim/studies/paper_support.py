@@ -44,6 +44,24 @@ ALPHAS = (90.0, 45.0, 30.0)  # the seed's disk angles, deg
 
 
 # ---------------------------------------------------------------------------- results
+STICK_LAWS = ("seed", "exact")  # the seed's decoupled stick test, the patch's limit set
+
+
+@dataclass
+class Check:
+    """
+    One statement of the seed as this run measures it.
+
+    label: the statement in this project's words; holds: whether the run shows it;
+    measured: the numbers that decide it, formatted.
+    """
+
+    label: str
+    holds: bool
+    measured: str = ""
+    timed: bool = False  # decided by a measured time: reported, never a test or a failure
+
+
 @dataclass
 class FigureResult:
     """
@@ -51,36 +69,95 @@ class FigureResult:
 
     headline: the figures to compare with the seed (name -> value);
     seed: the seed's statements this figure is about, verbatim in spirit;
-    claims: each qualitative statement of the seed -> whether this run shows it;
-    data: the arrays behind the plot; files: CSV/PNG written; wall_s: run time.
+    checks: each qualitative statement of the seed, by its key in
+    ``paper_statements.STATEMENTS`` -> how this run measures it (``claims`` is the
+    same as label -> holds); data: the arrays behind the plot; files: CSV/PNG
+    written; stick: the stick law it ran under (None where the figure has no
+    stick between surfaces); wall_s: run time.
     """
 
     figure: str
     title: str
     headline: dict = field(default_factory=dict)
     seed: list = field(default_factory=list)
-    claims: dict = field(default_factory=dict)
+    checks: dict = field(default_factory=dict)
     data: dict = field(default_factory=dict)
     files: list = field(default_factory=list)
+    stick: str | None = "seed"
     wall_s: float = 0.0
+
+    def check(self, key: str, label: str, holds, measured: str = "", timed: bool = False) -> None:
+        """
+        Record how this run measures one statement of the seed.
+
+        Parameters
+        ----------
+        key : str
+            The statement's key in ``paper_statements.STATEMENTS``.
+        label : str
+            The statement in this project's words.
+        holds : bool
+            Whether the run shows it.
+        measured : str
+            The numbers that decide it.
+        timed : bool
+            Decided by a measured run time: reported, but the figure does not fail on
+            it (the machine's load moves it).
+
+        """
+        self.checks[key] = Check(label, bool(holds), measured, timed)
+
+    @property
+    def claims(self) -> dict:
+        """Return each checked statement's label -> whether it holds on this run."""
+        return {c.label: c.holds for c in self.checks.values()}
 
     @property
     def success(self) -> bool:
         """Return True when every qualitative claim of the seed holds on this run."""
-        return all(self.claims.values())
+        return all(c.holds for c in self.checks.values() if not c.timed)
 
     def report(self) -> str:
-        lines = [f"Fig. {self.figure}: {self.title}"]
+        """Return the figure's printed report: headline, the seed's words, the checks."""
+        law = "" if self.stick is None else f" [stick: {self.stick}]"
+        lines = [f"Fig. {self.figure}: {self.title}{law}"]
         for k, v in self.headline.items():
             lines.append(f"  {k:<46} {_fmt(v)}")
         for s in self.seed:
             lines.append(f"  seed: {s}")
-        for k, ok in self.claims.items():
-            lines.append(f"  [{'holds' if ok else 'FAILS'}] {k}")
+        for c in self.checks.values():
+            tail = f": {c.measured}" if c.measured else ""
+            verdict = "holds" if c.holds else ("not seen" if c.timed else "FAILS")
+            lines.append(f"  [{verdict}] {c.label}{tail}")
         for f in self.files:
             lines.append(f"  wrote {f}")
         lines.append(f"  ({self.wall_s:.1f} s)")
         return "\n".join(lines)
+
+
+def law_folder(out: Path | None, stick: str | None) -> Path | None:
+    """
+    Return where a figure run under ``stick`` writes: ``out``, or ``out/exact``.
+
+    The seed's law is the figures' default, so its files keep their plain names;
+    the exact law's go to a subfolder, and one folder holds both runs.
+
+    Parameters
+    ----------
+    out : Path, optional
+        The folder the user named (None: nothing written).
+    stick : str, optional
+        The stick law.
+
+    Returns
+    -------
+    Path or None
+        The folder for this law's files.
+
+    """
+    if out is None or stick in (None, "seed"):
+        return out
+    return out / stick
 
 
 def _fmt(v) -> str:
@@ -555,7 +632,16 @@ def minimal_disk_width(
 
 
 def two_belt_positioning(
-    law: FrictionLaw, *, v=0.37, A=0.4, B=0.3, m=5.0, x0=0.05, t_end=10.0, method="accurate"
+    law: FrictionLaw,
+    *,
+    v=0.37,
+    A=0.4,
+    B=0.3,
+    m=5.0,
+    x0=0.05,
+    t_end=10.0,
+    method="accurate",
+    stick="exact",
 ):
     """
     Run a parcel on the Fig. 12 two-belt stand.
@@ -581,13 +667,27 @@ def two_belt_positioning(
         The end [s].
     method : str
         The method.
+    stick : str
+        The stick law (exact or seed).
+
+    Returns
+    -------
+    SimResult
+        The run.
 
     """
     strips = [
         Strip(-math.inf, 0.0, +v, 0.0, law, name="forward"),
         Strip(0.0, math.inf, -v, 0.0, law, name="backward"),
     ]
-    return simulate(Parcel(A, B, m), strips, [x0, 0.0, 0.0, 0.0, 0.0, 0.0], (0.0, t_end), method)
+    return simulate(
+        Parcel(A, B, m),
+        strips,
+        [x0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        (0.0, t_end),
+        method,
+        stick=stick,
+    )
 
 
 def swing_peaks(t, x):

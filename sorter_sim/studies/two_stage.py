@@ -35,6 +35,7 @@ from sorter_sim.studies.paper_support import (
     _save,
     _write_csv,
     disk_surface,
+    law_folder,
     minimal_disk_width,
     step_root,
 )
@@ -122,10 +123,10 @@ def disk_field_strips(
     return strips
 
 
-def _run(strips, A, B, m, v, t_end, y_target):
+def _run(strips, A, B, m, v, t_end, y_target, stick):
     parcel = Parcel(A, B, m)
     y0 = [-0.5 * A, 0.0, 0.0, v, 0.0, 0.0]  # leading edge on x = 0, moving with the belt
-    return simulate(parcel, strips, y0, (0.0, t_end), "accurate", y_target=y_target, stick="seed")
+    return simulate(parcel, strips, y0, (0.0, t_end), "accurate", y_target=y_target, stick=stick)
 
 
 @dataclass
@@ -145,7 +146,16 @@ class PreShift:
 
 
 def pre_shift(
-    b1: float, *, A=0.7, B=0.2, m=5.0, v=1.5, alpha1_deg=90.0, mu=SEED_MU, s=SEED_S
+    b1: float,
+    *,
+    A=0.7,
+    B=0.2,
+    m=5.0,
+    v=1.5,
+    alpha1_deg=90.0,
+    mu=SEED_MU,
+    s=SEED_S,
+    stick="seed",
 ) -> PreShift:
     """
     Run the parcel over a preliminary field of width b1 until it rides the belt again.
@@ -168,6 +178,8 @@ def pre_shift(
         The friction coefficient.
     s : float
         The scrap distance across the belt [m].
+    stick : str
+        The stick law (seed or exact).
 
     Returns
     -------
@@ -177,7 +189,7 @@ def pre_shift(
     """
     law = FrictionLaw("const1", (mu,))
     strips = disk_field_strips(v, [DiskField(0.0, b1, alpha1_deg, "pre")], law)
-    res = _run(strips, A, B, m, v, 4.0 + 8.0 * s / v, s)
+    res = _run(strips, A, B, m, v, 4.0 + 8.0 * s / v, s, stick)
     x, y, phi, vx, vy, om = res.y[-1]
     settled = res.t_target is None and int(res.mode[-1]) == 0 and x - 0.5 * A > b1
     # the leading corner when it settled: the belt stick after the field was left
@@ -242,6 +254,7 @@ def final_min_width(
     mu=SEED_MU,
     s=SEED_S,
     xtol=1e-3,
+    stick="seed",
 ):
     """
     Minimal width of the final field behind a preliminary one (the Fig. 11 criterion).
@@ -268,6 +281,13 @@ def final_min_width(
         The scrap distance across the belt [m].
     xtol : float
         The bracket's tolerance [m].
+    stick : str
+        The stick law (seed or exact).
+
+    Returns
+    -------
+    (float, MinimalWidth)
+        Where the final field starts [m], and its least width.
 
     """
     law = FrictionLaw("const1", (mu,))
@@ -277,14 +297,16 @@ def final_min_width(
         fields = [DiskField(x2, b2, alpha2_deg, "final")]
         if pre.b1 > 0.0:
             fields.insert(0, DiskField(0.0, pre.b1, alpha1_deg, "pre"))
-        res = _run(disk_field_strips(v, fields, law), A, B, m, v, 6.0 + 8.0 * s / v, s)
+        res = _run(disk_field_strips(v, fields, law), A, B, m, v, 6.0 + 8.0 * s / v, s, stick)
         disk = disk_surface(res, v, math.radians(alpha2_deg))
         return res.t_target is not None and disk is not None and int(res.mode[-1]) == disk
 
     return x2, step_root(scrapes, 0.005, 2.0, xtol)
 
 
-def two_stage_figure(out: Path | None = None, quick: bool = False) -> FigureResult:
+def two_stage_figure(
+    out: Path | None = None, quick: bool = False, stick: str = "seed"
+) -> FigureResult:
     """
     Compute how much a preliminary field (α_1 = 90°) shortens the final one (Fig. 9a parcel).
 
@@ -294,6 +316,8 @@ def two_stage_figure(out: Path | None = None, quick: bool = False) -> FigureResu
         Where the CSV and PNG go.
     quick : bool
         Coarse grids, for tests and quick looks.
+    stick : str
+        The stick law: "seed" or "exact".
 
     Returns
     -------
@@ -302,7 +326,8 @@ def two_stage_figure(out: Path | None = None, quick: bool = False) -> FigureResu
 
     """
     t0 = time.perf_counter()
-    kw = dict(A=0.7, B=0.2, v=1.5)
+    out = law_folder(out, stick)
+    kw = dict(A=0.7, B=0.2, v=1.5, stick=stick)
     alphas = (30.0,) if quick else (90.0, 45.0, 30.0)
     fracs = (0.0, 0.4) if quick else (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
     xtol = 5e-3 if quick else 1e-3
@@ -330,32 +355,45 @@ def two_stage_figure(out: Path | None = None, quick: bool = False) -> FigureResu
         "two-stage",
         "preliminary field (α_1 = 90°) + final field: minimal final width "
         "(0.7 x 0.2 m, v = 1.5 m/s, μ = 0.6)",
+        stick=stick,
+    )
+    r.headline[f"pre-shift d = {fracs[-1]:g} s: d [m] ; b_1 [m]"] = (
+        f"{pres[fracs[-1]].d:.3f} ; {pres[fracs[-1]].b1:.3f}"
     )
     for row in rows:
         if row["d_over_s"] == fracs[-1] or row["d_over_s"] == 0.0:
             r.headline[
-                f"α_2 = {row['alpha2_deg']:.0f}°, d = {row['d_m']:.3f} m (b_1 = {row['b1_m']:.3f} "
-                "m): "
-                "b_2 min [m]"
+                f"α_2 = {row['alpha2_deg']:.0f}°, d = {row['d_over_s']:g} s: b_2 min [m]"
             ] = row["b2_min_m"]
     for al in alphas:
         last = [x for x in rows if x["alpha2_deg"] == al][-1]
-        r.headline[f"α_2 = {al:.0f}°: final field shorter by [%] (d = {last['d_m']:.2f} m)"] = (
-            last["final_shrink_pct"]
-        )
+        r.headline[f"α_2 = {al:.0f}°: final field shorter by [%] (d = {fracs[-1]:g} s)"] = last[
+            "final_shrink_pct"
+        ]
     r.seed = [
         "preliminary sorting shifts the load towards one border and so decreases the "
         "length of the final manipulator's working space (section 7)"
     ]
     by = {(x["alpha2_deg"], x["d_over_s"]): x for x in rows}
-    r.claims = {
-        "without a pre-shift the final field equals the single field (±2 xtol)": all(
+    r.check(
+        "C4-same",
+        "without a pre-shift the final field equals the single field (±2 xtol)",
+        all(
             abs(by[al, 0.0]["b2_min_m"] - by[al, 0.0]["b_single_m"]) <= 2 * xtol + 1e-12
             for al in alphas
         ),
-        "the final field shrinks at α_2 = 30°": by[30.0, fracs[-1]]["b2_min_m"]
-        < by[30.0, 0.0]["b2_min_m"],
-    }
+        ", ".join(
+            f"{al:.0f}°: {by[al, 0.0]['b2_min_m']:.3f} / {by[al, 0.0]['b_single_m']:.3f} m"
+            for al in alphas
+        ),
+    )
+    r.check(
+        "C4",
+        "a preliminary field shortens the final one at α_2 = 30°",
+        by[30.0, fracs[-1]]["b2_min_m"] < by[30.0, 0.0]["b2_min_m"],
+        f"{by[30.0, 0.0]['b2_min_m']:.3f} -> {by[30.0, fracs[-1]]['b2_min_m']:.3f} m behind a "
+        f"{by[30.0, fracs[-1]]['d_m']:.2f} m pre-shift",
+    )
     r.data = {"rows": rows, "pre": pres}
     if out is not None:
         r.files.append(
@@ -388,7 +426,7 @@ def two_stage_figure(out: Path | None = None, quick: bool = False) -> FigureResu
         fields = [DiskField(x2, b2, al, "final")] + (
             [DiskField(0.0, pre.b1, 90.0, "pre")] if pre.b1 > 0 else []
         )
-        res = _run(disk_field_strips(1.5, fields, law), 0.7, 0.2, 5.0, 1.5, 10.0, SEED_S)
+        res = _run(disk_field_strips(1.5, fields, law), 0.7, 0.2, 5.0, 1.5, 10.0, SEED_S, stick)
         a.plot(res.y[:, 0], res.y[:, 1], label=f"two-stage, α_2 = {al:.0f}°")
         for f, col in ((DiskField(0.0, pre.b1, 90.0), "C1"), (DiskField(x2, b2, al), "C2")):
             a.axvspan(f.start, f.end, color=col, alpha=0.15)
