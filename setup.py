@@ -83,5 +83,7 @@ setup(
             'sim_node = sorter_sim.executable:main',
             'controller_node = sorter_control.executable:main',
         ],
+        # the fixtures sorter_cell and sorter_controller in any project with this installed
+        'pytest11': ['sorter_cell = sorter_cell.testing.plugin'],
     },
 )

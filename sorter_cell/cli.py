@@ -1,5 +1,5 @@
 """
-The ``sorter`` command: ``sorter run | paper | sweep | bench | demo | replay``.
+The ``sorter`` command: ``sorter run | paper | sweep | bench | demo | replay | scenario``.
 
 The model's verbs come from ``sorter_sim.cli``; ``demo`` starts the simulation
 node and the controller together, so it sits here, above both packages.
@@ -15,22 +15,13 @@ VERBS = dict(
     model_cli.VERBS,
     demo=("sorter_cell.demo", "run the sorter cell: simulation + controller nodes"),
     replay=("sorter_cell.replay", "summarise a recorded run (MCAP) and draw its parcel paths"),
+    scenario=("sorter_cell.scenario_cli", "run scenario files (one, or a campaign on Dask)"),
 )
 
 
 def main(argv: list[str] | None = None) -> int:
     """
     Entry point of ``sorter``.
-
-    Parameters
-    ----------
-    argv : list of str, optional
-        The arguments (default: the process's).
-
-    Returns
-    -------
-    int
-        The exit code.
 
     Parameters
     ----------

@@ -19,6 +19,7 @@ PATHS = [
     'sorter_cell',
     'test',
     'benchmarks',
+    'examples',
     'setup.py',
 ]
 

@@ -63,6 +63,7 @@ from sorter_sim.runtime.cell import (
     SensorEdge,
     WatchdogTrip,
 )
+from sorter_sim.runtime.faults import apply_fault
 from sorter_sim.runtime.params import SCHEMA, SPECS, CellParams, ParamError
 from sorter_sim.runtime.warmup import warm_cell
 
@@ -159,6 +160,7 @@ class SimNode(Node):
         self.create_service(Trigger, 'step', self._srv_step, qos_profile=SERVICE_QOS)
         self.create_subscription(DiagnosticStatus, 'parcels/induct', self._on_induct, EVENT_QOS)
         self.create_subscription(UInt32, 'controller/heartbeat', self._on_heartbeat, STREAM_QOS)
+        self.create_subscription(DiagnosticStatus, 'faults/inject', self._on_fault, EVENT_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._post_set_parameters)
         self._joint_state = JointState(name=['disk_angle', 'popup_stroke'])
@@ -172,6 +174,7 @@ class SimNode(Node):
         self._diag_ref = (time.perf_counter(), self.cell.k)
         self.n_messages = 0
         self.n_marker_arrays = 0
+        self.faults_injected = 0
         # the initial state: every sensor clear, actuators where they are, t = 0
         self._publish_status()
         self._publish_sensors()
@@ -732,6 +735,8 @@ class SimNode(Node):
             'inducts_refused': str(self.cell.n_induct_refused),
             'clock_publishers': str(clock_publishers),
             'watchdog_trips': str(self.cell.watchdog_trips),
+            'faults_injected': str(self.faults_injected),
+            'injected_now': ','.join(self._injected_now()) or 'none',
             'callback_errors': str(getattr(self, 'callback_errors', 0)),
             **self._fieldbus_diagnostics(),
             **{f'exits_{k}': str(v) for k, v in counts.items()},
@@ -831,6 +836,48 @@ class SimNode(Node):
             self.cell.induct(spec)
         except ParamError as exc:
             self.get_logger().warning(f'parcels/induct dropped: {exc}')
+
+    def _on_fault(self, msg: DiagnosticStatus) -> None:
+        """Inject a test-bench fault (``runtime.faults``); a bad request is logged and dropped."""
+        try:
+            self.inject_fault(msg.name, {kv.key: kv.value for kv in msg.values})
+        except ParamError as exc:
+            self.get_logger().warning(f'faults/inject dropped: {exc}')
+
+    def inject_fault(self, name: str, values: dict) -> str:
+        """
+        Inject one fault (``runtime.faults.apply_fault``) and publish what it shows.
+
+        Parameters
+        ----------
+        name : str
+            The fault.
+        values : dict
+            Its arguments.
+
+        Returns
+        -------
+        str
+            What was done, in words.
+
+        Raises
+        ------
+        ParamError
+            A bad request; nothing changes.
+
+        """
+        events, done = apply_fault(self.cell, name, values)
+        self.faults_injected += 1
+        self._publish_events(events)
+        self._publish_status()
+        self.get_logger().warning(f'injected fault: {done}')
+        return done
+
+    def _injected_now(self) -> list[str]:
+        out = [f'eye {n} {f.fault}' for n, f in self.cell.sensor_faults.items()]
+        if self.cell.heartbeat_cut:
+            out.append('heartbeat lost')
+        return out
 
     def _induct_spec(self, msg: DiagnosticStatus) -> ParcelSpec:
         return induct_spec([(kv.key, kv.value) for kv in msg.values], self.params)

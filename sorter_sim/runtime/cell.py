@@ -94,6 +94,26 @@ class WatchdogTrip:
 
 WATCHDOG_REFUSAL = 'refused: the controller watchdog holds the disks down (no heartbeat)'
 
+# faults a test bench injects into a sensor's signal (the physics is untouched): held
+# blocked, held clear, or toggling with a period (a loose connector, a flickering eye)
+SENSOR_FAULTS = ('blocked', 'clear', 'chatter')
+CHATTER_PERIOD_RANGE = (0.002, 10.0)  # s, a toggle per half period
+
+
+@dataclass(frozen=True)
+class SensorFault:
+    """An injected sensor fault (``fault`` in SENSOR_FAULTS); chatter toggles every half_k."""
+
+    fault: str
+    half_k: int = 0
+    k0: int = 0
+
+    def blocked_at(self, k: int) -> bool:
+        """Return what the sensor shows at period ``k``."""
+        if self.fault == 'chatter':
+            return ((k - self.k0) // self.half_k) % 2 == 0
+        return self.fault == 'blocked'
+
 
 @dataclass(frozen=True)
 class ParcelSpec:
@@ -195,6 +215,9 @@ class Cell:
         # is later than watchdog_timeout (simulated time), cleared by a heartbeat
         self.watchdog_tripped = False
         self.watchdog_trips = 0
+        self.heartbeat_cut = False  # an injected fault: heartbeats no longer reach the cell
+        self.heartbeats_lost = 0
+        self.sensor_faults: dict[str, SensorFault] = {}
         self._heartbeat_k: int | None = None
         self._heartbeat_value: int | None = None  # the last counter that fed it
         self.heartbeats_frozen = 0  # heartbeats that repeated the last counter: not fed
@@ -409,6 +432,9 @@ class Cell:
             True if it cleared a watchdog trip.
 
         """
+        if self.heartbeat_cut:
+            self.heartbeats_lost += 1
+            return False
         if self._heartbeat_value is not None and counter == self._heartbeat_value:
             self.heartbeats_frozen += 1
             return False
@@ -440,7 +466,134 @@ class Cell:
 
     # ------------------------------------------------------------------ sensors
     def sensor_states(self) -> dict[str, bool]:
-        return {n: bool(c > 0) for n, c in zip(self.sensor_names, self.counts)}
+        """Return what each sensor shows now (blocked True), injected faults included."""
+        out = {n: bool(c > 0) for n, c in zip(self.sensor_names, self.counts)}
+        for name, f in self.sensor_faults.items():
+            out[name] = f.blocked_at(self.k)
+        return out
+
+    def inject_sensor_fault(self, sensor: str, fault: str, period: float = 0.1) -> list:
+        """
+        Make a sensor show a fault instead of what it sees; ``fault`` 'ok' ends it.
+
+        The physics is untouched: parcels move as before, only the signal is wrong, as
+        with a misaligned reflector (held blocked), a dirty or dead eye (held clear) or a
+        loose connector (chatter: toggling every period/2).
+
+        Parameters
+        ----------
+        sensor : str
+            The sensor's name (``sensor_names``).
+        fault : str
+            One of SENSOR_FAULTS, or 'ok' to clear the fault.
+        period : float
+            The chatter's full period [s], in CHATTER_PERIOD_RANGE.
+
+        Returns
+        -------
+        list of SensorEdge
+            The edge the change shows now, if it shows one.
+
+        Raises
+        ------
+        ParamError
+            An unknown sensor or fault, or a period out of range; nothing changes.
+
+        """
+        if sensor not in self.sensor_names:
+            raise ParamError(
+                f'unknown sensor {shown(sensor)}; the cell has {", ".join(self.sensor_names)}'
+            )
+        if fault not in (*SENSOR_FAULTS, 'ok'):
+            raise ParamError(
+                f'sensor fault must be one of {", ".join((*SENSOR_FAULTS, "ok"))}, '
+                f'got {shown(fault)}'
+            )
+        lo, hi = CHATTER_PERIOD_RANGE
+        half_k = 0
+        if fault == 'chatter':
+            if not (isinstance(period, (int, float)) and math.isfinite(period)):
+                raise ParamError(f'chatter period must be a finite number, got {shown(period)}')
+            if not lo <= period <= hi:
+                raise ParamError(f'chatter period must be in [{lo:g}, {hi:g}] s, got {period:g} s')
+            half_k = max(1, round(0.5 * period / self.dt))
+        before = self.sensor_states()[sensor]
+        if fault == 'ok':
+            self.sensor_faults.pop(sensor, None)
+        else:
+            self.sensor_faults[sensor] = SensorFault(fault, half_k, self.k)
+        after = self.sensor_states()[sensor]
+        return [] if after == before else [SensorEdge(self.t_ns, sensor, after)]
+
+    def _faulted_edges(self, events: list, k_from: int) -> list:
+        """Replace the faulted sensors' true edges by what they show over (k_from, k]."""
+        if not self.sensor_faults:
+            return events
+        out = [
+            e for e in events if not (isinstance(e, SensorEdge) and e.sensor in self.sensor_faults)
+        ]
+        dt_ns = self.params.control_period_ns
+        for name, f in self.sensor_faults.items():
+            if f.fault != 'chatter':
+                continue
+            # the first toggle after k_from, then every half_k periods up to self.k
+            j = (k_from - f.k0) // f.half_k + 1
+            k = f.k0 + j * f.half_k
+            while k <= self.k:
+                out.append(SensorEdge(k * dt_ns, name, f.blocked_at(k)))
+                k += f.half_k
+        return out
+
+    def cut_heartbeat(self, cut: bool) -> None:
+        """
+        Cut (True) or mend the controller's heartbeat line, an injected fault.
+
+        While cut, heartbeats are counted (``heartbeats_lost``) but do not reach the
+        watchdog, which then trips as it would for a stopped controller.
+
+        Parameters
+        ----------
+        cut : bool
+            Cut or mend.
+
+        """
+        self.heartbeat_cut = bool(cut)
+
+    def jam_parcel(self, which: str) -> list:
+        """
+        Jam one parcel where it is now (an injected fault: a snag, a torn parcel).
+
+        Parameters
+        ----------
+        which : str
+            The parcel's label, or its id as a number.
+
+        Returns
+        -------
+        list of Outcome
+            The jam's outcome (exit 'jammed', cause 'injected').
+
+        Raises
+        ------
+        ParamError
+            No parcel of that label or id on the belt or the disks; nothing changes.
+
+        """
+        on = np.flatnonzero(self.phase == ck.PH_CELL)
+        match = [int(i) for i in on if self.labels[i] == which or str(self.ids[i]) == str(which)]
+        if not match:
+            raise ParamError(
+                f'no parcel {shown(which)} on the belt or the disks to jam ({len(on)} there now)'
+            )
+        i = match[0]
+        self.phase[i] = ck.PH_JAMMED
+        self.mode[i] = ck.MODE_SLIDE
+        self.state[i, 3:6] = 0.0
+        self.jam = True
+        self.jam_cause[i] = 'injected'
+        self.outcome_counts['jammed'] += 1
+        x, y = float(self.state[i, 0]), float(self.state[i, 1])
+        return [Outcome(self.t_ns, int(self.ids[i]), self.labels[i], 'jammed', x, y, 'injected')]
 
     def _remove(self, i: int) -> list[SensorEdge]:
         """Take parcel ``i`` off the cell now; the sensors it blocked may clear."""
@@ -448,8 +601,9 @@ class Cell:
         for s in np.flatnonzero(self.blocked[i]):
             self.blocked[i, s] = False
             self.counts[s] -= 1
-            if self.counts[s] == 0:
-                edges.append(SensorEdge(self.t_ns, self.sensor_names[s], False))
+            name = self.sensor_names[s]
+            if self.counts[s] == 0 and name not in self.sensor_faults:
+                edges.append(SensorEdge(self.t_ns, name, False))
         self.phase[i] = ck.PH_FREE
         self.mode[i] = ck.MODE_SLIDE
         return edges
@@ -582,8 +736,9 @@ class Cell:
             self.blocked[i, s] = on
             if on:
                 self.counts[s] += 1
-                if self.counts[s] == 1:
-                    edges.append(SensorEdge(self.t_ns, self.sensor_names[s], True))
+                name = self.sensor_names[s]
+                if self.counts[s] == 1 and name not in self.sensor_faults:
+                    edges.append(SensorEdge(self.t_ns, name, True))
         return edges
 
     def _periods_until_placement(self) -> int:
@@ -645,6 +800,7 @@ class Cell:
             raise ValueError(f'n must be >= 0, got {n}')
         events: list = []
         remaining = n
+        k_from = self.k
         while remaining > 0:
             events += self._place_pending()
             m = min(remaining, self._periods_until_placement())
@@ -661,6 +817,7 @@ class Cell:
         deadline = self._watchdog_deadline()
         if deadline is not None and self.k >= deadline:
             events.append(self._trip_watchdog())
+        events = self._faulted_edges(events, k_from)
         events.sort(key=lambda e: e.t_ns)
         return events
 
@@ -759,5 +916,7 @@ __all__ = [
     'LabelRead',
     'Outcome',
     'STATE_NAMES',
+    'SENSOR_FAULTS',
+    'SensorFault',
     'check_parcel',
 ]

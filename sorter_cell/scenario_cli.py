@@ -1,0 +1,260 @@
+"""
+``sorter scenario run FILE`` and ``sorter scenario campaign DIR``.
+
+``run`` runs one scenario file (``sorter_cell.testing.scenario``) in this process:
+exit 0 when every expectation holds, 1 when one fails (``--junit`` says which,
+``--record`` keeps the MCAP recording as evidence), 2 for a bad file (one line
+naming the key).
+
+``campaign`` runs every ``*.yaml`` of a folder, each ``--seeds`` times with seeds
+1, 2, ..., on Dask: a local cluster by default (``--workers`` at once), or the
+cluster of ``--scheduler ADDRESS``. Each run is its own process (``sorter scenario
+run ... --json``) on a ROS domain of its own, so no two runs share a graph or an
+rclpy context. A progress bar counts the runs; at the end a table gives each
+scenario's passes, failures and times, and ``--junit`` writes them all.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+CAMPAIGN_DOMAINS = range(200, 232)  # Fast DDS takes ids up to 232; tests use 100-199
+
+
+def add_arguments(parser) -> None:
+    """
+    Add the verb's arguments to its parser.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The verb's parser.
+
+    """
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    one = sub.add_parser("run", help="run one scenario file")
+    one.add_argument("file", metavar="FILE", help="the scenario (YAML)")
+    one.add_argument("--junit", metavar="OUT.xml", help="write the result as JUnit XML")
+    one.add_argument("--record", metavar="OUT.mcap", help="record the run (evidence)")
+    one.add_argument("--seed", type=int, help="the generated stream's seed instead of the file's")
+    one.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    many = sub.add_parser("campaign", help="run every scenario of a folder, in parallel on Dask")
+    many.add_argument("folder", metavar="DIR", help="a folder of scenario files (*.yaml)")
+    many.add_argument("--workers", type=int, default=2, help="runs at once (default 2)")
+    many.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler")
+    many.add_argument("--seeds", type=int, default=1, help="runs per scenario, seeds 1..N")
+    many.add_argument("--junit", metavar="OUT.xml", help="write every result as JUnit XML")
+    many.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args) -> int | str:
+    """
+    Run the verb.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments.
+
+    Returns
+    -------
+    int or str
+        The exit code, or a message for a refused input.
+
+    """
+    if args.action == "run":
+        return _run_one(args)
+    return _campaign(args)
+
+
+def _result_dict(r) -> dict:
+    return {
+        "name": r.name,
+        "passed": r.passed,
+        "error": r.error,
+        "sim_s": r.sim_s,
+        "wall_s": r.wall_s,
+        "record": r.record,
+        "checks": [{"text": c.text, "passed": c.passed, "detail": c.detail} for c in r.checks],
+        "outcomes": len(r.outcomes),
+    }
+
+
+def _run_one(args) -> int | str:
+    from sorter_cell.testing.scenario import ScenarioError, junit_xml, load_scenario, report
+    from sorter_cell.testing.scenario import run_scenario
+    from sorter_sim.studies.outpaths import file_problem
+
+    try:
+        sc = load_scenario(args.file)
+    except ScenarioError as exc:
+        return str(exc)
+    for flag, path in (("--junit", args.junit), ("--record", args.record)):
+        if path:
+            problem = file_problem(path, flag)
+            if problem:
+                return problem
+    if args.seed is not None and not 0 <= args.seed < 2**31:
+        return f"--seed must be in [0, 2^31), got {args.seed}"
+    result = run_scenario(sc, record=args.record, seed=args.seed)
+    if args.junit:
+        Path(args.junit).write_text(junit_xml([result]))
+    if args.json:
+        print(json.dumps(_result_dict(result)))
+    else:
+        print(report(result))
+    return 0 if result.passed else 1
+
+
+def _run_in_process(file: str, seed: int, domain: int) -> dict:
+    """Run one scenario as its own process on its own ROS domain; return its JSON result."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    wall0 = time.perf_counter()
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "sorter_cell",
+            "scenario",
+            "run",
+            file,
+            "--seed",
+            str(seed),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    wall = time.perf_counter() - wall0
+    lines = [x for x in done.stdout.splitlines() if x.startswith("{")]
+    if done.returncode in (0, 1) and lines:
+        out = json.loads(lines[-1])
+    else:
+        tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
+        out = {
+            "name": Path(file).stem,
+            "passed": False,
+            "error": tail,
+            "sim_s": 0.0,
+            "wall_s": 0.0,
+            "record": "",
+            "checks": [],
+            "outcomes": 0,
+        }
+    out.update(file=file, seed=seed, process_s=wall)
+    return out
+
+
+def _campaign(args) -> int | str:
+    from sorter_cell.testing.scenario import (
+        Check,
+        ScenarioError,
+        ScenarioResult,
+        junit_xml,
+        load_scenario,
+    )
+    from sorter_sim.studies.outpaths import file_problem
+    from sorter_sim.studies.progress import progress_bar
+
+    folder = Path(args.folder)
+    if not folder.is_dir():
+        return f"{folder} is not a folder"
+    files = sorted(str(p) for p in folder.glob("*.yaml"))
+    if not files:
+        return f"{folder} holds no scenario (*.yaml)"
+    for f in files:  # every file checked before anything runs
+        try:
+            load_scenario(f)
+        except ScenarioError as exc:
+            return str(exc)
+    if not 1 <= args.seeds <= 1000:
+        return f"--seeds must be in [1, 1000], got {args.seeds}"
+    if not 1 <= args.workers <= 64:
+        return f"--workers must be in [1, 64], got {args.workers}"
+    if args.junit:
+        problem = file_problem(args.junit, "--junit")
+        if problem:
+            return problem
+    from distributed import Client, LocalCluster, as_completed
+
+    wall0 = time.perf_counter()
+    cluster = None
+    try:
+        if args.scheduler:
+            try:
+                client = Client(args.scheduler, timeout="10s")
+            except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError by address kind
+                return f"--scheduler: cannot reach a Dask scheduler at {args.scheduler}: {exc}"
+        else:
+            # threads are enough: each run is a process of its own
+            cluster = LocalCluster(
+                n_workers=1,
+                threads_per_worker=args.workers,
+                processes=False,
+                dashboard_address=None,
+            )
+            client = Client(cluster)
+        jobs = [(f, s) for f in files for s in range(1, args.seeds + 1)]
+        domains = list(CAMPAIGN_DOMAINS)
+        futures = [
+            client.submit(_run_in_process, f, s, domains[k % len(domains)], pure=False)
+            for k, (f, s) in enumerate(jobs)
+        ]
+        bar = progress_bar(len(futures), "sorter scenario", "run", quiet=args.quiet)
+        rows = []
+        for fut in as_completed(futures):
+            rows.append(fut.result())
+            bar.update(1)
+        bar.close()
+        client.close()
+    finally:
+        if cluster is not None:
+            cluster.close()
+    wall = time.perf_counter() - wall0
+    rows.sort(key=lambda r: (r["file"], r["seed"]))
+    by_name: dict[str, list] = {}
+    for r in rows:
+        by_name.setdefault(r["name"], []).append(r)
+    print(
+        f"{'scenario':<32} {'runs':>5} {'passed':>7} {'failed':>7} {'sim s':>7} "
+        f"{'run s':>7} {'process s':>10}"
+    )
+    for name, rs in by_name.items():
+        n_ok = sum(r["passed"] for r in rs)
+        sim = sum(r["sim_s"] for r in rs) / len(rs)
+        run_s = sum(r["wall_s"] for r in rs) / len(rs)
+        proc = sum(r["process_s"] for r in rs) / len(rs)
+        print(
+            f"{name:<32} {len(rs):>5} {n_ok:>7} {len(rs) - n_ok:>7} {sim:>7.1f} "
+            f"{run_s:>7.1f} {proc:>10.1f}"
+        )
+    failed = [r for r in rows if not r["passed"]]
+    print(
+        f"{len(rows)} runs in {wall:.1f} s wall with {args.workers} at once: "
+        f"{len(rows) - len(failed)} passed, {len(failed)} failed"
+    )
+    for r in failed:
+        why = r["error"] or "; ".join(
+            f"{c['text']}: {c['detail']}" for c in r["checks"] if not c["passed"]
+        )
+        print(f"  FAILED {r['name']} (seed {r['seed']}): {why}")
+    if args.junit:
+        results = []
+        for r in rows:
+            res = ScenarioResult(
+                f"{r['name']} [seed {r['seed']}]",
+                sim_s=r["sim_s"],
+                wall_s=r["wall_s"],
+                record=r["record"],
+                error=r["error"],
+            )
+            res.checks = [Check(c["text"], c["passed"], c["detail"]) for c in r["checks"]]
+            results.append(res)
+        Path(args.junit).write_text(junit_xml(results, f"sorter campaign {folder.name}"))
+    return 1 if failed else 0

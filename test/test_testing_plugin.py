@@ -1,0 +1,122 @@
+"""
+The pytest plugin ``sorter_cell`` (``sorter_cell.testing``), used as a user would.
+
+The fixtures come from the installed entry point (not from this suite's
+conftest); one test runs pytest on a test file in a temporary folder outside the
+project, as a third party's project would.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from std_msgs.msg import UInt32
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_the_plugin_is_registered_by_the_installed_package(pytestconfig):
+    assert pytestconfig.pluginmanager.has_plugin('sorter_cell')
+
+
+def test_a_parcel_without_a_controller_goes_straight(sorter_cell):
+    sorter_cell.induct('P-1', length=0.5, width=0.3)
+    sorter_cell.run(5.0)
+    (out,) = sorter_cell.outcomes
+    assert (out.label, out.exit) == ('P-1', 'straight')
+    # it travelled from the induct point (leading edge at -3 m) to the exit (centre at
+    # +3 m) on the belt at 1.5 m/s: (3 + 3 + 0.25) / 1.5 s, to the control period
+    assert out.t == pytest.approx(6.25 / 1.5, abs=2 * sorter_cell.dt)
+
+
+def test_the_controller_sorts_by_its_routing(sorter_cell, sorter_controller):
+    for label in ('A-1', 'B-1', 'C-1', 'X-1'):
+        sorter_cell.induct(label, length=0.4, width=0.3)
+    assert sorter_cell.run_until(lambda: len(sorter_cell.outcomes) == 4, timeout_s=30.0)
+    exits = {o.label: o.exit for o in sorter_cell.outcomes}
+    assert exits == {'A-1': 'left', 'B-1': 'right', 'C-1': 'straight', 'X-1': 'straight'}
+    sorter_cell.run(1.0)
+    results = {c['label']: c['result'] for c in sorter_cell.confirmations}
+    assert results == {'A-1': 'sorted', 'B-1': 'sorted', 'C-1': 'sorted', 'X-1': 'rejected'}
+
+
+@pytest.mark.sorter_cell(params={'belt_speed': 1.0, 'watchdog_timeout': 0.3})
+def test_markers_set_parameters_and_a_third_party_node_runs_in_the_cell(sorter_cell):
+    import rclpy
+
+    assert sorter_cell.params['belt_speed'] == 1.0
+    # a node of the test's own, on the cell's clock: it feeds the watchdog, then stops
+    node = rclpy.create_node('my_plc', context=sorter_cell.context)
+    pub = node.create_publisher(UInt32, 'controller/heartbeat', 10)
+    sorter_cell.add_node(node)
+    for beat in range(20):
+        pub.publish(UInt32(data=beat))
+        sorter_cell.run(0.05)
+    assert not sorter_cell.sim.cell.watchdog_tripped
+    sorter_cell.run(0.5)
+    assert sorter_cell.sim.cell.watchdog_tripped
+
+
+def test_parameters_and_faults_through_the_fixture(sorter_cell):
+    sorter_cell.set_params(alpha_deg=30)
+    assert sorter_cell.params['alpha_deg'] == 30.0
+    with pytest.raises(ValueError, match='alpha_deg'):
+        sorter_cell.set_params(alpha_deg=120.0)
+    assert sorter_cell.params['alpha_deg'] == 30.0
+    assert 'held blocked' in sorter_cell.inject('eye', sensor='pe_divert', mode='blocked')
+    sorter_cell.run(0.1)
+    assert sorter_cell.sensor('pe_divert') is True
+    with pytest.raises(ValueError, match='unknown fault'):
+        sorter_cell.inject('lightning')
+    sorter_cell.inject('estop')
+    assert sorter_cell.sim.cell.estop
+    sorter_cell.reset()
+    assert not sorter_cell.sim.cell.estop
+    with pytest.raises(ValueError, match='A must be'):
+        sorter_cell.induct('BAD', length=-1.0)
+    with pytest.raises(ValueError, match='seconds'):
+        sorter_cell.run(math.nan)
+
+
+def test_a_test_outside_the_project_uses_only_the_installed_package(tmp_path):
+    (tmp_path / 'test_mine.py').write_text(
+        textwrap.dedent(
+            """
+            def test_my_controller_and_the_cell(sorter_cell, sorter_controller):
+                sorter_cell.induct('A-7', length=0.4, width=0.3)
+                sorter_cell.induct('B-7', length=0.4, width=0.3)
+                assert sorter_cell.run_until(lambda: len(sorter_cell.outcomes) == 2, 20.0)
+                assert {o.label: o.exit for o in sorter_cell.outcomes} == {
+                    'A-7': 'left', 'B-7': 'right'}
+            """
+        )
+    )
+    done = subprocess.run(
+        [sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider', 'test_mine.py'],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert '1 passed' in done.stdout
+
+
+def test_the_example_third_party_controller_passes_its_own_tests(tmp_path):
+    # examples/ is a third party's project: copied out of the tree and run there
+    for name in ('minimal_controller.py', 'test_minimal_controller.py'):
+        (tmp_path / name).write_text((REPO / 'examples' / name).read_text())
+    done = subprocess.run(
+        [sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider'],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert '2 passed' in done.stdout
