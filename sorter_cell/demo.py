@@ -49,11 +49,6 @@ def add_arguments(parser) -> None:
     parser : argparse.ArgumentParser
         The verb's parser.
 
-    Parameters
-    ----------
-    parser : argparse.ArgumentParser
-        The verb's parser.
-
     """
     parser.add_argument(
         "--sim-time",
@@ -186,18 +181,6 @@ def _controller_values(config_dir: Path) -> dict:
 def stream_plan(parcel_lengths: tuple[float, float], config_dir: Path) -> dict:
     """
     Return the least gap of a mixed stream of these lengths, and the seed's capacity.
-
-    Parameters
-    ----------
-    parcel_lengths : (float, float)
-        The stream's range of parcel lengths [m].
-    config_dir : Path
-        The folder of cell.yaml and controller.yaml.
-
-    Returns
-    -------
-    dict
-        The least gap, the gap range and the seed's capacity.
 
     Parameters
     ----------
@@ -439,18 +422,6 @@ class RunningCell:
         bool
             Whether the predicate came true in time.
 
-        Parameters
-        ----------
-        predicate : callable
-            What to wait for.
-        timeout_wall : float
-            The most to wait [s, wall].
-
-        Returns
-        -------
-        bool
-            Whether the predicate came true in time.
-
         """
         deadline = time.monotonic() + timeout_wall
         while not predicate():
@@ -469,18 +440,6 @@ class RunningCell:
 
         Returns the wall time. Unless ``quiet``, a progress bar on a terminal shows the
         simulated seconds.
-
-        Parameters
-        ----------
-        sim_time : float
-            Simulated seconds.
-        quiet : bool
-            No progress bar.
-
-        Returns
-        -------
-        float
-            The wall time it took [s].
 
         Parameters
         ----------

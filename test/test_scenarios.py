@@ -200,3 +200,59 @@ def test_a_campaign_with_a_bad_file_runs_nothing(tmp_path, capsys):
     assert main(['scenario', 'campaign', str(tmp_path / 'nowhere')]) == 2
     assert 'not a folder' in capsys.readouterr().err
     assert main(['scenario', 'campaign', str(folder), '--workers', '0']) == 2
+
+
+def test_a_campaign_on_an_existing_dask_scheduler(tmp_path):
+    from distributed import LocalCluster
+
+    folder = tmp_path / 'c'
+    folder.mkdir()
+    write(
+        folder,
+        """
+        duration: 4.0
+        controller: false
+        stream: {parcels: [{label: P-1, at: 0.0}]}
+        expect: [{no_jam: true}]
+        """,
+        'one.yaml',
+    )
+    with LocalCluster(
+        n_workers=1, threads_per_worker=2, processes=True, dashboard_address=None
+    ) as cluster:
+        done = subprocess.run(
+            [
+                sys.executable,
+                '-m',
+                'sorter_cell',
+                'scenario',
+                'campaign',
+                str(folder),
+                '--seeds',
+                '2',
+                '--scheduler',
+                cluster.scheduler_address,
+                '--quiet',
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    assert '2 runs in' in done.stdout and '2 passed, 0 failed' in done.stdout
+    bad = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'sorter_cell',
+            'scenario',
+            'campaign',
+            str(folder),
+            '--scheduler',
+            'tcp://127.0.0.1:9',
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert bad.returncode == 2 and 'cannot reach a Dask scheduler' in bad.stderr

@@ -114,8 +114,11 @@ def _time_msg(t_ns: int) -> Time:
 class SimNode(Node):
     """The cell's ROS face; see the module docstring and the README interface table."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, *, station: bool = False, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
+        # a station of a line (``frontends/line_node.py``): the line advances its cell
+        # with the others and publishes the one clock; this node publishes the rest
+        self.station = station
         self.params = self._declare_parameters()
         warm_s = warm_cell(self.params)
         if warm_s > 1.0:
@@ -152,7 +155,7 @@ class SimNode(Node):
         }
         self._status_sent = None
         self._safe_alpha_set = False  # the watchdog itself sets alpha_deg to its safe value
-        self._pub_clock = self._publisher(Clock, '/clock', STREAM_QOS)
+        self._pub_clock = None if station else self._publisher(Clock, '/clock', STREAM_QOS)
         self._clock_publishers_warned = 0
         self.create_service(SetBool, 'diverter/popup', self._srv_popup, qos_profile=SERVICE_QOS)
         self.create_service(SetBool, 'estop', self._srv_estop, qos_profile=SERVICE_QOS)
@@ -188,7 +191,9 @@ class SimNode(Node):
             if p.watchdog_timeout > 0
             else MAX_CATCH_UP_S
         )
-        if p.time_mode == 'realtime':
+        if station:
+            self._timer = None
+        elif p.time_mode == 'realtime':
             self._timer = self.create_timer(p.wall_tick, self._tick_realtime)
         elif p.time_mode == 'fast':
             # a zero-period timer is ready at every executor pass: each call runs a slice
@@ -496,6 +501,8 @@ class SimNode(Node):
             How many control periods.
 
         """
+        if self.station:
+            raise RuntimeError('a station is advanced by its line (LineNode.advance)')
         p = self.params
         strides = (p.pose_stride, p.marker_stride, p.heartbeat_stride)
         while n > 0:
@@ -516,19 +523,32 @@ class SimNode(Node):
             self._cost['step_s'] += t1 - t0
             self._cost['periods'] += m
             n -= m
-            k = self.cell.k
-            self._publish_events(events)
-            if k % p.pose_stride == 0:
-                self._publish_poses()
-                self._publish_diverter()
-            if k % p.marker_stride == 0 and self._pub_markers.get_subscription_count() > 0:
-                self._publish_markers()
-            if self.live_view is not None and k % p.pose_stride == 0 and self.live_view.due():
-                self._update_live_view()
-            if k % p.heartbeat_stride == 0:
-                self._publish_sensors()
-            self._publish_clock()
+            self.publish_period(events)
             self._cost['publish_s'] += time.perf_counter() - t1
+
+    def publish_period(self, events) -> None:
+        """
+        Publish what the periods just run report, and what falls due at the period reached.
+
+        Parameters
+        ----------
+        events : list
+            The cell's events over those periods.
+
+        """
+        p = self.params
+        k = self.cell.k
+        self._publish_events(events)
+        if k % p.pose_stride == 0:
+            self._publish_poses()
+            self._publish_diverter()
+        if k % p.marker_stride == 0 and self._pub_markers.get_subscription_count() > 0:
+            self._publish_markers()
+        if self.live_view is not None and k % p.pose_stride == 0 and self.live_view.due():
+            self._update_live_view()
+        if k % p.heartbeat_stride == 0:
+            self._publish_sensors()
+        self._publish_clock()
 
     # ------------------------------------------------------------------ publishing
     def _publisher(self, msg_type, topic: str, qos):
@@ -680,6 +700,8 @@ class SimNode(Node):
         self.n_marker_arrays += 1
 
     def _publish_clock(self) -> None:
+        if self._pub_clock is None:
+            return  # a station: the line publishes the clock
         msg = self._clock_msg
         msg.clock.sec, msg.clock.nanosec = stamp(self.cell.t_ns)
         self._publish(self._pub_clock, msg)
@@ -797,6 +819,10 @@ class SimNode(Node):
         return response
 
     def _srv_step(self, request, response):
+        if self.station:
+            response.success = False
+            response.message = 'refused: this station is part of a line; step the line'
+            return response
         if self.params.time_mode != 'lockstep':
             response.success = False
             response.message = (

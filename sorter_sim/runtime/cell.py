@@ -85,6 +85,25 @@ class Outcome:
 
 
 @dataclass(frozen=True)
+class Handoff:
+    """
+    A parcel that left over the straight exit, with all it takes to go on downstream.
+
+    t_ns: the end of the period it crossed the exit line in (its state is at that time);
+    state: (x, y, φ, vx, vy, ω) in this cell's frame; mode: the kernels' MODE_* (riding
+    the belt, the disks, or sliding); gauge: its stick-gauge warm start; dims: A, B, m.
+    """
+
+    t_ns: int
+    parcel_id: int
+    label: str
+    state: tuple
+    mode: int
+    gauge: tuple
+    dims: tuple
+
+
+@dataclass(frozen=True)
 class WatchdogTrip:
     """The controller's heartbeat stopped: at t_ns the cell went to its safe state."""
 
@@ -222,6 +241,10 @@ class Cell:
         self._heartbeat_value: int | None = None  # the last counter that fed it
         self.heartbeats_frozen = 0  # heartbeats that repeated the last counter: not fed
         self.n_inducted = 0
+        # a station of a line hands each parcel leaving straight to the next one
+        # (``runtime.line``): their full states, collected by ``take_handoffs``
+        self.keep_handoffs = False
+        self._handoffs: list[Handoff] = []
         self.outcome_counts = {'left': 0, 'right': 0, 'straight': 0, 'jammed': 0}
         self._stream_rng = np.random.Generator(np.random.PCG64(params.seed))
         self._external = deque()
@@ -635,6 +658,55 @@ class Cell:
             )
         self._external.append(spec)
 
+    def take_handoffs(self) -> list[Handoff]:
+        """Return the parcels that left straight since the last call (``keep_handoffs``)."""
+        out, self._handoffs = self._handoffs, []
+        return out
+
+    def hand_in(self, h: Handoff, dx: float) -> list[SensorEdge]:
+        """
+        Take a parcel from the station upstream, now, in the state it left that one.
+
+        Parameters
+        ----------
+        h : Handoff
+            The parcel, as the upstream cell gave it.
+        dx : float
+            The upstream cell's origin minus this one's along the line [m]: its x here
+            is ``h.state[0] + dx``.
+
+        Returns
+        -------
+        list of SensorEdge
+            The edges of sensors it blocks at once (none where the line is laid out with
+            room: it comes in upstream of the first eye).
+
+        Raises
+        ------
+        ParamError
+            No free slot (``max_parcels`` on this station already).
+
+        """
+        free = np.flatnonzero(self.phase == ck.PH_FREE)
+        if free.size == 0:
+            raise ParamError(
+                f'station full: {self.params.max_parcels} parcels on it already (max_parcels)'
+            )
+        i = int(free[0])
+        A, B, m = h.dims
+        self.state[i] = h.state
+        self.state[i, 0] += dx
+        self.mode[i] = h.mode
+        self.phase[i] = ck.PH_CELL
+        self.par[i] = parcel_array(Parcel(A, B, m), n_quad=N_QUAD)
+        self.scanned[i] = True  # the line's scanner read it upstream
+        self.gauge_xi[i] = h.gauge
+        self.ids[i] = h.parcel_id
+        self.dims[i] = h.dims
+        self.labels[i] = h.label
+        self.jam_cause[i] = ''
+        return self._sense_new(i)
+
     @property
     def pending_inducts(self) -> int:
         return len(self._external)
@@ -722,6 +794,11 @@ class Cell:
         self.dims[i] = (spec.A, spec.B, spec.m)
         self.labels[i] = label
         self.jam_cause[i] = ''
+        return edges + self._sense_new(i)
+
+    def _sense_new(self, i: int) -> list[SensorEdge]:
+        """Set the sensors a parcel just placed in slot ``i`` blocks; return their edges."""
+        edges: list[SensorEdge] = []
         for s in range(len(self.sensor_names)):
             on = ck.sensor_blocked(
                 s,
@@ -834,6 +911,20 @@ class Cell:
                 out.append(LabelRead(t_ns, int(self.ids[a]), self.labels[a]))
             elif kind in EXIT_NAMES:
                 name = EXIT_NAMES[kind]
+                if kind == ck.EV_STRAIGHT and self.keep_handoffs:
+                    # the slot is free now but untouched since the kernel freed it: its
+                    # state is the one at the end of the period the parcel left in
+                    self._handoffs.append(
+                        Handoff(
+                            (k + 1) * dt_ns,
+                            int(self.ids[a]),
+                            self.labels[a],
+                            tuple(float(v) for v in self.state[a]),
+                            int(self.mode[a]),
+                            tuple(float(v) for v in self.gauge_xi[a]),
+                            tuple(float(v) for v in self.dims[a]),
+                        )
+                    )
                 self.outcome_counts[name] += 1
                 out.append(Outcome(t_ns, int(self.ids[a]), self.labels[a], name, x, y))
             elif kind == ck.EV_JAM:
@@ -916,6 +1007,7 @@ __all__ = [
     'LabelRead',
     'Outcome',
     'STATE_NAMES',
+    'Handoff',
     'SENSOR_FAULTS',
     'SensorFault',
     'check_parcel',

@@ -1,0 +1,334 @@
+"""
+The line node ``sorter_line``: many diverter stations on one belt, one clock.
+
+``LineNode`` starts one simulation node per station (``SimNode(station=True)``,
+namespaces ``S01`` .. ``SNN`` under its own), each with the cell interface of a
+single cell: its sensors, scanner, diverter state, outcomes, status bits, its
+``diverter/popup``, ``estop`` and ``reset`` services, its ``alpha_deg`` parameter
+and its own heartbeat and watchdog (a station whose controller stops lowers only
+its own disks). The stations' cells form one ``runtime.line.Line``: a parcel that
+leaves a station over its straight exit goes on to the next one as it was, and
+only station 1 inducts (its stream, its ``parcels/induct``).
+
+The line node itself publishes ``/clock`` (the one clock of the line), where each
+parcel left the line on ``line/exits`` (a ``diagnostic_msgs/DiagnosticStatus``:
+label, id, exit: a chute's name, ``straight_end`` or ``jammed``, station, t,
+cause) and each chute's full sensor on ``line/chutes/<name>/full`` (latched).
+Time runs as for a cell: ``lockstep`` (``line/step`` advances one period),
+``fast`` (slices of ``fast_slice``) or ``realtime`` (``real_time_factor``).
+
+Parameters (besides every station's cell parameters, from the params files'
+``sorter_sim`` entries as for a single cell): ``stations`` (1-64), ``station_gap``
+(belt between one station's exit and the next one's induct point, m),
+``chute_names`` (2 per station, left then right; empty: S01L, S01R, ...),
+``chute_capacity``, ``chute_drain_per_s``, ``time_mode``, ``fast_slice``,
+``real_time_factor``. Bad values stop the node at start with one line naming the
+parameter and what it allows.
+"""
+
+from __future__ import annotations
+
+import time
+
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from rcl_interfaces.msg import ParameterType
+
+from sorter_ros.interface import (
+    EVENT_QOS,
+    SENSOR_QOS,
+    SERVICE_QOS,
+    STREAM_QOS,
+    accept_integers_for_doubles,
+    plain,
+)
+from sorter_sim.frontends.cdr import stamp
+from sorter_sim.frontends.node import SimNode
+from sorter_sim.runtime.cell import SensorEdge
+from sorter_sim.runtime.line import Line, LineExit, LineLayout, StationEvent
+from sorter_sim.runtime.params import ParamError
+
+NODE_NAME = 'sorter_line'
+TIME_MODES = ('lockstep', 'fast', 'realtime')
+MAX_CATCH_UP_S = 0.25  # s of simulated time a realtime tick runs at most
+
+# name -> (default, check, what it allows)
+LINE_PARAMS = {
+    'stations': (1, lambda v: isinstance(v, int) and 1 <= v <= 64, 'an integer in [1, 64]'),
+    'station_gap': (
+        0.0,
+        lambda v: isinstance(v, float) and 0.0 <= v <= 1000.0,
+        'a number in [0, 1000] m',
+    ),
+    'chute_names': (
+        [''],
+        lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v),
+        'a list of chute names, two per station (left, right); [""] for S01L, S01R, ...',
+    ),
+    'chute_capacity': (
+        20,
+        lambda v: isinstance(v, int) and 1 <= v <= 10_000,
+        'an integer in [1, 10000] parcels',
+    ),
+    'chute_drain_per_s': (
+        1.0,
+        lambda v: isinstance(v, float) and 0.0 <= v <= 100.0,
+        'a number in [0, 100] parcels/s',
+    ),
+    'time_mode': ('realtime', lambda v: v in TIME_MODES, f'one of {", ".join(TIME_MODES)}'),
+    'fast_slice': (
+        0.005,
+        lambda v: isinstance(v, float) and 0.0 < v <= 1.0,
+        'a number in (0, 1] s',
+    ),
+    'real_time_factor': (
+        1.0,
+        lambda v: isinstance(v, float) and 0.001 <= v <= 1000.0,
+        'a number in [0.001, 1000]',
+    ),
+}
+
+
+class LineNode(Node):
+    """The line's clock and its stations (see the module)."""
+
+    def __init__(self, *, station_params: dict | None = None, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        doubles = [n for n, (d, _, _) in LINE_PARAMS.items() if isinstance(d, float)]
+        accept_integers_for_doubles(self, dict.fromkeys(doubles, ParameterType.PARAMETER_DOUBLE))
+        values = {}
+        for name, (default, check, allowed) in LINE_PARAMS.items():
+            value = plain(self.declare_parameter(name, default).value)
+            if isinstance(default, float) and isinstance(value, int):
+                value = float(value)
+            if not check(value):
+                raise ParamError(f'parameter {name!r} must be {allowed}, got {value!r}')
+            values[name] = value
+        self.values = values
+        n = values['stations']
+        names = [x for x in values['chute_names'] if x]
+        if names and len(names) != 2 * n:
+            raise ParamError(
+                f"parameter 'chute_names' must name 2 chutes per station ({2 * n} for {n}), "
+                f'got {len(names)}'
+            )
+        chutes = (
+            [(names[2 * k], names[2 * k + 1]) for k in range(n)]
+            if names
+            else [(f'S{k + 1:02d}L', f'S{k + 1:02d}R') for k in range(n)]
+        )
+        ns = self.get_namespace().rstrip('/')
+        overrides = [Parameter(k, value=v) for k, v in (station_params or {}).items()]
+        self.stations: list[SimNode] = []
+        try:
+            for k in range(n):
+                self.stations.append(
+                    SimNode(
+                        station=True,
+                        context=self.context,
+                        namespace=f'{ns}/S{k + 1:02d}',
+                        parameter_overrides=list(overrides),
+                    )
+                )
+            p0 = self.stations[0].params
+            span = p0.exit_x - p0.induct_x
+            layout = LineLayout(
+                positions=[-p0.induct_x + k * (span + values['station_gap']) for k in range(n)],
+                chutes=chutes,
+                capacity=values['chute_capacity'],
+                drain_per_s=values['chute_drain_per_s'],
+            )
+            self.line = Line.from_cells([s.cell for s in self.stations], layout)
+            strides = {
+                (s.params.pose_stride, s.params.marker_stride, s.params.heartbeat_stride)
+                for s in self.stations
+            }
+            if len(strides) != 1:
+                raise ParamError(
+                    'the stations must publish at the same rates (pose_rate_hz, marker_rate_hz, '
+                    'heartbeat_rate_hz)'
+                )
+            self._strides = strides.pop()
+        except BaseException:
+            for s in self.stations:
+                s.destroy_node()
+            raise
+        self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
+        self._pub_exits = self.create_publisher(DiagnosticStatus, 'line/exits', EVENT_QOS)
+        self._pub_full = {
+            c.name: self.create_publisher(Bool, f'line/chutes/{c.name}/full', SENSOR_QOS)
+            for c in self.line.chutes
+        }
+        for pub in self._pub_full.values():
+            pub.publish(Bool(data=False))
+        self.create_service(Trigger, 'line/step', self._srv_step, qos_profile=SERVICE_QOS)
+        self._clock_msg = Clock()
+        self.exits = 0
+        self._wall_ref = None
+        mode = values['time_mode']
+        if mode == 'fast':
+            self._timer = self.create_timer(0.0, self._tick_fast)
+        elif mode == 'realtime':
+            self._timer = self.create_timer(0.001, self._tick_realtime)
+        else:
+            self._timer = None
+        self._publish_clock()
+        self.get_logger().info(
+            f'sorter line ready: {n} stations ({", ".join(a + "/" + b for a, b in chutes[:3])}'
+            f'{", ..." if n > 3 else ""}), {mode} mode'
+        )
+
+    @property
+    def nodes(self) -> list:
+        """Return this node and its stations: everything an executor must spin."""
+        return [self, *self.stations]
+
+    # ------------------------------------------------------------------ time
+    def advance(self, n: int) -> None:
+        """
+        Advance the line ``n`` control periods, every station publishing what falls due.
+
+        Parameters
+        ----------
+        n : int
+            Control periods.
+
+        """
+        while n > 0:
+            k = self.line.k
+            m = min([n] + [s - k % s for s in self._strides])
+            per_station: list[list] = [[] for _ in self.stations]
+            for e in self.line.advance(m):
+                if isinstance(e, StationEvent):
+                    per_station[e.station].append(e.event)
+                elif isinstance(e, LineExit):
+                    self._publish_exit(e)
+                elif isinstance(e, SensorEdge):
+                    self._pub_full[e.sensor.rsplit('.', 1)[0]].publish(Bool(data=e.blocked))
+            for node, events in zip(self.stations, per_station):
+                node.publish_period(events)
+            self._publish_clock()
+            n -= m
+
+    def _tick_fast(self) -> None:
+        self.advance(max(1, round(self.values['fast_slice'] / self.line.dt)))
+
+    def _tick_realtime(self) -> None:
+        now = time.monotonic()
+        if self._wall_ref is None:
+            self.advance(1)
+            self._wall_ref = (time.monotonic(), self.line.k)
+            return
+        wall0, k0 = self._wall_ref
+        target = k0 + int((now - wall0) * self.values['real_time_factor'] / self.line.dt)
+        limit = max(1, int(MAX_CATCH_UP_S / self.line.dt))
+        n = target - self.line.k
+        if n > limit:
+            self.get_logger().warning(
+                f'cannot keep real_time_factor {self.values["real_time_factor"]:g} with '
+                f'{len(self.stations)} stations: dropping {(n - limit) * self.line.dt:.3f} s',
+                throttle_duration_sec=5.0,
+            )
+            self._wall_ref = (now, self.line.k + limit)
+            n = limit
+        if n > 0:
+            self.advance(n)
+
+    def _srv_step(self, request, response):
+        if self.values['time_mode'] != 'lockstep':
+            response.success = False
+            response.message = (
+                f'refused: step works in time_mode lockstep; this line runs in '
+                f'{self.values["time_mode"]}'
+            )
+            return response
+        self.advance(1)
+        response.success = True
+        response.message = f't = {self.line.t:.9f} s'
+        return response
+
+    # ------------------------------------------------------------------ publishing
+    def _publish_clock(self) -> None:
+        msg = self._clock_msg
+        msg.clock.sec, msg.clock.nanosec = stamp(self.line.t_ns)
+        self._pub_clock.publish(msg)
+
+    def _publish_exit(self, e: LineExit) -> None:
+        self.exits += 1
+        values = [
+            ('id', str(e.parcel_id)),
+            ('label', e.label),
+            ('exit', e.exit),
+            ('station', f'S{e.station + 1:02d}'),
+            ('t', f'{e.t_ns * 1e-9:.9f}'),
+        ]
+        if e.cause:
+            values.append(('cause', e.cause))
+        self._pub_exits.publish(
+            DiagnosticStatus(
+                level=DiagnosticStatus.WARN if e.exit == 'jammed' else DiagnosticStatus.OK,
+                name=f'parcel/{e.parcel_id}',
+                message=e.exit,
+                hardware_id=self.get_fully_qualified_name(),
+                values=[KeyValue(key=k, value=v) for k, v in values],
+            )
+        )
+
+    def destroy_node(self):
+        """Destroy the stations, then this node."""
+        for s in self.stations:
+            s.destroy_node()
+        self.stations = []
+        return super().destroy_node()
+
+
+def main(args=None) -> int:
+    """
+    Run the line: ``line_node --ros-args -p stations:=6 --params-file config/cell.yaml``.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The command line.
+
+    Returns
+    -------
+    int
+        The exit code: 0, or 2 for a bad parameter (named on standard error).
+
+    """
+    import sys
+
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    from sorter_ros.env import apply_ros_env_defaults
+
+    apply_ros_env_defaults()
+    rclpy.init(args=args)
+    try:
+        try:
+            node = LineNode()
+        except ParamError as exc:
+            print(f'line_node: error: {exc}', file=sys.stderr)
+            return 2
+        executor = SingleThreadedExecutor()
+        for n in node.nodes:
+            executor.add_node(n)
+        try:
+            executor.spin()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        node.destroy_node()
+        return 0
+    finally:
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

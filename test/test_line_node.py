@@ -1,0 +1,160 @@
+"""
+The line node over real rclpy and DDS: stations in namespaces, one clock, line exits.
+
+A parcel inducted at station 1 passes stations 1 and 2 straight and is diverted by
+station 3, commanded only through station 3's own service and parameter; each
+station reports on its own topics, the line on ``line/exits``; a station whose
+heartbeat stops trips only its own watchdog.
+"""
+
+from __future__ import annotations
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Bool, UInt32
+from std_srvs.srv import SetBool
+
+from sorter_ros.interface import SENSOR_QOS
+from sorter_sim.frontends.line_node import LineNode
+from sorter_sim.runtime.cell import ParcelSpec
+from sorter_sim.runtime.params import ParamError
+
+pytestmark = pytest.mark.ros
+
+
+def make_line(ros, **values):
+    node = LineNode(
+        context=ros.context,
+        parameter_overrides=[
+            Parameter(k, value=v) for k, v in {'time_mode': 'lockstep', **values}.items()
+        ],
+        station_params={'arrival': 'none'},
+    )
+    for n in node.nodes:
+        ros.add(n)
+    return node
+
+
+def run(ros, line, seconds, probe=None):
+    for _ in range(round(seconds / 0.005)):
+        line.advance(5)
+        for _ in range(5):
+            ros.executor.spin_once(timeout_sec=0.0)
+
+
+def test_a_parcel_goes_through_two_stations_and_is_diverted_by_the_third(ros):
+    line = make_line(ros, stations=3)
+    probe = ros.make_node('probe')
+    got = {'exits': [], 'S01': [], 'S03': [], 'clock': [], 'edges2': 0}
+    probe.create_subscription(DiagnosticStatus, '/line/exits', got['exits'].append, 100)
+    probe.create_subscription(DiagnosticStatus, '/S01/sort/outcomes', got['S01'].append, 100)
+    probe.create_subscription(DiagnosticStatus, '/S03/sort/outcomes', got['S03'].append, 100)
+    probe.create_subscription(Clock, '/clock', got['clock'].append, 100)
+    pop = probe.create_client(SetBool, '/S03/diverter/popup')
+    alpha = probe.create_client(SetParameters, '/S03/sorter_sim/set_parameters')
+    ros.spin_until(lambda: pop.service_is_ready() and alpha.service_is_ready(), 10.0)
+    # station 3's disks at -60 deg (its own parameter), raised (its own service)
+    req = SetParameters.Request(
+        parameters=[
+            ParameterMsg(
+                name='alpha_deg',
+                value=ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=-60),
+            )
+        ]
+    )
+    fut = alpha.call_async(req)
+    ros.spin_until(fut.done, 10.0)
+    assert fut.result().results[0].successful
+    fut = pop.call_async(SetBool.Request(data=True))
+    ros.spin_until(fut.done, 10.0)
+    assert fut.result().success
+    line.stations[0].cell.induct(ParcelSpec(0.4, 0.3, 4.0, label='L-1'))
+    run(ros, line, 18.0)
+    ros.spin_until(lambda: got['exits'] and got['S03'], 5.0)
+    (exit_msg,) = got['exits']
+    v = {kv.key: kv.value for kv in exit_msg.values}
+    assert (v['label'], v['exit'], v['station']) == ('L-1', 'S03R', 'S03')
+    assert [m.message for m in got['S01']] == ['straight']  # passed on
+    assert [m.message for m in got['S03']] == ['right']
+    assert line.stations[1].cell.n_parcels == 0 and line.line.n_handed == 2
+    # one clock: the line's, monotonic
+    stamps = [m.clock.sec + 1e-9 * m.clock.nanosec for m in got['clock']]
+    assert stamps == sorted(stamps) and stamps[-1] == pytest.approx(line.line.t)
+    assert ros.context.ok()
+    names = {n for n, _ in probe.get_topic_names_and_types()}
+    assert {'/S02/sensors/edges', '/line/chutes/S02L/full', '/clock'} <= names
+
+
+def test_a_station_whose_heartbeat_stops_trips_alone(ros):
+    line = make_line(ros, stations=3)
+    probe = ros.make_node('probe')
+    beats = {
+        k: probe.create_publisher(UInt32, f'/S0{k}/controller/heartbeat', 10) for k in (1, 2, 3)
+    }
+    status = {}
+    for k in (1, 2, 3):
+        probe.create_subscription(
+            Bool,
+            f'/S0{k}/status/watchdog',
+            lambda m, k=k: status.__setitem__(k, m.data),
+            SENSOR_QOS,  # latched: the initial False too
+        )
+    ros.spin_until(lambda: all(p.get_subscription_count() for p in beats.values()), 10.0)
+    for counter in range(1, 60):
+        for k, pub in beats.items():
+            if k != 2 or counter < 10:  # station 2's controller stops at 0.5 s
+                pub.publish(UInt32(data=counter))
+        run(ros, line, 0.05)
+    ros.spin_until(lambda: status.get(2) is True and len(status) == 3, 5.0)
+    assert [s.cell.watchdog_tripped for s in line.stations] == [False, True, False]
+    assert status == {1: False, 2: True, 3: False}
+
+
+@pytest.mark.parametrize(
+    'values, message',
+    [
+        ({'stations': 0}, "'stations' must be an integer in \\[1, 64\\]"),
+        ({'stations': 65}, "'stations'"),
+        ({'station_gap': -1.0}, "'station_gap'"),
+        ({'chute_names': ['a', 'b', 'c']}, '2 chutes per station'),
+        ({'stations': 2, 'chute_names': ['a', 'b', 'c', 'a']}, "chute 'a' named twice"),
+        ({'time_mode': 'slow'}, "'time_mode'"),
+    ],
+)
+def test_bad_line_parameters_stop_the_node_naming_them(ros, values, message):
+    with pytest.raises(ParamError, match=message):
+        make_line(ros, **values)
+
+
+def test_integers_are_taken_for_doubles(ros):
+    line = make_line(ros, stations=2, station_gap=1)
+    assert line.values['station_gap'] == 1.0
+    assert line.line.positions[1] - line.line.positions[0] == pytest.approx(7.0)
+
+
+def test_the_executable_refuses_a_bad_parameter_in_one_line():
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'sorter_sim.frontends.line_node',
+            '--ros-args',
+            '-p',
+            'stations:=0',
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2
+    assert (
+        done.stderr.strip().splitlines()[-1].startswith("line_node: error: parameter 'stations'")
+    )
