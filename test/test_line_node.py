@@ -131,6 +131,15 @@ def test_bad_line_parameters_stop_the_node_naming_them(ros, values, message):
         make_line(ros, **values)
 
 
+def test_a_station_refuses_the_outputs_a_line_does_not_have_yet(ros, tmp_path):
+    with pytest.raises(ParamError, match='record_path: a station of a line'):
+        LineNode(
+            context=ros.context,
+            parameter_overrides=[Parameter('time_mode', value='lockstep')],
+            station_params={'record_path': str(tmp_path / 'x.mcap')},
+        )
+
+
 def test_integers_are_taken_for_doubles(ros):
     line = make_line(ros, stations=2, station_gap=1)
     assert line.values['station_gap'] == 1.0

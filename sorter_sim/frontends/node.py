@@ -120,6 +120,17 @@ class SimNode(Node):
         # with the others and publishes the one clock; this node publishes the rest
         self.station = station
         self.params = self._declare_parameters()
+        if station:
+            on = [
+                name
+                for name in ('foxglove_port', 'modbus_port', 'opcua_port', 'record_path')
+                if getattr(self.params, name)
+            ]
+            if on:
+                raise ParamError(
+                    f'parameter(s) {", ".join(on)}: a station of a line has no live view, '
+                    'recording or fieldbus of its own yet; leave them 0 / empty'
+                )
         warm_s = warm_cell(self.params)
         if warm_s > 1.0:
             self.get_logger().info(
