@@ -51,6 +51,14 @@ def add_arguments(parser) -> None:
 
     """
     parser.add_argument(
+        "--stations",
+        type=int,
+        default=1,
+        metavar="N",
+        help="diverter stations on the line, 1-64 (default 1: one cell); N > 1 runs the line "
+        "node, a controller per station and the warehouse node",
+    )
+    parser.add_argument(
         "--sim-time",
         type=float,
         default=60.0,
@@ -521,6 +529,12 @@ def run(args) -> int | str:
         The exit code, or a message for a refused input (exit 2).
 
     """
+    if args.stations != 1:
+        if not 1 <= args.stations <= 64:
+            return f"--stations must be in [1, 64], got {args.stations}"
+        from sorter_cell.line_demo import run_line
+
+        return run_line(args)
     err = _check_args(args)
     if err:
         return err

@@ -1,0 +1,128 @@
+"""
+The line's warehouse side (``sorter_control.wcs``) and the line demo end to end.
+
+The logic is checked on its own (the plan's rules, the routing it writes, the
+tracking queues, every disposition code); the demo runs a three-station line with
+its controllers and the warehouse node over DDS.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from sorter_control.wcs import LineWcs, PlanError
+
+CHUTES = [('S01L', 'S01R'), ('S02L', 'S02R'), ('S03L', 'S03R')]
+
+
+def wcs_with_plan() -> LineWcs:
+    w = LineWcs(CHUTES)
+    w.set_plan('v1', [('D1', 'S01L'), ('D2', 'S02R'), ('D3', 'S03L'), ('R', 'straight_end')])
+    return w
+
+
+@pytest.mark.parametrize(
+    'entries, message',
+    [
+        ([('D1', 'S09L')], "no chute 'S09L'"),
+        ([('D1', 'S01L'), ('D1', 'S02L')], "'D1' is in two chutes"),
+        ([('', 'S01L')], 'a destination must be'),
+        ([('D=1', 'S01L')], 'without "="'),
+        ([('D1', 'S01L')] * 10_001, 'at most 10000'),
+    ],
+)
+def test_a_bad_plan_is_refused_and_the_old_one_stays(entries, message):
+    w = wcs_with_plan()
+    with pytest.raises(PlanError, match=message):
+        w.set_plan('v2', entries)
+    assert w.version == 'v1' and w.plan['D2'] == 'S02R'
+
+
+def test_requests_become_rules_at_the_station_of_their_chute_and_move_with_the_plan():
+    w = wcs_with_plan()
+    assert w.request('P1', 'D2') == [(1, 'P1', 'right')]
+    assert w.request('P2', 'D3') == [(2, 'P2', 'left')]
+    assert w.request('P3', 'R') == []  # the straight end: no station diverts it
+    assert w.request('P4', 'nowhere') == []
+    # a new plan while P1, P2 are on their way: their rules move, at once
+    updates = w.set_plan('v2', [('D2', 'S01R'), ('D3', 'S03R')])
+    assert sorted(updates) == [(0, 'P1', 'right'), (1, 'P1', ''), (2, 'P2', 'right')]
+    # a full chute sends its parcels on; emptied, they are diverted again
+    assert w.chute_full('S01R', True) == [(0, 'P1', '')]
+    assert w.chute_full('S01R', False) == [(0, 'P1', 'right')]
+    # a disposed parcel's rule goes
+    w.exited('P1', 'S01R', 0, 5.0)
+    assert w.rebuild() == [(0, 'P1', '')]
+
+
+def test_tracking_hands_labels_downstream_first_in_first_out():
+    w = wcs_with_plan()
+    w.confirmed(0, 'A', 'straight', 'sorted')
+    w.confirmed(0, 'B', 'left', 'sorted')  # diverted at station 1: not passed on
+    w.confirmed(0, 'C', 'straight', 'rejected')
+    assert [w.arriving(1), w.arriving(1), w.arriving(1)] == ['A', 'C', None]
+    w.confirmed(2, 'A', 'straight', 'sorted')  # the last station: no queue after it
+    assert all(not q for q in w.queues)
+
+
+def test_every_disposition_code():
+    w = wcs_with_plan()
+    for label, dest in (
+        ('OK', 'D2'),
+        ('MIS', 'D2'),
+        ('GAP', 'D3'),
+        ('FULL', 'D1'),
+        ('JAM', 'D1'),
+        ('LOST', 'D3'),
+        ('NOREAD', 'D3'),
+    ):
+        w.request(label, dest)
+    assert w.exited('OK', 'S02R', 1, 1.0).code == 'sorted'
+    assert w.exited('MIS', 'S02L', 1, 1.0).code == 'mis_sorted'
+    w.confirmed(2, 'GAP', 'straight', 'gap_too_short')
+    assert w.exited('GAP', 'straight_end', 2, 1.0).code == 'gap_too_short'
+    w.chute_full('S01L', True)
+    w.confirmed(0, 'FULL', 'straight', 'sorted')
+    w.chute_full('S01L', False)  # emptied since: the reason stays
+    assert w.exited('FULL', 'straight_end', 2, 1.0).code == 'chute_full'
+    assert w.exited('JAM', 'jammed', 0, 1.0).code == 'jammed'
+    assert w.exited('JAM2', 'jammed', 0, 1.0, 'chute full').code == 'chute_full'
+    assert w.exited('LOST', 'straight_end', 2, 1.0).code == 'lost'
+    w.confirmed(2, 'NOREAD', 'straight', 'rejected')
+    assert w.exited('NOREAD', 'straight_end', 2, 1.0).code == 'no_read'
+    assert w.exited('NEVER-ASKED', 'straight_end', 2, 1.0).code == 'no_destination'
+    assert w.exited('', 'straight_end', 2, 1.0).code == 'no_read'
+    # a parcel nobody asked for that still reached a chute was sent somewhere wrong
+    d = w.exited('OK2', 'S03L', 2, 2.5)
+    assert (d.code, d.chute, d.station, d.t) == ('mis_sorted', 'S03L', 'S03', 2.5)
+
+
+@pytest.mark.ros
+def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs():
+    done = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'sorter_cell',
+            'demo',
+            '--stations',
+            '3',
+            '--sim-time',
+            '25',
+            '--json',
+        ],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    s = json.loads(done.stdout.strip().splitlines()[-1])
+    assert s['stations'] == 3 and s['mis_sorted'] == 0 and s['jams'] == 0
+    assert sum(s['dispositions'].values()) + s['in_cell_at_end'] == s['inducted'] > 10
+    assert s['dispositions'].get('sorted', 0) >= 10
+    assert set(s['exits']) <= {'S01L', 'S01R', 'S02L', 'S02R', 'S03L', 'S03R', 'straight_end'}
+    assert sum(1 for k in s['exits'] if k.startswith('S03')) >= 1  # tracked two stations on
