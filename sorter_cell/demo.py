@@ -532,6 +532,11 @@ def run(args) -> int | str:
     if args.stations != 1:
         if not 1 <= args.stations <= 64:
             return f"--stations must be in [1, 64], got {args.stations}"
+        if args.rtf != "fast" or args.record or args.foxglove or args.io != "ros":
+            return (
+                "--stations N > 1 runs as fast as possible over ROS: no --rtf, --record, "
+                "--foxglove or --io with it yet"
+            )
         from sorter_cell.line_demo import run_line
 
         return run_line(args)

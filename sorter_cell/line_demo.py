@@ -89,6 +89,7 @@ def run_line(args) -> int | str:
                 'label_pattern': '{label}{id:05d}',
                 'seed': int(args.seed),
                 'pose_rate_hz': 50.0,
+                **({'arrival_gap': [float(g) for g in args.gap]} if args.gap else {}),
             },
         )
         nodes += line.nodes

@@ -126,3 +126,49 @@ def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs(
     assert s['dispositions'].get('sorted', 0) >= 10
     assert set(s['exits']) <= {'S01L', 'S01R', 'S02L', 'S02R', 'S03L', 'S03R', 'straight_end'}
     assert sum(1 for k in s['exits'] if k.startswith('S03')) >= 1  # tracked two stations on
+
+
+@pytest.mark.ros
+def test_the_wcs_node_refuses_a_bad_plan_in_one_message_and_keeps_the_good_one(ros):
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import String
+
+    from sorter_control.wcs_node import WcsNode
+    from sorter_ros.interface import EVENT_QOS, SENSOR_QOS
+
+    node = ros.add(
+        WcsNode(context=ros.context, parameter_overrides=[Parameter('stations', value=2)])
+    )
+    probe = ros.make_node('wms')
+    refused, active, routing = [], [], []
+    probe.create_subscription(String, 'wcs/sort_plan/refused', refused.append, EVENT_QOS)
+    probe.create_subscription(DiagnosticStatus, 'wcs/sort_plan/active', active.append, SENSOR_QOS)
+    probe.create_subscription(KeyValue, 'S02/routing/updates', routing.append, EVENT_QOS)
+    plan = probe.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
+    req = probe.create_publisher(KeyValue, 'wcs/requests', EVENT_QOS)
+    ros.spin_until(lambda: plan.get_subscription_count() and req.get_subscription_count(), 10.0)
+    plan.publish(DiagnosticStatus(name='v1', values=[KeyValue(key='D1', value='S02R')]))
+    ros.spin_until(lambda: active, 5.0)
+    plan.publish(DiagnosticStatus(name='v2', values=[KeyValue(key='D1', value='S07L')]))
+    plan.publish(
+        DiagnosticStatus(
+            name='v3', values=[KeyValue(key='D1', value='S01L'), KeyValue(key='D1', value='S02L')]
+        )
+    )
+    ros.spin_until(lambda: len(refused) == 2, 5.0)
+    assert "no chute 'S07L'" in refused[0].data and 'in two chutes' in refused[1].data
+    assert node.wcs.version == 'v1' and node.n_refused == 2
+    req.publish(KeyValue(key='P1', value='D1'))
+    ros.spin_until(lambda: any(m.key == 'P1' for m in routing), 5.0)
+    assert [(m.key, m.value) for m in routing if m.key == 'P1'] == [('P1', 'right')]
+
+
+def test_the_line_demo_refuses_what_it_does_not_have_yet(capsys):
+    from sorter_cell.cli import main
+
+    for extra in (['--rtf', '1'], ['--io', 'modbus'], ['--record', 'x.mcap']):
+        assert main(['demo', '--stations', '3', *extra]) == 2
+        assert 'no --rtf, --record, --foxglove or --io' in capsys.readouterr().err
+    assert main(['demo', '--stations', '0']) == 2
+    assert '--stations must be in [1, 64]' in capsys.readouterr().err
