@@ -123,6 +123,7 @@ class SorterLogic:
         self._max_jump = max(2.0, 100 * config.scan_period)
         self.clock_lag_max = 0.0  # the most this node's clock lagged the cell's stamps [s]
         self.scan_wall: deque = deque(maxlen=1000)
+        self.scan_wall_total = 0.0  # [s] every scan's wall time, summed
         self.log_history: deque = deque(maxlen=50)
 
     # --- the parts' state, as the node and the tests read it -------------------------------------
@@ -265,6 +266,7 @@ class SorterLogic:
 
         """
         self.scan_wall.append(seconds)
+        self.scan_wall_total += seconds
         if seconds > self.config.scan_period:
             self.counts["overruns"] += 1
 
