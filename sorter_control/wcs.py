@@ -236,8 +236,10 @@ class LineWcs:
         chute = self.plan.get(self.requests.get(label, ''))
         if reached == 'straight' and chute in self.full and self.where[chute][0] == station:
             self.passed_full.add(label)
-        if reached == 'straight' and station + 1 < len(self.chutes) and label:
-            self.queues[station + 1].append(label)
+        if reached == 'straight' and station + 1 < len(self.chutes):
+            # a parcel passed on without a label (a no-read) keeps its place in the queue:
+            # the next station must not give its neighbour's label to it
+            self.queues[station + 1].append(label or None)
 
     def arriving(self, station: int) -> str | None:
         """
@@ -255,7 +257,7 @@ class LineWcs:
 
         """
         q = self.queues[station]
-        return q.popleft() if q else None
+        return q.popleft() if q else None  # None also for a parcel that had no label
 
     # ------------------------------------------------------------------ dispositions
     def exited(

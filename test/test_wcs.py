@@ -63,8 +63,9 @@ def test_tracking_hands_labels_downstream_first_in_first_out():
     w = wcs_with_plan()
     w.confirmed(0, 'A', 'straight', 'sorted')
     w.confirmed(0, 'B', 'left', 'sorted')  # diverted at station 1: not passed on
+    w.confirmed(0, '', 'straight', 'rejected')  # a no-read keeps its place
     w.confirmed(0, 'C', 'straight', 'rejected')
-    assert [w.arriving(1), w.arriving(1), w.arriving(1)] == ['A', 'C', None]
+    assert [w.arriving(1) for _ in range(4)] == ['A', None, 'C', None]
     w.confirmed(2, 'A', 'straight', 'sorted')  # the last station: no queue after it
     assert all(not q for q in w.queues)
 
