@@ -532,11 +532,15 @@ def run(args) -> int | str:
     if args.stations != 1:
         if not 1 <= args.stations <= 64:
             return f"--stations must be in [1, 64], got {args.stations}"
-        if args.rtf != "fast" or args.record or args.foxglove or args.io != "ros":
+        if args.rtf != "fast" or args.foxglove or args.io != "ros":
             return (
-                "--stations N > 1 runs as fast as possible over ROS: no --rtf, --record, "
-                "--foxglove or --io with it yet"
+                "--stations N > 1 runs as fast as possible over ROS: no --rtf, --foxglove or "
+                "--io with it yet"
             )
+        if args.record:
+            problem = file_problem(args.record, "--record")
+            if problem:
+                return problem
         from sorter_cell.line_demo import run_line
 
         return run_line(args)

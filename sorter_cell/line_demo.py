@@ -82,6 +82,7 @@ def run_line(args) -> int | str:
                 Parameter('stations', value=n),
                 Parameter('time_mode', value='fast'),
                 Parameter('fast_slice', value=FAST_SLICE),
+                Parameter('record_path', value=args.record or ''),
             ],
             station_params={
                 'arrival': 'none',
@@ -100,6 +101,7 @@ def run_line(args) -> int | str:
                 parameter_overrides=[
                     Parameter('use_sim_time', value=True),
                     Parameter('diagnostics_period', value=5.0),
+                    Parameter('record_path', value=args.record or ''),
                 ],
             )
             for k in range(n)

@@ -47,6 +47,7 @@ from sorter_ros.interface import (
     accept_integers_for_doubles,
     plain,
 )
+from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 from sorter_sim.frontends.cdr import stamp
 from sorter_sim.frontends.node import SimNode
 from sorter_sim.runtime.cell import SensorEdge
@@ -91,6 +92,11 @@ LINE_PARAMS = {
         lambda v: isinstance(v, float) and 0.001 <= v <= 1000.0,
         'a number in [0.001, 1000]',
     ),
+    'record_path': (
+        '',
+        lambda v: isinstance(v, str) and len(v) <= 4096,
+        'an MCAP file path, or empty for no recording',
+    ),
 }
 
 
@@ -123,7 +129,23 @@ class LineNode(Node):
             else [(f'S{k + 1:02d}L', f'S{k + 1:02d}R') for k in range(n)]
         )
         ns = self.get_namespace().rstrip('/')
-        overrides = [Parameter(k, value=v) for k, v in (station_params or {}).items()]
+        station_params = dict(station_params or {})
+        self.recorder = None
+        if values['record_path']:
+            # one file for the whole line: every station records into the line's recorder
+            # (``open_recorder`` shares a path within a process), the line its own topics
+            given = station_params.get('record_path', values['record_path'])
+            if given != values['record_path']:
+                raise ParamError(
+                    f"parameter 'record_path': the stations record to {given!r}, the line to "
+                    f"{values['record_path']!r}; a line records into one file"
+                )
+            station_params['record_path'] = values['record_path']
+            try:
+                self.recorder = open_recorder(values['record_path'], self.get_logger().error)
+            except ValueError as exc:
+                raise ParamError(f"parameter 'record_path': {exc}") from None
+        overrides = [Parameter(k, value=v) for k, v in station_params.items()]
         self.stations: list[SimNode] = []
         try:
             for k in range(n):
@@ -157,6 +179,8 @@ class LineNode(Node):
         except BaseException:
             for s in self.stations:
                 s.destroy_node()
+            if self.recorder is not None:
+                release_recorder(self.recorder)
             raise
         self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
         self._pub_exits = self.create_publisher(DiagnosticStatus, 'line/exits', EVENT_QOS)
@@ -165,7 +189,7 @@ class LineNode(Node):
             for c in self.line.chutes
         }
         for pub in self._pub_full.values():
-            pub.publish(Bool(data=False))
+            self._publish(pub, Bool(data=False))
         self.create_service(Trigger, 'line/step', self._srv_step, qos_profile=SERVICE_QOS)
         self._clock_msg = Clock()
         self.exits = 0
@@ -215,7 +239,7 @@ class LineNode(Node):
                 elif isinstance(e, LineExit):
                     self._publish_exit(e)
                 elif isinstance(e, SensorEdge):
-                    self._pub_full[e.sensor.rsplit('.', 1)[0]].publish(Bool(data=e.blocked))
+                    self._publish(self._pub_full[e.sensor.rsplit('.', 1)[0]], Bool(data=e.blocked))
             for node, evs in zip(self.stations, per_station):
                 node.publish_period(evs)
             self._publish_clock()
@@ -260,10 +284,14 @@ class LineNode(Node):
         return response
 
     # ------------------------------------------------------------------ publishing
+    def _publish(self, publisher, msg) -> None:
+        """Publish ``msg``, and record it when the line records."""
+        publish_recorded(publisher, msg, self.recorder, self.line.t_ns)
+
     def _publish_clock(self) -> None:
         msg = self._clock_msg
         msg.clock.sec, msg.clock.nanosec = stamp(self.line.t_ns)
-        self._pub_clock.publish(msg)
+        self._publish(self._pub_clock, msg)
 
     def _publish_exit(self, e: LineExit) -> None:
         self.exits += 1
@@ -276,14 +304,15 @@ class LineNode(Node):
         ]
         if e.cause:
             values.append(('cause', e.cause))
-        self._pub_exits.publish(
+        self._publish(
+            self._pub_exits,
             DiagnosticStatus(
                 level=DiagnosticStatus.WARN if e.exit == 'jammed' else DiagnosticStatus.OK,
                 name=f'parcel/{e.parcel_id}',
                 message=e.exit,
                 hardware_id=self.get_fully_qualified_name(),
                 values=[KeyValue(key=k, value=v) for k, v in values],
-            )
+            ),
         )
 
     def destroy_node(self):
@@ -291,6 +320,9 @@ class LineNode(Node):
         for s in self.stations:
             s.destroy_node()
         self.stations = []
+        if self.recorder is not None:
+            release_recorder(self.recorder)
+            self.recorder = None
         return super().destroy_node()
 
 

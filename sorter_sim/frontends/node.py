@@ -123,13 +123,13 @@ class SimNode(Node):
         if station:
             on = [
                 name
-                for name in ('foxglove_port', 'modbus_port', 'opcua_port', 'record_path')
+                for name in ('foxglove_port', 'modbus_port', 'opcua_port')
                 if getattr(self.params, name)
             ]
             if on:
                 raise ParamError(
-                    f'parameter(s) {", ".join(on)}: a station of a line has no live view, '
-                    'recording or fieldbus of its own yet; leave them 0 / empty'
+                    f'parameter(s) {", ".join(on)}: a station of a line has no live view or '
+                    'fieldbus of its own yet; leave them 0'
                 )
         warm_s = warm_cell(self.params)
         if warm_s > 1.0:
