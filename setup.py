@@ -82,7 +82,7 @@ setup(
             'sorter = sorter_cell.cli:main',
             'sim_node = sorter_sim.executable:main',
             'controller_node = sorter_control.executable:main',
-            'line_node = sorter_sim.frontends.line_node:main',
+            'line_node = sorter_sim.executable:main_line',
         ],
         # the fixtures sorter_cell and sorter_controller in any project with this installed
         'pytest11': ['sorter_cell = sorter_cell.testing.plugin'],

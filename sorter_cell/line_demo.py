@@ -54,6 +54,7 @@ def run_line(args) -> int | str:
     from sorter_ros.env import apply_ros_env_defaults, find_config_dir
     from sorter_ros.interface import EVENT_QOS, SENSOR_QOS
     from sorter_sim.frontends.line_node import LineNode
+    from sorter_sim.model.description import station_name
 
     n = args.stations
     if not (isinstance(n, int) and 1 <= n <= 64):
@@ -97,7 +98,7 @@ def run_line(args) -> int | str:
         ctls = [
             ControllerNode(
                 context=ctx,
-                namespace=f'/S{k + 1:02d}',
+                namespace=f'/{station_name(k)}',
                 parameter_overrides=[
                     Parameter('use_sim_time', value=True),
                     Parameter('diagnostics_period', value=5.0),

@@ -32,6 +32,8 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+from sorter_sim.model.description import label_problem, station_name
+
 DISPOSITIONS = (
     'sorted',
     'no_read',
@@ -162,7 +164,11 @@ class LineWcs:
             Routing updates.
 
         """
-        label = _name(label, 'a label')
+        # the stations' routing takes a label only in the labels' grammar: one outside it
+        # would be refused there, one station at a time, and its parcel run on untracked
+        problem = label_problem(label)
+        if problem:
+            raise PlanError(problem)
         if destination == '':
             self.requests.pop(label, None)
         else:
@@ -310,7 +316,7 @@ class LineWcs:
                 code = 'lost'
         else:
             code = 'mis_sorted'
-        d = Disposition(label, code, dest, chute, f'S{station + 1:02d}', t)
+        d = Disposition(label, code, dest, chute, station_name(station), t)
         if label:
             self.dispositions[label] = d
         return d

@@ -31,6 +31,7 @@ from sensor_msgs.msg import TimeReference
 from std_msgs.msg import Bool, String
 
 from sorter_control.wcs import LineWcs, PlanError
+from sorter_sim.model.description import chute_pairs, station_name
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS
 
 NODE_NAME = 'sorter_wcs'
@@ -43,27 +44,19 @@ class WcsNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         n = self.declare_parameter('stations', 1).value
-        names = [x for x in self.declare_parameter('chute_names', ['']).value if x]
+        names = self.declare_parameter('chute_names', ['']).value
         self.scan_eye = self.declare_parameter('scan_eye', 'pe_scan').value
         if not (isinstance(n, int) and 1 <= n <= 64):
             raise ValueError(f"parameter 'stations' must be an integer in [1, 64], got {n!r}")
-        if names and len(names) != 2 * n:
-            raise ValueError(
-                f"parameter 'chute_names' must name 2 chutes per station, got {len(names)}"
-            )
-        chutes = (
-            [(names[2 * k], names[2 * k + 1]) for k in range(n)]
-            if names
-            else [(f'S{k + 1:02d}L', f'S{k + 1:02d}R') for k in range(n)]
-        )
+        chutes = chute_pairs(n, names)
         self.wcs = LineWcs(chutes)
         self.n_refused = 0
         self._pub_routing = [
-            self.create_publisher(KeyValue, f'S{k + 1:02d}/routing/updates', EVENT_QOS)
+            self.create_publisher(KeyValue, f'{station_name(k)}/routing/updates', EVENT_QOS)
             for k in range(n)
         ]
         self._pub_label = {
-            k: self.create_publisher(String, f'S{k + 1:02d}/scanner/label', EVENT_QOS)
+            k: self.create_publisher(String, f'{station_name(k)}/scanner/label', EVENT_QOS)
             for k in range(1, n)
         }
         self._pub_disp = self.create_publisher(DiagnosticStatus, 'wcs/dispositions', EVENT_QOS)
@@ -72,14 +65,14 @@ class WcsNode(Node):
         for k in range(n):
             self.create_subscription(
                 DiagnosticStatus,
-                f'S{k + 1:02d}/sort/confirmations',
+                f'{station_name(k)}/sort/confirmations',
                 lambda m, k=k: self._on_confirmation(k, m),
                 EVENT_QOS,
             )
             if k > 0:
                 self.create_subscription(
                     TimeReference,
-                    f'S{k + 1:02d}/sensors/edges',
+                    f'{station_name(k)}/sensors/edges',
                     lambda m, k=k: self._on_edge(k, m),
                     EVENT_QOS,
                 )

@@ -268,7 +268,7 @@ def spin_surviving(node, stop=None) -> int:
     Parameters
     ----------
     node : rclpy.node.Node
-        The node.
+        The node; one that owns other nodes lists itself and them in ``node.nodes``.
     stop : threading.Event
         Set to end the spin.
 
@@ -281,7 +281,9 @@ def spin_surviving(node, stop=None) -> int:
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
     executor = SingleThreadedExecutor(context=node.context)
-    executor.add_node(node)
+    # a node that owns others (a line and its stations) lists them all in ``nodes``
+    for n in getattr(node, 'nodes', [node]):
+        executor.add_node(n)
     node.callback_errors = 0
     try:
         while node.context.ok() and not (stop is not None and stop.is_set()):

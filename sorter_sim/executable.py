@@ -19,3 +19,16 @@ def main(args=None) -> None:
 
     """
     start_node('sorter_sim.frontends.node', args)
+
+
+def main_line(args=None) -> None:
+    """
+    Run ``line_node`` (``ros2 run sorter_cell line_node``), a line of stations.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The command line (default: the process's).
+
+    """
+    start_node('sorter_sim.frontends.line_node', args)

@@ -174,9 +174,7 @@ def test_the_executable_refuses_a_bad_parameter_in_one_line():
         timeout=60,
     )
     assert done.returncode == 2
-    assert (
-        done.stderr.strip().splitlines()[-1].startswith("line_node: error: parameter 'stations'")
-    )
+    assert done.stderr.strip().splitlines()[-1].startswith("line_node: parameter 'stations'")
 
 
 def test_the_whole_line_records_into_one_file_that_rosbags_reads(ros, tmp_path):
@@ -225,3 +223,15 @@ def test_the_whole_line_records_into_one_file_that_rosbags_reads(ros, tmp_path):
     assert got['/line/exits'] == 1 and got['/clock'] > 2000
     assert got['/S02/sort/outcomes'] == 1 and got['/S01/sort/outcomes'] == 1
     assert main(['replay', str(path), '--json', '--out', str(tmp_path / 'paths.png')]) == 0
+
+
+def test_the_line_runs_on_the_wall_clock_in_realtime_mode(ros):
+    import time
+
+    line = make_line(ros, stations=2, time_mode='realtime', real_time_factor=2.0)
+    wall0 = time.monotonic()
+    while time.monotonic() - wall0 < 1.0:
+        ros.executor.spin_once(timeout_sec=0.01)
+    # twice the wall time since the first tick anchored the clock, to a tick or a burst
+    assert 1.2 < line.line.t < 2.2
+    assert line.line.t_ns == line.stations[1].cell.t_ns

@@ -48,6 +48,10 @@ def test_requests_become_rules_at_the_station_of_their_chute_and_move_with_the_p
     assert w.request('P2', 'D3') == [(2, 'P2', 'left')]
     assert w.request('P3', 'R') == []  # the straight end: no station diverts it
     assert w.request('P4', 'nowhere') == []
+    # a label outside the labels' grammar would be refused by the stations' routing
+    for bad in ('P 5', 'P*', 'x' * 65):
+        with pytest.raises(PlanError, match='a label is'):
+            w.request(bad, 'D2')
     # a new plan while P1, P2 are on their way: their rules move, at once
     updates = w.set_plan('v2', [('D2', 'S01R'), ('D3', 'S03R')])
     assert sorted(updates) == [(0, 'P1', 'right'), (1, 'P1', ''), (2, 'P2', 'right')]

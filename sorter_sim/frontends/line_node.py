@@ -47,16 +47,17 @@ from sorter_ros.interface import (
     accept_integers_for_doubles,
     plain,
 )
+from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 from sorter_sim.frontends.cdr import stamp
-from sorter_sim.frontends.node import SimNode
+from sorter_sim.frontends.node import SimNode, burst_limit, realtime_tick
+from sorter_sim.model.description import chute_pairs, station_name
 from sorter_sim.runtime.cell import SensorEdge
 from sorter_sim.runtime.line import Line, LineExit, LineLayout, StationEvent
 from sorter_sim.runtime.params import ParamError
 
 NODE_NAME = 'sorter_line'
 TIME_MODES = ('lockstep', 'fast', 'realtime')
-MAX_CATCH_UP_S = 0.25  # s of simulated time a realtime tick runs at most
 
 # name -> (default, check, what it allows)
 LINE_PARAMS = {
@@ -117,17 +118,10 @@ class LineNode(Node):
             values[name] = value
         self.values = values
         n = values['stations']
-        names = [x for x in values['chute_names'] if x]
-        if names and len(names) != 2 * n:
-            raise ParamError(
-                f"parameter 'chute_names' must name 2 chutes per station ({2 * n} for {n}), "
-                f'got {len(names)}'
-            )
-        chutes = (
-            [(names[2 * k], names[2 * k + 1]) for k in range(n)]
-            if names
-            else [(f'S{k + 1:02d}L', f'S{k + 1:02d}R') for k in range(n)]
-        )
+        try:
+            chutes = chute_pairs(n, values['chute_names'])
+        except ValueError as exc:
+            raise ParamError(str(exc)) from None
         ns = self.get_namespace().rstrip('/')
         station_params = dict(station_params or {})
         self.recorder = None
@@ -153,7 +147,7 @@ class LineNode(Node):
                     SimNode(
                         station=True,
                         context=self.context,
-                        namespace=f'{ns}/S{k + 1:02d}',
+                        namespace=f'{ns}/{station_name(k)}',
                         parameter_overrides=list(overrides),
                     )
                 )
@@ -196,6 +190,8 @@ class LineNode(Node):
         # wall time spent in the line's physics and in publishing what it reports
         self.cost = {'physics_s': 0.0, 'publish_s': 0.0}
         self._wall_ref = None
+        # bursts every station's watchdog can follow (``node.burst_limit``)
+        self._burst_s = min(burst_limit(s.params.watchdog_timeout) for s in self.stations)
         mode = values['time_mode']
         if mode == 'fast':
             self._timer = self.create_timer(0.0, self._tick_fast)
@@ -250,25 +246,7 @@ class LineNode(Node):
         self.advance(max(1, round(self.values['fast_slice'] / self.line.dt)))
 
     def _tick_realtime(self) -> None:
-        now = time.monotonic()
-        if self._wall_ref is None:
-            self.advance(1)
-            self._wall_ref = (time.monotonic(), self.line.k)
-            return
-        wall0, k0 = self._wall_ref
-        target = k0 + int((now - wall0) * self.values['real_time_factor'] / self.line.dt)
-        limit = max(1, int(MAX_CATCH_UP_S / self.line.dt))
-        n = target - self.line.k
-        if n > limit:
-            self.get_logger().warning(
-                f'cannot keep real_time_factor {self.values["real_time_factor"]:g} with '
-                f'{len(self.stations)} stations: dropping {(n - limit) * self.line.dt:.3f} s',
-                throttle_duration_sec=5.0,
-            )
-            self._wall_ref = (now, self.line.k + limit)
-            n = limit
-        if n > 0:
-            self.advance(n)
+        realtime_tick(self, self.line, self.values['real_time_factor'], self._burst_s)
 
     def _srv_step(self, request, response):
         if self.values['time_mode'] != 'lockstep':
@@ -299,7 +277,7 @@ class LineNode(Node):
             ('id', str(e.parcel_id)),
             ('label', e.label),
             ('exit', e.exit),
-            ('station', f'S{e.station + 1:02d}'),
+            ('station', station_name(e.station)),
             ('t', f'{e.t_ns * 1e-9:.9f}'),
         ]
         if e.cause:
@@ -326,48 +304,24 @@ class LineNode(Node):
         return super().destroy_node()
 
 
-def main(args=None) -> int:
+def main(args=None, stop=None):
     """
     Run the line: ``line_node --ros-args -p stations:=6 --params-file config/cell.yaml``.
+
+    As every executable of the package (``sorter_ros.env.run_node``): a bad parameter is
+    one line and exit code 2, a callback's exception never ends the line, SIGINT and
+    SIGTERM stop it cleanly.
 
     Parameters
     ----------
     args : list of str, optional
         The command line.
-
-    Returns
-    -------
-    int
-        The exit code: 0, or 2 for a bad parameter (named on standard error).
+    stop : StopSignals, optional
+        The executable's signal handlers, when it installed them first.
 
     """
-    import sys
-
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-
-    from sorter_ros.env import apply_ros_env_defaults
-
-    apply_ros_env_defaults()
-    rclpy.init(args=args)
-    try:
-        try:
-            node = LineNode()
-        except ParamError as exc:
-            print(f'line_node: error: {exc}', file=sys.stderr)
-            return 2
-        executor = SingleThreadedExecutor()
-        for n in node.nodes:
-            executor.add_node(n)
-        try:
-            executor.spin()
-        except (KeyboardInterrupt, ExternalShutdownException):
-            pass
-        node.destroy_node()
-        return 0
-    finally:
-        rclpy.try_shutdown()
+    run_node(LineNode, 'line_node', (ParamError,), args, stop)
 
 
 if __name__ == '__main__':
-    raise SystemExit(main())
+    main()

@@ -106,6 +106,80 @@ def descriptor(spec) -> ParameterDescriptor:
     )
 
 
+def burst_limit(watchdog_timeout: float) -> float:
+    """
+    Return the simulated time one realtime tick may run at most [s].
+
+    A quarter of the watchdog's timeout, so that heartbeats are taken between bursts
+    (see ``realtime_tick``); MAX_CATCH_UP_S without a watchdog.
+
+    Parameters
+    ----------
+    watchdog_timeout : float
+        The cell's watchdog timeout [s], 0 for none.
+
+    Returns
+    -------
+    float
+        The longest burst [s].
+
+    """
+    return min(MAX_CATCH_UP_S, watchdog_timeout / 4) if watchdog_timeout > 0 else MAX_CATCH_UP_S
+
+
+def realtime_tick(node, clock, real_time_factor: float, burst_s: float) -> None:
+    """
+    Run the simulated time the wall clock asks for since the last tick, in bursts.
+
+    Shared by a cell and a line: ``node`` has ``advance(n)``, ``_wall_ref`` (the realtime
+    anchor, None before the first tick) and a logger; ``clock`` has the period index
+    ``k`` and the period ``dt``.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node that advances.
+    clock : Cell or Line
+        What it advances.
+    real_time_factor : float
+        Simulated seconds per wall second.
+    burst_s : float
+        The most simulated time one tick runs (``burst_limit``).
+
+    """
+    if node._wall_ref is None:
+        # anchor simulated to wall time after one period has run: that first period
+        # loads the compiled kernels (seconds on a fresh clone), start-up rather than
+        # simulated time to drop
+        node.advance(1)
+        node._wall_ref = (time.monotonic(), clock.k)
+        return
+    now = time.monotonic()
+    wall0, k0 = node._wall_ref
+    target = k0 + int((now - wall0) * real_time_factor / clock.dt)
+    n = target - clock.k
+    limit = max(1, int(MAX_CATCH_UP_S / clock.dt))
+    if n > limit:
+        # too slow for this real-time factor: keep at most MAX_CATCH_UP_S to catch up
+        # and drop the rest, rather than trying to catch up without end
+        node.get_logger().warning(
+            f'cannot keep real_time_factor {real_time_factor:g}: dropping '
+            f'{(n - limit) * clock.dt:.3f} s of simulated time',
+            throttle_duration_sec=5.0,
+        )
+        node._wall_ref = (now, clock.k + limit)
+        n = limit
+    # Catch up in bursts the controller can follow: during one burst no heartbeat can
+    # reach the cell (it waits in the executor's queue) and the controller, on the
+    # cell's clock, sees the burst's simulated time only afterwards. A burst as long as
+    # the watchdog's timeout trips it with a healthy controller, as a host that stalls
+    # the node for a quarter second can make it; the rest of the lag is run in the
+    # next ticks, after the executor has taken what came in meanwhile.
+    burst = max(1, int(burst_s / clock.dt))
+    if n > 0:
+        node.advance(min(n, burst))
+
+
 def _time_msg(t_ns: int) -> Time:
     sec, nsec = stamp(t_ns)
     return Time(sec=sec, nanosec=nsec)
@@ -197,11 +271,7 @@ class SimNode(Node):
         self._wall_ref = None  # (wall time, period index) of the realtime anchor: first tick
         # simulated time one realtime tick runs at most: a quarter of the watchdog's
         # timeout, so that heartbeats are taken between bursts (see _tick_realtime)
-        self._burst_s = (
-            min(MAX_CATCH_UP_S, p.watchdog_timeout / 4)
-            if p.watchdog_timeout > 0
-            else MAX_CATCH_UP_S
-        )
+        self._burst_s = burst_limit(p.watchdog_timeout)
         if station:
             self._timer = None
         elif p.time_mode == 'realtime':
@@ -466,38 +536,7 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ time
     def _tick_realtime(self) -> None:
-        p = self.params
-        if self._wall_ref is None:
-            # anchor simulated to wall time after one period has run: that first period
-            # loads the compiled kernels (seconds on a fresh clone), start-up rather than
-            # simulated time to drop
-            self.advance(1)
-            self._wall_ref = (time.monotonic(), self.cell.k)
-            return
-        now = time.monotonic()
-        wall0, k0 = self._wall_ref
-        target = k0 + int((now - wall0) * p.real_time_factor / self.cell.dt)
-        n = target - self.cell.k
-        limit = max(1, int(MAX_CATCH_UP_S / self.cell.dt))
-        if n > limit:
-            # too slow for this real-time factor: keep at most MAX_CATCH_UP_S to catch up
-            # and drop the rest, rather than trying to catch up without end
-            self.get_logger().warning(
-                f'cannot keep real_time_factor {p.real_time_factor:g}: dropping '
-                f'{(n - limit) * self.cell.dt:.3f} s of simulated time',
-                throttle_duration_sec=5.0,
-            )
-            self._wall_ref = (now, self.cell.k + limit)
-            n = limit
-        # Catch up in bursts the controller can follow: during one burst no heartbeat can
-        # reach the cell (it waits in the executor's queue) and the controller, on the
-        # cell's clock, sees the burst's simulated time only afterwards. A burst as long as
-        # the watchdog's timeout trips it with a healthy controller, as a host that stalls
-        # the node for a quarter second can make it; the rest of the lag is run in the
-        # next ticks, after the executor has taken what came in meanwhile.
-        burst = max(1, int(self._burst_s / self.cell.dt))
-        if n > 0:
-            self.advance(min(n, burst))
+        realtime_tick(self, self.cell, self.params.real_time_factor, self._burst_s)
 
     def _tick_fast(self) -> None:
         self.advance(self.params.fast_slice_periods)

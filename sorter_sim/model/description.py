@@ -60,6 +60,58 @@ def label_problem(label) -> str | None:
     return None
 
 
+def station_name(k: int) -> str:
+    """
+    Return the name of a line's station ``k`` (0-based): S01, S02, ... (its namespace too).
+
+    Parameters
+    ----------
+    k : int
+        The station, 0-based.
+
+    Returns
+    -------
+    str
+        Its name.
+
+    """
+    return f'S{k + 1:02d}'
+
+
+def chute_pairs(n: int, names=()) -> list[tuple[str, str]]:
+    """
+    Return each station's (left, right) chute names: ``names`` in pairs, or S01L, S01R, ...
+
+    Parameters
+    ----------
+    n : int
+        The line's stations.
+    names : sequence of str
+        Two names per station, left then right; empty (or only empty strings): the
+        default names.
+
+    Returns
+    -------
+    list of (str, str)
+        One pair per station.
+
+    Raises
+    ------
+    ValueError
+        Names given, but not two per station.
+
+    """
+    names = [x for x in names if x]
+    if not names:
+        return [(station_name(k) + 'L', station_name(k) + 'R') for k in range(n)]
+    if len(names) != 2 * n:
+        raise ValueError(
+            f"parameter 'chute_names' must name 2 chutes per station ({2 * n} for {n}), "
+            f'got {len(names)}'
+        )
+    return [(names[2 * k], names[2 * k + 1]) for k in range(n)]
+
+
 def shown(value, limit: int = 60) -> str:
     """
     Quote a value for an error message, cut short: no message echoes a large input whole.
@@ -297,4 +349,12 @@ def markdown_table() -> str:
     return '\n'.join(lines)
 
 
-__all__ = ['DescriptionError', 'Quantity', 'QUANTITIES', 'Q', 'markdown_table']
+__all__ = [
+    'DescriptionError',
+    'Quantity',
+    'QUANTITIES',
+    'Q',
+    'chute_pairs',
+    'markdown_table',
+    'station_name',
+]

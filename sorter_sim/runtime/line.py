@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from sorter_sim.model.description import shown
+from sorter_sim.model.description import chute_pairs, shown
 from sorter_sim.runtime.cell import Cell, Handoff, Outcome, SensorEdge
 from sorter_sim.runtime.params import CellParams, ParamError
 
@@ -185,7 +185,7 @@ def default_layout(n: int, params: CellParams, gap: float = 0.0) -> LineLayout:
     # the belt starts at station 1's induct point: x = 0 of the line
     return LineLayout(
         positions=[-params.induct_x + k * (span + gap) for k in range(n)],
-        chutes=[(f'S{k + 1:02d}L', f'S{k + 1:02d}R') for k in range(n)],
+        chutes=chute_pairs(n),
     )
 
 
