@@ -83,6 +83,7 @@ setup(
             'sim_node = sorter_sim.executable:main',
             'controller_node = sorter_control.executable:main',
             'line_node = sorter_sim.executable:main_line',
+            'wcs_node = sorter_control.executable:main_wcs',
         ],
         # the fixtures sorter_cell and sorter_controller in any project with this installed
         'pytest11': ['sorter_cell = sorter_cell.testing.plugin'],

@@ -59,6 +59,21 @@ def add_arguments(parser) -> None:
         "node, a controller per station and the warehouse node",
     )
     parser.add_argument(
+        "--executor",
+        choices=("events", "single"),
+        default=None,
+        help="with --stations N > 1: rclpy's executor for the line's nodes, the events "
+        "executor (events, the default: no per-pass walk over every entity) or the "
+        "single-threaded one (single)",
+    )
+    parser.add_argument(
+        "--dispositions",
+        default=None,
+        metavar="FILE.jsonl",
+        help="with --stations N > 1: write every parcel's disposition (label, code, "
+        "destination, chute, station, t), one JSON object a line",
+    )
+    parser.add_argument(
         "--sim-time",
         type=float,
         default=60.0,
@@ -532,18 +547,22 @@ def run(args) -> int | str:
     if args.stations != 1:
         if not 1 <= args.stations <= 64:
             return f"--stations must be in [1, 64], got {args.stations}"
-        if args.rtf != "fast" or args.foxglove or args.io != "ros":
+        if args.io != "ros":
             return (
-                "--stations N > 1 runs as fast as possible over ROS: no --rtf, --foxglove or "
-                "--io with it yet"
+                "--stations N > 1: the line's controllers talk ROS; its fieldbus (a Modbus "
+                "unit id and an OPC UA folder per station) is line_node's, not the demo's --io"
             )
-        if args.record:
-            problem = file_problem(args.record, "--record")
-            if problem:
-                return problem
+        err = _check_args(args)
+        if err:
+            return err
+        problem = args.dispositions and file_problem(args.dispositions, "--dispositions")
+        if problem:
+            return problem
         from sorter_cell.line_demo import run_line
 
         return run_line(args)
+    if args.executor or args.dispositions:
+        return "--executor and --dispositions are the line's: use them with --stations N > 1"
     err = _check_args(args)
     if err:
         return err

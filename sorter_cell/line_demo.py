@@ -8,7 +8,10 @@ sort plan, the requests, the tracking between stations, the dispositions) and an
 observer. The sort plan sends destinations D01 .. D(2N) to the 2N chutes in order;
 each parcel (labels P00001, P00002, ...) is requested to a destination drawn
 uniformly, before it reaches the scanner. The line runs as fast as possible in
-5 ms slices (``time_mode: fast``).
+5 ms slices (``time_mode: fast``), or on the wall clock at ``--rtf F``; ``--foxglove``
+serves the whole line's live view, ``--record`` records it into one MCAP file. After
+``--sim-time`` the infeed stops and the line runs empty, so that every parcel has its
+disposition (``--dispositions FILE.jsonl`` writes them, one a line).
 
 The summary (``--json``: one object) has ``stations``, ``inducted``, ``mis_sorted``,
 ``jams``, ``in_cell_at_end``, ``exits`` (chute -> count), ``dispositions`` (code ->
@@ -45,7 +48,6 @@ def run_line(args) -> int | str:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
 
@@ -76,14 +78,17 @@ def run_line(args) -> int | str:
         ],
     )
     nodes = []
+    fast = args.rtf == 'fast'
     try:
         line = LineNode(
             context=ctx,
             parameter_overrides=[
                 Parameter('stations', value=n),
-                Parameter('time_mode', value='fast'),
+                Parameter('time_mode', value='fast' if fast else 'realtime'),
                 Parameter('fast_slice', value=FAST_SLICE),
+                Parameter('real_time_factor', value=1.0 if fast else float(args.rtf)),
                 Parameter('record_path', value=args.record or ''),
+                Parameter('foxglove_port', value=int(args.foxglove or 0)),
             ],
             station_params={
                 'arrival': 'none',
@@ -101,6 +106,9 @@ def run_line(args) -> int | str:
                 namespace=f'/{station_name(k)}',
                 parameter_overrides=[
                     Parameter('use_sim_time', value=True),
+                    # a station's routing table is the WCS's alone (the single cell's rules
+                    # would divert labels that happen to match them)
+                    Parameter('routing.rules', Parameter.Type.STRING_ARRAY, []),
                     Parameter('diagnostics_period', value=5.0),
                     Parameter('record_path', value=args.record or ''),
                 ],
@@ -113,13 +121,14 @@ def run_line(args) -> int | str:
         obs = rclpy.create_node('sorter_line_demo', context=ctx)
         nodes.append(obs)
         disp: dict[str, str] = {}
+        records: list[dict] = []  # every disposition, in the order the WCS gave them
         exits: dict[str, str] = {}
-        obs.create_subscription(
-            DiagnosticStatus,
-            'wcs/dispositions',
-            lambda m: disp.__setitem__(m.name, m.message),
-            EVENT_QOS,
-        )
+
+        def on_disposition(m):
+            disp[m.name] = m.message
+            records.append({kv.key: kv.value for kv in m.values})
+
+        obs.create_subscription(DiagnosticStatus, 'wcs/dispositions', on_disposition, EVENT_QOS)
         obs.create_subscription(
             DiagnosticStatus,
             'line/exits',
@@ -132,7 +141,7 @@ def run_line(args) -> int | str:
         )
         pub_plan = obs.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
         pub_req = obs.create_publisher(KeyValue, 'wcs/requests', EVENT_QOS)
-        ex = SingleThreadedExecutor(context=ctx)
+        ex = _executor(ctx, args.executor or 'events')
         for node in nodes:
             ex.add_node(node)
 
@@ -177,13 +186,26 @@ def run_line(args) -> int | str:
         spin_until(lambda: line.line.t >= t0 + args.sim_time, math.inf)
         wall = time.monotonic() - wall0
         sim = line.line.t - t0
-        ex.remove_node(line)  # stop the clock; let the last messages in
-        spin_until(lambda: False, 0.5)
-        inducted = line.stations[0].cell.n_inducted
+        n_out = len(exits)
         ctl_s = sum(c.logic.scan_wall_total - w0 for c, w0 in zip(ctls, scans0))
+        cost = dict(line.cost)
+        # the infeed stops and the line runs empty, so that every parcel inducted gets
+        # its disposition: at most the belt's transit over the whole line, twice, + 10 s
+        line.stations[0].set_parameters([Parameter('arrival', value='none')])
+        p0 = line.stations[0].params
+        transit = (line.line.layout.positions[-1] + p0.exit_x - p0.induct_x) / p0.belt_speed
+        t_drain = line.line.t + 2.0 * transit + 10.0
+        spin_until(lambda: line.line.n_parcels == 0 or line.line.t >= t_drain, math.inf)
+        ex.remove_node(line)  # stop the clock; let the last messages in
+        inducted = line.stations[0].cell.n_inducted
+        spin_until(lambda: len(disp) + line.line.n_parcels >= inducted, 5.0)
         on_line = line.line.n_parcels
         exit_counts = Counter(exits.values())
-        codes = Counter(disp.values())
+        codes = Counter(r['code'] for r in records)
+        if args.dispositions:
+            with open(args.dispositions, 'w', encoding='utf-8') as f:
+                for r in records:
+                    f.write(json.dumps(r, sort_keys=True) + '\n')
         summary = {
             'stations': n,
             'inducted': inducted,
@@ -192,19 +214,20 @@ def run_line(args) -> int | str:
             'in_cell_at_end': on_line,
             'exits': dict(sorted(exit_counts.items())),
             'dispositions': dict(sorted(codes.items())),
-            'throughput_pcs_h': 3600.0 * len(exits) / sim if sim > 0 else 0.0,
+            'throughput_pcs_h': 3600.0 * n_out / sim if sim > 0 else 0.0,
             'real_time_factor': sim / wall if wall > 0 else 0.0,
             'sim_time_s': sim,
+            'executor': type(ex).__name__,
             'wall_s': wall,
             'chutes_reached': sum(1 for c in chutes if exit_counts.get(c)),
             'chutes': len(chutes),
             # where the wall time went: the line's physics, the stations' publishing, the
             # PLC programs' scans; the rest is DDS, the executor and the callbacks around them
             'cost_s': {
-                'physics': round(line.cost['physics_s'], 3),
-                'publishing': round(line.cost['publish_s'], 3),
+                'physics': round(cost['physics_s'], 3),
+                'publishing': round(cost['publish_s'], 3),
                 'controllers': round(ctl_s, 3),
-                'other': round(wall - line.cost['physics_s'] - line.cost['publish_s'] - ctl_s, 3),
+                'other': round(wall - cost['physics_s'] - cost['publish_s'] - ctl_s, 3),
             },
         }
         ok = (
@@ -225,3 +248,28 @@ def run_line(args) -> int | str:
             except Exception:  # noqa: BLE001 - teardown goes on
                 pass
         rclpy.try_shutdown(context=ctx)
+
+
+def _executor(ctx, kind: str):
+    """
+    Return the line's executor: rclpy's events executor, or the single-threaded one.
+
+    The single-threaded executor builds a new wait set from every entity of every node
+    on each pass (about 110 a station: the station's and its controller's publishers,
+    subscriptions, services, timers and their QoS event handlers), in Python: with 24
+    stations a pass costs more wall time than the 5 ms of simulated time it serves.
+    The events executor (``rclpy.experimental``, in C++) queues each entity's events as
+    they happen and walks nothing. The line's results do not depend on the choice (a
+    test runs both and compares every parcel's exit); the single-threaded one stays
+    for an rclpy without the events executor.
+    """
+    if kind == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            pass
+        else:
+            return EventsExecutor(context=ctx)
+    from rclpy.executors import SingleThreadedExecutor
+
+    return SingleThreadedExecutor(context=ctx)

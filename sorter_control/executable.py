@@ -1,5 +1,5 @@
 """
-The ``controller_node`` executable.
+The ``controller_node`` and ``wcs_node`` executables.
 
 Light on purpose: the console script imports only this and ``sorter_ros.env``, so
 the stop signals are caught before the node's modules load (``start_node``).
@@ -19,3 +19,16 @@ def main(args=None) -> None:
 
     """
     start_node("sorter_control.node", args)
+
+
+def main_wcs(args=None) -> None:
+    """
+    Entry point of ``wcs_node`` (``ros2 run sorter_cell wcs_node``), the line's warehouse node.
+
+    Parameters
+    ----------
+    args : list of str
+        The command line.
+
+    """
+    start_node("sorter_control.wcs_node", args)

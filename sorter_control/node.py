@@ -67,6 +67,7 @@ from sorter_ros.interface import (
     SERVICE_QOS,
     STREAM_QOS,
     accept_integers_for_doubles,
+    declare_typed,
     parameter_problem,
     plain,
 )
@@ -94,7 +95,7 @@ class ControllerNode(Node):
         accept_integers_for_doubles(self, {spec.name: descriptor(spec).type for spec in SCHEMA})
         for spec in SCHEMA:
             try:
-                p = self.declare_parameter(spec.name, spec.default, descriptor(spec))
+                p = declare_typed(self, spec.name, spec.default, descriptor(spec))
             except Exception as exc:  # rclpy's InvalidParameter*Exception family
                 raise ValueError(f"parameter {spec.name!r}: {exc}") from None
             self.values[spec.name] = plain(p.value)

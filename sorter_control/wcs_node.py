@@ -20,18 +20,28 @@ topic                      type                                 meaning
 Per station k it listens to ``Sk/sort/confirmations`` and (k > 1) ``Sk/sensors/edges``,
 and writes ``Sk/routing/updates`` and (k > 1) ``Sk/scanner/label``; it reads
 ``line/exits`` and ``line/chutes/<name>/full``. Parameters: ``stations`` and
-``chute_names`` as the line's, ``scan_eye`` (the stations' scanner eye).
+``chute_names`` as the line's, ``scan_eye`` (the stations' scanner eye),
+``opcua_port`` (0: no OPC UA) and ``opcua_host`` (default 127.0.0.1): the same plan,
+requests and dispositions in an OPC UA ``Warehouse`` folder (``wcs_opcua``).
+
+Its callbacks and the OPC UA calls (another thread) meet ``LineWcs`` under one lock.
+Run it alone with ``wcs_node --ros-args -p stations:=6`` (``ros2 run sorter_cell
+wcs_node``); a bad parameter is one line and exit code 2.
 """
 
 from __future__ import annotations
 
+import threading
+
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import TimeReference
 from std_msgs.msg import Bool, String
 
 from sorter_control.wcs import LineWcs, PlanError
 from sorter_sim.model.description import chute_pairs, station_name
+from sorter_ros.env import run_node
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS
 
 NODE_NAME = 'sorter_wcs'
@@ -46,11 +56,27 @@ class WcsNode(Node):
         n = self.declare_parameter('stations', 1).value
         names = self.declare_parameter('chute_names', ['']).value
         self.scan_eye = self.declare_parameter('scan_eye', 'pe_scan').value
+        port = self.declare_parameter('opcua_port', 0).value
+        host = self.declare_parameter('opcua_host', '127.0.0.1').value
         if not (isinstance(n, int) and 1 <= n <= 64):
             raise ValueError(f"parameter 'stations' must be an integer in [1, 64], got {n!r}")
+        if not (isinstance(port, int) and 0 <= port <= 65535):
+            raise ValueError(
+                f"parameter 'opcua_port' must be an integer in [0, 65535], got {port!r}"
+            )
+        if not (isinstance(host, str) and host.strip()):
+            raise ValueError(
+                f"parameter 'opcua_host' must be a host name or address, got {host!r}"
+            )
+        if not isinstance(self.scan_eye, str):
+            raise ValueError(f"parameter 'scan_eye' must be an eye's name, got {self.scan_eye!r}")
+        if not (isinstance(names, list) and all(isinstance(x, str) for x in names)):
+            raise ValueError(f"parameter 'chute_names' must be a list of names, got {names!r}")
         chutes = chute_pairs(n, names)
         self.wcs = LineWcs(chutes)
         self.n_refused = 0
+        self._lock = threading.Lock()  # the executor's callbacks and the OPC UA calls
+        self.opcua = None
         self._pub_routing = [
             self.create_publisher(KeyValue, f'{station_name(k)}/routing/updates', EVENT_QOS)
             for k in range(n)
@@ -83,66 +109,146 @@ class WcsNode(Node):
             self.create_subscription(
                 Bool, f'line/chutes/{name}/full', lambda m, c=name: self._on_full(c, m), LATCHED
             )
-        for k in range(n):
-            # a station's own parcels only: everything else passes on
-            self._pub_routing[k].publish(KeyValue(key='*', value='straight'))
+        # a station's controller that subscribes (late, or again after a restart) gets its
+        # whole table: routing updates are changes, and a controller that missed some
+        # would sort by its own defaults
+        self._readers = [0] * n
+        self.create_timer(0.1, self._resync, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        if port:
+            from sorter_control.wcs_opcua import WcsOpcUa
+
+            self.opcua = WcsOpcUa(host, port, set_plan=self.take_plan, request=self.take_request)
+            try:
+                self.opcua.start()
+            except ValueError as exc:
+                self.opcua = None
+                raise ValueError(f"parameter 'opcua_port': {exc}") from None
+            self.get_logger().info(f'warehouse over OPC UA on {self.opcua.endpoint}')
+
+    def destroy_node(self):
+        """Stop the OPC UA server, then the node."""
+        if self.opcua is not None:
+            self.opcua.stop()
+            self.opcua = None
+        return super().destroy_node()
+
+    def _resync(self) -> None:
+        """Send a station's whole routing table to a controller that just subscribed."""
+        for k, pub in enumerate(self._pub_routing):
+            readers = pub.get_subscription_count()
+            if readers > self._readers[k]:
+                with self._lock:
+                    # a station's own parcels only: everything else passes on
+                    pub.publish(KeyValue(key='*', value='straight'))
+                    for label, side in self.wcs.rules[k].items():
+                        pub.publish(KeyValue(key=label, value=side))
+            self._readers[k] = readers
 
     # ------------------------------------------------------------------ inputs
     def _send(self, updates) -> None:
         for k, label, side in updates:
             self._pub_routing[k].publish(KeyValue(key=label, value=side))
 
-    def _on_plan(self, msg: DiagnosticStatus) -> None:
-        try:
-            self._send(self.wcs.set_plan(msg.name, [(kv.key, kv.value) for kv in msg.values]))
-        except PlanError as exc:
-            self.n_refused += 1
-            text = f'sort plan {msg.name!r} refused: {exc}'
-            self.get_logger().warning(text)
-            self._pub_refused.publish(String(data=text))
-            return
-        self._pub_active.publish(
-            DiagnosticStatus(
-                name=self.wcs.version,
-                message='active',
-                values=[KeyValue(key=d, value=c) for d, c in sorted(self.wcs.plan.items())],
+    def take_plan(self, version: str, entries: list) -> str:
+        """
+        Take a sort plan from any side (ROS or OPC UA); return '' or why it was refused.
+
+        Parameters
+        ----------
+        version : str
+            The plan's version.
+        entries : list of (str, str)
+            (destination, chute).
+
+        """
+        with self._lock:
+            try:
+                self._send(self.wcs.set_plan(version, list(entries)))
+            except PlanError as exc:
+                self.n_refused += 1
+                text = f'sort plan {version!r} refused: {exc}'
+                self.get_logger().warning(text)
+                self._pub_refused.publish(String(data=text))
+                if self.opcua is not None:
+                    self.opcua.refused_change(text)
+                return text
+            self._pub_active.publish(
+                DiagnosticStatus(
+                    name=self.wcs.version,
+                    message='active',
+                    values=[KeyValue(key=d, value=c) for d, c in sorted(self.wcs.plan.items())],
+                )
             )
-        )
+            if self.opcua is not None:
+                self.opcua.plan_changed(self.wcs.version, self.wcs.plan)
+            return ''
+
+    def take_request(self, label: str, destination: str) -> str:
+        """Take a request (label -> destination, '' withdraws); return '' or why not."""
+        with self._lock:
+            try:
+                self._send(self.wcs.request(label, destination))
+            except PlanError as exc:
+                self.n_refused += 1
+                text = f'request refused: {exc}'
+                self.get_logger().warning(text)
+                if self.opcua is not None:
+                    self.opcua.refused_change(text)
+                return text
+            if self.opcua is not None:
+                self.opcua.requests_changed(len(self.wcs.requests))
+            return ''
+
+    def _on_plan(self, msg: DiagnosticStatus) -> None:
+        self.take_plan(msg.name, [(kv.key, kv.value) for kv in msg.values])
 
     def _on_request(self, msg: KeyValue) -> None:
-        try:
-            self._send(self.wcs.request(msg.key, msg.value))
-        except PlanError as exc:
-            self.n_refused += 1
-            self.get_logger().warning(f'request refused: {exc}')
+        self.take_request(msg.key, msg.value)
 
     def _on_full(self, chute: str, msg: Bool) -> None:
-        self._send(self.wcs.chute_full(chute, bool(msg.data)))
+        with self._lock:
+            self._send(self.wcs.chute_full(chute, bool(msg.data)))
+            if self.opcua is not None:
+                self.opcua.full_changed(self.wcs.full)
 
     def _on_confirmation(self, k: int, msg: DiagnosticStatus) -> None:
         v = {kv.key: kv.value for kv in msg.values}
-        self.wcs.confirmed(
-            k, v.get('label', ''), v.get('destination_reached', ''), v.get('result', msg.message)
-        )
+        with self._lock:
+            self.wcs.confirmed(
+                k,
+                v.get('label', ''),
+                v.get('destination_reached', ''),
+                v.get('result', msg.message),
+            )
 
     def _on_edge(self, k: int, msg: TimeReference) -> None:
         if msg.source != 'rising' or msg.header.frame_id.rsplit('/', 1)[-1] != self.scan_eye:
             return
-        label = self.wcs.arriving(k)
+        with self._lock:
+            label = self.wcs.arriving(k)
         if label is not None:
             self._pub_label[k].publish(String(data=label))
 
     def _on_exit(self, msg: DiagnosticStatus) -> None:
         v = {kv.key: kv.value for kv in msg.values}
-        station = int(v.get('station', 'S01')[1:]) - 1
-        d = self.wcs.exited(
-            v.get('label', ''),
-            v.get('exit', msg.message),
-            station,
-            float(v.get('t', 'nan')),
-            v.get('cause', ''),
-        )
-        self._send(self.wcs.rebuild())  # its rule is no longer needed
+        try:
+            station = int(v.get('station', 'S01')[1:]) - 1
+            t = float(v.get('t', 'nan'))
+        except ValueError:
+            self.get_logger().warning(f'line/exits: not a line exit, ignored: {v}')
+            return
+        if not 0 <= station < len(self.wcs.chutes):
+            self.get_logger().warning(f'line/exits: no station {v.get("station")!r}, ignored')
+            return
+        with self._lock:
+            d = self.wcs.exited(
+                v.get('label', ''), v.get('exit', msg.message), station, t, v.get('cause', '')
+            )
+            self._send(self.wcs.rebuild())  # its rule is no longer needed
+        if self.opcua is not None:
+            self.opcua.disposition(
+                ';'.join((d.label, d.code, d.destination, d.chute, d.station, f'{d.t:.6f}'))
+            )
         values = [
             ('label', d.label),
             ('code', d.code),
@@ -159,3 +265,22 @@ class WcsNode(Node):
                 values=[KeyValue(key=k, value=val) for k, val in values],
             )
         )
+
+
+def main(args=None, stop=None):
+    """
+    Run the warehouse node: ``wcs_node --ros-args -p stations:=6``.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The command line.
+    stop : StopSignals, optional
+        The executable's signal handlers, when it installed them first.
+
+    """
+    run_node(WcsNode, 'wcs_node', (ValueError,), args, stop)
+
+
+if __name__ == '__main__':
+    main()

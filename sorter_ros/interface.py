@@ -173,6 +173,57 @@ def _widened(param, declared_type: int):
     return param
 
 
+_ARRAY_TYPES = {
+    ParameterType.PARAMETER_BOOL_ARRAY,
+    ParameterType.PARAMETER_INTEGER_ARRAY,
+    ParameterType.PARAMETER_DOUBLE_ARRAY,
+    ParameterType.PARAMETER_STRING_ARRAY,
+}
+
+
+def declare_typed(node, name: str, default, desc):
+    """
+    Declare a parameter as ``node.declare_parameter`` does, taking an empty array for an array.
+
+    rclpy infers an override's type from its value when it declares the parameter, and
+    an empty list reads as a byte array: ``-p routing.rules:=[]`` or an empty list in a
+    params file would be refused for a string array. Here an empty override of a
+    declared array is taken as that array, empty.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node.
+    name : str
+        The parameter.
+    default : object
+        Its default.
+    desc : ParameterDescriptor
+        Its descriptor (its type says whether it is an array).
+
+    Returns
+    -------
+    rclpy.parameter.Parameter
+        The declared parameter.
+
+    """
+    from rclpy.parameter import Parameter
+
+    override = node._parameter_overrides.get(name)
+    if (
+        override is not None
+        and desc.type in _ARRAY_TYPES
+        and override.value is not None
+        and len(override.value) == 0
+    ):
+        node.declare_parameter(name, default, desc, ignore_override=True)
+        result = node.set_parameters([Parameter(name, Parameter.Type(desc.type), [])])[0]
+        if not result.successful:
+            raise ValueError(result.reason)
+        return node.get_parameter(name)
+    return node.declare_parameter(name, default, desc)
+
+
 def accept_integers_for_doubles(node, declared: dict[str, int]) -> None:
     """
     Take an integer given for a double parameter as that double, as ROS users type them.

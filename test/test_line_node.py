@@ -105,6 +105,8 @@ def test_a_station_whose_heartbeat_stops_trips_alone(ros):
             SENSOR_QOS,  # latched: the initial False too
         )
     ros.spin_until(lambda: all(p.get_subscription_count() for p in beats.values()), 10.0)
+    for s in line.stations:  # every station's disks up: the watchdog must lower only its own
+        assert s.cell.popup(True)[0]
     for counter in range(1, 60):
         for k, pub in beats.items():
             if k != 2 or counter < 10:  # station 2's controller stops at 0.5 s
@@ -113,6 +115,7 @@ def test_a_station_whose_heartbeat_stops_trips_alone(ros):
     ros.spin_until(lambda: status.get(2) is True and len(status) == 3, 5.0)
     assert [s.cell.watchdog_tripped for s in line.stations] == [False, True, False]
     assert status == {1: False, 2: True, 3: False}
+    assert [round(s.cell.stroke, 6) for s in line.stations] == [1.0, 0.0, 1.0]
 
 
 @pytest.mark.parametrize(
@@ -235,3 +238,146 @@ def test_the_line_runs_on_the_wall_clock_in_realtime_mode(ros):
     # twice the wall time since the first tick anchored the clock, to a tick or a burst
     assert 1.2 < line.line.t < 2.2
     assert line.line.t_ns == line.stations[1].cell.t_ns
+
+
+def test_every_station_is_a_modbus_unit_and_an_opc_ua_folder_of_the_line(ros):
+    """Drive stations 1 and 2 with pyModbusTCP and asyncua, stacks this project did not write."""
+    from asyncua.sync import Client
+    from pyModbusTCP.client import ModbusClient
+    from ros_harness import free_port
+
+    from sorter_sim.model.core import cell_kernels as ck
+    from sorter_sim.model.io_map import by_name, io_map
+
+    line = make_line(ros, stations=2, modbus_port=free_port(), opcua_port=free_port())
+    s1, s2 = (s.cell for s in line.stations)
+    signals = by_name(io_map(s1.sensor_names))
+    popup, t = signals['diverter.popup'], signals['cell.time']
+    line.advance(200)
+    units = {
+        k: ModbusClient(host='127.0.0.1', port=line.fieldbus.modbus_port, unit_id=k, timeout=5.0)
+        for k in (1, 2, 3)
+    }
+    opc = Client(line.fieldbus.opcua_endpoint, timeout=10)
+    opc.connect()
+    try:
+        for k in (1, 2):  # each station's own image, at the single cell's addresses
+            regs = units[k].read_input_registers(t.address, 2)
+            assert regs is not None, units[k].last_error_as_txt
+            assert ((regs[0] << 16) | regs[1]) * t.scale == pytest.approx(0.2, abs=1e-3)
+        assert units[2].write_single_coil(popup.address, True)
+        line.advance(1)
+        assert float(s2.act[ck.A_STROKE_TARGET]) == 1.0
+        assert float(s1.act[ck.A_STROKE_TARGET]) == 0.0  # station 1 untouched
+        # a unit id no station has: exception 0x0B (gateway target device failed to respond)
+        assert units[3].read_input_registers(t.address, 2) is None
+        assert units[3].last_except == 0x0B
+        assert line.fieldbus._modbus.units_refused == 1
+        idx = opc.get_namespace_index('urn:sorter_cell')
+        root = opc.nodes.objects.get_child(f'{idx}:sorter_line')
+        assert sorted(n.read_browse_name().Name for n in root.get_children()) == ['S01', 'S02']
+        out1 = root.get_child([f'{idx}:S01', f'{idx}:Outputs', f'{idx}:diverter.popup'])
+        out1.write_value(True)
+        line.advance(1)
+        assert float(s1.act[ck.A_STROKE_TARGET]) == 1.0
+        up2 = root.get_child([f'{idx}:S02', f'{idx}:Inputs', f'{idx}:diverter.stroke'])
+        line.advance(300)
+        assert up2.read_value() == pytest.approx(line.stations[1].cell.stroke)
+        assert up2.read_value() > 0.5
+        # an input is not writable over OPC UA, in any station's folder
+        from asyncua import ua
+
+        with pytest.raises(ua.UaStatusCodeError):
+            up2.write_value(0.0)
+    finally:
+        opc.disconnect()
+        for c in units.values():
+            c.close()
+
+
+def test_a_station_fieldbus_port_taken_stops_the_line_naming_it(ros):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(('127.0.0.1', 0))
+        busy.listen()
+        with pytest.raises(ParamError, match="parameter 'modbus_port'"):
+            make_line(ros, stations=2, modbus_port=busy.getsockname()[1])
+
+
+def test_the_live_view_shows_the_whole_line_to_a_foxglove_client(ros):
+    """A websocket client speaking Foxglove's protocol sees every station in its place."""
+    import base64
+    import json
+    import struct
+    import time
+
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    from ros_harness import free_port
+    from websockets.sync.client import connect
+
+    port = free_port()
+    line = make_line(ros, stations=3, station_gap=0.5, foxglove_port=port, foxglove_rate_hz=500.0)
+    line.stations[0].cell.induct(ParcelSpec(0.4, 0.3, 5.0, label='L1'))
+    with connect(f'ws://127.0.0.1:{port}', subprotocols=['foxglove.sdk.v1']) as ws:
+        channels, deadline = {}, time.monotonic() + 5.0
+        while len(channels) < 5 and time.monotonic() < deadline:
+            msg = json.loads(ws.recv(timeout=5.0))
+            if msg.get('op') == 'advertise':
+                channels.update({c['topic']: c for c in msg['channels']})
+        assert set(channels) == {
+            '/live/scene',
+            '/live/tf',
+            '/live/S01/values',
+            '/live/S02/values',
+            '/live/S03/values',
+        }
+        subs = {1: '/live/scene', 2: '/live/tf', 3: '/live/S02/values'}
+        ws.send(
+            json.dumps(
+                {
+                    'op': 'subscribe',
+                    'subscriptions': [
+                        {'id': i, 'channelId': channels[t]['id']} for i, t in subs.items()
+                    ],
+                }
+            )
+        )
+        ros.spin_until(line.live_view.listening, 5.0)
+
+        def protobuf(topic):
+            c = channels[topic]
+            fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(c['schema']))
+            pool = descriptor_pool.DescriptorPool()
+            for f in fds.file:
+                pool.Add(f)
+            return message_factory.GetMessageClass(pool.FindMessageTypeByName(c['schemaName']))
+
+        # run until the parcel rides station 2, then take the frames of that moment
+        while not line.stations[1].cell.n_parcels:
+            line.advance(20)
+        sent = line.live_view.frames_sent
+        while line.live_view.frames_sent == sent:
+            line.advance(line.stations[0].params.pose_stride)
+        t_ns, got = line.line.t_ns, {}
+        deadline = time.monotonic() + 10.0
+        while len(got) < 3 and time.monotonic() < deadline:
+            frame = ws.recv(timeout=5.0)
+            if isinstance(frame, bytes):
+                op, sub_id, log_time = struct.unpack_from('<BIQ', frame)
+                if log_time == t_ns:
+                    got[subs[sub_id]] = frame[13:]
+    scene = protobuf('/live/scene').FromString(got['/live/scene'])
+    ids = {e.id for e in scene.entities}
+    for s in ('S01', 'S02', 'S03'):
+        assert {f'{s}/belt', f'{s}/chutes', f'{s}/disk_field', f'{s}/sensors'} <= ids
+    (parcel,) = [e for e in scene.entities if '/parcel/' in e.id]
+    assert parcel.id.startswith('S02/') and parcel.frame_id == line.stations[1].frame_id
+    tf = protobuf('/live/tf').FromString(got['/live/tf'])
+    placed = {t.child_frame_id: t.translation.x for t in tf.transforms}
+    assert placed == {s.frame_id: x for s, x in zip(line.stations, line.line.positions)}
+    assert placed[line.stations[1].frame_id] - placed[line.stations[0].frame_id] == pytest.approx(
+        line.stations[0].params.exit_x - line.stations[0].params.induct_x + 0.5
+    )
+    values = json.loads(got['/live/S02/values'])
+    assert [p['label'] for p in values['parcels']] == ['L1']

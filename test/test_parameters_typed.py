@@ -69,6 +69,38 @@ def test_the_controller_takes_integers_for_its_doubles(ros):
     assert list(ctl.get_parameter('photo_eyes.x').value) == [-2.0, 0.0, 2.0]
 
 
+def test_an_empty_list_is_an_empty_array_of_the_declared_type(ros, tmp_path):
+    """Take ``routing.rules: []`` as an empty table, where rclpy would read a byte array."""
+    ctl = ros.add(
+        ControllerNode(
+            context=ros.context,
+            parameter_overrides=[Parameter('routing.rules', value=[])],
+        )
+    )
+    got = ctl.get_parameter('routing.rules')
+    assert got.type_ == Parameter.Type.STRING_ARRAY and list(got.value) == []
+    assert ctl.values['routing.rules'] == []
+    # from a params file, in a process of its own, as a user would start it
+    params = tmp_path / 'p.yaml'
+    params.write_text('sorter_controller:\n  ros__parameters:\n    routing:\n      rules: []\n')
+    done = subprocess.run(
+        [
+            str(BIN / 'controller_node'),
+            '--ros-args',
+            '--params-file',
+            str(params),
+            '-p',
+            'scan_period:=-1.0',
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    # it gets past routing.rules and stops at the next bad value, naming that one alone
+    assert done.returncode == 2, done.stderr
+    assert 'scan_period' in done.stderr and 'routing.rules' not in done.stderr
+
+
 def test_a_real_start_up_error_says_what_was_given_and_what_is_allowed():
     out = subprocess.run(
         [str(BIN / 'sim_node'), '--ros-args', '-p', 'alpha_deg:=95'],

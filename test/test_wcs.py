@@ -106,8 +106,8 @@ def test_every_disposition_code():
     assert (d.code, d.chute, d.station, d.t) == ('mis_sorted', 'S03L', 'S03', 2.5)
 
 
-@pytest.mark.ros
-def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs():
+def _line_demo(tmp_path, executor):
+    path = tmp_path / f'{executor}.jsonl'
     done = subprocess.run(
         [
             sys.executable,
@@ -119,6 +119,10 @@ def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs(
             '--sim-time',
             '25',
             '--json',
+            '--executor',
+            executor,
+            '--dispositions',
+            str(path),
         ],
         capture_output=True,
         text=True,
@@ -126,11 +130,38 @@ def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs(
     )
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     s = json.loads(done.stdout.strip().splitlines()[-1])
+    records = [json.loads(line) for line in path.read_text().splitlines()]
+    return s, records
+
+
+@pytest.mark.ros
+def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs(tmp_path):
+    s, records = _line_demo(tmp_path, 'events')
     assert s['stations'] == 3 and s['mis_sorted'] == 0 and s['jams'] == 0
-    assert sum(s['dispositions'].values()) + s['in_cell_at_end'] == s['inducted'] > 10
+    assert s['executor'] == 'EventsExecutor'
+    # the line runs empty after the timed span: every parcel inducted has its disposition
+    assert s['in_cell_at_end'] == 0
+    assert sum(s['dispositions'].values()) == s['inducted'] == len(records) > 10
     assert s['dispositions'].get('sorted', 0) >= 10
     assert set(s['exits']) <= {'S01L', 'S01R', 'S02L', 'S02R', 'S03L', 'S03R', 'straight_end'}
     assert sum(1 for k in s['exits'] if k.startswith('S03')) >= 1  # tracked two stations on
+    assert all(
+        set(r) >= {'label', 'code', 'destination', 'chute', 'station', 't'} for r in records
+    )
+    # each sorted parcel reached the chute its destination has in the plan (D01 -> S01L, ...)
+    sorted_ = [r for r in records if r['code'] == 'sorted']
+    chutes = ['S01L', 'S01R', 'S02L', 'S02R', 'S03L', 'S03R']
+    assert all(r['chute'] == chutes[int(r['destination'][1:]) - 1] for r in sorted_)
+    assert all(r['station'] == r['chute'][:3] for r in sorted_)
+
+
+@pytest.mark.ros
+def test_the_line_sorts_every_parcel_alike_under_either_executor(tmp_path):
+    _, events = _line_demo(tmp_path, 'events')
+    _, single = _line_demo(tmp_path, 'single')
+    assert len(events) > 10
+    key = lambda r: (r['label'], r['code'], r['chute'], r['station'])  # noqa: E731
+    assert sorted(map(key, events)) == sorted(map(key, single))
 
 
 @pytest.mark.ros
@@ -169,11 +200,253 @@ def test_the_wcs_node_refuses_a_bad_plan_in_one_message_and_keeps_the_good_one(r
     assert [(m.key, m.value) for m in routing if m.key == 'P1'] == [('P1', 'right')]
 
 
-def test_the_line_demo_refuses_what_it_does_not_have_yet(capsys):
+def test_the_line_demo_refuses_bad_options_in_one_line(capsys, tmp_path):
     from sorter_cell.cli import main
 
-    for extra in (['--rtf', '1'], ['--io', 'modbus'], ['--foxglove']):
+    assert main(['demo', '--stations', '3', '--io', 'modbus']) == 2
+    assert "the line's controllers talk ROS" in capsys.readouterr().err
+    for extra, message in (
+        (['--rtf', '0'], '--rtf must be a number in [0.01, 100]'),
+        (['--foxglove', '70000'], '--foxglove PORT must be in'),
+        (['--sim-time', '-1'], '--sim-time must be in (0, 3600]'),
+        (['--dispositions', str(tmp_path)], '--dispositions'),
+    ):
         assert main(['demo', '--stations', '3', *extra]) == 2
-        assert 'no --rtf, --foxglove or --io' in capsys.readouterr().err
+        assert message in capsys.readouterr().err
     assert main(['demo', '--stations', '0']) == 2
     assert '--stations must be in [1, 64]' in capsys.readouterr().err
+    assert main(['demo', '--executor', 'single']) == 2
+    assert "the line's: use them with --stations N > 1" in capsys.readouterr().err
+
+
+@pytest.mark.ros
+def test_the_warehouse_over_opc_ua_is_the_warehouse_over_ros(ros):
+    """An asyncua client sets the plan, asks a destination and subscribes to dispositions."""
+    import time
+
+    from asyncua import ua
+    from asyncua.sync import Client
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    from rclpy.parameter import Parameter
+    from ros_harness import free_port
+
+    from sorter_control.wcs_node import WcsNode
+    from sorter_ros.interface import EVENT_QOS, SENSOR_QOS
+
+    node = ros.add(
+        WcsNode(
+            context=ros.context,
+            parameter_overrides=[
+                Parameter('stations', value=2),
+                Parameter('opcua_port', value=free_port()),
+            ],
+        )
+    )
+    probe = ros.make_node('scada')
+    active, routing, disp = [], [], []
+    probe.create_subscription(DiagnosticStatus, 'wcs/sort_plan/active', active.append, SENSOR_QOS)
+    probe.create_subscription(KeyValue, 'S02/routing/updates', routing.append, EVENT_QOS)
+    probe.create_subscription(DiagnosticStatus, 'wcs/dispositions', disp.append, EVENT_QOS)
+    plan = probe.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
+    exits = probe.create_publisher(DiagnosticStatus, 'line/exits', EVENT_QOS)
+    ros.spin_until(lambda: plan.get_subscription_count() and exits.get_subscription_count(), 10.0)
+
+    class Seen:
+        def __init__(self):
+            self.values = []
+
+        def datachange_notification(self, node, val, data):
+            self.values.append(val)
+
+    seen = Seen()
+    client = Client(node.opcua.endpoint, timeout=10)
+    client.connect()
+    try:
+        idx = client.get_namespace_index('urn:sorter_cell:line')
+        wh = client.nodes.objects.get_child([f'{idx}:sorter_line', f'{idx}:Warehouse'])
+        var = {
+            n: wh.get_child(f'{idx}:{n}') for n in ('SortPlanVersion', 'SortPlan', 'LastRefusal')
+        }
+        sub = client.create_subscription(20, seen)
+        sub.subscribe_data_change(wh.get_child(f'{idx}:LastDisposition'))
+
+        def call(name, *args):
+            try:
+                return wh.call_method(f'{idx}:{name}', *args)
+            except ua.UaStatusCodeError as exc:
+                return type(exc).__name__
+
+        S = ua.VariantType.String
+        assert (
+            call('SetSortPlan', 'v1', ua.Variant(['D1=S02R', 'D2=S01L'], S, is_array=True)) is None
+        )
+        ros.spin_until(lambda: active, 5.0)
+        assert active[-1].name == 'v1'
+        assert [(kv.key, kv.value) for kv in active[-1].values] == [('D1', 'S02R'), ('D2', 'S01L')]
+        assert var['SortPlanVersion'].read_value() == 'v1'
+        refusals = {
+            'no such chute': ('SetSortPlan', 'v2', ua.Variant(['D1=S07L'], S, is_array=True)),
+            'no =': ('SetSortPlan', 'v2', ua.Variant(['D1S02R'], S, is_array=True)),
+            'numbers': (
+                'SetSortPlan',
+                'v2',
+                ua.Variant([1, 2], ua.VariantType.Int32, is_array=True),
+            ),
+            'one argument': ('SetSortPlan', 'v2'),
+            'bad label': ('RequestDestination', 'P 1', 'D1'),
+        }
+        got = {why: call(*args) for why, args in refusals.items()}
+        assert got == {
+            'no such chute': 'BadInvalidArgument',
+            'no =': 'BadInvalidArgument',
+            'numbers': 'BadTypeMismatch',
+            'one argument': 'BadArgumentsMissing',
+            'bad label': 'BadInvalidArgument',
+        }
+        assert node.wcs.version == 'v1' and var['SortPlanVersion'].read_value() == 'v1'
+        assert 'label' in var['LastRefusal'].read_value()
+        assert call('RequestDestination', 'P1', 'D1') is None
+        ros.spin_until(lambda: any(m.key == 'P1' for m in routing), 5.0)
+        assert [(m.key, m.value) for m in routing if m.key == 'P1'] == [('P1', 'right')]
+        # a plan over ROS is the plan OPC UA shows
+        plan.publish(DiagnosticStatus(name='v2', values=[KeyValue(key='D1', value='S02L')]))
+        ros.spin_until(lambda: node.wcs.version == 'v2', 5.0)
+        deadline = time.monotonic() + 5.0
+        while var['SortPlanVersion'].read_value() != 'v2' and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert var['SortPlan'].read_value() == ['D1=S02L']
+        # the line says where P1 left: the disposition reaches ROS and the OPC UA subscription
+        values = {'id': '1', 'label': 'P1', 'exit': 'S02L', 'station': 'S02', 't': '3.5'}
+        exits.publish(
+            DiagnosticStatus(
+                name='parcel/1',
+                message='S02L',
+                values=[KeyValue(key=k, value=v) for k, v in values.items()],
+            )
+        )
+        ros.spin_until(lambda: disp and any('P1;' in v for v in seen.values), 5.0)
+        assert disp[-1].name == 'P1' and disp[-1].message == 'sorted'
+        assert [v for v in seen.values if v] == ['P1;sorted;D1;S02L;S02;3.500000']
+        assert wh.get_child(f'{idx}:DispositionCount').read_value() == 1
+    finally:
+        client.disconnect()
+    # no identity buys more than an anonymous session: a login is refused
+    admin = Client(node.opcua.endpoint, timeout=10)
+    admin.set_user('admin')
+    admin.set_password('admin')
+    with pytest.raises(Exception):
+        admin.connect()
+
+
+@pytest.mark.ros
+def test_the_line_sorts_through_a_plan_change_in_flight_and_a_chute_that_fills(ros):
+    """Two stations with their PLCs and the WCS: v2 moves D1 while B1 rides station 1."""
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    from rclpy.parameter import Parameter
+
+    from sorter_control.node import ControllerNode
+    from sorter_control.wcs_node import WcsNode
+    from sorter_ros.interface import EVENT_QOS
+    from sorter_sim.frontends.line_node import LineNode
+    from sorter_sim.runtime.cell import ParcelSpec
+
+    line = LineNode(
+        context=ros.context,
+        parameter_overrides=[
+            Parameter('stations', value=2),
+            Parameter('time_mode', value='fast'),
+            Parameter('fast_slice', value=0.005),
+            Parameter('chute_capacity', value=1),
+            Parameter('chute_drain_per_s', value=0.0),
+        ],
+        # the stream's spacing (above the controller's least gap for these parcels)
+        station_params={'arrival': 'none', 'arrival_gap': [1.5, 1.6]},
+    )
+    for n in line.nodes:
+        ros.add(n)
+    ctls = [
+        ros.add(
+            ControllerNode(
+                context=ros.context,
+                namespace=f'/S0{k}',
+                parameter_overrides=[
+                    Parameter('use_sim_time', value=True),
+                    # a station's table is the WCS's: none of the single cell's own rules
+                    Parameter('routing.rules', Parameter.Type.STRING_ARRAY, []),
+                ],
+            )
+        )
+        for k in (1, 2)
+    ]
+    wcs = ros.add(
+        WcsNode(context=ros.context, parameter_overrides=[Parameter('stations', value=2)])
+    )
+    probe = ros.make_node('wms')
+    disp = {}
+    probe.create_subscription(
+        DiagnosticStatus,
+        'wcs/dispositions',
+        lambda m: disp.__setitem__(m.name, {kv.key: kv.value for kv in m.values}),
+        EVENT_QOS,
+    )
+    plan = probe.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
+    req = probe.create_publisher(KeyValue, 'wcs/requests', EVENT_QOS)
+    ros.spin_until(
+        lambda: all(c.logic is not None and c.logic.state == 'running' for c in ctls), 60.0
+    )
+    ros.spin_until(lambda: plan.get_subscription_count() and req.get_subscription_count(), 10.0)
+
+    def send_plan(version, entries):
+        plan.publish(
+            DiagnosticStatus(
+                name=version, values=[KeyValue(key=d, value=c) for d, c in entries.items()]
+            )
+        )
+        ros.spin_until(lambda: wcs.wcs.version == version, 5.0)
+
+    send_plan('v1', {'D1': 'S02L', 'D2': 'S01L'})
+    wanted = {'A1': 'D2', 'B1': 'D1', 'A2': 'D2', 'B2': 'D1'}
+    for label, dest in wanted.items():
+        req.publish(KeyValue(key=label, value=dest))
+    ros.spin_until(lambda: len(wcs.wcs.requests) == 4, 5.0)
+    ros.spin_for(0.2)  # the routing updates reach the stations
+    for label in wanted:
+        line.stations[0].cell.induct(ParcelSpec(0.4, 0.3, 4.0, label=label))
+
+    def riding(k, label):
+        return label in line.stations[k].cell.parcel_motion()['label']
+
+    # B1 is read and on its way (station 1 sends it on to station 2): D1 moves to S02R
+    ros.spin_until(
+        lambda: riding(0, 'B1') and line.stations[0].cell.parcels()['x'].max() > 0, 60.0
+    )
+    send_plan('v2', {'D1': 'S02R', 'D2': 'S01L'})
+    ros.spin_until(lambda: len(disp) == 4, 120.0)
+    got = {label: (d['code'], d['chute'], d['station']) for label, d in disp.items()}
+    assert got == {
+        'A1': ('sorted', 'S01L', 'S01'),
+        'B1': ('sorted', 'S02R', 'S02'),  # the plan changed while it rode station 1
+        'A2': ('chute_full', '', 'S02'),  # S01L holds one parcel and does not drain
+        'B2': ('chute_full', '', 'S02'),  # nor does S02R, which B1 filled
+    }
+    assert {c.name: c.level for c in line.line.chutes} == {
+        'S01L': 1,
+        'S01R': 0,
+        'S02L': 0,
+        'S02R': 1,
+    }
+
+
+def test_the_wcs_executable_refuses_a_bad_parameter_in_one_line():
+    from pathlib import Path
+
+    done = subprocess.run(
+        [str(Path(sys.executable).parent / 'wcs_node'), '--ros-args', '-p', 'stations:=0'],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "wcs_node: parameter 'stations' must be an integer in [1, 64], got 0"
+    ]

@@ -24,13 +24,13 @@ here: the node hands the image what the cell reports and applies what it returns
 from __future__ import annotations
 
 import asyncio
-import logging
 import math
 import re
 import threading
 from collections import deque
 from datetime import datetime, timedelta, timezone
 
+from sorter_ros.opcua import close_server, new_server
 from sorter_sim.model.description import LABEL_RE
 from sorter_sim.model.io_map import (
     COIL,
@@ -433,10 +433,29 @@ class FieldbusServers:
 
     ``modbus`` / ``opcua``: (host, port) or None. ``start()`` returns once both listen
     and raises ValueError with one line when one cannot (port busy, unknown host).
+
+    A line serves its stations' images from one pair of servers: ``stations`` lists
+    (name, IOImage) in order along the belt, ``image`` is then the first one's. Over
+    Modbus TCP station k (S01 is 1) is unit id k, each with the map's addresses (a
+    unit id no station has is exception 0x0B, gateway target device failed to
+    respond); over OPC UA each station is a folder ``<cell_name>/<name>`` with its
+    ``Inputs`` and ``Outputs`` (the line's warehouse is the warehouse node's server).
     """
 
-    def __init__(self, image: IOImage, *, modbus=None, opcua=None, cell_name: str = 'cell'):
-        self.image = image
+    def __init__(
+        self,
+        image: IOImage | None = None,
+        *,
+        modbus=None,
+        opcua=None,
+        cell_name: str = 'cell',
+        stations: list | None = None,
+    ):
+        if (image is None) == (stations is None):
+            raise TypeError('FieldbusServers serves an image or a line\'s stations')
+        self.stations = list(stations) if stations is not None else None
+        self.image = image if image is not None else self.stations[0][1]
+        image = self.image
         self.modbus_addr = modbus
         self.opcua_addr = opcua
         self.cell_name = cell_name or 'cell'
@@ -455,6 +474,7 @@ class FieldbusServers:
             seconds=float(image.inputs.get('cell.time', 0.0) or 0.0)
         )
         self._opc_inputs: list = []
+        self._outputs: set[str] = set()  # keys of opcua_nodes that are outputs
         self._pusher = None
 
     def start(self) -> None:
@@ -525,23 +545,19 @@ class FieldbusServers:
             self._pusher = None
         if self._opcua is not None:
             server, self._opcua = self._opcua, None
-            # the listening socket and every client connection first, at once; then
-            # asyncua's own stop, for as long as it takes within the bound
-            bserver = getattr(server, 'bserver', None)
-            if bserver is not None and getattr(bserver, '_server', None) is not None:
-                bserver._server.close()
-            for transport in list(getattr(server.iserver, 'asyncio_transports', [])):
-                transport.abort()
-            try:
-                await asyncio.wait_for(server.stop(), wait_s)
-            except Exception:  # a stop that overruns its bound, or fails: the loop ends it
-                pass
+            await close_server(server, wait_s)
 
     # ---------------------------------------------------------------- Modbus TCP
     async def _start_modbus(self, host: str, port: int) -> None:
         from sorter_sim.frontends.modbus_server import ModbusTcpImageServer
 
-        server = ModbusTcpImageServer(self.image, host, port)
+        units = None
+        if self.stations is not None:
+            units = {
+                k + 1: ModbusTcpImageServer(image, host, port)
+                for k, (_, image) in enumerate(self.stations)
+            }
+        server = ModbusTcpImageServer(self.image, host, port, units=units)
         try:
             self.modbus_port = await server.start()
         except OSError as exc:
@@ -650,29 +666,37 @@ class FieldbusServers:
             self.opcua_nodes[f'Warehouse.{name}'] = node.nodeid
 
     async def _start_opcua(self, host: str, port: int) -> None:
-        from asyncua import Server, ua
-
-        for name in ('asyncua', 'asyncua.server', 'asyncua.server.uaprocessor'):
-            logging.getLogger(name).setLevel(logging.CRITICAL)
-        server = Server(user_manager=_AnonymousOnly())
-        await server.init()
-        # sessions are anonymous or refused: no identity a client offers (a user name,
-        # 'admin' with any password, a certificate) buys more than reading the inputs and
-        # writing the outputs; the server's own internal session alone administers
-        server.set_identity_tokens([ua.AnonymousIdentityToken])
-        server.iserver.allow_remote_admin = False
-        # an IPv6 address goes in brackets in a URL (RFC 3986), or its colons read as a port
-        endpoint = f'opc.tcp://{f"[{host}]" if ":" in host else host}:{port}/sorter_cell/'
-        server.set_endpoint(endpoint)
-        server.set_server_name('sorter_cell')
+        server, endpoint = await new_server(host, port, 'sorter_cell', 'sorter_cell')
         idx = await server.register_namespace('urn:sorter_cell')
         cell = await server.nodes.objects.add_folder(idx, self.cell_name)
-        folders = {
-            INPUT: await cell.add_folder(idx, 'Inputs'),
-            OUTPUT: await cell.add_folder(idx, 'Outputs'),
-        }
-        image = self.image
         aspace = server.iserver.aspace
+        if self.stations is None:
+            await self._add_image(cell, idx, aspace, self.image, '')
+            await self._add_warehouse(cell, idx, aspace)
+        else:
+            for name, image in self.stations:
+                folder = await cell.add_folder(idx, name)
+                await self._add_image(folder, idx, aspace, image, f'{name}.')
+        writable = {self.opcua_nodes[key] for key in self._outputs}
+        _answer_writes_per_item(server, writable)
+        try:
+            await server.start()
+        except (OSError, RuntimeError) as exc:
+            raise ValueError(
+                f'cannot serve OPC UA on {host}:{port}: {getattr(exc, "strerror", None) or exc}'
+            ) from None
+        self._opcua = server
+        self.opcua_endpoint = endpoint
+        self._pusher = asyncio.ensure_future(self._push_inputs(aspace))
+
+    async def _add_image(self, parent, idx, aspace, image: IOImage, prefix: str) -> None:
+        """Add an image's ``Inputs`` and ``Outputs`` under ``parent`` (node ids: prefix + name)."""
+        from asyncua import ua
+
+        folders = {
+            INPUT: await parent.add_folder(idx, 'Inputs'),
+            OUTPUT: await parent.add_folder(idx, 'Outputs'),
+        }
         for s in image.signals:
             vtype = getattr(ua.VariantType, s.opcua_type)
             initial = image.inputs[s.name] if s.direction == INPUT else image.outputs[s.name]
@@ -683,11 +707,7 @@ class FieldbusServers:
                 ua.AttributeIds.Description, ua.DataValue(ua.LocalizedText(s.meaning))
             )
             if s.unit:
-                await var.add_property(
-                    idx,
-                    'EngineeringUnits',
-                    _eu_information(s.unit),
-                )
+                await var.add_property(idx, 'EngineeringUnits', _eu_information(s.unit))
             if s.direction == INPUT:
                 reader = _input_reader(image, s, vtype, self.time_origin)
                 aspace.set_attribute_value_callback(var.nodeid, ua.AttributeIds.Value, reader)
@@ -699,19 +719,8 @@ class FieldbusServers:
                 aspace.set_attribute_value_setter(
                     var.nodeid, ua.AttributeIds.Value, _output_writer(image, s)
                 )
-            self.opcua_nodes[s.name] = var.nodeid
-        await self._add_warehouse(cell, idx, aspace)
-        writable = {self.opcua_nodes[s.name] for s in image.signals if s.direction == OUTPUT}
-        _answer_writes_per_item(server, writable)
-        try:
-            await server.start()
-        except (OSError, RuntimeError) as exc:
-            raise ValueError(
-                f'cannot serve OPC UA on {host}:{port}: {getattr(exc, "strerror", None) or exc}'
-            ) from None
-        self._opcua = server
-        self.opcua_endpoint = endpoint
-        self._pusher = asyncio.ensure_future(self._push_inputs(aspace))
+                self._outputs.add(prefix + s.name)
+            self.opcua_nodes[prefix + s.name] = var.nodeid
 
     async def _push_inputs(self, aspace) -> None:
         """
@@ -746,27 +755,6 @@ class FieldbusServers:
                 finally:
                     # the write replaces the callback with a stored value: reads stay live
                     attval.value_callback = read
-
-
-class _AnonymousOnly:
-    """
-    The OPC UA user manager: every session is an anonymous client, none an administrator.
-
-    asyncua's default manager makes any client that logs in as 'admin' (with any
-    password) an administrator, who may write inputs and add or delete nodes. Here the
-    server takes anonymous identity tokens alone (a user name or a certificate token is
-    BadIdentityTokenRejected before this is asked), and a user name that reaches this
-    all the same is refused (BadUserAccessDenied); ``certificate`` is the secure
-    channel's, which does not make a session anyone in particular. An anonymous session
-    reads and writes what the address space's access levels allow, and never more.
-    """
-
-    def get_user(self, iserver, username=None, password=None, certificate=None):
-        from asyncua.crypto.permission_rules import User, UserRole
-
-        if username is None and password is None:
-            return User(role=UserRole.User, name='anonymous')
-        return None
 
 
 def _answer_writes_per_item(server, writable: set) -> None:

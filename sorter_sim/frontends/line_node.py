@@ -22,8 +22,14 @@ Parameters (besides every station's cell parameters, from the params files'
 (belt between one station's exit and the next one's induct point, m),
 ``chute_names`` (2 per station, left then right; empty: S01L, S01R, ...),
 ``chute_capacity``, ``chute_drain_per_s``, ``time_mode``, ``fast_slice``,
-``real_time_factor``. Bad values stop the node at start with one line naming the
-parameter and what it allows.
+``real_time_factor``, ``record_path`` (the whole line in one MCAP file),
+``modbus_port`` / ``opcua_port`` (0: off) and their ``*_host`` (127.0.0.1): one
+fieldbus server pair for every station's I/O image, exchanged every period: station
+k is Modbus unit id k (the single cell's addresses in each), and OPC UA folder
+``sorter_line/Sk`` with its ``Inputs`` and ``Outputs``; ``foxglove_port`` (0: off),
+``foxglove_host``, ``foxglove_rate_hz``: the whole line's live view, every station
+in its frame (``Sk/cell``) placed along the belt. Bad values stop the node at
+start with one line naming the parameter and what it allows.
 """
 
 from __future__ import annotations
@@ -50,9 +56,10 @@ from sorter_ros.interface import (
 from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 from sorter_sim.frontends.cdr import stamp
+from sorter_sim.frontends.fieldbus import FieldbusServers
 from sorter_sim.frontends.node import SimNode, burst_limit, realtime_tick
 from sorter_sim.model.description import chute_pairs, station_name
-from sorter_sim.runtime.cell import SensorEdge
+from sorter_sim.runtime.cell import STATE_NAMES, SensorEdge
 from sorter_sim.runtime.line import Line, LineExit, LineLayout, StationEvent
 from sorter_sim.runtime.params import ParamError
 
@@ -92,6 +99,41 @@ LINE_PARAMS = {
         1.0,
         lambda v: isinstance(v, float) and 0.001 <= v <= 1000.0,
         'a number in [0.001, 1000]',
+    ),
+    'modbus_port': (
+        0,
+        lambda v: isinstance(v, int) and 0 <= v <= 65535,
+        'a port in [0, 65535] (0: off)',
+    ),
+    'modbus_host': (
+        '127.0.0.1',
+        lambda v: isinstance(v, str) and bool(v.strip()),
+        'a host name or address',
+    ),
+    'opcua_port': (
+        0,
+        lambda v: isinstance(v, int) and 0 <= v <= 65535,
+        'a port in [0, 65535] (0: off)',
+    ),
+    'opcua_host': (
+        '127.0.0.1',
+        lambda v: isinstance(v, str) and bool(v.strip()),
+        'a host name or address',
+    ),
+    'foxglove_port': (
+        0,
+        lambda v: isinstance(v, int) and 0 <= v <= 65535,
+        'a port in [0, 65535] (0: off)',
+    ),
+    'foxglove_host': (
+        '127.0.0.1',
+        lambda v: isinstance(v, str) and bool(v.strip()),
+        'a host name or address',
+    ),
+    'foxglove_rate_hz': (
+        30.0,
+        lambda v: isinstance(v, float) and 0.1 <= v <= 1000.0,
+        'a number in [0.1, 1000] frames per wall second',
     ),
     'record_path': (
         '',
@@ -176,6 +218,12 @@ class LineNode(Node):
             if self.recorder is not None:
                 release_recorder(self.recorder)
             raise
+        self.fieldbus = None
+        self.live_view = None
+        if values['foxglove_port']:
+            self._open_live_view()
+        if values['modbus_port'] or values['opcua_port']:
+            self._open_fieldbus()
         self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
         self._pub_exits = self.create_publisher(DiagnosticStatus, 'line/exits', EVENT_QOS)
         self._pub_full = {
@@ -205,6 +253,69 @@ class LineNode(Node):
             f'{", ..." if n > 3 else ""}), {mode} mode'
         )
 
+    def _open_live_view(self) -> None:
+        """Serve the whole line to Foxglove: every station in its frame, placed along the belt."""
+        from sorter_sim.frontends.live_view import LiveView
+
+        v = self.values
+        stations = [
+            (station_name(k), s.live_layout(), x)
+            for k, (s, x) in enumerate(zip(self.stations, self.line.positions))
+        ]
+        try:
+            self.live_view = LiveView(
+                None,
+                host=v['foxglove_host'],
+                port=v['foxglove_port'],
+                prefix=f'{self.get_namespace().rstrip("/")}/live',
+                max_rate_hz=v['foxglove_rate_hz'],
+                stations=stations,
+            )
+        except ValueError as exc:
+            self._release_stations()
+            raise ParamError(f"parameter 'foxglove_port': {exc}") from None
+        self.get_logger().info(
+            f'live view of the line: Foxglove WebSocket server on '
+            f'ws://{v["foxglove_host"]}:{self.live_view.port}'
+        )
+
+    def _release_stations(self) -> None:
+        """Undo what the constructor built, when a later part of it fails."""
+        if self.live_view is not None:
+            self.live_view.close()
+            self.live_view = None
+        for s in self.stations:
+            s.destroy_node()
+        if self.recorder is not None:
+            release_recorder(self.recorder)
+
+    def _open_fieldbus(self) -> None:
+        """Serve every station's I/O image: Modbus unit id k and OPC UA folder Sk for station k."""
+        v = self.values
+        stations = [(station_name(k), s.attach_io_image()) for k, s in enumerate(self.stations)]
+        self.fieldbus = FieldbusServers(
+            stations=stations,
+            modbus=(v['modbus_host'], v['modbus_port']) if v['modbus_port'] else None,
+            opcua=(v['opcua_host'], v['opcua_port']) if v['opcua_port'] else None,
+            cell_name=self.get_namespace().strip('/').replace('/', '_') or 'sorter_line',
+        )
+        try:
+            self.fieldbus.start()
+        except ValueError as exc:
+            self.fieldbus = None
+            self._release_stations()
+            key = 'modbus_port' if 'Modbus' in str(exc) else 'opcua_port'
+            raise ParamError(f'parameter {key!r}: {exc}') from None
+        served = []
+        if self.fieldbus.modbus_port:
+            served.append(
+                f'Modbus TCP on {v["modbus_host"]}:{self.fieldbus.modbus_port} '
+                '(station k: unit id k)'
+            )
+        if self.fieldbus.opcua_endpoint:
+            served.append(f'OPC UA on {self.fieldbus.opcua_endpoint} (a folder per station)')
+        self.get_logger().info('fieldbus I/O images: ' + ', '.join(served))
+
     @property
     def nodes(self) -> list:
         """Return this node and its stations: everything an executor must spin."""
@@ -223,9 +334,13 @@ class LineNode(Node):
         """
         while n > 0:
             k = self.line.k
-            m = min([n] + [s - k % s for s in self._strides])
+            # with a fieldbus, one period at a time: the I/O images are exchanged every period
+            m = 1 if self.fieldbus is not None else min([n] + [s - k % s for s in self._strides])
             per_station: list[list] = [[] for _ in self.stations]
             t0 = time.perf_counter()
+            if self.fieldbus is not None:
+                for node in self.stations:
+                    node.io_before_period()
             events = self.line.advance(m)
             t1 = time.perf_counter()
             self.cost['physics_s'] += t1 - t0
@@ -236,8 +351,17 @@ class LineNode(Node):
                     self._publish_exit(e)
                 elif isinstance(e, SensorEdge):
                     self._publish(self._pub_full[e.sensor.rsplit('.', 1)[0]], Bool(data=e.blocked))
+            if self.fieldbus is not None:
+                for node, evs in zip(self.stations, per_station):
+                    node.io_after_period(evs)
+                time.sleep(0)  # the servers' thread serves a waiting request within a period
             for node, evs in zip(self.stations, per_station):
                 node.publish_period(evs)
+            view = self.live_view
+            if view is not None and self.line.k % self._strides[0] == 0 and view.due():
+                view.update_stations(
+                    self.line.t_ns, [s.live_state() for s in self.stations], STATE_NAMES
+                )
             self._publish_clock()
             self.cost['publish_s'] += time.perf_counter() - t1
             n -= m
@@ -294,7 +418,13 @@ class LineNode(Node):
         )
 
     def destroy_node(self):
-        """Destroy the stations, then this node."""
+        """Stop the fieldbus servers and the live view, destroy the stations, then this node."""
+        if self.live_view is not None:
+            self.live_view.close()
+            self.live_view = None
+        if self.fieldbus is not None:
+            self.fieldbus.stop()
+            self.fieldbus = None
         for s in self.stations:
             s.destroy_node()
         self.stations = []

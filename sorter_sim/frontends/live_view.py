@@ -138,14 +138,19 @@ class LiveView:
 
     def __init__(
         self,
-        layout: CellLayout,
+        layout: CellLayout | None,
         *,
         host: str,
         port: int,
         prefix: str = '',
         max_rate_hz: float = 30.0,
+        stations: list | None = None,
     ):
-        self.layout = layout
+        # a line: (name, layout, x of its frame in the line's) per station, one server;
+        # each station's entities in its own frame (their ids prefixed 'S01/' ...), its
+        # frame placed along ``world`` on /tf, its values on <prefix>/<name>/values
+        self.stations = list(stations) if stations else [('', layout, 0.0)]
+        layout = self.layout = self.stations[0][1]
         self.prefix = prefix.rstrip('/')
         self.context = foxglove.Context()
         try:
@@ -166,9 +171,15 @@ class LiveView:
             ) from None
         self.scene = SceneUpdateChannel(f'{self.prefix}/scene', context=self.context)
         self.tf = FrameTransformsChannel(f'{self.prefix}/tf', context=self.context)
-        self.values = foxglove.Channel(
-            f'{self.prefix}/values', schema=VALUES_SCHEMA, context=self.context
-        )
+        self.value_channels = {
+            name: foxglove.Channel(
+                f'{self.prefix}/{name + "/" if name else ""}values',
+                schema=VALUES_SCHEMA,
+                context=self.context,
+            )
+            for name, _, _ in self.stations
+        }
+        self.values = self.value_channels[self.stations[0][0]]
         self.min_wall_interval = 1.0 / max_rate_hz
         self._last_wall = -math.inf
         self._paths: dict[int, deque] = {}
@@ -179,7 +190,11 @@ class LiveView:
         return self.server.port
 
     def listening(self) -> bool:
-        return self.scene.has_sinks() or self.tf.has_sinks() or self.values.has_sinks()
+        return (
+            self.scene.has_sinks()
+            or self.tf.has_sinks()
+            or any(c.has_sinks() for c in self.value_channels.values())
+        )
 
     def due(self) -> bool:
         """Return True when a frame should go out now (a client listens, the rate allows)."""
@@ -221,10 +236,37 @@ class LiveView:
             The parcel states' names.
 
         """
+        self.update_stations(
+            t_ns,
+            [
+                {
+                    'parcels': parcels,
+                    'motion': motion,
+                    'alpha': alpha,
+                    'stroke': stroke,
+                    'sensors': sensors,
+                }
+            ],
+            state_names,
+        )
+
+    def update_stations(self, t_ns: int, states: list, state_names) -> None:
+        """
+        Send one frame of every station: ``states[k]`` holds ``update``'s keyword values.
+
+        Parameters
+        ----------
+        t_ns : int
+            The simulated time [ns].
+        states : list of dict
+            Per station (in the order given at construction): parcels, motion, alpha,
+            stroke, sensors, as ``update`` takes them.
+        state_names : sequence of str
+            The parcel states' names.
+
+        """
         self._last_wall = time.monotonic()
         stamp = _stamp(t_ns)
-        fid = self.layout.frame_id
-        self._track_paths(parcels)
         if self.tf.has_sinks():
             self.tf.log(
                 FrameTransforms(
@@ -232,57 +274,69 @@ class LiveView:
                         FrameTransform(
                             timestamp=stamp,
                             parent_frame_id='world',
-                            child_frame_id=fid,
-                            translation=Vector3(x=0.0, y=0.0, z=0.0),
+                            child_frame_id=lay.frame_id,
+                            translation=Vector3(x=offset, y=0.0, z=0.0),
                             rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
                         )
+                        for _, lay, offset in self.stations
                     ]
                 ),
                 log_time=t_ns,
             )
-        if self.scene.has_sinks():
-            entities = self._static_entities(stamp, alpha, stroke, sensors)
-            entities += self._parcel_entities(stamp, parcels, motion, state_names)
+        scene = self.scene.has_sinks()
+        entities = []
+        for (name, lay, _), st in zip(self.stations, states):
+            parcels, motion = st['parcels'], st['motion']
+            ids = f'{name}/' if name else ''
+            self._track_paths(parcels, ids)
+            if scene:
+                entities += self._static_entities(
+                    stamp, st['alpha'], st['stroke'], st['sensors'], lay, ids
+                )
+                entities += self._parcel_entities(stamp, parcels, motion, state_names, lay, ids)
+            values = self.value_channels[name]
+            if values.has_sinks():
+                values.log(
+                    {
+                        't': t_ns * 1e-9,
+                        'alpha_deg': math.degrees(st['alpha']),
+                        'stroke': st['stroke'],
+                        'sensors': {k: int(v) for k, v in st['sensors'].items()},
+                        'parcels': [
+                            {
+                                'id': int(pid),
+                                'label': motion['label'][i],
+                                'state': state_names[int(parcels['state'][i])],
+                                'speed': float(motion['speed'][i]),
+                                'slip_belt': float(motion['slip_belt'][i]),
+                                'slip_disks': float(motion['slip_disks'][i]),
+                            }
+                            for i, pid in enumerate(parcels['id'].tolist())
+                        ],
+                    },
+                    log_time=t_ns,
+                )
+        if scene:
             # the frame replaces the previous one whole: parcels that left disappear
             clear = SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletionType.All)
             self.scene.log(SceneUpdate(deletions=[clear], entities=entities), log_time=t_ns)
-        if self.values.has_sinks():
-            self.values.log(
-                {
-                    't': t_ns * 1e-9,
-                    'alpha_deg': math.degrees(alpha),
-                    'stroke': stroke,
-                    'sensors': {k: int(v) for k, v in sensors.items()},
-                    'parcels': [
-                        {
-                            'id': int(pid),
-                            'label': motion['label'][i],
-                            'state': state_names[int(parcels['state'][i])],
-                            'speed': float(motion['speed'][i]),
-                            'slip_belt': float(motion['slip_belt'][i]),
-                            'slip_disks': float(motion['slip_disks'][i]),
-                        }
-                        for i, pid in enumerate(parcels['id'].tolist())
-                    ],
-                },
-                log_time=t_ns,
-            )
         self.frames_sent += 1
 
-    def _track_paths(self, parcels: dict) -> None:
+    def _track_paths(self, parcels: dict, ids: str = '') -> None:
+        """Extend the paths of one station's parcels (keyed ids + parcel id), drop the gone."""
         live = set()
         for pid, x, y in zip(*(parcels[k].tolist() for k in ('id', 'x', 'y'))):
-            live.add(pid)
-            path = self._paths.get(pid)
+            key = (ids, pid)
+            live.add(key)
+            path = self._paths.get(key)
             if path is None:
-                path = self._paths[pid] = deque(maxlen=PATH_POINTS)
+                path = self._paths[key] = deque(maxlen=PATH_POINTS)
             if not path or math.hypot(x - path[-1][0], y - path[-1][1]) >= PATH_STEP:
                 path.append((x, y))
-        for pid in set(self._paths) - live:
-            del self._paths[pid]
+        for key in [k for k in self._paths if k[0] == ids and k not in live]:
+            del self._paths[key]
 
-    def _static_entities(self, stamp, alpha, stroke, sensors) -> list[SceneEntity]:
-        lay = self.layout
+    def _static_entities(self, stamp, alpha, stroke, sensors, lay, ids) -> list[SceneEntity]:
         w2, b = 0.5 * lay.belt_width, lay.disk_field_length
         x0, x1 = lay.induct_x - 0.3, lay.exit_x + 0.3
         lo, hi = lay.chute_x_range
@@ -290,7 +344,7 @@ class LiveView:
         belt = SceneEntity(
             timestamp=stamp,
             frame_id=fid,
-            id='belt',
+            id=f'{ids}belt',
             cubes=[
                 _box(x0, 0.0, -w2, w2, -0.03, 0.0, (0.25, 0.25, 0.28)),
                 _box(b, x1, -w2, w2, -0.03, 0.0, (0.25, 0.25, 0.28)),
@@ -304,7 +358,7 @@ class LiveView:
         chutes = SceneEntity(
             timestamp=stamp,
             frame_id=fid,
-            id='chutes',
+            id=f'{ids}chutes',
             cubes=[
                 _box(lo, hi, w2, w2 + CHUTE_WIDTH, -0.2, -0.18, (0.3, 0.6, 0.3), 0.6),
                 _box(lo, hi, -w2 - CHUTE_WIDTH, -w2, -0.2, -0.18, (0.3, 0.45, 0.7), 0.6),
@@ -333,7 +387,7 @@ class LiveView:
         disks = SceneEntity(
             timestamp=stamp,
             frame_id=fid,
-            id='disk_field',
+            id=f'{ids}disk_field',
             metadata=[
                 KeyValuePair(key='alpha_deg', value=f'{math.degrees(alpha):.2f}'),
                 KeyValuePair(key='stroke', value=f'{stroke:.3f}'),
@@ -400,23 +454,27 @@ class LiveView:
             )
         )
         sensors_entity = SceneEntity(
-            timestamp=stamp, frame_id=fid, id='sensors', cubes=sensor_cubes, texts=sensor_texts
+            timestamp=stamp,
+            frame_id=fid,
+            id=f'{ids}sensors',
+            cubes=sensor_cubes,
+            texts=sensor_texts,
         )
         return [belt, chutes, disks, sensors_entity]
 
-    def _parcel_entities(self, stamp, parcels, motion, state_names) -> list[SceneEntity]:
-        fid = self.layout.frame_id
+    def _parcel_entities(self, stamp, parcels, motion, state_names, lay, ids) -> list[SceneEntity]:
+        fid = lay.frame_id
         out = []
         cols = (parcels[k].tolist() for k in ('id', 'x', 'y', 'phi', 'A', 'B', 'state'))
         for i, (pid, x, y, phi, A, B, code) in enumerate(zip(*cols)):
             state = state_names[code]
             label = motion['label'][i]
-            path = self._paths.get(pid, ())
+            path = self._paths.get((ids, pid), ())
             out.append(
                 SceneEntity(
                     timestamp=stamp,
                     frame_id=fid,
-                    id=f'parcel/{pid}',
+                    id=f'{ids}parcel/{pid}',
                     metadata=[
                         KeyValuePair(key='label', value=label),
                         KeyValuePair(key='state', value=state),

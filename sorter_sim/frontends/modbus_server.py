@@ -8,6 +8,10 @@ protocol id, and answered function codes 17 and 24 with its own built-in data. A
 over one image with nine function codes is small enough to own and test byte by byte;
 the project's clients (the soft PLC, the tests) still use pymodbus and other stacks.
 
+A line's stations share one server: the unit id of a request picks the station's
+image (``units``), and a unit id no station has is exception 0x0B (gateway target
+device failed to respond); a single cell answers whatever the unit id.
+
 Function codes: 1, 2 (read coils / discrete inputs), 3, 4 (read holding / input
 registers), 5, 6 (write single coil / register), 15, 16 (write multiple coils /
 registers), 22 (mask write register), 23 (read/write multiple registers), 17 (report
@@ -29,6 +33,7 @@ from sorter_sim.model.io_map import COIL, DI, HR, IR, WriteRefused
 ILLEGAL_FUNCTION = 1
 ILLEGAL_ADDRESS = 2
 ILLEGAL_VALUE = 3
+GATEWAY_TARGET_FAILED = 0x0B
 
 VENDOR = 'sorter_cell'
 PRODUCT = 'sorter_cell emulated pivot diverter'
@@ -56,8 +61,11 @@ class ModbusTcpImageServer:
     'illegal_functions', 'frames_dropped'.
     """
 
-    def __init__(self, image, host: str, port: int):
+    def __init__(self, image, host: str, port: int, units: dict | None = None):
         self.image = image
+        # a line's stations: unit id -> the server answering for that station's image
+        self.units = units
+        self.units_refused = 0
         self.host = host
         self.port = port
         self._server: asyncio.base_events.Server | None = None
@@ -91,7 +99,15 @@ class ModbusTcpImageServer:
                 if protocol != 0:
                     self.image.count('frames_dropped')
                     continue
-                reply = self.answer(pdu)
+                if self.units is None:
+                    reply = self.answer(pdu)
+                elif unit in self.units:
+                    reply = self.units[unit].answer(pdu)
+                else:
+                    # no station at this unit id: what a gateway answers for a device
+                    # that is not there (Modbus Application Protocol 7, code 0x0B)
+                    self.units_refused += 1
+                    reply = bytes([pdu[0] | 0x80, GATEWAY_TARGET_FAILED])
                 writer.write(struct.pack('>HHHB', tid, 0, len(reply) + 1, unit) + reply)
                 # a client that does not read its answers is not served further until it
                 # does; its socket buffer, not this process, holds the backlog

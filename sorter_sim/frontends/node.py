@@ -42,6 +42,7 @@ from sorter_ros.interface import (
     SERVICE_QOS,
     STREAM_QOS,
     accept_integers_for_doubles,
+    declare_typed,
     parameter_problem,
     plain,
     quiet_publisher_events,
@@ -203,7 +204,8 @@ class SimNode(Node):
             if on:
                 raise ParamError(
                     f'parameter(s) {", ".join(on)}: a station of a line has no live view or '
-                    'fieldbus of its own yet; leave them 0'
+                    'fieldbus server of its own: set the line\'s (its stations are unit ids '
+                    'and folders of one server); leave them 0'
                 )
         warm_s = warm_cell(self.params)
         if warm_s > 1.0:
@@ -310,19 +312,9 @@ class SimNode(Node):
                 )
             if p.foxglove_port:
                 ns = self.get_namespace().rstrip('/')
-                layout = CellLayout(
-                    frame_id=self.frame_id,
-                    belt_width=p.belt_width,
-                    disk_field_length=p.disk_field_length,
-                    chute_x_range=p.chute_x_range,
-                    induct_x=p.induct_x,
-                    exit_x=p.exit_x,
-                    scanner_x=p.scanner_x,
-                    photo_eyes=tuple(zip(p.photo_eyes_names, p.photo_eyes_x)),
-                )
                 try:
                     self.live_view = LiveView(
-                        layout,
+                        self.live_layout(),
                         host=p.foxglove_host,
                         port=p.foxglove_port,
                         prefix=f'{ns}/live',
@@ -340,7 +332,13 @@ class SimNode(Node):
             self._close_outputs()
             raise
 
-    def _open_fieldbus(self) -> None:
+    def attach_io_image(self) -> IOImage:
+        """
+        Give this node a fieldbus I/O image, exchanged every period, and return it.
+
+        A cell serves it itself (``modbus_port`` / ``opcua_port``); a line's stations
+        are served together by the line's servers (``LineNode``).
+        """
         p = self.params
         self.io_image = IOImage(
             io_map(self.cell.sensor_names),
@@ -357,6 +355,21 @@ class SimNode(Node):
         self._scanner = ScannerQueue()
         self._belt_travel = 0.0
         self._io_refused = 0
+        self._refresh_io([])
+        return self.io_image
+
+    def io_before_period(self) -> None:
+        """Apply the outputs the PLC wrote, at the start of a period (a line's station)."""
+        self._apply_io()
+        self._belt_travel += self.cell.belt_velocity * self.cell.dt
+
+    def io_after_period(self, events) -> None:
+        """Latch the inputs at the end of a period (a line's station)."""
+        self._refresh_io(events)
+
+    def _open_fieldbus(self) -> None:
+        p = self.params
+        self.attach_io_image()
         self.fieldbus = FieldbusServers(
             self.io_image,
             modbus=(p.modbus_host, p.modbus_port) if p.modbus_port else None,
@@ -369,7 +382,6 @@ class SimNode(Node):
             self.fieldbus = None
             key = 'modbus_port' if 'Modbus' in str(exc) else 'opcua_port'
             raise ParamError(f'parameter {key!r}: {exc}') from None
-        self._refresh_io([])
         served = []
         if self.fieldbus.modbus_port:
             served.append(f'Modbus TCP on {p.modbus_host}:{self.fieldbus.modbus_port}')
@@ -470,7 +482,7 @@ class SimNode(Node):
         values = {}
         for spec in SCHEMA:
             try:
-                param = self.declare_parameter(spec.name, spec.default, descriptor(spec))
+                param = declare_typed(self, spec.name, spec.default, descriptor(spec))
             except (InvalidParameterTypeException, InvalidParameterValueException):
                 given = self._parameter_overrides[spec.name]
                 raise ParamError(
@@ -561,11 +573,10 @@ class SimNode(Node):
             m = 1 if self.io_image is not None else min([n] + [s - k % s for s in strides])
             t0 = time.perf_counter()
             if self.io_image is not None:
-                self._apply_io()
-                self._belt_travel += self.cell.belt_velocity * self.cell.dt
+                self.io_before_period()
             events = self.cell.advance(m)
             if self.io_image is not None:
-                self._refresh_io(events)
+                self.io_after_period(events)
                 # hand the interpreter to the servers' thread: a client's request waiting
                 # there is served within a period, not after Python's 5 ms switch interval
                 time.sleep(0)
@@ -617,17 +628,33 @@ class SimNode(Node):
             topic = self._topic_names[publisher] = publisher.topic_name
         self.published[topic] += 1
 
-    def _update_live_view(self) -> None:
-        c = self.cell
-        self.live_view.update(
-            c.t_ns,
-            parcels=c.parcels(),
-            motion=c.parcel_motion(),
-            alpha=c.alpha,
-            stroke=c.stroke,
-            sensors=c.sensor_states(),
-            state_names=STATE_NAMES,
+    def live_layout(self) -> CellLayout:
+        """Return where things are in this cell's frame, for a live view."""
+        p = self.params
+        return CellLayout(
+            frame_id=self.frame_id,
+            belt_width=p.belt_width,
+            disk_field_length=p.disk_field_length,
+            chute_x_range=p.chute_x_range,
+            induct_x=p.induct_x,
+            exit_x=p.exit_x,
+            scanner_x=p.scanner_x,
+            photo_eyes=tuple(zip(p.photo_eyes_names, p.photo_eyes_x)),
         )
+
+    def live_state(self) -> dict:
+        """Return what a live view shows of this cell now (``LiveView.update``'s values)."""
+        c = self.cell
+        return {
+            'parcels': c.parcels(),
+            'motion': c.parcel_motion(),
+            'alpha': c.alpha,
+            'stroke': c.stroke,
+            'sensors': c.sensor_states(),
+        }
+
+    def _update_live_view(self) -> None:
+        self.live_view.update(self.cell.t_ns, state_names=STATE_NAMES, **self.live_state())
 
     def _publish_status(self) -> None:
         """
