@@ -116,7 +116,14 @@ def run_line(args) -> int | str:
             for k in range(n)
         ]
         nodes += ctls
-        wcs = WcsNode(context=ctx, parameter_overrides=[Parameter('stations', value=n)])
+        wcs = WcsNode(
+            context=ctx,
+            parameter_overrides=[
+                Parameter('stations', value=n),
+                Parameter('use_sim_time', value=True),  # its recording on the line's clock
+                Parameter('record_path', value=args.record or ''),
+            ],
+        )
         nodes.append(wcs)
         obs = rclpy.create_node('sorter_line_demo', context=ctx)
         nodes.append(obs)

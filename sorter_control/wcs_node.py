@@ -42,6 +42,7 @@ from std_msgs.msg import Bool, String
 from sorter_control.wcs import LineWcs, PlanError
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_ros.env import run_node
+from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS
 
 NODE_NAME = 'sorter_wcs'
@@ -58,6 +59,7 @@ class WcsNode(Node):
         self.scan_eye = self.declare_parameter('scan_eye', 'pe_scan').value
         port = self.declare_parameter('opcua_port', 0).value
         host = self.declare_parameter('opcua_host', '127.0.0.1').value
+        record = self.declare_parameter('record_path', '').value
         if not (isinstance(n, int) and 1 <= n <= 64):
             raise ValueError(f"parameter 'stations' must be an integer in [1, 64], got {n!r}")
         if not (isinstance(port, int) and 0 <= port <= 65535):
@@ -72,8 +74,17 @@ class WcsNode(Node):
             raise ValueError(f"parameter 'scan_eye' must be an eye's name, got {self.scan_eye!r}")
         if not (isinstance(names, list) and all(isinstance(x, str) for x in names)):
             raise ValueError(f"parameter 'chute_names' must be a list of names, got {names!r}")
+        if not isinstance(record, str):
+            raise ValueError(f"parameter 'record_path' must be a file path, got {record!r}")
         chutes = chute_pairs(n, names)
         self.wcs = LineWcs(chutes)
+        self.recorder = None
+        if record:
+            # in one process with the line, the same file: open_recorder shares a path
+            try:
+                self.recorder = open_recorder(record, self.get_logger().error)
+            except ValueError as exc:
+                raise ValueError(f"parameter 'record_path': {exc}") from None
         self.n_refused = 0
         self._lock = threading.Lock()  # the executor's callbacks and the OPC UA calls
         self.opcua = None
@@ -126,11 +137,19 @@ class WcsNode(Node):
             self.get_logger().info(f'warehouse over OPC UA on {self.opcua.endpoint}')
 
     def destroy_node(self):
-        """Stop the OPC UA server, then the node."""
+        """Stop the OPC UA server, finish the recording, then the node."""
         if self.opcua is not None:
             self.opcua.stop()
             self.opcua = None
+        if self.recorder is not None:
+            release_recorder(self.recorder)
+            self.recorder = None
         return super().destroy_node()
+
+    def _publish(self, publisher, msg) -> None:
+        """Publish ``msg``, and record it (stamped with the node's clock) when recording."""
+        t_ns = self.get_clock().now().nanoseconds if self.recorder is not None else 0
+        publish_recorded(publisher, msg, self.recorder, t_ns)
 
     def _resync(self) -> None:
         """Send a station's whole routing table to a controller that just subscribed."""
@@ -168,11 +187,12 @@ class WcsNode(Node):
                 self.n_refused += 1
                 text = f'sort plan {version!r} refused: {exc}'
                 self.get_logger().warning(text)
-                self._pub_refused.publish(String(data=text))
+                self._publish(self._pub_refused, String(data=text))
                 if self.opcua is not None:
                     self.opcua.refused_change(text)
                 return text
-            self._pub_active.publish(
+            self._publish(
+                self._pub_active,
                 DiagnosticStatus(
                     name=self.wcs.version,
                     message='active',
@@ -257,7 +277,8 @@ class WcsNode(Node):
             ('station', d.station),
             ('t', f'{d.t:.6f}'),
         ]
-        self._pub_disp.publish(
+        self._publish(
+            self._pub_disp,
             DiagnosticStatus(
                 level=DiagnosticStatus.OK if d.code == 'sorted' else DiagnosticStatus.WARN,
                 name=d.label,

@@ -106,7 +106,7 @@ def test_every_disposition_code():
     assert (d.code, d.chute, d.station, d.t) == ('mis_sorted', 'S03L', 'S03', 2.5)
 
 
-def _line_demo(tmp_path, executor):
+def _line_demo(tmp_path, executor, *extra):
     path = tmp_path / f'{executor}.jsonl'
     done = subprocess.run(
         [
@@ -123,6 +123,7 @@ def _line_demo(tmp_path, executor):
             executor,
             '--dispositions',
             str(path),
+            *extra,
         ],
         capture_output=True,
         text=True,
@@ -136,7 +137,20 @@ def _line_demo(tmp_path, executor):
 
 @pytest.mark.ros
 def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs(tmp_path):
-    s, records = _line_demo(tmp_path, 'events')
+    from collections import Counter
+
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    bag = tmp_path / 'line.mcap'
+    s, records = _line_demo(tmp_path, 'events', '--record', str(bag))
+    # the recording holds the warehouse's side too: every disposition, and where each left
+    topics = Counter()
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        for conn, _, _ in reader.messages():
+            topics[conn.topic] += 1
+    assert topics['/wcs/dispositions'] == topics['/line/exits'] == len(records)
+    assert topics['/wcs/sort_plan/active'] == 1
     assert s['stations'] == 3 and s['mis_sorted'] == 0 and s['jams'] == 0
     assert s['executor'] == 'EventsExecutor'
     # the line runs empty after the timed span: every parcel inducted has its disposition
