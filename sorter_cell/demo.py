@@ -67,6 +67,28 @@ def add_arguments(parser) -> None:
         "single-threaded one (single)",
     )
     parser.add_argument(
+        "--segments",
+        type=int,
+        default=1,
+        metavar="K",
+        help="with --stations N: run the line as K segment processes (1..N, default 1), "
+        "parcels handed between them over ROS 2",
+    )
+    parser.add_argument(
+        "--parcels",
+        type=int,
+        default=0,
+        metavar="M",
+        help="with --stations N: a batch of M parcels, run until each has its disposition "
+        "(in place of --sim-time)",
+    )
+    parser.add_argument(
+        "--no-drain",
+        action="store_true",
+        help="with --stations N: stop at --sim-time, the parcels still on the line "
+        "counted in in_cell_at_end (default: the line runs empty first)",
+    )
+    parser.add_argument(
         "--dispositions",
         default=None,
         metavar="FILE.jsonl",
@@ -561,8 +583,11 @@ def run(args) -> int | str:
         from sorter_cell.line_demo import run_line
 
         return run_line(args)
-    if args.executor or args.dispositions:
-        return "--executor and --dispositions are the line's: use them with --stations N > 1"
+    if args.executor or args.dispositions or args.segments != 1 or args.parcels or args.no_drain:
+        return (
+            "--executor, --segments, --parcels, --no-drain and --dispositions are the line's: "
+            "use them with --stations N > 1"
+        )
     err = _check_args(args)
     if err:
         return err

@@ -35,7 +35,8 @@ def run_line(args) -> int | str:
     Parameters
     ----------
     args : argparse.Namespace
-        ``sorter demo``'s arguments (``stations``, ``sim_time``, ``seed``, ``json``, ``quiet``).
+        ``sorter demo``'s arguments (``stations``, ``segments``, ``sim_time``, ``seed``,
+        ``json``, ...).
 
     Returns
     -------
@@ -44,23 +45,25 @@ def run_line(args) -> int | str:
         otherwise; a message for a refused input.
 
     """
-    import numpy as np
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
     from rclpy.context import Context
-    from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
 
-    from sorter_control.node import ControllerNode
-    from sorter_control.wcs_node import WcsNode
+    from sorter_cell.line_segment import build_segment
     from sorter_ros.env import apply_ros_env_defaults, find_config_dir
-    from sorter_ros.interface import EVENT_QOS, SENSOR_QOS
-    from sorter_sim.frontends.line_node import LineNode
-    from sorter_sim.model.description import station_name
 
     n = args.stations
+    k_seg = getattr(args, 'segments', 1) or 1
     if not (isinstance(n, int) and 1 <= n <= 64):
         return f'--stations must be an integer in [1, 64], got {n}'
+    if not (isinstance(k_seg, int) and 1 <= k_seg <= n):
+        return f'--segments must be an integer in [1, --stations] = [1, {n}], got {k_seg}'
+    if not (isinstance(args.parcels, int) and 0 <= args.parcels <= 100_000):
+        return f'--parcels must be an integer in [0, 100000], got {args.parcels}'
+    if k_seg > 1 and (args.record or args.foxglove):
+        return (
+            '--segments K > 1: --record and --foxglove are a single process\'s, not a segment\'s'
+        )
     apply_ros_env_defaults()
     config = find_config_dir()
     ctx = Context()
@@ -77,178 +80,37 @@ def run_line(args) -> int | str:
             'error',
         ],
     )
-    nodes = []
+    nodes, procs = [], []
     fast = args.rtf == 'fast'
     try:
-        line = LineNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter('stations', value=n),
-                Parameter('time_mode', value='fast' if fast else 'realtime'),
-                Parameter('fast_slice', value=FAST_SLICE),
-                Parameter('real_time_factor', value=1.0 if fast else float(args.rtf)),
-                Parameter('record_path', value=args.record or ''),
-                Parameter('foxglove_port', value=int(args.foxglove or 0)),
-            ],
-            station_params={
-                'arrival': 'none',
-                'labels': ['P'],
-                'label_pattern': '{label}{id:05d}',
-                'seed': int(args.seed),
-                'pose_rate_hz': 50.0,
-                **({'arrival_gap': [float(g) for g in args.gap]} if args.gap else {}),
-            },
-        )
-        nodes += line.nodes
-        ctls = [
-            ControllerNode(
-                context=ctx,
-                namespace=f'/{station_name(k)}',
-                parameter_overrides=[
-                    Parameter('use_sim_time', value=True),
-                    # a station's routing table is the WCS's alone (the single cell's rules
-                    # would divert labels that happen to match them)
-                    Parameter('routing.rules', Parameter.Type.STRING_ARRAY, []),
-                    Parameter('diagnostics_period', value=5.0),
-                    Parameter('record_path', value=args.record or ''),
-                ],
+        line = ctls = None
+        if k_seg == 1:
+            line, ctls = build_segment(
+                ctx,
+                first=1,
+                stations=n,
+                line_stations=n,
+                seed=args.seed,
+                gap=args.gap,
+                fast=fast,
+                rtf=1.0 if fast else float(args.rtf),
+                record=args.record or '',
+                foxglove=int(args.foxglove or 0),
+                count=args.parcels or 0,
             )
-            for k in range(n)
-        ]
-        nodes += ctls
-        wcs = WcsNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter('stations', value=n),
-                Parameter('use_sim_time', value=True),  # its recording on the line's clock
-                Parameter('record_path', value=args.record or ''),
-            ],
-        )
-        nodes.append(wcs)
-        obs = rclpy.create_node('sorter_line_demo', context=ctx)
-        nodes.append(obs)
-        disp: dict[str, str] = {}
-        records: list[dict] = []  # every disposition, in the order the WCS gave them
-        exits: dict[str, str] = {}
-
-        def on_disposition(m):
-            disp[m.name] = m.message
-            records.append({kv.key: kv.value for kv in m.values})
-
-        obs.create_subscription(DiagnosticStatus, 'wcs/dispositions', on_disposition, EVENT_QOS)
-        obs.create_subscription(
-            DiagnosticStatus,
-            'line/exits',
-            lambda m: exits.__setitem__({kv.key: kv.value for kv in m.values}['label'], m.message),
-            EVENT_QOS,
-        )
-        active = []
-        obs.create_subscription(
-            DiagnosticStatus, 'wcs/sort_plan/active', active.append, SENSOR_QOS
-        )
-        pub_plan = obs.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
-        pub_req = obs.create_publisher(KeyValue, 'wcs/requests', EVENT_QOS)
-        ex = _executor(ctx, args.executor or 'events')
-        for node in nodes:
-            ex.add_node(node)
-
-        def spin_until(pred, wall_s):
-            end = time.monotonic() + wall_s
-            while not pred():
-                if time.monotonic() > end:
-                    return False
-                ex.spin_once(timeout_sec=0.02)
-            return True
-
-        if not spin_until(
-            lambda: all(c.logic is not None and c.logic.state == 'running' for c in ctls), 120.0
-        ):
-            return 'the stations\' controllers did not start within 120 s'
-        chutes = [c.name for c in line.line.chutes]
-        dests = [f'D{j + 1:02d}' for j in range(len(chutes))]
-        spin_until(lambda: pub_plan.get_subscription_count() > 0, 10.0)
-        pub_plan.publish(
-            DiagnosticStatus(
-                name='v1', values=[KeyValue(key=d, value=c) for d, c in zip(dests, chutes)]
-            )
-        )
-        if not spin_until(lambda: active, 10.0):
-            return 'the warehouse node did not take the sort plan'
-        rng = np.random.default_rng(int(args.seed))
-        expected = math.ceil(args.sim_time * 1.5) + 10  # more than the infeed can send
-        want = {}
-        for i in range(1, expected + 1):
-            label = f'P{i:05d}'
-            want[label] = dests[int(rng.integers(len(dests)))]
-            pub_req.publish(KeyValue(key=label, value=want[label]))
-            if i % 50 == 0:  # within the subscription's queue (depth 100)
-                spin_until(lambda i=i: len(wcs.wcs.requests) >= i, 10.0)
-        if not spin_until(lambda: len(wcs.wcs.requests) == expected, 10.0):
-            return f'the warehouse node took {len(wcs.wcs.requests)} of {expected} requests'
-        spin_until(lambda: False, 0.3)  # the routing updates reach the stations
-        t0, wall0 = line.line.t, time.monotonic()
-        line.cost = {'physics_s': 0.0, 'publish_s': 0.0}
-        scans0 = [c.logic.scan_wall_total for c in ctls]
-        line.stations[0].set_parameters([Parameter('arrival', value='gap')])
-        spin_until(lambda: line.line.t >= t0 + args.sim_time, math.inf)
-        wall = time.monotonic() - wall0
-        sim = line.line.t - t0
-        n_out = len(exits)
-        ctl_s = sum(c.logic.scan_wall_total - w0 for c, w0 in zip(ctls, scans0))
-        cost = dict(line.cost)
-        # the infeed stops and the line runs empty, so that every parcel inducted gets
-        # its disposition: at most the belt's transit over the whole line, twice, + 10 s
-        line.stations[0].set_parameters([Parameter('arrival', value='none')])
-        p0 = line.stations[0].params
-        transit = (line.line.layout.positions[-1] + p0.exit_x - p0.induct_x) / p0.belt_speed
-        t_drain = line.line.t + 2.0 * transit + 10.0
-        spin_until(lambda: line.line.n_parcels == 0 or line.line.t >= t_drain, math.inf)
-        ex.remove_node(line)  # stop the clock; let the last messages in
-        inducted = line.stations[0].cell.n_inducted
-        spin_until(lambda: len(disp) + line.line.n_parcels >= inducted, 5.0)
-        on_line = line.line.n_parcels
-        exit_counts = Counter(exits.values())
-        codes = Counter(r['code'] for r in records)
-        if args.dispositions:
-            with open(args.dispositions, 'w', encoding='utf-8') as f:
-                for r in records:
-                    f.write(json.dumps(r, sort_keys=True) + '\n')
-        summary = {
-            'stations': n,
-            'inducted': inducted,
-            'mis_sorted': codes.get('mis_sorted', 0),
-            'jams': codes.get('jammed', 0),
-            'in_cell_at_end': on_line,
-            'exits': dict(sorted(exit_counts.items())),
-            'dispositions': dict(sorted(codes.items())),
-            'throughput_pcs_h': 3600.0 * n_out / sim if sim > 0 else 0.0,
-            'real_time_factor': sim / wall if wall > 0 else 0.0,
-            'sim_time_s': sim,
-            'executor': type(ex).__name__,
-            'wall_s': wall,
-            'chutes_reached': sum(1 for c in chutes if exit_counts.get(c)),
-            'chutes': len(chutes),
-            # where the wall time went: the line's physics, the stations' publishing, the
-            # PLC programs' scans; the rest is DDS, the executor and the callbacks around them
-            'cost_s': {
-                'physics': round(cost['physics_s'], 3),
-                'publishing': round(cost['publish_s'], 3),
-                'controllers': round(ctl_s, 3),
-                'other': round(wall - cost['physics_s'] - cost['publish_s'] - ctl_s, 3),
-            },
-        }
-        ok = (
-            summary['mis_sorted'] == 0
-            and summary['jams'] == 0
-            and sum(codes.values()) + on_line == inducted
-        )
-        if args.json:
-            print(json.dumps(summary, sort_keys=True))
+            nodes += [*line.nodes, *ctls]
         else:
-            for k, v in summary.items():
-                print(f'  {k:<22} {v}')
-        return 0 if ok else 1
+            procs = _start_segments(args, n, k_seg)
+        return _run(args, ctx, nodes, line, ctls, procs)
     finally:
+        for proc, _ in procs:
+            if proc.poll() is None:
+                proc.terminate()
+        for proc, _ in procs:
+            try:
+                proc.wait(timeout=20)
+            except Exception:  # noqa: BLE001 - a segment that will not stop is killed
+                proc.kill()
         for node in nodes:
             try:
                 node.destroy_node()
@@ -257,26 +119,286 @@ def run_line(args) -> int | str:
         rclpy.try_shutdown(context=ctx)
 
 
-def _executor(ctx, kind: str):
+def segment_bounds(n: int, k_seg: int) -> list[tuple[int, int]]:
     """
-    Return the line's executor: rclpy's events executor, or the single-threaded one.
+    Return (first station, stations) of each of ``k_seg`` segments of ``n`` stations.
 
-    The single-threaded executor builds a new wait set from every entity of every node
-    on each pass (about 110 a station: the station's and its controller's publishers,
-    subscriptions, services, timers and their QoS event handlers), in Python: with 24
-    stations a pass costs more wall time than the 5 ms of simulated time it serves.
-    The events executor (``rclpy.experimental``, in C++) queues each entity's events as
-    they happen and walks nothing. The line's results do not depend on the choice (a
-    test runs both and compares every parcel's exit); the single-threaded one stays
-    for an rclpy without the events executor.
+    As even as can be, the longer segments upstream: 10 stations in 3 segments are
+    4 + 3 + 3.
+
+    Parameters
+    ----------
+    n : int
+        The line's stations.
+    k_seg : int
+        Segments, 1..n.
+
+    Returns
+    -------
+    list of (int, int)
+        Per segment, its first station (1-based) and its count.
+
     """
-    if kind == 'events':
+    base, extra = divmod(n, k_seg)
+    out, first = [], 1
+    for j in range(k_seg):
+        count = base + (1 if j < extra else 0)
+        out.append((first, count))
+        first += count
+    return out
+
+
+def _start_segments(args, n: int, k_seg: int) -> list:
+    """Start one process per segment; return (process, clock topic) each, once all are ready."""
+    import subprocess
+    import sys
+
+    procs = []
+    for j, (first, count) in enumerate(segment_bounds(n, k_seg), 1):
+        clock = f'/line/segment{j}/clock'
+        cmd = [
+            sys.executable,
+            '-m',
+            'sorter_cell.line_segment',
+            '--first',
+            str(first),
+            '--stations',
+            str(count),
+            '--line-stations',
+            str(n),
+            '--seed',
+            str(int(args.seed)),
+            '--clock',
+            clock,
+        ]
+        if args.gap:
+            cmd += ['--gap', *(str(float(g)) for g in args.gap)]
+        if args.parcels:
+            cmd += ['--parcels', str(args.parcels)]
+        if args.rtf != 'fast':
+            cmd += ['--rtf', str(float(args.rtf))]
+        procs.append((subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, bufsize=1), clock))
+    for proc, _ in procs:
+        line = proc.stdout.readline().strip()
+        if line != 'ready':
+            raise RuntimeError(f'a segment process did not start: {line!r}')
+    return procs
+
+
+def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
+    """Drive the line (in this process, or its segments' processes) and report."""
+    from sorter_cell.line_segment import line_executor
+    import numpy as np
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import String
+
+    from sorter_control.wcs_node import WcsNode
+    from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
+
+    n = args.stations
+    segments = len(procs) or 1
+    wcs = WcsNode(
+        context=ctx,
+        parameter_overrides=[
+            Parameter('stations', value=n),
+            Parameter('use_sim_time', value=line is not None),  # recording on the line's clock
+            Parameter('record_path', value=args.record or ''),
+        ],
+    )
+    nodes.append(wcs)
+    obs = rclpy.create_node('sorter_line_demo', context=ctx)
+    nodes.append(obs)
+    records: list[dict] = []  # every disposition, in the order the WCS gave them
+    exits: dict[str, str] = {}
+    scanned: set[str] = set()
+    clock = {'t': 0.0}
+    obs.create_subscription(
+        DiagnosticStatus,
+        'wcs/dispositions',
+        lambda m: records.append({kv.key: kv.value for kv in m.values}),
+        EVENT_QOS,
+    )
+    obs.create_subscription(
+        DiagnosticStatus,
+        'line/exits',
+        lambda m: exits.__setitem__({kv.key: kv.value for kv in m.values}['label'], m.message),
+        EVENT_QOS,
+    )
+    obs.create_subscription(String, '/S01/scanner/label', lambda m: scanned.add(m.data), EVENT_QOS)
+    # the line's time: its last segment's (the others are ahead of it in a lock-step line)
+    obs.create_subscription(
+        Clock,
+        procs[-1][1] if procs else '/clock',
+        lambda m: clock.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
+        STREAM_QOS,
+    )
+    active = []
+    obs.create_subscription(DiagnosticStatus, 'wcs/sort_plan/active', active.append, SENSOR_QOS)
+    pub_plan = obs.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
+    pub_req = obs.create_publisher(KeyValue, 'wcs/requests', EVENT_QOS)
+    infeed = AsyncParameterClient(obs, '/S01/sorter_sim')
+    ex = line_executor(ctx, args.executor or 'events')
+    for node in nodes:
+        ex.add_node(node)
+
+    def spin_until(pred, wall_s):
+        end = time.monotonic() + wall_s
+        while not pred():
+            if time.monotonic() > end:
+                return False
+            ex.spin_once(timeout_sec=0.02)
+        return True
+
+    def set_arrival(value):
+        fut = infeed.set_parameters([Parameter('arrival', value=value)])
+        return spin_until(fut.done, 20.0) and fut.result().results[0].successful
+
+    if ctls is not None and not spin_until(
+        lambda: all(c.logic is not None and c.logic.state == 'running' for c in ctls), 120.0
+    ):
+        return 'the stations\' controllers did not start within 120 s'
+    if not spin_until(infeed.services_are_ready, 30.0):
+        return 'station 1\'s parameter services did not appear within 30 s'
+    chutes = [name for pair in wcs.wcs.chutes for name in pair]
+    dests = [f'D{j + 1:02d}' for j in range(len(chutes))]
+    spin_until(lambda: pub_plan.get_subscription_count() > 0, 10.0)
+    pub_plan.publish(
+        DiagnosticStatus(
+            name='v1', values=[KeyValue(key=d, value=c) for d, c in zip(dests, chutes)]
+        )
+    )
+    if not spin_until(lambda: active, 10.0):
+        return 'the warehouse node did not take the sort plan'
+    rng = np.random.default_rng(int(args.seed))
+    # more than the infeed can send in the time, or the batch
+    expected = args.parcels or math.ceil(args.sim_time * 1.5) + 10
+    for i in range(1, expected + 1):
+        pub_req.publish(KeyValue(key=f'P{i:05d}', value=dests[int(rng.integers(len(dests)))]))
+        if i % 50 == 0:  # within the subscription's queue (depth 100)
+            spin_until(lambda i=i: len(wcs.wcs.requests) >= i, 10.0)
+    if not spin_until(lambda: len(wcs.wcs.requests) == expected, 10.0):
+        return f'the warehouse node took {len(wcs.wcs.requests)} of {expected} requests'
+    spin_until(lambda: False, 0.3)  # the routing updates reach the stations
+    spin_until(lambda: clock['t'] > 0.0, 30.0)
+    t0, wall0 = clock['t'], time.monotonic()
+    if line is not None:
+        line.cost = {'physics_s': 0.0, 'publish_s': 0.0}
+        scans0 = [c.logic.scan_wall_total for c in ctls]
+    if not set_arrival('gap'):
+        return 'station 1 did not take arrival: gap'
+    p0 = line.stations[0].params if line is not None else _cell_params()
+    transit = n * (p0.exit_x - p0.induct_x) / p0.belt_speed
+    if args.parcels:
+        # a batch: until every parcel has its disposition (10 s a parcel at the most)
+        end = t0 + 10.0 * args.parcels + 2.0 * transit
+        spin_until(lambda: len(records) >= args.parcels or clock['t'] >= end, math.inf)
+    else:
+        spin_until(lambda: clock['t'] >= t0 + args.sim_time, math.inf)
+    wall = time.monotonic() - wall0
+    sim = clock['t'] - t0
+    n_out = len(exits)
+    cost = None
+    if line is not None:
+        ctl_s = sum(c.logic.scan_wall_total - w0 for c, w0 in zip(ctls, scans0))
+        c = line.cost
+        cost = {
+            'physics': round(c['physics_s'], 3),
+            'publishing': round(c['publish_s'], 3),
+            'controllers': round(ctl_s, 3),
+            'other': round(wall - c['physics_s'] - c['publish_s'] - ctl_s, 3),
+        }
+    # the infeed stops and the line runs empty, so that every parcel inducted gets its
+    # disposition: at most the belt's transit over the whole line, twice, + 10 s
+    set_arrival('none')
+    # (--no-drain: at once)
+    t_drain = clock['t'] + (0.0 if args.no_drain else 2.0 * transit + 10.0)
+    if args.no_drain:
+        inducted = line.stations[0].cell.n_inducted if line is not None else len(scanned)
+    elif line is not None:
+        spin_until(lambda: line.line.n_parcels == 0 or line.line.t >= t_drain, math.inf)
+        inducted = line.stations[0].cell.n_inducted
+    else:
+        spin_until(lambda: len(records) >= len(scanned) or clock['t'] >= t_drain, math.inf)
+        inducted = len(scanned)
+    if line is not None:
+        ex.remove_node(line)  # stop the clock; let the last messages in
+    spin_until(lambda: len(records) >= inducted, 0.5 if args.no_drain else 5.0)
+    seg_stats = _stop_segments(procs)
+    # the parcels still on the stations' belts and disks, counted where they are
+    if line is not None:
+        on_line = line.line.n_in_flight
+    else:
+        on_line = sum(st['parcels'] for st in seg_stats)
+    exit_counts = Counter(exits.values())
+    codes = Counter(r['code'] for r in records)
+    if args.dispositions:
+        with open(args.dispositions, 'w', encoding='utf-8') as f:
+            for r in records:
+                f.write(json.dumps(r, sort_keys=True) + '\n')
+    summary = {
+        'stations': n,
+        'segments': segments,
+        'inducted': inducted,
+        'mis_sorted': codes.get('mis_sorted', 0),
+        'jams': codes.get('jammed', 0),
+        'in_cell_at_end': on_line,
+        'exits': dict(sorted(exit_counts.items())),
+        'dispositions': dict(sorted(codes.items())),
+        'throughput_pcs_h': 3600.0 * n_out / sim if sim > 0 else 0.0,
+        'real_time_factor': sim / wall if wall > 0 else 0.0,
+        'sim_time_s': sim,
+        'executor': type(ex).__name__,
+        'wall_s': wall,
+        'chutes_reached': sum(1 for c in chutes if exit_counts.get(c)),
+        'chutes': len(chutes),
+    }
+    if cost is not None:
+        # where the wall time went: the line's physics, the stations' publishing, the PLC
+        # programs' scans; the rest is DDS, the executor and the callbacks around them
+        summary['cost_s'] = cost
+    if seg_stats:
+        summary['segment_stats'] = seg_stats
+        summary['handovers'] = sum(s['handed_on'] for s in seg_stats)
+    ok = (
+        summary['mis_sorted'] == 0
+        and summary['jams'] == 0
+        and sum(codes.values()) + on_line == inducted
+        and all(s['refused'] == 0 for s in seg_stats)
+    )
+    if args.json:
+        print(json.dumps(summary, sort_keys=True))
+    else:
+        for key, v in summary.items():
+            print(f'  {key:<22} {v}')
+    return 0 if ok else 1
+
+
+def _cell_params():
+    """Return the stations' parameters as the shipped params file sets them."""
+    from sorter_ros.env import find_config_dir
+    from sorter_ros.params_file import read_params_file
+    from sorter_sim.runtime.params import CellParams
+
+    return CellParams.from_values(read_params_file(find_config_dir() / 'cell.yaml', 'sorter_sim'))
+
+
+def _stop_segments(procs) -> list[dict]:
+    """Stop the segment processes; return what each reported."""
+    out = []
+    for proc, _ in procs:
+        proc.terminate()
+    for proc, _ in procs:
         try:
-            from rclpy.experimental import EventsExecutor
-        except ImportError:
-            pass
-        else:
-            return EventsExecutor(context=ctx)
-    from rclpy.executors import SingleThreadedExecutor
-
-    return SingleThreadedExecutor(context=ctx)
+            text, _ = proc.communicate(timeout=30)
+        except Exception:  # noqa: BLE001 - a segment that will not stop reports nothing
+            proc.kill()
+            continue
+        for line in reversed(text.strip().splitlines()):
+            if line.startswith('{'):
+                out.append(json.loads(line))
+                break
+    return out

@@ -197,7 +197,7 @@ class WcsNode(Node):
                     name=self.wcs.version,
                     message='active',
                     values=[KeyValue(key=d, value=c) for d, c in sorted(self.wcs.plan.items())],
-                )
+                ),
             )
             if self.opcua is not None:
                 self.opcua.plan_changed(self.wcs.version, self.wcs.plan)
@@ -284,7 +284,7 @@ class WcsNode(Node):
                 name=d.label,
                 message=d.code,
                 values=[KeyValue(key=k, value=val) for k, val in values],
-            )
+            ),
         )
 
 

@@ -569,3 +569,16 @@ def test_pending_inducts_are_capped_and_the_excess_counted():
     with pytest.raises(ParamError, match='refused'):
         cell.induct(ParcelSpec(0.4, 0.2, 5.0))
     assert cell.pending_inducts == PENDING_INDUCTS_MAX and cell.n_induct_refused == 1
+
+
+def test_a_batch_stream_stops_after_arrival_count_parcels_and_the_outside_still_comes_in():
+    cell = make_cell(arrival='gap', arrival_gap=[0.3, 0.4], arrival_count=3)
+    cell.advance(20_000)
+    assert cell.n_inducted == cell.n_streamed == 3
+    cell.induct(ParcelSpec(0.4, 0.3, 4.0, label='X1'))  # parcels/induct is not the stream
+    cell.advance(2_000)
+    assert cell.n_inducted == 4 and cell.n_streamed == 3
+    # a bigger batch at run time lets the stream go on to it
+    cell.update_params(cell.params.with_changes({'arrival_count': 5}))
+    cell.advance(20_000)
+    assert cell.n_streamed == 5

@@ -9,6 +9,8 @@ heartbeat stops trips only its own watchdog.
 
 from __future__ import annotations
 
+import time
+
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import Parameter as ParameterMsg
@@ -27,8 +29,9 @@ from sorter_sim.runtime.params import ParamError
 pytestmark = pytest.mark.ros
 
 
-def make_line(ros, **values):
+def make_line(ros, node_name='sorter_line', **values):
     node = LineNode(
+        node_name=node_name,
         context=ros.context,
         parameter_overrides=[
             Parameter(k, value=v) for k, v in {'time_mode': 'lockstep', **values}.items()
@@ -381,3 +384,66 @@ def test_the_live_view_shows_the_whole_line_to_a_foxglove_client(ros):
     )
     values = json.loads(got['/live/S02/values'])
     assert [p['label'] for p in values['parcels']] == ['L1']
+
+
+def test_a_line_split_into_segments_gives_every_parcel_the_same_exit_at_the_same_time(ros):
+    """Stations 1-2 and 3-4 as two segments joined over DDS against one line of four."""
+    labels = [f'P{i}' for i in range(1, 7)]
+
+    def induct_and_raise(first_node, s3):
+        for label in labels:
+            first_node.stations[0].cell.induct(ParcelSpec(0.5, 0.35, 4.0, label=label))
+        s3.set_parameters([Parameter('alpha_deg', value=60.0)])
+        assert s3.cell.popup(True)[0]
+
+    # one process, one line
+    one = make_line(ros, stations=4)
+    induct_and_raise(one, one.stations[2])
+    while len(one.line.exits) < len(labels) and one.line.t < 60.0:
+        one.advance(50)
+    ref = sorted((e.label, e.exit, e.station, e.t_ns) for e in one.line.exits)
+    for n in one.nodes:
+        ros.executor.remove_node(n)
+        ros.nodes.remove(n)
+    one.destroy_node()
+    assert len(ref) == len(labels) and {e[2] for e in ref} == {2}  # all diverted at S03
+    # the same line as two segments, handing over on line/handover/S03
+    up = make_line(ros, stations=2, line_stations=4, node_name='sorter_line_a')
+    down = make_line(ros, stations=2, first_station=3, node_name='sorter_line_b')
+    assert up.hand_on and not down.hand_on and down.segment.upstream == 'S03'
+    assert [s.get_namespace() for s in down.stations] == ['/S03', '/S04']
+    induct_and_raise(up, down.stations[0])
+    ros.spin_until(lambda: up.segment._pub.get_subscription_count() > 0, 10.0)
+    deadline = time.monotonic() + 50.0
+    while len(down.line.exits) < len(labels) and time.monotonic() < deadline:
+        up.advance(50)
+        for _ in range(20):  # the hand-overs and the horizon reach the segment downstream
+            ros.executor.spin_once(timeout_sec=0.0)
+        down.advance(50)
+        assert down.line.k <= up.line.k  # never past the upstream's horizon
+    split = sorted((e.label, e.exit, e.station + 2, e.t_ns) for e in down.line.exits)
+    assert split == ref  # every parcel, the same chute, the same nanosecond
+    assert up.segment.stats['sent'] == len(labels) == down.segment.stats['received']
+    assert down.segment.stats['refused'] == 0 and not up.line.exits
+
+
+def test_a_segment_drops_a_malformed_hand_over_naming_it(ros):
+    from sorter_sim.frontends.segments import HANDOVER_QOS
+
+    down = make_line(ros, stations=1, first_station=2)
+    probe = ros.make_node('attacker')
+    pub = probe.create_publisher(DiagnosticStatus, '/line/handover/S02', HANDOVER_QOS)
+    ros.spin_until(lambda: pub.get_subscription_count() > 0, 10.0)
+    from diagnostic_msgs.msg import KeyValue
+
+    for msg in (
+        DiagnosticStatus(name='parcel'),
+        DiagnosticStatus(name='parcel', values=[KeyValue(key='state', value='1 2 x')]),
+        DiagnosticStatus(name='horizon', values=[KeyValue(key='t_ns', value='soon')]),
+        DiagnosticStatus(name='teleport'),
+    ):
+        pub.publish(msg)
+    ros.spin_until(lambda: down.segment.stats['refused'] == 4, 5.0)
+    assert down.segment.inbox == [] and down.segment.horizon_k == 0
+    down.advance(10)
+    assert down.line.k == 0  # nothing from upstream yet: it waits

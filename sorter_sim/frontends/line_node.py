@@ -58,12 +58,14 @@ from sorter_ros.recording import open_recorder, publish_recorded, release_record
 from sorter_sim.frontends.cdr import stamp
 from sorter_sim.frontends.fieldbus import FieldbusServers
 from sorter_sim.frontends.node import SimNode, burst_limit, realtime_tick
+from sorter_sim.frontends.segments import SegmentLink
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_sim.runtime.cell import STATE_NAMES, SensorEdge
 from sorter_sim.runtime.line import Line, LineExit, LineLayout, StationEvent
 from sorter_sim.runtime.params import ParamError
 
 NODE_NAME = 'sorter_line'
+WAIT_S = 0.0002  # s a segment in fast mode sleeps while its upstream neighbour is behind
 TIME_MODES = ('lockstep', 'fast', 'realtime')
 
 # name -> (default, check, what it allows)
@@ -88,6 +90,17 @@ LINE_PARAMS = {
         1.0,
         lambda v: isinstance(v, float) and 0.0 <= v <= 100.0,
         'a number in [0, 100] parcels/s',
+    ),
+    'first_station': (
+        1,
+        lambda v: isinstance(v, int) and 1 <= v <= 64,
+        'an integer in [1, 64]: the number on the line of this node\'s first station',
+    ),
+    'line_stations': (
+        0,
+        lambda v: isinstance(v, int) and 0 <= v <= 64,
+        'an integer in [0, 64]: the stations of the whole line (0: the line ends with '
+        'this node\'s last station)',
     ),
     'time_mode': ('realtime', lambda v: v in TIME_MODES, f'one of {", ".join(TIME_MODES)}'),
     'fast_slice': (
@@ -146,8 +159,11 @@ LINE_PARAMS = {
 class LineNode(Node):
     """The line's clock and its stations (see the module)."""
 
-    def __init__(self, *, station_params: dict | None = None, **kwargs):
-        super().__init__(NODE_NAME, **kwargs)
+    def __init__(
+        self, *, station_params: dict | None = None, node_name: str = NODE_NAME, **kwargs
+    ):
+        # the segments of a line in one ROS graph each need a name of their own
+        super().__init__(node_name, **kwargs)
         doubles = [n for n, (d, _, _) in LINE_PARAMS.items() if isinstance(d, float)]
         accept_integers_for_doubles(self, dict.fromkeys(doubles, ParameterType.PARAMETER_DOUBLE))
         values = {}
@@ -160,8 +176,26 @@ class LineNode(Node):
             values[name] = value
         self.values = values
         n = values['stations']
+        # a segment of a longer line: stations first .. first + n - 1 of line_stations
+        f0 = self.first = values['first_station'] - 1
+        last = f0 + n
+        total = values['line_stations'] or last
+        if last > 64:
+            raise ParamError(
+                f"parameters 'first_station' + 'stations': stations {f0 + 1} to {last} "
+                'run past the 64 a line can have'
+            )
+        if total < last:
+            raise ParamError(
+                f"parameter 'line_stations' must be 0 or at least {last} (this node's last "
+                f'station), got {total}'
+            )
+        self.hand_on = last < total
         try:
+            # names given name this node's stations; the default ones follow the line's
             chutes = chute_pairs(n, values['chute_names'])
+            if not any(values['chute_names']):
+                chutes = chute_pairs(last)[f0:]
         except ValueError as exc:
             raise ParamError(str(exc)) from None
         ns = self.get_namespace().rstrip('/')
@@ -189,17 +223,21 @@ class LineNode(Node):
                     SimNode(
                         station=True,
                         context=self.context,
-                        namespace=f'{ns}/{station_name(k)}',
-                        parameter_overrides=list(overrides),
+                        namespace=f'{ns}/{station_name(f0 + k)}',
+                        parameter_overrides=list(overrides)
+                        # only the line's first station inducts a stream
+                        + ([Parameter('arrival', value='none')] if f0 + k else []),
                     )
                 )
             p0 = self.stations[0].params
-            span = p0.exit_x - p0.induct_x
+            self._pitch = span = p0.exit_x - p0.induct_x + values['station_gap']
             layout = LineLayout(
-                positions=[-p0.induct_x + k * (span + values['station_gap']) for k in range(n)],
+                positions=[-p0.induct_x + (f0 + k) * span for k in range(n)],
                 chutes=chutes,
                 capacity=values['chute_capacity'],
                 drain_per_s=values['chute_drain_per_s'],
+                first=f0,
+                hand_on=self.hand_on,
             )
             self.line = Line.from_cells([s.cell for s in self.stations], layout)
             strides = {
@@ -233,6 +271,14 @@ class LineNode(Node):
         for pub in self._pub_full.values():
             self._publish(pub, Bool(data=False))
         self.create_service(Trigger, 'line/step', self._srv_step, qos_profile=SERVICE_QOS)
+        # hand-overs between segments (``segments.py``): the next segment's entry, and ours
+        self.segment = SegmentLink(
+            self,
+            upstream=station_name(f0) if f0 else None,
+            downstream=station_name(last) if self.hand_on else None,
+            dx=-self._pitch,
+            dt_ns=self.line.stations[0].params.control_period_ns,
+        )
         self._clock_msg = Clock()
         self.exits = 0
         # wall time spent in the line's physics and in publishing what it reports
@@ -259,7 +305,7 @@ class LineNode(Node):
 
         v = self.values
         stations = [
-            (station_name(k), s.live_layout(), x)
+            (station_name(self.first + k), s.live_layout(), x)
             for k, (s, x) in enumerate(zip(self.stations, self.line.positions))
         ]
         try:
@@ -292,7 +338,10 @@ class LineNode(Node):
     def _open_fieldbus(self) -> None:
         """Serve every station's I/O image: Modbus unit id k and OPC UA folder Sk for station k."""
         v = self.values
-        stations = [(station_name(k), s.attach_io_image()) for k, s in enumerate(self.stations)]
+        stations = [
+            (station_name(self.first + k), s.attach_io_image())
+            for k, s in enumerate(self.stations)
+        ]
         self.fieldbus = FieldbusServers(
             stations=stations,
             modbus=(v['modbus_host'], v['modbus_port']) if v['modbus_port'] else None,
@@ -332,6 +381,10 @@ class LineNode(Node):
             Control periods.
 
         """
+        link = self.segment
+        if link.upstream is not None and self.values['time_mode'] != 'realtime':
+            # in step with the segment upstream: never past the time it has handed over to
+            n = min(n, link.horizon_k - self.line.k)
         while n > 0:
             k = self.line.k
             # with a fieldbus, one period at a time: the I/O images are exchanged every period
@@ -341,7 +394,7 @@ class LineNode(Node):
             if self.fieldbus is not None:
                 for node in self.stations:
                     node.io_before_period()
-            events = self.line.advance(m)
+            events = self.line.advance(m, link.due(k + m))
             t1 = time.perf_counter()
             self.cost['physics_s'] += t1 - t0
             for e in events:
@@ -362,12 +415,17 @@ class LineNode(Node):
                 view.update_stations(
                     self.line.t_ns, [s.live_state() for s in self.stations], STATE_NAMES
                 )
+            link.hand_on(self.line.take_outgoing(), self.line.t_ns)
             self._publish_clock()
             self.cost['publish_s'] += time.perf_counter() - t1
             n -= m
 
     def _tick_fast(self) -> None:
+        k = self.line.k
         self.advance(max(1, round(self.values['fast_slice'] / self.line.dt)))
+        if self.line.k == k:
+            # waiting for the segment upstream: give the core to it rather than spin
+            time.sleep(WAIT_S)
 
     def _tick_realtime(self) -> None:
         realtime_tick(self, self.line, self.values['real_time_factor'], self._burst_s)
@@ -380,7 +438,16 @@ class LineNode(Node):
                 f'{self.values["time_mode"]}'
             )
             return response
+        k = self.line.k
         self.advance(1)
+        if self.line.k == k:
+            response.success = False
+            response.message = (
+                f'waiting: the segment upstream has handed over up to '
+                f'{self.segment.horizon_k * self.line.dt:.9f} s; this one is at '
+                f'{self.line.t:.9f} s'
+            )
+            return response
         response.success = True
         response.message = f't = {self.line.t:.9f} s'
         return response
@@ -401,7 +468,7 @@ class LineNode(Node):
             ('id', str(e.parcel_id)),
             ('label', e.label),
             ('exit', e.exit),
-            ('station', station_name(e.station)),
+            ('station', station_name(self.first + e.station)),
             ('t', f'{e.t_ns * 1e-9:.9f}'),
         ]
         if e.cause:

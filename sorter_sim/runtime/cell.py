@@ -241,6 +241,7 @@ class Cell:
         self._heartbeat_value: int | None = None  # the last counter that fed it
         self.heartbeats_frozen = 0  # heartbeats that repeated the last counter: not fed
         self.n_inducted = 0
+        self.n_streamed = 0  # of them from the stream (arrival_count counts these)
         # a station of a line hands each parcel leaving straight to the next one
         # (``runtime.line``): their full states, collected by ``take_handoffs``
         self.keep_handoffs = False
@@ -726,6 +727,8 @@ class Cell:
         p = self.params
         if self._external:
             return 'external', self._external[0], p.arrival_gap[0]
+        if p.arrival_count and self.n_streamed >= p.arrival_count:
+            return None  # the batch is in
         if p.arrival == 'gap':
             if self._stream_next is None:
                 spec = self._draw_stream_parcel()
@@ -771,6 +774,7 @@ class Cell:
             self._external.popleft()
         else:
             self._stream_next = None
+            self.n_streamed += 1
             if self.params.arrival == 'rate':
                 self._stream_due_k = self.k + self._draw_interarrival()
         i = int(free[0])
@@ -998,6 +1002,11 @@ class Cell:
     @property
     def n_parcels(self) -> int:
         return int(np.count_nonzero(self.phase != ck.PH_FREE))
+
+    @property
+    def n_in_flight(self) -> int:
+        """Return the parcels on the belt or the disks: those without an outcome yet."""
+        return int(np.count_nonzero(self.phase == ck.PH_CELL))
 
 
 __all__ = [

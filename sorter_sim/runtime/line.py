@@ -158,6 +158,11 @@ class LineLayout:
     drain_per_s: float = 1.0
     length: float | None = None
     overrides: list = field(default_factory=list)  # per station: CellParams changes
+    # a segment of a longer line (``Line.advance``'s ``incoming``, ``take_outgoing``):
+    # the first station's index on the whole line, and whether its last station hands
+    # its straight exits on to the next segment rather than to the straight end
+    first: int = 0
+    hand_on: bool = False
 
 
 def default_layout(n: int, params: CellParams, gap: float = 0.0) -> LineLayout:
@@ -224,7 +229,7 @@ def check_layout(layout: LineLayout, params: CellParams) -> None:
                 f'station needs {span:g} m (induct_x to exit_x) before the next one starts'
             )
     start = pos[0] + params.induct_x
-    if start < -1e-9:
+    if layout.first == 0 and start < -1e-9:
         raise ParamError(
             f'station 1 lies outside the belt: its induct point is at {start:g} m, the belt '
             'starts at 0'
@@ -333,7 +338,7 @@ class Line:
         for k, cell in enumerate(cells):
             if k > 0 and cell.params.arrival != 'none':
                 cell.update_params(cell.params.with_changes({'arrival': 'none'}))
-            cell.keep_handoffs = k < len(cells) - 1
+            cell.keep_handoffs = k < len(cells) - 1 or layout.hand_on
         self.chutes = [
             Chute(name, k, side, layout.capacity, float(layout.drain_per_s))
             for k, pair in enumerate(layout.chutes)
@@ -342,6 +347,9 @@ class Line:
         self._chute = {(c.station, c.side): c for c in self.chutes}
         self.exits: list[LineExit] = []
         self.n_handed = 0
+        self.first = layout.first
+        self.hand_on = layout.hand_on
+        self._outgoing: list[Handoff] = []
 
     # ------------------------------------------------------------------ time
     @property
@@ -361,7 +369,7 @@ class Line:
         return self.stations[0].t_ns
 
     # ------------------------------------------------------------------ stepping
-    def advance(self, n: int = 1) -> list:
+    def advance(self, n: int = 1, incoming=()) -> list:
         """
         Advance every station ``n`` control periods, handing parcels on between them.
 
@@ -369,6 +377,12 @@ class Line:
         ----------
         n : int
             Control periods.
+        incoming : sequence of (Handoff, float)
+            A segment's parcels from the segment upstream, each with ``dx`` (the
+            upstream station's origin minus this segment's first one's [m]), in time
+            order, none after the periods run (``t_ns`` at most the end of the last).
+            One that belongs to a period already run (it came late: a segment on the
+            wall clock) is taken at the first period, in the state it was handed in.
 
         Returns
         -------
@@ -384,12 +398,13 @@ class Line:
         dt_ns = self.stations[0].params.control_period_ns
         out: list = []
         outcomes: list = []
-        incoming: list[Handoff] = []
+        if any(h.t_ns // dt_ns > k0 + n for h, _ in incoming):
+            raise ValueError('a hand-over after the periods run cannot be taken yet')
+        arriving = list(incoming)
         for s, cell in enumerate(self.stations):
             events: list = []
             cursor = k0
-            dx = self.positions[s - 1] - self.positions[s] if s else 0.0
-            for h in incoming:
+            for h, dx in arriving:
                 k_h = h.t_ns // dt_ns
                 if k_h > cursor:
                     events += cell.advance(k_h - cursor)
@@ -397,7 +412,12 @@ class Line:
                 events += cell.hand_in(h, dx)
                 self.n_handed += 1
             events += cell.advance(k0 + n - cursor)
-            incoming = cell.take_handoffs() if cell.keep_handoffs else []
+            handed = cell.take_handoffs() if cell.keep_handoffs else []
+            if s + 1 < len(self.stations):
+                dx = self.positions[s] - self.positions[s + 1]
+                arriving = [(h, dx) for h in handed]
+            else:
+                self._outgoing += handed
             for e in events:
                 out.append(StationEvent(s, e))
                 if isinstance(e, Outcome):
@@ -411,8 +431,13 @@ class Line:
         out.sort(key=lambda e: e.t_ns)
         return out
 
+    def take_outgoing(self) -> list[Handoff]:
+        """Return the parcels the last station handed on to the next segment since last asked."""
+        out, self._outgoing = self._outgoing, []
+        return out
+
     def _on_outcome(self, s: int, e: Outcome) -> list:
-        last = s == len(self.stations) - 1
+        last = s == len(self.stations) - 1 and not self.hand_on
         if e.exit == 'straight' and not last:
             return []  # handed on
         if e.exit in ('left', 'right'):
@@ -442,6 +467,11 @@ class Line:
     @property
     def n_parcels(self) -> int:
         return sum(c.n_parcels for c in self.stations)
+
+    @property
+    def n_in_flight(self) -> int:
+        """Return the parcels on the line without an outcome yet (not in a chute, not jammed)."""
+        return sum(c.n_in_flight for c in self.stations)
 
     def line_x(self, station: int, x: float) -> float:
         """

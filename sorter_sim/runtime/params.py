@@ -249,6 +249,17 @@ SCHEMA: tuple[ParamSpec, ...] = (
         length=(2, 2),
     ),
     quantity_spec('arrival_rate', Q['stream.rate'], extra='in rate mode', read_only=False),
+    _p(
+        'arrival_count',
+        INTEGER,
+        0,
+        'the stream stops after this many parcels (0: it never stops): a batch of a known '
+        'size, the same parcels however long the run takes',
+        '',
+        0,
+        2**31 - 1,
+        read_only=False,
+    ),
     quantity_spec(
         'parcel_A',
         Q['parcel.length'],
@@ -655,6 +666,7 @@ class CellParams:
     arrival: str
     arrival_gap: tuple
     arrival_rate: float
+    arrival_count: int
     parcel_A: tuple
     parcel_B: tuple
     parcel_m: tuple

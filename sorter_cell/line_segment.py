@@ -1,0 +1,267 @@
+"""
+One segment of the demo's line: its line node and its stations' PLC programs, in one process.
+
+``build_segment`` makes the nodes (used in process by ``sorter demo --stations N`` and
+here for ``--segments K``); ``main`` runs one segment as a process of its own:
+
+    python -m sorter_cell.line_segment --first 5 --stations 4 --line-stations 12
+
+(``--clock /line/segment2/clock`` for its time's topic, ``--parcels M --start`` for a
+batch that starts at once).
+
+It prints ``ready`` once its controllers run, spins until SIGTERM or SIGINT, then
+prints one JSON object: its time, its hand-over counts and latencies, its cost. Each
+segment publishes its simulated time on a clock topic of its own (``--clock``, by
+remapping ``/clock`` in the process): the segments of a lock-step line are at
+different times, each behind its upstream neighbour (never ahead), and a controller must
+follow its own segment's clock.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import Counter
+import signal
+import sys
+
+FAST_SLICE = 0.005  # s of simulated time per pass of a line in fast mode
+
+
+def build_segment(
+    ctx,
+    *,
+    first: int,
+    stations: int,
+    line_stations: int,
+    seed: int,
+    gap=None,
+    fast: bool = True,
+    rtf: float = 1.0,
+    record: str = '',
+    foxglove: int = 0,
+    count: int = 0,
+):
+    """
+    Return a segment's line node and one controller per station, in context ``ctx``.
+
+    Parameters
+    ----------
+    ctx : rclpy.context.Context
+        Initialised with the cell's and the controller's params files.
+    first : int
+        The line's number of the segment's first station (1-based).
+    stations : int
+        Its stations.
+    line_stations : int
+        The whole line's.
+    seed : int
+        The stream's seed (station 1's).
+    gap : (float, float), optional
+        The stream's gap range [m].
+    fast : bool
+        As fast as possible (True) or on the wall clock at ``rtf``.
+    rtf : float
+        The real-time factor on the wall clock.
+    record : str
+        An MCAP file for the whole segment, or ''.
+    foxglove : int
+        The live view's port, or 0.
+    count : int
+        The stream stops after this many parcels (0: never).
+
+    Returns
+    -------
+    (LineNode, list of ControllerNode)
+        The segment's nodes.
+
+    """
+    from rclpy.parameter import Parameter
+
+    from sorter_control.node import ControllerNode
+    from sorter_sim.frontends.line_node import NODE_NAME, LineNode
+    from sorter_sim.model.description import station_name
+
+    line = LineNode(
+        context=ctx,
+        node_name=NODE_NAME if first == 1 else f'{NODE_NAME}_{station_name(first - 1)}',
+        parameter_overrides=[
+            Parameter('stations', value=stations),
+            Parameter('first_station', value=first),
+            Parameter('line_stations', value=line_stations),
+            Parameter('time_mode', value='fast' if fast else 'realtime'),
+            Parameter('fast_slice', value=FAST_SLICE),
+            Parameter('real_time_factor', value=1.0 if fast else float(rtf)),
+            Parameter('record_path', value=record),
+            Parameter('foxglove_port', value=int(foxglove)),
+        ],
+        station_params={
+            'arrival': 'none',
+            'labels': ['P'],
+            'label_pattern': '{label}{id:05d}',
+            'seed': int(seed),
+            'pose_rate_hz': 50.0,
+            'arrival_count': int(count),
+            **({'arrival_gap': [float(g) for g in gap]} if gap else {}),
+        },
+    )
+    try:
+        ctls = [
+            ControllerNode(
+                context=ctx,
+                namespace=f'/{station_name(first - 1 + k)}',
+                parameter_overrides=[
+                    Parameter('use_sim_time', value=True),
+                    # a station's routing table is the WCS's alone (the single cell's rules
+                    # would divert labels that happen to match them)
+                    Parameter('routing.rules', Parameter.Type.STRING_ARRAY, []),
+                    Parameter('diagnostics_period', value=5.0),
+                    Parameter('record_path', value=record),
+                ],
+            )
+            for k in range(stations)
+        ]
+    except BaseException:
+        line.destroy_node()
+        raise
+    return line, ctls
+
+
+def segment_stats(line, ctls) -> dict:
+    """Return what a segment reports when it stops (see the module)."""
+    link = line.segment
+    lat = sorted(link.latencies_ns)
+
+    def pct(q):
+        return round(lat[min(len(lat) - 1, int(q * len(lat)))] * 1e-6, 3) if lat else None
+
+    return {
+        'first_station': line.first + 1,
+        'stations': len(line.stations),
+        't': line.line.t,
+        'parcels': line.line.n_in_flight,
+        'handed_on': link.stats['sent'],
+        'taken': link.stats['received'],
+        'late': link.stats['late'],
+        'refused': link.stats['refused'],
+        'exits': dict(Counter(e.exit for e in line.line.exits)),
+        'handover_latency_ms_p50': pct(0.5),
+        'handover_latency_ms_p99': pct(0.99),
+        'cost_s': {
+            'physics': round(line.cost['physics_s'], 3),
+            'publishing': round(line.cost['publish_s'], 3),
+            'controllers': round(sum(c.logic.scan_wall_total for c in ctls if c.logic), 3),
+        },
+    }
+
+
+def main(argv=None) -> int:
+    """Run one segment until SIGTERM (see the module); return the exit code."""
+    ap = argparse.ArgumentParser(prog='python -m sorter_cell.line_segment')
+    ap.add_argument('--first', type=int, required=True)
+    ap.add_argument('--stations', type=int, required=True)
+    ap.add_argument('--line-stations', type=int, required=True)
+    ap.add_argument('--seed', type=int, default=1)
+    ap.add_argument('--gap', type=float, nargs=2, default=None)
+    ap.add_argument('--rtf', default='fast')
+    ap.add_argument('--parcels', type=int, default=0, help='the stream stops after these')
+    ap.add_argument(
+        '--start', action='store_true', help='start the stream at once (station 1 only)'
+    )
+    ap.add_argument(
+        '--clock', default='/clock', help='the topic this segment publishes its time on'
+    )
+    args = ap.parse_args(argv)
+    stop = []
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.append(True))
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+
+    from sorter_ros.env import apply_ros_env_defaults, find_config_dir
+
+    apply_ros_env_defaults()
+    config = find_config_dir()
+    ctx = Context()
+    rclpy.init(
+        context=ctx,
+        signal_handler_options=SignalHandlerOptions.NO,
+        args=[
+            '--ros-args',
+            '--params-file',
+            str(config / 'cell.yaml'),
+            '--params-file',
+            str(config / 'controller.yaml'),
+            '-r',
+            f'/clock:={args.clock}',
+            '--log-level',
+            'error',
+        ],
+    )
+    fast = args.rtf == 'fast'
+    line, ctls = build_segment(
+        ctx,
+        first=args.first,
+        stations=args.stations,
+        line_stations=args.line_stations,
+        seed=args.seed,
+        gap=args.gap,
+        fast=fast,
+        rtf=1.0 if fast else float(args.rtf),
+        count=args.parcels,
+    )
+    if args.start:
+        from rclpy.parameter import Parameter
+
+        line.stations[0].set_parameters([Parameter('arrival', value='gap')])
+    nodes = [*line.nodes, *ctls]
+    ex = line_executor(ctx, 'events')
+    for node in nodes:
+        ex.add_node(node)
+    try:
+        told = False
+        while not stop:
+            ex.spin_once(timeout_sec=0.05)
+            if not told and all(c.logic is not None and c.logic.state == 'running' for c in ctls):
+                print('ready', flush=True)
+                told = True
+        print(json.dumps(segment_stats(line, ctls), sort_keys=True), flush=True)
+    finally:
+        for node in nodes:
+            try:
+                node.destroy_node()
+            except Exception:  # noqa: BLE001 - teardown goes on
+                pass
+        rclpy.try_shutdown(context=ctx)
+    return 0
+
+
+def line_executor(ctx, kind: str):
+    """
+    Return the line's executor: rclpy's events executor, or the single-threaded one.
+
+    The single-threaded executor builds a new wait set from every entity of every node
+    on each pass (about 110 a station: the station's and its controller's publishers,
+    subscriptions, services, timers and their QoS event handlers), in Python: with 24
+    stations a pass costs more wall time than the 5 ms of simulated time it serves.
+    The events executor (``rclpy.experimental``, in C++) queues each entity's events as
+    they happen and walks nothing. The line's results do not depend on the choice (a
+    test runs both and compares every parcel's exit); the single-threaded one stays
+    for an rclpy without the events executor.
+    """
+    if kind == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            pass
+        else:
+            return EventsExecutor(context=ctx)
+    from rclpy.executors import SingleThreadedExecutor
+
+    return SingleThreadedExecutor(context=ctx)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,172 @@
+"""
+A line across processes and machines: segments handing parcels on over ROS 2.
+
+The in-process checks (one line against the same line split in two, malformed
+hand-overs) are in ``test_line_node.py``; here the line runs as segment processes:
+``sorter demo --segments K`` against one process, and two segments in two network
+namespaces joined by a veth pair, as two machines on one link would be.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from sorter_cell.line_demo import segment_bounds
+
+pytestmark = pytest.mark.ros
+
+
+def test_segments_split_the_line_evenly_upstream_first():
+    assert segment_bounds(10, 3) == [(1, 4), (5, 3), (8, 3)]
+    assert segment_bounds(4, 4) == [(1, 1), (2, 1), (3, 1), (4, 1)]
+    assert segment_bounds(48, 1) == [(1, 48)]
+
+
+def _demo(tmp_path, segments: int) -> tuple[dict, list]:
+    path = tmp_path / f'k{segments}.jsonl'
+    done = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'sorter_cell',
+            'demo',
+            '--stations',
+            '3',
+            '--segments',
+            str(segments),
+            '--parcels',
+            '12',
+            '--json',
+            '--dispositions',
+            str(path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    return json.loads(done.stdout.strip().splitlines()[-1]), [
+        json.loads(line) for line in path.read_text().splitlines()
+    ]
+
+
+def test_three_segment_processes_sort_every_parcel_as_one_process_does(tmp_path):
+    one, d1 = _demo(tmp_path, 1)
+    three, d3 = _demo(tmp_path, 3)
+    assert one['segments'] == 1 and three['segments'] == 3
+    assert one['inducted'] == three['inducted'] == len(d1) == len(d3) == 12
+    assert three['mis_sorted'] == 0 and three['jams'] == 0 and three['in_cell_at_end'] == 0
+    stats = three['segment_stats']
+    assert [s['first_station'] for s in stats] == [1, 2, 3]
+    # what one segment hands on, the next takes; none refused, none lost
+    assert stats[0]['handed_on'] == stats[1]['taken'] > 0
+    assert stats[1]['handed_on'] == stats[2]['taken'] > 0
+    assert all(s['refused'] == 0 for s in stats)
+
+    def timeline(records):
+        # the two runs start their stream at different simulated times: compare each
+        # parcel's exit time from the first one's
+        t0 = min(float(r['t']) for r in records)
+        return sorted(
+            (r['label'], r['code'], r['chute'], r['station'], round(float(r['t']) - t0, 6))
+            for r in records
+        )
+
+    assert timeline(d3) == timeline(d1)
+
+
+def _netns_problem() -> str | None:
+    if sys.platform != 'linux':
+        return 'network namespaces are Linux'
+    if os.geteuid() != 0:
+        return 'creating network namespaces needs root'
+    if shutil.which('ip') is None:
+        return 'no ip command (iproute2)'
+    return None
+
+
+def _sh(*cmd) -> None:
+    subprocess.run(cmd, check=True, capture_output=True, timeout=20)
+
+
+@pytest.mark.skipif(_netns_problem() is not None, reason=str(_netns_problem()))
+def test_two_segments_on_two_hosts_hand_parcels_over_their_link(tmp_path):
+    """Two network namespaces, a veth pair between them: two machines on one link."""
+    tag = f'{os.getpid() % 100000}'
+    ns = {'a': f'sc{tag}a', 'b': f'sc{tag}b'}
+    dev = {'a': f'vsc{tag}a', 'b': f'vsc{tag}b'}
+    octet = 16 + os.getpid() % 200
+    addr = {'a': f'10.231.{octet}.1/30', 'b': f'10.231.{octet}.2/30'}
+    procs = {}
+    try:
+        for side in 'ab':
+            _sh('ip', 'netns', 'add', ns[side])
+        _sh('ip', 'link', 'add', dev['a'], 'type', 'veth', 'peer', 'name', dev['b'])
+        for side in 'ab':
+            _sh('ip', 'link', 'set', dev[side], 'netns', ns[side])
+            run = ('ip', 'netns', 'exec', ns[side], 'ip')
+            _sh(*run, 'addr', 'add', addr[side], 'dev', dev[side])
+            _sh(*run, 'link', 'set', dev[side], 'up')
+            _sh(*run, 'link', 'set', 'lo', 'up')
+            # multicast discovery leaves by the link, the only way out of the namespace
+            _sh(*run, 'route', 'add', '224.0.0.0/4', 'dev', dev[side])
+        env = {
+            **os.environ,
+            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
+            'ROS_DOMAIN_ID': str(60 + os.getpid() % 40),
+            # as between two machines: UDP over the link, no shared memory between them
+            'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4',
+        }
+        segment = [sys.executable, '-m', 'sorter_cell.line_segment', '--line-stations', '2']
+        args = {
+            'a': ['--first', '1', '--stations', '1', '--parcels', '3', '--start'],
+            'b': ['--first', '2', '--stations', '1'],
+        }
+        for side in 'ba':
+            procs[side] = subprocess.Popen(
+                ['ip', 'netns', 'exec', ns[side], *segment, *args[side]],
+                env=env,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            assert procs[side].stdout.readline().strip() == 'ready', procs[side].stderr.read()
+        time.sleep(15.0)  # 3 parcels through two stations: about 10 s of simulated time
+        stats = {}
+        for side in 'ab':
+            procs[side].send_signal(signal.SIGTERM)
+            out, err = procs[side].communicate(timeout=30)
+            stats[side] = json.loads(out.strip().splitlines()[-1])
+        assert stats['a']['handed_on'] == 3 and stats['a']['exits'] == {}
+        assert stats['b']['taken'] == 3 and stats['b']['refused'] == 0
+        assert stats['b']['exits'] == {'straight_end': 3}
+        assert stats['b']['t'] <= stats['a']['t']  # in step: never past its upstream
+        # the hand-overs crossed the link: the veth in b received what a sent
+        rx = subprocess.run(
+            [
+                'ip',
+                'netns',
+                'exec',
+                ns['b'],
+                'cat',
+                f'/sys/class/net/{dev["b"]}/statistics/rx_packets',
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        assert int(rx.stdout) > 10
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+        for side in 'ab':
+            subprocess.run(['ip', 'netns', 'del', ns[side]], capture_output=True, timeout=20)
