@@ -141,6 +141,7 @@ def segment_stats(line, ctls) -> dict:
         't': line.line.t,
         'parcels': line.line.n_in_flight,
         'handed_on': link.stats['sent'],
+        'messages_sent': link.stats['messages'],  # hand-overs and horizons
         'taken': link.stats['received'],
         'late': link.stats['late'],
         'refused': link.stats['refused'],

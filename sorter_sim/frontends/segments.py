@@ -144,7 +144,7 @@ class SegmentLink:
         self.inbox: list[Handoff] = []
         # the period up to which the segment upstream has handed over everything
         self.horizon_k = 0 if upstream else None
-        self.stats = {'sent': 0, 'received': 0, 'refused': 0, 'late': 0}
+        self.stats = {'sent': 0, 'received': 0, 'refused': 0, 'late': 0, 'messages': 0}
         self.latencies_ns: list[int] = []  # wall time from sending to receiving
         self._pub = None
         if downstream:
@@ -168,6 +168,7 @@ class SegmentLink:
             self._pub,
             DiagnosticStatus(name='horizon', values=[KeyValue(key='t_ns', value=str(t_ns))]),
         )
+        self.stats['messages'] += len(handoffs) + 1
 
     def due(self, k_end: int) -> list:
         """Return (Handoff, dx) of the parcels that enter by period ``k_end``, in time order."""
