@@ -24,6 +24,7 @@ import json
 from collections import Counter
 import signal
 import sys
+import time
 
 FAST_SLICE = 0.005  # s of simulated time per pass of a line in fast mode
 
@@ -170,7 +171,13 @@ def main(argv=None) -> int:
         '--start', action='store_true', help='start the stream at once (station 1 only)'
     )
     ap.add_argument(
-        '--clock', default='/clock', help='the topic this segment publishes its time on'
+        '--clock',
+        default='',
+        help="the topic it publishes its time on (default /line/S<first>/clock: every "
+        "segment's its own)",
+    )
+    ap.add_argument(
+        '--report', type=float, default=0.0, help='print its figures every S wall seconds too'
     )
     args = ap.parse_args(argv)
     stop = []
@@ -196,7 +203,7 @@ def main(argv=None) -> int:
             '--params-file',
             str(config / 'controller.yaml'),
             '-r',
-            f'/clock:={args.clock}',
+            f'/clock:={args.clock or f"/line/S{args.first:02d}/clock"}',
             '--log-level',
             'error',
         ],
@@ -223,8 +230,12 @@ def main(argv=None) -> int:
         ex.add_node(node)
     try:
         told = False
+        next_report = time.monotonic() + args.report
         while not stop:
             ex.spin_once(timeout_sec=0.05)
+            if args.report > 0 and time.monotonic() >= next_report:
+                print(json.dumps(segment_stats(line, ctls), sort_keys=True), flush=True)
+                next_report += args.report
             if not told and all(c.logic is not None and c.logic.state == 'running' for c in ctls):
                 print('ready', flush=True)
                 told = True

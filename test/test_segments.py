@@ -15,6 +15,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -125,7 +126,15 @@ def test_two_segments_on_two_hosts_hand_parcels_over_their_link(tmp_path):
             # as between two machines: UDP over the link, no shared memory between them
             'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4',
         }
-        segment = [sys.executable, '-m', 'sorter_cell.line_segment', '--line-stations', '2']
+        segment = [
+            sys.executable,
+            '-m',
+            'sorter_cell.line_segment',
+            '--line-stations',
+            '2',
+            '--report',
+            '0.5',
+        ]
         args = {
             'a': ['--first', '1', '--stations', '1', '--parcels', '3', '--start'],
             'b': ['--first', '2', '--stations', '1'],
@@ -135,17 +144,32 @@ def test_two_segments_on_two_hosts_hand_parcels_over_their_link(tmp_path):
                 ['ip', 'netns', 'exec', ns[side], *segment, *args[side]],
                 env=env,
                 stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE,
+                # a file, not a pipe nobody reads: a full pipe would stop the segment
+                stderr=(tmp_path / f'{side}.err').open('w'),
                 text=True,
             )
-            assert procs[side].stdout.readline().strip() == 'ready', procs[side].stderr.read()
-        time.sleep(15.0)  # 3 parcels through two stations: about 10 s of simulated time
+            ready = procs[side].stdout.readline().strip()
+            assert ready == 'ready', (tmp_path / f'{side}.err').read_text()[-2000:]
+        reports = {'a': [], 'b': []}
+        for side in 'ab':
+            threading.Thread(
+                target=lambda side=side: reports[side].extend(procs[side].stdout), daemon=True
+            ).start()
+
+        def done():  # 3 parcels through two stations: about 10 s of simulated time
+            return reports['b'] and json.loads(reports['b'][-1])['exits'].get('straight_end') == 3
+
+        deadline = time.monotonic() + 45.0
+        while not done() and time.monotonic() < deadline:
+            time.sleep(0.2)
         stats = {}
         for side in 'ab':
             procs[side].send_signal(signal.SIGTERM)
-            out, err = procs[side].communicate(timeout=30)
-            stats[side] = json.loads(out.strip().splitlines()[-1])
-        assert stats['a']['handed_on'] == 3 and stats['a']['exits'] == {}
+            procs[side].wait(timeout=30)
+        time.sleep(0.3)  # the readers take the last lines
+        for side in 'ab':
+            stats[side] = json.loads(reports[side][-1])
+        assert stats['a']['handed_on'] == 3 and stats['a']['exits'] == {}, stats
         assert stats['b']['taken'] == 3 and stats['b']['refused'] == 0
         assert stats['b']['exits'] == {'straight_end': 3}
         assert stats['b']['t'] <= stats['a']['t']  # in step: never past its upstream

@@ -382,9 +382,12 @@ class LineNode(Node):
 
         """
         link = self.segment
-        if link.upstream is not None and self.values['time_mode'] != 'realtime':
-            # in step with the segment upstream: never past the time it has handed over to
-            n = min(n, link.horizon_k - self.line.k)
+        if self.values['time_mode'] != 'realtime':
+            if link.downstream is not None and not link.connected():
+                return  # no segment downstream to take the hand-overs yet: they would be lost
+            if link.upstream is not None:
+                # in step with the segment upstream: never past the time it has handed over to
+                n = min(n, link.horizon_k - self.line.k)
         while n > 0:
             k = self.line.k
             # with a fieldbus, one period at a time: the I/O images are exchanged every period

@@ -13,8 +13,10 @@ bit-identical numbers. After each slice the segment publishes a horizon on the s
 topic: every parcel it handed over up to that time has been sent (one reliable
 topic, one writer: the order holds).
 
-Time, conservatively: a segment downstream in ``lockstep`` or ``fast`` mode never
-advances past its upstream neighbour's horizon, so it takes each parcel at the
+Time, conservatively: a segment with a neighbour downstream in ``lockstep`` or
+``fast`` mode does not start before that neighbour reads its hand-overs (a parcel
+sent to nobody would be lost), and a segment downstream never advances past its
+upstream neighbour's horizon, so it takes each parcel at the
 period it left upstream, and the line's result does not depend on how it is split
 (tested against one process). A segment depends only on the one upstream; the
 first one runs freely, the others follow as a pipeline, each at most one slice
@@ -155,6 +157,10 @@ class SegmentLink:
             node.create_subscription(
                 DiagnosticStatus, f'line/handover/{upstream}', self._on_message, HANDOVER_QOS
             )
+
+    def connected(self) -> bool:
+        """Return True when a segment downstream reads this one's hand-overs."""
+        return self._pub is not None and self._pub.get_subscription_count() > 0
 
     def hand_on(self, handoffs: list, t_ns: int) -> None:
         """Send the parcels the segment handed on, then the horizon ``t_ns``."""
