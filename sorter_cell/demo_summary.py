@@ -42,7 +42,7 @@ def summarize(obs, plan: dict, sim_time: float, wall: float, time_mode: str) -> 
     """
     exits = {"left": 0, "right": 0, "straight": 0, "jammed": 0}
     mis_sorted, untracked = [], 0
-    flagged = {"gap_too_short": 0, "late": 0, "cannot_divert": 0, "fault": 0}
+    flagged = {"gap_too_short": 0, "late": 0, "cannot_divert": 0, "fault": 0, "not_executing": 0}
     rejected = 0
     for label, o in obs.outcomes.items():
         exits[o["exit"]] = exits.get(o["exit"], 0) + 1

@@ -61,6 +61,8 @@ from sorter_control.parameters import (
     descriptor,
 )
 from sorter_ros.env import run_node
+from sorter_sim.model.packml import COMMANDS as PACKML_COMMANDS
+from sorter_sim.model.packml import STATES as PACKML_STATES
 from sorter_ros.interface import (
     EVENT_QOS,
     SENSOR_QOS,
@@ -113,6 +115,8 @@ class ControllerNode(Node):
             "estop": self.create_client(SetBool, "estop"),
             "reset": self.create_client(Trigger, "reset"),
         }
+        for command in PACKML_COMMANDS:
+            self._svc[f"packml/{command}"] = self.create_client(Trigger, f"packml/{command}")
         cell = self.values["cell_node"]
         self._cell_params_client = (
             self.create_client(GetParameters, f"{cell}/get_parameters") if cell else None
@@ -145,6 +149,7 @@ class ControllerNode(Node):
         self._cell_estop: bool | None = None
         self._cell_watchdog: bool | None = None
         self._cell_jam: bool | None = None
+        self._cell_packml: str | None = None  # latched: the cell's state, as last heard
         self._cell_status_t: float | None = None
         self._in_flight: dict[
             int, tuple
@@ -194,6 +199,7 @@ class ControllerNode(Node):
         self.create_subscription(Bool, "status/estop", self._on_cell_estop, SENSOR_QOS)
         self.create_subscription(Bool, "status/watchdog", self._on_cell_watchdog, SENSOR_QOS)
         self.create_subscription(Bool, "status/jam", self._on_cell_jam, SENSOR_QOS)
+        self.create_subscription(String, "status/packml", self._on_cell_packml, SENSOR_QOS)
         self.create_subscription(KeyValue, "routing/updates", self._on_routing, EVENT_QOS)
         self.min_gaps = gaps
         self.get_logger().info(
@@ -312,6 +318,16 @@ class ControllerNode(Node):
     def _on_cell_estop(self, msg: Bool) -> None:
         self._cell_estop = bool(msg.data)
 
+    def _on_cell_packml(self, msg: String) -> None:
+        if msg.data in PACKML_STATES:
+            self._cell_packml = msg.data
+        else:
+            self.n_bad_messages += 1
+            self.get_logger().warning(
+                f"status/packml dropped: {msg.data[:80]!r} is not a PackML state "
+                f"({', '.join(PACKML_STATES)})"
+            )
+
     def _on_cell_jam(self, msg: Bool) -> None:
         self._cell_jam = bool(msg.data)
 
@@ -342,6 +358,7 @@ class ControllerNode(Node):
             cell_watchdog=self._cell_watchdog,
             cell_status_t=self._cell_status_t,
             clock_sources=self._clock_sources,
+            cell_packml=self._cell_packml,
         )
         self._edges, self._labels, self._replies, self._routing = [], [], [], []
         self._cell_estop = self._cell_jam = self._cell_status_t = None
@@ -425,10 +442,10 @@ class ControllerNode(Node):
         return ok
 
     def _call(self, cmd, wall0: float) -> None:
-        client = self._svc[cmd.kind]
+        client = self._svc[f"packml/{cmd.value}" if cmd.kind == "packml" else cmd.kind]
         if cmd.kind == "popup" or cmd.kind == "estop":
             req = SetBool.Request(data=bool(cmd.value))
-        elif cmd.kind == "reset":
+        elif cmd.kind in ("reset", "packml"):
             req = Trigger.Request()
         else:
             req = SetParameters.Request(
@@ -517,7 +534,11 @@ class ControllerNode(Node):
         message = (
             st["state"] if st["fault"] is None else f"{st['state']}: {st['fault']['message']}"
         )
-        values = {"state": st["state"], "tracked": st["tracked"]}
+        values = {
+            "state": st["state"],
+            "cell_packml": st["cell_packml"] or "unknown",
+            "tracked": st["tracked"],
+        }
         values.update(st["counts"])
         values.update({f"fault_{k}": v for k, v in st["faults"].items()})
         values.update(

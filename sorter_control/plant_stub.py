@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from sorter_sim.model.packml import Conditions, PackMLMachine
 from sorter_control.logic import (
     Command,
     ControllerConfig,
@@ -84,6 +85,9 @@ class PlantStub:
         self.alpha_deg = 0.0
         self.alpha_target = 0.0
         self.estop = False
+        # the cell's PackML state machine, when this plant reports one (None: it does not,
+        # as a cell before PackML; the controller then sorts regardless)
+        self.packml: PackMLMachine | None = None
         self.watchdog: bool | None = None  # the cell's watchdog bit as reported (None: not)
         self.forced: dict[str, bool] = {}
         self.withheld: set[str] = set()
@@ -289,6 +293,7 @@ class PlantStub:
             replies=replies,
             cell_estop=self.estop,
             cell_watchdog=self.watchdog,
+            cell_packml=None if self.packml is None else self.packml.state,
         )
         self.edges, self.labels = [], []
         return img
@@ -332,6 +337,12 @@ class PlantStub:
             self.estop = False
             for p in self.parcels:
                 p.jammed = False
+        elif cmd.kind == "packml":
+            if self.packml is None:
+                ok, msg = False, "this plant has no PackML state"
+            else:
+                ok, msg = self.packml.command(cmd.value, round(self.t * 1e9))
+                self.packml.update(Conditions(), round(self.t * 1e9))
         self.pending.append((self.t, Reply(cmd.id, ok, msg)))
 
     def outcomes(self) -> dict[int, str | None]:

@@ -20,6 +20,8 @@ import math
 import time
 
 from sorter_sim.model.io_map import COIL, DI, INPUT, IR, OUTPUT, Signal, io_map
+from sorter_sim.model.packml import COMMAND_NUMBERS as PACKML_COMMAND_NUMBERS
+from sorter_sim.model.packml import STATE_BY_NUMBER as PACKML_STATE_BY_NUMBER
 
 from sorter_control.logic import SorterLogic
 from sorter_control.logic.config import ControllerConfig
@@ -329,6 +331,7 @@ class SoftPLC:
             cell_jam=bool(x['status.jam']),
             cell_watchdog=bool(x['status.watchdog']),
             cell_status_t=t,
+            cell_packml=PACKML_STATE_BY_NUMBER.get(int(x['packml.state'])),
         )
         self._replies = []
         if self.io.warehouse and x['warehouse.requests'] != self._routes_seen:
@@ -378,6 +381,8 @@ class SoftPLC:
             err = self._write('diverter.popup', bool(cmd.value))
         elif cmd.kind == 'alpha':
             err = self._write('diverter.alpha_setpoint', float(cmd.value))
+        elif cmd.kind == 'packml':
+            err = self._write('packml.command', PACKML_COMMAND_NUMBERS[cmd.value])
         elif cmd.kind in ('estop', 'reset'):
             name = 'cell.estop' if cmd.kind == 'estop' else 'cell.reset'
             err = self._write(name, True)

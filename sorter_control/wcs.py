@@ -22,7 +22,8 @@ is here, in ``LineWcs`` (the logic, no ROS) and ``WcsNode`` (its ROS face):
 - **Dispositions**, one per parcel, from where the line says it left (``line/exits``)
   and what the stations' programs confirmed: ``sorted``, ``no_read`` (no label),
   ``no_destination`` (no request or a destination the plan does not have),
-  ``gap_too_short``, ``cannot_divert``, ``chute_full``, ``late``, ``mis_sorted``,
+  ``gap_too_short``, ``cannot_divert``, ``chute_full``, ``late``, ``not_executing``
+  (its station was not in PackML Execute), ``mis_sorted``,
   ``jammed``, ``lost`` (left the line straight with no reason its planned station
   gave, or never seen again), each with the station and the chute.
 """
@@ -42,6 +43,7 @@ DISPOSITIONS = (
     'cannot_divert',
     'chute_full',
     'late',
+    'not_executing',
     'mis_sorted',
     'jammed',
     'lost',
@@ -308,7 +310,7 @@ class LineWcs:
             r = results.get(k)
             if label in self.passed_full:
                 code = 'chute_full'
-            elif r in ('gap_too_short', 'cannot_divert', 'late'):
+            elif r in ('gap_too_short', 'cannot_divert', 'late', 'not_executing'):
                 code = r
             elif r == 'rejected':
                 code = 'no_read'

@@ -571,14 +571,23 @@ def test_pending_inducts_are_capped_and_the_excess_counted():
     assert cell.pending_inducts == PENDING_INDUCTS_MAX and cell.n_induct_refused == 1
 
 
-def test_a_batch_stream_stops_after_arrival_count_parcels_and_the_outside_still_comes_in():
+def test_a_batch_stream_stops_after_arrival_count_parcels_and_the_cell_completes():
     cell = make_cell(arrival='gap', arrival_gap=[0.3, 0.4], arrival_count=3)
     cell.advance(20_000)
     assert cell.n_inducted == cell.n_streamed == 3
-    cell.induct(ParcelSpec(0.4, 0.3, 4.0, label='X1'))  # parcels/induct is not the stream
+    assert cell.n_parcels == 0 and cell.packml.state == 'Complete'
+    # Complete takes nothing in, from outside either: the parcel waits at the infeed
+    cell.induct(ParcelSpec(0.4, 0.3, 4.0, label='X1'))
     cell.advance(2_000)
-    assert cell.n_inducted == 4 and cell.n_streamed == 3
-    # a bigger batch at run time lets the stream go on to it
+    assert cell.n_inducted == 3 and cell.pending_inducts == 1
+    # a bigger batch at run time, then reset and start: the parcel waiting and the stream
+    # (parcels/induct goes first, it is not the stream) come in
     cell.update_params(cell.params.with_changes({'arrival_count': 5}))
+    assert cell.packml_command('start') == (
+        False,
+        'Complete does not take start: PackML takes it in Idle only',
+    )
+    assert cell.packml_command('reset')[0] and cell.packml.state == 'Idle'
+    assert cell.packml_command('start')[0] and cell.packml.state == 'Execute'
     cell.advance(20_000)
-    assert cell.n_streamed == 5
+    assert cell.n_inducted == 6 and cell.n_streamed == 5 and cell.labels.count('X1') == 1

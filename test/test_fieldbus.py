@@ -173,6 +173,7 @@ def _state(cell):
         c.estop,
         c.belt_run,
         c.watchdog_armed,
+        c.packml.state,
     )
 
 
@@ -183,7 +184,8 @@ def test_bad_writes_are_refused_with_the_protocols_errors_and_change_nothing(cel
     cases = [
         # out-of-range α: illegal data value
         (lambda: modbus.write_register(alpha.address, alpha.raw(90.5)), 3),
-        (lambda: modbus.write_registers(0, [alpha.raw(10.0), 0, 7]), 2),  # runs past outputs
+        # runs past the outputs (HR 0-2): nothing of it is applied, not even HR 2's command
+        (lambda: modbus.write_registers(0, [alpha.raw(10.0), 0, 7, 0]), 2),
         (lambda: modbus.write_register(7, 1), 2),  # no output there (an input's address)
         (lambda: modbus.write_coil(40, True), 2),
         (lambda: modbus.read_input_registers(500, count=2), 2),  # unknown address

@@ -58,6 +58,7 @@ class InputImage:
     cell_watchdog: bool | None = None  # the cell's watchdog bit, if known
     cell_status_t: float | None = None  # the report's time stamp [s]
     clock_sources: int | None = None  # publishers of the simulated clock, if it is used
+    cell_packml: str | None = None  # the cell's PackML state, if it says (sorts in Execute)
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,10 @@ from sorter_control.logic.tracking import (
 
 MAX_CLOCK_LAG = 0.5  # [s] how far this node's clock may lag the cell's latched stamps
 
+# the command the operator's reset issues in each PackML rest state on the way to Execute
+PACKML_RESUME = {"Aborted": "clear", "Stopped": "reset", "Idle": "start", "Held": "unhold"}
+PACKML_SETTLE_S = 0.05  # s the cell's state holds before the program issues a command
+
 COUNTS = (
     "inducted",
     "left",
@@ -51,6 +55,8 @@ COUNTS = (
     "rejected",
     "no_read",
     "gap_too_short",
+    "not_executing",
+    "packml_commands",
     "cannot_divert",
     "late",
     "mis_sorted",
@@ -119,6 +125,10 @@ class SorterLogic:
         )
         self._reset_requested = False
         self._estop_requested = False
+        self.cell_packml: str | None = None  # the cell's PackML state, as last read
+        # the operator's reset also resumes the cell: walk its PackML state back to Execute
+        self._resume = False
+        self._packml_since: float | None = None  # when the cell entered its state [s]
         # a scan this much later than the last one is a jump of the clock, not a late scan
         self._max_jump = max(2.0, 100 * config.scan_period)
         self.clock_lag_max = 0.0  # the most this node's clock lagged the cell's stamps [s]
@@ -247,6 +257,7 @@ class SorterLogic:
     # --- operator requests ---------------------------------------------------------------------
     def request_reset(self) -> str:
         self._reset_requested = True
+        self._resume = True
         return f"reset requested in state {self.state}"
 
     def request_estop(self) -> str:
@@ -373,13 +384,43 @@ class SorterLogic:
             labels = shifted
         self.tracker.apply_labels(io, labels, self.faults.running)
         self.supervisor.check(io, self.tracker, self.faults)
+        self._drive_packml(io, image.cell_packml)
         if self.faults.running:
-            self.sequencer.decide(io)
+            self.sequencer.decide(io, executing=image.cell_packml in (None, "Execute"))
         else:
             self.sequencer.decide_faulted()
         self.sequencer.write_outputs(out, self.state)
         self.tracker.prune()
         return out
+
+    def _drive_packml(self, io: _Scan, state: str | None) -> None:
+        """
+        Follow the cell's PackML state; after the operator's reset, walk it back to Execute.
+
+        The operator's reset (``request_reset``) clears this program's fault and, as a
+        PLC's reset button on a PackML machine does, issues the command the cell's state
+        takes on the way back to Execute: clear (Aborted), reset (Stopped), start (Idle),
+        unhold (Held), one at a time, each after the state has held for
+        ``PACKML_SETTLE_S`` (a cell in automatic mode gets there by itself first). An
+        operator's stop, hold or suspend on the cell is left alone otherwise.
+        """
+        if state != self.cell_packml:
+            self.cell_packml, self._packml_since = state, self.t
+        if state is None or state == "Execute":
+            self._resume = False if state == "Execute" else self._resume
+            return
+        command = PACKML_RESUME.get(state)
+        if (
+            self._resume
+            and command is not None
+            and self.faults.running
+            and not self.sequencer.busy("packml")
+            and self.t - self._packml_since >= PACKML_SETTLE_S
+        ):
+            io.command("packml", command)
+            self.counts["packml_commands"] += 1
+            io.log("info", f"resuming the cell: PackML {command} (cell in {state})")
+            self._packml_since = self.t  # the next try, if this one does not move it
 
     def _clock_jump(self, out: ScanOutput, t: float, dt: float) -> ScanOutput:
         """
@@ -509,7 +550,11 @@ class SorterLogic:
                     self.tracker.belt_running = False
                 continue
             reason = r.message or "no reason given"
-            if cmd.kind == "reset":
+            if cmd.kind == "packml":
+                # the cell moved on meanwhile (its automatic mode, an operator): the next
+                # scan sees its state and issues what that takes
+                io.log("warn", f"{what} refused by the cell: {reason}")
+            elif cmd.kind == "reset":
                 self.faults.restore(io, f"reset refused by the cell: {reason}")
             elif any(w in reason.lower() for w in ("e-stop", "estop", "emergency")):
                 self._enter_estop(io, f"{what} refused: {reason}")
@@ -593,6 +638,7 @@ class SorterLogic:
 
         return {
             "state": self.state,
+            "cell_packml": self.cell_packml,
             "fault": dict(self.fault) if self.fault else None,
             "counts": dict(self.counts),
             "faults": dict(self.fault_counts),

@@ -21,7 +21,15 @@ import math
 from sorter_control.timing import GapModel, side_of
 from sorter_control.logic.image import Command, DiverterState, ScanIO, ScanOutput
 from sorter_control.logic.routing import RoutingTable
-from sorter_control.logic.tracking import R_CANNOT, R_FAULT, R_GAP, R_LATE, Tracked, Tracker
+from sorter_control.logic.tracking import (
+    R_CANNOT,
+    R_FAULT,
+    R_GAP,
+    R_LATE,
+    R_NOT_EXECUTING,
+    Tracked,
+    Tracker,
+)
 
 
 class DiverterSequencer:
@@ -167,7 +175,7 @@ class DiverterSequencer:
         return False
 
     # --- decisions -----------------------------------------------------------------------------
-    def decide(self, io: ScanIO) -> None:
+    def decide(self, io: ScanIO, executing: bool = True) -> None:
         """
         Commit every parcel whose last moment to decide has come.
 
@@ -175,6 +183,10 @@ class DiverterSequencer:
         ----------
         io : ScanIO
             This scan's inputs and outputs.
+        executing : bool
+            The cell is in PackML Execute (or does not say). Not executing, a parcel whose
+            moment has come goes straight (``not_executing``): the controller sorts only
+            in Execute, and decides each parcel as late as it would have.
 
         """
         tr = self.tr
@@ -199,17 +211,24 @@ class DiverterSequencer:
                 # its trailing edge is still at the scanner: wait for the length while the
                 # stroke can still make it (the margin is spent first)
                 break
-            self.commit(io, p)
+            if executing:
+                self.commit(io, p)
+            else:
+                self._send_straight(p, R_NOT_EXECUTING)
+                self.counts["not_executing"] += 1
 
     def decide_faulted(self) -> None:
         """In a fault every parcel goes straight (the disks are down)."""
         for p in self.tr.parcels:
             if not p.committed and not p.done:
-                p.committed = True
-                p.plan = "straight"
-                p.asked = self.routing.lookup(p.label)[0]
-                p.result = R_FAULT
-                self.last_decided = p
+                self._send_straight(p, R_FAULT)
+
+    def _send_straight(self, p: Tracked, result: str) -> None:
+        p.committed = True
+        p.plan = "straight"
+        p.asked = self.routing.lookup(p.label)[0]
+        p.result = result
+        self.last_decided = p
 
     def commit(self, io: ScanIO, p: Tracked) -> None:
         """

@@ -25,6 +25,7 @@ R_GAP = "gap_too_short"  # a divert refused for spacing: sent straight
 R_CANNOT = "cannot_divert"  # the model says the disks cannot bring it to the chute
 R_LATE = "late"  # length not known in time to act: sent straight
 R_FAULT = "fault"  # the controller was in a fault state: sent straight
+R_NOT_EXECUTING = "not_executing"  # the cell's PackML state was not Execute: sent straight
 R_MISSORT = "mis-sorted"  # reached somewhere else than planned
 R_MISSED = "missed"  # planned divert, no chute sensor in time
 R_ABORTED = "aborted"  # tracking dropped (e-stop or reset) before the outcome

@@ -43,6 +43,8 @@ from sorter_sim.model.io_map import (
     by_name,
     table_size,
 )
+from sorter_sim.model.packml import COMMAND_NUMBERS, STATE_BY_NUMBER, TRANSITIONS
+from sorter_sim.model.packml import COMMANDS as PACKML_COMMANDS
 
 _TABLES = (DI, COIL, IR, HR)
 LABEL_QUEUE = 64  # labels the scanner keeps while the PLC has not acknowledged them
@@ -672,11 +674,15 @@ class FieldbusServers:
         aspace = server.iserver.aspace
         if self.stations is None:
             await self._add_image(cell, idx, aspace, self.image, '')
+            await self._add_machine(cell, idx, aspace, self.image, '', self.cell_name)
             await self._add_warehouse(cell, idx, aspace)
         else:
             for name, image in self.stations:
                 folder = await cell.add_folder(idx, name)
                 await self._add_image(folder, idx, aspace, image, f'{name}.')
+                await self._add_machine(
+                    folder, idx, aspace, image, f'{name}.', f'{self.cell_name}/{name}'
+                )
         writable = {self.opcua_nodes[key] for key in self._outputs}
         _answer_writes_per_item(server, writable)
         try:
@@ -688,6 +694,84 @@ class FieldbusServers:
         self._opcua = server
         self.opcua_endpoint = endpoint
         self._pusher = asyncio.ensure_future(self._push_inputs(aspace))
+
+    async def _add_machine(self, parent, idx, aspace, image: IOImage, prefix: str, serial):
+        """
+        Add ``Identification`` (OPC 40001-1) and ``PackML`` (OPC 30050) under ``parent``.
+
+        Identification carries Manufacturer, Model, SerialNumber, SoftwareRevision and
+        ProductInstanceUri with the names of OPC 40001-1's MachineIdentificationType (as
+        plain properties in this server's namespace: the companion specification's
+        nodeset is not loaded). PackML carries CurrentState (the state's name),
+        StateCurrent (its PackTags number) and one method per command, named as OPC
+        30050's state machine names them (Reset, Start, Stop, Hold, Unhold, Suspend,
+        Unsuspend, Abort, Clear). A method the current state does not take answers
+        BadInvalidState and changes nothing; one it takes is issued through the image's
+        ``packml.command`` output, applied at the cell's next period as a PLC's write.
+        """
+        from asyncua import ua
+
+        ident = await parent.add_object(idx, 'Identification')
+        for name, value in machine_identification(serial).items():
+            text = name in ('Manufacturer', 'Model')
+            variant = ua.Variant(
+                ua.LocalizedText(value) if text else value,
+                ua.VariantType.LocalizedText if text else ua.VariantType.String,
+            )
+            await ident.add_property(idx, name, variant)
+        packml = await parent.add_object(idx, 'PackML')
+
+        def state():
+            return STATE_BY_NUMBER.get(int(image.inputs['packml.state']), 'Undefined')
+
+        def now():
+            return self.time_origin + timedelta(seconds=float(image.inputs['cell.time']))
+
+        readers = {
+            'CurrentState': (
+                ua.VariantType.LocalizedText,
+                lambda: ua.LocalizedText(state()),
+                "the cell's PackML state",
+            ),
+            'StateCurrent': (
+                ua.VariantType.Int32,
+                lambda: int(image.inputs['packml.state']),
+                'the state as PackTags StateCurrent numbers it (6 Execute)',
+            ),
+        }
+        for name, (vtype, get, meaning) in readers.items():
+            var = await packml.add_variable(idx, name, ua.Variant(get(), vtype))
+            await var.write_attribute(
+                ua.AttributeIds.Description, ua.DataValue(ua.LocalizedText(meaning))
+            )
+
+            def read(nodeid, attr, get=get, vtype=vtype):
+                return ua.DataValue(
+                    ua.Variant(get(), vtype),
+                    SourceTimestamp=now(),
+                    ServerTimestamp=datetime.now(timezone.utc),
+                )
+
+            aspace.set_attribute_value_callback(var.nodeid, ua.AttributeIds.Value, read)
+            self._opc_inputs.append((var.nodeid, read))
+            self.opcua_nodes[f'{prefix}PackML.{name}'] = var.nodeid
+
+        def command(name):
+            def call(parent_node, *args):
+                if args:
+                    image.count()
+                    return ua.StatusCode(ua.StatusCodes.BadTooManyArguments)
+                if state() not in TRANSITIONS[name]:
+                    image.count()
+                    return ua.StatusCode(ua.StatusCodes.BadInvalidState)
+                image.write_value('packml.command', COMMAND_NUMBERS[name])
+                return []
+
+            return call
+
+        for name in PACKML_COMMANDS:
+            node = await packml.add_method(idx, name.capitalize(), command(name), [], [])
+            self.opcua_nodes[f'{prefix}PackML.{name.capitalize()}'] = node.nodeid
 
     async def _add_image(self, parent, idx, aspace, image: IOImage, prefix: str) -> None:
         """Add an image's ``Inputs`` and ``Outputs`` under ``parent`` (node ids: prefix + name)."""
@@ -800,6 +884,23 @@ def _opc_value(s, value):
     if s.opcua_type == 'Double':
         return float(value)
     return int(round(value)) & (0xFFFFFFFF if s.type == 'uint32' else 0xFFFF)
+
+
+def machine_identification(serial: str) -> dict:
+    """Return the OPC 40001-1 identification of a cell named ``serial``."""
+    try:
+        from importlib.metadata import version
+
+        revision = version('sorter_cell')
+    except Exception:  # not installed as a distribution (a source tree on sys.path)
+        revision = 'unknown'
+    return {
+        'Manufacturer': 'sorter_cell',
+        'Model': 'torsional-disk pivot diverter cell (emulated)',
+        'SerialNumber': serial,
+        'SoftwareRevision': revision,
+        'ProductInstanceUri': f'urn:sorter_cell:{serial}',
+    }
 
 
 def _input_reader(image: IOImage, s, vtype, origin: datetime):

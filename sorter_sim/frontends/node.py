@@ -54,6 +54,8 @@ from sorter_sim.frontends.fieldbus import FieldbusServers, IOImage, ScannerQueue
 from sorter_sim.frontends.live_view import PARCEL_HEIGHT, STATE_COLOURS, CellLayout, LiveView
 from sorter_sim.model.description import shown
 from sorter_sim.model.io_map import io_map
+from sorter_sim.model.packml import COMMAND_BY_NUMBER as PACKML_BY_NUMBER
+from sorter_sim.model.packml import COMMANDS as PACKML_COMMANDS
 from sorter_sim.runtime.cell import (
     STATE_NAMES,
     WATCHDOG_REFUSAL,
@@ -241,6 +243,16 @@ class SimNode(Node):
             name: self._publisher(Bool, f'status/{name}', SENSOR_QOS) for name in STATUS_BITS
         }
         self._status_sent = None
+        self._packml_sent = None
+        # the machine state (PackML), latched: a late subscriber gets the state now
+        self._pub_packml = self._publisher(String, 'status/packml', SENSOR_QOS)
+        for command in PACKML_COMMANDS:
+            self.create_service(
+                Trigger,
+                f'packml/{command}',
+                lambda request, response, c=command: self._srv_packml(c, response),
+                qos_profile=SERVICE_QOS,
+            )
         self._safe_alpha_set = False  # the watchdog itself sets alpha_deg to its safe value
         self._pub_clock = None if station else self._publisher(Clock, '/clock', STREAM_QOS)
         self._clock_publishers_warned = 0
@@ -350,6 +362,7 @@ class SimNode(Node):
                 'cell.estop': False,
                 'diverter.alpha_setpoint': p.alpha_deg,
                 'plc.heartbeat': 0,
+                'packml.command': 0,  # none yet; a write issues one
             },
         )
         self._scanner = ScannerQueue()
@@ -410,6 +423,12 @@ class SimNode(Node):
             elif name == 'diverter.alpha_setpoint':
                 result = self.set_parameters([Parameter('alpha_deg', value=float(value))])[0]
                 ok = result.successful
+            elif name == 'packml.command':
+                ok, text = c.packml_command(PACKML_BY_NUMBER[int(value)])
+                if ok:
+                    self._publish_events(c.take_packml_edges())
+                else:
+                    self.get_logger().warning(f'packml.command from the PLC: {text}')
             self._io_refused += not ok
         if 'cell.estop' in rises:
             c.engage_estop()
@@ -448,6 +467,7 @@ class SimNode(Node):
                 'status.jam': c.jam,
                 'status.watchdog': c.watchdog_tripped,
                 'status.fault': bool(c.faults),
+                'packml.state': c.packml.number,
                 'belt.encoder': self._belt_travel,
                 'cell.time': c.t_ns * 1e-9,
             }
@@ -673,6 +693,25 @@ class SimNode(Node):
             for name in STATUS_BITS:
                 self._publish(self._pub_status[name], Bool(data=bool(bits[name])))
             self._status_sent = bits
+        self._publish_packml()
+
+    def _publish_packml(self) -> None:
+        """Bring the PackML state up to the cell's conditions; publish each transition."""
+        machine = self.cell.packml
+        self.cell.update_packml()
+        if self._packml_sent is None:
+            machine.take_transitions()  # the power-up sequence: the state reached is enough
+        else:
+            for tr in machine.take_transitions():
+                self.get_logger().info(
+                    f'PackML {tr.previous} -> {tr.state} ({tr.cause}) at t = '
+                    f'{tr.t_ns * 1e-9:.3f} s'
+                )
+                self._publish(self._pub_packml, String(data=tr.state))
+                self._packml_sent = tr.state
+        if machine.state != self._packml_sent:
+            self._publish(self._pub_packml, String(data=machine.state))
+            self._packml_sent = machine.state
 
     def _publish_events(self, events) -> None:
         self._publish_status()
@@ -837,6 +876,10 @@ class SimNode(Node):
             'faults_injected': str(self.faults_injected),
             'injected_now': ','.join(self._injected_now()) or 'none',
             'callback_errors': str(getattr(self, 'callback_errors', 0)),
+            'packml_state': self.cell.packml.state,
+            'packml_cause': self.cell.packml.cause,
+            'packml_commands': str(self.cell.packml.counts['commands']),
+            'packml_refused': str(self.cell.packml.counts['refused']),
             **self._fieldbus_diagnostics(),
             **{f'exits_{k}': str(v) for k, v in counts.items()},
         }
@@ -893,6 +936,18 @@ class SimNode(Node):
         self._publish_events(self.cell.reset())
         response.success = True
         response.message = ('cleared ' + ', '.join(cleared)) if cleared else 'nothing to clear'
+        return response
+
+    def _srv_packml(self, command: str, response):
+        """Take a PackML command (packml/<command>), or refuse it with the reason."""
+        ok, text = self.cell.packml_command(command)
+        response.success = ok
+        if ok:
+            self._publish_events(self.cell.take_packml_edges())
+            response.message = f'{text} (now {self.cell.packml.state})'
+        else:
+            self.get_logger().warning(f'packml/{command} {text}')
+            response.message = f'refused: {text}'
         return response
 
     def _srv_step(self, request, response):

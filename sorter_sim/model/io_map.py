@@ -209,6 +209,16 @@ def io_map(sensor_names) -> tuple[Signal, ...]:
             'labels read so far (wraps at 65536)',
         ),
         Signal(
+            'packml.state',
+            INPUT,
+            IR,
+            7,
+            'uint16',
+            '',
+            "the cell's PackML state, as PackTags StateCurrent numbers it (6 Execute; "
+            'docs/simulation-node.md)',
+        ),
+        Signal(
             'scanner.label',
             INPUT,
             IR,
@@ -274,6 +284,18 @@ def io_map(sensor_names) -> tuple[Signal, ...]:
             "the PLC's heartbeat: every change feeds the cell's watchdog",
             lo=0,
             hi=65535,
+        ),
+        Signal(
+            'packml.command',
+            OUTPUT,
+            HR,
+            2,
+            'uint16',
+            '',
+            'a PackML command, numbered as PackTags CntrlCmd: 1 reset, 2 start, 3 stop, 4 hold, '
+            '5 unhold, 6 suspend, 7 unsuspend, 8 abort, 9 clear; each write issues it',
+            lo=1,
+            hi=9,
         ),
     ]
     return tuple(sig)

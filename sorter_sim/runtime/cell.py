@@ -29,6 +29,7 @@ from sorter_sim.model.core.simulate import Parcel, parcel_array
 from sorter_sim.model.core.stick import GAUGE_CARRY
 from sorter_sim.model.core.wrench import gauss_legendre_01
 from sorter_sim.model.description import PENDING_INDUCTS_MAX, label_problem, shown
+from sorter_sim.model.packml import Conditions, PackMLMachine
 from sorter_sim.runtime.params import (
     SPECS,
     CellParams,
@@ -197,6 +198,10 @@ def check_parcel(spec: ParcelSpec, belt_width: float) -> ParcelSpec:
     return spec
 
 
+# the PackML state machine's scan where a condition's time is not known in advance [s]
+PACKML_SCAN_S = 0.01
+
+
 class Cell:
     """One sorter cell: belt, disk field, pop-up, walls, chutes, sensors and parcels."""
 
@@ -252,6 +257,7 @@ class Cell:
         self.n_induct_refused = 0  # inducts refused because too many were waiting
         self._stream_next: tuple[ParcelSpec, float] | None = None
         self._stream_due_k: int | None = None
+        self._pending_edges: list[SensorEdge] = []  # made by a PackML command
         # one period can log per parcel a few sensor changes, a scan, an exit and a jam
         self._ev_reserve = cap * (n_sens + 4) + 8
         self.ev_i = np.zeros((2 * self._ev_reserve + 1024, 4), dtype=np.int64)
@@ -261,6 +267,13 @@ class Cell:
         self._last_strips = np.zeros((ck.MAX_STRIPS, STRIP_WIDTH))
         self._last_info = np.array([-1, 0], dtype=np.int64)
         self._snapshot = np.zeros((cap, 7))
+        # the machine state (PackML): in automatic mode it resets and starts at once, so a
+        # cell that nobody commands runs from period 0 as it always has
+        self.packml = PackMLMachine(auto=params.packml_auto)
+        self._busy_k = 0  # last period with a parcel on the cell or an induct (starved)
+        self._inducted_seen = 0
+        self._chute_blocked_k: dict[str, int] = {}  # chute eye -> period it was seen blocked
+        self.update_packml()
         self._kernel(0)  # compile (or load from numba's cache) now, not in a callback
 
     # ------------------------------------------------------------------ set-up
@@ -390,6 +403,107 @@ class Cell:
             )
         self.act[ck.A_ALPHA_CMD] = alpha_rad
         return True, ''
+
+    # ------------------------------------------------------------------ machine state
+    def packml_conditions(self) -> Conditions:
+        """Return what the cell reports to its PackML state machine now."""
+        p = self.params
+        on_cell = self.n_in_flight > 0
+        # time not spent producing (stopped, held, ...) is not time starving
+        if on_cell or self.n_inducted != self._inducted_seen or not self.packml.infeed_open:
+            self._busy_k, self._inducted_seen = self.k, self.n_inducted
+        states = self.sensor_states()
+        for name in CHUTE_SENSORS:
+            if not states[name]:
+                self._chute_blocked_k.pop(name, None)
+            else:
+                self._chute_blocked_k.setdefault(name, self.k)
+        dt = self.dt
+        blocked = p.packml_blocked_s > 0 and any(
+            (self.k - k0) * dt >= p.packml_blocked_s - 1e-12
+            for k0 in self._chute_blocked_k.values()
+        )
+        starved = (
+            p.packml_starved_s > 0
+            and not on_cell
+            and (self.k - self._busy_k) * dt >= p.packml_starved_s - 1e-12
+        )
+        batch_done = bool(
+            p.arrival_count and self.n_streamed >= p.arrival_count and not self._external
+        )
+        return Conditions(
+            estop=self.estop,
+            hold_cause='jam' if self.jam else 'watchdog' if self.watchdog_tripped else '',
+            suspend_cause='blocked' if blocked else 'starved' if starved else '',
+            batch_done=batch_done,
+            empty=self.n_parcels == 0,
+            disks_down=self.stroke <= 0.001,
+        )
+
+    def _packml_horizon(self) -> int:
+        """
+        Return how many periods the kernel may run before a PackML condition can change.
+
+        Exact where the time is known (the disks dropping while Aborting, the starved and
+        blocked timers); every PACKML_SCAN_S where it is not (a parcel leaving empties the
+        cell while Stopping or at a batch's end). Elsewhere (a jam, which shows in the
+        kernel's events) the state moves at the end of the run.
+        """
+        p, k, dt = self.params, self.k, self.dt
+        state = self.packml.state
+        out = 1 << 40
+        if state == 'Aborting':
+            rate = self.cfg[ck.C_STROKE_RATE]
+            out = 1 if not math.isfinite(rate) else max(1, math.ceil(self.stroke / (rate * dt)))
+        if p.packml_starved_s > 0 and state == 'Execute' and self.n_in_flight == 0:
+            due = self._busy_k + math.ceil(p.packml_starved_s / dt - 1e-9)
+            out = min(out, max(1, due - k))
+        if p.packml_blocked_s > 0 and state == 'Execute':
+            for k0 in self._chute_blocked_k.values():
+                due = k0 + math.ceil(p.packml_blocked_s / dt - 1e-9)
+                out = min(out, max(1, due - k))
+        if state == 'Stopping' or (
+            state == 'Execute' and p.arrival_count and self.n_streamed >= p.arrival_count
+        ):
+            out = min(out, max(1, round(PACKML_SCAN_S / dt)))
+        return out
+
+    def update_packml(self) -> None:
+        """Move the PackML state by the cell's conditions now (after a command or a fault)."""
+        self.packml.update(self.packml_conditions(), self.t_ns)
+
+    def packml_command(self, command: str) -> tuple[bool, str]:
+        """
+        Take a PackML command from outside (an operator, a line controller, a PLC).
+
+        ``abort`` engages the e-stop; ``clear`` releases it and takes jammed parcels off
+        (the cell's reset); ``reset`` takes jammed parcels off. A command the current state
+        does not take changes nothing.
+
+        Parameters
+        ----------
+        command : str
+            One of ``sorter_sim.model.packml.COMMANDS``.
+
+        Returns
+        -------
+        (bool, str)
+            Taken and the state it led to, or refused and why.
+
+        """
+        ok, text = self.packml.command(command, self.t_ns)
+        if ok:
+            if command == 'abort':
+                self.engage_estop()
+            elif command in ('clear', 'reset'):
+                self._pending_edges += self.reset()
+            self.update_packml()
+        return ok, text
+
+    def take_packml_edges(self) -> list:
+        """Return the sensor edges a PackML command made (jammed parcels taken off)."""
+        out, self._pending_edges = self._pending_edges, []
+        return out
 
     def engage_estop(self) -> None:
         """Belt stops (v = 0 at once), the disks drop at their stroke rate."""
@@ -760,7 +874,7 @@ class Cell:
 
     def _place_pending(self) -> list[SensorEdge]:
         edges: list[SensorEdge] = []
-        if self.estop:
+        if self.estop or not self.packml.infeed_open:
             return edges
         cand = self._next_candidate()
         if cand is None:
@@ -824,7 +938,7 @@ class Cell:
 
     def _periods_until_placement(self) -> int:
         """Return a lower bound on the periods before the next induct can happen (>= 1)."""
-        if self.estop:
+        if self.estop or not self.packml.infeed_open:
             return 1 << 40
         p = self.params
         cand = self._next_candidate()
@@ -883,8 +997,9 @@ class Cell:
         remaining = n
         k_from = self.k
         while remaining > 0:
+            self.update_packml()
             events += self._place_pending()
-            m = min(remaining, self._periods_until_placement())
+            m = min(remaining, self._periods_until_placement(), self._packml_horizon())
             deadline = self._watchdog_deadline()
             if deadline is not None:
                 if self.k >= deadline:
@@ -898,6 +1013,7 @@ class Cell:
         deadline = self._watchdog_deadline()
         if deadline is not None and self.k >= deadline:
             events.append(self._trip_watchdog())
+        self.update_packml()
         events = self._faulted_edges(events, k_from)
         events.sort(key=lambda e: e.t_ns)
         return events

@@ -335,6 +335,35 @@ SCHEMA: tuple[ParamSpec, ...] = (
         1,
         5000,
     ),
+    # -- machine state (PackML; sorter_sim.model.packml)
+    _p(
+        'packml_auto',
+        BOOL,
+        True,
+        'automatic mode: the cell resets and starts itself at power-up and after a clear, '
+        'unholds when a jam or watchdog trip it held for clears and unsuspends when parcels '
+        'come again; false: it powers up Stopped and only commands (packml/*) move it',
+    ),
+    _p(
+        'packml_starved_s',
+        DOUBLE,
+        5.0,
+        'Execute suspends (starved) after this long with no parcel on the cell and none '
+        'inducted; 0: never',
+        's',
+        0.0,
+        3600.0,
+    ),
+    _p(
+        'packml_blocked_s',
+        DOUBLE,
+        1.0,
+        'Execute suspends (blocked) when a chute\'s eye stays blocked this long (the chute is '
+        'full); 0: never',
+        's',
+        0.0,
+        3600.0,
+    ),
     # -- outputs
     _p(
         'frame_id',
@@ -676,6 +705,9 @@ class CellParams:
     label_pattern: str
     seed: int
     max_parcels: int
+    packml_auto: bool
+    packml_starved_s: float
+    packml_blocked_s: float
     frame_id: str
     pose_rate_hz: float
     marker_rate_hz: float
