@@ -45,6 +45,10 @@ setup(
         # (server and client), both the reference Python stacks of their protocol
         'pymodbus>=3.16,<4',
         'asyncua>=1.1',
+        # S7 (ISO-on-TCP): python-snap7's server (pure Python) serves the image as data
+        # blocks, its client is the soft PLC's; pinned because the cell's server replaces
+        # its read and write handlers (sorter_sim/frontends/s7_server.py)
+        'python-snap7==3.3.0',
         'ros-jazzy-rclpy[fastrtps]>=7.1',
         'ros-jazzy-common-interfaces>=5.3',
     ],

@@ -153,10 +153,10 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument(
         "--io",
-        choices=("ros", "modbus", "opcua"),
+        choices=("ros", "modbus", "opcua", "s7"),
         default="ros",
         help="how the controller reaches the cell: ROS topics and services (ros, the default), "
-        "or as a soft PLC scanning the cell's I/O image over Modbus TCP or OPC UA",
+        "or as a soft PLC scanning the cell's I/O image over Modbus TCP, OPC UA or S7",
     )
 
 
@@ -594,7 +594,7 @@ def run(args) -> int | str:
     if args.io != "ros":
         if args.rtf != "fast" or args.foxglove or args.record:
             return (
-                "--io modbus|opcua runs the cell and the soft PLC in step: no --rtf, "
+                "--io modbus|opcua|s7 runs the cell and the soft PLC in step: no --rtf, "
                 "--foxglove or --record with it"
             )
         return run_soft_plc(args)
@@ -699,7 +699,7 @@ def _stream(args, config_dir: Path):
 
 def run_soft_plc(args) -> int | str:
     """
-    ``sorter demo --io modbus|opcua``: the PLC program as a soft PLC on the cell's fieldbus.
+    ``sorter demo --io modbus|opcua|s7``: the PLC program as a soft PLC on the cell's fieldbus.
 
     The cell runs in this process with its Modbus TCP or OPC UA server; the soft PLC
     (``sorter_control.soft_plc``) connects to it as a client, as a real PLC would, and
@@ -729,7 +729,7 @@ def run_soft_plc(args) -> int | str:
     from rclpy.signals import SignalHandlerOptions
 
     from sorter_control.parameters import config_from_values
-    from sorter_control.soft_plc import FieldbusError, ModbusIO, OpcUaIO, SoftPLC
+    from sorter_control.soft_plc import FieldbusError, ModbusIO, OpcUaIO, S7IO, SoftPLC
     from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
     from sorter_sim.frontends.node import SimNode
 
@@ -781,6 +781,8 @@ def run_soft_plc(args) -> int | str:
         try:
             if args.io == "modbus":
                 io = ModbusIO("127.0.0.1", sim.fieldbus.modbus_port, sensors)
+            elif args.io == "s7":
+                io = S7IO("127.0.0.1", sim.fieldbus.s7_port, sensors)
             else:
                 io = OpcUaIO(sim.fieldbus.opcua_endpoint, "cell", sensors)
         except FieldbusError as exc:

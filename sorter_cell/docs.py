@@ -75,8 +75,8 @@ def io_map_table() -> str:
     p = CellParams.defaults()
     signals = io_map(list(p.photo_eyes_names) + list(CHUTE_SENSORS))
     rows = [
-        '| signal | direction | Modbus | type | unit | scaling | accepts | meaning |',
-        '|---|---|---|---|---|---|---|---|',
+        '| signal | direction | Modbus | S7 | type | unit | scaling | accepts | meaning |',
+        '|---|---|---|---|---|---|---|---|---|',
     ]
     short = {
         'discrete_input': 'DI',
@@ -91,7 +91,8 @@ def io_map_table() -> str:
         scaling = f'{s.scale:g} {s.unit or ""}/count'.replace(' /', '/') if s.scale != 1 else ''
         accepts = f'[{s.lo:g}, {s.hi:g}]' if s.lo is not None else ''
         rows.append(
-            f'| `{s.name}` | {s.direction} | {where} | {s.type} | {s.unit or "–"} | {scaling} | '
+            f'| `{s.name}` | {s.direction} | {where} | {s.s7_address} {s.s7[3]} | {s.type} | '
+            f'{s.unit or "–"} | {scaling} | '
             f'{accepts} | {s.meaning} |'
         )
     return '\n'.join(rows)

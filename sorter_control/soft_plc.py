@@ -2,15 +2,16 @@
 The sorter's PLC program as a soft PLC on the fieldbus: what a real PLC would do.
 
 The same ``SorterLogic`` the controller node runs, scanning the cell's I/O image
-over Modbus TCP (``ModbusIO``, pymodbus client) or OPC UA (``OpcUaIO``, asyncua
-client) instead of ROS topics and services: each scan reads every input at once
-(sensor bits, the latched edge times, the scanner's label with its ready/ack
-handshake, the diverter's feedback, the status bits, the cell's clock), runs the
-logic, and writes the outputs (pop-up coil, α setpoint, e-stop and reset pulses,
-the heartbeat the cell's watchdog expects). Only the declared I/O map
+over Modbus TCP (``ModbusIO``, pymodbus client), OPC UA (``OpcUaIO``, asyncua
+client) or S7 (``S7IO``, python-snap7's client) instead of ROS topics and
+services: each scan reads every input at once (sensor bits, the latched edge
+times, the scanner's label with its ready/ack handshake, the diverter's
+feedback, the status bits and PackML state, the cell's clock), runs the logic,
+and writes the outputs (pop-up coil, α setpoint, e-stop and reset pulses, PackML
+commands, the heartbeat the cell's watchdog expects). Only the declared I/O map
 (``sorter_sim.model.io_map``, part of the cell description) is shared with the cell.
 
-A write the server refuses (a Modbus exception, an OPC UA bad status) comes back
+A write the server refuses (a Modbus exception, an OPC UA bad status, an S7 return code) comes back
 to the logic as a refused command, as a refused service call does in the node.
 """
 
@@ -19,7 +20,17 @@ from __future__ import annotations
 import math
 import time
 
-from sorter_sim.model.io_map import COIL, DI, INPUT, IR, OUTPUT, Signal, io_map
+from sorter_sim.model.io_map import (
+    COIL,
+    DI,
+    INPUT,
+    IR,
+    OUTPUT,
+    S7_INPUT_DB,
+    Signal,
+    io_map,
+    s7_size,
+)
 from sorter_sim.model.packml import COMMAND_NUMBERS as PACKML_COMMAND_NUMBERS
 from sorter_sim.model.packml import STATE_BY_NUMBER as PACKML_STATE_BY_NUMBER
 
@@ -258,6 +269,84 @@ class OpcUaIO:
 
     def close(self) -> None:
         self.client.disconnect()
+
+
+class S7IO:
+    """The I/O image over S7 with python-snap7's client: one GET of DB1, a PUT per write."""
+
+    warehouse = False  # the warehouse link is on the OPC UA server only
+
+    def __init__(self, host: str, port: int, sensor_names):
+        import logging
+
+        import snap7
+
+        logging.getLogger('snap7').setLevel(logging.CRITICAL)  # failures are raised here
+        self.signals = io_map(sensor_names)
+        self.client = snap7.client.Client()
+        try:
+            self.client.connect(host, 0, 1, port)
+        except Exception as exc:
+            raise FieldbusError(f'cannot connect to S7 {host}:{port}: {exc}') from None
+        self._inputs = [s for s in self.signals if s.direction == INPUT]
+        self._size = s7_size(self.signals, S7_INPUT_DB)
+        self.requests = 0
+
+    def read_inputs(self) -> dict:
+        try:
+            data = self.client.db_read(S7_INPUT_DB, 0, self._size)
+        except Exception as exc:
+            raise FieldbusError(f'reading DB{S7_INPUT_DB}: {exc}') from None
+        self.requests += 1
+        values = {}
+        for s in self._inputs:
+            _, byte, bit, _ = s.s7
+            if s.type == 'bool':
+                values[s.name] = bool((data[byte] >> bit) & 1)
+            else:
+                words = data[byte : byte + 2 * s.words]
+                regs = [int.from_bytes(words[i : i + 2], 'big') for i in range(0, len(words), 2)]
+                values[s.name] = _decode(s, regs)
+        return values
+
+    def write(self, s: Signal, value) -> str | None:
+        """
+        Write one output; return None, or why the server refused it.
+
+        Parameters
+        ----------
+        s : Signal
+            An output signal.
+        value : object
+            Its engineering value.
+
+        Returns
+        -------
+        str or None
+            None, or why the server refused it.
+
+        """
+        from snap7.type import Area, WordLen
+
+        db, byte, bit, _ = s.s7
+        try:
+            if s.type == 'bool':
+                self.client.write_area(
+                    Area.DB, db, 8 * byte + bit, bytearray([1 if value else 0]), WordLen.Bit
+                )
+            else:
+                self.client.db_write(db, byte, bytearray(s.raw(value).to_bytes(2, 'big')))
+        except Exception as exc:
+            return f'S7 refused {s.name}: {exc}'
+        finally:
+            self.requests += 1
+        return None
+
+    def close(self) -> None:
+        try:
+            self.client.disconnect()
+        except Exception:  # already gone with the server
+            pass
 
 
 def _decode(s: Signal, regs: list[int]):

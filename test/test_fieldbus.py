@@ -258,7 +258,7 @@ def test_a_busy_fieldbus_port_is_refused_in_one_line(ros):
     with socket.socket() as busy:
         busy.bind(('127.0.0.1', 0))
         busy.listen()
-        for key in ('modbus_port', 'opcua_port'):
+        for key in ('modbus_port', 'opcua_port', 's7_port'):
             with pytest.raises(ParamError) as err:
                 SimNode(
                     context=ros.context,
@@ -270,7 +270,7 @@ def test_a_busy_fieldbus_port_is_refused_in_one_line(ros):
             assert key in str(err.value) and '\n' not in str(err.value)
 
 
-@pytest.mark.parametrize('io', ['modbus', 'opcua'])
+@pytest.mark.parametrize('io', ['modbus', 'opcua', 's7'])
 def test_the_soft_plc_sorts_the_demo_stream_as_the_ros_controller_does(io, tmp_path):
     runs = {}
     for how in ('ros', io):

@@ -27,6 +27,7 @@ ROSDEP = {
     'protobuf': ['python3-protobuf'],
     'pymodbus': ['python3-pymodbus'],
     'asyncua': ['python3-asyncua-pip'],
+    'python-snap7': ['python3-snap7-pip'],
     'ros-jazzy-rclpy': ['rclpy'],
     'ros-jazzy-common-interfaces': [
         'std_msgs',

@@ -152,6 +152,36 @@ class IOImage:
             The raw values.
 
         """
+        self._apply(self._checked(table, address, values))
+
+    def write_raw_many(self, writes) -> None:
+        """
+        Write several raw runs (coils and holding registers at once) all or none.
+
+        Parameters
+        ----------
+        writes : list of (table, address, values)
+            The runs, as ``write_raw`` takes one; WriteRefused for the first bad one,
+            and then nothing is applied.
+
+        """
+        changes = {}
+        for table, address, values in writes:
+            changes.update(self._checked(table, address, values))
+        if changes:
+            self._apply(changes)
+
+    def owns(self, table: str, address: int) -> bool:
+        """Return whether an output owns that coil or holding register."""
+        return address in self._owner.get(table, {})
+
+    def snapshot_tables(self, tables) -> dict[str, list[int]]:
+        """Return copies of several Modbus tables' raw values, taken under one lock."""
+        with self._lock:
+            return {t: list(self.raw[t]) for t in tables}
+
+    def _checked(self, table: str, address: int, values) -> dict:
+        """Return {output: engineering value} of a raw run, or raise WriteRefused."""
         owners = self._owner.get(table)
         if owners is None:
             raise WriteRefused('address', f'{table} is read-only')
@@ -166,7 +196,7 @@ class IOImage:
             if not s.accepts(value):
                 raise WriteRefused('value', f'{s.name} = {value} outside [{s.lo}, {s.hi}]')
             changes[s.name] = value
-        self._apply(changes)
+        return changes
 
     def write_value(self, name: str, value) -> None:
         """
@@ -450,6 +480,7 @@ class FieldbusServers:
         *,
         modbus=None,
         opcua=None,
+        s7=None,
         cell_name: str = 'cell',
         stations: list | None = None,
     ):
@@ -460,6 +491,11 @@ class FieldbusServers:
         image = self.image
         self.modbus_addr = modbus
         self.opcua_addr = opcua
+        if s7 is not None and self.stations is not None:
+            raise TypeError('a line\'s stations are not served over S7')
+        self.s7_addr = s7
+        self.s7 = None  # the S7 server (its own threads: python-snap7's)
+        self.s7_port: int | None = None
         self.cell_name = cell_name or 'cell'
         self.loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._run, name='fieldbus', daemon=True)
@@ -486,6 +522,16 @@ class FieldbusServers:
         if self._error:
             self.stop()
             raise ValueError(self._error)
+        if self.s7_addr is not None:
+            from sorter_sim.frontends.s7_server import CellS7Server
+
+            server = CellS7Server(self.image, *self.s7_addr)
+            try:
+                self.s7_port = server.serve()
+            except ValueError:
+                self.stop()
+                raise
+            self.s7 = server
 
     def _run(self) -> None:
         asyncio.set_event_loop(self.loop)
@@ -529,6 +575,9 @@ class FieldbusServers:
             The most to wait [s, wall].
 
         """
+        if self.s7 is not None:
+            server, self.s7 = self.s7, None
+            _stop_s7(server, 0.3 * wait_s)
         if self._thread.is_alive() and self.loop.is_running():
             fut = asyncio.run_coroutine_threadsafe(self._stop_all(0.6 * wait_s), self.loop)
             try:
@@ -884,6 +933,37 @@ def _opc_value(s, value):
     if s.opcua_type == 'Double':
         return float(value)
     return int(round(value)) & (0xFFFFFFFF if s.type == 'uint32' else 0xFFFF)
+
+
+def _stop_s7(server, wait_s: float) -> None:
+    """
+    Stop an S7 server without waiting on its clients.
+
+    python-snap7's stop joins every client thread for a second each; a client that never
+    sends keeps its thread in a blocking receive. Their sockets are shut down first, so
+    each thread ends at once (the listening socket too), then stop has nothing to wait for.
+    """
+    import socket as _socket
+
+    server.running = False
+    for sock in list(getattr(server, '_sockets', ())):
+        try:
+            sock.shutdown(_socket.SHUT_RDWR)
+        except OSError:
+            pass
+    listening = server.server_socket
+    if listening is not None:
+        try:
+            listening.close()
+        except OSError:
+            pass
+    if server.server_thread is not None:
+        server.server_thread.join(wait_s)
+    with server.client_lock:
+        threads = list(server.clients)
+    for t in threads:
+        t.join(max(0.01, wait_s / max(1, len(threads))))
+    server.server_socket = None
 
 
 def machine_identification(serial: str) -> dict:

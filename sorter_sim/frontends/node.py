@@ -200,7 +200,7 @@ class SimNode(Node):
         if station:
             on = [
                 name
-                for name in ('foxglove_port', 'modbus_port', 'opcua_port')
+                for name in ('foxglove_port', 'modbus_port', 'opcua_port', 's7_port')
                 if getattr(self.params, name)
             ]
             if on:
@@ -338,7 +338,7 @@ class SimNode(Node):
                     f'live view: Foxglove WebSocket server on '
                     f'ws://{p.foxglove_host}:{self.live_view.port}'
                 )
-            if p.modbus_port or p.opcua_port:
+            if p.modbus_port or p.opcua_port or p.s7_port:
                 self._open_fieldbus()
         except ParamError:
             self._close_outputs()
@@ -387,19 +387,25 @@ class SimNode(Node):
             self.io_image,
             modbus=(p.modbus_host, p.modbus_port) if p.modbus_port else None,
             opcua=(p.opcua_host, p.opcua_port) if p.opcua_port else None,
+            s7=(p.s7_host, p.s7_port) if p.s7_port else None,
             cell_name=self.get_namespace().strip('/').replace('/', '_') or 'cell',
         )
         try:
             self.fieldbus.start()
         except ValueError as exc:
             self.fieldbus = None
-            key = 'modbus_port' if 'Modbus' in str(exc) else 'opcua_port'
+            text = str(exc)
+            key = (
+                'modbus_port' if 'Modbus' in text else 's7_port' if 'S7' in text else 'opcua_port'
+            )
             raise ParamError(f'parameter {key!r}: {exc}') from None
         served = []
         if self.fieldbus.modbus_port:
             served.append(f'Modbus TCP on {p.modbus_host}:{self.fieldbus.modbus_port}')
         if self.fieldbus.opcua_endpoint:
             served.append(f'OPC UA on {self.fieldbus.opcua_endpoint}')
+        if self.fieldbus.s7_port:
+            served.append(f'S7 on {p.s7_host}:{self.fieldbus.s7_port} (DB1 inputs, DB2 outputs)')
         self.get_logger().info('fieldbus I/O image: ' + ', '.join(served))
 
     def _apply_io(self) -> None:

@@ -23,6 +23,12 @@ INPUT, OUTPUT = 'input', 'output'
 DI, COIL, IR, HR = 'discrete_input', 'coil', 'input_register', 'holding_register'
 MAX_SENSORS = 16
 LABEL_REGISTERS = 32  # the label in ASCII, two characters a register: 64 = LABEL_MAX
+# S7: the inputs are one data block, the outputs another; bits first (discrete inputs,
+# coils: bit i in byte i // 8, bit i % 8), registers after them (register a in bytes
+# base + 2a, + 1, big-endian as S7 stores words), so that each S7 byte is the Modbus image's
+S7_INPUT_DB, S7_OUTPUT_DB = 1, 2
+S7_INPUT_BITS_BYTES = 8  # DB1.DBX0.0 .. DBX7.7: room for 64 discrete inputs
+S7_OUTPUT_BITS_BYTES = 2  # DB2.DBX0.0 .. DBX1.7: 16 coils
 SENSOR_EDGE_BASE = 100  # input register of sensor 0's last rising edge time
 EDGE_TIME_SCALE = 1e-4  # s per count of an edge time (0.1 ms; uint32 wraps after 4.97 days)
 
@@ -42,6 +48,39 @@ class Signal:
     lo: float | None = None  # engineering range an output accepts (inclusive)
     hi: float | None = None
     words: int = 1  # registers it spans
+
+    @property
+    def s7(self) -> tuple[int, int, int, str]:
+        """
+        Return where the signal is in the S7 data blocks and its S7 type.
+
+        (DB number, byte offset, bit offset, type): BOOL for a bit, INT, WORD, UDINT
+        (a 32-bit value, high word first as S7 stores it) or ARRAY[0..n] OF CHAR.
+        """
+        bits = self.table in (DI, COIL)
+        db = S7_INPUT_DB if self.direction == INPUT else S7_OUTPUT_DB
+        if bits:
+            return db, self.address // 8, self.address % 8, 'BOOL'
+        base = S7_INPUT_BITS_BYTES if self.direction == INPUT else S7_OUTPUT_BITS_BYTES
+        kind = {
+            'int16': 'INT',
+            'uint16': 'WORD',
+            'uint32': 'UDINT',
+            'string': f'ARRAY[0..{2 * self.words - 1}] OF CHAR',
+        }[self.type]
+        return db, base + 2 * self.address, 0, kind
+
+    @property
+    def s7_address(self) -> str:
+        """Return the signal's S7 address as STEP 7 writes it (DB1.DBX2.3, DB1.DBW14 ...)."""
+        db, byte, bit, kind = self.s7
+        if kind == 'BOOL':
+            return f'DB{db}.DBX{byte}.{bit}'
+        if kind in ('INT', 'WORD'):
+            return f'DB{db}.DBW{byte}'
+        if kind == 'UDINT':
+            return f'DB{db}.DBD{byte}'
+        return f'DB{db}.DBB{byte}'
 
     @property
     def opcua_type(self) -> str:
@@ -317,6 +356,29 @@ def by_name(signals) -> dict[str, Signal]:
 
     """
     return {s.name: s for s in signals}
+
+
+def s7_size(signals, db: int) -> int:
+    """
+    Return the bytes an S7 data block of the map spans.
+
+    Parameters
+    ----------
+    signals : list of Signal
+        The I/O map.
+    db : int
+        S7_INPUT_DB or S7_OUTPUT_DB.
+
+    Returns
+    -------
+    int
+        Its size in bytes.
+
+    """
+    direction = INPUT if db == S7_INPUT_DB else OUTPUT
+    bits = S7_INPUT_BITS_BYTES if db == S7_INPUT_DB else S7_OUTPUT_BITS_BYTES
+    regs = [s for s in signals if s.direction == direction and s.table in (IR, HR)]
+    return bits + 2 * max((s.address + s.words for s in regs), default=0)
 
 
 def table_size(signals, table: str) -> int:

@@ -448,6 +448,17 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ),
     _p('opcua_host', STRING, '127.0.0.1', 'address the OPC UA server binds to'),
     _p(
+        's7_port',
+        INTEGER,
+        0,
+        'TCP port of the S7 (ISO-on-TCP) server of the I/O image: DB1 inputs, DB2 outputs '
+        '(docs/fieldbus.md); 0: off (102 is S7\'s own port)',
+        '',
+        0,
+        65535,
+    ),
+    _p('s7_host', STRING, '127.0.0.1', 'IPv4 address the S7 server binds to'),
+    _p(
         'record_path',
         STRING,
         '',
@@ -719,6 +730,8 @@ class CellParams:
     modbus_host: str
     opcua_port: int
     opcua_host: str
+    s7_port: int
+    s7_host: str
     record_path: str
 
     # -- construction ------------------------------------------------------
@@ -940,14 +953,16 @@ class CellParams:
                 f'got {shown(self.control_period)}'
             )
         check_label_pattern(self.label_pattern, self.labels)
-        for name in ('foxglove', 'modbus', 'opcua'):
+        for name in ('foxglove', 'modbus', 'opcua', 's7'):
             host = getattr(self, f'{name}_host')
             if getattr(self, f'{name}_port') and not 0 < len(host) <= 253:
                 raise ParamError(
                     f'parameter \'{name}_host\' must be a host name or address (1 to 253 '
                     f'characters), got {shown(host)}'
                 )
-        if len(self.photo_eyes_names) + 2 > MAX_SENSORS and (self.modbus_port or self.opcua_port):
+        if len(self.photo_eyes_names) + 2 > MAX_SENSORS and (
+            self.modbus_port or self.opcua_port or self.s7_port
+        ):
             raise ParamError(
                 f'the fieldbus I/O map takes at most {MAX_SENSORS} sensors (photo-eyes and the '
                 f'two chute sensors); photo_eyes.names has {len(self.photo_eyes_names)}'
