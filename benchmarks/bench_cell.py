@@ -7,23 +7,27 @@ pitch) so that ``--parcels`` parcels (default 200) are on the belt at once,
 the disks permanently up at α = 90°, so every parcel is diverted (the costly
 case: each one slides over the disk field), 1 ms physics, poses at 100 Hz, sensors on change.
 
-Three measurements after a warm-up that fills the cell (not timed):
-  cell    the ROS-free core alone (``Cell.advance``), no messages;
-  node    the node in fast mode, spun by a single-threaded executor, nobody
-          subscribed (rmw still serializes every message);
-  node+sub  the same with one subscriber per output topic in the same process
-          and executor, so delivery and the subscriber's callbacks count too.
-  node+live the node with its Foxglove live view on and one WebSocket client (in a
-          thread of this process) subscribed to every channel of it.
-  node+rec  the node recording everything it publishes to an MCAP file.
-  node+fieldbus  the node serving its I/O image over Modbus TCP and OPC UA, one client
-          each (threads of this process) reading every input every 10 ms of wall time.
-The last two are the costs of the live view and the recording against ``node``.
-Real-time factor = simulated time / wall time over the measured span; cost per
-message = the node's wall time spent building and publishing messages divided
-by the number published.
+The measurements, after a warm-up that fills the cell (not timed):
+  cell          the ROS-free core alone (``Cell.advance``), no messages;
+  node          the node in fast mode, spun by a single-threaded executor, nobody
+                subscribed (rmw still serializes every message): the reference;
+  node+sub      one subscriber of every output topic in another process;
+  node+live     the Foxglove live view with one WebSocket client (a thread here);
+  node+rec      recording everything the node publishes to an MCAP file;
+  node+servers  the Modbus TCP, OPC UA and S7 servers on, no client: the image
+                exchanged every physics period;
+  node+fieldbus the servers with one Modbus, one OPC UA and one S7 client (another
+                process) each reading every input every 10 ms of wall time;
+  everything    the subscriber, the live view with its client, the recording and
+                the three fieldbus clients at once.
+Each is run ``--repeat`` times (5); the best real-time factor is shown with the
+worst and the median, and its ratio to ``node`` (cost = 1 - ratio). Real-time
+factor = simulated time / wall time over the measured span; cost per message =
+the node's wall time spent building and publishing messages divided by the number
+published.
 
-    .venv/bin/python benchmarks/bench_cell.py [--sim-s 20] [--parcels 200]
+    .venv/bin/python benchmarks/bench_cell.py [--sim-s 20] [--parcels 200] [--repeat 5]
+        [--cases node,node+live,...]
 """
 
 from __future__ import annotations
@@ -137,7 +141,7 @@ class _LiveClient:
 
 
 class _FieldbusClients:
-    """A PLC in another process: a Modbus and an OPC UA client reading every 10 ms."""
+    """A PLC in another process: Modbus, OPC UA and S7 clients each reading every 10 ms."""
 
     def __init__(self, node):
         import subprocess
@@ -148,6 +152,7 @@ class _FieldbusClients:
                 str(Path(__file__).with_name('fieldbus_clients.py')),
                 str(node.fieldbus.modbus_port),
                 node.fieldbus.opcua_endpoint,
+                str(node.fieldbus.s7_port),
                 *node.cell.sensor_names,
             ],
             stdout=subprocess.PIPE,
@@ -157,40 +162,71 @@ class _FieldbusClients:
         self.t0 = time.monotonic()
 
     def close(self) -> float:
-        """Stop the clients; return their reads per wall second (both together)."""
+        """Stop the clients; return their reads per wall second (all together)."""
         self.proc.terminate()
         out = self.proc.communicate(timeout=20)[0].split()
         wall = time.monotonic() - self.t0
         return sum(int(x.split('=')[1]) for x in out) / wall
 
 
-def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> dict:
-    from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
-    from sorter_sim.frontends.node import SimNode
-    from diagnostic_msgs.msg import DiagnosticStatus
-    from geometry_msgs.msg import PoseArray
-    from sensor_msgs.msg import JointState, TimeReference
-    from std_msgs.msg import Bool, String, UInt32MultiArray
+class _Subscriber:
+    """A ROS subscriber of every output topic, in another process."""
 
+    def __init__(self, node, executor):
+        import subprocess
+
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                str(Path(__file__).with_name('topic_subscriber.py')),
+                *node.cell.sensor_names,
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self.proc.stdout.readline().strip() == 'ready'
+        deadline = time.monotonic() + 20.0
+        while node._pub_poses.get_subscription_count() == 0 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.01)
+
+    def close(self) -> int:
+        """Stop it; return the messages it received."""
+        self.proc.terminate()
+        out = self.proc.communicate(timeout=20)[0].split()
+        return int(out[-1].split('=')[1])
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(('127.0.0.1', 0))
+        return probe.getsockname()[1]
+
+
+def bench_node(sim_s: float, parcels: int, extras=()) -> dict:
+    """
+    Run the node in fast mode for ``sim_s`` simulated seconds with ``parcels`` parcels.
+
+    ``extras``: any of 'sub' (a subscriber of every topic in another process), 'live'
+    (the live view with one WebSocket client), 'rec' (recording to MCAP), 'fieldbus'
+    (Modbus, OPC UA and S7 servers, one client each in another process reading every
+    input every 10 ms), 'servers' (the same servers, no client).
+    """
+    from sorter_sim.frontends.node import SimNode
+
+    extras = set(extras)
     ctx = Context()
     rclpy.init(context=ctx)
     try:
         values = {**bench_values(parcels), 'time_mode': 'fast'}
         tmp = None
-        if extra == 'live':
-            import socket
-
-            with socket.socket() as probe:
-                probe.bind(('127.0.0.1', 0))
-                values['foxglove_port'] = probe.getsockname()[1]
-        elif extra == 'fieldbus':
-            import socket
-
-            for key in ('modbus_port', 'opcua_port'):
-                with socket.socket() as probe:
-                    probe.bind(('127.0.0.1', 0))
-                    values[key] = probe.getsockname()[1]
-        elif extra == 'rec':
+        if 'live' in extras:
+            values['foxglove_port'] = _free_port()
+        if extras & {'fieldbus', 'servers'}:
+            for key in ('modbus_port', 'opcua_port', 's7_port'):
+                values[key] = _free_port()
+        if 'rec' in extras:
             import tempfile
 
             tmp = tempfile.TemporaryDirectory()
@@ -200,37 +236,17 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> 
         )
         executor = SingleThreadedExecutor(context=ctx)
         executor.add_node(node)
-        received = {'n': 0}
-        if subscribe:
-            sub = rclpy.create_node('bench_subscriber', context=ctx)
-            topics = {
-                'parcels/poses': (PoseArray, STREAM_QOS),
-                'parcels/ids': (UInt32MultiArray, STREAM_QOS),
-                'diverter/state': (JointState, STREAM_QOS),
-                'sensors/edges': (TimeReference, EVENT_QOS),
-                'scanner/label': (String, EVENT_QOS),
-                'sort/outcomes': (DiagnosticStatus, EVENT_QOS),
-                **{f'sensors/{s}': (Bool, SENSOR_QOS) for s in node.cell.sensor_names},
-            }
-            for topic, (msg_type, qos) in topics.items():
-                sub.create_subscription(
-                    msg_type, topic, lambda m: received.__setitem__('n', received['n'] + 1), qos
-                )
-            executor.add_node(sub)
-            deadline = time.monotonic() + 10.0
-            while node._pub_poses.get_subscription_count() == 0 and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.01)
-        client = None
-        if extra == 'live':
-            client = _LiveClient(node.live_view.port)
+        sub = _Subscriber(node, executor) if 'sub' in extras else None
+        live = None
+        if 'live' in extras:
+            live = _LiveClient(node.live_view.port)
             deadline = time.monotonic() + 10.0
             while not node.live_view.listening() and time.monotonic() < deadline:
                 time.sleep(0.01)
         warm_up(node.cell, parcels)
-        if extra == 'fieldbus':
-            client = _FieldbusClients(node)
+        plc = _FieldbusClients(node) if 'fieldbus' in extras else None
         k0, msgs0 = node.cell.k, node.n_messages
-        frames0 = node.live_view.frames_sent if extra == 'live' else 0
+        frames0 = node.live_view.frames_sent if live else 0
         node._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
         t_end = node.cell.t + sim_s
         t0 = time.perf_counter()
@@ -246,14 +262,15 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> 
             'messages_per_sim_s': (node.n_messages - msgs0) / sim,
             'parcels': node.cell.n_parcels,
             'jams': node.cell.outcome_counts['jammed'],
-            'received': received['n'],
         }
-        if extra == 'fieldbus':
-            out['reads_per_wall_s'] = client.close()
-        elif client is not None:
+        if plc is not None:
+            out['reads_per_wall_s'] = plc.close()
+        if sub is not None:
+            out['received'] = sub.close()
+        if live is not None:
             out['frames'] = node.live_view.frames_sent - frames0
             out['frames_per_wall_s'] = out['frames'] / wall
-            client.close()
+            live.close()
         executor.shutdown()
         node.destroy_node()
         if tmp is not None:
@@ -264,9 +281,23 @@ def bench_node(sim_s: float, parcels: int, subscribe: bool, extra: str = '') -> 
         rclpy.try_shutdown(context=ctx)
 
 
+CASES = (
+    ('node', ()),
+    ('node+sub', ('sub',)),
+    ('node+live', ('live',)),
+    ('node+rec', ('rec',)),
+    ('node+servers', ('servers',)),
+    ('node+fieldbus', ('fieldbus',)),
+    ('everything', ('sub', 'live', 'rec', 'fieldbus')),
+)
+
+
 def best_of(runs: list[dict]) -> dict:
-    """Return the run with the highest real-time factor (the least disturbed by other load)."""
-    return max(runs, key=lambda r: r['rtf'])
+    """Return the run with the highest real-time factor, with the spread of them all."""
+    best = dict(max(runs, key=lambda r: r['rtf']))
+    best['rtf_min'] = min(r['rtf'] for r in runs)
+    best['rtf_median'] = sorted(r['rtf'] for r in runs)[len(runs) // 2]
+    return best
 
 
 def main() -> int:
@@ -274,12 +305,22 @@ def main() -> int:
     ap.add_argument('--sim-s', type=float, default=20.0, help='simulated seconds measured')
     ap.add_argument('--parcels', type=int, default=200, help='parcels in the cell')
     ap.add_argument(
-        '--repeat', type=int, default=3, help='runs per measurement; the best is shown'
+        '--repeat', type=int, default=5, help='runs per measurement; the best is shown'
+    )
+    ap.add_argument(
+        '--cases',
+        default=','.join(name for name, _ in CASES),
+        help='which of ' + ', '.join(name for name, _ in CASES),
     )
     args = ap.parse_args()
+    wanted = args.cases.split(',')
+    unknown = [w for w in wanted if w not in dict(CASES)]
+    if unknown:
+        ap.error(f'unknown case(s) {", ".join(unknown)}; one of {", ".join(dict(CASES))}')
     print(
         f'# sorter cell benchmark: {args.parcels} parcels, 1 ms physics, poses at 100 Hz, '
-        f'disks up at 90 deg, {args.sim_s:g} s simulated, best of {args.repeat}'
+        f'disks up at 90 deg, {args.sim_s:g} s simulated, best of {args.repeat} '
+        '(spread: worst and median of them)'
     )
     print(
         f'# {platform.processor() or platform.machine()}, {os.cpu_count()} cpus, Python '
@@ -288,37 +329,31 @@ def main() -> int:
     )
     c = best_of([bench_cell(args.sim_s, args.parcels) for _ in range(args.repeat)])
     print(
-        f'cell      real-time factor {c["rtf"]:7.1f}   {c["us_per_period"]:6.1f} us/period   '
-        f'{c["parcels_mean"]:.0f} parcels   integrated parcel-periods '
-        f'{100 * c["integrated_share"]:.2f} %   jams {c["jams"]}'
+        f'cell          real-time factor {c["rtf"]:6.1f} ({c["rtf_min"]:.1f}-{c["rtf"]:.1f})   '
+        f'{c["us_per_period"]:5.1f} us/period   {c["parcels_mean"]:.0f} parcels   '
+        f'integrated parcel-periods {100 * c["integrated_share"]:.2f} %   jams {c["jams"]}'
     )
     base = None
-    for name, subscribe, extra in (
-        ('node', False, ''),
-        ('node+sub', True, ''),
-        ('node+live', False, 'live'),
-        ('node+rec', False, 'rec'),
-        ('node+fieldbus', False, 'fieldbus'),
-    ):
-        n = best_of(
-            [bench_node(args.sim_s, args.parcels, subscribe, extra) for _ in range(args.repeat)]
-        )
+    for name, extras in CASES:
+        if name not in wanted and name != 'node':
+            continue
+        n = best_of([bench_node(args.sim_s, args.parcels, extras) for _ in range(args.repeat)])
         base = base or n
-        cost = '' if n is base else f'   cost {100 * (1 - n["rtf"] / base["rtf"]):+.1f} %'
+        ratio = n['rtf'] / base['rtf']
         print(
-            f'{name:13s} real-time factor {n["rtf"]:7.1f}   {n["us_per_period"]:6.1f} us/period '
-            f'(physics)   {n["us_per_message"]:6.1f} us/message   '
-            f'{n["messages_per_sim_s"]:.0f} messages per simulated s   {n["parcels"]} parcels   '
-            f'jams {n["jams"]}'
-            + (f'   received {n["received"]}' if subscribe else '')
+            f'{name:13s} real-time factor {n["rtf"]:6.1f} ({n["rtf_min"]:.1f}-{n["rtf"]:.1f}, '
+            f'median {n["rtf_median"]:.1f})   ratio {ratio:.2f} (cost {100 * (1 - ratio):+.0f} %)'
+            f'   {n["us_per_period"]:5.1f} us/period (physics)   '
+            f'{n["us_per_message"]:5.1f} us/message   '
+            f'{n["messages_per_sim_s"]:.0f} messages/simulated s   jams {n["jams"]}'
+            + (f'   received {n["received"]}' if 'received' in n else '')
             + (
                 f'   frames {n["frames"]} ({n["frames_per_wall_s"]:.0f}/s)'
-                if extra == 'live'
+                if 'frames' in n
                 else ''
             )
-            + (f'   file {n["recorded_mb"]:.1f} MB' if extra == 'rec' else '')
-            + (f'   client reads {n["reads_per_wall_s"]:.0f}/s' if extra == 'fieldbus' else '')
-            + cost
+            + (f'   file {n["recorded_mb"]:.1f} MB' if 'recorded_mb' in n else '')
+            + (f'   client reads {n["reads_per_wall_s"]:.0f}/s' if 'reads_per_wall_s' in n else '')
         )
     print(f'# load average after {os.getloadavg()[0]:.2f}')
     return 0

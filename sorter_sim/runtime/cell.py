@@ -272,6 +272,8 @@ class Cell:
         self.packml = PackMLMachine(auto=params.packml_auto)
         self._busy_k = 0  # last period with a parcel on the cell or an induct (starved)
         self._inducted_seen = 0
+        self._on_cell = False  # a parcel on the belt or the disks, at the last evaluation
+        self._chute_index = [(n, self.sensor_names.index(n)) for n in CHUTE_SENSORS]
         self._chute_blocked_k: dict[str, int] = {}  # chute eye -> period it was seen blocked
         self.update_packml()
         self._kernel(0)  # compile (or load from numba's cache) now, not in a callback
@@ -407,26 +409,28 @@ class Cell:
     # ------------------------------------------------------------------ machine state
     def packml_conditions(self) -> Conditions:
         """Return what the cell reports to its PackML state machine now."""
-        p = self.params
-        on_cell = self.n_in_flight > 0
+        # called twice per advance: plain attribute reads, one pass over the phases
+        p, k, dt = self.params, self.k, self.dt
+        phase = self.phase
+        on_cell = bool((phase == ck.PH_CELL).any())
+        self._on_cell = on_cell
         # time not spent producing (stopped, held, ...) is not time starving
         if on_cell or self.n_inducted != self._inducted_seen or not self.packml.infeed_open:
-            self._busy_k, self._inducted_seen = self.k, self.n_inducted
-        states = self.sensor_states()
-        for name in CHUTE_SENSORS:
-            if not states[name]:
-                self._chute_blocked_k.pop(name, None)
-            else:
-                self._chute_blocked_k.setdefault(name, self.k)
-        dt = self.dt
+            self._busy_k, self._inducted_seen = k, self.n_inducted
+        since = self._chute_blocked_k
+        for name, s in self._chute_index:
+            fault = self.sensor_faults.get(name)
+            if fault.blocked_at(k) if fault is not None else self.counts[s] > 0:
+                since.setdefault(name, k)
+            elif since:
+                since.pop(name, None)
         blocked = p.packml_blocked_s > 0 and any(
-            (self.k - k0) * dt >= p.packml_blocked_s - 1e-12
-            for k0 in self._chute_blocked_k.values()
+            (k - k0) * dt >= p.packml_blocked_s - 1e-12 for k0 in since.values()
         )
         starved = (
             p.packml_starved_s > 0
             and not on_cell
-            and (self.k - self._busy_k) * dt >= p.packml_starved_s - 1e-12
+            and (k - self._busy_k) * dt >= p.packml_starved_s - 1e-12
         )
         batch_done = bool(
             p.arrival_count and self.n_streamed >= p.arrival_count and not self._external
@@ -436,8 +440,8 @@ class Cell:
             hold_cause='jam' if self.jam else 'watchdog' if self.watchdog_tripped else '',
             suspend_cause='blocked' if blocked else 'starved' if starved else '',
             batch_done=batch_done,
-            empty=self.n_parcels == 0,
-            disks_down=self.stroke <= 0.001,
+            empty=not phase.any(),  # PH_FREE is 0
+            disks_down=self.act[ck.A_STROKE] <= 0.001,
         )
 
     def _packml_horizon(self) -> int:
@@ -455,7 +459,7 @@ class Cell:
         if state == 'Aborting':
             rate = self.cfg[ck.C_STROKE_RATE]
             out = 1 if not math.isfinite(rate) else max(1, math.ceil(self.stroke / (rate * dt)))
-        if p.packml_starved_s > 0 and state == 'Execute' and self.n_in_flight == 0:
+        if p.packml_starved_s > 0 and state == 'Execute' and not self._on_cell:
             due = self._busy_k + math.ceil(p.packml_starved_s / dt - 1e-9)
             out = min(out, max(1, due - k))
         if p.packml_blocked_s > 0 and state == 'Execute':
