@@ -518,3 +518,30 @@ def test_packml_and_machinery_over_opc_ua_with_asyncua_and_the_register_over_mod
         assert mb.read_input_registers(state.address, count=1).registers == [6]
     finally:
         mb.close()
+
+
+@pytest.mark.parametrize(
+    'stream',
+    [
+        {'arrival': 'rate', 'arrival_rate': 1.5},  # starved and back, at each arrival
+        {'arrival': 'gap', 'arrival_count': 5},  # a batch that completes
+    ],
+    ids=['rate', 'batch'],
+)
+def test_the_state_moves_at_the_same_period_however_time_is_sliced(stream):
+    """Per period, in slices of 7 or of 1000: the same events and the same transitions."""
+    runs = []
+    for step in (1, 7, 1000):
+        cell = Cell(
+            CellParams.defaults().with_changes({**stream, 'packml_starved_s': 0.3}, runtime=False)
+        )
+        events = []
+        for k_stop, up in ((3000, True), (9002, False), (15000, None)):
+            while cell.k < k_stop:
+                events += cell.advance(min(step, k_stop - cell.k))
+            if up is not None:
+                cell.popup(up)
+        runs.append((events, [(t.t_ns, t.state, t.cause) for t in cell.packml.transitions]))
+    assert runs[0] == runs[1] == runs[2]
+    states = [s for _, s, _ in runs[0][1]]
+    assert ('Suspended' in states) if stream['arrival'] == 'rate' else states[-1] == 'Complete'

@@ -97,11 +97,13 @@ class IOImage:
             {signal name: engineering value}.
 
         """
+        inputs = self.inputs
         with self._lock:
             for name, value in values.items():
-                s = self.by_name[name]
-                self.inputs[name] = value
-                self._encode(s, value)
+                if inputs[name] == value and type(inputs[name]) is type(value):
+                    continue  # most inputs hold still from one period to the next
+                inputs[name] = value
+                self._encode(self.by_name[name], value)
             self.stats['refreshes'] += 1
 
     def take_outputs(self) -> tuple[dict, set]:

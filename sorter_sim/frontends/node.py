@@ -18,6 +18,7 @@ from __future__ import annotations
 import array
 import json
 import math
+import sys
 import threading
 import time
 from collections import Counter
@@ -74,6 +75,7 @@ NODE_NAME = 'sorter_sim'
 FRAME_ID = 'conveyor'  # the cell's frame in the root namespace (see frame_id)
 RECORDING_METADATA = 'sorter_sim parameters'  # the metadata record of the cell's parameters
 MAX_CATCH_UP_S = 0.25  # realtime mode: simulated time one tick may catch up
+FIELDBUS_SWITCH_S = 0.0005  # s: the interpreter's switch interval with fieldbus servers on
 
 # status/<bit>: std_msgs/Bool each; fault = estop or jam or watchdog
 STATUS_BITS = ('estop', 'jam', 'watchdog', 'fault')
@@ -373,7 +375,7 @@ class SimNode(Node):
 
     def io_before_period(self) -> None:
         """Apply the outputs the PLC wrote, at the start of a period (a line's station)."""
-        self._apply_io()
+        self._publish_events(self._apply_io())
         self._belt_travel += self.cell.belt_velocity * self.cell.dt
 
     def io_after_period(self, events) -> None:
@@ -390,6 +392,10 @@ class SimNode(Node):
             s7=(p.s7_host, p.s7_port) if p.s7_port else None,
             cell_name=self.get_namespace().strip('/').replace('/', '_') or 'cell',
         )
+        # the servers share this interpreter: a thread waiting with a client's request gets
+        # it within FIELDBUS_SWITCH_S of the physics holding it (Python's default is 5 ms)
+        if sys.getswitchinterval() > FIELDBUS_SWITCH_S:
+            sys.setswitchinterval(FIELDBUS_SWITCH_S)
         try:
             self.fieldbus.start()
         except ValueError as exc:
@@ -409,11 +415,17 @@ class SimNode(Node):
         self.get_logger().info('fieldbus I/O image: ' + ', '.join(served))
 
     def _apply_io(self) -> None:
-        """Apply what the PLC wrote since the last period (outputs of the I/O image)."""
+        """
+        Apply what the PLC wrote since the last period (outputs of the I/O image).
+
+        Returns the sensor edges that follows (jammed parcels a reset or a PackML command
+        took off), to be published in order with the period's own.
+        """
         out, rises = self.io_image.take_outputs()
         if not out:
-            return
+            return []
         c = self.cell
+        edges = []
         for name, value in out.items():
             ok = True
             if name == 'diverter.popup':
@@ -432,7 +444,7 @@ class SimNode(Node):
             elif name == 'packml.command':
                 ok, text = c.packml_command(PACKML_BY_NUMBER[int(value)])
                 if ok:
-                    self._publish_events(c.take_packml_edges())
+                    edges += c.take_packml_edges()
                 else:
                     self.get_logger().warning(f'packml.command from the PLC: {text}')
             self._io_refused += not ok
@@ -441,9 +453,10 @@ class SimNode(Node):
             self._publish_status()
             self.get_logger().warning('e-stop engaged by the PLC: belt stopped, disks dropping')
         if 'cell.reset' in rises:
-            self._publish_events(c.reset())
+            edges += c.reset()
         if 'scanner.ack' in rises:
             self._scanner.ack()
+        return edges
 
     def _refresh_io(self, events) -> None:
         """Latch the cell's state into the inputs of the I/O image (end of a period)."""
@@ -595,17 +608,20 @@ class SimNode(Node):
         strides = (p.pose_stride, p.marker_stride, p.heartbeat_stride)
         while n > 0:
             k = self.cell.k
-            # with a fieldbus, one period at a time: the I/O image is exchanged every period
-            m = 1 if self.io_image is not None else min([n] + [s - k % s for s in strides])
+            m = min([n] + [s - k % s for s in strides])
             t0 = time.perf_counter()
-            if self.io_image is not None:
-                self.io_before_period()
-            events = self.cell.advance(m)
-            if self.io_image is not None:
-                self.io_after_period(events)
-                # hand the interpreter to the servers' thread: a client's request waiting
-                # there is served within a period, not after Python's 5 ms switch interval
-                time.sleep(0)
+            if self.io_image is None:
+                events = self.cell.advance(m)
+            else:
+                # the I/O image is exchanged every period; what the periods report is
+                # published together after them, as without a fieldbus
+                events = []
+                for _ in range(m):
+                    events += self._apply_io()
+                    self._belt_travel += self.cell.belt_velocity * self.cell.dt
+                    period = self.cell.advance(1)
+                    self._refresh_io(period)
+                    events += period
             t1 = time.perf_counter()
             self._cost['step_s'] += t1 - t0
             self._cost['periods'] += m

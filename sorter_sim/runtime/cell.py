@@ -198,10 +198,6 @@ def check_parcel(spec: ParcelSpec, belt_width: float) -> ParcelSpec:
     return spec
 
 
-# the PackML state machine's scan where a condition's time is not known in advance [s]
-PACKML_SCAN_S = 0.01
-
-
 class Cell:
     """One sorter cell: belt, disk field, pop-up, walls, chutes, sensors and parcels."""
 
@@ -273,6 +269,10 @@ class Cell:
         self._busy_k = 0  # last period with a parcel on the cell or an induct (starved)
         self._inducted_seen = 0
         self._on_cell = False  # a parcel on the belt or the disks, at the last evaluation
+        # set by whatever can change the machine state's conditions between two advances
+        # (commands, faults, parcels from outside); advance evaluates it first then
+        self._packml_dirty = True
+        self._packml_due_k = 0  # the period a condition's time falls due (starved, ...)
         self._chute_index = [(n, self.sensor_names.index(n)) for n in CHUTE_SENSORS]
         self._chute_blocked_k: dict[str, int] = {}  # chute eye -> period it was seen blocked
         self.update_packml()
@@ -314,6 +314,7 @@ class Cell:
             the running cell's.
 
         """
+        self._packml_dirty = True
         changed_alpha = params.alpha_deg != self.params.alpha_deg
         self.params = params
         if changed_alpha:
@@ -449,9 +450,10 @@ class Cell:
         Return how many periods the kernel may run before a PackML condition can change.
 
         Exact where the time is known (the disks dropping while Aborting, the starved and
-        blocked timers); every PACKML_SCAN_S where it is not (a parcel leaving empties the
-        cell while Stopping or at a batch's end). Elsewhere (a jam, which shows in the
-        kernel's events) the state moves at the end of the run.
+        blocked timers) and period by period where it is not (a parcel leaving empties the
+        cell while Stopping or at a batch's end), so that the state moves at the same
+        period however the caller slices time. A jam (which shows in the kernel's
+        events) moves it at the end of the slice it happens in.
         """
         p, k, dt = self.params, self.k, self.dt
         state = self.packml.state
@@ -469,12 +471,13 @@ class Cell:
         if state == 'Stopping' or (
             state == 'Execute' and p.arrival_count and self.n_streamed >= p.arrival_count
         ):
-            out = min(out, max(1, round(PACKML_SCAN_S / dt)))
+            out = 1
         return out
 
     def update_packml(self) -> None:
         """Move the PackML state by the cell's conditions now (after a command or a fault)."""
         self.packml.update(self.packml_conditions(), self.t_ns)
+        self._packml_dirty = False
 
     def packml_command(self, command: str) -> tuple[bool, str]:
         """
@@ -511,12 +514,14 @@ class Cell:
 
     def engage_estop(self) -> None:
         """Belt stops (v = 0 at once), the disks drop at their stroke rate."""
+        self._packml_dirty = True
         self.estop = True
         self.act[ck.A_BELT_ON] = 0.0
         self.act[ck.A_STROKE_TARGET] = 0.0
 
     def reset(self) -> list[SensorEdge]:
         """Clear the e-stop and jams: jammed parcels are taken off, the belt restarts."""
+        self._packml_dirty = True
         edges = []
         for i in np.flatnonzero(self.phase == ck.PH_JAMMED):
             edges += self._remove(int(i))
@@ -540,6 +545,7 @@ class Cell:
             Whether it was taken, and the reason (why not, or what it does).
 
         """
+        self._packml_dirty = True
         self.belt_run = bool(run)
         if self.estop:
             return False, 'the belt stays stopped: e-stop engaged (call reset first)'
@@ -574,6 +580,7 @@ class Cell:
             True if it cleared a watchdog trip.
 
         """
+        self._packml_dirty = True
         if self.heartbeat_cut:
             self.heartbeats_lost += 1
             return False
@@ -642,6 +649,7 @@ class Cell:
             An unknown sensor or fault, or a period out of range; nothing changes.
 
         """
+        self._packml_dirty = True
         if sensor not in self.sensor_names:
             raise ParamError(
                 f'unknown sensor {shown(sensor)}; the cell has {", ".join(self.sensor_names)}'
@@ -721,6 +729,7 @@ class Cell:
             No parcel of that label or id on the belt or the disks; nothing changes.
 
         """
+        self._packml_dirty = True
         on = np.flatnonzero(self.phase == ck.PH_CELL)
         match = [int(i) for i in on if self.labels[i] == which or str(self.ids[i]) == str(which)]
         if not match:
@@ -768,6 +777,7 @@ class Cell:
             full); nothing is queued then.
 
         """
+        self._packml_dirty = True
         spec = check_parcel(spec, self.params.belt_width)
         if len(self._external) >= PENDING_INDUCTS_MAX:
             self.n_induct_refused += 1
@@ -806,6 +816,7 @@ class Cell:
             No free slot (``max_parcels`` on this station already).
 
         """
+        self._packml_dirty = True
         free = np.flatnonzero(self.phase == ck.PH_FREE)
         if free.size == 0:
             raise ParamError(
@@ -897,6 +908,7 @@ class Cell:
                 self._stream_due_k = self.k + self._draw_interarrival()
         i = int(free[0])
         self.n_inducted += 1
+        self._packml_dirty = True
         pid = self.n_inducted
         label = spec.label or format_label(
             self.params.label_pattern,
@@ -1001,9 +1013,18 @@ class Cell:
         remaining = n
         k_from = self.k
         while remaining > 0:
-            self.update_packml()
+            if self._packml_dirty or self.k >= self._packml_due_k:
+                # a command or a fault since the last evaluation, or a condition's time
+                self.update_packml()
             events += self._place_pending()
-            m = min(remaining, self._periods_until_placement(), self._packml_horizon())
+            if self._packml_dirty:
+                self.update_packml()  # a parcel came in: starved no more
+            if remaining == 1:
+                m = 1  # one period (the fieldbus's exchange) needs no look ahead
+            else:
+                ahead = self._packml_horizon()
+                self._packml_due_k = self.k + ahead
+                m = min(remaining, self._periods_until_placement(), ahead)
             deadline = self._watchdog_deadline()
             if deadline is not None:
                 if self.k >= deadline:
