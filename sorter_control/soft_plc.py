@@ -28,6 +28,7 @@ from sorter_sim.model.io_map import (
     OUTPUT,
     S7_INPUT_DB,
     Signal,
+    decode,
     io_map,
     s7_size,
 )
@@ -90,7 +91,7 @@ class ModbusIO:
             if s.table == DI:
                 values[s.name] = bool(bits[s.address - lo])
             else:
-                values[s.name] = _decode(s, regs[s.address - lo_r : s.address - lo_r + s.words])
+                values[s.name] = decode(s, regs[s.address - lo_r : s.address - lo_r + s.words])
         return values
 
     def write(self, s: Signal, value) -> str | None:
@@ -306,7 +307,7 @@ class S7IO:
             else:
                 words = data[byte : byte + 2 * s.words]
                 regs = [int.from_bytes(words[i : i + 2], 'big') for i in range(0, len(words), 2)]
-                values[s.name] = _decode(s, regs)
+                values[s.name] = decode(s, regs)
         return values
 
     def write(self, s: Signal, value) -> str | None:
@@ -347,15 +348,6 @@ class S7IO:
             self.client.disconnect()
         except Exception:  # already gone with the server
             pass
-
-
-def _decode(s: Signal, regs: list[int]):
-    if s.type == 'string':
-        data = b''.join(bytes((r >> 8, r & 0xFF)) for r in regs)
-        return data.rstrip(b'\0').decode('ascii', 'replace')
-    if s.type == 'uint32':
-        return s.value((regs[0] << 16) | regs[1])
-    return s.value(regs[0])
 
 
 class SoftPLC:

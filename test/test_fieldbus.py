@@ -662,12 +662,19 @@ def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_re
         ua.VariantType.String,
         ua.VariantType.Int32,
     )
-    wh = cell.fieldbus.warehouse
 
     async def run():
         async with Client(cell.fieldbus.opcua_endpoint, timeout=10) as client:
             idx = await client.get_namespace_index('urn:sorter_cell')
             folder = await client.nodes.objects.get_child([f'{idx}:cell', f'{idx}:Warehouse'])
+            # the warehouse's state as a client reads it (the servers run in their own
+            # process): pending routes, results, confirmations, the routing table, count
+            names = ('PendingRoutes', 'RouteResults', 'Confirmations', 'RoutingTable')
+            state_nodes = [await folder.get_child([f'{idx}:{n}']) for n in names]
+            count_node = await folder.get_child([f'{idx}:ConfirmationCount'])
+
+            async def warehouse():
+                return await client.read_values(state_nodes)
 
             async def call(name, *args):
                 try:
@@ -677,7 +684,7 @@ def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_re
 
             assert await call('RequestRoute', 'A*', 'left') == 1
             assert await call('RequestRoute', 'B*', 'right') == 2
-            state = (wh.pending(), list(wh.results), list(wh.confirmations), list(wh.table))
+            state = await warehouse()
             refusals = {
                 'take all with no results': (
                     'TakeRoutes',
@@ -723,12 +730,7 @@ def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_re
             for why, outcome in got.items():
                 assert outcome in ('BadInvalidArgument', 'BadTypeMismatch'), (why, outcome)
             assert got['Int64 count'] == got['Boolean count'] == 'BadTypeMismatch'
-            assert (
-                wh.pending(),
-                list(wh.results),
-                list(wh.confirmations),
-                list(wh.table),
-            ) == state
+            assert await warehouse() == state
             # the wrong number of arguments: the protocol's own codes
             assert await call('RequestRoute', 'A*') == 'BadArgumentsMissing'
             assert await call('RequestRoute', 'A*', 'left', 'x') == 'BadTooManyArguments'
@@ -745,11 +747,12 @@ def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_re
             assert await call('Confirm', ua.Variant(lines, S, is_array=True)) is None
             table = ['A*=left', '*=straight']
             assert await call('PublishRoutingTable', ua.Variant(table, S, is_array=True)) is None
+            pending, results, _, live_table = await warehouse()
+            assert not pending and len(results) == 2 and live_table == table
+            assert await count_node.read_value() == 2
         return len(refusals) + 2
 
     refused = asyncio.run(run())
-    assert wh.pending() == [] and len(wh.results) == 2 and wh.confirmed == 2
-    assert wh.table == ['A*=left', '*=straight']
     assert int(_diag(cell)['fieldbus_calls_refused']) == refused
     assert int(_diag(cell)['fieldbus_writes_refused']) == 0
 

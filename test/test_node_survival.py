@@ -262,12 +262,12 @@ def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_prom
     held = []
     try:
         deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline:
-            with socket.socket() as s:
-                if s.connect_ex(('127.0.0.1', ports['foxglove_port'])) == 0:
-                    break
-            time.sleep(0.2)
-        time.sleep(2.0)  # the fieldbus servers start after the live view
+        for key in ('foxglove_port', 'modbus_port', 'opcua_port'):  # all of them listening
+            while time.monotonic() < deadline:
+                with socket.socket() as s:
+                    if s.connect_ex(('127.0.0.1', ports[key])) == 0:
+                        break
+                time.sleep(0.2)
 
         async def subscribers():
             class Quiet:
@@ -279,16 +279,21 @@ def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_prom
                 c = Client(endpoint, timeout=10)
                 await c.connect()
                 idx = await c.get_namespace_index('urn:sorter_cell')
+                # the cell's folder is named by its namespace
+                folder = NS.strip('/').replace('/', '_')
                 t = await c.nodes.objects.get_child(
-                    [f'{idx}:cell', f'{idx}:Inputs', f'{idx}:cell.time']
+                    [f'{idx}:{folder}', f'{idx}:Inputs', f'{idx}:cell.time']
                 )
                 sub = await c.create_subscription(50, Quiet())
                 await sub.subscribe_data_change(t)
                 clients.append(c)
+            subscribed.set()
             while not stop_clients.is_set():
                 await asyncio.sleep(0.1)
 
+        subscribed = threading.Event()
         threading.Thread(target=lambda: asyncio.run(subscribers()), daemon=True).start()
+        assert subscribed.wait(30.0), 'the OPC UA subscribers did not connect'
         for _ in range(3):
             m = ModbusTcpClient('127.0.0.1', port=ports['modbus_port'], timeout=5, retries=0)
             assert m.connect() and not m.read_input_registers(0, count=10).isError()
@@ -312,6 +317,11 @@ def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_prom
             held.append(ws)  # never read again
         time.sleep(5.0)  # frames pile up for the stalled clients
         assert proc.poll() is None
+        # the fieldbus servers' process: it must not outlive the node
+        children = subprocess.run(
+            ['ps', '-o', 'pid=', '--ppid', str(proc.pid)], capture_output=True, text=True
+        ).stdout.split()
+        assert children, 'the fieldbus servers run in a child process'
         t0 = time.monotonic()
         proc.send_signal(signal.SIGTERM)
         try:
@@ -324,6 +334,11 @@ def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_prom
         assert proc.returncode == 0 and 'Traceback' not in err, err[-2000:]
         # 26-31 s before the servers' stops were bounded; ros2 launch kills after 10 s
         assert took < 5.0, f'{took:.1f} s from SIGTERM to exit'
+        for pid in children:
+            deadline = time.monotonic() + 5.0
+            while Path(f'/proc/{pid}').exists() and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert not Path(f'/proc/{pid}').exists(), f'child {pid} outlived the node'
     finally:
         stop_clients.set()
         if proc.poll() is None:

@@ -173,6 +173,11 @@ class IOImage:
         if changes:
             self._apply(changes)
 
+    def input_values(self, names) -> tuple:
+        """Return several inputs' engineering values, all of the same period."""
+        with self._lock:
+            return tuple(self.inputs[n] for n in names)
+
     def owns(self, table: str, address: int) -> bool:
         """Return whether an output owns that coil or holding register."""
         return address in self._owner.get(table, {})
@@ -991,9 +996,10 @@ def _input_reader(image: IOImage, s, vtype, origin: datetime):
     def read(nodeid, attr):
         # SourceTimestamp: when the cell produced the value, on the simulated clock mapped
         # to UtcTime (origin + simulated time); ServerTimestamp: when the server read it
+        value, t = image.input_values((s.name, 'cell.time'))  # of one period
         return ua.DataValue(
-            ua.Variant(_opc_value(s, image.inputs[s.name]), vtype),
-            SourceTimestamp=origin + timedelta(seconds=float(image.inputs['cell.time'])),
+            ua.Variant(_opc_value(s, value), vtype),
+            SourceTimestamp=origin + timedelta(seconds=float(t)),
             ServerTimestamp=datetime.now(timezone.utc),
         )
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 import array
 import json
 import math
-import sys
 import threading
 import time
 from collections import Counter
@@ -51,7 +50,8 @@ from sorter_ros.interface import (
 from sorter_ros.interface import descriptor as ros_descriptor
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 from sorter_sim.frontends.cdr import pose_array_cdr, stamp
-from sorter_sim.frontends.fieldbus import FieldbusServers, IOImage, ScannerQueue
+from sorter_sim.frontends.fieldbus import IOImage, ScannerQueue
+from sorter_sim.frontends.fieldbus_process import FieldbusProcess
 from sorter_sim.frontends.live_view import PARCEL_HEIGHT, STATE_COLOURS, CellLayout, LiveView
 from sorter_sim.model.description import shown
 from sorter_sim.model.io_map import io_map
@@ -75,7 +75,6 @@ NODE_NAME = 'sorter_sim'
 FRAME_ID = 'conveyor'  # the cell's frame in the root namespace (see frame_id)
 RECORDING_METADATA = 'sorter_sim parameters'  # the metadata record of the cell's parameters
 MAX_CATCH_UP_S = 0.25  # realtime mode: simulated time one tick may catch up
-FIELDBUS_SWITCH_S = 0.0005  # s: the interpreter's switch interval with fieldbus servers on
 
 # status/<bit>: std_msgs/Bool each; fault = estop or jam or watchdog
 STATUS_BITS = ('estop', 'jam', 'watchdog', 'fault')
@@ -353,25 +352,27 @@ class SimNode(Node):
         A cell serves it itself (``modbus_port`` / ``opcua_port``); a line's stations
         are served together by the line's servers (``LineNode``).
         """
-        p = self.params
-        self.io_image = IOImage(
-            io_map(self.cell.sensor_names),
-            {
-                'diverter.popup': False,
-                'cell.reset': False,
-                'belt.run': True,
-                'scanner.ack': False,
-                'cell.estop': False,
-                'diverter.alpha_setpoint': p.alpha_deg,
-                'plc.heartbeat': 0,
-                'packml.command': 0,  # none yet; a write issues one
-            },
-        )
+        self.io_image = IOImage(io_map(self.cell.sensor_names), self._initial_outputs())
+        self._start_io_image()
+        return self.io_image
+
+    def _initial_outputs(self) -> dict:
+        return {
+            'diverter.popup': False,
+            'cell.reset': False,
+            'belt.run': True,
+            'scanner.ack': False,
+            'cell.estop': False,
+            'diverter.alpha_setpoint': self.params.alpha_deg,
+            'plc.heartbeat': 0,
+            'packml.command': 0,  # none yet; a write issues one
+        }
+
+    def _start_io_image(self) -> None:
         self._scanner = ScannerQueue()
         self._belt_travel = 0.0
         self._io_refused = 0
         self._refresh_io([])
-        return self.io_image
 
     def io_before_period(self) -> None:
         """Apply the outputs the PLC wrote, at the start of a period (a line's station)."""
@@ -384,18 +385,18 @@ class SimNode(Node):
 
     def _open_fieldbus(self) -> None:
         p = self.params
-        self.attach_io_image()
-        self.fieldbus = FieldbusServers(
-            self.io_image,
+        # the servers run in a process of their own, sharing the image: a client's request
+        # never holds the physics (sorter_sim/frontends/fieldbus_process.py)
+        self.fieldbus = FieldbusProcess(
+            io_map(self.cell.sensor_names),
+            self._initial_outputs(),
             modbus=(p.modbus_host, p.modbus_port) if p.modbus_port else None,
             opcua=(p.opcua_host, p.opcua_port) if p.opcua_port else None,
             s7=(p.s7_host, p.s7_port) if p.s7_port else None,
             cell_name=self.get_namespace().strip('/').replace('/', '_') or 'cell',
         )
-        # the servers share this interpreter: a thread waiting with a client's request gets
-        # it within FIELDBUS_SWITCH_S of the physics holding it (Python's default is 5 ms)
-        if sys.getswitchinterval() > FIELDBUS_SWITCH_S:
-            sys.setswitchinterval(FIELDBUS_SWITCH_S)
+        self.io_image = self.fieldbus.image
+        self._start_io_image()
         try:
             self.fieldbus.start()
         except ValueError as exc:

@@ -358,6 +358,31 @@ def by_name(signals) -> dict[str, Signal]:
     return {s.name: s for s in signals}
 
 
+def decode(s: Signal, regs) -> float | int | str:
+    """
+    Return the engineering value of a register signal from its raw registers.
+
+    Parameters
+    ----------
+    s : Signal
+        An input or holding register signal.
+    regs : list of int
+        Its ``s.words`` raw registers, in order.
+
+    Returns
+    -------
+    float, int or str
+        Its value (a string for the label).
+
+    """
+    if s.type == 'string':
+        data = b''.join(bytes((r >> 8, r & 0xFF)) for r in regs)
+        return data.rstrip(b'\0').decode('ascii', 'replace')
+    if s.type == 'uint32':
+        return s.value((regs[0] << 16) | regs[1])
+    return s.value(regs[0])
+
+
 def s7_size(signals, db: int) -> int:
     """
     Return the bytes an S7 data block of the map spans.

@@ -478,6 +478,7 @@ class Cell:
         """Move the PackML state by the cell's conditions now (after a command or a fault)."""
         self.packml.update(self.packml_conditions(), self.t_ns)
         self._packml_dirty = False
+        self._packml_due_k = 1 << 62  # until a look ahead finds a condition's time
 
     def packml_command(self, command: str) -> tuple[bool, str]:
         """
