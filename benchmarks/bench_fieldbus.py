@@ -1,7 +1,7 @@
 """
 Benchmark of the fieldbus round trip: a sensor edge in the cell to the pop-up command in it.
 
-Over Modbus TCP or OPC UA, with a PLC scanning every 10 ms. Not a test: it prints
+Over Modbus TCP, OPC UA or S7, with a PLC scanning every 10 ms. Not a test: it prints
 figures. The cell (``sim_node``, config/cell.yaml) runs in its own process on the
 wall clock (real-time factor 1) with a dense stream of short parcels; this process
 is the PLC: every ``--scan`` seconds of wall time it reads the inputs, and when
@@ -12,7 +12,7 @@ was applied, so t_applied = cell.time - stroke x stroke_time, read while the dis
 move; round trip = t_applied - t_edge. It holds the edge's wait for the next scan,
 the PLC's read, its write and the image's one-period exchange.
 
-    .venv/bin/python benchmarks/bench_fieldbus.py [--edges 200] [--scan 0.01] [--io modbus]
+    .venv/bin/python benchmarks/bench_fieldbus.py [--edges 200] [--scan 0.01] [--io s7]
 """
 
 from __future__ import annotations
@@ -42,9 +42,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument('--edges', type=int, default=200, help='rising edges to measure')
     ap.add_argument('--scan', type=float, default=0.01, help='PLC scan period, wall [s]')
-    ap.add_argument('--io', choices=('modbus', 'opcua'), default='modbus')
+    ap.add_argument('--io', choices=('modbus', 'opcua', 's7'), default='modbus')
     args = ap.parse_args()
-    from sorter_control.soft_plc import ModbusIO, OpcUaIO
+    from sorter_control.soft_plc import ModbusIO, OpcUaIO, S7IO
     from sorter_sim.runtime.cell import CHUTE_SENSORS
     from sorter_sim.model.io_map import by_name
 
@@ -83,11 +83,12 @@ def main() -> int:
         deadline = time.monotonic() + 60
         while io is None:
             try:
-                io = (
-                    ModbusIO('127.0.0.1', port, sensors)
-                    if args.io == 'modbus'
-                    else OpcUaIO(f'opc.tcp://127.0.0.1:{port}/sorter_cell/', 'cell', sensors)
-                )
+                if args.io == 'modbus':
+                    io = ModbusIO('127.0.0.1', port, sensors)
+                elif args.io == 's7':
+                    io = S7IO('127.0.0.1', port, sensors)
+                else:
+                    io = OpcUaIO(f'opc.tcp://127.0.0.1:{port}/sorter_cell/', 'cell', sensors)
             except Exception:
                 if time.monotonic() > deadline or cell.poll() is not None:
                     raise SystemExit(f'the cell did not serve {args.io}: {cell.stderr.read()}')

@@ -1,0 +1,50 @@
+"""
+The node benchmark runs end to end on a tiny cell: every case, every front end at once.
+
+Not a timing test (the figures are the benchmark's to print, not ours to judge): it
+checks that each case of ``benchmarks/bench_cell.py`` runs, with the subscriber
+process, the live view's client, the recording and the three fieldbus clients, and
+prints a ratio for each, so that a change to any front end cannot break the
+benchmark that measures it unseen.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.ros
+
+
+def test_bench_cell_runs_every_case_and_prints_a_ratio_for_each():
+    out = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / 'benchmarks' / 'bench_cell.py'),
+            '--sim-s',
+            '0.3',
+            '--parcels',
+            '3',
+            '--repeat',
+            '1',
+            '--cases',
+            'node,node+sub,node+fieldbus,everything',
+        ],
+        capture_output=True,
+        text=True,
+        timeout=150,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    lines = {ln.split()[0]: ln for ln in out.stdout.splitlines() if ln and ln[0] != '#'}
+    assert set(lines) == {'cell', 'node', 'node+sub', 'node+fieldbus', 'everything'}
+    for name in ('node+sub', 'node+fieldbus', 'everything'):
+        assert re.search(r'ratio \d+\.\d\d', lines[name]), lines[name]
+    assert re.search(r'client reads [1-9]\d*/s', lines['everything'])  # the clients read
+    assert re.search(r'received [1-9]\d*', lines['everything'])  # the subscriber received
+    assert re.search(r'frames [1-9]\d*', lines['everything'])  # the live client was sent
+    assert 'file ' in lines['everything']
