@@ -198,3 +198,21 @@ def test_a_stalled_or_garbage_speaking_client_does_not_stop_the_others(cell, plc
     t0 = time.monotonic()
     cell.fieldbus.stop()
     assert time.monotonic() - t0 < 2.0  # a node stopping never waits on its clients
+
+
+def test_a_killed_server_process_leaves_the_cell_running_and_says_so(cell, plc):
+    import os
+    import signal
+
+    pid = cell.fieldbus.pid
+    assert pid and cell._fieldbus_diagnostics()['fieldbus_servers'] == 'running'
+    os.kill(pid, signal.SIGKILL)
+    deadline = time.monotonic() + 5.0
+    while cell.fieldbus.alive and time.monotonic() < deadline:
+        time.sleep(0.05)
+    k = cell.cell.k
+    cell.advance(500)  # the image is still exchanged with nobody: the cell runs on
+    assert cell.cell.k == k + 500
+    assert cell._fieldbus_diagnostics()['fieldbus_servers'] == 'ended'
+    with pytest.raises(Exception):
+        plc.db_read(1, 0, 8)

@@ -379,6 +379,15 @@ class FieldbusProcess:
             raise ValueError(answer[1])
         _, self.modbus_port, self.opcua_endpoint, self.s7_port, self.time_origin = answer
 
+    @property
+    def alive(self) -> bool:
+        """Return whether the servers' process runs (a killed one leaves the cell running)."""
+        return self._proc is not None and self._proc.poll() is None
+
+    @property
+    def pid(self) -> int | None:
+        return None if self._proc is None else self._proc.pid
+
     def stop(self, wait_s: float = 1.0) -> None:
         """Stop the servers and the process (idempotent), in at most about ``wait_s``."""
         if self._proc is not None and self._proc.poll() is None:

@@ -372,6 +372,7 @@ class SimNode(Node):
         self._scanner = ScannerQueue()
         self._belt_travel = 0.0
         self._io_refused = 0
+        self._servers_ended_said = False
         self._refresh_io([])
 
     def io_before_period(self) -> None:
@@ -415,11 +416,11 @@ class SimNode(Node):
             served.append(f'S7 on {p.s7_host}:{self.fieldbus.s7_port} (DB1 inputs, DB2 outputs)')
         self.get_logger().info('fieldbus I/O image: ' + ', '.join(served))
 
-    def _apply_io(self) -> None:
+    def _apply_io(self) -> list:
         """
         Apply what the PLC wrote since the last period (outputs of the I/O image).
 
-        Returns the sensor edges that follows (jammed parcels a reset or a PackML command
+        Returns the sensor edges that follow (jammed parcels a reset or a PackML command
         took off), to be published in order with the period's own.
         """
         out, rises = self.io_image.take_outputs()
@@ -721,7 +722,8 @@ class SimNode(Node):
     def _publish_packml(self) -> None:
         """Bring the PackML state up to the cell's conditions; publish each transition."""
         machine = self.cell.packml
-        self.cell.update_packml()
+        if self.cell.packml_dirty:
+            self.cell.update_packml()  # a command or a fault since the cell last looked
         if self._packml_sent is None:
             machine.take_transitions()  # the power-up sequence: the state reached is enough
         else:
@@ -921,7 +923,17 @@ class SimNode(Node):
         if self.io_image is None:
             return {}
         st = self.io_image.stats
+        servers = 'running'
+        if isinstance(self.fieldbus, FieldbusProcess) and not self.fieldbus.alive:
+            servers = 'ended'
+            if not self._servers_ended_said:
+                self._servers_ended_said = True
+                self.get_logger().error(
+                    'the fieldbus servers\' process ended: no client is served; the cell '
+                    'runs on (restart the node to serve again)'
+                )
         return {
+            'fieldbus_servers': servers,
             'fieldbus_writes': str(st['writes']),
             'fieldbus_writes_refused': str(st['refused']),
             # Modbus reads refused (an address or count no table has), function codes the

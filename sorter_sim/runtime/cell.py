@@ -474,6 +474,11 @@ class Cell:
             out = 1
         return out
 
+    @property
+    def packml_dirty(self) -> bool:
+        """Return whether something changed the PackML conditions since the last look."""
+        return self._packml_dirty
+
     def update_packml(self) -> None:
         """Move the PackML state by the cell's conditions now (after a command or a fault)."""
         self.packml.update(self.packml_conditions(), self.t_ns)
