@@ -161,13 +161,7 @@ class _SharedInputs(Mapping):
         self._names = [s.name for s in self._inputs]
 
     def __getitem__(self, name):
-        s = self._image.by_name[name]
-        if s.direction != INPUT:
-            raise KeyError(name)
-        tables = self._image.snapshot_tables((s.table,))[s.table]
-        if s.table == DI:
-            return bool(tables[s.address])
-        return decode(s, tables[s.address : s.address + s.words])
+        return self._image.decoded()[name]
 
     def __iter__(self):
         return iter(self._names)
@@ -185,6 +179,7 @@ class ServerImage(IOImage):
         self._out_index = {
             s.name: i for i, s in enumerate(s for s in self.signals if s.direction == OUTPUT)
         }
+        self._decoded = None  # (sequence number, {input: value}) of the last decode
         self.inputs = _SharedInputs(self)
 
     def snapshot_tables(self, tables) -> dict:
@@ -209,17 +204,33 @@ class ServerImage(IOImage):
         return self.snapshot_tables((table,))[table]
 
     def input_values(self, names) -> tuple:
+        values = self.decoded()
+        return tuple(values[n] for n in names)
+
+    def decoded(self) -> dict:
+        """
+        Return every input's engineering value, of one period.
+
+        Decoded once per period the node wrote: a client reading thirty variables in one
+        request (an OPC UA read, a subscription's sampling) decodes the image once.
+        """
+        seq = int(self._head[IN_SEQ])
+        cached = self._decoded
+        if cached is not None and cached[0] == seq and seq % 2 == 0:
+            return cached[1]
         tables = self.snapshot_tables((DI, IR))  # one consistent copy for all of them
-        out = []
-        for name in names:
-            s = self.by_name[name]
+        values = {}
+        for s in self.signals:
+            if s.direction != INPUT:
+                continue
             regs = tables[s.table]
-            out.append(
+            values[s.name] = (
                 bool(regs[s.address])
                 if s.table == DI
                 else decode(s, regs[s.address : s.address + s.words])
             )
-        return tuple(out)
+        self._decoded = (seq, values)  # seq as read before the copy: at worst decoded again
+        return values
 
     def count(self, key: str = 'refused') -> None:
         with self._lock:
