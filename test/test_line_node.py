@@ -292,6 +292,16 @@ def test_every_station_is_a_modbus_unit_and_an_opc_ua_folder_of_the_line(ros):
 
         with pytest.raises(ua.UaStatusCodeError):
             up2.write_value(0.0)
+        # each station its own machine state: station 2 held from its folder, 1 runs on
+        pm2 = root.get_child([f'{idx}:S02', f'{idx}:PackML'])
+        assert pm2.get_child([f'{idx}:StateCurrent']).read_value() == 6
+        pm2.call_method(f'{idx}:Hold')
+        line.advance(1)
+        assert line.stations[1].cell.packml.state == 'Held'
+        assert line.stations[0].cell.packml.state == 'Execute'
+        assert pm2.get_child([f'{idx}:CurrentState']).read_value().Text == 'Held'
+        serial = root.get_child([f'{idx}:S01', f'{idx}:Identification', f'{idx}:SerialNumber'])
+        assert serial.read_value() == 'sorter_line/S01'
     finally:
         opc.disconnect()
         for c in units.values():
