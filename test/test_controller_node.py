@@ -386,6 +386,49 @@ def test_estop_and_reset_through_the_controller(ros):
     assert cell.outcome("B5")["exit"] == "right"
 
 
+def test_the_controller_sorts_only_in_execute_and_its_reset_walks_the_cell_there(ros):
+    """A cell that waits for its commands (packml_auto false): real services both ways."""
+    cell = Cell(ros, sim={"packml_auto": False})
+    states = []
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    latched = QoSProfile(
+        depth=20,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    cell.w.create_subscription(String, "status/packml", lambda m: states.append(m.data), latched)
+    ros.spin_until(lambda: states and states[-1] == "Stopped", 5.0, "the cell Stopped")
+    cell.induct("B1")  # the infeed is closed while Stopped: it waits there
+    ros.spin_for(1.0)
+    assert cell.outcome("B1") is None and not cell.labels
+    ok = cell.call(Trigger, "/sorter_controller/reset", Trigger.Request())
+    assert ok.success
+    ros.spin_until(lambda: states[-1] == "Execute", 10.0, "the controller to start the cell")
+    assert [c[1] for c in cell.ctl.command_log if c[0] == "packml"] == ["reset", "start"]
+    ros.spin_until(lambda: cell.outcome("B1") is not None, 15.0, "B1 to leave")
+    assert cell.outcome("B1")["exit"] == "right"
+    # an operator holds the cell: the next parcel goes straight, flagged, not mis-sorted
+    held = cell.call(Trigger, "packml/hold", Trigger.Request())
+    assert held.success and "Held" in held.message
+    ros.spin_until(lambda: states[-1] == "Held", 5.0, "Held")
+    cell.induct("B2")
+    ros.spin_until(
+        lambda: cell.confirmation("B2") is not None and cell.outcome("B2") is not None,
+        15.0,
+        "B2 out and confirmed",
+    )
+    assert cell.outcome("B2")["exit"] == "straight"
+    assert cell.confirmation("B2")["result"] == "not_executing"
+    # the controller's reset unholds it, and it sorts again
+    assert cell.call(Trigger, "/sorter_controller/reset", Trigger.Request()).success
+    ros.spin_until(lambda: states[-1] == "Execute", 10.0, "unheld")
+    cell.induct("B3")
+    ros.spin_until(lambda: cell.outcome("B3") is not None, 15.0, "B3 to leave")
+    assert cell.outcome("B3")["exit"] == "right"
+    assert cell.value("mis_sorted") == "0" and cell.value("not_executing") == "1"
+
+
 def test_a_second_clock_is_one_clock_fault_until_it_is_gone(ros):
     from rosgraph_msgs.msg import Clock
 
