@@ -406,8 +406,9 @@ class SorterLogic:
         """
         if state != self.cell_packml:
             self.cell_packml, self._packml_since = state, self.t
+        if state == "Execute":
+            self._resume = False  # there: nothing left to walk
         if state is None or state == "Execute":
-            self._resume = False if state == "Execute" else self._resume
             return
         command = PACKML_RESUME.get(state)
         if (

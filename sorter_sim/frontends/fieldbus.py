@@ -780,31 +780,30 @@ class FieldbusServers:
         def state():
             return STATE_BY_NUMBER.get(int(image.inputs['packml.state']), 'Undefined')
 
-        def now():
-            return self.time_origin + timedelta(seconds=float(image.inputs['cell.time']))
-
         readers = {
             'CurrentState': (
                 ua.VariantType.LocalizedText,
-                lambda: ua.LocalizedText(state()),
+                lambda n: ua.LocalizedText(STATE_BY_NUMBER.get(n, 'Undefined')),
                 "the cell's PackML state",
             ),
             'StateCurrent': (
                 ua.VariantType.Int32,
-                lambda: int(image.inputs['packml.state']),
+                int,
                 'the state as PackTags StateCurrent numbers it (6 Execute)',
             ),
         }
-        for name, (vtype, get, meaning) in readers.items():
-            var = await packml.add_variable(idx, name, ua.Variant(get(), vtype))
+        for name, (vtype, shown, meaning) in readers.items():
+            number = int(image.inputs['packml.state'])
+            var = await packml.add_variable(idx, name, ua.Variant(shown(number), vtype))
             await var.write_attribute(
                 ua.AttributeIds.Description, ua.DataValue(ua.LocalizedText(meaning))
             )
 
-            def read(nodeid, attr, get=get, vtype=vtype):
+            def read(nodeid, attr, shown=shown, vtype=vtype):
+                number, t = image.input_values(('packml.state', 'cell.time'))  # one period
                 return ua.DataValue(
-                    ua.Variant(get(), vtype),
-                    SourceTimestamp=now(),
+                    ua.Variant(shown(int(number)), vtype),
+                    SourceTimestamp=self.time_origin + timedelta(seconds=float(t)),
                     ServerTimestamp=datetime.now(timezone.utc),
                 )
 

@@ -120,14 +120,9 @@ class NodeImage(IOImage):
         pass
 
     def refresh_inputs(self, values: dict) -> None:
-        inputs = self.inputs
         head = self._head
         head[IN_SEQ] += 1  # odd: being written
-        for name, value in values.items():
-            if inputs[name] == value and type(inputs[name]) is type(value):
-                continue
-            inputs[name] = value
-            self._encode(self.by_name[name], value)
+        super().refresh_inputs(values)  # encodes what changed, into shared memory
         head[IN_SEQ] += 1  # even: consistent
         self._local['refreshes'] += 1
 
@@ -157,8 +152,7 @@ class _SharedInputs(Mapping):
 
     def __init__(self, image: ServerImage):
         self._image = image
-        self._inputs = [s for s in image.signals if s.direction == INPUT]
-        self._names = [s.name for s in self._inputs]
+        self._names = [s.name for s in image.signals if s.direction == INPUT]
 
     def __getitem__(self, name):
         return self._image.decoded()[name]

@@ -410,7 +410,7 @@ class Cell:
     # ------------------------------------------------------------------ machine state
     def packml_conditions(self) -> Conditions:
         """Return what the cell reports to its PackML state machine now."""
-        # called twice per advance: plain attribute reads, one pass over the phases
+        # on every advance (and where a condition falls due): one pass over the phases
         p, k, dt = self.params, self.k, self.dt
         phase = self.phase
         on_cell = bool((phase == ck.PH_CELL).any())
@@ -420,8 +420,7 @@ class Cell:
             self._busy_k, self._inducted_seen = k, self.n_inducted
         since = self._chute_blocked_k
         for name, s in self._chute_index:
-            fault = self.sensor_faults.get(name)
-            if fault.blocked_at(k) if fault is not None else self.counts[s] > 0:
+            if self._shows_blocked(s, name):
                 since.setdefault(name, k)
             elif since:
                 since.pop(name, None)
@@ -622,10 +621,12 @@ class Cell:
     # ------------------------------------------------------------------ sensors
     def sensor_states(self) -> dict[str, bool]:
         """Return what each sensor shows now (blocked True), injected faults included."""
-        out = {n: bool(c > 0) for n, c in zip(self.sensor_names, self.counts)}
-        for name, f in self.sensor_faults.items():
-            out[name] = f.blocked_at(self.k)
-        return out
+        return {n: self._shows_blocked(s, n) for s, n in enumerate(self.sensor_names)}
+
+    def _shows_blocked(self, s: int, name: str) -> bool:
+        """Return what sensor ``s`` shows now: its count, or the fault injected into it."""
+        fault = self.sensor_faults.get(name)
+        return fault.blocked_at(self.k) if fault is not None else bool(self.counts[s] > 0)
 
     def inject_sensor_fault(self, sensor: str, fault: str, period: float = 0.1) -> list:
         """
