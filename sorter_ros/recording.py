@@ -14,27 +14,34 @@ read it and latched topics play back latched.
 Several nodes of one process that name the same path share one open file (the demo
 records the cell and its controller together); the file is finished (summary and
 footer written) when the last of them closes it, which the nodes do when they are
-destroyed, also after Ctrl-C. A file being recorded is locked (``flock``): a second
-process that names it is refused before it truncates anything. A write that fails
-(the disk full) stops the recording, says so once through the callbacks given to
-``open_recorder``, and leaves the file readable up to its last complete chunk; the
-node goes on publishing.
+destroyed, also after Ctrl-C. The file is written by a process of its own
+(``recording_writer``), fed through a pipe the node never waits on: a node killed
+outright loses only what it had not yet handed over (at most ``Recorder.FLUSH_S`` of
+wall time), and its writer still finishes the file. A file being recorded is locked
+(``flock``): a second process that names it is refused before it truncates anything.
+A write that fails (the disk full), a writer killed or stalled stops the recording,
+says so once through the callbacks given to ``open_recorder``, and leaves the file
+readable up to its last complete chunk; the node goes on publishing.
 """
 
 from __future__ import annotations
 
 import errno
 import fcntl
+import json
 import os
+import select
+import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
-from mcap.writer import CompressionType, Writer
 from rclpy.serialization import serialize_message
 from rosidl_adapter.parser import parse_message_string
 
-PROFILE = 'ros2'
+from sorter_ros.recording_writer import CHANNEL, FAILED_EXIT, FINISH, HEAD, MESSAGE, METADATA
+
 SEPARATOR = '=' * 80
 
 
@@ -189,9 +196,21 @@ class Recorder:
     """
     One MCAP file being written; use ``open_recorder`` so nodes of a process share it.
 
-    ``write`` takes a message object or its CDR bytes. Thread-safe. ``failure`` says
-    why the recording stopped early (None while it runs or after a clean close).
+    The file is written by a process of its own (``recording_writer``): ``write`` only
+    frames the message's CDR bytes into a buffer, which goes to that process through a
+    pipe every ``FLUSH_BYTES`` or ``FLUSH_S`` of wall time, without ever waiting on it.
+    MCAP's framing and LZ4 compression in the node's interpreter cost about as much as
+    publishing (they hold the GIL the physics needs); a thread would keep them there.
+    A writer that falls ``BACKLOG_BYTES`` behind (stalled) or ends (killed, or a failed
+    write) stops the recording with one message; the node goes on. ``write`` takes a
+    message object or its CDR bytes. Thread-safe. ``failure`` says why the recording
+    stopped early (None while it runs or after a clean close).
     """
+
+    FLUSH_BYTES = 256 * 1024
+    FLUSH_S = 0.05
+    BACKLOG_BYTES = 64 * 1024 * 1024
+    CLOSE_WAIT_S = 20.0
 
     def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024):
         self.path = Path(path)
@@ -208,65 +227,107 @@ class Recorder:
                 ) from None
             raise
         os.ftruncate(fd, 0)
-        self._stream = os.fdopen(fd, 'wb')
-        # LZ4 chunks rather than zstd: cheaper on the node's thread, files about 1.5x larger;
-        # 1 MiB chunks, so a process killed outright (no Ctrl-C) loses at most one of them;
-        # the data section's CRC too, so a reader finds a damaged file as such
-        self._writer = Writer(
-            self._stream,
-            chunk_size=chunk_size,
-            compression=CompressionType.LZ4,
-            enable_data_crcs=True,
+        # the writer shares the open file and so its lock: held until both let go
+        self._fd = fd
+        self._proc = subprocess.Popen(
+            [sys.executable, '-m', 'sorter_ros.recording_writer', str(fd), str(chunk_size)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            pass_fds=(fd,),
         )
+        self._pipe = self._proc.stdin.fileno()
+        os.set_blocking(self._pipe, False)
+        self._pending = bytearray()
+        self._last_flush = time.monotonic()
         self._channels: dict[str, int] = {}
-        self._schemas: dict[str, int] = {}
         self._lock = threading.Lock()
         self._users = 0
         self.closed = False
         self.failure: str | None = None
         self.on_failure: list = []
         self.messages = 0
-        self._guarded(self._writer.start, profile=PROFILE, library='sorter_cell')
 
-    def _guarded(self, call, *args, **kwargs) -> None:
-        """Run a write to the file; on an OS error stop recording and say why, once."""
-        if self.closed:
-            return
-        try:
-            call(*args, **kwargs)
-        except OSError as exc:
-            self._fail(exc)
-
-    def _fail(self, exc: OSError) -> None:
+    def _fail(self, reason: str, written: int | str | None = None) -> None:
+        """Stop recording: say why, once; the writer finishes nothing more."""
         self.closed = True
+        if written is None:
+            written = self.messages
         self.failure = (
-            f'recording to {str(self.path)[:200]} stopped: {exc.strerror or exc} after '
-            f'{self.messages} messages; the file is readable up to its last complete chunk '
+            f'recording to {str(self.path)[:200]} stopped: {reason} after {written} '
+            'messages; the file is readable up to its last complete chunk '
             '(sorter replay --recover)'
         )
-        try:
-            self._stream.close()
-        except OSError:
-            pass  # the buffer that could not be written is lost with the chunk it held
+        self._pending = bytearray()
+        if self._proc.poll() is None:
+            self._proc.kill()  # a stalled writer must not finish a file with a gap
+        self._release()
         if self.on_failure:  # said once, by the node that opened the file
             self.on_failure[0](self.failure)
 
-    def _channel(self, topic: str, msg_type: str, qos=None) -> int:
-        schema = self._schemas.get(msg_type)
-        if schema is None:
-            schema = self._writer.register_schema(
-                name=msg_type,
-                encoding='ros2msg',
-                data=message_definition(msg_type).encode(),
+    def _writer_ended(self) -> None:
+        """Stop recording after the writer's pipe broke, saying what it said or that it ended."""
+        try:
+            code = self._proc.wait(1.0)
+        except subprocess.TimeoutExpired:
+            code = None
+        said = b''
+        if code is not None:
+            said = self._proc.stdout.read() or b''
+        words = said.decode(errors='replace').split(maxsplit=2)
+        if code == FAILED_EXIT and len(words) == 3 and words[0] == 'failed':
+            self._fail(words[2].strip(), words[1])
+        else:
+            self._fail(f'its writer process ended (exit status {code})')
+
+    def _release(self) -> None:
+        for close in (self._proc.stdin.close, self._proc.stdout.close):
+            try:
+                close()
+            except OSError:
+                pass
+        try:
+            os.close(self._fd)  # with the writer gone too, the file's lock goes
+        except OSError:
+            pass
+
+    def _flush(self) -> None:
+        """Hand the writer what it takes now, without waiting; caller holds the lock."""
+        self._last_flush = time.monotonic()
+        while self._pending:
+            try:
+                n = os.write(self._pipe, self._pending)
+            except BlockingIOError:
+                break
+            except (BrokenPipeError, OSError):
+                self._writer_ended()
+                return
+            del self._pending[:n]
+        if len(self._pending) > self.BACKLOG_BYTES:
+            self._fail(
+                f'its writer process fell {self.BACKLOG_BYTES // 2**20} MiB behind '
+                '(stalled, or the disk too slow)'
             )
-            self._schemas[msg_type] = schema
-        channel = self._writer.register_channel(
-            topic=topic,
-            message_encoding='cdr',
-            schema_id=schema,
-            metadata={'offered_qos_profiles': qos_profiles_yaml(qos)},
-        )
+
+    def _frame(self, kind: int, channel: int, t_ns: int, payload: bytes) -> None:
+        self._pending += HEAD.pack(kind, channel, t_ns, len(payload))
+        self._pending += payload
+        if (
+            len(self._pending) >= self.FLUSH_BYTES
+            or time.monotonic() - self._last_flush >= self.FLUSH_S
+        ):
+            self._flush()
+
+    def _channel(self, topic: str, msg_type: str, qos=None) -> int:
+        channel = len(self._channels) + 1
         self._channels[topic] = channel
+        definition = message_definition(msg_type)
+        spec = {
+            'topic': topic,
+            'type': msg_type,
+            'definition': definition,
+            'qos': qos_profiles_yaml(qos),
+        }
+        self._frame(CHANNEL, channel, 0, json.dumps(spec).encode())
         return channel
 
     def write(self, topic: str, msg, t_ns: int, msg_type=None, qos=None) -> None:
@@ -292,26 +353,26 @@ class Recorder:
 
         """
         if isinstance(msg, (bytes, bytearray)):
-            data = bytes(msg)
+            data = msg
         else:
             data = serialize_message(msg)
             msg_type = type(msg)
         with self._lock:
             if self.closed:
                 return
-            try:
-                channel = self._channels.get(topic)
-                if channel is None:
-                    if not isinstance(msg_type, str):
-                        msg_type = type_name(msg_type)
-                    channel = self._channel(topic, msg_type, qos)
-                self._writer.add_message(
-                    channel_id=channel, log_time=t_ns, publish_time=t_ns, data=data
-                )
-            except OSError as exc:
-                self._fail(exc)
-                return
+            channel = self._channels.get(topic)
+            if channel is None:
+                if not isinstance(msg_type, str):
+                    msg_type = type_name(msg_type)
+                channel = self._channel(topic, msg_type, qos)
             self.messages += 1
+            self._frame(MESSAGE, channel, t_ns, data)
+
+    def flush(self) -> None:
+        """Hand the writer everything written so far that it takes now, without waiting."""
+        with self._lock:
+            if not self.closed:
+                self._flush()
 
     def add_metadata(self, name: str, values: dict[str, str]) -> None:
         """
@@ -326,18 +387,44 @@ class Recorder:
 
         """
         with self._lock:
-            self._guarded(self._writer.add_metadata, name=name, data=dict(values))
+            if not self.closed:
+                payload = json.dumps({'name': name, 'values': dict(values)}).encode()
+                self._frame(METADATA, 0, 0, payload)
 
     def close(self) -> None:
-        """Finish the file (summary and footer): it is complete and indexed after this."""
+        """
+        Finish the file (summary and footer): it is complete and indexed after this.
+
+        Waits for the writer to take the rest and finish, at most ``CLOSE_WAIT_S``.
+        """
         with self._lock:
             if self.closed:
                 return
-            self._guarded(self._writer.finish)
-            if self.closed:  # finishing failed: said so already
+            self._pending += HEAD.pack(FINISH, 0, 0, 0)
+            deadline = time.monotonic() + self.CLOSE_WAIT_S
+            while self._pending and time.monotonic() < deadline:
+                try:
+                    n = os.write(self._pipe, self._pending)
+                except BlockingIOError:
+                    select.select([], [self._pipe], [], 0.05)
+                    continue
+                except (BrokenPipeError, OSError):
+                    self._writer_ended()
+                    return
+                del self._pending[:n]
+            if self._pending:
+                self._fail(f'its writer process took nothing for {self.CLOSE_WAIT_S:g} s')
+                return
+            try:
+                code = self._proc.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self._fail(f'its writer process did not finish in {self.CLOSE_WAIT_S:g} s')
+                return
+            if code != 0:
+                self._writer_ended()
                 return
             self.closed = True
-            self._stream.close()  # releases the lock
+            self._release()
 
 
 _open: dict[Path, Recorder] = {}
