@@ -12,7 +12,7 @@ The measurements, after a warm-up that fills the cell (not timed):
   node          the node in fast mode, spun by a single-threaded executor, nobody
                 subscribed (rmw still serializes every message): the reference;
   node+sub      one subscriber of every output topic in another process;
-  node+live     the Foxglove live view with one WebSocket client (a thread here);
+  node+live     the Foxglove live view with one WebSocket client (another process);
   node+rec      recording everything the node publishes to an MCAP file;
   node+servers  the Modbus TCP, OPC UA and S7 servers on, no client: the image
                 exchanged every physics period;
@@ -103,41 +103,23 @@ def bench_cell(sim_s: float, parcels: int) -> dict:
 
 
 class _LiveClient:
-    """A Foxglove WebSocket client in a thread: subscribes to every channel, counts frames."""
+    """A Foxglove WebSocket client in another process: subscribes to every channel."""
 
     def __init__(self, port: int):
-        import json
-        import threading
+        import subprocess
 
-        from websockets.sync.client import connect
+        self.proc = subprocess.Popen(
+            [sys.executable, str(Path(__file__).with_name('live_client.py')), str(port)],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self.proc.stdout.readline().strip() == 'ready'
 
-        self.frames = 0
-        self._stop = threading.Event()
-        self.ws = connect(f'ws://127.0.0.1:{port}', subprotocols=['foxglove.sdk.v1'])
-        while True:
-            msg = json.loads(self.ws.recv(timeout=10))
-            if msg['op'] == 'advertise':
-                break
-        subs = [{'id': c['id'], 'channelId': c['id']} for c in msg['channels']]
-        self.ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
-        self.thread = threading.Thread(target=self._drain, daemon=True)
-        self.thread.start()
-
-    def _drain(self) -> None:
-        while not self._stop.is_set():
-            try:
-                frame = self.ws.recv(timeout=0.2)
-            except TimeoutError:
-                continue
-            except Exception:  # the server went away
-                return
-            if isinstance(frame, bytes):
-                self.frames += 1
-
-    def close(self) -> None:
-        self._stop.set()
-        self.thread.join(timeout=2)
-        self.ws.close()
+    def close(self) -> int:
+        """Stop it; return the frames it received."""
+        self.proc.terminate()
+        out = self.proc.communicate(timeout=20)[0].split()
+        return int(out[-1].split('=')[1])
 
 
 class _FieldbusClients:

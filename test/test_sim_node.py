@@ -29,7 +29,14 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
-from sorter_sim.frontends.cdr import pose_array_cdr
+from sorter_sim.frontends.cdr import (
+    JointStateCdr,
+    bool_cdr,
+    clock_cdr,
+    joint_state_cdr,
+    pose_array_cdr,
+    uint32_array_cdr,
+)
 from sorter_sim.frontends.node import SimNode, main
 from sorter_sim.runtime.params import ParamError
 
@@ -273,6 +280,36 @@ def test_pose_stream_encoding_matches_the_ros_serializer():
     ref = serialize_message(one)
     mine = pose_array_cdr(0, 'cv', np.zeros(1), np.zeros(1), np.zeros(1))
     assert len(mine) == len(ref) and mine[-56:] == ref[-56:]  # the pose, after padding
+
+
+def test_every_period_message_encoding_matches_the_ros_serializer():
+    for value in (True, False):
+        assert deserialize_message(bool_cdr(value), Bool).data is value
+    clock = deserialize_message(clock_cdr(12_345_678_901), Clock).clock
+    assert (clock.sec, clock.nanosec) == (12, 345_678_901)
+    ids = np.array([1, 7, 2**32 - 1], dtype=np.int64)
+    msg = deserialize_message(uint32_array_cdr(ids), UInt32MultiArray)
+    assert list(msg.data) == [1, 7, 2**32 - 1] and list(msg.layout.dim) == []
+    assert msg.layout.data_offset == 0
+    assert (
+        deserialize_message(uint32_array_cdr(np.empty(0, int)), UInt32MultiArray).data.tolist()
+        == []
+    )
+    names = ('disk_angle', 'popup_stroke')
+    for frame in ('c', 'cell', 'conveyor_7'):  # the strings' lengths move the alignment
+        for args in (((0.5, 1.0), (0.25, -2.0)), ((0.0, 0.0), (0.0, 0.0))):
+            data = JointStateCdr(frame, names)(5_000_000_001, *args)
+            assert data == joint_state_cdr(5_000_000_001, frame, names, *args)
+            js = deserialize_message(data, JointState)
+            assert (js.header.stamp.sec, js.header.stamp.nanosec) == (5, 1)
+            assert js.header.frame_id == frame and list(js.name) == list(names)
+            assert list(js.position) == list(args[0]) and list(js.velocity) == list(args[1])
+            assert list(js.effort) == []
+            # the same bytes as rclpy's serializer, padding aside: rclpy adds 8 more at the end
+            ref = JointState(name=list(names), position=list(args[0]), velocity=list(args[1]))
+            ref.header.frame_id = frame
+            ref.header.stamp.sec, ref.header.stamp.nanosec = 5, 1
+            assert deserialize_message(serialize_message(ref), JointState) == js
 
 
 # ---------------------------------------------------------------- parcels through the cell

@@ -55,7 +55,7 @@ from sorter_ros.interface import (
 )
 from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
-from sorter_sim.frontends.cdr import stamp
+from sorter_sim.frontends.cdr import clock_cdr
 from sorter_sim.frontends.fieldbus import FieldbusServers
 from sorter_sim.frontends.node import SimNode, burst_limit, realtime_tick
 from sorter_sim.frontends.segments import SegmentLink
@@ -279,7 +279,6 @@ class LineNode(Node):
             dx=-self._pitch,
             dt_ns=self.line.stations[0].params.control_period_ns,
         )
-        self._clock_msg = Clock()
         self.exits = 0
         # wall time spent in the line's physics and in publishing what it reports
         self.cost = {'physics_s': 0.0, 'publish_s': 0.0}
@@ -301,7 +300,7 @@ class LineNode(Node):
 
     def _open_live_view(self) -> None:
         """Serve the whole line to Foxglove: every station in its frame, placed along the belt."""
-        from sorter_sim.frontends.live_view import LiveView
+        from sorter_sim.frontends.live_view_process import LiveViewProcess
 
         v = self.values
         stations = [
@@ -309,13 +308,14 @@ class LineNode(Node):
             for k, (s, x) in enumerate(zip(self.stations, self.line.positions))
         ]
         try:
-            self.live_view = LiveView(
+            self.live_view = LiveViewProcess(
                 None,
                 host=v['foxglove_host'],
                 port=v['foxglove_port'],
                 prefix=f'{self.get_namespace().rstrip("/")}/live',
                 max_rate_hz=v['foxglove_rate_hz'],
                 stations=stations,
+                on_failure=self.get_logger().error,
             )
         except ValueError as exc:
             self._release_stations()
@@ -461,9 +461,7 @@ class LineNode(Node):
         publish_recorded(publisher, msg, self.recorder, self.line.t_ns)
 
     def _publish_clock(self) -> None:
-        msg = self._clock_msg
-        msg.clock.sec, msg.clock.nanosec = stamp(self.line.t_ns)
-        self._publish(self._pub_clock, msg)
+        self._publish(self._pub_clock, clock_cdr(self.line.t_ns))
 
     def _publish_exit(self, e: LineExit) -> None:
         self.exits += 1

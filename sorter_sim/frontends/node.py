@@ -15,7 +15,6 @@ services and parameters are served) and ``lockstep`` (one control period per
 
 from __future__ import annotations
 
-import array
 import json
 import math
 import threading
@@ -49,10 +48,18 @@ from sorter_ros.interface import (
 )
 from sorter_ros.interface import descriptor as ros_descriptor
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
-from sorter_sim.frontends.cdr import pose_array_cdr, stamp
+from sorter_sim.frontends.cdr import (
+    JointStateCdr,
+    bool_cdr,
+    clock_cdr,
+    pose_array_cdr,
+    stamp,
+    uint32_array_cdr,
+)
 from sorter_sim.frontends.fieldbus import IOImage, ScannerQueue
 from sorter_sim.frontends.fieldbus_process import FieldbusProcess
-from sorter_sim.frontends.live_view import PARCEL_HEIGHT, STATE_COLOURS, CellLayout, LiveView
+from sorter_sim.frontends.live_view import PARCEL_HEIGHT, STATE_COLOURS, CellLayout
+from sorter_sim.frontends.live_view_process import LiveViewProcess
 from sorter_sim.model.description import shown
 from sorter_sim.model.io_map import io_map
 from sorter_sim.model.packml import COMMAND_BY_NUMBER as PACKML_BY_NUMBER
@@ -266,12 +273,8 @@ class SimNode(Node):
         self.create_subscription(DiagnosticStatus, 'faults/inject', self._on_fault, EVENT_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._post_set_parameters)
-        self._joint_state = JointState(name=['disk_angle', 'popup_stroke'])
-        self._joint_state.header.frame_id = self.frame_id
-        # reused: the messages published every pose period are serialized as they are
-        # published, so one object each serves every period
-        self._clock_msg = Clock()
-        self._ids_msg = UInt32MultiArray()
+        # the messages of every pose period go out as CDR written here (cdr.py)
+        self._joint_state_cdr = JointStateCdr(self.frame_id, ('disk_angle', 'popup_stroke'))
         # bookkeeping for diagnostics
         self._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
         self._diag_ref = (time.perf_counter(), self.cell.k)
@@ -326,12 +329,13 @@ class SimNode(Node):
             if p.foxglove_port:
                 ns = self.get_namespace().rstrip('/')
                 try:
-                    self.live_view = LiveView(
+                    self.live_view = LiveViewProcess(
                         self.live_layout(),
                         host=p.foxglove_host,
                         port=p.foxglove_port,
                         prefix=f'{ns}/live',
                         max_rate_hz=p.foxglove_rate_hz,
+                        on_failure=self.get_logger().error,
                     )
                 except ValueError as exc:
                     raise ParamError(f'parameter \'foxglove_port\': {exc}') from None
@@ -715,7 +719,7 @@ class SimNode(Node):
         bits['fault'] = bits['estop'] or bits['jam'] or bits['watchdog']
         if bits != self._status_sent:
             for name in STATUS_BITS:
-                self._publish(self._pub_status[name], Bool(data=bool(bits[name])))
+                self._publish(self._pub_status[name], bool_cdr(bits[name]))
             self._status_sent = bits
         self._publish_packml()
 
@@ -742,7 +746,7 @@ class SimNode(Node):
         self._publish_status()
         for e in events:
             if isinstance(e, SensorEdge):
-                self._publish(self._pub_sensor[e.sensor], Bool(data=e.blocked))
+                self._publish(self._pub_sensor[e.sensor], bool_cdr(e.blocked))
                 ref = TimeReference(source='rising' if e.blocked else 'falling')
                 ref.header.stamp = _time_msg(e.t_ns)
                 ref.header.frame_id = f'{self.frame_id}/{e.sensor}'
@@ -789,17 +793,11 @@ class SimNode(Node):
 
     def _publish_sensors(self) -> None:
         for name, blocked in self.cell.sensor_states().items():
-            self._publish(self._pub_sensor[name], Bool(data=blocked))
+            self._publish(self._pub_sensor[name], bool_cdr(blocked))
 
     def _publish_poses(self) -> None:
         parcels = self.cell.parcels()
-        ids = self._ids_msg
-        # an array.array is taken as it is; a numpy array would be converted element by
-        # element (three times the cost of the whole pose stream)
-        data = array.array('I')
-        data.frombytes(parcels['id'].astype('=u4').tobytes())  # 'I' is 4 bytes wherever ROS runs
-        ids.data = data
-        self._publish(self._pub_ids, ids)
+        self._publish(self._pub_ids, uint32_array_cdr(parcels['id']))
         self._publish(
             self._pub_poses,
             pose_array_cdr(
@@ -809,10 +807,7 @@ class SimNode(Node):
 
     def _publish_diverter(self) -> None:
         c = self.cell
-        msg = self._joint_state
-        msg.header.stamp = _time_msg(c.t_ns)
-        msg.position = [c.alpha, c.stroke]
-        msg.velocity = [c.alpha_rate, c.stroke_rate]
+        msg = self._joint_state_cdr(c.t_ns, (c.alpha, c.stroke), (c.alpha_rate, c.stroke_rate))
         self._publish(self._pub_diverter, msg)
 
     def _publish_markers(self) -> None:
@@ -843,9 +838,7 @@ class SimNode(Node):
     def _publish_clock(self) -> None:
         if self._pub_clock is None:
             return  # a station: the line publishes the clock
-        msg = self._clock_msg
-        msg.clock.sec, msg.clock.nanosec = stamp(self.cell.t_ns)
-        self._publish(self._pub_clock, msg)
+        self._publish(self._pub_clock, clock_cdr(self.cell.t_ns))
 
     def _check_clock_publishers(self) -> int:
         """Warn (once per change) when another node publishes /clock too: time is then two."""
