@@ -861,3 +861,90 @@ def test_engineering_units_carry_their_unece_codes(cell, opcua):
         eu = info(name)
         assert eu.NamespaceUri == 'http://www.opcfoundation.org/UA/units/un/cefact'
         assert eu.UnitId == code(unece), name
+
+
+def test_a_longer_io_cycle_applies_outputs_at_its_start_and_latches_inputs_at_its_end(ros):
+    """io_cycle 10 ms: the image moves every 10 periods; the edge times stay the period's."""
+    from sorter_sim.runtime.cell import Cell, SensorEdge
+    from sorter_sim.runtime.params import CellParams
+
+    values = {**SHORT_CELL, 'arrival': 'gap', 'arrival_gap': [1.0, 1.0], 'alpha_deg': 60.0}
+    node = ros.add(
+        SimNode(
+            context=ros.context,
+            parameter_overrides=[
+                Parameter(k, value=v)
+                for k, v in {**values, 'modbus_port': free_port(), 'io_cycle': 0.01}.items()
+            ],
+        )
+    )
+    assert node.params.io_stride == 10
+    client = ModbusTcpClient('127.0.0.1', port=node.fieldbus.modbus_port, timeout=5, retries=0)
+    assert client.connect()
+    try:
+        # the same cell without a fieldbus: where its edges fall, period by period
+        twin = Cell(CellParams.defaults().with_changes(values, runtime=False))
+        edges = [e for e in twin.advance(2603) if isinstance(e, SensorEdge)]
+        assert edges, 'no parcel reached a sensor'
+        node.advance(2603)
+        assert node.cell.t_ns == twin.t_ns
+        t, enc = MAP['cell.time'], MAP['belt.encoder']
+        regs = client.read_input_registers(0, count=40).registers
+        # latched at the end of the last whole cycle, 2.600 s, not at 2.603 s
+        assert _u32(regs, t.address) * t.scale == pytest.approx(2.600, abs=1e-9)
+        assert _u32(regs, enc.address) * enc.scale == pytest.approx(1.5 * 2.600, abs=2e-4)
+        # each sensor's last edge times are the cell's own, to the register's resolution
+        # (inside their period, not rounded to the cycle)
+        compared = 0
+        for name in node.cell.sensor_names:
+            rises = [e.t_ns for e in edges if e.sensor == name and e.blocked]
+            rises = [t for t in rises if t <= 2_600_000_000]
+            if not rises:
+                continue
+            rise = MAP[f'sensor.{name}.rise_time']
+            raw = client.read_input_registers(rise.address, count=4).registers
+            assert _u32(raw, 0) * rise.scale == pytest.approx(max(rises) * 1e-9, abs=rise.scale)
+            compared += 1
+        assert compared >= 2
+        # an output written now is applied at the start of the next cycle (period 2610)
+        assert not client.write_coil(MAP['diverter.popup'].address, True).isError()
+        node.advance(7)
+        assert node.cell.k == 2610 and node.cell.act[ck.A_STROKE_TARGET] == 0.0
+        node.advance(1)
+        assert node.cell.act[ck.A_STROKE_TARGET] == 1.0
+    finally:
+        client.close()
+
+
+@pytest.mark.parametrize('io_cycle', [0.001, 0.01])
+def test_the_fieldbus_changes_nothing_a_subscriber_receives(ros, io_cycle):
+    """With the image on, whatever its cycle, every topic carries what it carries without."""
+    values = {**SHORT_CELL, 'arrival': 'gap', 'arrival_gap': [0.5, 0.5]}
+    plain = ros.add(
+        SimNode(
+            context=ros.context,
+            namespace='plain',
+            parameter_overrides=[Parameter(k, value=v) for k, v in values.items()],
+        )
+    )
+    served = ros.add(
+        SimNode(
+            context=ros.context,
+            namespace='served',
+            parameter_overrides=[
+                Parameter(k, value=v)
+                for k, v in {**values, 'modbus_port': free_port(), 'io_cycle': io_cycle}.items()
+            ],
+        )
+    )
+    for node in (plain, served):
+        for _ in range(7):
+            node.advance(1433)  # slices that end anywhere in a cycle
+    strip = {
+        t.replace('/plain/', '/').replace('/served/', '/'): n for t, n in plain.published.items()
+    }
+    assert strip == {t.replace('/served/', '/'): n for t, n in served.published.items()}, (
+        'the fieldbus changed what is published'
+    )
+    assert plain.cell.outcome_counts == served.cell.outcome_counts
+    assert sum(plain.cell.outcome_counts.values()) >= 2

@@ -375,6 +375,7 @@ class SimNode(Node):
     def _start_io_image(self) -> None:
         self._scanner = ScannerQueue()
         self._belt_travel = 0.0
+        self._io_events = []  # what the periods of the current I/O cycle reported so far
         self._io_refused = 0
         self._servers_ended_said = False
         self._refresh_io([])
@@ -611,14 +612,19 @@ class SimNode(Node):
         if self.station:
             raise RuntimeError('a station is advanced by its line (LineNode.advance)')
         p = self.params
-        strides = (p.pose_stride, p.marker_stride, p.heartbeat_stride)
+        cycle = p.io_stride if self.io_image is not None else 0
+        # a chunk ends where an I/O cycle of several periods does (one of a single period
+        # is run period by period inside the chunk)
+        strides = (p.pose_stride, p.marker_stride, p.heartbeat_stride) + (
+            (cycle,) if cycle > 1 else ()
+        )
         while n > 0:
             k = self.cell.k
             m = min([n] + [s - k % s for s in strides])
             t0 = time.perf_counter()
             if self.io_image is None:
                 events = self.cell.advance(m)
-            else:
+            elif cycle == 1:
                 # the I/O image is exchanged every period; what the periods report is
                 # published together after them, as without a fieldbus
                 events = []
@@ -628,6 +634,20 @@ class SimNode(Node):
                     period = self.cell.advance(1)
                     self._refresh_io(period)
                     events += period
+            else:
+                # an I/O cycle of several periods, run by the kernel in one go: the outputs
+                # at its start, the inputs latched at its end with what the whole cycle
+                # reported (a cycle may span several of these chunks: strides split it)
+                events = self._apply_io() if k % cycle == 0 else []
+                v_dt = self.cell.belt_velocity * self.cell.dt  # the belt is set between calls
+                for _ in range(m):
+                    self._belt_travel += v_dt  # summed per period, as an exchange per period does
+                chunk = self.cell.advance(m)
+                self._io_events += chunk
+                if self.cell.k % cycle == 0:
+                    self._refresh_io(self._io_events)
+                    self._io_events = []
+                events += chunk
             t1 = time.perf_counter()
             self._cost['step_s'] += t1 - t0
             self._cost['periods'] += m

@@ -459,6 +459,17 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ),
     _p('s7_host', STRING, '127.0.0.1', 'IPv4 address the S7 server binds to'),
     _p(
+        'io_cycle',
+        DOUBLE,
+        0.001,
+        'I/O cycle of the fieldbus image (simulated time, rounded to whole control periods): '
+        'outputs applied at its start, inputs latched at its end; edge times stay exact to '
+        'the period (docs/fieldbus.md, Timing)',
+        's',
+        1e-4,
+        1.0,
+    ),
+    _p(
         'record_path',
         STRING,
         '',
@@ -732,6 +743,7 @@ class CellParams:
     opcua_host: str
     s7_port: int
     s7_host: str
+    io_cycle: float
     record_path: str
 
     # -- construction ------------------------------------------------------
@@ -839,6 +851,11 @@ class CellParams:
     def pose_stride(self) -> int:
         """Control periods between pose publications."""
         return max(1, round(1.0 / (self.pose_rate_hz * self.control_period)))
+
+    @cached_property
+    def io_stride(self) -> int:
+        """Control periods per I/O cycle of the fieldbus image."""
+        return max(1, round(self.io_cycle / self.control_period))
 
     @cached_property
     def fast_slice_periods(self) -> int:
