@@ -9,7 +9,7 @@ case: each one slides over the disk field), 1 ms physics, poses at 100 Hz, senso
 
 The measurements, after a warm-up that fills the cell (not timed):
   cell          the ROS-free core alone (``Cell.advance``), no messages;
-  node          the node in fast mode, spun by a single-threaded executor, nobody
+  node          the node in fast mode, spun by the executor sim_node runs in, nobody
                 subscribed (rmw still serializes every message): the reference;
   node+sub      one subscriber of every output topic in another process;
   node+live     the Foxglove live view with one WebSocket client (another process);
@@ -184,6 +184,14 @@ class _Subscriber:
         return int(out[-1].split('=')[1])
 
 
+def _executor(node, ctx):
+    if getattr(node, 'executor_kind', 'single') == 'events':
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor(context=ctx)
+    return SingleThreadedExecutor(context=ctx)
+
+
 def _free_port() -> int:
     import socket
 
@@ -225,7 +233,8 @@ def bench_node(sim_s: float, parcels: int, extras=()) -> dict:
         node = SimNode(
             context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in values.items()]
         )
-        executor = SingleThreadedExecutor(context=ctx)
+        # the executor sim_node runs in (sorter_ros.env.spin_surviving)
+        executor = _executor(node, ctx)
         executor.add_node(node)
         sub = _Subscriber(node, executor) if 'sub' in extras else None
         live = None

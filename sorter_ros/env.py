@@ -261,6 +261,9 @@ def spin_surviving(node, stop=None) -> int:
     counted in ``node.callback_errors`` (the nodes report it in their diagnostics)
     and the node spins on. Returns the count.
 
+    A node whose class says ``executor_kind = 'events'`` is spun by rclpy's events executor
+    (where there is one), the others by the single-threaded one.
+
     When ``stop`` (``StopSignals``, or any object with ``is_set()``) ends the loop, the node's
     ``last_words(executor)``, if it has one, runs before the executor goes: the
     context is still up, so it can still call a service.
@@ -280,7 +283,16 @@ def spin_surviving(node, stop=None) -> int:
     """
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
-    executor = SingleThreadedExecutor(context=node.context)
+    executor = None
+    if getattr(node, 'executor_kind', 'single') == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:  # an rclpy without it
+            pass
+        else:
+            executor = EventsExecutor(context=node.context)
+    if executor is None:
+        executor = SingleThreadedExecutor(context=node.context)
     # a node that owns others (a line and its stations) lists them all in ``nodes``
     for n in getattr(node, 'nodes', [node]):
         executor.add_node(n)

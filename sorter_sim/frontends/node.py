@@ -199,6 +199,12 @@ def _time_msg(t_ns: int) -> Time:
 class SimNode(Node):
     """The cell's ROS face; see the module docstring and the README interface table."""
 
+    # ``sim_node`` is spun by rclpy's events executor: the single-threaded one builds a
+    # wait set of every entity in Python on each pass, a tenth of the node's time in
+    # fast mode (bench_cell.py: 45 -> 53 times real time). Its timers are on the wall
+    # clock (the cell owns simulated time), which the events executor serves on time.
+    executor_kind = 'events'
+
     def __init__(self, *, station: bool = False, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         # a station of a line (``frontends/line_node.py``): the line advances its cell
