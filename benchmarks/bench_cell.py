@@ -11,7 +11,10 @@ The measurements, after a warm-up that fills the cell (not timed):
   cell          the ROS-free core alone (``Cell.advance``), no messages;
   node          the node in fast mode, spun by the executor sim_node runs in, nobody
                 subscribed (rmw still serializes every message): the reference;
-  node+sub      one subscriber of every output topic in another process;
+  node+sub      one subscriber of every output topic in another process, in rclpy
+                (Python objects: its deserialization takes a core of its own);
+  node+rawsub   the same subscriber taking the serialized bytes (rosbag2, or a C++
+                node): what DDS itself costs the node per subscriber;
   node+live     the Foxglove live view with one WebSocket client (another process);
   node+rec      recording everything the node publishes to an MCAP file;
   node+servers  the Modbus TCP, OPC UA and S7 servers on, no client: the image
@@ -160,13 +163,14 @@ class _FieldbusClients:
 class _Subscriber:
     """A ROS subscriber of every output topic, in another process."""
 
-    def __init__(self, node, executor):
+    def __init__(self, node, executor, raw: bool = False):
         import subprocess
 
         self.proc = subprocess.Popen(
             [
                 sys.executable,
                 str(Path(__file__).with_name('topic_subscriber.py')),
+                *(['--raw'] if raw else []),
                 *node.cell.sensor_names,
             ],
             stdout=subprocess.PIPE,
@@ -204,7 +208,8 @@ def bench_node(sim_s: float, parcels: int, extras=()) -> dict:
     """
     Run the node in fast mode for ``sim_s`` simulated seconds with ``parcels`` parcels.
 
-    ``extras``: any of 'sub' (a subscriber of every topic in another process), 'live'
+    ``extras``: any of 'sub' (a subscriber of every topic in another process; 'rawsub'
+    the same taking serialized bytes), 'live'
     (the live view with one WebSocket client), 'rec' (recording to MCAP), 'fieldbus'
     (Modbus, OPC UA and S7 servers, one client each in another process reading every
     input every 10 ms), 'servers' (the same servers, no client), 'io10' (the image's
@@ -236,7 +241,9 @@ def bench_node(sim_s: float, parcels: int, extras=()) -> dict:
         # the executor sim_node runs in (sorter_ros.env.spin_surviving)
         executor = _executor(node, ctx)
         executor.add_node(node)
-        sub = _Subscriber(node, executor) if 'sub' in extras else None
+        sub = None
+        if extras & {'sub', 'rawsub'}:
+            sub = _Subscriber(node, executor, raw='rawsub' in extras)
         live = None
         if 'live' in extras:
             live = _LiveClient(node.live_view.port)
@@ -286,6 +293,7 @@ def bench_node(sim_s: float, parcels: int, extras=()) -> dict:
 CASES = (
     ('node', ()),
     ('node+sub', ('sub',)),
+    ('node+rawsub', ('rawsub',)),
     ('node+live', ('live',)),
     ('node+rec', ('rec',)),
     ('node+servers', ('servers',)),

@@ -3,8 +3,10 @@ A ROS subscriber of the cell's output topics, in a process of its own (bench_cel
 
 Subscribes to every topic the simulation node publishes as a controller or a monitor
 does, with the node's QoS, until SIGTERM; then prints how many messages it received.
+With ``--raw`` it takes each message as its serialized bytes (as rosbag2 records, or
+a C++ node whose deserialization costs little) instead of rclpy's Python objects.
 
-    python benchmarks/topic_subscriber.py SENSOR [SENSOR ...]
+    python benchmarks/topic_subscriber.py [--raw] SENSOR [SENSOR ...]
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ def main() -> int:
     ctx = Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node('bench_subscriber', context=ctx)
+    raw = '--raw' in sys.argv[1:]
+    sensors = [a for a in sys.argv[1:] if a != '--raw']
     received = [0]
     topics = {
         'parcels/poses': (PoseArray, STREAM_QOS),
@@ -44,14 +48,14 @@ def main() -> int:
         'scanner/label': (String, EVENT_QOS),
         'sort/outcomes': (DiagnosticStatus, EVENT_QOS),
         'status/packml': (String, SENSOR_QOS),
-        **{f'sensors/{s}': (Bool, SENSOR_QOS) for s in sys.argv[1:]},
+        **{f'sensors/{s}': (Bool, SENSOR_QOS) for s in sensors},
     }
 
     def count(_msg) -> None:
         received[0] += 1
 
     for topic, (msg_type, qos) in topics.items():
-        node.create_subscription(msg_type, topic, count, qos)
+        node.create_subscription(msg_type, topic, count, qos, raw=raw)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
     print('ready', flush=True)
