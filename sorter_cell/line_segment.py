@@ -146,6 +146,9 @@ def segment_stats(line, ctls) -> dict:
         'taken': link.stats['received'],
         'late': link.stats['late'],
         'refused': link.stats['refused'],
+        'resent': link.stats['resent'],  # sent again to a segment downstream that (re)started
+        'duplicates': link.stats['duplicates'],  # copies of parcels it had, dropped
+        'in_custody': len(link.outbox),  # handed on, not yet out of the segment downstream
         'exits': dict(Counter(e.exit for e in line.line.exits)),
         'handover_latency_ms_p50': pct(0.5),
         'handover_latency_ms_p99': pct(0.99),

@@ -437,6 +437,73 @@ def test_a_line_split_into_segments_gives_every_parcel_the_same_exit_at_the_same
     assert down.segment.stats['refused'] == 0 and not up.line.exits
 
 
+def _drop(ros, line) -> None:
+    """Take a line node out of the test's executor and destroy it (a segment that dies)."""
+    for n in line.nodes:
+        ros.executor.remove_node(n)
+        ros.nodes.remove(n)
+    line.destroy_node()
+
+
+def test_a_restarted_segment_gets_back_every_parcel_it_held_and_sorts_them_as_before(ros):
+    """S01-S02, S03, S04 as three segments; S03 dies with parcels on it and comes back."""
+    labels = [f'P{i}' for i in range(1, 6)]
+
+    def induct_and_raise(first_node, s4):
+        for label in labels:
+            first_node.stations[0].cell.induct(ParcelSpec(0.5, 0.35, 4.0, label=label))
+        s4.set_parameters([Parameter('alpha_deg', value=60.0)])
+        assert s4.cell.popup(True)[0]
+
+    one = make_line(ros, stations=4)
+    induct_and_raise(one, one.stations[3])
+    while len(one.line.exits) < len(labels) and one.line.t < 90.0:
+        one.advance(50)
+    ref = sorted((e.label, e.exit, e.station, e.t_ns) for e in one.line.exits)
+    _drop(ros, one)
+    assert len(ref) == len(labels) and {e[2] for e in ref} == {3}  # all diverted at S04
+
+    up = make_line(ros, stations=2, line_stations=4, node_name='sorter_line_a')
+    mid = make_line(ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b')
+    down = make_line(ros, stations=1, first_station=4, node_name='sorter_line_c')
+    induct_and_raise(up, down.stations[0])
+
+    def step(*lines, n=50):
+        for line in lines:
+            line.advance(n)
+            for _ in range(20):
+                ros.executor.spin_once(timeout_sec=0.0)
+
+    ros.spin_until(lambda: up.segment.connected() and mid.segment.connected(), 10.0)
+    deadline = time.monotonic() + 45.0
+    # run until S03 holds a parcel and S04 has been handed some, none sorted yet
+    while not (mid.line.n_in_flight and down.segment.stats['received'] >= 2):
+        assert time.monotonic() < deadline and not down.line.exits, 'no moment to crash'
+        step(up, mid, down)
+    held = mid.line.n_in_flight
+    handed = down.segment.stats['received']
+    _drop(ros, mid)  # the process dies: its stations, its parcels, its outbox are gone
+    for _ in range(5):
+        step(up, down)  # upstream waits with nobody to hand to; downstream waits for time
+    mid = make_line(ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b')
+    assert mid.line.k == 0  # it starts again from t = 0
+    while len(down.line.exits) < len(labels):
+        assert time.monotonic() < deadline, f'{len(down.line.exits)} of {len(labels)} sorted'
+        step(up, mid, down, n=1000)  # the restarted one runs its time up to the present
+    split = sorted((e.label, e.exit, e.station + 3, e.t_ns) for e in down.line.exits)
+    assert split == ref  # every parcel once, the same chute, the same nanosecond
+    # S01-S02 sent back what S03 held and what S04 had not yet sorted; S04 dropped
+    # the copies of those it already had
+    assert up.segment.stats['resent'] >= held + handed
+    assert down.segment.stats['duplicates'] >= handed
+    assert down.segment.stats['received'] == len(labels)
+    # and once the last exits are told upstream, nobody answers for a parcel any more
+    while up.segment.outbox or mid.segment.outbox:
+        assert time.monotonic() < deadline, (up.segment.outbox, mid.segment.outbox)
+        step(up, mid, down)
+    assert all(s.segment.stats['refused'] == 0 for s in (up, mid, down))
+
+
 def test_a_segment_drops_a_malformed_hand_over_naming_it(ros):
     from sorter_sim.frontends.segments import HANDOVER_QOS
 

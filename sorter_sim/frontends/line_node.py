@@ -382,12 +382,16 @@ class LineNode(Node):
 
         """
         link = self.segment
+        link.service()
         if self.values['time_mode'] != 'realtime':
             if link.downstream is not None and not link.connected():
                 return  # no segment downstream to take the hand-overs yet: they would be lost
+            if link.backlogged():
+                return  # the segment downstream has not taken what it was sent yet
             if link.upstream is not None:
                 # in step with the segment upstream: never past the time it has handed over to
                 n = min(n, link.horizon_k - self.line.k)
+        ran = n > 0
         while n > 0:
             k = self.line.k
             # with a fieldbus, one period at a time: the I/O images are exchanged every period
@@ -405,6 +409,7 @@ class LineNode(Node):
                     per_station[e.station].append(e.event)
                 elif isinstance(e, LineExit):
                     self._publish_exit(e)
+                    link.left(e.parcel_id)
                 elif isinstance(e, SensorEdge):
                     self._publish(self._pub_full[e.sensor.rsplit('.', 1)[0]], Bool(data=e.blocked))
             if self.fieldbus is not None:
@@ -418,10 +423,12 @@ class LineNode(Node):
                 view.update_stations(
                     self.line.t_ns, [s.live_state() for s in self.stations], STATE_NAMES
                 )
-            link.hand_on(self.line.take_outgoing(), self.line.t_ns)
+            link.hand_on(self.line.take_outgoing())
             self._publish_clock()
             self.cost['publish_s'] += time.perf_counter() - t1
             n -= m
+        if ran:
+            link.horizon(self.line.t_ns)  # once a call: every parcel up to now is sent
 
     def _tick_fast(self) -> None:
         k = self.line.k

@@ -24,16 +24,37 @@ behind. In ``realtime`` mode every segment runs on the wall clock and does not
 wait: a parcel that arrives after its period is taken at once, in the state it left
 with (it is late by the hand-over's latency, which ``stats`` reports).
 
+Custody, so that a segment can restart: a segment keeps every parcel it handed on
+(its *outbox*) until the parcel has left the segment downstream: into a chute, off
+the line's end, jammed, or handed on again and left the one after (each segment tells
+its upstream neighbour, on ``line/handover/<its first station>/left``, the ids that
+left it, forwarding those its own downstream neighbour reports). A segment that
+starts says ``hello`` there with an identity of its own (its process and start
+time); the segment upstream answers a ``hello`` it has not heard before by sending
+its whole outbox again, then its horizon. A segment restarted after a crash thus
+gets back every parcel it held or was being handed, each in the state it was handed
+over in, and in lock-step it runs again from t = 0 (its stations empty, the time
+up to the present quickly) and takes each at the period it first came: the parcels
+leave it as they did before, into the same chutes at the same times, except where
+one of them had met a parcel that had already left (which is not re-sent). A
+segment takes a parcel once: one it has taken (by id) is dropped as a duplicate, so
+the segment downstream of a restarted one drops what the restarted one hands it
+again. The first segment's stream is its own state: restarting it starts the
+stream over. In ``realtime`` mode a restarted segment's clock starts at 0 again and
+the parcels sent back wait for their time: restart a real-time line whole.
+
 The messages are ``diagnostic_msgs/DiagnosticStatus``: ``name`` ``parcel`` or
-``horizon``, ``values`` the fields. A malformed one is counted and dropped with a
-warning; it never stops the segment.
+``horizon`` downstream, ``left`` or ``hello`` upstream, ``values`` the fields. A
+malformed one is counted and dropped with a warning; it never stops the segment.
 """
 
 from __future__ import annotations
 
+import os
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from sorter_sim.runtime.cell import Handoff
@@ -146,35 +167,148 @@ class SegmentLink:
         self.inbox: list[Handoff] = []
         # the period up to which the segment upstream has handed over everything
         self.horizon_k = 0 if upstream else None
-        self.stats = {'sent': 0, 'received': 0, 'refused': 0, 'late': 0, 'messages': 0}
+        self.stats = {
+            'sent': 0,
+            'received': 0,
+            'refused': 0,
+            'late': 0,
+            'messages': 0,
+            'resent': 0,
+            'duplicates': 0,
+            'waits': 0,
+        }
         self.latencies_ns: list[int] = []  # wall time from sending to receiving
-        self._pub = None
+        # this segment's identity for its neighbours: a restart is a new one
+        self.identity = f'{os.getpid()}-{time.time_ns()}'
+        # custody (see the module): what this segment handed on and still answers for
+        self.outbox: dict[int, Handoff] = {}
+        self._downstream_identity = None
+        self._last_horizon_ns = None
+        self._taken: set[int] = set()  # every parcel id taken, to drop a second copy
+        self._left: list[int] = []  # ids that left this segment, to tell upstream
+        self._hello_said = False
+        self._queue: list[DiagnosticStatus] = []  # to the segment downstream, in order
+        self._pub = self._pub_left = None
         if downstream:
             self._pub = node.create_publisher(
                 DiagnosticStatus, f'line/handover/{downstream}', HANDOVER_QOS
             )
+            node.create_subscription(
+                DiagnosticStatus,
+                f'line/handover/{downstream}/left',
+                self._on_custody,
+                HANDOVER_QOS,
+            )
         if upstream:
             node.create_subscription(
                 DiagnosticStatus, f'line/handover/{upstream}', self._on_message, HANDOVER_QOS
+            )
+            self._pub_left = node.create_publisher(
+                DiagnosticStatus, f'line/handover/{upstream}/left', HANDOVER_QOS
             )
 
     def connected(self) -> bool:
         """Return True when a segment downstream reads this one's hand-overs."""
         return self._pub is not None and self._pub.get_subscription_count() > 0
 
-    def hand_on(self, handoffs: list, t_ns: int) -> None:
-        """Send the parcels the segment handed on, then the horizon ``t_ns``."""
+    def hand_on(self, handoffs: list) -> None:
+        """Send the parcels the segment handed on (in order, behind any not yet sent)."""
         if self._pub is None:
             return
         now = time.time_ns()
         for h in handoffs:
-            self.node._publish(self._pub, handover_message(h, now))
+            self.outbox[h.parcel_id] = h
+            self._queue.append(handover_message(h, now))
             self.stats['sent'] += 1
-        self.node._publish(
-            self._pub,
-            DiagnosticStatus(name='horizon', values=[KeyValue(key='t_ns', value=str(t_ns))]),
+        self._flush()
+
+    def horizon(self, t_ns: int) -> None:
+        """Say that every parcel handed on up to ``t_ns`` has been sent."""
+        if self._pub is None:
+            return
+        self._last_horizon_ns = t_ns
+        self._queue.append(
+            DiagnosticStatus(name='horizon', values=[KeyValue(key='t_ns', value=str(t_ns))])
         )
-        self.stats['messages'] += len(handoffs) + 1
+        self._flush()
+
+    def backlogged(self) -> bool:
+        """Return True while messages wait for the segment downstream to take them."""
+        self._flush()
+        return bool(self._queue)
+
+    def _flush(self) -> None:
+        # one queue, in order: a horizon never overtakes a parcel. A reliable writer that
+        # keeps every message refuses more while the reader has not taken the ones it has
+        # (a segment downstream stalled): what it refuses waits here, and the segment
+        # stops advancing until it goes (LineNode.advance), rather than losing a parcel
+        while self._queue:
+            try:
+                self.node._publish(self._pub, self._queue[0])
+            except RCLError:
+                self.stats['waits'] += 1
+                return
+            self._queue.pop(0)
+            self.stats['messages'] += 1
+
+    def left(self, parcel_id: int) -> None:
+        """Note that a parcel left this segment (a chute, the line's end, jammed)."""
+        if self._pub_left is not None:
+            self._left.append(int(parcel_id))
+
+    def service(self) -> None:
+        """Say hello upstream once it listens, and tell it which parcels left (each slice)."""
+        if self._pub_left is None:
+            return
+        if not self._hello_said and self._pub_left.get_subscription_count() > 0:
+            self._pub_left.publish(
+                DiagnosticStatus(
+                    name='hello', values=[KeyValue(key='identity', value=self.identity)]
+                )
+            )
+            self._hello_said = True
+        if self._left and self._hello_said:
+            ids, self._left = self._left, []
+            self._pub_left.publish(
+                DiagnosticStatus(
+                    name='left', values=[KeyValue(key='ids', value=' '.join(map(str, ids)))]
+                )
+            )
+
+    def _on_custody(self, msg: DiagnosticStatus) -> None:
+        """Take what the segment downstream says: parcels that left it, or its hello."""
+        values = {kv.key: kv.value for kv in msg.values}
+        if msg.name == 'left':
+            try:
+                ids = [int(x) for x in values.get('ids', '').split()]
+            except ValueError:
+                self._refuse('a left message whose ids are not integers', self.downstream)
+                return
+            for pid in ids:
+                if self.outbox.pop(pid, None) is not None:
+                    self.left(pid)  # it has left this segment's custody too
+            return
+        if msg.name != 'hello' or not values.get('identity'):
+            self._refuse(
+                f"a message named {msg.name[:40]!r}: 'left' or 'hello' with an identity expected",
+                self.downstream,
+            )
+            return
+        if values['identity'] == self._downstream_identity:
+            return
+        self._downstream_identity = values['identity']
+        # a segment that (re)started: everything it answers for, again, in time order
+        now = time.time_ns()
+        for h in sorted(self.outbox.values(), key=lambda h: (h.t_ns, h.parcel_id)):
+            self._queue.append(handover_message(h, now))
+            self.stats['resent'] += 1
+        if self._last_horizon_ns is not None:
+            self.horizon(self._last_horizon_ns)
+        if self.outbox:
+            self.node.get_logger().info(
+                f'the segment at {self.downstream} (re)started: sent it again the '
+                f'{len(self.outbox)} parcel(s) it answers for'
+            )
 
     def due(self, k_end: int) -> list:
         """Return (Handoff, dx) of the parcels that enter by period ``k_end``, in time order."""
@@ -203,6 +337,10 @@ class SegmentLink:
         except ValueError as exc:
             self._refuse(str(exc))
             return
+        if h.parcel_id in self._taken:
+            self.stats['duplicates'] += 1  # sent again to a segment that has it
+            return
+        self._taken.add(h.parcel_id)
         self.stats['received'] += 1
         if sent_ns:
             self.latencies_ns.append(time.time_ns() - sent_ns)
@@ -210,8 +348,7 @@ class SegmentLink:
             self.stats['late'] += 1  # on the wall clock: taken at once, as it left
         self.inbox.append(h)
 
-    def _refuse(self, why: str) -> None:
+    def _refuse(self, why: str, station: str | None = None) -> None:
         self.stats['refused'] += 1
-        self.node.get_logger().warning(
-            f'line/handover/{self.upstream}: {why}; dropped', throttle_duration_sec=5.0
-        )
+        topic = f'line/handover/{station}/left' if station else f'line/handover/{self.upstream}'
+        self.node.get_logger().warning(f'{topic}: {why}; dropped', throttle_duration_sec=5.0)
