@@ -75,6 +75,14 @@ def add_arguments(parser) -> None:
         "parcels handed between them over ROS 2",
     )
     parser.add_argument(
+        "--sync",
+        choices=("conservative", "barrier"),
+        default=None,
+        help="with --segments K > 1 in fast mode: each segment behind its upstream "
+        "neighbour (conservative, the default) or all within one slice of each other "
+        "(barrier)",
+    )
+    parser.add_argument(
         "--parcels",
         type=int,
         default=0,
@@ -583,10 +591,17 @@ def run(args) -> int | str:
         from sorter_cell.line_demo import run_line
 
         return run_line(args)
-    if args.executor or args.dispositions or args.segments != 1 or args.parcels or args.no_drain:
+    if (
+        args.executor
+        or args.dispositions
+        or args.segments != 1
+        or args.sync
+        or args.parcels
+        or args.no_drain
+    ):
         return (
-            "--executor, --segments, --parcels, --no-drain and --dispositions are the line's: "
-            "use them with --stations N > 1"
+            "--executor, --segments, --sync, --parcels, --no-drain and --dispositions are "
+            "the line's: use them with --stations N > 1"
         )
     err = _check_args(args)
     if err:

@@ -60,6 +60,8 @@ def run_line(args) -> int | str:
         return f'--segments must be an integer in [1, --stations] = [1, {n}], got {k_seg}'
     if not (isinstance(args.parcels, int) and 0 <= args.parcels <= 100_000):
         return f'--parcels must be an integer in [0, 100000], got {args.parcels}'
+    if getattr(args, 'sync', None) and k_seg == 1:
+        return '--sync is how segments keep time together: use it with --segments K > 1'
     if k_seg > 1 and (args.record or args.foxglove):
         return (
             '--segments K > 1: --record and --foxglove are a single process\'s, not a segment\'s'
@@ -177,6 +179,8 @@ def _start_segments(args, n: int, k_seg: int) -> list:
             cmd += ['--parcels', str(args.parcels)]
         if args.rtf != 'fast':
             cmd += ['--rtf', str(float(args.rtf))]
+        if getattr(args, 'sync', None):
+            cmd += ['--sync', args.sync]
         procs.append((subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, bufsize=1), clock))
     for proc, _ in procs:
         line = proc.stdout.readline().strip()

@@ -42,6 +42,7 @@ def build_segment(
     record: str = '',
     foxglove: int = 0,
     count: int = 0,
+    sync: str = 'conservative',
 ):
     """
     Return a segment's line node and one controller per station, in context ``ctx``.
@@ -70,6 +71,8 @@ def build_segment(
         The live view's port, or 0.
     count : int
         The stream stops after this many parcels (0: never).
+    sync : str
+        How the segments keep time together: ``conservative`` or ``barrier``.
 
     Returns
     -------
@@ -95,6 +98,7 @@ def build_segment(
             Parameter('real_time_factor', value=1.0 if fast else float(rtf)),
             Parameter('record_path', value=record),
             Parameter('foxglove_port', value=int(foxglove)),
+            Parameter('segment_sync', value=sync),
         ],
         station_params={
             'arrival': 'none',
@@ -169,6 +173,7 @@ def main(argv=None) -> int:
     ap.add_argument('--seed', type=int, default=1)
     ap.add_argument('--gap', type=float, nargs=2, default=None)
     ap.add_argument('--rtf', default='fast')
+    ap.add_argument('--sync', choices=('conservative', 'barrier'), default='conservative')
     ap.add_argument('--parcels', type=int, default=0, help='the stream stops after these')
     ap.add_argument(
         '--start', action='store_true', help='start the stream at once (station 1 only)'
@@ -222,6 +227,7 @@ def main(argv=None) -> int:
         fast=fast,
         rtf=1.0 if fast else float(args.rtf),
         count=args.parcels,
+        sync=args.sync,
     )
     if args.start:
         from rclpy.parameter import Parameter

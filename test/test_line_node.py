@@ -130,6 +130,7 @@ def test_a_station_whose_heartbeat_stops_trips_alone(ros):
         ({'chute_names': ['a', 'b', 'c']}, '2 chutes per station'),
         ({'stations': 2, 'chute_names': ['a', 'b', 'c', 'a']}, "chute 'a' named twice"),
         ({'time_mode': 'slow'}, "'time_mode'"),
+        ({'segment_sync': 'optimistic'}, "'segment_sync' must be one of conservative, barrier"),
     ],
 )
 def test_bad_line_parameters_stop_the_node_naming_them(ros, values, message):
@@ -396,7 +397,8 @@ def test_the_live_view_shows_the_whole_line_to_a_foxglove_client(ros):
     assert [p['label'] for p in values['parcels']] == ['L1']
 
 
-def test_a_line_split_into_segments_gives_every_parcel_the_same_exit_at_the_same_time(ros):
+@pytest.mark.parametrize('sync', ['conservative', 'barrier'])
+def test_a_line_split_into_segments_gives_every_parcel_the_same_exit_at_the_same_time(ros, sync):
     """Stations 1-2 and 3-4 as two segments joined over DDS against one line of four."""
     labels = [f'P{i}' for i in range(1, 7)]
 
@@ -418,8 +420,10 @@ def test_a_line_split_into_segments_gives_every_parcel_the_same_exit_at_the_same
     one.destroy_node()
     assert len(ref) == len(labels) and {e[2] for e in ref} == {2}  # all diverted at S03
     # the same line as two segments, handing over on line/handover/S03
-    up = make_line(ros, stations=2, line_stations=4, node_name='sorter_line_a')
-    down = make_line(ros, stations=2, first_station=3, node_name='sorter_line_b')
+    # a barrier lets each run a slice past the one behind: 50 periods a call here
+    timing = {'segment_sync': sync, 'fast_slice': 0.05}
+    up = make_line(ros, stations=2, line_stations=4, node_name='sorter_line_a', **timing)
+    down = make_line(ros, stations=2, first_station=3, node_name='sorter_line_b', **timing)
     assert up.hand_on and not down.hand_on and down.segment.upstream == 'S03'
     assert [s.get_namespace() for s in down.stations] == ['/S03', '/S04']
     induct_and_raise(up, down.stations[0])
@@ -431,6 +435,8 @@ def test_a_line_split_into_segments_gives_every_parcel_the_same_exit_at_the_same
             ros.executor.spin_once(timeout_sec=0.0)
         down.advance(50)
         assert down.line.k <= up.line.k  # never past the upstream's horizon
+        if sync == 'barrier':
+            assert up.line.k - down.line.k <= 50  # never more than a slice apart
     split = sorted((e.label, e.exit, e.station + 2, e.t_ns) for e in down.line.exits)
     assert split == ref  # every parcel, the same chute, the same nanosecond
     assert up.segment.stats['sent'] == len(labels) == down.segment.stats['received']

@@ -224,13 +224,15 @@ def test_the_line_demo_refuses_bad_options_in_one_line(capsys, tmp_path):
         (['--foxglove', '70000'], '--foxglove PORT must be in'),
         (['--sim-time', '-1'], '--sim-time must be in (0, 3600]'),
         (['--dispositions', str(tmp_path)], '--dispositions'),
+        (['--sync', 'barrier'], '--sync is how segments keep time together'),
     ):
         assert main(['demo', '--stations', '3', *extra]) == 2
         assert message in capsys.readouterr().err
     assert main(['demo', '--stations', '0']) == 2
     assert '--stations must be in [1, 64]' in capsys.readouterr().err
-    assert main(['demo', '--executor', 'single']) == 2
-    assert "the line's: use them with --stations N > 1" in capsys.readouterr().err
+    for extra in (['--executor', 'single'], ['--sync', 'barrier']):
+        assert main(['demo', *extra]) == 2
+        assert "the line's: use them with --stations N > 1" in capsys.readouterr().err
 
 
 @pytest.mark.ros

@@ -67,6 +67,7 @@ from sorter_sim.runtime.params import ParamError
 NODE_NAME = 'sorter_line'
 WAIT_S = 0.0002  # s a segment in fast mode sleeps while its upstream neighbour is behind
 TIME_MODES = ('lockstep', 'fast', 'realtime')
+SEGMENT_SYNCS = ('conservative', 'barrier')
 
 # name -> (default, check, what it allows)
 LINE_PARAMS = {
@@ -103,6 +104,12 @@ LINE_PARAMS = {
         'this node\'s last station)',
     ),
     'time_mode': ('realtime', lambda v: v in TIME_MODES, f'one of {", ".join(TIME_MODES)}'),
+    'segment_sync': (
+        'conservative',
+        lambda v: v in SEGMENT_SYNCS,
+        f'one of {", ".join(SEGMENT_SYNCS)} (lock-step and fast segments: each behind its '
+        'upstream neighbour, or all within one slice of each other)',
+    ),
     'fast_slice': (
         0.005,
         lambda v: isinstance(v, float) and 0.0 < v <= 1.0,
@@ -278,7 +285,11 @@ class LineNode(Node):
             downstream=station_name(last) if self.hand_on else None,
             dx=-self._pitch,
             dt_ns=self.line.stations[0].params.control_period_ns,
+            barrier=(f0, n, values['line_stations'] or f0 + n)
+            if values['segment_sync'] == 'barrier'
+            else None,
         )
+        self._slice = max(1, round(values['fast_slice'] / self.line.dt))
         self.exits = 0
         # wall time spent in the line's physics and in publishing what it reports
         self.cost = {'physics_s': 0.0, 'publish_s': 0.0}
@@ -391,6 +402,10 @@ class LineNode(Node):
             if link.upstream is not None:
                 # in step with the segment upstream: never past the time it has handed over to
                 n = min(n, link.horizon_k - self.line.k)
+            if self.values['segment_sync'] == 'barrier':
+                # the whole line in one slice: never more than a slice past the segment
+                # furthest behind (a barrier per slice, for comparison with the above)
+                n = min(n, link.line_k() + self._slice - self.line.k)
         ran = n > 0
         while n > 0:
             k = self.line.k
@@ -429,6 +444,8 @@ class LineNode(Node):
             n -= m
         if ran:
             link.horizon(self.line.t_ns)  # once a call: every parcel up to now is sent
+            if self.values['segment_sync'] == 'barrier':
+                link.progress(self.line.k)
 
     def _tick_fast(self) -> None:
         k = self.line.k

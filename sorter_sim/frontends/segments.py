@@ -65,6 +65,13 @@ HANDOVER_QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
+# each segment's time for a barrier: only the newest of each matters
+PROGRESS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 
 def handover_message(h: Handoff, wall_ns: int) -> DiagnosticStatus:
@@ -155,10 +162,14 @@ class SegmentLink:
         The upstream station's origin minus this segment's first one's [m].
     dt_ns : int
         The control period [ns].
+    barrier : (int, int, int), optional
+        With ``segment_sync`` ``barrier``: this segment's first station (0-based), its
+        stations and the line's; every segment then says its time on ``line/progress``
+        and none runs more than a slice past the one furthest behind.
 
     """
 
-    def __init__(self, node, *, upstream, downstream, dx: float, dt_ns: int):
+    def __init__(self, node, *, upstream, downstream, dx: float, dt_ns: int, barrier=None):
         self.node = node
         self.upstream = upstream
         self.downstream = downstream
@@ -199,6 +210,16 @@ class SegmentLink:
                 self._on_custody,
                 HANDOVER_QOS,
             )
+        self._barrier = barrier
+        self._progress: dict[int, tuple[int, int]] = {}  # first station -> (stations, k)
+        if barrier is not None:
+            self._pub_progress = node.create_publisher(
+                DiagnosticStatus, 'line/progress', PROGRESS_QOS
+            )
+            node.create_subscription(
+                DiagnosticStatus, 'line/progress', self._on_progress, PROGRESS_QOS
+            )
+            self._progress[barrier[0]] = (barrier[1], 0)
         if upstream:
             node.create_subscription(
                 DiagnosticStatus, f'line/handover/{upstream}', self._on_message, HANDOVER_QOS
@@ -250,6 +271,38 @@ class SegmentLink:
                 return
             self._queue.pop(0)
             self.stats['messages'] += 1
+
+    def progress(self, k: int) -> None:
+        """Say this segment's time to the others (``segment_sync`` ``barrier``)."""
+        first, n, _ = self._barrier
+        self._progress[first] = (n, k)
+        self._pub_progress.publish(
+            DiagnosticStatus(
+                name='progress',
+                values=[
+                    KeyValue(key='first', value=str(first)),
+                    KeyValue(key='stations', value=str(n)),
+                    KeyValue(key='k', value=str(k)),
+                ],
+            )
+        )
+
+    def line_k(self) -> int:
+        """Return the time of the segment furthest behind; 0 until every one has spoken."""
+        covered = sum(n for n, _ in self._progress.values())
+        if covered < self._barrier[2]:
+            return 0
+        return min(k for _, k in self._progress.values())
+
+    def _on_progress(self, msg: DiagnosticStatus) -> None:
+        v = {kv.key: kv.value for kv in msg.values}
+        try:
+            first, n, k = int(v['first']), int(v['stations']), int(v['k'])
+        except (KeyError, ValueError):
+            self._refuse('a progress message without integer first, stations and k', 'progress')
+            return
+        old = self._progress.get(first, (n, 0))[1]
+        self._progress[first] = (n, max(old, k))
 
     def left(self, parcel_id: int) -> None:
         """Note that a parcel left this segment (a chute, the line's end, jammed)."""
@@ -350,5 +403,11 @@ class SegmentLink:
 
     def _refuse(self, why: str, station: str | None = None) -> None:
         self.stats['refused'] += 1
-        topic = f'line/handover/{station}/left' if station else f'line/handover/{self.upstream}'
+        topic = (
+            'line/progress'
+            if station == 'progress'
+            else f'line/handover/{station}/left'
+            if station
+            else f'line/handover/{self.upstream}'
+        )
         self.node.get_logger().warning(f'{topic}: {why}; dropped', throttle_duration_sec=5.0)
