@@ -230,12 +230,16 @@ class Recorder:
         os.ftruncate(fd, 0)
         # the writer shares the open file and so its lock: held until both let go
         self._fd = fd
-        self._proc = subprocess.Popen(
-            [sys.executable, '-m', 'sorter_ros.recording_writer', str(fd), str(chunk_size)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            pass_fds=(fd,),
-        )
+        try:
+            self._proc = subprocess.Popen(
+                [sys.executable, '-m', 'sorter_ros.recording_writer', str(fd), str(chunk_size)],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                pass_fds=(fd,),
+            )
+        except OSError:
+            os.close(fd)  # and with it the lock: the path can be tried again
+            raise
         self._pipe = self._proc.stdin.fileno()
         os.set_blocking(self._pipe, False)
         try:  # a larger pipe: fewer, larger hand-overs (Linux; 1 MiB is its default limit)

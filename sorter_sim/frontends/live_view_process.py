@@ -72,12 +72,22 @@ class LiveViewProcess:
     ):
         mine, theirs = socket.socketpair()
         self._sock = mine
-        self._proc = subprocess.Popen(
-            [sys.executable, '-m', 'sorter_sim.frontends.live_view_process', str(theirs.fileno())],
-            pass_fds=(theirs.fileno(),),
-            stdin=subprocess.DEVNULL,
-        )
-        theirs.close()
+        try:
+            self._proc = subprocess.Popen(
+                [
+                    sys.executable,
+                    '-m',
+                    'sorter_sim.frontends.live_view_process',
+                    str(theirs.fileno()),
+                ],
+                pass_fds=(theirs.fileno(),),
+                stdin=subprocess.DEVNULL,
+            )
+        except OSError as exc:
+            mine.close()
+            raise ValueError(f'cannot start the live view process: {exc}') from None
+        finally:
+            theirs.close()
         self.frames_sent = 0
         self.failure: str | None = None
         self._on_failure = on_failure
