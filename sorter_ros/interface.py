@@ -186,9 +186,9 @@ def declare_typed(node, name: str, default, desc):
     Declare a parameter as ``node.declare_parameter`` does, taking an empty array for an array.
 
     rclpy infers an override's type from its value when it declares the parameter, and
-    an empty list reads as a byte array: ``-p routing.rules:=[]`` or an empty list in a
-    params file would be refused for a string array. Here an empty override of a
-    declared array is taken as that array, empty.
+    an empty list reads as a byte array (``-p routing.rules:=[]``), and an empty list in a
+    params file comes unset, which would keep the default. Here an empty override of a
+    declared array, either way, is taken as that array, empty.
 
     Parameters
     ----------
@@ -210,11 +210,12 @@ def declare_typed(node, name: str, default, desc):
     from rclpy.parameter import Parameter
 
     override = node._parameter_overrides.get(name)
+    # rcl's params-file parser cannot type an empty sequence and hands it over unset
+    # (NOT_SET, value None); the command line's ``[]`` arrives as an empty byte array
     if (
         override is not None
         and desc.type in _ARRAY_TYPES
-        and override.value is not None
-        and len(override.value) == 0
+        and (override.value is None or len(override.value) == 0)
     ):
         node.declare_parameter(name, default, desc, ignore_override=True)
         result = node.set_parameters([Parameter(name, Parameter.Type(desc.type), [])])[0]

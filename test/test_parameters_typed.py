@@ -69,8 +69,34 @@ def test_the_controller_takes_integers_for_its_doubles(ros):
     assert list(ctl.get_parameter('photo_eyes.x').value) == [-2.0, 0.0, 2.0]
 
 
+def _controller_from_args(args: list[str]) -> list[str]:
+    """Start a controller in a context of its own from ``args``; return its routing rules."""
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(context=ctx, args=['--ros-args', *args])
+    try:
+        ctl = ControllerNode(context=ctx)
+        try:
+            got = ctl.get_parameter('routing.rules')
+            assert got.type_ == Parameter.Type.STRING_ARRAY, got.type_
+            assert ctl.values['routing.rules'] == list(got.value)
+            return list(got.value)
+        finally:
+            ctl.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
 def test_an_empty_list_is_an_empty_array_of_the_declared_type(ros, tmp_path):
-    """Take ``routing.rules: []`` as an empty table, where rclpy would read a byte array."""
+    """
+    Take ``routing.rules: []`` as an empty table however it is given.
+
+    rclpy would read the command line's ``[]`` as a byte array, and rcl hands a params
+    file's empty list over unset, which kept the default rules (``A*=left; ...``).
+    """
+    # the overrides a program passes (and the command line's ``-p routing.rules:=[]``)
     ctl = ros.add(
         ControllerNode(
             context=ros.context,
@@ -80,25 +106,30 @@ def test_an_empty_list_is_an_empty_array_of_the_declared_type(ros, tmp_path):
     got = ctl.get_parameter('routing.rules')
     assert got.type_ == Parameter.Type.STRING_ARRAY and list(got.value) == []
     assert ctl.values['routing.rules'] == []
-    # from a params file, in a process of its own, as a user would start it
+    assert _controller_from_args(['-p', 'routing.rules:=[]']) == []
+    # a params file, as docs/controller.md starts a line's station controllers
     params = tmp_path / 'p.yaml'
     params.write_text('sorter_controller:\n  ros__parameters:\n    routing:\n      rules: []\n')
-    done = subprocess.run(
-        [
-            str(BIN / 'controller_node'),
-            '--ros-args',
-            '--params-file',
-            str(params),
-            '-p',
-            'scan_period:=-1.0',
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,
+    assert _controller_from_args(['--params-file', str(params)]) == []
+    # and the same file with rules in it still gives them (the file is read at all)
+    params.write_text(
+        'sorter_controller:\n  ros__parameters:\n    routing:\n      rules: ["Z*=left"]\n'
     )
-    # it gets past routing.rules and stops at the next bad value, naming that one alone
-    assert done.returncode == 2, done.stderr
-    assert 'scan_period' in done.stderr and 'routing.rules' not in done.stderr
+    assert _controller_from_args(['--params-file', str(params)]) == ['Z*=left']
+
+
+def test_an_empty_list_set_at_run_time_empties_the_table(ros):
+    """``ros2 param set /sorter_controller routing.rules "[]"``: rclpy's parameter client."""
+    ctl = ros.add(ControllerNode(context=ros.context))
+    assert ctl.values['routing.rules'], 'the default table has rules'
+    client = AsyncParameterClient(ros.make_node('ros2_param'), 'sorter_controller')
+    ros.spin_until(lambda: client.services_are_ready(), 10.0, 'the parameter services')
+    empty = Parameter('routing.rules', Parameter.Type.STRING_ARRAY, [])
+    (ok,) = _done(ros, client.set_parameters([empty]), 'set').results
+    assert ok.successful, ok.reason
+    got = _done(ros, client.get_parameters(['routing.rules']), 'get').values[0]
+    assert got.type == Parameter.Type.STRING_ARRAY.value and list(got.string_array_value) == []
+    assert ctl.values['routing.rules'] == []
 
 
 def test_a_real_start_up_error_says_what_was_given_and_what_is_allowed():
