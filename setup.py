@@ -3,18 +3,24 @@ from glob import glob
 from setuptools import find_packages, setup
 
 package_name = 'sorter_cell'
+# config/ and the folders of shipped scenes, scenarios and sweeps in it
+CONFIG_DIRS = ['', 'scenes/', 'scenarios/', 'sweeps/']
 
 setup(
     name=package_name,
     version='0.1.0',
-    packages=find_packages(exclude=['test', 'test.*']),
+    # config/ is also package data, sorter_cell.config: a wheel installed with pip finds
+    # its parameter files, scenes and scenarios with importlib.resources, no environment
+    # variable needed (sorter_ros.env.find_config_dir); share/ serves colcon/ament installs
+    packages=find_packages(exclude=['test', 'test.*', 'benchmarks', 'examples'])
+    + ['sorter_cell.config'],
+    package_dir={'sorter_cell.config': 'config'},
+    package_data={'sorter_cell.config': [f'{d}*.yaml' for d in CONFIG_DIRS]},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', glob('config/*.yaml')),
-        ('share/' + package_name + '/config/scenes', glob('config/scenes/*.yaml')),
-        ('share/' + package_name + '/config/sweeps', glob('config/sweeps/*.yaml')),
-    ],
+    ]
+    + [(f'share/{package_name}/config/{d}', glob(f'config/{d}*.yaml')) for d in CONFIG_DIRS],
     python_requires='>=3.11',
     install_requires=[
         'setuptools',
@@ -69,11 +75,16 @@ setup(
             # an independent rosbag2 reader with its own type store, and X.509 certificates
             # for the OPC UA identity tests
             'pyModbusTCP>=0.3',
+            # the installed-package test builds the wheel and sdist as a user would
+            # (python -m build, without network: setuptools with bdist_wheel built in)
+            'build>=1.2',
+            'setuptools>=70.1',
             'rosbags>=0.11',
             'cryptography>=42',
         ],
     },
-    zip_safe=True,
+    # the parameter files are handed to rcl by path: they must be files on disk
+    zip_safe=False,
     maintainer='sorter_cell maintainers',
     maintainer_email='sorter-cell@example.com',
     description=(

@@ -38,7 +38,11 @@ def add_arguments(parser) -> None:
     """
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     one = sub.add_parser("run", help="run one scenario file")
-    one.add_argument("file", metavar="FILE", help="the scenario (YAML)")
+    one.add_argument(
+        "file",
+        metavar="FILE",
+        help="the scenario (YAML), or the name of a shipped one (e.g. stuck_divert_eye)",
+    )
     one.add_argument("--junit", metavar="OUT.xml", help="write the result as JUnit XML")
     one.add_argument("--record", metavar="OUT.mcap", help="record the run (evidence)")
     one.add_argument("--seed", type=int, help="the generated stream's seed instead of the file's")
@@ -85,13 +89,37 @@ def _result_dict(r) -> dict:
     }
 
 
+def scenario_path(given: str) -> str:
+    """
+    Return the scenario file ``given`` names: a path, or the name of a shipped scenario.
+
+    ``sorter scenario run stuck_divert_eye`` runs ``config/scenarios/stuck_divert_eye.yaml``
+    of the installed package from any directory; a file of that name in the current
+    directory wins, as a path always does.
+    """
+    from sorter_ros.env import shipped_file
+
+    if Path(given).exists():
+        return given
+    shipped = shipped_file("scenarios", given)
+    return str(shipped) if shipped is not None else given
+
+
 def _run_one(args) -> int | str:
     from sorter_cell.testing.scenario import ScenarioError, junit_xml, load_scenario, report
     from sorter_cell.testing.scenario import run_scenario
     from sorter_sim.studies.outpaths import file_problem
 
+    path = scenario_path(args.file)
+    if not Path(path).exists():
+        from sorter_ros.env import shipped_names
+
+        return (
+            f"no scenario file {args.file!r}, and no shipped scenario of that name "
+            f"(shipped: {', '.join(shipped_names('scenarios'))})"
+        )
     try:
-        sc = load_scenario(args.file)
+        sc = load_scenario(path)
     except ScenarioError as exc:
         return str(exc)
     for flag, path in (("--junit", args.junit), ("--record", args.record)):

@@ -32,6 +32,8 @@ DEFAULT_DISCOVERY_RANGE = 'LOCALHOST'
 # config/ of a checkout (or an editable install): the repository root is the
 # parent of this package.
 SOURCE_CONFIG_DIR = Path(__file__).resolve().parents[1] / 'config'
+# the same files as package data of an installed wheel (setup.py maps config/ there)
+CONFIG_PACKAGE = 'sorter_cell.config'
 
 
 def apply_ros_env_defaults() -> None:
@@ -46,37 +48,103 @@ def apply_ros_env_defaults() -> None:
         os.environ[DISCOVERY_RANGE_VAR] = DEFAULT_DISCOVERY_RANGE
 
 
-def find_config_dir() -> Path:
-    """
-    Return the directory holding ``cell.yaml`` and ``scenes/``.
+def _packaged_config_dir() -> Path | None:
+    """Return the config folder installed as package data, if this is an installed package."""
+    from importlib import resources
 
-    Looks first for ``config/`` in the source tree next to this package (a
-    checkout or an editable install), then in the installed package share
-    directory (``share/sorter_cell/config`` of a colcon/ament install).
-    """
-    if SOURCE_CONFIG_DIR.is_dir():
-        return SOURCE_CONFIG_DIR
+    try:
+        found = resources.files(CONFIG_PACKAGE)
+    except (ModuleNotFoundError, TypeError):  # not installed as a wheel, or not a folder
+        return None
+    # a wheel installs into a real folder; the parameter files are handed to rcl by path
+    return found if isinstance(found, Path) else None
 
-    share_config = None
+
+def _ament_config_dir() -> Path | None:
+    """Return ``share/sorter_cell/config`` of a colcon/ament install, if the index knows it."""
     try:
         from ament_index_python.packages import get_package_share_directory
     except ImportError:
-        pass
-    else:
-        try:
-            share_config = Path(get_package_share_directory(PACKAGE_NAME)) / 'config'
-        except (LookupError, OSError, ValueError):
-            # PackageNotFoundError is a LookupError; OSError: no AMENT_PREFIX_PATH.
-            pass
-    if share_config is not None and share_config.is_dir():
-        return share_config
+        return None
+    try:
+        return Path(get_package_share_directory(PACKAGE_NAME)) / 'config'
+    except (LookupError, OSError, ValueError):
+        # PackageNotFoundError is a LookupError; OSError: no AMENT_PREFIX_PATH.
+        return None
 
-    share_where = share_config or f'share/{PACKAGE_NAME}/config via the ament index'
+
+def find_config_dir() -> Path:
+    """
+    Return the directory of ``cell.yaml``, ``controller.yaml``, ``scenes/`` and ``scenarios/``.
+
+    In this order: ``config/`` of a checkout next to this package (a checkout or an
+    editable install), the package data of an installed wheel (``pip install``, found
+    with ``importlib.resources``, no environment variable needed), then the share
+    folder of a colcon/ament install (``share/sorter_cell/config``). The first that
+    holds ``cell.yaml`` wins.
+
+    Raises
+    ------
+    FileNotFoundError
+        When none does, naming where it looked.
+
+    """
+    looked = [SOURCE_CONFIG_DIR]
+    for candidate in (SOURCE_CONFIG_DIR, _packaged_config_dir(), _ament_config_dir()):
+        if candidate is None:
+            continue
+        if candidate not in looked:
+            looked.append(candidate)
+        if (candidate / 'cell.yaml').is_file():
+            return candidate
     raise FileNotFoundError(
-        f'sorter_cell config directory not found; looked in {SOURCE_CONFIG_DIR} '
-        f'and {share_where}. Run from a checkout of the repository, or build '
-        f'and source the ROS 2 workspace that installs sorter_cell.'
+        'sorter_cell config directory not found; looked in '
+        f'{", ".join(map(str, looked))} and the package data {CONFIG_PACKAGE}. '
+        'Reinstall the package (pip install sorter_cell), or run from a checkout.'
     )
+
+
+SHIPPED_KINDS = ('scenes', 'scenarios', 'sweeps')
+
+
+def shipped_file(kind: str, name: str) -> Path | None:
+    """
+    Return the shipped ``config/<kind>/<name>.yaml`` (a scene, scenario or sweep), if any.
+
+    Lets a command take a shipped file by its name (``sorter scenario run
+    stuck_divert_eye``) from any directory, installed or in a checkout.
+
+    Parameters
+    ----------
+    kind : str
+        One of ``SHIPPED_KINDS``.
+    name : str
+        The file's name, with or without ``.yaml``.
+
+    Returns
+    -------
+    Path or None
+        The file, or None when no shipped file has that name.
+
+    """
+    if kind not in SHIPPED_KINDS:
+        raise ValueError(f'kind must be one of {", ".join(SHIPPED_KINDS)}, got {kind!r}')
+    if not name or '/' in name or '\\' in name or name.startswith('.'):
+        return None
+    try:
+        folder = find_config_dir() / kind
+    except FileNotFoundError:
+        return None
+    path = folder / (name if name.endswith('.yaml') else f'{name}.yaml')
+    return path if path.is_file() else None
+
+
+def shipped_names(kind: str) -> list[str]:
+    """Return the names of the shipped files of ``kind`` (for messages), sorted."""
+    try:
+        return sorted(p.stem for p in (find_config_dir() / kind).glob('*.yaml'))
+    except FileNotFoundError:
+        return []
 
 
 class StopSignals:

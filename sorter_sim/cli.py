@@ -21,6 +21,7 @@ import sys
 
 from sorter_ros.env import apply_ros_env_defaults
 from sorter_sim.model.core.cache import check_kernel_cache
+from sorter_sim.model.compile_progress import set_quiet as set_compile_quiet
 from sorter_sim.runtime.scene import SceneError, apply_overrides, load_scene, run_scene
 
 # verb -> (module, one-line help)
@@ -174,6 +175,8 @@ def main(argv: list[str] | None = None, verbs: dict | None = None) -> int:
     check_kernel_cache()
     parser = build_parser(verbs)
     args = parser.parse_args(argv)
+    if getattr(args, "quiet", False) or getattr(args, "json", False):
+        set_compile_quiet(True)  # the compile progress lines too
     if not getattr(args, "_verb_main", None):
         parser.print_help()
         return 2

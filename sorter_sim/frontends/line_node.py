@@ -43,7 +43,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 
 from sorter_ros.interface import (
     EVENT_QOS,
@@ -51,6 +51,7 @@ from sorter_ros.interface import (
     SERVICE_QOS,
     STREAM_QOS,
     accept_integers_for_doubles,
+    declare_typed,
     plain,
 )
 from sorter_ros.env import run_node
@@ -62,7 +63,7 @@ from sorter_sim.frontends.segments import SegmentLink
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_sim.runtime.cell import STATE_NAMES, SensorEdge
 from sorter_sim.runtime.line import Line, LineExit, LineLayout, StationEvent
-from sorter_sim.runtime.params import ParamError
+from sorter_sim.runtime.params import SPECS, ParamError
 
 NODE_NAME = 'sorter_line'
 WAIT_S = 0.0002  # s a segment in fast mode sleeps while its upstream neighbour is behind
@@ -162,6 +163,10 @@ LINE_PARAMS = {
     ),
 }
 
+# the line's options no station takes: dropped from what the process's arguments give
+# a station (a plain ``-p stations:=6`` reaches every node of the process)
+LINE_ONLY = frozenset(LINE_PARAMS) - frozenset(SPECS)
+
 
 class LineNode(Node):
     """The line's clock and its stations (see the module)."""
@@ -175,13 +180,18 @@ class LineNode(Node):
         accept_integers_for_doubles(self, dict.fromkeys(doubles, ParameterType.PARAMETER_DOUBLE))
         values = {}
         for name, (default, check, allowed) in LINE_PARAMS.items():
-            value = plain(self.declare_parameter(name, default).value)
+            if isinstance(default, list):  # an empty list, from a file or the command line
+                desc = ParameterDescriptor(type=ParameterType.PARAMETER_STRING_ARRAY)
+                value = plain(declare_typed(self, name, default, desc).value)
+            else:
+                value = plain(self.declare_parameter(name, default).value)
             if isinstance(default, float) and isinstance(value, int):
                 value = float(value)
             if not check(value):
                 raise ParamError(f'parameter {name!r} must be {allowed}, got {value!r}')
             values[name] = value
         self.values = values
+        self._refuse_unknown_parameters()
         n = values['stations']
         # a segment of a longer line: stations first .. first + n - 1 of line_stations
         f0 = self.first = values['first_station'] - 1
@@ -222,13 +232,16 @@ class LineNode(Node):
                 self.recorder = open_recorder(values['record_path'], self.get_logger().error)
             except ValueError as exc:
                 raise ParamError(f"parameter 'record_path': {exc}") from None
-        overrides = [Parameter(k, value=v) for k, v in station_params.items()]
+        overrides = [
+            Parameter(k, value=v) for k, v in {**self._line_owned(), **station_params}.items()
+        ]
         self.stations: list[SimNode] = []
         try:
             for k in range(n):
                 self.stations.append(
                     SimNode(
                         station=True,
+                        not_mine=LINE_ONLY,
                         context=self.context,
                         namespace=f'{ns}/{station_name(f0 + k)}',
                         parameter_overrides=list(overrides)
@@ -308,6 +321,39 @@ class LineNode(Node):
             f'sorter line ready: {n} stations ({", ".join(a + "/" + b for a, b in chutes[:3])}'
             f'{", ..." if n > 3 else ""}), {mode} mode'
         )
+
+    def _refuse_unknown_parameters(self) -> None:
+        """Refuse a name neither the line nor its stations take, in one line."""
+        unknown = sorted(
+            name
+            for name in self._parameter_overrides
+            if name not in LINE_PARAMS
+            and name not in SPECS
+            and name != 'use_sim_time'
+            and not name.startswith('qos_overrides.')
+        )
+        if unknown:
+            raise ParamError(
+                f'unknown parameter(s) {", ".join(map(repr, unknown))}: the line takes '
+                f'{", ".join(LINE_PARAMS)}; its stations take the cell\'s parameters '
+                '(docs/simulation-node.md), as -p NAME:=VALUE or a params file\'s sorter_sim '
+                'entries'
+            )
+
+    def _line_owned(self) -> dict:
+        """
+        Return what every station is given of the options the line owns.
+
+        A plain ``-p modbus_port:=1502`` or ``-p time_mode:=fast`` reaches every node of
+        the process, the stations too; the line serves the fieldbus and the live view for
+        all its stations, records them into its file and drives their time, so a
+        station is given the line's time options and no server of its own.
+        """
+        v = self.values
+        owned = {name: v[name] for name in ('time_mode', 'fast_slice', 'real_time_factor')}
+        owned.update(modbus_port=0, opcua_port=0, foxglove_port=0)
+        owned['record_path'] = v['record_path']
+        return owned
 
     def _open_live_view(self) -> None:
         """Serve the whole line to Foxglove: every station in its frame, placed along the belt."""

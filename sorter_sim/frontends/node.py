@@ -205,8 +205,13 @@ class SimNode(Node):
     # clock (the cell owns simulated time), which the events executor serves on time.
     executor_kind = 'events'
 
-    def __init__(self, *, station: bool = False, **kwargs):
+    def __init__(self, *, station: bool = False, not_mine=frozenset(), **kwargs):
         super().__init__(NODE_NAME, **kwargs)
+        # a line's options reach its stations through the process's arguments too
+        # (``not_mine``, given by the line): they are the line's, not unknown names
+        explicit = {p.name for p in kwargs.get('parameter_overrides') or ()}
+        for name in set(not_mine) - explicit:
+            self._parameter_overrides.pop(name, None)
         # a station of a line (``frontends/line_node.py``): the line advances its cell
         # with the others and publishes the one clock; this node publishes the rest
         self.station = station

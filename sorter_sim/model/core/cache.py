@@ -22,6 +22,31 @@ CORE_DIR = Path(__file__).resolve().parent
 _checked = False
 
 
+def kernel_cache_dir(here: Path = CORE_DIR) -> Path:
+    """
+    Return the folder numba caches the kernels of the package in ``here`` in.
+
+    ``here/__pycache__`` unless ``NUMBA_CACHE_DIR`` is set (a CI job that keeps its
+    cache between runs) or the package folder is read-only (numba then uses a folder in
+    the user's cache): numba's own locators say which.
+    """
+    try:
+        from numba.core import caching
+
+        impl = getattr(caching, 'CacheImpl', None) or caching._CacheImpl  # renamed in 0.62
+        source = str(here / 'cache.py')
+        probe = compile('def probe():\n    pass\n', source, 'exec')
+        namespace: dict = {}
+        exec(probe, namespace)
+        for locator_class in impl._locator_classes:
+            locator = locator_class.from_function(namespace['probe'], source)
+            if locator is not None:
+                return Path(locator.get_cache_path())
+    except Exception:  # numba's internals moved: its default place
+        pass
+    return here / '__pycache__'
+
+
 def drop_stale_kernels(here: Path = CORE_DIR) -> list[Path]:
     """
     Drop the numba cache of the package in ``here`` if its sources changed.
@@ -38,7 +63,7 @@ def drop_stale_kernels(here: Path = CORE_DIR) -> list[Path]:
         A missing stamp counts as a change: nothing cached without one can be trusted.
 
     """
-    cache = here / '__pycache__'
+    cache = kernel_cache_dir(here)
     digest = hashlib.sha256()
     for src in sorted(here.glob('*.py')):
         digest.update(src.name.encode())
@@ -75,12 +100,16 @@ def check_kernel_cache() -> int:
     if _checked:
         return 0
     _checked = True
+    # a cold cache compiles for a minute or more: say so while it happens
+    from sorter_sim.model.compile_progress import install
+
+    install()
     dropped = drop_stale_kernels()
     if dropped:
         kernels = len({p.name.split('-')[0] for p in dropped})
         print(
             f'sorter_sim: the model core changed since its kernels were cached; dropped '
-            f'{len(dropped)} cache files ({kernels} kernels) in {CORE_DIR / "__pycache__"}, '
+            f'{len(dropped)} cache files ({kernels} kernels) in {kernel_cache_dir()}, '
             'they compile again on first use',
             file=sys.stderr,
             flush=True,

@@ -1,0 +1,137 @@
+"""
+The package as a user installs it: built into a wheel, installed into a fresh virtualenv.
+
+``installed_venv(where)`` builds the wheel and the sdist with ``python -m build`` (as a
+release would), makes a new virtualenv outside the repository and installs the wheel
+into it with pip, from the wheel alone (``--no-deps --no-index``: nothing of the
+checkout can leak in). Its dependencies are the project's ``.venv``'s, linked in file by
+file (``cp -as``), so the test runs offline and in seconds: numpy, rclpy and the ROS
+libraries under the new prefix's ``lib/`` and ``share/`` are the same files, the
+project's own files are the wheel's. The editable install of the checkout (its finder,
+its dist-info, its ament index entry) is left out.
+
+The numba kernels are compiled once per checkout (``scripts/test.sh``); their cache is
+copied next to the installed sources (the same sources, stamped alike), as a CI job
+keeps numba's cache between runs (docs/testing.md), so the commands run warm here and
+the cold compile is measured by ``benchmarks/bench_first_run.py``, not by the suite.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SITE = Path(sysconfig.get_paths()['purelib'])
+CORE = Path('sorter_sim') / 'model' / 'core'
+
+
+def _run(cmd: list, **kw) -> subprocess.CompletedProcess:
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=240, **kw)
+    if done.returncode:
+        raise RuntimeError(f'{" ".join(map(str, cmd))} failed:\n{done.stdout}\n{done.stderr}')
+    return done
+
+
+def build_dists(out: Path) -> tuple[Path, Path]:
+    """Build the sdist and, from it, the wheel (``python -m build``); return both paths."""
+    # --no-isolation: the build backend from this environment (setuptools, no network)
+    _run([sys.executable, '-m', 'build', '--no-isolation', '--outdir', str(out), str(REPO)])
+    (wheel,) = out.glob('sorter_cell-*.whl')
+    (sdist,) = out.glob('sorter_cell-*.tar.gz')
+    return wheel, sdist
+
+
+def _is_ours(name: str) -> bool:
+    return 'sorter_cell' in name or name.startswith('__editable__')
+
+
+def _link_dependencies(venv: Path) -> None:
+    """Link the project's .venv's installed files into ``venv``, the project's own left out."""
+    prefix = Path(sys.prefix)
+    site = venv / SITE.relative_to(prefix)
+    for entry in SITE.iterdir():
+        if not _is_ours(entry.name) and not (site / entry.name).exists():
+            _run(['cp', '-as', str(entry), str(site / entry.name)])
+    for top in ('lib', 'share'):
+        (venv / top).mkdir(exist_ok=True)
+        for entry in (prefix / top).iterdir():
+            if entry.name in ('python3.11', 'sorter_cell') or (venv / top / entry.name).exists():
+                continue
+            _run(['cp', '-as', str(entry), str(venv / top / entry.name)])
+    marker = venv / 'share/ament_index/resource_index/packages/sorter_cell'
+    if marker.is_symlink():
+        marker.unlink()
+
+
+def _copy_kernel_cache(site: Path) -> None:
+    """Give the installed core the checkout's compiled kernels (same sources, same stamps)."""
+    src, dst = REPO / CORE, site / CORE
+    for py in src.glob('*.py'):
+        installed = dst / py.name
+        if installed.read_bytes() != py.read_bytes():
+            return  # not the same sources: let numba compile
+        shutil.copystat(py, installed)
+    (dst / '__pycache__').mkdir(exist_ok=True)
+    for f in (src / '__pycache__').iterdir():
+        if f.suffix in ('.nbi', '.nbc') or f.name == 'numba-sources.sha256':
+            shutil.copy2(f, dst / '__pycache__' / f.name)
+
+
+def installed_venv(where: Path) -> Path:
+    """
+    Build the dists and install the wheel into a fresh virtualenv under ``where``.
+
+    Returns
+    -------
+    Path
+        The virtualenv (its ``bin/`` holds ``sorter``, ``sim_node`` and the others).
+
+    """
+    dist = where / 'dist'
+    wheel, _ = build_dists(dist)
+    venv = where / 'venv'
+    _run([sys.executable, '-m', 'venv', '--without-pip', str(venv)])
+    _link_dependencies(venv)
+    _run(
+        [
+            str(venv / 'bin' / 'python'),
+            '-m',
+            'pip',
+            'install',
+            '--no-deps',
+            '--no-index',
+            '--no-compile',
+            '-q',
+            str(wheel),
+        ],
+        env=user_env(venv),
+    )
+    _copy_kernel_cache(venv / SITE.relative_to(sys.prefix))
+    return venv
+
+
+def user_env(venv: Path, domain: int | None = None) -> dict:
+    """
+    Return the environment a user of ``venv`` has: its bin first, nothing of the checkout.
+
+    No ``PYTHONPATH``, no ``AMENT_PREFIX_PATH``, no library path of the project's .venv
+    (the ROS wheels' bootstrap sets it for the new prefix).
+    """
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ('PYTHONPATH', 'AMENT_PREFIX_PATH', 'LD_LIBRARY_PATH', 'VIRTUAL_ENV')
+        and not k.startswith('_ROS_WHEELS')
+        and not k.startswith('PYTEST')
+    }
+    env['PATH'] = f'{venv / "bin"}{os.pathsep}{env.get("PATH", "")}'
+    env['VIRTUAL_ENV'] = str(venv)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    if domain is not None:
+        env['ROS_DOMAIN_ID'] = str(domain)
+    return env

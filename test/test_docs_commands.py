@@ -1,0 +1,112 @@
+"""
+Every shell command of README.md and docs/*.md runs as written.
+
+Each command (``docs_commands.collect``: the fenced ``bash`` blocks, what cannot run
+here marked where it stands) is started as a reader would start it, from a folder
+that looks like the repository's root (``config/``, ``examples/``, ``benchmarks/``
+and ``.venv`` linked, ``docs/`` copied, so what a command writes stays out of the
+checkout). A command that has not ended after ``BRIEF_S`` is stopped as a reader
+stops it, with Ctrl-C (SIGINT to its process group): it must then end within
+``STOP_S``. Either way its exit status must be 0 (130 is Ctrl-C's own, taken from a
+command that was stopped) and nothing it prints may be a traceback.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from docs_commands import REPO, collect
+
+pytestmark = pytest.mark.ros
+
+BRIEF_S = 8.0  # the most a command runs before it is stopped
+STOP_S = 30.0  # the most it may take to end after Ctrl-C
+BIN = Path(sys.executable).parent
+
+COMMANDS = collect()
+RUNNABLE = []
+_seen = set()
+for _c in COMMANDS:
+    if not _c.skip and _c.text not in _seen:
+        _seen.add(_c.text)
+        RUNNABLE.append(_c)
+
+
+def test_the_collector_finds_the_commands_and_every_skip_says_why():
+    """The documentation's commands are found, and each one the suite skips says why."""
+    texts = [c.text for c in COMMANDS]
+    assert any(t.startswith('.venv/bin/line_node') for t in texts), texts
+    assert any(t.startswith('.venv/bin/sorter demo') for t in texts)
+    for c in COMMANDS:
+        assert c.skip == '' or len(c.skip) > 10, f'{c.doc}:{c.line}: a skip without a reason'
+    # what the suite skips is the exception: ros2cli, a workspace build, the suite itself
+    assert len(RUNNABLE) >= 25, [c.text for c in RUNNABLE]
+
+
+@pytest.fixture(scope='module')
+def reader_root(tmp_path_factory) -> Path:
+    """A folder laid out as the repository's root, for the commands to run in."""
+    root = tmp_path_factory.mktemp('reader')
+    for name in ('config', 'examples', 'benchmarks', 'scripts', '.venv'):
+        (root / name).symlink_to(REPO / name)
+    shutil.copytree(REPO / 'docs', root / 'docs')
+    return root
+
+
+def _argv(cmd) -> list[str]:
+    argv = cmd.argv
+    if argv[0].startswith('.venv/bin/'):
+        argv[0] = str(BIN / argv[0].removeprefix('.venv/bin/'))
+    elif argv[0].startswith('scripts/'):
+        # the scripts work from the checkout (they keep its .venv up to date)
+        argv[0] = str(REPO / argv[0])
+    return argv
+
+
+@pytest.mark.parametrize('cmd', RUNNABLE, ids=[f'{c.doc}:{c.line}' for c in RUNNABLE])
+def test_a_documented_command_runs_as_written(cmd, reader_root):
+    env = dict(os.environ)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['PATH'] = f'{BIN}{os.pathsep}{env.get("PATH", "")}'
+    env['ROS_DOMAIN_ID'] = os.environ.get('ROS_DOMAIN_ID', '77')
+    proc = subprocess.Popen(
+        _argv(cmd),
+        cwd=reader_root,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
+    stopped = False
+    try:
+        out, _ = proc.communicate(timeout=BRIEF_S)
+    except subprocess.TimeoutExpired:
+        stopped = True
+        t0 = time.monotonic()
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            out, _ = proc.communicate(timeout=STOP_S)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            out, _ = proc.communicate()
+            pytest.fail(
+                f'{cmd.doc}:{cmd.line}: `{cmd.text}` did not end within {STOP_S:g} s of '
+                f'Ctrl-C; it printed:\n{out[-3000:]}'
+            )
+        took = time.monotonic() - t0
+        assert took < STOP_S
+    where = f'{cmd.doc}:{cmd.line}: `{cmd.text}`'
+    allowed = (0, 130) if stopped else (0,)
+    assert proc.returncode in allowed, (
+        f'{where} exited {proc.returncode}{" after Ctrl-C" if stopped else ""}; it printed:\n'
+        f'{out[-3000:]}'
+    )
+    assert 'Traceback (most recent call last)' not in out, f'{where} printed a traceback:\n{out}'

@@ -1,0 +1,191 @@
+"""
+The package as a user's project gets it: a wheel installed into a fresh virtualenv.
+
+``installed_package.installed_venv`` builds the wheel and the sdist and installs the
+wheel with pip into a new virtualenv outside the repository. Every command below runs
+from a temporary folder outside the repository, with the virtualenv's ``bin/`` on the
+PATH and nothing of the checkout in the environment (no ``PYTHONPATH``, no
+``AMENT_PREFIX_PATH``): the documented commands, a shipped scenario by its name, the
+paper's Fig. 9, and the pytest plugin on ``examples/``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import time
+import zipfile
+from pathlib import Path
+
+import pytest
+from installed_package import REPO, installed_venv, user_env
+
+pytestmark = [pytest.mark.ros, pytest.mark.xdist_group('installed_package')]
+
+
+@pytest.fixture(scope='module')
+def venv(tmp_path_factory) -> Path:
+    """The wheel, installed into a fresh virtualenv (once for this file's tests)."""
+    return installed_venv(tmp_path_factory.mktemp('installed'))
+
+
+@pytest.fixture
+def outside(tmp_path) -> Path:
+    """A working folder outside the repository."""
+    assert REPO not in tmp_path.parents
+    return tmp_path
+
+
+def _domain() -> int:
+    return 100 + (os.getpid() + int(time.time())) % 100
+
+
+def run(venv: Path, cwd: Path, *argv: str, timeout: float = 50.0):
+    """Run an installed command as its user would; return the finished process."""
+    done = subprocess.run(
+        [str(venv / 'bin' / argv[0]), *argv[1:]],
+        cwd=cwd,
+        env=user_env(venv, _domain()),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert 'Traceback' not in done.stderr, done.stderr
+    return done
+
+
+def start_and_stop(venv: Path, cwd: Path, ready: str, *argv: str, within: float = 40.0):
+    """Start a node, wait until it says ``ready``, stop it with SIGINT; return its output."""
+    proc = subprocess.Popen(
+        [str(venv / 'bin' / argv[0]), *argv[1:]],
+        cwd=cwd,
+        env=user_env(venv, _domain()),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
+    seen = []
+    deadline = time.monotonic() + within
+    try:
+        os.set_blocking(proc.stdout.fileno(), False)
+        alive_since = time.monotonic()
+        while time.monotonic() < deadline and proc.poll() is None:
+            chunk = proc.stdout.read() or ''
+            seen.append(chunk)
+            if ready and ready in ''.join(seen):
+                break
+            if not ready and time.monotonic() - alive_since > 4.0:
+                break  # a node that says nothing when it is up: up and still running
+            time.sleep(0.1)
+        text = ''.join(seen)
+        assert proc.poll() is None, f'{argv[0]} ended ({proc.returncode}):\n{text}'
+        assert not ready or ready in text, f'{argv[0]} never said {ready!r}; it printed:\n{text}'
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=20)
+        os.set_blocking(proc.stdout.fileno(), True)
+        text += proc.stdout.read()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0, f'{argv[0]} exited {proc.returncode}:\n{text}'
+    assert 'Traceback' not in text, text
+    return text
+
+
+def test_the_wheel_carries_the_config_and_no_tests(venv):
+    (wheel,) = (venv.parent / 'dist').glob('*.whl')
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for shipped in (
+        'sorter_cell/config/cell.yaml',
+        'sorter_cell/config/controller.yaml',
+        'sorter_cell/config/scenes/fig9a.yaml',
+        'sorter_cell/config/scenarios/stuck_divert_eye.yaml',
+        'sorter_cell/config/sweeps/example.yaml',
+    ):
+        assert shipped in names, shipped
+    assert not any(n.startswith(('test/', 'examples/', 'benchmarks/')) for n in names)
+    print(f'wheel {wheel.name}: {wheel.stat().st_size / 1e3:.0f} kB')
+
+
+def test_the_installed_package_finds_its_config_without_any_variable(venv, outside):
+    done = run(
+        venv,
+        outside,
+        'python',
+        '-c',
+        'from sorter_ros.env import find_config_dir; print(find_config_dir())',
+    )
+    assert done.returncode == 0, done.stderr
+    found = Path(done.stdout.strip())
+    assert venv in found.parents and (found / 'scenarios' / 'default_stream.yaml').is_file()
+
+
+def test_sorter_demo_runs_from_any_folder(venv, outside):
+    done = run(venv, outside, 'sorter', 'demo', '--sim-time', '8', '--json')
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary['inducted'] > 0 and summary['mis_sorted'] == 0, summary
+
+
+def test_sorter_demo_runs_a_line_from_any_folder(venv, outside):
+    done = run(venv, outside, 'sorter', 'demo', '--stations', '6', '--parcels', '3', '--json')
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary['inducted'] == 3, summary
+
+
+@pytest.mark.parametrize(
+    ('argv', 'ready'),
+    [
+        (['sim_node'], 'sorter cell ready'),
+        (['controller_node'], "waiting for the cell's parameters"),
+        (['line_node', '--ros-args', '-p', 'stations:=6', '-p', 'time_mode:=fast'], 'line ready'),
+        (['wcs_node'], ''),
+    ],
+    ids=['sim_node', 'controller_node', 'line_node', 'wcs_node'],
+)
+def test_each_node_starts_and_stops_from_any_folder(venv, outside, argv, ready):
+    start_and_stop(venv, outside, ready, *argv)
+
+
+def test_a_shipped_scenario_runs_by_its_name_and_by_its_path(venv, outside):
+    by_name = run(venv, outside, 'sorter', 'scenario', 'run', 'stuck_divert_eye', '--json')
+    assert by_name.returncode in (0, 1), by_name.stderr  # 1: an expectation failed
+    result = json.loads(by_name.stdout)
+    assert result['passed'], result
+    config = Path(
+        run(
+            venv,
+            outside,
+            'python',
+            '-c',
+            'from sorter_ros.env import find_config_dir; print(find_config_dir())',
+        ).stdout.strip()
+    )
+    mine = outside / 'mine.yaml'
+    shutil.copy(config / 'scenarios' / 'stuck_divert_eye.yaml', mine)
+    by_path = run(venv, outside, 'sorter', 'scenario', 'run', str(mine), '--json')
+    assert json.loads(by_path.stdout)['passed'], by_path.stdout
+    unknown = run(venv, outside, 'sorter', 'scenario', 'run', 'no_such_scenario')
+    assert unknown.returncode == 2 and 'stuck_divert_eye' in unknown.stderr, unknown.stderr
+
+
+def test_the_paper_figure_9_from_any_folder(venv, outside):
+    done = run(venv, outside, 'sorter', 'paper', '9', '--quick', '--out', 'figs')
+    assert done.returncode == 0, done.stderr
+    assert any((outside / 'figs').iterdir())
+
+
+def test_the_pytest_plugin_runs_the_examples_outside_the_repository(venv, outside):
+    for f in (REPO / 'examples').glob('*.py'):
+        shutil.copy(f, outside / f.name)
+    done = run(
+        venv, outside, 'python', '-m', 'pytest', '-q', '-p', 'no:cacheprovider', timeout=55.0
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert ' passed' in done.stdout and 'failed' not in done.stdout, done.stdout
