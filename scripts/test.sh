@@ -7,5 +7,5 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 export ROS_AUTOMATIC_DISCOVERY_RANGE=${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}
 source scripts/_venv.sh
 
-.venv/bin/python -m sorter_sim.runtime.warmup
+.venv/bin/sorter warmup --all
 exec .venv/bin/python -m pytest "$@"

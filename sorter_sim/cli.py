@@ -172,8 +172,11 @@ def main(argv: list[str] | None = None, verbs: dict | None = None) -> int:
 
     """
     apply_ros_env_defaults()
-    check_kernel_cache()
-    parser = build_parser(verbs)
+    try:
+        check_kernel_cache()
+        parser = build_parser(verbs)  # imports every verb's module
+    except KeyboardInterrupt:  # Ctrl-C while the modules load: a clean stop
+        return 130
     args = parser.parse_args(argv)
     if getattr(args, "quiet", False) or getattr(args, "json", False):
         set_compile_quiet(True)  # the compile progress lines too

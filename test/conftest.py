@@ -8,9 +8,30 @@ import os
 from sorter_ros.env import apply_ros_env_defaults  # noqa: E402 (imports no ROS)
 
 apply_ros_env_defaults()
-os.environ['ROS_DOMAIN_ID'] = os.environ.get('SORTER_TEST_DOMAIN_ID') or str(
-    100 + os.getpid() % 100
-)
+
+
+def _worker_domain() -> int:
+    """
+    Return this pytest process's ROS domain: one per xdist worker, the same run's apart.
+
+    ``SORTER_TEST_DOMAIN_ID`` picks the first (the workers take it and the next ones);
+    otherwise a run takes a pair in 150-197 from its run id, so two runs on one host
+    rarely meet, and a run's two workers never do. 100-149 are left to the tests that
+    start graphs of their own (test_loopback_only's 141), 200-231 to campaigns.
+    """
+    import hashlib
+
+    worker = os.environ.get('PYTEST_XDIST_WORKER', 'gw0')
+    index = int(worker[2:]) if worker[2:].isdigit() else 0
+    given = os.environ.get('SORTER_TEST_DOMAIN_ID', '').strip()
+    if given:
+        return int(given) + index
+    run = os.environ.get('PYTEST_XDIST_TESTRUNUID') or str(os.getppid())
+    pair = int(hashlib.sha256(run.encode()).hexdigest(), 16) % 24
+    return 150 + (2 * pair + index) % 48
+
+
+os.environ['ROS_DOMAIN_ID'] = str(_worker_domain())
 
 import pytest  # noqa: E402
 
@@ -38,3 +59,14 @@ def pytest_configure(config):
     from sorter_sim.model.core.cache import check_kernel_cache
 
     check_kernel_cache()
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark ``quick`` the first test of each file that is not ``slow`` (``-m quick``)."""
+    seen = set()
+    for item in items:
+        path = item.path
+        if path in seen or item.get_closest_marker('slow') is not None:
+            continue
+        seen.add(path)
+        item.add_marker(pytest.mark.quick)

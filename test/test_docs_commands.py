@@ -24,7 +24,8 @@ from pathlib import Path
 import pytest
 from docs_commands import REPO, collect
 
-pytestmark = pytest.mark.ros
+# one worker, in the documents' order: a command may read what the one before it wrote
+pytestmark = [pytest.mark.ros, pytest.mark.xdist_group('docs_commands')]
 
 BRIEF_S = 8.0  # the most a command runs before it is stopped
 STOP_S = 30.0  # the most it may take to end after Ctrl-C
@@ -75,7 +76,6 @@ def test_a_documented_command_runs_as_written(cmd, reader_root):
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['PATH'] = f'{BIN}{os.pathsep}{env.get("PATH", "")}'
-    env['ROS_DOMAIN_ID'] = os.environ.get('ROS_DOMAIN_ID', '77')
     proc = subprocess.Popen(
         _argv(cmd),
         cwd=reader_root,

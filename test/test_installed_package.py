@@ -40,7 +40,7 @@ def outside(tmp_path) -> Path:
 
 
 def _domain() -> int:
-    return 100 + (os.getpid() + int(time.time())) % 100
+    return int(os.environ['ROS_DOMAIN_ID'])  # this worker's (conftest.py)
 
 
 def run(venv: Path, cwd: Path, *argv: str, timeout: float = 50.0):
