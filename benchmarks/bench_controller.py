@@ -424,4 +424,7 @@ def _version(dist: str) -> str:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:  # Ctrl-C: stop where it is, as the shell's 130
+        sys.exit(130)

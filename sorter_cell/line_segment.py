@@ -248,7 +248,10 @@ def main(argv=None) -> int:
             if not told and all(c.logic is not None and c.logic.state == 'running' for c in ctls):
                 print('ready', flush=True)
                 told = True
-        print(json.dumps(segment_stats(line, ctls), sort_keys=True), flush=True)
+        try:
+            print(json.dumps(segment_stats(line, ctls), sort_keys=True), flush=True)
+        except BrokenPipeError:  # the demo that reads it is gone (Ctrl-C): nobody to tell
+            pass
     finally:
         for node in nodes:
             try:
