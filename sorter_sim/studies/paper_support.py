@@ -41,6 +41,7 @@ SEED_S = 0.7  # m, conveyor width the centre of gravity must cross (seed: s)
 SEED_MU = 0.6  # the seed's μ_a = μ_b (= μ_c) of section 5
 SEED_MU0, SEED_MUG = 0.65, 0.46  # section 6: μ_0, μ_G of models 2 and 3
 ALPHAS = (90.0, 45.0, 30.0)  # the seed's disk angles, deg
+B_LIMIT = 10.0  # m, the longest disk field a scene takes (``disk_field.length``)
 
 
 # ---------------------------------------------------------------------------- results
@@ -538,7 +539,7 @@ def step_root(scrapes, b_lo: float, b_hi: float, xtol: float) -> MinimalWidth:
     The criterion becomes a sign (+1 yes, -1 no) for scipy's brentq, which keeps a
     sign-changing bracket and converges to the step within ``xtol`` (on a step its
     interpolation steps fall back to bisection). The upper end is doubled until
-    the criterion holds.
+    the criterion holds, up to the longest field a scene takes (``B_LIMIT``).
 
     Parameters
     ----------
@@ -567,9 +568,11 @@ def step_root(scrapes, b_lo: float, b_hi: float, xtol: float) -> MinimalWidth:
         return MinimalWidth(b_lo, n[0], (0.0, b_lo), False, "scrapes already at the lower bound")
     hi = b_hi
     while sign(hi) < 0:
-        if hi > 50.0:
-            return MinimalWidth(math.nan, n[0], (b_lo, hi), False, "no width up to 50 m scrapes")
-        hi *= 2.0
+        if hi >= B_LIMIT:
+            return MinimalWidth(
+                math.nan, n[0], (b_lo, hi), False, f"no width up to {B_LIMIT:g} m scrapes"
+            )
+        hi = min(2.0 * hi, B_LIMIT)
     b_min = brentq(sign, b_lo, hi, xtol=xtol)
     # brentq returns a point within xtol of the step; report the side that scrapes
     if sign(b_min) < 0:
