@@ -96,7 +96,8 @@ def verdict(store: GridStore, claim: Claim, model: Model) -> dict:
             "points": points,
         }
     closest = max(over_range, key=lambda c: c.excess) if over_range else None
-    where = f"all {len(over_range)} cases" + (
+    n = len(over_range)
+    where = (f"all {n} cases" if n > 1 else "the one case") + (
         f"; closest: {closest.where}: {closest.measured}" if closest else ""
     )
     return {"verdict": HOLDS, "where": where, "points": points}
@@ -166,12 +167,13 @@ def _over_alpha(store, model, grid, value, *, rising: bool, what: str, unit: str
                 with np.errstate(invalid="ignore"):
                     k = int(np.argmax(~(d > 0)) if rising else np.argmax(~(d < 0)))
                 a0, a1 = grid.alphas[k], grid.alphas[k + 1]
-                measured = (
+                step = f"wrong step {a0:.0f}°->{a1:.0f}°: {f(vals[k])} -> {f(vals[k + 1])}{unit}"
+                measured = step if best == len(vals) - 1 else (
                     f"{'peak' if rising else 'least'} {f(vals[best])}{unit} at "
                     f"{grid.alphas[best]:.0f}° against {f(end)}{unit} at 90°"
                     + (f" ({100 * (vals[best] / end - 1):+.1f} %)" if math.isfinite(end) else "")
-                    + f"; first wrong step {a0:.0f}°->{a1:.0f}°: {f(vals[k])} -> {f(vals[k + 1])}"
-                )
+                    + f"; first {step}"
+                )  # fmt: skip
             out.append(Case(f"v {v:g} m/s, A {A:g} m", ok, measured, excess))
     return out
 

@@ -31,7 +31,13 @@ WORDS = {HOLDS: "holds", PAPER_ONLY: "holds at the seed's points only", "fails":
 
 def _verdict_cell(v: dict) -> str:
     word = WORDS[v["verdict"]]
-    text = f"**{word}**" if v["verdict"] == HOLDS else f"**{word}**: {v['where']}"
+    # a row at one point says its number even when it holds (Fig. 9a's W_t per model)
+    holds_at_a_point = v["verdict"] == HOLDS and v["points"] <= 3
+    if v["verdict"] != HOLDS or holds_at_a_point:
+        where = v["where"].split("closest: ", 1)[-1] if holds_at_a_point else v["where"]
+        text = f"**{word}**: {where}"
+    else:
+        text = f"**{word}**"
     return f"{text} ({v['points']} pts)".replace("|", "\\|")
 
 
@@ -63,8 +69,8 @@ def markdown_block(result: dict, source: str) -> str:
         "seed's points pass, the first failures between or beyond them are named; "
         "**FAILS**: a case at the seed's own points fails. A case is one curve (over α, A, "
         "v or μ) at one setting of the other parameters; pts: the grid points the verdict "
-        "reads. Cells that hold name no numbers; `sorter paper statements` prints the "
-        "closest case.",
+        "reads. Cells that hold over a range name no numbers (`sorter paper statements` "
+        "prints the closest case); those at one point give its value.",
         "",
         "| id | where | the seed's words | test | " + " | ".join(keys) + " |",
         "|---|---|---|---|" + "---|" * len(keys),

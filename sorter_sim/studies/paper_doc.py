@@ -429,7 +429,9 @@ def render(
         "`test/test_paper.py` that asserts it. Where a statement is qualitative (“much "
         "shorter”, “substantial”) the threshold this project reads it by is in the check's "
         "words in the figure's section; where the verdict rests on an assumed parameter, "
-        "the verdict says which.",
+        "the verdict says which. These are verdicts at the seed's own points; the general "
+        "claims among them are judged over their whole ranges in the section above, where "
+        "several hold at these points only.",
         "",
         statement_table(results),
     ]
