@@ -91,6 +91,7 @@ EXPECTED = {
     "6-trans": dict(zip(KEYS, (H, H, H, H))),
     "16-1pct": dict(zip(KEYS, (P, P, P, P))),
     "16-1pct-mu0.6": dict(zip(KEYS, (F, F, F, F))),
+    "16-1pct-flat": dict(zip(KEYS, (F, F, F, F))),
 }
 
 

@@ -93,12 +93,15 @@ class Model:
 MODELS = tuple(Model(s, r) for s in ("seed", "exact") for r in (True, False))
 
 # friction laws of section 6 by the seed's model number; "3@0.6" is model 3 with the
-# section-5 value of μ instead of μ_G (a sensitivity)
+# section-5 value of μ instead of μ_G, "1@flat" model 1 on other points (sensitivities)
 FRICTION_MODELS = {
     "1": ("bspline", tuple(BSPLINE_DEFAULT)),
     "2": ("const2", (SEED_MU0, SEED_MUG)),
     "3": ("const1", (SEED_MUG,)),
     "3@0.6": ("const1", (SEED_MU,)),
+    # model 1 with its assumed sliding points all at μ_G (μ_0 kept): how far the verdict
+    # on Figs. 15-16 rests on the b-spline points the seed does not give
+    "1@flat": ("bspline", tuple(BSPLINE_DEFAULT[:6]) + (SEED_MU0,) + (SEED_MUG,) * 5),
 }
 
 
