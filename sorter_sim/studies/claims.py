@@ -364,15 +364,20 @@ def c9c_30(store, model, grid):
     return out
 
 
+def _gain(store, model, grid, v):
+    """W_t(90°)/W_t(30°) = t_c(30°)/t_c(90°) at each A of the grid, at belt speed v."""
+    return np.array(
+        [
+            _capacity(store, model, A, v, 90.0) / _capacity(store, model, A, v, 30.0)
+            for A in grid.As
+        ]
+    )
+
+
 def c9_tc(store, model, grid):
     out = []
     for v in grid.vs:
-        r = np.array(
-            [
-                _capacity(store, model, A, v, 90.0) / _capacity(store, model, A, v, 30.0)
-                for A in grid.As
-            ]
-        )
+        r = _gain(store, model, grid, v)
         out.append(
             _case(
                 f"v {v:g}",
@@ -391,12 +396,7 @@ def c2b_capacity(store, model, grid):
     )
     # "more pronounced for short loads": the gain 30° -> 90° falls with A at every v
     for v in grid.vs:
-        gain = np.array(
-            [
-                _capacity(store, model, A, v, 90.0) / _capacity(store, model, A, v, 30.0)
-                for A in grid.As
-            ]
-        )
+        gain = _gain(store, model, grid, v)
         cases.append(
             _case(
                 f"v {v:g}: gain over A",

@@ -1,8 +1,8 @@
 """
 Figs. 3-5 of the seed (section 3): the friction laws as used and the stick-slip body of eq. (3.1).
 
-Each function computes one figure from the model core and returns a ``FigureResult``
-(``paper_support``); ``paper`` gathers them. Symbols as in ``paper``'s docstring.
+Fig. 3 draws each law with where its parameters come from; Figs. 4 and 5 run the
+mass-spring body with eq. (3.1)'s threshold method against the exact Coulomb solution.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from sorter_sim.model.core.oscillator import (
 )
 from sorter_sim.model.core.simulate import FrictionLaw
 from sorter_sim.studies.paper_support import (
+    figure_parameters,
     SEED_MU,
     SEED_MU0,
     SEED_MUG,
@@ -76,6 +77,7 @@ FIG3_LAWS = (
 )
 
 
+@figure_parameters
 def fig3(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
     """
     Draw the friction laws of Fig. 3 as this project uses them, each with its source.
@@ -155,6 +157,7 @@ def fig3(out: Path | None = None, quick: bool = False, stick: str = "seed") -> F
 
 
 # ---------------------------------------------------------------------------- Fig. 4
+@figure_parameters
 def fig4(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
     """
     Stick-slip of the mass-spring body with eq. (3.1) (threshold method, v_min = 1 mm/s).
@@ -162,21 +165,6 @@ def fig4(out: Path | None = None, quick: bool = False, stick: str = "seed") -> F
     Trajectories of the body and of the spring end B, the friction force, the
     external force P_ext = k (x_s - x_p), the rubbing speed, and the active row
     of eq. (3.1) over time; compared with the exact Coulomb solution.
-
-    Parameters
-    ----------
-    out : Path, optional
-        Where the CSV and PNG go (None: nothing written).
-    quick : bool
-        Coarse grids, for tests and quick looks.
-    stick : str
-        The stick law: "seed" (the seed's decoupled test, its own computations) or
-        "exact" (the patch's limit set).
-
-    Returns
-    -------
-    FigureResult
-        The figure's data and headline figures.
 
     """
     t0 = time.perf_counter()
@@ -295,24 +283,10 @@ def fig4(out: Path | None = None, quick: bool = False, stick: str = "seed") -> F
 
 
 # ---------------------------------------------------------------------------- Fig. 5
+@figure_parameters
 def fig5(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
     """
     Duration of the static stage F(3) of the first three stick-slip cycles against v_min.
-
-    Parameters
-    ----------
-    out : Path, optional
-        Where the CSV and PNG go (None: nothing written).
-    quick : bool
-        Coarse grids, for tests and quick looks.
-    stick : str
-        The stick law: "seed" (the seed's decoupled test, its own computations) or
-        "exact" (the patch's limit set).
-
-    Returns
-    -------
-    FigureResult
-        The figure's data and headline figures.
 
     """
     t0 = time.perf_counter()

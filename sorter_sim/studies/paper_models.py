@@ -1,8 +1,8 @@
 """
 Figs. 13-16 of the seed (section 6): positioning between two belts, friction models in sorting.
 
-Each function computes one figure from the model core and returns a ``FigureResult``
-(``paper_support``); ``paper`` gathers them. Symbols as in ``paper``'s docstring.
+Models 1-3 of section 6: the two-belt stand of Fig. 12 (Fig. 13) and the friction
+forces, t_c and L of a sort under each (Figs. 14-16).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from sorter_sim.model.build import BSPLINE_DEFAULT
 from sorter_sim.model.core.simulate import FrictionLaw
 from sorter_sim.runtime.scene import run_scene, scene_parcel, scene_strips, validate
 from sorter_sim.studies.paper_support import (
+    figure_parameters,
     SEED_MU0,
     SEED_MUG,
     SEED_S,
@@ -40,6 +41,7 @@ FIG13_LAWS = {
 }
 
 
+@figure_parameters
 def fig13(
     out: Path | None = None, quick: bool = False, stick: str = "seed", laws: dict | None = None
 ) -> FigureResult:
@@ -179,6 +181,7 @@ def final_rise(res, summary: dict, forces) -> float:
     return float(np.max(part / np.minimum.accumulate(part)))
 
 
+@figure_parameters
 def fig14(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
     """
     Friction forces for model 1 vs models 2, 3 (Fig. 14), t_c and L (Fig. 15), ratios (Fig. 16).
@@ -186,21 +189,6 @@ def fig14(out: Path | None = None, quick: bool = False, stick: str = "seed") -> 
     α = 45°, v = 1.5 m/s, m = 5 kg, 0.4 x 0.26 m, s = 0.7 m, b = ∞; every zone takes the
     law as given. L is the length of belt the centre of gravity covers while scrapped
     (x_o, the measure Fig. 8 gives the required field width by).
-
-    Parameters
-    ----------
-    out : Path, optional
-        Where the CSV and PNG go (None: nothing written).
-    quick : bool
-        Coarse grids, for tests and quick looks.
-    stick : str
-        The stick law: "seed" (the seed's decoupled test, its own computations) or
-        "exact" (the patch's limit set).
-
-    Returns
-    -------
-    FigureResult
-        The figure's data and headline figures.
 
     """
     t0 = time.perf_counter()

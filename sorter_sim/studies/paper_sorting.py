@@ -1,8 +1,8 @@
 """
 Figs. 7-9 of the seed (section 5): the moment of friction, the distance x_o, the capacity W_t.
 
-Each function computes one figure from the model core and returns a ``FigureResult``
-(``paper_support``); ``paper`` gathers them. Symbols as in ``paper``'s docstring.
+The sorting cell of section 5 on an endless disk field: the CoG path with and without
+the moment (Fig. 7), x_o over A, B, v, α, μ (Fig. 8), W_t = 3600/t_c (Fig. 9).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import numpy as np
 from sorter_sim.model.core.geometry import box_corners
 from sorter_sim.runtime.scene import run_scene
 from sorter_sim.studies.paper_support import (
+    figure_parameters,
     ALPHAS,
     SEED_MU,
     SEED_S,
@@ -34,24 +35,10 @@ from sorter_sim.studies.paper_support import (
 
 
 # ---------------------------------------------------------------------------- Fig. 7
+@figure_parameters
 def fig7(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
     """
     Return the CoG path with (line 1) and without (line 2) the moment of friction forces.
-
-    Parameters
-    ----------
-    out : Path, optional
-        Where the CSV and PNG go (None: nothing written).
-    quick : bool
-        Coarse grids, for tests and quick looks.
-    stick : str
-        The stick law: "seed" (the seed's decoupled test, its own computations) or
-        "exact" (the patch's limit set).
-
-    Returns
-    -------
-    FigureResult
-        The figure's data and headline figures.
 
     """
     t0 = time.perf_counter()
@@ -151,27 +138,13 @@ def fig7(out: Path | None = None, quick: bool = False, stick: str = "seed") -> F
 
 
 # ---------------------------------------------------------------------------- Fig. 8
+@figure_parameters
 def fig8(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
     """
-    Compute Fig. 9: the scrap distance x_o against the cell's parameters.
+    Compute Fig. 8: the scrap distance x_o against the cell's parameters.
 
     Distance x_o while the CoG is moved s = 0.7 m across, against (a) A, B; (b) v, A;
     (c) α, A; (d) μ_a, μ_b. Defaults elsewhere: 0.7 x 0.2 m, v = 1.5 m/s, α = 90°, μ = 0.6.
-
-    Parameters
-    ----------
-    out : Path, optional
-        Where the CSV and PNG go (None: nothing written).
-    quick : bool
-        Coarse grids, for tests and quick looks.
-    stick : str
-        The stick law: "seed" (the seed's decoupled test, its own computations) or
-        "exact" (the patch's limit set).
-
-    Returns
-    -------
-    FigureResult
-        The figure's data and headline figures.
 
     """
     t0 = time.perf_counter()
@@ -320,24 +293,10 @@ def fig8(out: Path | None = None, quick: bool = False, stick: str = "seed") -> F
 
 
 # ---------------------------------------------------------------------------- Fig. 9
+@figure_parameters
 def fig9(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
     """
     Capacity W_t = 3600/t_c [pcs/h] against v and A, for α = 90°, 45°, 30°.
-
-    Parameters
-    ----------
-    out : Path, optional
-        Where the CSV and PNG go (None: nothing written).
-    quick : bool
-        Coarse grids, for tests and quick looks.
-    stick : str
-        The stick law: "seed" (the seed's decoupled test, its own computations) or
-        "exact" (the patch's limit set).
-
-    Returns
-    -------
-    FigureResult
-        The figure's data and headline figures.
 
     """
     t0 = time.perf_counter()

@@ -1,8 +1,8 @@
 """
 Figs. 10-11 of the seed (section 5): the stages of a sort and the minimal disk-field width.
 
-Each function computes one figure from the model core and returns a ``FigureResult``
-(``paper_support``); ``paper`` gathers them. Symbols as in ``paper``'s docstring.
+The stages E1-E3 of a sort and the rubbing-speed components (Fig. 10), and the
+narrowest field that still scrapes, found by brentq per point (Fig. 11).
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import numpy as np
 
 from sorter_sim.runtime.scene import run_scene, scene_parcel, scene_strips
 from sorter_sim.studies.paper_support import (
+    figure_parameters,
     ALPHAS,
     FigureResult,
     _alpha_v_A_table,
@@ -31,24 +32,10 @@ from sorter_sim.studies.paper_support import (
 ACC_WINDOW = 0.05  # s, the start of E2 over which the lateral acceleration is taken
 
 
+@figure_parameters
 def fig10(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
     """
     Components of the rubbing speed in zones a and b over time, stages E1-E3 marked.
-
-    Parameters
-    ----------
-    out : Path, optional
-        Where the CSV and PNG go (None: nothing written).
-    quick : bool
-        Coarse grids, for tests and quick looks.
-    stick : str
-        The stick law: "seed" (the seed's decoupled test, its own computations) or
-        "exact" (the patch's limit set).
-
-    Returns
-    -------
-    FigureResult
-        The figure's data and headline figures.
 
     """
     t0 = time.perf_counter()
@@ -198,24 +185,10 @@ def fig10(out: Path | None = None, quick: bool = False, stick: str = "seed") -> 
     return r
 
 
+@figure_parameters
 def fig11(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
     """
     Minimal disk-field width b against v and A for α = 90°, 45°, 30° (brentq per point).
-
-    Parameters
-    ----------
-    out : Path, optional
-        Where the CSV and PNG go (None: nothing written).
-    quick : bool
-        Coarse grids, for tests and quick looks.
-    stick : str
-        The stick law: "seed" (the seed's decoupled test, its own computations) or
-        "exact" (the patch's limit set).
-
-    Returns
-    -------
-    FigureResult
-        The figure's data and headline figures.
 
     """
     t0 = time.perf_counter()

@@ -136,6 +136,43 @@ class FigureResult:
         return "\n".join(lines)
 
 
+FIGURE_PARAMETERS = """
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+    stick : str
+        The stick law: "seed" (the seed's decoupled test, its own computations) or
+        "exact" (the patch's limit set).
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+"""
+
+
+def figure_parameters(fn):
+    """
+    Append the parameters every figure function shares to its docstring.
+
+    Parameters
+    ----------
+    fn : callable
+        A figure function ``(out, quick, stick) -> FigureResult``.
+
+    Returns
+    -------
+    callable
+        The same function.
+
+    """
+    fn.__doc__ = (fn.__doc__ or "").rstrip() + "\n" + FIGURE_PARAMETERS
+    return fn
+
+
 def law_folder(out: Path | None, stick: str | None) -> Path | None:
     """
     Return where a figure run under ``stick`` writes: ``out``, or ``out/exact``.
