@@ -180,6 +180,11 @@ def fig8(out: Path | None = None, quick: bool = False, stick: str = "seed") -> F
         "largest relative change of x_o over A [%]": 100 * rel(xa, 0),
         "x_o at v = min / max (A = mid) [m]": f"{xb[0, mid]:.3f} / {xb[-1, mid]:.3f}",
         "x_o at α = min / max (A = mid) [m]": f"{xc[0, mid]:.3f} / {xc[-1, mid]:.3f}",
+        # Fig. 8 assumes φ = 0 throughout: the seed's model with the moment neglected
+        "  same, moment neglected (the seed's model) [m]": (
+            f"{_x_o(A=As[mid], alpha_deg=als[0], stick=stick, rotation=False):.3f} / "
+            f"{_x_o(A=As[mid], alpha_deg=als[-1], stick=stick, rotation=False):.3f}"
+        ),
         "x_o change over μ_b range (μ_a mid) [m]": float(xd[c, -1] - xd[c, 0]),
         "x_o change over μ_a range (μ_b mid) [m]": float(xd[-1, c] - xd[0, c]),
         "W_t change over μ_b range (μ_a mid) [pcs/h]": float(wd[c, -1] - wd[c, 0]),

@@ -218,6 +218,15 @@ def fig11(out: Path | None = None, quick: bool = False, stick: str = "seed") -> 
         r.headline[f"b_min at v = {vs[iv]}, A = {As[jA]}, α = {al:.0f}° [m]"] = float(
             bmin[k, iv, jA]
         )
+    # the seed took its width estimates from the model with the moment neglected
+    for k, al in enumerate(ALPHAS):
+        simple = minimal_disk_width(
+            A=As[jA], v=vs[iv], alpha_deg=al, xtol=xtol, stick=stick, rotation=False
+        )
+        r.headline[f"  same, moment neglected (the seed's model), α = {al:.0f}° [m]"] = (
+            simple.b_min
+        )
+        evals += simple.n_evals
     r.headline["criterion evaluations (runs) in total"] = evals
     r.headline["root finder"] = f"scipy brentq, xtol {xtol:g} m"
     gap = (bmin[2] - bmin[0]) / bmin[0]
