@@ -46,13 +46,13 @@ def verdicts(saved):
 def test_saved_grid_matches_fresh_runs(saved):
     # a few random points each run (one of each kind), printed so a failure can be redone
     rng = random.Random()
-    for kind in ("sort", "law", "bmin"):
+    for kind in ("sort", "law", "bmin", "two"):
         keys = sorted(k for k in saved if k.startswith(kind + "|"))
         key = rng.choice(keys)
         print("recomputed:", key)
         fresh = recompute(key)
         for name, value in saved[key].items():
-            if kind == "bmin":
+            if kind in ("bmin", "two"):
                 assert fresh[name] == pytest.approx(value, abs=2 * BMIN_XTOL), key
             elif math.isnan(value):
                 assert math.isnan(fresh[name]), (key, name)
@@ -92,6 +92,7 @@ EXPECTED = {
     "16-1pct": dict(zip(KEYS, (P, P, P, P))),
     "16-1pct-mu0.6": dict(zip(KEYS, (F, F, F, F))),
     "16-1pct-flat": dict(zip(KEYS, (F, F, F, F))),
+    "C4": dict(zip(KEYS, (H, F, F, F))),
 }
 
 

@@ -26,7 +26,9 @@ import numpy as np
 
 from sorter_sim.model.build import BSPLINE_DEFAULT
 from sorter_sim.runtime.scene import run_scene
+from sorter_sim.studies.two_stage import final_min_width, size_pre_field
 from sorter_sim.studies.paper_support import (
+    SEED_S,
     SEED_MU,
     SEED_MU0,
     SEED_MUG,
@@ -192,6 +194,7 @@ class GridStore:
         self.progress = progress
         self.n_run = 0
         self.touched: set = set()
+        self._pre: dict = {}  # the preliminary field sized once per model (two_stage)
 
     def _get(self, key: str, run):
         self.touched.add(key)
@@ -319,6 +322,37 @@ class GridStore:
 
         return self._get(_key("bmin", model, A=A, v=v, alpha=alpha), run)["b"]
 
+    def two_stage(self, model: Model, *, alpha2) -> dict:
+        """
+        Return the final field's least width behind a preliminary one, and the single one's.
+
+        The seed's conclusion 4 as ``two_stage`` runs it: 0.7 x 0.2 m, v = 1.5 m/s, a
+        preliminary field at 90° sized to shift the parcel by half the belt (0.35 m).
+
+        Parameters
+        ----------
+        model : Model
+            Stick law and moment.
+        alpha2 : float
+            The final field's disk angle [deg].
+
+        Returns
+        -------
+        dict
+            single: b_min of one field [m]; final: of the final field behind the other.
+
+        """
+        kw = dict(A=0.7, B=0.2, v=1.5, stick=model.stick, rotation=model.rotation)
+
+        def run():
+            if model.key not in self._pre:
+                self._pre[model.key] = size_pre_field(0.5 * SEED_S, **kw)
+            _, mw = final_min_width(self._pre[model.key], alpha2_deg=alpha2, xtol=BMIN_XTOL, **kw)
+            single = minimal_disk_width(alpha_deg=alpha2, xtol=BMIN_XTOL, **kw)
+            return {"single": single.b_min, "final": mw.b_min}
+
+        return self._get(_key("two", model, alpha2=alpha2), run)
+
     def save(self, path: Path) -> Path:
         """
         Write the values as a JSON table (floats to 7 significant digits).
@@ -392,6 +426,8 @@ def recompute(key: str) -> dict:
         return store.sort(model, **params)
     if kind == "law":
         return store.sort_law(model, params.pop("f"), **params)
+    if kind == "two":
+        return store.two_stage(model, **params)
     return {"b": store.b_min(model, **params)}
 
 
