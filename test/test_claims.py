@@ -46,7 +46,7 @@ def verdicts(saved):
 def test_saved_grid_matches_fresh_runs(saved):
     # a few random points each run (one of each kind), printed so a failure can be redone
     rng = random.Random()
-    for kind in ("sort", "law", "bmin", "two"):
+    for kind in ("sort", "law", "bmin", "two", "f14"):
         keys = sorted(k for k in saved if k.startswith(kind + "|"))
         key = rng.choice(keys)
         print("recomputed:", key)
@@ -54,6 +54,8 @@ def test_saved_grid_matches_fresh_runs(saved):
         for name, value in saved[key].items():
             if kind in ("bmin", "two"):
                 assert fresh[name] == pytest.approx(value, abs=2 * BMIN_XTOL), key
+            elif kind == "f14":
+                assert fresh[name] == pytest.approx(value, rel=1e-4), (key, name)
             elif math.isnan(value):
                 assert math.isnan(fresh[name]), (key, name)
             else:
@@ -93,6 +95,7 @@ EXPECTED = {
     "16-1pct-mu0.6": dict(zip(KEYS, (F, F, F, F))),
     "16-1pct-flat": dict(zip(KEYS, (F, F, F, F))),
     "C4": dict(zip(KEYS, (H, F, F, F))),
+    "14-rise": dict(zip(KEYS, (F, H, F, H))),
 }
 
 

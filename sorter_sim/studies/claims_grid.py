@@ -25,10 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from sorter_sim.model.build import BSPLINE_DEFAULT
-from sorter_sim.runtime.scene import run_scene
+from sorter_sim.runtime.scene import run_scene, scene_parcel, scene_strips
 from sorter_sim.studies.two_stage import final_min_width, size_pre_field
+from sorter_sim.studies.paper_models import FINAL_PART
 from sorter_sim.studies.paper_support import (
     SEED_S,
+    densify,
+    friction_forces,
     SEED_MU,
     SEED_MU0,
     SEED_MUG,
@@ -287,6 +290,46 @@ class GridStore:
 
         return self._get(_key("law", model, f=friction, A=A, B=B, v=v, alpha=alpha), run)
 
+    def fig14_force(self, model: Model, friction: str) -> dict:
+        """
+        Return |F_b| over the final quarter of E2 at the seed's Fig. 14 point.
+
+        α = 45°, v = 1.5 m/s, 0.4 x 0.26 m, 5 kg, every zone on the friction model.
+
+        Parameters
+        ----------
+        model : Model
+            Stick law and moment.
+        friction : str
+            The seed's model number, a key of ``FRICTION_MODELS``.
+
+        Returns
+        -------
+        dict
+            end: |F_b| at the end of E2 [N]; low, high: its least and largest value in
+            the final quarter of E2 [N].
+
+        """
+
+        def run():
+            law, values = FRICTION_MODELS[friction]
+            scene = sorting_scene(
+                A=0.4, B=0.26, v=1.5, alpha_deg=45.0, mu_a=None, mu_b=None, mu_c=None,
+                model=law, law=values, stick=model.stick, rotation=model.rotation,
+            )  # fmt: skip
+            res, summ = run_scene(scene)
+            res = densify(res)
+            f = friction_forces(
+                res, scene_strips(scene), scene_parcel(scene), rotation=model.rotation
+            )
+            st = summ["stages"]
+            e2, e3 = st["E2"], st["E3"] if st["E3"] is not None else summ["t_scrap"]
+            mag = np.hypot(f[:, 1, 0], f[:, 1, 1])
+            last = mag[(res.t >= e3 - FINAL_PART * (e3 - e2)) & (res.t < e3)]
+            return {"end": float(last[-1]), "low": float(last.min()), "high": float(last.max())}
+
+        return self._get(_key("f14", model, f=friction), run)
+
     def b_min(self, model: Model, *, A, v, alpha) -> float:
         """
         Return the minimal disk-field width [m] that still scrapes (Fig. 11's criterion).
@@ -426,6 +469,8 @@ def recompute(key: str) -> dict:
         return store.sort(model, **params)
     if kind == "law":
         return store.sort_law(model, params.pop("f"), **params)
+    if kind == "f14":
+        return store.fig14_force(model, params["f"])
     if kind == "two":
         return store.two_stage(model, **params)
     return {"b": store.b_min(model, **params)}
