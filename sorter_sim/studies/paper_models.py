@@ -288,74 +288,79 @@ def fig14(out: Path | None = None, quick: bool = False, stick: str = "seed") -> 
         "transitions": transitions,
     }
     if out is not None:
-        cols = {"model": [], "t_s": [], "F_a_x_N": [], "F_a_y_N": [], "F_b_x_N": [], "F_b_y_N": []}
-        for j, (res, summ, f) in runs.items():
-            cols["model"] += [j] * len(res.t)
-            cols["t_s"] += list(res.t)
-            cols["F_a_x_N"] += list(f[:, 0, 0])
-            cols["F_a_y_N"] += list(f[:, 0, 1])
-            cols["F_b_x_N"] += list(f[:, 1, 0])
-            cols["F_b_y_N"] += list(f[:, 1, 1])
-        r.files.append(_write_csv(out / "fig14.csv", cols))
-        r.files.append(
-            _write_csv(
-                out / "fig15_16.csv",
-                {
-                    "model": list(runs),
-                    "t_c_s": [tc[j] for j in runs],
-                    "L_m": [L[j] for j in runs],
-                    "t_c1_over_t_cj": [rel_t[j] for j in runs],
-                    "L1_over_Lj": [rel_L[j] for j in runs],
-                },
-            )
-        )
-        fig, ax = _figure(2, 2, (11, 7.5))
-        for a, js, tag in (
-            (ax[0, 0], ("1",), "a: model 1"),
-            (ax[0, 1], ("2", "3"), "b: models 2 and 3"),
-        ):
-            for j, ls in zip(js, ("-", "--")):
-                res, summ, f = runs[j]
-                a.plot(
-                    res.t,
-                    np.hypot(f[:, 0, 0], f[:, 0, 1]),
-                    ls,
-                    color="C0",
-                    label=f"F_a, model {j}",
-                )
-                a.plot(
-                    res.t,
-                    np.hypot(f[:, 1, 0], f[:, 1, 1]),
-                    ls,
-                    color="C1",
-                    label=f"F_b, model {j}",
-                )
-            stg = runs[js[0]][1]["stages"]
-            for name in ("E2", "E3"):
-                a.axvline(stg[name], color="k", lw=0.7, ls=":")
-                a.text(stg[name], a.get_ylim()[1] * 0.95, " " + name, fontsize=8)
-            a.set(
-                xlabel="t [s]",
-                ylabel="|F| [N]",
-                title=f"Fig. 14{tag}",
-                xlim=(0.0, stg["E3"] + 0.15),
-            )
-            a.legend(fontsize=7)
-        js = list(runs)
-        ax[1, 0].bar([f"t_c({j}) [s]" for j in js], [tc[j] for j in js], color="C0")
-        ax[1, 0].bar([f"L({j}) [m]" for j in js], [L[j] for j in js], color="C2")
-        ax[1, 0].set(title="Fig. 15: t_c and L")
-        labels = [f"t_c(1)/t_c({j})" for j in js] + [f"L(1)/L({j})" for j in js]
-        ratios = [rel_t[j] for j in js] + [rel_L[j] for j in js]
-        ax[1, 1].axhspan(0.99, 1.01, color="0.9", zorder=0, label="±1 % (seed)")
-        ax[1, 1].bar(
-            labels, np.array(ratios) - 1.0, bottom=1.0, color=["C0"] * 3 + ["C2"] * 3, zorder=2
-        )
-        ax[1, 1].plot(labels, ratios, "k_", ms=14, zorder=3)
-        ax[1, 1].set(ylim=(0.98, 1.02), title="Fig. 16: relative to model 1")
-        ax[1, 1].legend(fontsize=7)
-        for a in (ax[1, 0], ax[1, 1]):
-            a.tick_params(axis="x", labelsize=7, rotation=30)
-        _save(fig, out, "fig14_16.png", r.files)
+        _fig14_files(out, r, runs, tc, L, rel_t, rel_L)
     r.wall_s = time.perf_counter() - t0
     return r
+
+
+def _fig14_files(out: Path, r: FigureResult, runs, tc, L, rel_t, rel_L) -> None:
+    """Write Figs. 14-16's CSV tables and their 2 x 2 picture; add them to ``r.files``."""
+    cols = {"model": [], "t_s": [], "F_a_x_N": [], "F_a_y_N": [], "F_b_x_N": [], "F_b_y_N": []}
+    for j, (res, summ, f) in runs.items():
+        cols["model"] += [j] * len(res.t)
+        cols["t_s"] += list(res.t)
+        cols["F_a_x_N"] += list(f[:, 0, 0])
+        cols["F_a_y_N"] += list(f[:, 0, 1])
+        cols["F_b_x_N"] += list(f[:, 1, 0])
+        cols["F_b_y_N"] += list(f[:, 1, 1])
+    r.files.append(_write_csv(out / "fig14.csv", cols))
+    r.files.append(
+        _write_csv(
+            out / "fig15_16.csv",
+            {
+                "model": list(runs),
+                "t_c_s": [tc[j] for j in runs],
+                "L_m": [L[j] for j in runs],
+                "t_c1_over_t_cj": [rel_t[j] for j in runs],
+                "L1_over_Lj": [rel_L[j] for j in runs],
+            },
+        )
+    )
+    fig, ax = _figure(2, 2, (11, 7.5))
+    for a, js, tag in (
+        (ax[0, 0], ("1",), "a: model 1"),
+        (ax[0, 1], ("2", "3"), "b: models 2 and 3"),
+    ):
+        for j, ls in zip(js, ("-", "--")):
+            res, summ, f = runs[j]
+            a.plot(
+                res.t,
+                np.hypot(f[:, 0, 0], f[:, 0, 1]),
+                ls,
+                color="C0",
+                label=f"F_a, model {j}",
+            )
+            a.plot(
+                res.t,
+                np.hypot(f[:, 1, 0], f[:, 1, 1]),
+                ls,
+                color="C1",
+                label=f"F_b, model {j}",
+            )
+        stg = runs[js[0]][1]["stages"]
+        for name in ("E2", "E3"):
+            a.axvline(stg[name], color="k", lw=0.7, ls=":")
+            a.text(stg[name], a.get_ylim()[1] * 0.95, " " + name, fontsize=8)
+        a.set(
+            xlabel="t [s]",
+            ylabel="|F| [N]",
+            title=f"Fig. 14{tag}",
+            xlim=(0.0, stg["E3"] + 0.15),
+        )
+        a.legend(fontsize=7)
+    js = list(runs)
+    ax[1, 0].bar([f"t_c({j}) [s]" for j in js], [tc[j] for j in js], color="C0")
+    ax[1, 0].bar([f"L({j}) [m]" for j in js], [L[j] for j in js], color="C2")
+    ax[1, 0].set(title="Fig. 15: t_c and L")
+    labels = [f"t_c(1)/t_c({j})" for j in js] + [f"L(1)/L({j})" for j in js]
+    ratios = [rel_t[j] for j in js] + [rel_L[j] for j in js]
+    ax[1, 1].axhspan(0.99, 1.01, color="0.9", zorder=0, label="±1 % (seed)")
+    ax[1, 1].bar(
+        labels, np.array(ratios) - 1.0, bottom=1.0, color=["C0"] * 3 + ["C2"] * 3, zorder=2
+    )
+    ax[1, 1].plot(labels, ratios, "k_", ms=14, zorder=3)
+    ax[1, 1].set(ylim=(0.98, 1.02), title="Fig. 16: relative to model 1")
+    ax[1, 1].legend(fontsize=7)
+    for a in (ax[1, 0], ax[1, 1]):
+        a.tick_params(axis="x", labelsize=7, rotation=30)
+    _save(fig, out, "fig14_16.png", r.files)

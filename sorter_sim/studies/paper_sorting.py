@@ -263,38 +263,43 @@ def fig8(out: Path | None = None, quick: bool = False, stick: str = "seed") -> F
         "W_d": wd,
     }
     if out is not None:
-        for tag, rows, cols, rname, cname, arr in (
-            ("a", As, Bs, "A_m", "B_m", xa),
-            ("b", vs, As, "v_m_s", "A_m", xb),
-            ("c", als, As, "alpha_deg", "A_m", xc),
-            ("d", mus, mus, "mu_a", "mu_b", xd),
-        ):
-            ii, jj = np.meshgrid(range(len(rows)), range(len(cols)), indexing="ij")
-            r.files.append(
-                _write_csv(
-                    out / f"fig8{tag}.csv",
-                    {
-                        rname: [rows[i] for i in ii.ravel()],
-                        cname: [cols[j] for j in jj.ravel()],
-                        "x_o_m": arr.ravel(),
-                    },
-                )
-            )
-        fig, ax = _figure(2, 2, (10, 7.5))
-        panels = (
-            ("(a)", As, xa.T, Bs, "A [m]", "B = {:.1f} m"),
-            ("(b)", As, xb, vs, "A [m]", "v = {:.2f} m/s"),
-            ("(c)", As, xc, als, "A [m]", "α = {:.0f}°"),
-            ("(d)", mus, xd.T, mus, "μ_a", "μ_b = {:.2f}"),
-        )
-        for a, (tag, xs, arr, lines, xl, fmt) in zip(ax.ravel(), panels):
-            for k, val in enumerate(lines):
-                a.plot(xs, arr[k], "o-", ms=3, label=fmt.format(val))
-            a.set(xlabel=xl, ylabel="x_o [m]", title=f"Fig. 8{tag}")
-            a.legend(fontsize=7)
-        _save(fig, out, "fig8.png", r.files)
+        _fig8_files(out, r, As, Bs, vs, als, mus, xa, xb, xc, xd)
     r.wall_s = time.perf_counter() - t0
     return r
+
+
+def _fig8_files(out: Path, r: FigureResult, As, Bs, vs, als, mus, xa, xb, xc, xd) -> None:
+    """Write Fig. 8's four CSV tables and its 2 x 2 picture; add them to ``r.files``."""
+    for tag, rows, cols, rname, cname, arr in (
+        ("a", As, Bs, "A_m", "B_m", xa),
+        ("b", vs, As, "v_m_s", "A_m", xb),
+        ("c", als, As, "alpha_deg", "A_m", xc),
+        ("d", mus, mus, "mu_a", "mu_b", xd),
+    ):
+        ii, jj = np.meshgrid(range(len(rows)), range(len(cols)), indexing="ij")
+        r.files.append(
+            _write_csv(
+                out / f"fig8{tag}.csv",
+                {
+                    rname: [rows[i] for i in ii.ravel()],
+                    cname: [cols[j] for j in jj.ravel()],
+                    "x_o_m": arr.ravel(),
+                },
+            )
+        )
+    fig, ax = _figure(2, 2, (10, 7.5))
+    panels = (
+        ("(a)", As, xa.T, Bs, "A [m]", "B = {:.1f} m"),
+        ("(b)", As, xb, vs, "A [m]", "v = {:.2f} m/s"),
+        ("(c)", As, xc, als, "A [m]", "α = {:.0f}°"),
+        ("(d)", mus, xd.T, mus, "μ_a", "μ_b = {:.2f}"),
+    )
+    for a, (tag, xs, arr, lines, xl, fmt) in zip(ax.ravel(), panels):
+        for k, val in enumerate(lines):
+            a.plot(xs, arr[k], "o-", ms=3, label=fmt.format(val))
+        a.set(xlabel=xl, ylabel="x_o [m]", title=f"Fig. 8{tag}")
+        a.legend(fontsize=7)
+    _save(fig, out, "fig8.png", r.files)
 
 
 # ---------------------------------------------------------------------------- Fig. 9
