@@ -1,5 +1,5 @@
 """
-The model's command line: ``run | paper | sweep | bench`` (``python -m sorter_sim``).
+The model's command line: ``run | paper | sweep | study | bench`` (``python -m sorter_sim``).
 
 The ``sorter`` command (``sorter_cell.cli``) is this plus ``demo``, which starts
 the controller too and so lives above both packages. Each verb lives in its own
@@ -23,12 +23,14 @@ from sorter_ros.env import apply_ros_env_defaults
 from sorter_sim.model.core.cache import check_kernel_cache
 from sorter_sim.model.compile_progress import set_quiet as set_compile_quiet
 from sorter_sim.runtime.scene import SceneError, apply_overrides, load_scene, run_scene
+from sorter_sim.studies.scene_args import add_scene_options
 
 # verb -> (module, one-line help)
 VERBS = {
     "run": (__name__, "run one parcel through one scene and print the result"),
     "paper": ("sorter_sim.studies.paper_cli", "regenerate the seed's figures (data + PNG)"),
     "sweep": ("sorter_sim.studies.sweep", "run a design study over scene keys"),
+    "study": ("sorter_sim.studies.study_cli", "design studies beyond the seed (best-alpha)"),
     "bench": ("sorter_sim.studies.bench", "benchmarks and the work-precision report"),
 }
 
@@ -51,15 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     """
     parser.add_argument("scene", help="scene YAML file (see config/scenes/)")
-    parser.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a scene key, e.g. --set parcel.A=0.4",
-    )
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    add_scene_options(parser)
 
 
 def _fmt(value, unit="", digits=6):

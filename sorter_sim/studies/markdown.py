@@ -111,3 +111,35 @@ def with_contents(text: str) -> str:
         rf'({re.escape(CONTENTS_START)}\n)(?:.*?\n)?({re.escape(CONTENTS_END)})', re.S
     )
     return pattern.sub(lambda m: m.group(1) + contents(text) + '\n' + m.group(2), text, count=1)
+
+
+def replace_block(text: str, block: str, markers: tuple) -> str:
+    """
+    Return ``text`` with the part between the two marker lines replaced by ``block``.
+
+    Parameters
+    ----------
+    text : str
+        The page.
+    block : str
+        The new part.
+    markers : tuple of str
+        The opening and closing marker lines.
+
+    Returns
+    -------
+    str
+        The page.
+
+    Raises
+    ------
+    ValueError
+        When the page lacks the markers.
+
+    """
+    start, end = markers
+    if start not in text or end not in text:
+        raise ValueError(f"the page has no {start} ... {end} block to write into")
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    return f"{head}{start}\n{block}{end}{tail}"

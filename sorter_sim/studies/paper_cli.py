@@ -5,7 +5,8 @@ The figures live in ``paper`` (the seed's own) and ``two_stage`` (the two-stage
 design built on them); this module only picks and runs them, so that neither
 figure module imports the other's caller. ``--stick`` picks the stick law (the
 seed's by default, ``both`` for each in turn); ``all --doc DIR`` writes
-DIR/paper.md from a run under both (``paper_doc``). The exit code is 1 when any
+DIR/paper.md from a run under both (``paper_doc``). ``statements`` judges the
+seed's general claims over their ranges (``claims_cli``). The exit code is 1 when any
 figure does not reproduce what the seed states.
 """
 
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from sorter_sim.studies import claims_cli
 from sorter_sim.studies.outpaths import dir_problem
 from sorter_sim.studies.paper import (
     fig3,
@@ -59,7 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     """
     choices = sorted(
-        set(FIGURES) | set(ALIASES) | {"all"}, key=lambda s: (not s[0].isdigit(), len(s), s)
+        set(FIGURES) | set(ALIASES) | {"all", "statements"},
+        key=lambda s: (not s[0].isdigit(), len(s), s),
     )
     parser.add_argument(
         "figure", metavar="FIG", choices=choices, help=f"which figure: {', '.join(choices)}"
@@ -87,6 +90,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "DOCDIR/paper.md with its pictures in DOCDIR/img (docs/paper.md is `--doc docs`)",
     )
     parser.add_argument(
+        "--json",
+        action="store_true",
+        help="with FIG statements: print the statement table as one JSON object",
+    )
+    parser.add_argument(
+        "--grid",
+        metavar="FILE",
+        help="with FIG statements: start from a saved grid (DOCDIR/data/statement_grid.json) "
+        "and run only the points it lacks",
+    )
+    parser.add_argument(
         "--quiet",
         action="store_true",
         help="no progress bar (there is none either when stderr is not a terminal)",
@@ -108,6 +122,10 @@ def run(args) -> int | str:
         The exit code, or a message for a refused input.
 
     """
+    if args.figure == "statements":
+        return claims_cli.run(args)
+    if args.json or args.grid:
+        return "--json and --grid go with `sorter paper statements`"
     out = Path(args.out)
     problem = dir_problem(out)
     if problem:

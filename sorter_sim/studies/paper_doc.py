@@ -18,6 +18,8 @@ import shutil
 import time
 from pathlib import Path
 
+from sorter_sim.studies.claims_cli import BLOCK as CLAIMS_BLOCK
+from sorter_sim.studies.claims_cli import saved_block
 from sorter_sim.studies.markdown import CONTENTS_END, CONTENTS_START, with_contents
 from sorter_sim.studies.paper_statements import STATEMENTS
 from sorter_sim.studies.paper_support import STICK_LAWS, FigureResult, _fmt
@@ -358,7 +360,9 @@ def _notes(results: dict, name: str) -> str:
     return ""
 
 
-def render(results: dict, *, quick: bool, elapsed: float, command: str) -> str:
+def render(
+    results: dict, *, quick: bool, elapsed: float, command: str, claims_block: str = ""
+) -> str:
     """
     Return docs/paper.md from the figures' results.
 
@@ -372,6 +376,8 @@ def render(results: dict, *, quick: bool, elapsed: float, command: str) -> str:
         The run's wall time [s].
     command : str
         The command that made it.
+    claims_block : str
+        The table of the seed's general claims over their ranges (``claims_cli``).
 
     Returns
     -------
@@ -410,6 +416,12 @@ def render(results: dict, *, quick: bool, elapsed: float, command: str) -> str:
         CONTENTS_START,
         CONTENTS_END,
         "",
+        "## The seed's claims over their ranges",
+        "",
+        CLAIMS_BLOCK[0],
+        claims_block.rstrip(),
+        CLAIMS_BLOCK[1],
+        "",
         "## The seed's statements, checked",
         "",
         "One row per statement the seed makes about its figures and in its conclusions; "
@@ -417,7 +429,9 @@ def render(results: dict, *, quick: bool, elapsed: float, command: str) -> str:
         "`test/test_paper.py` that asserts it. Where a statement is qualitative (“much "
         "shorter”, “substantial”) the threshold this project reads it by is in the check's "
         "words in the figure's section; where the verdict rests on an assumed parameter, "
-        "the verdict says which.",
+        "the verdict says which. These are verdicts at the seed's own points; the general "
+        "claims among them are judged over their whole ranges in the section above, where "
+        "several hold at these points only.",
         "",
         statement_table(results),
     ]
@@ -463,7 +477,13 @@ def write_doc(figures: dict, doc_dir: Path, out: Path, quick: bool, log=print) -
         for png in _pngs(res):
             shutil.copyfile(png, img / _image_name(png, law))
     command = "sorter paper all --doc " + str(doc_dir) + (" --quick" if quick else "")
-    page = render(results, quick=quick, elapsed=time.perf_counter() - t0, command=command)
+    page = render(
+        results,
+        quick=quick,
+        elapsed=time.perf_counter() - t0,
+        command=command,
+        claims_block=saved_block(doc_dir),
+    )
     path = doc_dir / "paper.md"
     path.write_text(page)
     return path

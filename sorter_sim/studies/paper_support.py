@@ -41,6 +41,7 @@ SEED_S = 0.7  # m, conveyor width the centre of gravity must cross (seed: s)
 SEED_MU = 0.6  # the seed's μ_a = μ_b (= μ_c) of section 5
 SEED_MU0, SEED_MUG = 0.65, 0.46  # section 6: μ_0, μ_G of models 2 and 3
 ALPHAS = (90.0, 45.0, 30.0)  # the seed's disk angles, deg
+B_LIMIT = 10.0  # m, the longest disk field a scene takes (``disk_field.length``)
 
 
 # ---------------------------------------------------------------------------- results
@@ -133,6 +134,43 @@ class FigureResult:
             lines.append(f"  wrote {f}")
         lines.append(f"  ({self.wall_s:.1f} s)")
         return "\n".join(lines)
+
+
+FIGURE_PARAMETERS = """
+    Parameters
+    ----------
+    out : Path, optional
+        Where the CSV and PNG go (None: nothing written).
+    quick : bool
+        Coarse grids, for tests and quick looks.
+    stick : str
+        The stick law: "seed" (the seed's decoupled test, its own computations) or
+        "exact" (the patch's limit set).
+
+    Returns
+    -------
+    FigureResult
+        The figure's data and headline figures.
+"""
+
+
+def figure_parameters(fn):
+    """
+    Append the parameters every figure function shares to its docstring.
+
+    Parameters
+    ----------
+    fn : callable
+        A figure function ``(out, quick, stick) -> FigureResult``.
+
+    Returns
+    -------
+    callable
+        The same function.
+
+    """
+    fn.__doc__ = (fn.__doc__ or "").rstrip() + "\n" + FIGURE_PARAMETERS
+    return fn
 
 
 def law_folder(out: Path | None, stick: str | None) -> Path | None:
@@ -538,7 +576,7 @@ def step_root(scrapes, b_lo: float, b_hi: float, xtol: float) -> MinimalWidth:
     The criterion becomes a sign (+1 yes, -1 no) for scipy's brentq, which keeps a
     sign-changing bracket and converges to the step within ``xtol`` (on a step its
     interpolation steps fall back to bisection). The upper end is doubled until
-    the criterion holds.
+    the criterion holds, up to the longest field a scene takes (``B_LIMIT``).
 
     Parameters
     ----------
@@ -567,9 +605,11 @@ def step_root(scrapes, b_lo: float, b_hi: float, xtol: float) -> MinimalWidth:
         return MinimalWidth(b_lo, n[0], (0.0, b_lo), False, "scrapes already at the lower bound")
     hi = b_hi
     while sign(hi) < 0:
-        if hi > 50.0:
-            return MinimalWidth(math.nan, n[0], (b_lo, hi), False, "no width up to 50 m scrapes")
-        hi *= 2.0
+        if hi >= B_LIMIT:
+            return MinimalWidth(
+                math.nan, n[0], (b_lo, hi), False, f"no width up to {B_LIMIT:g} m scrapes"
+            )
+        hi = min(2.0 * hi, B_LIMIT)
     b_min = brentq(sign, b_lo, hi, xtol=xtol)
     # brentq returns a point within xtol of the step; report the side that scrapes
     if sign(b_min) < 0:

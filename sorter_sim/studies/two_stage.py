@@ -123,10 +123,13 @@ def disk_field_strips(
     return strips
 
 
-def _run(strips, A, B, m, v, t_end, y_target, stick):
+def _run(strips, A, B, m, v, t_end, y_target, stick, rotation=True):
     parcel = Parcel(A, B, m)
     y0 = [-0.5 * A, 0.0, 0.0, v, 0.0, 0.0]  # leading edge on x = 0, moving with the belt
-    return simulate(parcel, strips, y0, (0.0, t_end), "accurate", y_target=y_target, stick=stick)
+    return simulate(
+        parcel, strips, y0, (0.0, t_end), "accurate", y_target=y_target, stick=stick,
+        rotation=rotation,
+    )  # fmt: skip
 
 
 @dataclass
@@ -156,6 +159,7 @@ def pre_shift(
     mu=SEED_MU,
     s=SEED_S,
     stick="seed",
+    rotation=True,
 ) -> PreShift:
     """
     Run the parcel over a preliminary field of width b1 until it rides the belt again.
@@ -180,6 +184,8 @@ def pre_shift(
         The scrap distance across the belt [m].
     stick : str
         The stick law (seed or exact).
+    rotation : bool
+        The moment of friction forces on.
 
     Returns
     -------
@@ -189,7 +195,7 @@ def pre_shift(
     """
     law = FrictionLaw("const1", (mu,))
     strips = disk_field_strips(v, [DiskField(0.0, b1, alpha1_deg, "pre")], law)
-    res = _run(strips, A, B, m, v, 4.0 + 8.0 * s / v, s, stick)
+    res = _run(strips, A, B, m, v, 4.0 + 8.0 * s / v, s, stick, rotation)
     x, y, phi, vx, vy, om = res.y[-1]
     settled = res.t_target is None and int(res.mode[-1]) == 0 and x - 0.5 * A > b1
     # the leading corner when it settled: the belt stick after the field was left
@@ -255,6 +261,7 @@ def final_min_width(
     s=SEED_S,
     xtol=1e-3,
     stick="seed",
+    rotation=True,
 ):
     """
     Minimal width of the final field behind a preliminary one (the Fig. 11 criterion).
@@ -283,6 +290,8 @@ def final_min_width(
         The bracket's tolerance [m].
     stick : str
         The stick law (seed or exact).
+    rotation : bool
+        The moment of friction forces on.
 
     Returns
     -------
@@ -297,7 +306,8 @@ def final_min_width(
         fields = [DiskField(x2, b2, alpha2_deg, "final")]
         if pre.b1 > 0.0:
             fields.insert(0, DiskField(0.0, pre.b1, alpha1_deg, "pre"))
-        res = _run(disk_field_strips(v, fields, law), A, B, m, v, 6.0 + 8.0 * s / v, s, stick)
+        strips = disk_field_strips(v, fields, law)
+        res = _run(strips, A, B, m, v, 6.0 + 8.0 * s / v, s, stick, rotation)
         disk = disk_surface(res, v, math.radians(alpha2_deg))
         return res.t_target is not None and disk is not None and int(res.mode[-1]) == disk
 

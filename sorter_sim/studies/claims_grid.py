@@ -1,0 +1,486 @@
+"""
+The runs the seed's claims are judged on, over the ranges the seed states, cached per run.
+
+A claim of the seed ("capacity rises with α over 30-90°") is checked on a grid that
+covers the range it is made over, under each stick law and with the moment of
+friction forces on (``full``) or neglected (``simplified``, the seed's own model for
+its field-width estimates). ``GridStore`` runs each grid point once per process and
+keeps what the claims read of it (t_c, x_o, the stages, the lateral accelerations,
+the minimal field width b), so that every claim reads the same runs. Its values can
+be saved to and read from a JSON table: ``sorter paper statements --doc docs``
+writes ``docs/data/statement_grid.json``, and the tests recompute a few random
+points of it on each run.
+
+Symbols as in the seed: A x B parcel [m], v belt speed [m/s], α disk angle [deg].
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sorter_sim.model.build import BSPLINE_DEFAULT
+from sorter_sim.runtime.scene import run_scene, scene_parcel, scene_strips
+from sorter_sim.studies.two_stage import final_min_width, size_pre_field
+from sorter_sim.studies.paper_models import FINAL_PART
+from sorter_sim.studies.paper_support import (
+    SEED_S,
+    densify,
+    friction_forces,
+    SEED_MU,
+    SEED_MU0,
+    SEED_MUG,
+    minimal_disk_width,
+    sorting_scene,
+)
+
+ACC_WINDOW = 0.05  # s, the start of E2 over which the lateral acceleration is taken
+BMIN_XTOL = 1e-3  # m, the minimal field width's tolerance (as Fig. 11)
+
+
+@dataclass(frozen=True)
+class Grid:
+    """
+    The points a claim is checked at: disk angles, belt speeds, lengths and widths.
+
+    alphas [deg], vs [m/s], As [m], Bs [m]; mus the friction coefficients Fig. 8d
+    spans.
+    """
+
+    name: str
+    alphas: tuple
+    vs: tuple
+    As: tuple
+    Bs: tuple
+    mus: tuple
+
+
+# the seed's own sample points: α = 90°, 45°, 30° (Figs. 8c-11), v 0.5-1.5 m/s, A and B
+# over the ranges section 5 states
+PAPER = Grid(
+    "the seed's points",
+    (30.0, 45.0, 90.0),
+    (0.5, 1.0, 1.5),
+    (0.2, 0.4, 0.6, 0.8, 1.0, 1.2),
+    (0.2, 0.4, 0.6, 0.8),
+    (0.3, 0.6, 0.9),
+)
+# the ranges the seed states, finer: α 30-90° in 5° steps; v to 2.5 m/s, the speed
+# section 3 says sorting lines reach
+FULL = Grid(
+    "the stated ranges",
+    tuple(float(a) for a in range(30, 91, 5)),
+    (0.5, 1.0, 1.5, 2.0, 2.5),
+    (0.2, 0.4, 0.6, 0.8, 1.0, 1.2),
+    (0.2, 0.4, 0.6, 0.8),
+    (0.3, 0.45, 0.6, 0.75, 0.9),
+)
+
+
+@dataclass(frozen=True)
+class Model:
+    """A stick law and whether the moment of friction forces is on."""
+
+    stick: str
+    rotation: bool
+
+    @property
+    def key(self) -> str:
+        """Return ``<stick law>/<full|simplified>``, the key of the statement table."""
+        return f"{self.stick}/{'full' if self.rotation else 'simplified'}"
+
+
+MODELS = tuple(Model(s, r) for s in ("seed", "exact") for r in (True, False))
+
+# friction laws of section 6 by the seed's model number; "3@0.6" is model 3 with the
+# section-5 value of μ instead of μ_G, "1@flat" model 1 on other points (sensitivities)
+FRICTION_MODELS = {
+    "1": ("bspline", tuple(BSPLINE_DEFAULT)),
+    "2": ("const2", (SEED_MU0, SEED_MUG)),
+    "3": ("const1", (SEED_MUG,)),
+    "3@0.6": ("const1", (SEED_MU,)),
+    # model 1 with its assumed sliding points all at μ_G (μ_0 kept): how far the verdict
+    # on Figs. 15-16 rests on the b-spline points the seed does not give
+    "1@flat": ("bspline", tuple(BSPLINE_DEFAULT[:6]) + (SEED_MU0,) + (SEED_MUG,) * 5),
+}
+
+
+def _key(kind: str, model: Model, **params) -> str:
+    body = "|".join(f"{k}={_num(v)}" for k, v in sorted(params.items()))
+    return f"{kind}|{model.key}|{body}"
+
+
+def _num(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def sort_record(res, summary: dict) -> dict:
+    """
+    Return what the claims read of one sorting run.
+
+    t: t_c [s]; x: x_o [m]; e2, e2_end: start and end of stage E2 [s] (its end is the
+    stick on the disks, or the scrap line when the parcel is scrapped still sliding);
+    ay_early, ax_early: mean ÿ and ẍ over the first ``ACC_WINDOW`` of E2 [m/s²];
+    ay_e2, ax_e2: mean ÿ and ẍ over E2 (at α = 90° these are equal and opposite by
+    construction: E2 takes (v, 0) to (0, v)); ay_peak: the largest ÿ within E2;
+    transitions: stick and break-away events.
+
+    Parameters
+    ----------
+    res : SimResult
+        The run.
+    summary : dict
+        Its summary (``run_scene``).
+
+    Returns
+    -------
+    dict
+        The record (NaN where the run has no such stage).
+
+    """
+    st = summary["stages"]
+    t_c = summary["t_scrap"] if summary["t_scrap"] is not None else math.nan
+    e2 = st["E2"] if st["E2"] is not None else math.nan
+    e2_end = st["E3"] if st["E3"] is not None else t_c
+
+    def vel(t, col):
+        # stuck stretches are records at both ends with one velocity: linear is exact
+        return float(np.interp(t, res.t, res.y[:, col])) if math.isfinite(t) else math.nan
+
+    span = e2_end - e2
+    # the largest lateral acceleration within E2, from the velocity between records
+    in_e2 = (res.t >= e2) & (res.t <= e2_end) if span > 0 else np.zeros(len(res.t), bool)
+    t2, vy2 = res.t[in_e2], res.y[in_e2, 4]
+    dt = np.diff(t2)
+    ok = dt > 1e-9
+    ay_peak = float(np.max(np.diff(vy2)[ok] / dt[ok])) if ok.any() else math.nan
+    return {
+        "t": t_c,
+        "x": summary["x_scrap"] if summary["x_scrap"] is not None else math.nan,
+        "e2": e2,
+        "e2_end": e2_end,
+        "ay_early": (vel(e2 + ACC_WINDOW, 4) - vel(e2, 4)) / ACC_WINDOW,
+        "ax_early": (vel(e2 + ACC_WINDOW, 3) - vel(e2, 3)) / ACC_WINDOW,
+        "ay_peak": ay_peak,
+        "ay_e2": (vel(e2_end, 4) - vel(e2, 4)) / span if span > 0 else math.nan,
+        "ax_e2": (vel(e2_end, 3) - vel(e2, 3)) / span if span > 0 else math.nan,
+        "transitions": float(sum(1 for e in summary["events"] if e["kind"] in ("stick", "break"))),
+    }
+
+
+class GridStore:
+    """
+    Each grid point's run, computed once per process (or read from a saved table).
+
+    ``touched`` collects the keys read since it was last cleared, so a claim can say
+    how many grid points its verdict rests on.
+
+    Parameters
+    ----------
+    table : dict, optional
+        Saved values (key -> record) to start from.
+    compute : bool
+        Run points the table lacks (False: a missing point is an error).
+    progress : callable, optional
+        Called with the number of points run so far (for a line on stderr).
+
+    """
+
+    def __init__(self, table: dict | None = None, compute: bool = True, progress=None):
+        self.values = dict(table or {})
+        self.compute = compute
+        self.progress = progress
+        self.n_run = 0
+        self.touched: set = set()
+        self._pre: dict = {}  # the preliminary field sized once per model (two_stage)
+
+    def _get(self, key: str, run):
+        self.touched.add(key)
+        if key not in self.values:
+            if not self.compute:
+                raise KeyError(f"the grid table has no point {key}: regenerate it")
+            self.values[key] = run()
+            self.n_run += 1
+            if self.progress is not None:
+                self.progress(self.n_run)
+        return self.values[key]
+
+    def sort(self, model: Model, *, A, v, alpha, B=0.2, mu_a=SEED_MU, mu_b=SEED_MU) -> dict:
+        """
+        Return the record of one sort on an endless field (b -> ∞), the seed's Figs. 8-10.
+
+        Parameters
+        ----------
+        model : Model
+            Stick law and moment.
+        A, B : float
+            The parcel [m].
+        v : float
+            The belt speed [m/s].
+        alpha : float
+            The disk angle [deg].
+        mu_a, mu_b : float
+            Belt and disk friction coefficients (const1, the seed's section 5).
+
+        Returns
+        -------
+        dict
+            ``sort_record`` of the run.
+
+        """
+
+        def run():
+            scene = sorting_scene(
+                A=A,
+                B=B,
+                v=v,
+                alpha_deg=alpha,
+                mu_a=mu_a,
+                mu_b=mu_b,
+                stick=model.stick,
+                rotation=model.rotation,
+            )
+            return sort_record(*run_scene(scene))
+
+        return self._get(
+            _key("sort", model, A=A, B=B, v=v, alpha=alpha, mu_a=mu_a, mu_b=mu_b), run
+        )
+
+    def sort_law(self, model: Model, friction: str, *, A, B, v, alpha) -> dict:
+        """
+        Return the record of one sort with a section-6 friction model in every zone.
+
+        Parameters
+        ----------
+        model : Model
+            Stick law and moment.
+        friction : str
+            The seed's model number, a key of ``FRICTION_MODELS``.
+        A, B, v, alpha : float
+            Parcel [m], belt speed [m/s], disk angle [deg].
+
+        Returns
+        -------
+        dict
+            ``sort_record`` of the run.
+
+        """
+
+        def run():
+            law, values = FRICTION_MODELS[friction]
+            scene = sorting_scene(
+                A=A,
+                B=B,
+                v=v,
+                alpha_deg=alpha,
+                mu_a=None,
+                mu_b=None,
+                mu_c=None,
+                model=law,
+                law=values,
+                stick=model.stick,
+                rotation=model.rotation,
+            )
+            return sort_record(*run_scene(scene))
+
+        return self._get(_key("law", model, f=friction, A=A, B=B, v=v, alpha=alpha), run)
+
+    def fig14_force(self, model: Model, friction: str) -> dict:
+        """
+        Return |F_b| over the final quarter of E2 at the seed's Fig. 14 point.
+
+        α = 45°, v = 1.5 m/s, 0.4 x 0.26 m, 5 kg, every zone on the friction model.
+
+        Parameters
+        ----------
+        model : Model
+            Stick law and moment.
+        friction : str
+            The seed's model number, a key of ``FRICTION_MODELS``.
+
+        Returns
+        -------
+        dict
+            end: |F_b| at the end of E2 [N]; low, high: its least and largest value in
+            the final quarter of E2 [N].
+
+        """
+
+        def run():
+            law, values = FRICTION_MODELS[friction]
+            scene = sorting_scene(
+                A=0.4, B=0.26, v=1.5, alpha_deg=45.0, mu_a=None, mu_b=None, mu_c=None,
+                model=law, law=values, stick=model.stick, rotation=model.rotation,
+            )  # fmt: skip
+            res, summ = run_scene(scene)
+            res = densify(res)
+            f = friction_forces(
+                res, scene_strips(scene), scene_parcel(scene), rotation=model.rotation
+            )
+            st = summ["stages"]
+            e2, e3 = st["E2"], st["E3"] if st["E3"] is not None else summ["t_scrap"]
+            mag = np.hypot(f[:, 1, 0], f[:, 1, 1])
+            last = mag[(res.t >= e3 - FINAL_PART * (e3 - e2)) & (res.t < e3)]
+            return {"end": float(last[-1]), "low": float(last.min()), "high": float(last.max())}
+
+        return self._get(_key("f14", model, f=friction), run)
+
+    def b_min(self, model: Model, *, A, v, alpha) -> float:
+        """
+        Return the minimal disk-field width [m] that still scrapes (Fig. 11's criterion).
+
+        Parameters
+        ----------
+        model : Model
+            Stick law and moment.
+        A : float
+            The parcel's length [m] (B = 0.2 m).
+        v : float
+            The belt speed [m/s].
+        alpha : float
+            The disk angle [deg].
+
+        Returns
+        -------
+        float
+            b_min to ``BMIN_XTOL``.
+
+        """
+
+        def run():
+            mw = minimal_disk_width(
+                A=A,
+                v=v,
+                alpha_deg=alpha,
+                xtol=BMIN_XTOL,
+                stick=model.stick,
+                rotation=model.rotation,
+            )
+            return {"b": mw.b_min}
+
+        return self._get(_key("bmin", model, A=A, v=v, alpha=alpha), run)["b"]
+
+    def two_stage(self, model: Model, *, alpha2) -> dict:
+        """
+        Return the final field's least width behind a preliminary one, and the single one's.
+
+        The seed's conclusion 4 as ``two_stage`` runs it: 0.7 x 0.2 m, v = 1.5 m/s, a
+        preliminary field at 90° sized to shift the parcel by half the belt (0.35 m).
+
+        Parameters
+        ----------
+        model : Model
+            Stick law and moment.
+        alpha2 : float
+            The final field's disk angle [deg].
+
+        Returns
+        -------
+        dict
+            single: b_min of one field [m]; final: of the final field behind the other.
+
+        """
+        kw = dict(A=0.7, B=0.2, v=1.5, stick=model.stick, rotation=model.rotation)
+
+        def run():
+            if model.key not in self._pre:
+                self._pre[model.key] = size_pre_field(0.5 * SEED_S, **kw)
+            _, mw = final_min_width(self._pre[model.key], alpha2_deg=alpha2, xtol=BMIN_XTOL, **kw)
+            single = minimal_disk_width(alpha_deg=alpha2, xtol=BMIN_XTOL, **kw)
+            return {"single": single.b_min, "final": mw.b_min}
+
+        return self._get(_key("two", model, alpha2=alpha2), run)
+
+    def save(self, path: Path) -> Path:
+        """
+        Write the values as a JSON table (floats to 7 significant digits).
+
+        Parameters
+        ----------
+        path : Path
+            The file.
+
+        Returns
+        -------
+        Path
+            The file written.
+
+        """
+        path.parent.mkdir(parents=True, exist_ok=True)
+        rounded = {
+            k: {f: (None if not math.isfinite(x) else float(f"{x:.7g}")) for f, x in rec.items()}
+            for k, rec in sorted(self.values.items())
+        }
+        path.write_text(json.dumps(rounded, indent=0, sort_keys=True) + "\n")
+        return path
+
+
+def load_table(path: Path) -> dict:
+    """
+    Read a table ``GridStore.save`` wrote (None back to NaN).
+
+    Parameters
+    ----------
+    path : Path
+        The file.
+
+    Returns
+    -------
+    dict
+        key -> record.
+
+    """
+    raw = json.loads(Path(path).read_text())
+    return {
+        k: {f: (math.nan if x is None else float(x)) for f, x in rec.items()}
+        for k, rec in raw.items()
+    }
+
+
+def recompute(key: str) -> dict:
+    """
+    Run one point of a saved table afresh (for the tests' spot checks).
+
+    Parameters
+    ----------
+    key : str
+        A key of the table.
+
+    Returns
+    -------
+    dict
+        Its record, computed now.
+
+    """
+    kind, model_key, body = key.split("|", 2)
+    stick, which = model_key.split("/")
+    model = Model(stick, which == "full")
+    params = {}
+    for item in body.split("|"):
+        name, value = item.split("=")
+        params[name] = value if name == "f" else float(value)
+    store = GridStore()
+    if kind == "sort":
+        return store.sort(model, **params)
+    if kind == "law":
+        return store.sort_law(model, params.pop("f"), **params)
+    if kind == "f14":
+        return store.fig14_force(model, params["f"])
+    if kind == "two":
+        return store.two_stage(model, **params)
+    return {"b": store.b_min(model, **params)}
+
+
+def stderr_progress(every: int = 50):
+    """Return a progress callback writing the count of runs to stderr every ``every`` runs."""
+
+    def tick(n):
+        if n % every == 0:
+            print(f"  statements: {n} grid points run", file=sys.stderr, flush=True)
+
+    return tick
