@@ -50,14 +50,18 @@ def apply_ros_env_defaults() -> None:
 
 def _packaged_config_dir() -> Path | None:
     """Return the config folder installed as package data, if this is an installed package."""
-    from importlib import resources
+    from importlib.util import find_spec
 
     try:
-        found = resources.files(CONFIG_PACKAGE)
-    except (ModuleNotFoundError, TypeError):  # not installed as a wheel, or not a folder
+        spec = find_spec(CONFIG_PACKAGE)
+    except ModuleNotFoundError:
         return None
-    # a wheel installs into a real folder; the parameter files are handed to rcl by path
-    return found if isinstance(found, Path) else None
+    # a folder of data files (no __init__.py): a namespace portion, found where the wheel
+    # put it; the parameter files are handed to rcl by path, so it must be a real folder
+    for folder in (spec.submodule_search_locations or []) if spec else []:
+        if Path(folder).is_dir():
+            return Path(folder)
+    return None
 
 
 def _ament_config_dir() -> Path | None:
