@@ -9,6 +9,6 @@ Scenario files (``scenario``) describe a run, its faults and what must come of
 it, for ``sorter scenario run`` and ``sorter scenario campaign``.
 """
 
-from sorter_cell.testing.harness import OutcomeRecord, SorterCell, pick_domain_id
+from sorter_cell.testing.harness import OutcomeRecord, SorterCell, WaitTimedOut, pick_domain_id
 
-__all__ = ['OutcomeRecord', 'SorterCell', 'pick_domain_id']
+__all__ = ['OutcomeRecord', 'SorterCell', 'WaitTimedOut', 'pick_domain_id']
