@@ -277,6 +277,16 @@ class SorterLine(LockStep):
         # the warehouse's routing tables reach every program that has subscribed
         self.spin_idle()
 
+    def _graph_settled(self) -> bool:
+        # and the warehouse has sent each program that subscribed its whole table (its
+        # resync timer notes the readers it served)
+        wcs = self.wcs
+        served = all(
+            pub.get_subscription_count() == seen
+            for pub, seen in zip(wcs._pub_routing, wcs._readers)
+        )
+        return served and super()._graph_settled()
+
     def set_plan(self, plan: dict, version: str | None = None) -> None:
         """
         Make ``plan`` (destination -> chute) the warehouse's sort plan.

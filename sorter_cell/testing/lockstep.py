@@ -26,6 +26,7 @@ from pathlib import Path
 GRACE_S = 0.0005  # wall time without a ready callback that ends a slice's spin
 SLICE_S = 0.005  # simulated time per slice
 SETTLE_S = 0.2  # the most wall time a slice waits for answers to requests in flight
+MATCH_S = 10.0  # the most wall time the first run waits for new nodes' topics to match
 
 
 def pick_domain_id() -> int:
@@ -144,7 +145,44 @@ class LockStep:
         if node not in self.nodes:
             self.nodes.append(node)
             self.executor.add_node(node)
+            self._joined = True
         return node
+
+    def _unmatched(self) -> list[str]:
+        """
+        Return the topics a node of ours publishes that our own readers are not all matched on.
+
+        Our own readers only: the graph may still list those of a process that ended
+        (until its lease runs out), which no writer will ever match.
+        """
+        readers: dict[str, int] = {}
+        for node in self.nodes:
+            for sub in node.subscriptions:
+                readers[sub.topic_name] = readers.get(sub.topic_name, 0) + 1
+        out = []
+        for node in self.nodes:
+            for pub in node.publishers:
+                if pub.get_subscription_count() < readers.get(pub.topic_name, 0):
+                    out.append(pub.topic_name)
+        return out
+
+    def _graph_settled(self) -> bool:
+        return not self._unmatched()
+
+    def _settle_graph(self) -> None:
+        """
+        Before time moves after nodes joined: wait until their topics are matched.
+
+        DDS matches a new reader to a writer on threads of its own; on a loaded machine
+        that takes seconds, and a message sent before it is lost (a routing update, a
+        label), so the run would depend on the machine. With the clock stopped until
+        every reader the graph knows is matched, it does not.
+        """
+        self._joined = False
+        deadline = time.monotonic() + MATCH_S
+        while not self._graph_settled() and time.monotonic() < deadline:
+            self.spin_idle()
+            time.sleep(0.002)
 
     def remove_node(self, node) -> None:
         """Stop spinning ``node`` and destroy it."""
@@ -158,6 +196,7 @@ class LockStep:
     # runtime whose ``dt``, ``t`` and ``t_ns`` are the simulated time (a cell, a line)
     _stepper = None
     _timebase = None
+    _joined = False  # nodes were added since time last moved
 
     @property
     def dt(self) -> float:
@@ -277,6 +316,8 @@ class LockStep:
             raise ValueError(f'seconds must be a finite number >= 0, got {seconds!r}')
         total = round(seconds / self.dt)
         step = max(1, round(self.slice_s / self.dt))
+        if self._joined:
+            self._settle_graph()
         self.spin_idle()
         while total > 0:
             n = min(step, total)
