@@ -31,13 +31,14 @@ from __future__ import annotations
 import time
 
 from sorter_cell.testing.lockstep import FactoryError, load_node_factory
+from sorter_cell.testing.scenario_types import Check, ScenarioError, refuse_unknown
 
 LINE_KEYS = ('stations', 'plan', 'programs')
 LINE_EXPECT_KEYS = ('parcel', 'disposition', 'station', 'chute')
 LINE_EXPECT_KINDS = ('parcel', 'no_mis_sort', 'no_jam', 'throughput_at_least')
 
 
-def check_line(value, folder, error) -> dict:
+def check_line(value, folder) -> dict:
     """
     Return a scenario's checked ``line:`` (stations, plan, programs).
 
@@ -47,74 +48,71 @@ def check_line(value, folder, error) -> dict:
         The ``line:`` mapping.
     folder : Path or None
         The scenario file's folder (programs are imported from it first).
-    error : type
-        The exception to raise (``ScenarioError``).
 
     """
-    from sorter_cell.testing.scenario import refuse_unknown
-
     if not isinstance(value, dict):
-        raise error(f'line must be a mapping with {", ".join(LINE_KEYS)}, got {value!r}')
+        raise ScenarioError(f'line must be a mapping with {", ".join(LINE_KEYS)}, got {value!r}')
     refuse_unknown(value, LINE_KEYS, 'line')
     n = value.get('stations', 2)
     if isinstance(n, bool) or not (isinstance(n, int) and 1 <= n <= 64):
-        raise error(f'line.stations must be an integer in [1, 64], got {n!r}')
+        raise ScenarioError(f'line.stations must be an integer in [1, 64], got {n!r}')
     plan = value.get('plan')
     if plan is not None and not (
         isinstance(plan, dict)
         and plan
         and all(isinstance(k, str) and isinstance(v, str) for k, v in plan.items())
     ):
-        raise error(f'line.plan must be a mapping destination -> chute, got {plan!r}')
+        raise ScenarioError(f'line.plan must be a mapping destination -> chute, got {plan!r}')
     programs = value.get('programs') or {}
     if not isinstance(programs, dict):
-        raise error(
+        raise ScenarioError(
             f'line.programs must be a mapping station -> "module:callable", got {programs!r}'
         )
     for k, spec in programs.items():
         if isinstance(k, bool) or not (isinstance(k, int) and 1 <= k <= n):
-            raise error(f'line.programs: a station is a number in [1, {n}], got {k!r}')
+            raise ScenarioError(f'line.programs: a station is a number in [1, {n}], got {k!r}')
         try:
             load_node_factory(spec, folder)
         except FactoryError as exc:
-            raise error(f'line.programs.{k} {exc}') from None
+            raise ScenarioError(f'line.programs.{k} {exc}') from None
     return {'stations': n, 'plan': plan, 'programs': dict(programs)}
 
 
-def check_line_expectation(k: int, entry, error) -> dict:
+def check_line_expectation(k: int, entry) -> dict:
     """Return expectation ``k`` of a line scenario, checked (see the module)."""
     from sorter_control.wcs import DISPOSITIONS
-    from sorter_cell.testing.scenario import refuse_unknown
 
     key = f'expect[{k}]'
     if not isinstance(entry, dict):
-        raise error(f'{key} must be a mapping')
+        raise ScenarioError(f'{key} must be a mapping')
     kinds = [x for x in LINE_EXPECT_KINDS if x in entry]
     if len(kinds) != 1:
-        raise error(f'{key} must have one of {", ".join(LINE_EXPECT_KINDS)} (on a line)')
+        raise ScenarioError(f'{key} must have one of {", ".join(LINE_EXPECT_KINDS)} (on a line)')
     kind = kinds[0]
     allowed = set(LINE_EXPECT_KEYS) if kind == 'parcel' else {kind}
     refuse_unknown(entry, allowed, key, f' with {kind} on a line')
     if kind == 'parcel':
         if not isinstance(entry['parcel'], str) or not entry['parcel']:
-            raise error(f'{key}.parcel must be a label (a non-empty string)')
+            raise ScenarioError(f'{key}.parcel must be a label (a non-empty string)')
         if not set(entry) & {'disposition', 'station', 'chute'}:
-            raise error(f'{key} needs disposition, station or chute for {entry["parcel"]!r}')
+            raise ScenarioError(
+                f'{key} needs disposition, station or chute for {entry["parcel"]!r}'
+            )
         if 'disposition' in entry and entry['disposition'] not in DISPOSITIONS:
-            raise error(
+            raise ScenarioError(
                 f'{key}.disposition must be one of {", ".join(DISPOSITIONS)}, got '
                 f'{entry["disposition"]!r}'
             )
         for name in ('station', 'chute'):
             if name in entry and not (isinstance(entry[name], str) and entry[name]):
-                raise error(f'{key}.{name} must be a name, got {entry[name]!r}')
+                raise ScenarioError(f'{key}.{name} must be a name, got {entry[name]!r}')
     elif kind in ('no_mis_sort', 'no_jam'):
         if entry[kind] is not True:
-            raise error(f'{key}.{kind} must be true')
+            raise ScenarioError(f'{key}.{kind} must be true')
     else:
         v = entry[kind]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
-            raise error(f'{key}.{kind} must be a number >= 0, got {v!r}')
+            raise ScenarioError(f'{key}.{kind} must be a number >= 0, got {v!r}')
     return dict(entry)
 
 
@@ -135,7 +133,6 @@ def run_line_scenario(sc, result, record: str | None, domain_id: int | None):
 
     """
     from sorter_cell.testing.line import SorterLine
-    from sorter_cell.testing.scenario import Check
 
     wall0 = time.perf_counter()
     folder = _folder(sc)

@@ -259,6 +259,10 @@ class LockStep:
                 continue
             if not self._unsettled():
                 return
+            if not self._events:
+                # a timer on simulated time that the clock's tick made due does not wake
+                # the single-threaded executor's wait by itself: it would run a slice late
+                self.executor.wake()
             now = time.monotonic()
             settle_end = settle_end or now + SETTLE_S
             if now > settle_end:

@@ -69,6 +69,7 @@ from sorter_cell.testing.lockstep import (
     load_node_factory,
     make_user_nodes,
 )
+from sorter_cell.testing.scenario_types import Check, ScenarioError, refuse_unknown
 from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
 TOP_KEYS = ('name', 'duration', 'seed', 'cell', 'controller', 'line', 'stream', 'faults', 'expect')
@@ -106,10 +107,6 @@ GENERATED_KEYS = (
 )
 
 
-class ScenarioError(ValueError):
-    """A scenario file that cannot run: the message names the key and what is allowed."""
-
-
 @dataclass(frozen=True)
 class ControllerSpec:
     """
@@ -145,15 +142,6 @@ class Scenario:
 
 
 @dataclass
-class Check:
-    """One expectation and how the run met it."""
-
-    text: str
-    passed: bool
-    detail: str = ''
-
-
-@dataclass
 class ScenarioResult:
     """What a scenario's run gave: the checks, the outcomes, the times."""
 
@@ -175,16 +163,6 @@ class ScenarioResult:
 
 
 # ---------------------------------------------------------------------- reading
-def refuse_unknown(entry: dict, allowed, key: str, context: str = '') -> None:
-    """Raise ``ScenarioError`` naming the keys of ``entry`` that ``allowed`` does not hold."""
-    extra = sorted(set(entry) - set(allowed))
-    if extra:
-        raise ScenarioError(
-            f'{key}: unknown key(s) {", ".join(extra)}{context} (allowed: '
-            f'{", ".join(sorted(allowed))})'
-        )
-
-
 def _number(value, key: str, lo: float = -math.inf, hi: float = math.inf) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ScenarioError(f'{key} must be a finite number, got {value!r}')
@@ -433,7 +411,7 @@ def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
     if 'line' in doc:
         from sorter_cell.testing.line_scenario import check_line
 
-        line = check_line(doc['line'], folder, ScenarioError)
+        line = check_line(doc['line'], folder)
         for key in ('controller', 'faults'):
             if key in doc:
                 raise ScenarioError(
@@ -477,7 +455,7 @@ def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
     if line:
         from sorter_cell.testing.line_scenario import check_line_expectation
 
-        expect = [check_line_expectation(k, e, ScenarioError) for k, e in enumerate(expect_in)]
+        expect = [check_line_expectation(k, e) for k, e in enumerate(expect_in)]
     else:
         expect = [_expectation(k, e, set(labels), controller) for k, e in enumerate(expect_in)]
     return Scenario(
