@@ -545,8 +545,8 @@ def run_scenario(
             with _controller_running(cell, spec, sc) as ctl:
                 t0 = _play(sc, cell, ctl, timed)
                 res.error = ctl.error if isinstance(ctl, _Process) else ''
-        except ScenarioError as exc:
-            res.error = str(exc)
+        except (ScenarioError, FactoryError) as exc:
+            res.error = f'controller: {exc}' if isinstance(exc, FactoryError) else str(exc)
         res.sim_s = cell.t - t0
         res.outcomes = cell.outcomes
         res.confirmations = cell.confirmations
@@ -613,14 +613,13 @@ def _command_running(cell, spec: ControllerSpec, sc: Scenario):
     """Start the command in the cell's domain; time starts once it subscribes to /clock."""
     import os
     import subprocess
+    import sys
     import tempfile
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(cell.domain_id))
     before = cell.sim.count_subscribers('/clock')
     err = tempfile.TemporaryFile(mode='w+')
     try:
-        import sys
-
         proc = subprocess.Popen(
             [x.replace('{python}', sys.executable) for x in spec.command],
             cwd=str(Path(sc.path).parent) if sc.path else None,
