@@ -82,7 +82,6 @@ def build_segment(
     """
     from rclpy.parameter import Parameter
 
-    from sorter_control.node import ControllerNode
     from sorter_sim.frontends.line_node import NODE_NAME, LineNode
     from sorter_sim.model.description import station_name
 
@@ -111,25 +110,49 @@ def build_segment(
         },
     )
     try:
-        ctls = [
-            ControllerNode(
-                context=ctx,
-                namespace=f'/{station_name(first - 1 + k)}',
-                parameter_overrides=[
-                    Parameter('use_sim_time', value=True),
-                    # a station's routing table is the WCS's alone (the single cell's rules
-                    # would divert labels that happen to match them)
-                    Parameter('routing.rules', Parameter.Type.STRING_ARRAY, []),
-                    Parameter('diagnostics_period', value=5.0),
-                    Parameter('record_path', value=record),
-                ],
-            )
-            for k in range(stations)
-        ]
+        ctls = [station_controller(ctx, first - 1 + k, record) for k in range(stations)]
     except BaseException:
         line.destroy_node()
         raise
     return line, ctls
+
+
+def station_controller(ctx, station: int, record: str = ''):
+    """
+    Return this project's PLC program for a station of a line (0-based), in its namespace.
+
+    Parameters
+    ----------
+    ctx : rclpy.context.Context
+        Initialised with the controller's params file.
+    station : int
+        The station, 0-based (namespace ``/S01`` for 0).
+    record : str
+        An MCAP file it records into, or ''.
+
+    Returns
+    -------
+    sorter_control.node.ControllerNode
+        The program, on the line's clock.
+
+    """
+    from rclpy.parameter import Parameter
+
+    from sorter_control.node import ControllerNode
+    from sorter_sim.model.description import station_name
+
+    return ControllerNode(
+        context=ctx,
+        namespace=f'/{station_name(station)}',
+        parameter_overrides=[
+            Parameter('use_sim_time', value=True),
+            # a station's routing table is the WCS's alone (the single cell's rules
+            # would divert labels that happen to match them)
+            Parameter('routing.rules', Parameter.Type.STRING_ARRAY, []),
+            Parameter('diagnostics_period', value=5.0),
+            Parameter('record_path', value=record),
+        ],
+    )
 
 
 def segment_stats(line, ctls) -> dict:

@@ -2,16 +2,20 @@
 ``sorter scenario run FILE`` and ``sorter scenario campaign DIR``.
 
 ``run`` runs one scenario file (``sorter_cell.testing.scenario``) in this process:
-exit 0 when every expectation holds, 1 when one fails (``--junit`` says which,
-``--record`` keeps the MCAP recording as evidence), 2 for a bad file (one line
-naming the key).
+exit 0 when every expectation holds, 1 when one fails (``--junit`` says which and
+where the cell was; the MCAP recording is the evidence: ``--record OUT.mcap``, or by
+default one in a temporary folder kept only when the run fails, its path printed;
+``--no-record``: none), 2 for a bad file (one line naming the key).
 
 ``campaign`` runs every ``*.yaml`` of a folder, each ``--seeds`` times with seeds
 1, 2, ..., on Dask: a local cluster by default (``--workers`` at once), or the
 cluster of ``--scheduler ADDRESS``. Each run is its own process (``sorter scenario
 run ... --json``) on a ROS domain of its own, so no two runs share a graph or an
-rclpy context. A progress bar counts the runs; at the end a table gives each
-scenario's passes, failures and times, and ``--junit`` writes them all.
+rclpy context: drawn from ``--domains A-B`` (or ``SORTER_CAMPAIGN_DOMAINS``, default
+200-231) and claimed on the host while the run lasts (``testing.domains``), so that
+two campaigns at once never share one. A progress bar counts the runs; at the end a
+table gives each scenario's passes, failures and times, and ``--junit`` writes them
+all (each run's domain and wall times as properties).
 """
 
 from __future__ import annotations
@@ -22,8 +26,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-
-CAMPAIGN_DOMAINS = range(200, 232)  # Fast DDS takes ids up to 232; tests use 100-199
 
 
 def add_arguments(parser) -> None:
@@ -44,7 +46,12 @@ def add_arguments(parser) -> None:
         help="the scenario (YAML), or the name of a shipped one (e.g. stuck_divert_eye)",
     )
     one.add_argument("--junit", metavar="OUT.xml", help="write the result as JUnit XML")
-    one.add_argument("--record", metavar="OUT.mcap", help="record the run (evidence)")
+    one.add_argument("--record", metavar="OUT.mcap", help="record the run (evidence), kept")
+    one.add_argument(
+        "--no-record",
+        action="store_true",
+        help="no recording (default: one in a temporary folder, kept when the run fails)",
+    )
     one.add_argument("--seed", type=int, help="the generated stream's seed instead of the file's")
     one.add_argument("--json", action="store_true", help="print the result as one JSON object")
     many = sub.add_parser("campaign", help="run every scenario of a folder, in parallel on Dask")
@@ -53,6 +60,11 @@ def add_arguments(parser) -> None:
     many.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler")
     many.add_argument("--seeds", type=int, default=1, help="runs per scenario, seeds 1..N")
     many.add_argument("--junit", metavar="OUT.xml", help="write every result as JUnit XML")
+    many.add_argument(
+        "--domains",
+        metavar="A-B",
+        help="the ROS domains runs draw from (default: $SORTER_CAMPAIGN_DOMAINS, else 200-231)",
+    )
     many.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -84,8 +96,12 @@ def _result_dict(r) -> dict:
         "sim_s": r.sim_s,
         "wall_s": r.wall_s,
         "record": r.record,
+        "state": r.state if not r.passed else "",
         "checks": [{"text": c.text, "passed": c.passed, "detail": c.detail} for c in r.checks],
         "outcomes": len(r.outcomes),
+        # where each parcel went and when: two runs of one file compare on this
+        "exits": [[o.label, o.exit, round(o.t, 6)] for o in r.outcomes]
+        + [[d.label, f"{d.code} {d.station} {d.chute}", round(d.t, 6)] for d in r.dispositions],
     }
 
 
@@ -129,7 +145,20 @@ def _run_one(args) -> int | str:
                 return problem
     if args.seed is not None and not 0 <= args.seed < 2**31:
         return f"--seed must be in [0, 2^31), got {args.seed}"
-    result = run_scenario(sc, record=args.record, seed=args.seed)
+    if args.record and args.no_record:
+        return "--record and --no-record: give one of them"
+    record, scratch = args.record, None
+    if not record and not args.no_record:
+        import tempfile
+
+        scratch = Path(tempfile.mkdtemp(prefix="sorter-scenario-"))
+        record = str(scratch / f"{Path(args.file).stem}.mcap")
+    result = run_scenario(sc, record=record, seed=args.seed)
+    if scratch is not None and result.passed:
+        import shutil
+
+        shutil.rmtree(scratch, ignore_errors=True)  # evidence is kept for a failure only
+        result.record = ""
     if args.junit:
         Path(args.junit).write_text(junit_xml([result]))
     if args.json:
@@ -139,27 +168,32 @@ def _run_one(args) -> int | str:
     return 0 if result.passed else 1
 
 
-def _run_in_process(file: str, seed: int, domain: int) -> dict:
-    """Run one scenario as its own process on its own ROS domain; return its JSON result."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
-    wall0 = time.perf_counter()
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "sorter_cell",
-            "scenario",
-            "run",
-            file,
-            "--seed",
-            str(seed),
-            "--json",
-        ],
-        capture_output=True,
-        text=True,
-        env=env,
-    )
-    wall = time.perf_counter() - wall0
+def _run_in_process(file: str, seed: int, domains: range) -> dict:
+    """Run one scenario as its own process on a domain it holds alone; return its JSON result."""
+    from sorter_cell.testing.domains import DomainClaim
+
+    with DomainClaim(domains) as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+        start = time.time()
+        wall0 = time.perf_counter()
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "sorter_cell",
+                "scenario",
+                "run",
+                file,
+                "--seed",
+                str(seed),
+                "--json",
+            ],
+            capture_output=True,
+            text=True,
+            env=env,
+        )
+        wall = time.perf_counter() - wall0
+        end = time.time()
     lines = [x for x in done.stdout.splitlines() if x.startswith("{")]
     if done.returncode in (0, 1) and lines:
         out = json.loads(lines[-1])
@@ -172,10 +206,11 @@ def _run_in_process(file: str, seed: int, domain: int) -> dict:
             "sim_s": 0.0,
             "wall_s": 0.0,
             "record": "",
+            "state": "",
             "checks": [],
             "outcomes": 0,
         }
-    out.update(file=file, seed=seed, process_s=wall)
+    out.update(file=file, seed=seed, process_s=wall, domain=domain, start=start, end=end)
     return out
 
 
@@ -209,6 +244,12 @@ def _campaign(args) -> int | str:
         problem = file_problem(args.junit, "--junit")
         if problem:
             return problem
+    from sorter_cell.testing.domains import campaign_domains
+
+    try:
+        domains = campaign_domains(args.domains)
+    except ValueError as exc:
+        return str(exc)
     from distributed import Client, LocalCluster, as_completed
 
     wall0 = time.perf_counter()
@@ -229,11 +270,7 @@ def _campaign(args) -> int | str:
             )
             client = Client(cluster)
         jobs = [(f, s) for f in files for s in range(1, args.seeds + 1)]
-        domains = list(CAMPAIGN_DOMAINS)
-        futures = [
-            client.submit(_run_in_process, f, s, domains[k % len(domains)], pure=False)
-            for k, (f, s) in enumerate(jobs)
-        ]
+        futures = [client.submit(_run_in_process, f, s, domains, pure=False) for f, s in jobs]
         bar = progress_bar(len(futures), "sorter scenario", "run", quiet=args.quiet)
         rows = []
         for fut in as_completed(futures):
@@ -271,7 +308,9 @@ def _campaign(args) -> int | str:
         why = r["error"] or "; ".join(
             f"{c['text']}: {c['detail']}" for c in r["checks"] if not c["passed"]
         )
-        print(f"  FAILED {r['name']} (seed {r['seed']}): {why}")
+        print(f"  FAILED {r['name']} (seed {r['seed']}): {why.splitlines()[0] if why else ''}")
+        if r.get("state"):
+            print("\n".join("    " + x for x in r["state"].splitlines()))
     if args.junit:
         results = []
         for r in rows:
@@ -281,6 +320,13 @@ def _campaign(args) -> int | str:
                 wall_s=r["wall_s"],
                 record=r["record"],
                 error=r["error"],
+                state=r.get("state", ""),
+                properties={
+                    "exits": "; ".join(f"{a} {b} {c:.6f}" for a, b, c in r.get("exits", [])),
+                    "ros_domain": r["domain"],
+                    "wall_start": f"{r['start']:.6f}",
+                    "wall_end": f"{r['end']:.6f}",
+                },
             )
             res.checks = [Check(c["text"], c["passed"], c["detail"]) for c in r["checks"]]
             results.append(res)

@@ -21,6 +21,7 @@ from sorter_cell.testing.scenario import ScenarioError, load_scenario, run_scena
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = sorted((REPO / 'config' / 'scenarios').glob('*.yaml'))
+USER_EXAMPLES = REPO / 'examples'
 
 
 def test_the_examples_the_issue_asks_for_are_there():
@@ -64,16 +65,91 @@ def test_a_failed_expectation_exits_1_with_junit_and_the_recording(tmp_path, cap
     assert main(['scenario', 'run', str(sc), '--junit', str(junit), '--record', str(rec)]) == 1
     out = capsys.readouterr().out
     assert '[FAIL] parcel A-1: exit left: got exit straight' in out and '[ok] no jam' in out
+    # the failure explains itself: where the cell was when the run ended
+    for fact in (
+        'the cell: t = ',
+        's wall since it started',
+        'parcels: 1 inducted, 0 on the cell, 0 waiting at the induction, 1 out: A-1 straight at',
+        'faults: none; PackML: Execute',
+        f'recording: {rec}',
+    ):
+        assert fact in out, out
     suite = ET.parse(junit).getroot().find('testsuite')
     assert suite.get('tests') == '2' and suite.get('failures') == '1'
     (failure,) = suite.iter('failure')
     assert 'got exit straight' in failure.get('message') and str(rec) in failure.text
+    assert 'parcels: 1 inducted' in failure.text and 'PackML: Execute' in failure.text
     # the evidence: an MCAP file with the cell's outcome in it
     from mcap.reader import make_reader
 
     with rec.open('rb') as f:
         topics = {ch.topic for _, ch, _ in make_reader(f).iter_messages()}
     assert '/sort/outcomes' in topics and '/sensors/edges' in topics
+
+
+def test_without_record_the_evidence_is_kept_for_a_failure_only(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv('TMPDIR', str(tmp_path))
+    import tempfile
+
+    monkeypatch.setattr(tempfile, 'tempdir', None)  # TMPDIR is read again
+    stream = 'stream: {parcels: [{label: A-1, at: 0.0}]}\n'
+    good = write(
+        tmp_path, f'duration: 1.0\ncontroller: false\n{stream}expect: [{{no_jam: true}}]\n'
+    )
+    assert main(['scenario', 'run', str(good)]) == 0
+    assert 'recording' not in capsys.readouterr().out
+    assert not list(tmp_path.glob('sorter-scenario-*'))
+    bad = write(
+        tmp_path,
+        f'duration: 1.0\ncontroller: false\n{stream}expect: [{{parcel: A-1, exit: left}}]\n',
+        'bad.yaml',
+    )
+    assert main(['scenario', 'run', str(bad)]) == 1
+    out = capsys.readouterr().out
+    (kept,) = tmp_path.glob('sorter-scenario-*/bad.mcap')
+    assert f'recording: {kept}' in out and kept.stat().st_size > 0
+    assert main(['scenario', 'run', str(bad), '--no-record']) == 1
+    assert 'recording' not in capsys.readouterr().out
+
+
+def test_the_users_node_runs_in_lock_step_and_two_runs_agree():
+    sc = load_scenario(USER_EXAMPLES / 'minimal_controller_scenario.yaml')
+    assert sc.controller.kind == 'node'
+    first, second = run_scenario(sc), run_scenario(sc)
+    assert first.passed, first.state
+    exits = [[(o.label, o.exit, o.t) for o in r.outcomes] for r in (first, second)]
+    assert len(exits[0]) == 4 and exits[0] == exits[1]
+
+
+def test_the_users_controller_as_a_process_follows_the_cells_clock(tmp_path):
+    # from outside the project, as a third party runs it
+    for name in ('minimal_controller.py', 'run_minimal_controller.py'):
+        (tmp_path / name).write_text((USER_EXAMPLES / name).read_text())
+    sc = tmp_path / 'process.yaml'
+    sc.write_text((USER_EXAMPLES / 'minimal_controller_process.yaml').read_text())
+    done = subprocess.run(
+        [sys.executable, '-m', 'sorter_cell', 'scenario', 'run', str(sc), '--no-record'],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert '[ok] parcel L-1: exit left' in done.stdout
+
+
+def test_a_controller_process_that_ends_early_fails_the_run_with_its_exit_code(tmp_path):
+    sc = write(
+        tmp_path,
+        """
+        duration: 2.0
+        controller: {command: ["{python}", "-c", "import sys; sys.exit(3)"], start_timeout: 20}
+        expect: [{no_jam: true}]
+        """,
+    )
+    result = run_scenario(load_scenario(sc))
+    assert not result.passed
+    assert 'ended with exit code 3 before it subscribed' in result.error
 
 
 BAD = [
@@ -93,6 +169,38 @@ BAD = [
     ('duration: 5\ncell: {belt_speed: 99}\nexpect: [{no_jam: true}]\n', 'belt_speed'),
     ('duration: 5\ncell: {time_mode: fast}\nexpect: [{no_jam: true}]\n', 'cell.time_mode'),
     ('duration: 5\ncontroller: {bogus: 1}\nexpect: [{no_jam: true}]\n', 'unknown parameter'),
+    ('duration: 5\ncontroller: true\nexpect: [{no_jam: true}]\n', 'controller must be false'),
+    ('duration: 5\ncontroller: {node: nocolon}\nexpect: [{no_jam: true}]\n', 'module:callable'),
+    (
+        'duration: 5\ncontroller: {node: "no_such_module_44:X"}\nexpect: [{no_jam: true}]\n',
+        "cannot import 'no_such_module_44'",
+    ),
+    (
+        'duration: 5\ncontroller: {node: "math:nothing"}\nexpect: [{no_jam: true}]\n',
+        "'math' has no 'nothing'",
+    ),
+    (
+        'duration: 5\ncontroller: {node: "math:pi"}\nexpect: [{no_jam: true}]\n',
+        'is not callable',
+    ),
+    (
+        'duration: 5\ncontroller: {node: "math:floor", speed: 1}\nexpect: [{no_jam: true}]\n',
+        'unknown key(s) speed with node',
+    ),
+    (
+        'duration: 5\ncontroller: {node: "math:floor", parameters: {a: {b: 1}}}\n'
+        'expect: [{no_jam: true}]\n',
+        'controller.parameters.a',
+    ),
+    ('duration: 5\ncontroller: {command: ls}\nexpect: [{no_jam: true}]\n', 'command must be'),
+    (
+        'duration: 5\ncontroller: {command: [ls], start_timeout: 0}\nexpect: [{no_jam: true}]\n',
+        'start_timeout must be in',
+    ),
+    (
+        'duration: 5\ncontroller: {command: [ls]}\nexpect: [{at: 1, controller_state: jam}]\n',
+        "needs this project's controller",
+    ),
     (
         'duration: 5\nfaults: [{at: 1, fault: eye, sensor: pe_x}]\nexpect: [{no_jam: true}]\n',
         'needs mode',
@@ -256,3 +364,103 @@ def test_a_campaign_on_an_existing_dask_scheduler(tmp_path):
         timeout=120,
     )
     assert bad.returncode == 2 and 'cannot reach a Dask scheduler' in bad.stderr
+
+
+def campaign(folder, *args, env=None) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, '-m', 'sorter_cell', 'scenario', 'campaign', str(folder), '--quiet']
+        + list(args),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+
+
+def runs(junit) -> list[dict]:
+    out = []
+    for suite in ET.parse(junit).getroot().findall('testsuite'):
+        props = {p.get('name'): p.get('value') for p in suite.iter('property')}
+        out.append({'name': suite.get('name'), **props})
+    return out
+
+
+def test_two_campaigns_at_once_never_share_a_domain(tmp_path):
+    import os
+
+    folder = tmp_path / 'c'
+    folder.mkdir()
+    write(
+        folder,
+        """
+        duration: 1.0
+        controller: false
+        expect: [{no_jam: true}]
+        """,
+        'one.yaml',
+    )
+    # the lock files in a folder of this test's own: no other run of the suite meets them
+    env = dict(os.environ, SORTER_DOMAIN_LOCKS=str(tmp_path / 'locks'))
+    env['SORTER_CAMPAIGN_DOMAINS'] = '150'  # one domain for two campaigns: one run waits
+    junits = [tmp_path / 'a.xml', tmp_path / 'b.xml']
+    procs = [campaign(folder, '--workers', '1', '--junit', str(j), env=env) for j in junits]
+    for proc in procs:
+        out, err = proc.communicate(timeout=150)
+        assert proc.returncode == 0, out[-2000:] + err[-2000:]
+    (a,), (b,) = (runs(j) for j in junits)
+    assert a['ros_domain'] == b['ros_domain'] == '150'
+    first, second = sorted((a, b), key=lambda r: float(r['wall_start']))
+    assert float(second['wall_start']) >= float(first['wall_end'])  # one at a time
+
+
+def test_the_domain_range_is_an_option_and_a_variable_checked_before_anything_runs(
+    tmp_path, capsys, monkeypatch
+):
+    from sorter_cell.testing.domains import DomainClaim, campaign_domains
+
+    folder = tmp_path / 'c'
+    folder.mkdir()
+    write(folder, 'duration: 1\nexpect: [{no_jam: true}]\n', 'a.yaml')
+    for bad in ('140-', '171-140', '140-300', 'x'):
+        assert main(['scenario', 'campaign', str(folder), '--domains', bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and '--domains must be a ROS domain range A-B' in err
+    monkeypatch.setenv('SORTER_CAMPAIGN_DOMAINS', '7-3')
+    assert main(['scenario', 'campaign', str(folder)]) == 2
+    assert 'SORTER_CAMPAIGN_DOMAINS must be' in capsys.readouterr().err
+    assert campaign_domains('140-171') == range(140, 172)
+    monkeypatch.setenv('SORTER_CAMPAIGN_DOMAINS', '160-161')
+    assert campaign_domains(None) == range(160, 162)
+    monkeypatch.setenv('SORTER_DOMAIN_LOCKS', str(tmp_path / 'locks'))
+    with DomainClaim(range(160, 162)) as a, DomainClaim(range(160, 162)) as b:
+        assert {a, b} == {160, 161}
+        with pytest.raises(TimeoutError, match='held by other runs'):
+            DomainClaim(range(160, 162), timeout_s=0.2).acquire()
+    with DomainClaim(range(160, 162)) as again:
+        assert again == 160  # let go at the end of the block
+
+
+def test_a_campaign_of_the_users_node_repeats_its_exits(tmp_path):
+    folder = tmp_path / 'c'
+    folder.mkdir()
+    # the module is found from the scenario file's folder
+    (folder / 'minimal_controller.py').write_text(
+        (USER_EXAMPLES / 'minimal_controller.py').read_text()
+    )
+    write(
+        folder,
+        """
+        duration: 4.0
+        cell: {alpha_deg: 90.0}
+        controller: {node: "minimal_controller:MinimalController"}
+        stream: {parcels: [{label: L-1, at: 0.0}, {label: S-1, at: 0.5}]}
+        expect: [{parcel: L-1, exit: left}]
+        """,
+        'node.yaml',
+    )
+    junit = tmp_path / 'c.xml'
+    proc = campaign(folder, '--workers', '2', '--seeds', '2', '--junit', str(junit))
+    out, err = proc.communicate(timeout=150)
+    assert proc.returncode == 0, out[-2000:] + err[-2000:]
+    exits = [r['exits'] for r in runs(junit)]
+    assert len(exits) == 2 and exits[0] == exits[1] and 'L-1 left' in exits[0]

@@ -120,3 +120,73 @@ def test_the_example_third_party_controller_passes_its_own_tests(tmp_path):
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert '2 passed' in done.stdout
+
+
+def test_a_wait_that_times_out_explains_where_the_cell_is(sorter_cell):
+    sorter_cell.induct('P-1', length=0.5, width=0.3)
+    sorter_cell.inject('eye', sensor='pe_exit', mode='blocked')
+    done = sorter_cell.run_until(lambda: False, timeout_s=0.5, what='P-1 in a chute')
+    assert not done
+    text = str(done)
+    for fact in (
+        'waited 0.5 s of simulated time for P-1 in a chute: it did not come',
+        'the cell: t = 0.500 s simulated',
+        's wall since it started',
+        'parcels: 1 inducted, 1 on the cell, 0 waiting at the induction, 0 out: none',
+        'faults: none; sensors faulted: pe_exit blocked; PackML: Execute',
+        f'recording: {sorter_cell.record_path}',
+    ):
+        assert fact in text, text
+    assert sorter_cell.record_path.endswith('sorter_cell.mcap')
+    assert sorter_cell.run_until(lambda: True) is True
+
+
+FAILING = '''
+def test_passes(sorter_cell):
+    sorter_cell.run(0.1)
+
+
+def test_fails(sorter_cell):
+    sorter_cell.induct('F-1')
+    sorter_cell.run(0.2)
+    assert sorter_cell.outcome('F-1') is not None
+'''
+
+
+@pytest.mark.parametrize('mode, kept', [('failed', {'test_fails0'}), ('none', set())])
+def test_a_failed_test_reports_the_cell_and_keeps_its_recording(tmp_path, mode, kept):
+    import xml.etree.ElementTree as ET
+
+    (tmp_path / 'test_mine.py').write_text(FAILING)
+    base, junit = tmp_path / 'bt', tmp_path / 'out.xml'
+    done = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'pytest',
+            '-q',
+            '-p',
+            'no:cacheprovider',
+            f'--basetemp={base}',
+            f'--junitxml={junit}',
+            f'--sorter-record={mode}',
+            'test_mine.py',
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 1 and '1 failed, 1 passed' in done.stdout, done.stdout[-3000:]
+    # (pytest links the newest test's folder as <name>current too)
+    recordings = {
+        p.parent.name for p in base.glob('*/sorter_cell.mcap') if not p.parent.is_symlink()
+    }
+    assert recordings == kept
+    for text in (done.stdout, ET.parse(junit).getroot().find('.//failure').text):
+        assert 'the state when the test failed:' in text
+        assert 'parcels: 1 inducted, 1 on the cell, 0 waiting at the induction, 0 out' in text
+        assert 'faults: none; PackML: Execute' in text
+        assert ('recording: ' in text) == bool(kept)
+        for name in kept:
+            assert str(base / name / 'sorter_cell.mcap') in text

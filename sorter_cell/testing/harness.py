@@ -13,18 +13,23 @@ nodes goes over DDS, as in the field; only the clock is the test's.
 
 What the test reads comes from an observer node subscribed like any warehouse
 client: ``outcomes`` (the cell's ``sort/outcomes``) and ``confirmations`` (a
-controller's ``sort/confirmations``, when one runs).
+controller's ``sort/confirmations``, when one runs). A wait that times out
+(``run_until``, ``require``) reports where the cell is (``LockStep.explain``).
 """
 
 from __future__ import annotations
 
-import math
-import os
-import time
 from dataclasses import dataclass, field
 
-GRACE_S = 0.0005  # wall time without a ready callback that ends a slice's spin
-SLICE_S = 0.005  # simulated time per slice
+from sorter_cell.testing.lockstep import (
+    GRACE_S,
+    SLICE_S,
+    LockStep,
+    WaitTimedOut,
+    exits_text,
+    parcel_spec,
+    pick_domain_id,
+)
 
 
 @dataclass(frozen=True)
@@ -58,21 +63,7 @@ def _values(msg) -> dict:
     return {kv.key: kv.value for kv in msg.values}
 
 
-def pick_domain_id() -> int:
-    """
-    Return the ROS domain this process's cells use: ``ROS_DOMAIN_ID``, else one of 100-199.
-
-    A test run should keep to a domain of its own so that concurrent runs (and any ROS
-    graph on the machine) stay apart; above 232 Fast DDS fails, so the default is
-    taken from the process id in 100-199.
-    """
-    value = os.environ.get('ROS_DOMAIN_ID', '').strip()
-    if value.isdigit() and 0 <= int(value) <= 232:
-        return int(value)
-    return 100 + os.getpid() % 100
-
-
-class SorterCell:
+class SorterCell(LockStep):
     """
     The simulation node in a private Context, advanced by the test (see the module).
 
@@ -88,6 +79,15 @@ class SorterCell:
         Simulated seconds per slice of ``run``.
     grace_s : float
         Wall seconds of quiet that end a slice's spin.
+    record : str, optional
+        An MCAP file: everything the cell publishes (named in every report).
+    events : bool
+        Spin with rclpy's events executor (where it exists) instead of the
+        single-threaded one: about three times faster, since the single-threaded one
+        builds a wait set of every entity on each pass; but it serves requests that
+        arrive together in the order they came, where the single-threaded one serves
+        them in its entities' order, and a controller whose result depends on that
+        order (the project's, on a jam with ``estop_on_jam``) ends differently.
 
     """
 
@@ -98,45 +98,25 @@ class SorterCell:
         domain_id: int | None = None,
         slice_s: float = SLICE_S,
         grace_s: float = GRACE_S,
+        record: str | None = None,
+        events: bool = False,
     ):
         import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
         from rclpy.parameter import Parameter
-        from rclpy.signals import SignalHandlerOptions
 
-        from sorter_ros.env import apply_ros_env_defaults, find_config_dir
         from sorter_sim.frontends.node import SimNode
 
-        if not (isinstance(slice_s, (int, float)) and 0.0 < slice_s <= 1.0):
-            raise ValueError(f'slice_s must be in (0, 1] s, got {slice_s!r}')
-        apply_ros_env_defaults()
-        self.config_dir = find_config_dir()
-        self.slice_s = float(slice_s)
-        self.grace_s = float(grace_s)
-        self.nodes: list = []
-        self.context = Context()
-        rclpy.init(
-            context=self.context,
-            domain_id=pick_domain_id() if domain_id is None else domain_id,
-            signal_handler_options=SignalHandlerOptions.NO,
-            args=[
-                '--ros-args',
-                '--params-file',
-                str(self.config_dir / 'cell.yaml'),
-                '--params-file',
-                str(self.config_dir / 'controller.yaml'),
-                '--log-level',
-                'warn',
-            ],
-        )
+        self._start_context(domain_id, slice_s, grace_s, events=events)
         try:
             values = {'time_mode': 'lockstep', 'arrival': 'none', **(params or {})}
+            if record:
+                values['record_path'] = str(record)
+            self.record_path = values.get('record_path', '')
             self.sim = SimNode(
                 context=self.context,
                 parameter_overrides=[Parameter(k, value=v) for k, v in values.items()],
             )
-            self.executor = SingleThreadedExecutor(context=self.context)
+            self._stepper, self._timebase = self.sim, self.sim.cell
             self.add_node(self.sim)
             self._obs = _Observer(rclpy.create_node('sorter_cell_observer', context=self.context))
             self.add_node(self._obs.node)
@@ -173,31 +153,6 @@ class SorterCell:
             DiagnosticStatus, 'sort/confirmations', on_confirmation, EVENT_QOS
         )
 
-    def add_node(self, node):
-        """
-        Spin ``node`` with the cell; it must be created in ``context``.
-
-        Parameters
-        ----------
-        node : rclpy.node.Node
-            The node.
-
-        Returns
-        -------
-        rclpy.node.Node
-            The same node.
-
-        """
-        if node.context is not self.context:
-            raise ValueError(
-                f'node {node.get_name()!r} belongs to another rclpy Context: create it '
-                'with context=sorter_cell.context'
-            )
-        if node not in self.nodes:
-            self.nodes.append(node)
-            self.executor.add_node(node)
-        return node
-
     def add_controller(self, params: dict | None = None, timeout_s: float = 60.0):
         """
         Start the project's controller node in this cell and wait until it sorts.
@@ -225,82 +180,28 @@ class SorterCell:
             parameter_overrides=[Parameter(k, value=v) for k, v in values.items()],
         )
         self.add_node(ctl)
-        deadline = time.monotonic() + timeout_s
-        # the controller asks the cell for its geometry, then warms its timing model;
-        # the cell's clock runs meanwhile (the belt is empty: nothing happens)
-        while not (ctl.logic is not None and ctl.logic.state == 'running'):
-            if time.monotonic() > deadline:
-                raise RuntimeError(f'the controller did not start within {timeout_s:g} s')
-            self.run(self.slice_s)
+        # it asks the cell for its geometry, then warms its timing model: with the
+        # clock stopped, so that the test starts at the same time on any machine
+        self.wait_started(
+            lambda: ctl.logic is not None and ctl.logic.state == 'running',
+            timeout_s,
+            'the controller did not start',
+        )
         self.t0 = self.t
         return ctl
 
-    # ------------------------------------------------------------------ time
-    @property
-    def dt(self) -> float:
-        """Return the cell's control period [s]."""
-        return self.sim.cell.dt
-
-    @property
-    def t(self) -> float:
-        """Return the simulated time [s]."""
-        return self.sim.cell.t
-
-    def spin_idle(self) -> None:
-        """Serve every ready callback until none has come for ``grace_s`` of wall time."""
-        from rclpy.executors import ShutdownException, TimeoutException
-
-        while True:
-            try:
-                handler, _, _ = self.executor.wait_for_ready_callbacks(timeout_sec=self.grace_s)
-            except (TimeoutException, ShutdownException):
-                return
-            handler()
-
-    def run(self, seconds: float) -> None:
-        """
-        Advance simulated time by ``seconds``, spinning every node after each slice.
-
-        Parameters
-        ----------
-        seconds : float
-            Simulated seconds, >= 0 (rounded to whole control periods).
-
-        """
-        if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds >= 0):
-            raise ValueError(f'seconds must be a finite number >= 0, got {seconds!r}')
-        total = round(seconds / self.dt)
-        step = max(1, round(self.slice_s / self.dt))
-        self.spin_idle()
-        while total > 0:
-            n = min(step, total)
-            self.sim.advance(n)
-            total -= n
-            self.spin_idle()
-
-    def run_until(self, predicate, timeout_s: float = 60.0) -> bool:
-        """
-        Advance slice by slice until ``predicate()`` holds or ``timeout_s`` simulated seconds.
-
-        Parameters
-        ----------
-        predicate : callable
-            What to wait for.
-        timeout_s : float
-            The most simulated time to run [s].
-
-        Returns
-        -------
-        bool
-            Whether it came true.
-
-        """
-        t_end = self.t + timeout_s
-        while not predicate():
-            if self.t >= t_end - 1e-12:
-                return False
-            self.run(min(self.slice_s, t_end - self.t))
-        return True
+    def state_lines(self) -> list[str]:
+        """Return the report's parcels, faults and PackML state (``LockStep.explain``)."""
+        c = self.sim.cell
+        out = [(o.label, o.exit, o.t) for o in self._obs.outcomes]
+        sensors = ', '.join(f'{k} {f.fault}' for k, f in c.sensor_faults.items())
+        return [
+            f'parcels: {c.n_inducted} inducted, {c.n_in_flight} on the cell, '
+            f'{c.pending_inducts} waiting at the induction, {len(out)} out: ' + exits_text(out),
+            f'faults: {", ".join(c.faults) or "none"}'
+            + (f'; sensors faulted: {sensors}' if sensors else '')
+            + f'; PackML: {c.packml.state}',
+        ]
 
     # ------------------------------------------------------------------ the cell
     def induct(
@@ -337,9 +238,7 @@ class SorterCell:
             A value out of range (``ParamError``), named; nothing is queued.
 
         """
-        from sorter_sim.runtime.cell import ParcelSpec
-
-        self.sim.cell.induct(ParcelSpec(length, width, mass, math.radians(skew_deg), y, label))
+        self.sim.cell.induct(parcel_spec(label, length, width, mass, skew_deg, y))
 
     def inject(self, fault: str, **arguments) -> str:
         """
@@ -448,25 +347,5 @@ class SorterCell:
         """
         return next((o for o in self._obs.outcomes if o.label == label), None)
 
-    # ------------------------------------------------------------------ teardown
-    def close(self) -> None:
-        """Destroy the nodes and shut the Context down."""
-        import rclpy
 
-        for node in getattr(self, 'nodes', []):
-            try:
-                node.destroy_node()
-            except Exception:  # noqa: BLE001 - a node's own teardown error ends nothing
-                pass
-        self.nodes = []
-        if getattr(self, 'context', None) is not None:
-            rclpy.try_shutdown(context=self.context)
-
-    def __enter__(self) -> SorterCell:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-__all__ = ['OutcomeRecord', 'SorterCell', 'pick_domain_id']
+__all__ = ['OutcomeRecord', 'SorterCell', 'WaitTimedOut', 'pick_domain_id']

@@ -17,6 +17,18 @@ Fixtures (function scope, a fresh Context each):
   config/cell.yaml come from the marker ``@pytest.mark.sorter_cell(params={...})``.
 - ``sorter_controller``: this project's controller node started in that cell and
   running (parameters from ``@pytest.mark.sorter_controller(params={...})``).
+- ``sorter_line``: a ``sorter_cell.testing.SorterLine`` (``@pytest.mark.sorter_line(
+  stations=N, plan={...}, params={...})``): N stations, each with this project's
+  program unless the test replaces it, and the warehouse node.
+
+A test that uses one of them and fails gets the state of the cell or line in its
+report (a section ``sorter``, in the terminal and in JUnit's failure text): the
+simulated and wall time, the parcels so far, the faults, the PackML state, and the
+recording of the test, kept under the test's ``tmp_path`` by ``--sorter-record``
+(``failed``, the default: kept when the test fails; ``all``; ``none``: not recorded).
+
+``--sorter-station-contract MODULE:FACTORY`` adds the station-program contract's
+conformance test for that factory to the run (``sorter_cell.testing.contract``).
 
 Nothing here imports ROS until a fixture is used, so the plugin costs a pytest
 run that does not use it nothing.
@@ -24,18 +36,124 @@ run that does not use it nothing.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
+
+
+RECORD_MODES = ('failed', 'all', 'none')
+HARNESS_FIXTURES = ('sorter_cell', 'sorter_line')
+
+
+def pytest_addoption(parser):
+    """Add ``--sorter-record`` and ``--sorter-station-contract``."""
+    group = parser.getgroup('sorter_cell')
+    group.addoption(
+        '--sorter-record',
+        default='failed',
+        choices=RECORD_MODES,
+        help="record each sorter_cell/sorter_line test under its tmp_path: keep the "
+        "recording of a failed test (failed, the default), of every test (all), or none",
+    )
+    group.addoption(
+        '--sorter-station-contract',
+        metavar='MODULE:FACTORY',
+        default=None,
+        help='check a station program against the line\'s station-program contract',
+    )
 
 
 def pytest_configure(config):
     """Declare the plugin's markers."""
     config.addinivalue_line(
-        'markers', 'sorter_cell(params): cell parameters for the sorter_cell fixture'
+        'markers',
+        'sorter_cell(params, events): cell parameters for the sorter_cell fixture; '
+        'events=True: rclpy\'s events executor (faster)',
     )
     config.addinivalue_line(
         'markers',
         'sorter_controller(params): controller parameters for the sorter_controller fixture',
     )
+    config.addinivalue_line(
+        'markers',
+        'sorter_line(stations, plan, params, programs): the sorter_line fixture\'s line',
+    )
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """With ``--sorter-station-contract``: add the contract's check of that program."""
+    spec = config.getoption('--sorter-station-contract', None)
+    if spec:
+        items.append(
+            StationContractItem.from_parent(session, name=f'station_contract[{spec}]', spec=spec)
+        )
+
+
+class StationContractFailed(AssertionError):
+    """A station program that breaks the contract; the message names each clause."""
+
+
+class StationContractItem(pytest.Item):
+    """The station-program contract's check, as a test of its own (``contract``)."""
+
+    def __init__(self, *, spec: str, **kwargs):
+        super().__init__(**kwargs)
+        self.spec = spec
+
+    def runtest(self):
+        from sorter_cell.testing.contract import check_station_program
+        from sorter_cell.testing.lockstep import FactoryError, load_node_factory
+
+        try:
+            factory = load_node_factory(self.spec, Path.cwd())
+        except FactoryError as exc:
+            raise StationContractFailed(f'--sorter-station-contract {exc}') from None
+        report = check_station_program(factory)
+        report.program = self.spec
+        if not report:
+            raise StationContractFailed(str(report))
+
+    def repr_failure(self, excinfo):
+        if isinstance(excinfo.value, StationContractFailed):
+            return str(excinfo.value)
+        return super().repr_failure(excinfo)
+
+    def reportinfo(self):
+        return self.path, None, f'station contract of {self.spec}'
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Add the cell's or line's state to a failed test's report, while it still runs."""
+    outcome = yield
+    rep = outcome.get_result()
+    setattr(item, f'sorter_rep_{rep.when}', rep)
+    if not rep.failed or rep.when != 'call':
+        return
+    funcargs = getattr(item, 'funcargs', {})
+    harness = next((funcargs[n] for n in HARNESS_FIXTURES if n in funcargs), None)
+    if harness is None:
+        return
+    text = harness.explain('the state when the test failed:')
+    rep.sections.append(('sorter', text))
+    longrepr = rep.longrepr
+    if hasattr(longrepr, 'addsection'):
+        # the failure's own text carries it, so JUnit's <failure> has it too
+        longrepr.addsection('sorter', text)
+
+
+def _record_path(request, tmp_path, name: str) -> str:
+    mode = request.config.getoption('--sorter-record', 'failed')
+    return '' if mode == 'none' else str(tmp_path / f'{name}.mcap')
+
+
+def _drop_recording_if_passed(request, path: str) -> None:
+    """``--sorter-record=failed``: a passed test's recording is not kept."""
+    if not path or request.config.getoption('--sorter-record', 'failed') != 'failed':
+        return
+    reps = [getattr(request.node, f'sorter_rep_{w}', None) for w in ('setup', 'call')]
+    if all(r is not None and r.passed for r in reps):
+        Path(path).unlink(missing_ok=True)
 
 
 def _marker_params(request, name: str) -> dict:
@@ -51,15 +169,41 @@ def _marker_params(request, name: str) -> dict:
 
 
 @pytest.fixture
-def sorter_cell(request):
+def sorter_cell(request, tmp_path):
     """Return the simulation node in a private Context, in lock-step (``SorterCell``)."""
     from sorter_cell.testing.harness import SorterCell
 
-    cell = SorterCell(_marker_params(request, 'sorter_cell'))
+    record = _record_path(request, tmp_path, 'sorter_cell')
+    marker = request.node.get_closest_marker('sorter_cell')
+    events = bool(marker.kwargs.get('events', False)) if marker is not None else False
+    cell = SorterCell(_marker_params(request, 'sorter_cell'), record=record, events=events)
     try:
         yield cell
     finally:
         cell.close()
+        _drop_recording_if_passed(request, record)
+
+
+@pytest.fixture
+def sorter_line(request, tmp_path):
+    """Return a line: stations, their programs and the warehouse, in lock-step (``SorterLine``)."""
+    from sorter_cell.testing.line import SorterLine
+
+    marker = request.node.get_closest_marker('sorter_line')
+    kwargs = dict(marker.kwargs) if marker is not None else {}
+    unknown = sorted(set(kwargs) - {'stations', 'plan', 'params', 'programs'})
+    if unknown:
+        raise pytest.UsageError(
+            f'@pytest.mark.sorter_line: unknown argument(s) {", ".join(unknown)} (allowed: '
+            'stations, plan, params, programs)'
+        )
+    record = _record_path(request, tmp_path, 'sorter_line')
+    line = SorterLine(**kwargs, record=record)
+    try:
+        yield line
+    finally:
+        line.close()
+        _drop_recording_if_passed(request, record)
 
 
 @pytest.fixture

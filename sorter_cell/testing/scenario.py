@@ -9,7 +9,9 @@ line naming the key::
     duration: 20.0                  # simulated seconds, after the controller runs
     seed: 7                         # the generated stream's seed (a campaign varies it)
     cell: {belt_speed: 1.5}         # cell parameters over config/cell.yaml
-    controller: {}                  # the project's controller and its parameters; false: none
+    controller: {}                  # the project's controller and its parameters; false: none;
+                                    # {node: "module:callable", parameters: {...}}: yours, in
+                                    # this process, in lock-step; {command: [...]}: a process
     stream:
       parcels:                      # explicit parcels, queued at the induction at `at`
         - {label: A-1, at: 0.0, length: 0.4, width: 0.3, mass: 5.0, skew_deg: 0, y: 0}
@@ -28,8 +30,28 @@ line naming the key::
       - {at: 6.0, controller_state: fault}     # the controller's state at that time
 
 ``run_scenario`` runs one in this process (``SorterCell``) and returns a
-``ScenarioResult``: each expectation with whether it held and why; ``junit_xml``
-writes results as a JUnit file a CI server reads.
+``ScenarioResult``: each expectation with whether it held and why, and when one
+did not, the state of the cell (``LockStep.explain``); ``junit_xml`` writes results
+as a JUnit file a CI server reads.
+
+The controller under test (``controller:``) is one of
+
+- this project's controller: a mapping of its parameters (``{}``: as shipped);
+- ``false``: none (a test of the cell alone, or of nodes started elsewhere);
+- ``{node: "module:callable", parameters: {...}}``: the user's node(s), made in this
+  process by ``callable(context=..., parameter_overrides=[...])`` (``use_sim_time``
+  and the given parameters) and spun in lock-step with the cell: the module is
+  imported from the scenario file's folder first, then ``sys.path``. Runs of the
+  same file give the same exits at the same simulated times;
+- ``{command: [...], start_timeout: 30}``: a process the scenario starts in its own
+  ROS domain (``ROS_DOMAIN_ID``), in the file's folder (``{python}`` in the command
+  stands for the Python interpreter running the scenario); time starts once it has
+  subscribed to ``/clock`` (within ``start_timeout`` wall seconds). It follows
+  simulated time as any node on ``use_sim_time`` does: the cell advances a slice,
+  publishes the clock and what it sensed, and waits until the graph has been quiet
+  for ``COMMAND_GRACE_S`` of wall time; an answer that takes longer is taken in the
+  next slice. On an idle machine runs repeat; a loaded one can move a command by a
+  slice (5 ms). A process that ends early fails the run with its exit code.
 """
 
 from __future__ import annotations
@@ -37,12 +59,20 @@ from __future__ import annotations
 import math
 import time
 import xml.etree.ElementTree as ET
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sorter_cell.testing.lockstep import (
+    GRACE_S,
+    FactoryError,
+    load_node_factory,
+    make_user_nodes,
+)
+from sorter_cell.testing.scenario_types import Check, ScenarioError, refuse_unknown
 from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
-TOP_KEYS = ('name', 'duration', 'seed', 'cell', 'controller', 'stream', 'faults', 'expect')
+TOP_KEYS = ('name', 'duration', 'seed', 'cell', 'controller', 'line', 'stream', 'faults', 'expect')
 PARCEL_KEYS = ('label', 'at', 'length', 'width', 'mass', 'skew_deg', 'y')
 EXITS = ('left', 'right', 'straight', 'jammed')
 RESULTS = (
@@ -58,6 +88,11 @@ RESULTS = (
 )
 EXPECT_KINDS = ('parcel', 'no_mis_sort', 'no_jam', 'throughput_at_least', 'at')
 MAX_DURATION = 3600.0
+COMMAND_GRACE_S = 0.002  # quiet that ends a slice with a controller in another process
+CONTROLLER_FORMS = (
+    'false, a mapping of this project\'s controller\'s parameters, '
+    '{node: "module:callable", parameters: {...}} or {command: [...]}'
+)
 GENERATED_KEYS = (
     'arrival',
     'arrival_gap',
@@ -72,8 +107,21 @@ GENERATED_KEYS = (
 )
 
 
-class ScenarioError(ValueError):
-    """A scenario file that cannot run: the message names the key and what is allowed."""
+@dataclass(frozen=True)
+class ControllerSpec:
+    """
+    The controller under test (see the module).
+
+    kind: ``project``, ``node`` or ``command``; params: the project's controller's or
+    the node's parameters; factory: ``module:callable``; command: the process's
+    arguments; start_timeout: wall seconds the process has to subscribe to /clock.
+    """
+
+    kind: str
+    params: dict = field(default_factory=dict)
+    factory: str = ''
+    command: tuple = ()
+    start_timeout: float = 30.0
 
 
 @dataclass
@@ -84,21 +132,13 @@ class Scenario:
     duration: float
     seed: int
     cell: dict
-    controller: dict | None
+    controller: ControllerSpec | None
     parcels: list
     generated: dict
     faults: list
     expect: list
     path: str = ''
-
-
-@dataclass
-class Check:
-    """One expectation and how the run met it."""
-
-    text: str
-    passed: bool
-    detail: str = ''
+    line: dict | None = None  # a line scenario's stations, plan and programs (line_scenario)
 
 
 @dataclass
@@ -113,6 +153,9 @@ class ScenarioResult:
     wall_s: float = 0.0
     record: str = ''
     error: str = ''
+    state: str = ''  # the cell at the end of the run (LockStep.explain)
+    dispositions: list = field(default_factory=list)  # a line's, per parcel
+    properties: dict = field(default_factory=dict)  # JUnit properties (a campaign's domain)
 
     @property
     def passed(self) -> bool:
@@ -147,26 +190,74 @@ def _check_cell(cell: dict, generated: dict, seed: int) -> None:
         raise ScenarioError(f'cell: {exc}') from None
 
 
+def _parameter_values(values, key: str) -> dict:
+    values = dict(_mapping(values, key))
+    scalar = (bool, int, float, str)
+    for name, v in values.items():
+        ok = isinstance(v, scalar) or (
+            isinstance(v, list) and v and all(isinstance(x, type(v[0])) for x in v)
+        )
+        if not isinstance(name, str) or not ok:
+            raise ScenarioError(
+                f'{key}.{name}: a parameter is a number, string, bool or a list of one '
+                f'type, got {v!r}'
+            )
+    return values
+
+
+def _check_controller_spec(ctl, folder) -> ControllerSpec | None:
+    """Return the controller a scenario's ``controller:`` names (see the module)."""
+    if ctl is False:
+        return None
+    if ctl is None:
+        ctl = {}
+    if not isinstance(ctl, dict):
+        raise ScenarioError(f'controller must be {CONTROLLER_FORMS}, got {ctl!r}')
+    if 'node' in ctl:
+        refuse_unknown(ctl, ('node', 'parameters'), 'controller', ' with node')
+        try:
+            load_node_factory(ctl['node'], folder)
+        except FactoryError as exc:
+            raise ScenarioError(f'controller.node {exc}') from None
+        params = _parameter_values(ctl.get('parameters'), 'controller.parameters')
+        return ControllerSpec('node', params, factory=ctl['node'])
+    if 'command' in ctl:
+        refuse_unknown(ctl, ('command', 'start_timeout'), 'controller', ' with command')
+        cmd = ctl['command']
+        if not (isinstance(cmd, list) and cmd and all(isinstance(x, str) and x for x in cmd)):
+            raise ScenarioError(
+                f'controller.command must be a non-empty list of strings, got {cmd!r}'
+            )
+        start = _number(ctl.get('start_timeout', 30.0), 'controller.start_timeout', 0.1, 600.0)
+        return ControllerSpec('command', command=tuple(cmd), start_timeout=start)
+    _check_controller(ctl)
+    return ControllerSpec('project', dict(ctl))
+
+
 def _check_controller(values: dict) -> None:
     from sorter_control.parameters import SCHEMA, config_from_values
 
     names = {s.name for s in SCHEMA}
     unknown = sorted(set(values) - names)
     if unknown:
-        raise ScenarioError(f'controller: unknown parameter(s) {", ".join(unknown)}')
+        raise ScenarioError(
+            f'controller: unknown parameter(s) {", ".join(unknown)} of this project\'s '
+            f'controller (the forms: {CONTROLLER_FORMS})'
+        )
     try:
         config_from_values({**{s.name: s.default for s in SCHEMA}, **values})
     except (TypeError, ValueError) as exc:
         raise ScenarioError(f'controller: {exc}') from None
 
 
-def _parcel(k: int, entry) -> dict:
+def _parcel(k: int, entry, on_line: bool = False) -> dict:
     key = f'stream.parcels[{k}]'
     entry = _mapping(entry, key)
-    extra = sorted(set(entry) - set(PARCEL_KEYS))
+    keys = PARCEL_KEYS + (('destination',) if on_line else ())
+    extra = sorted(set(entry) - set(keys))
     if extra:
         raise ScenarioError(
-            f'{key}: unknown key(s) {", ".join(extra)} (allowed: {", ".join(PARCEL_KEYS)})'
+            f'{key}: unknown key(s) {", ".join(extra)} (allowed: {", ".join(keys)})'
         )
     if not isinstance(entry.get('label'), str) or not entry['label']:
         raise ScenarioError(f'{key}.label must be a non-empty string')
@@ -183,6 +274,10 @@ def _parcel(k: int, entry) -> dict:
         ('y', 0.0),
     ):
         out[name] = _number(entry.get(name, default), f'{key}.{name}')
+    if 'destination' in entry:
+        if not isinstance(entry['destination'], str) or not entry['destination']:
+            raise ScenarioError(f'{key}.destination must be a destination of the sort plan')
+        out['destination'] = entry['destination']
     return out
 
 
@@ -203,7 +298,8 @@ def _fault(k: int, entry) -> dict:
     return {'at': at, 'fault': str(name), 'args': args}
 
 
-def _expectation(k: int, entry, labels: set, has_controller: bool) -> dict:
+def _expectation(k: int, entry, labels: set, controller: ControllerSpec | None) -> dict:
+    has_controller = controller is not None
     key = f'expect[{k}]'
     entry = _mapping(entry, key)
     kinds = [x for x in EXPECT_KINDS if x in entry]
@@ -217,12 +313,7 @@ def _expectation(k: int, entry, labels: set, has_controller: bool) -> dict:
         'throughput_at_least': {'throughput_at_least'},
         'at': {'at', 'faults', 'controller_state'},
     }[kind]
-    extra = sorted(set(entry) - allowed)
-    if extra:
-        raise ScenarioError(
-            f'{key}: unknown key(s) {", ".join(extra)} with {kind} (allowed: '
-            f'{", ".join(sorted(allowed))})'
-        )
+    refuse_unknown(entry, allowed, key, f' with {kind}')
     if kind == 'parcel':
         if not isinstance(entry['parcel'], str) or not entry['parcel']:
             raise ScenarioError(f'{key}.parcel must be a label (a non-empty string)')
@@ -265,8 +356,10 @@ def _expectation(k: int, entry, labels: set, has_controller: bool) -> dict:
                     f'{key}.controller_state must be one of '
                     f'{", ".join(states)}, got {entry["controller_state"]!r}'
                 )
-            if not has_controller:
-                raise ScenarioError(f'{key}.controller_state needs a controller')
+            if controller is None or controller.kind != 'project':
+                raise ScenarioError(
+                    f"{key}.controller_state needs this project's controller (it reads its state)"
+                )
     return dict(entry)
 
 
@@ -313,10 +406,20 @@ def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
             raise ScenarioError(
                 f'cell.{fixed} is set by the scenario runner (use seed: at the top)'
             )
-    ctl = doc.get('controller', {})
-    controller = None if ctl is False else dict(_mapping(ctl, 'controller'))
-    if controller is not None:
-        _check_controller(controller)
+    folder = Path(path).parent if path else None
+    line = None
+    if 'line' in doc:
+        from sorter_cell.testing.line_scenario import check_line
+
+        line = check_line(doc['line'], folder)
+        for key in ('controller', 'faults'):
+            if key in doc:
+                raise ScenarioError(
+                    f'{key}: a line scenario gives each station\'s program in line.programs '
+                    'and has no faults (allowed with line: name, duration, seed, cell, stream, '
+                    'expect)'
+                )
+    controller = None if line else _check_controller_spec(doc.get('controller', {}), folder)
     stream = _mapping(doc.get('stream'), 'stream')
     extra = sorted(set(stream) - {'parcels', 'generated'})
     if extra:
@@ -326,7 +429,7 @@ def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
     parcels_in = stream.get('parcels', [])
     if not isinstance(parcels_in, list):
         raise ScenarioError('stream.parcels must be a list')
-    parcels = [_parcel(k, p) for k, p in enumerate(parcels_in)]
+    parcels = [_parcel(k, p, line is not None) for k, p in enumerate(parcels_in)]
     labels = [p['label'] for p in parcels]
     if len(set(labels)) != len(labels):
         raise ScenarioError('stream.parcels: labels must be unique')
@@ -337,6 +440,8 @@ def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
             f'stream.generated: unknown key(s) {", ".join(extra)} (allowed: '
             f'{", ".join(GENERATED_KEYS)})'
         )
+    if generated and line:
+        raise ScenarioError('stream.generated: a line scenario lists its parcels (stream.parcels)')
     if generated:
         generated.setdefault('arrival', 'gap')
     _check_cell(cell, generated, seed)
@@ -347,11 +452,14 @@ def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
     expect_in = doc.get('expect', [])
     if not isinstance(expect_in, list) or not expect_in:
         raise ScenarioError('expect must be a non-empty list (what must come of the run)')
-    expect = [
-        _expectation(k, e, set(labels), controller is not None) for k, e in enumerate(expect_in)
-    ]
+    if line:
+        from sorter_cell.testing.line_scenario import check_line_expectation
+
+        expect = [check_line_expectation(k, e) for k, e in enumerate(expect_in)]
+    else:
+        expect = [_expectation(k, e, set(labels), controller) for k, e in enumerate(expect_in)]
     return Scenario(
-        title, duration, seed, cell, controller, parcels, generated, faults, expect, path
+        title, duration, seed, cell, controller, parcels, generated, faults, expect, path, line
     )
 
 
@@ -421,42 +529,139 @@ def run_scenario(
 
     wall0 = time.perf_counter()
     res = ScenarioResult(sc.name, record=record or '')
+    if sc.line is not None:
+        from sorter_cell.testing.line_scenario import run_line_scenario
+
+        return run_line_scenario(sc, res, record, domain_id)
     params = {**sc.cell, **sc.generated, 'seed': sc.seed if seed is None else seed}
     if sc.generated:
         params['arrival'] = 'none'  # the stream starts once the controller runs
-    if record:
-        params['record_path'] = str(record)
+    spec = sc.controller
+    grace = COMMAND_GRACE_S if spec is not None and spec.kind == 'command' else GRACE_S
     timed: dict[int, Check] = {}
-    with SorterCell(params, domain_id=domain_id) as cell:
-        ctl = cell.add_controller(sc.controller) if sc.controller is not None else None
-        if sc.generated:
-            cell.set_params(arrival=sc.generated['arrival'])
+    with SorterCell(params, domain_id=domain_id, record=record, grace_s=grace) as cell:
         t0 = cell.t
-        for at, _, kind, item in _timeline(sc):
-            if at > sc.duration:
-                break
-            cell.run(max(0.0, t0 + at - cell.t))
-            if kind == 'induct':
-                cell.induct(
-                    item['label'],
-                    length=item['length'],
-                    width=item['width'],
-                    mass=item['mass'],
-                    skew_deg=item['skew_deg'],
-                    y=item['y'],
-                )
-            elif kind == 'fault':
-                cell.inject(item['fault'], **item['args'])
-            else:
-                timed[id(item)] = _check_at(item, cell, ctl)
-        cell.run(max(0.0, t0 + sc.duration - cell.t))
+        try:
+            with _controller_running(cell, spec, sc) as ctl:
+                t0 = _play(sc, cell, ctl, timed)
+                res.error = ctl.error if isinstance(ctl, _Process) else ''
+        except (ScenarioError, FactoryError) as exc:
+            res.error = f'controller: {exc}' if isinstance(exc, FactoryError) else str(exc)
         res.sim_s = cell.t - t0
         res.outcomes = cell.outcomes
         res.confirmations = cell.confirmations
+        res.state = cell.explain()
     for e in sc.expect:
         res.checks.append(timed.get(id(e)) or _check_end(e, res, sc))
     res.wall_s = time.perf_counter() - wall0
     return res
+
+
+def _play(sc: Scenario, cell, ctl, timed: dict) -> float:
+    """Run the scenario's timeline on ``cell``; return the time it started at."""
+    if sc.generated:
+        cell.set_params(arrival=sc.generated['arrival'])
+    t0 = cell.t
+    for at, _, kind, item in _timeline(sc):
+        if at > sc.duration:
+            break
+        cell.run(max(0.0, t0 + at - cell.t))
+        if kind == 'induct':
+            cell.induct(
+                item['label'],
+                length=item['length'],
+                width=item['width'],
+                mass=item['mass'],
+                skew_deg=item['skew_deg'],
+                y=item['y'],
+            )
+        elif kind == 'fault':
+            cell.inject(item['fault'], **item['args'])
+        else:
+            timed[id(item)] = _check_at(item, cell, ctl)
+    cell.run(max(0.0, t0 + sc.duration - cell.t))
+    return t0
+
+
+@dataclass
+class _Process:
+    """A controller the scenario started as a process (``controller: {command: ...}``)."""
+
+    proc: object
+    error: str = ''
+
+
+@contextmanager
+def _controller_running(cell, spec: ControllerSpec | None, sc: Scenario):
+    """Start the scenario's controller in ``cell``; yield it (a node, a _Process or None)."""
+    if spec is None:
+        yield None
+    elif spec.kind == 'project':
+        yield cell.add_controller(spec.params)
+    elif spec.kind == 'node':
+        folder = Path(sc.path).parent if sc.path else None
+        factory = load_node_factory(spec.factory, folder)
+        nodes = cell.add_node(make_user_nodes(factory, cell.context, spec.params))
+        yield nodes[0]
+    else:
+        with _command_running(cell, spec, sc) as proc:
+            yield proc
+
+
+@contextmanager
+def _command_running(cell, spec: ControllerSpec, sc: Scenario):
+    """Start the command in the cell's domain; time starts once it subscribes to /clock."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(cell.domain_id))
+    before = cell.sim.count_subscribers('/clock')
+    err = tempfile.TemporaryFile(mode='w+')
+    try:
+        proc = subprocess.Popen(
+            [x.replace('{python}', sys.executable) for x in spec.command],
+            cwd=str(Path(sc.path).parent) if sc.path else None,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+        )
+    except OSError as exc:
+        err.close()
+        raise ScenarioError(f'controller.command cannot start: {exc}') from None
+    handle = _Process(proc)
+    try:
+        deadline = time.monotonic() + spec.start_timeout
+        while cell.sim.count_subscribers('/clock') <= before:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise ScenarioError(_command_problem(proc, err, spec, 'before it subscribed'))
+            cell.spin_idle()
+            time.sleep(0.01)
+        yield handle
+        if proc.poll() is not None:
+            handle.error = _command_problem(proc, err, spec, f'at t = {cell.t:.3f} s')
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        err.close()
+
+
+def _command_problem(proc, err, spec: ControllerSpec, when: str) -> str:
+    err.seek(0)
+    tail = (err.read().strip().splitlines() or ['no output'])[-1][:300]
+    rc = proc.poll()
+    if rc is None:
+        return (
+            f'controller.command {spec.command[0]!r} did not subscribe to /clock within '
+            f'{spec.start_timeout:g} s (it must run on use_sim_time): {tail}'
+        )
+    return f'controller.command {spec.command[0]!r} ended with exit code {rc} {when}: {tail}'
 
 
 def _check_at(e: dict, cell, ctl) -> Check:
@@ -472,7 +677,10 @@ def _check_at(e: dict, cell, ctl) -> Check:
         ok &= have == e['controller_state']
         parts.append(f'controller {e["controller_state"]}')
         got.append(f'controller {have}')
-    return Check(f'at {e["at"]:g} s: ' + ', '.join(parts), ok, 'got ' + ', '.join(got))
+    detail = 'got ' + ', '.join(got)
+    if not ok:
+        detail += '\n' + cell.explain()
+    return Check(f'at {e["at"]:g} s: ' + ', '.join(parts), ok, detail)
 
 
 def _check_end(e: dict, res: ScenarioResult, sc: Scenario) -> Check:
@@ -540,14 +748,22 @@ def junit_xml(results: list, suite: str = 'sorter scenarios') -> str:
             errors='0',
             time=f'{r.wall_s:.3f}',
         )
+        if r.properties:
+            props = ET.SubElement(ts, 'properties')
+            for k, v in r.properties.items():
+                ET.SubElement(props, 'property', name=str(k), value=str(v))
         if r.error:
             case = ET.SubElement(ts, 'testcase', classname=r.name, name='runs', time='0')
-            ET.SubElement(case, 'failure', message=r.error).text = r.error
+            ET.SubElement(case, 'failure', message=r.error).text = r.error + (
+                f'\n{r.state}' if r.state else ''
+            )
         for c in r.checks:
             case = ET.SubElement(ts, 'testcase', classname=r.name, name=c.text, time='0')
             if not c.passed:
-                ET.SubElement(case, 'failure', message=c.detail).text = c.detail + (
-                    f'\nevidence: {r.record}' if r.record else ''
+                ET.SubElement(case, 'failure', message=c.detail.splitlines()[0]).text = (
+                    c.detail
+                    + (f'\n{r.state}' if r.state else '')
+                    + (f'\nevidence: {r.record}' if r.record else '')
                 )
         if r.record:
             ET.SubElement(ts, 'system-out').text = f'recording: {r.record}'
@@ -577,14 +793,20 @@ def report(r: ScenarioResult) -> str:
     if r.error:
         lines.append(f'  [error] {r.error}')
     for c in r.checks:
-        lines.append(f'  [{"ok" if c.passed else "FAIL"}] {c.text}: {c.detail}')
-    if r.record:
+        detail = c.detail.splitlines()[0] if c.detail else ''
+        lines.append(f'  [{"ok" if c.passed else "FAIL"}] {c.text}: {detail}')
+    if not r.passed and r.state:
+        # where the run ended: the parcels, faults and PackML state behind the failure
+        lines += ['  ' + x for x in r.state.splitlines()]
+    elif r.record:
         lines.append(f'  recording: {r.record}')
     return '\n'.join(lines)
 
 
 __all__ = [
     'Check',
+    'ControllerSpec',
+    'refuse_unknown',
     'Scenario',
     'ScenarioError',
     'ScenarioResult',
