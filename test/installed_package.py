@@ -4,8 +4,8 @@ The package as a user installs it: built into a wheel, installed into a fresh vi
 ``installed_venv(where)`` builds the wheel and the sdist with ``python -m build`` (as a
 release would), makes a new virtualenv outside the repository and installs the wheel
 into it with pip, from the wheel alone (``--no-deps --no-index``: nothing of the
-checkout can leak in). Its dependencies are the project's ``.venv``'s, linked in file by
-file (``cp -as``), so the test runs offline and in seconds: numpy, rclpy and the ROS
+checkout can leak in). Its dependencies are the project's ``.venv``'s, linked in (each
+installed distribution, library and share folder), so the test runs offline and in seconds: numpy, rclpy and the ROS
 libraries under the new prefix's ``lib/`` and ``share/`` are the same files, the
 project's own files are the wheel's. The editable install of the checkout (its finder,
 its dist-info, its ament index entry) is left out.
@@ -56,13 +56,17 @@ def _link_dependencies(venv: Path) -> None:
     site = venv / SITE.relative_to(prefix)
     for entry in SITE.iterdir():
         if not _is_ours(entry.name) and not (site / entry.name).exists():
-            _run(['cp', '-as', str(entry), str(site / entry.name)])
+            (site / entry.name).symlink_to(entry)
     for top in ('lib', 'share'):
         (venv / top).mkdir(exist_ok=True)
         for entry in (prefix / top).iterdir():
             if entry.name in ('python3.11', 'sorter_cell') or (venv / top / entry.name).exists():
                 continue
-            _run(['cp', '-as', str(entry), str(venv / top / entry.name)])
+            if entry.name == 'ament_index':
+                # the wheel adds its own entry here: real folders, the others' files linked
+                _run(['cp', '-as', str(entry), str(venv / top / entry.name)])
+            else:
+                (venv / top / entry.name).symlink_to(entry)
     marker = venv / 'share/ament_index/resource_index/packages/sorter_cell'
     if marker.is_symlink():
         marker.unlink()

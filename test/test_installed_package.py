@@ -188,11 +188,48 @@ def test_the_paper_figure_9_from_any_folder(venv, outside):
     assert any((outside / 'figs').iterdir())
 
 
-def test_the_pytest_plugin_runs_the_examples_outside_the_repository(venv, outside):
-    for f in (REPO / 'examples').glob('*.py'):
-        shutil.copy(f, outside / f.name)
+EXAMPLE_TESTS = sorted(p.name for p in (REPO / 'examples').glob('test_*.py'))
+EXAMPLE_SCENARIOS = sorted(p.name for p in (REPO / 'examples').glob('*.yaml'))
+
+
+@pytest.fixture
+def examples(outside) -> Path:
+    """examples/ copied to a folder outside the repository, as a user's project holds them."""
+    for f in (REPO / 'examples').iterdir():
+        if f.is_file():
+            shutil.copy(f, outside / f.name)
+    return outside
+
+
+@pytest.mark.parametrize('test_file', EXAMPLE_TESTS)
+def test_the_pytest_plugin_runs_the_examples_outside_the_repository(venv, examples, test_file):
+    """The fixtures (a cell, a line with the user's station program) from the installed plugin."""
     done = run(
-        venv, outside, 'python', '-m', 'pytest', '-q', '-p', 'no:cacheprovider', timeout=55.0
+        venv,
+        examples,
+        'python',
+        '-m',
+        'pytest',
+        '-q',
+        '-p',
+        'no:cacheprovider',
+        test_file,
+        timeout=55.0,
     )
     assert done.returncode == 0, done.stdout + done.stderr
     assert ' passed' in done.stdout and 'failed' not in done.stdout, done.stdout
+
+
+@pytest.mark.parametrize('scenario', EXAMPLE_SCENARIOS)
+def test_the_example_scenarios_run_the_users_controller_outside_the_repository(
+    venv, examples, scenario
+):
+    """A scenario file that starts the user's own node (in process, as a process, on a line)."""
+    done = run(venv, examples, 'sorter', 'scenario', 'run', scenario, '--json', timeout=55.0)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert json.loads(done.stdout)['passed'], done.stdout
+
+
+def test_the_examples_are_all_exercised():
+    assert {'test_minimal_controller.py', 'test_station_program.py'} <= set(EXAMPLE_TESTS)
+    assert 'line_scenario.yaml' in EXAMPLE_SCENARIOS
