@@ -5,10 +5,10 @@ The package as a user installs it: built into a wheel, installed into a fresh vi
 release would), makes a new virtualenv outside the repository and installs the wheel
 into it with pip, from the wheel alone (``--no-deps --no-index``: nothing of the
 checkout can leak in). Its dependencies are the project's ``.venv``'s, linked in (each
-installed distribution, library and share folder), so the test runs offline and in seconds: numpy, rclpy and the ROS
-libraries under the new prefix's ``lib/`` and ``share/`` are the same files, the
-project's own files are the wheel's. The editable install of the checkout (its finder,
-its dist-info, its ament index entry) is left out.
+installed distribution, library and share folder), so the test runs offline and in
+seconds: numpy, rclpy and the ROS libraries under the new prefix's ``lib/`` and
+``share/`` are the same files, the project's own files are the wheel's. The editable
+install of the checkout (its finder, its dist-info, its ament index entry) is left out.
 
 The numba kernels are compiled once per checkout (``scripts/test.sh``); their cache is
 copied next to the installed sources (the same sources, stamped alike), as a CI job
