@@ -22,12 +22,13 @@ image is exchanged as it is in the node, once per physics period:
   memory by the servers and read by the node's diagnostics.
 
 The child stops when the node asks it to, or when the pipe closes (the node died):
-no server outlives its cell.
+no server outlives its cell. It ignores SIGINT: Ctrl-C reaches the node, which stops it.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -437,4 +438,7 @@ class FieldbusProcess:
 
 
 if __name__ == '__main__':
+    # Ctrl-C on a terminal reaches the whole process group: the node stops this process
+    # through the pipe (or by closing it), so the interrupt is not this process's to take
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _serve(Connection(int(sys.argv[1])))
