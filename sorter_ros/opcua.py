@@ -64,16 +64,20 @@ def build_identity() -> tuple[str, datetime]:
     """
     from importlib import metadata
 
-    stamp = Path(__file__).stat().st_mtime
-    try:
-        dist = metadata.distribution(DISTRIBUTION)
-        version = dist.version
+    stamp, version = None, 'unknown'
+    # the newest of the installed metadata: ``python -m`` from a source tree also finds
+    # the tree's own egg-info, written when the install began, not when it ended
+    for dist in metadata.distributions(name=DISTRIBUTION):
         for f in dist.files or ():
             if f.name in ('METADATA', 'PKG-INFO'):
-                stamp = Path(f.locate()).stat().st_mtime
-                break
-    except (metadata.PackageNotFoundError, OSError):
-        version = 'unknown'
+                try:
+                    written = Path(f.locate()).stat().st_mtime
+                except OSError:
+                    continue
+                if stamp is None or written > stamp:
+                    stamp, version = written, dist.version
+    if stamp is None:
+        stamp = Path(__file__).stat().st_mtime
     return version, datetime.fromtimestamp(stamp, timezone.utc)
 
 
