@@ -152,7 +152,8 @@ def recover(src: str | Path, dst: str | Path) -> dict:
     dict
         ``messages``, ``topics`` ({topic: count}), ``span_ns`` (first, last) or None,
         ``complete`` (the recording had its footer), ``damage`` (what ended the read, or
-        None), ``bytes_read`` and ``bytes`` (of ``src``).
+        None), ``bytes_read`` (where the last whole record taken ends) and ``bytes``
+        (of ``src``).
 
     Raises
     ------
@@ -172,12 +173,15 @@ def recover(src: str | Path, dst: str | Path) -> dict:
         with open(src, 'rb') as f, open(part, 'wb') as out:
             copy = _Copy(out)
             reader = StreamReader(f, validate_crcs=True, record_size_limit=RECORD_SIZE_LIMIT)
+            read = 0  # the end of the last whole record taken
             try:
                 for record in reader.records:
                     copy.take(record)
+                    read = f.tell()
             except Exception as exc:  # whatever a torn or damaged byte makes the parser do
                 damage = f'{type(exc).__name__} ({str(exc)[:120] or "no detail"})'
-            read = f.tell()
+            else:
+                read = f.tell()
             if not copy.started:
                 raise ValueError(f'{str(src)[:200]!r} has no MCAP header to recover from')
             copy.finish()
@@ -208,11 +212,20 @@ def run(args) -> int | str:
     if got['span_ns']:
         first, last = got['span_ns']
         span = f', {first / 1e9:.3f} s to {last / 1e9:.3f} s'
+    cut = got['bytes'] - got['bytes_read']
     if got['complete']:
         lost = 'the recording was complete: nothing lost'
+    elif cut == 0:
+        lost = (
+            f'nothing of the file is lost: it ends at byte {got["bytes_read"]}, at a '
+            "record's end, only without its summary and footer"
+        )
     else:
-        cut = got['bytes'] - got['bytes_read']
         why = got['damage'] or 'it ends without its summary and footer'
         lost = f'the last {cut} bytes (from byte {got["bytes_read"]}) are lost: {why}'
-    print(f'{args.out}: {got["messages"]} messages on {len(got["topics"])} topics{span}; {lost}')
+    topics = len(got['topics'])
+    print(
+        f'{args.out}: {got["messages"]} messages on {topics} topic{"s" * (topics != 1)}'
+        f'{span}; {lost}'
+    )
     return 0
