@@ -32,6 +32,7 @@ setup(
         # sorter sweep: Dask runs a study on a cluster given --scheduler (and can
         # stand in for the local process pool); no home-made job distribution
         'dask[distributed]>=2024.1',
+        'distributed>=2024.1',  # imported by name (dask[distributed] brings it)
         # sorter sweep: results written as Parquet when the output ends in .parquet
         'pyarrow>=14.0',
         # sorter sweep / sorter paper: the progress bar over the points of a study
@@ -40,8 +41,9 @@ setup(
         # (sorter_sim/frontends/live_view.py), no ROS bridge needed
         'foxglove-sdk>=0.30',
         # recordings: MCAP files in the ros2 profile (sorter_ros/recording.py); the ROS 2
-        # support package decodes them in sorter replay from the definitions inside
-        'mcap>=1.2',
+        # support package decodes them in sorter replay from the definitions inside;
+        # 1.6: Writer.flush(), which closes a chunk on time (sorter_ros/recording_writer.py)
+        'mcap>=1.6',
         'mcap-ros2-support>=0.5',
         # a Foxglove client (python -m sorter_cell.live_snapshot, the live-view test):
         # WebSocket, and protobuf to decode the schemas the server advertises
@@ -57,6 +59,10 @@ setup(
         'python-snap7==3.3.0',
         'ros-jazzy-rclpy[fastrtps]>=7.1',
         'ros-jazzy-common-interfaces>=5.3',
+        # imported by name, so declared by name (rclpy brings both today): the message
+        # definitions' parser of recordings, and the ament index (sorter_ros/env.py)
+        'ros-rosidl-adapter>=4.6',
+        'ros-ament-index-python>=1.8',
     ],
     extras_require={
         # pytest-xdist: the suite runs in a worker process, so that a test ended by its

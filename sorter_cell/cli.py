@@ -1,5 +1,6 @@
 """
-The ``sorter`` command: ``sorter run | paper | sweep | bench | demo | replay | scenario | warmup``.
+The ``sorter`` command: ``run | paper | sweep | bench | demo | replay | scenario | recover``
+and ``warmup``.
 
 The model's verbs come from ``sorter_sim.cli``; ``demo`` starts the simulation
 node and the controller together, so it sits here, above both packages.
@@ -18,6 +19,7 @@ CELL_VERBS = dict(
     demo=("sorter_cell.demo", "run the sorter cell: simulation + controller nodes"),
     replay=("sorter_cell.replay", "summarise a recorded run (MCAP) and draw its parcel paths"),
     scenario=("sorter_cell.scenario_cli", "run scenario files (one, or a campaign on Dask)"),
+    recover=("sorter_cell.recover", "write a complete MCAP file from a recording cut short"),
     warmup=("sorter_cell.warmup_cli", "compile the model's kernels into numba's cache, once"),
 )
 

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from collections import deque
 
-from sorter_ros.opcua import ServerThread, new_server
+from sorter_ros.opcua import ServerThread, add_variable, argument, new_server
 
 KEEP = 256  # dispositions the Dispositions array holds
 MAX_ENTRIES = 10_000  # entries of a plan over OPC UA
@@ -75,7 +75,7 @@ class WcsOpcUa:
         from asyncua import ua
 
         server, self.endpoint = await new_server(
-            self._host, self._port, 'sorter_line', 'sorter_line'
+            self._host, self._port, 'sorter_line', 'sorter_line', 'wcs'
         )
         idx = await server.register_namespace('urn:sorter_cell:line')
         line = await server.nodes.objects.add_object(idx, 'sorter_line')
@@ -96,13 +96,8 @@ class WcsOpcUa:
             'Dispositions': ([], String, f'the latest {KEEP}, oldest first'),
         }
         for name, (initial, vtype, meaning) in variables.items():
-            var = await folder.add_variable(
-                idx, name, ua.Variant(initial, vtype, is_array=isinstance(initial, list))
-            )
-            await var.write_attribute(
-                ua.AttributeIds.Description, ua.DataValue(ua.LocalizedText(meaning))
-            )
-            self.nodes[name] = var
+            variant = ua.Variant(initial, vtype, is_array=isinstance(initial, list))
+            self.nodes[name] = await add_variable(folder, idx, name, variant, meaning)
         bad = ua.StatusCodes
 
         def method(arity, body):
@@ -145,8 +140,31 @@ class WcsOpcUa:
             return refuse(bad.BadInvalidArgument, why) if why else []
 
         methods = {
-            'SetSortPlan': (set_sort_plan, [String, String], []),
-            'RequestDestination': (request_destination, [String, String], []),
+            'SetSortPlan': (
+                set_sort_plan,
+                [
+                    argument('version', String, "the plan's name, shown in SortPlanVersion"),
+                    argument(
+                        'entries',
+                        String,
+                        f"'destination=chute', one per destination (at most {MAX_ENTRIES})",
+                        array=True,
+                    ),
+                ],
+                [],
+            ),
+            'RequestDestination': (
+                request_destination,
+                [
+                    argument('label', String, "a parcel's label"),
+                    argument(
+                        'destination',
+                        String,
+                        "where it goes, a destination of the plan; '' withdraws the request",
+                    ),
+                ],
+                [],
+            ),
         }
         for name, (func, inputs, outputs) in methods.items():
             self.nodes[name] = await folder.add_method(

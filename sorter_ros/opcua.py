@@ -6,14 +6,26 @@ The cell's fieldbus (``sorter_sim.frontends.fieldbus``) and the line's warehouse
 share is here: a server no client identity makes an administrator (``new_server``),
 its endpoint URL for any host, a stop bounded in time (``close_server``), and a thread
 of its own with an asyncio loop (``ServerThread``) for a node whose executor must not
-wait on OPC UA clients.
+wait on OPC UA clients. Each server says what it is as OPC UA Part 4 and 5 ask: its
+own ApplicationUri (``urn:<host name>:sorter_cell:<application>``) and the product's
+BuildInfo (``PRODUCT_URI``, the package's version and build date); and the nodes both
+add are typed as a generic client browses them (``add_variable``: a type definition,
+ValueRank and ArrayDimensions for arrays; ``argument``: a method argument with its
+name and description, OPC UA Part 3, 8.6).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 import threading
+from datetime import datetime, timezone
+from pathlib import Path
+
+DISTRIBUTION = 'sorter_cell'
+PRODUCT_URI = 'urn:sorter_cell:product'
+MANUFACTURER = 'sorter_cell'
 
 
 class AnonymousOnly:
@@ -42,7 +54,39 @@ def endpoint_url(host: str, port: int, path: str) -> str:
     return f'opc.tcp://{f"[{host}]" if ":" in host else host}:{port}/{path}/'
 
 
-async def new_server(host: str, port: int, path: str, name: str):
+def build_identity() -> tuple[str, datetime]:
+    """
+    Return the installed package's version and build date (UTC).
+
+    The build date is when the distribution's metadata was written (``pip install`` or
+    ``colcon build``); without metadata (a source tree on sys.path) the version is
+    'unknown' and the date that of this module's file.
+    """
+    from importlib import metadata
+
+    stamp, version = None, 'unknown'
+    # the newest of the installed metadata: ``python -m`` from a source tree also finds
+    # the tree's own egg-info, written when the install began, not when it ended
+    for dist in metadata.distributions(name=DISTRIBUTION):
+        for f in dist.files or ():
+            if f.name in ('METADATA', 'PKG-INFO'):
+                try:
+                    written = Path(f.locate()).stat().st_mtime
+                except OSError:
+                    continue
+                if stamp is None or written > stamp:
+                    stamp, version = written, dist.version
+    if stamp is None:
+        stamp = Path(__file__).stat().st_mtime
+    return version, datetime.fromtimestamp(stamp, timezone.utc)
+
+
+def application_uri(application: str) -> str:
+    """Return the ApplicationUri of one server: unique per machine (OPC UA Part 6, 6.2.2)."""
+    return f'urn:{socket.gethostname()}:{DISTRIBUTION}:{application}'
+
+
+async def new_server(host: str, port: int, path: str, name: str, application: str = ''):
     """
     Return an initialised asyncua Server (not started) that only anonymous sessions use.
 
@@ -54,6 +98,9 @@ async def new_server(host: str, port: int, path: str, name: str):
         The endpoint's path (``opc.tcp://host:port/path/``).
     name : str
         The server's application name.
+    application : str
+        What distinguishes this server's ApplicationUri from the project's others
+        (``cell:<name>``, ``line:<name>``, ``wcs``); ``name`` when empty.
 
     Returns
     -------
@@ -75,7 +122,82 @@ async def new_server(host: str, port: int, path: str, name: str):
     endpoint = endpoint_url(host, port, path)
     server.set_endpoint(endpoint)
     server.set_server_name(name)
+    # a client (a SCADA's server list, a historian's connection) tells servers apart by
+    # ApplicationUri and the product by BuildInfo: not the library's defaults
+    server.product_uri = PRODUCT_URI
+    server.manufacturer_name = MANUFACTURER
+    await server.set_application_uri(application_uri(application or name))
+    version, built = build_identity()
+    await server.set_build_info(PRODUCT_URI, MANUFACTURER, DISTRIBUTION, version, version, built)
     return server, endpoint
+
+
+def argument(name: str, vtype, description: str, array: bool = False):
+    """
+    Return a method's Argument (OPC UA Part 3, 8.6): named, described, scalar or 1-D.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, as a client's call dialog shows it.
+    vtype : asyncua.ua.VariantType
+        Its built-in type.
+    description : str
+        What it is and what it takes.
+    array : bool
+        A one-dimensional array of any length (ValueRank 1, ArrayDimensions [0]).
+
+    """
+    from asyncua import ua
+
+    return ua.Argument(
+        Name=name,
+        DataType=ua.NodeId(vtype.value),
+        ValueRank=ua.ValueRank.OneDimension if array else ua.ValueRank.Scalar,
+        ArrayDimensions=[0] if array else [],
+        Description=ua.LocalizedText(description),
+    )
+
+
+async def add_variable(parent, idx: int, name: str, variant, description: str, typedef=None):
+    """
+    Add a read-only variable under ``parent`` as a generic client expects to find it.
+
+    Its Description is ``description``; an array value is declared one-dimensional
+    (ValueRank 1, ArrayDimensions [0]: any length) even while it is empty; its type
+    definition is ``typedef`` (a standard ObjectIds number, e.g. AnalogItemType) or
+    BaseDataVariableType.
+
+    Returns
+    -------
+    asyncua.Node
+        The variable.
+
+    """
+    from asyncua import Node, ua
+
+    attrs = ua.VariableAttributes()
+    attrs.DisplayName = ua.LocalizedText(name)
+    attrs.Description = ua.LocalizedText(description)
+    attrs.DataType = ua.NodeId(variant.VariantType.value)
+    attrs.Value = variant
+    is_array = variant.is_array or isinstance(variant.Value, list)
+    attrs.ValueRank = ua.ValueRank.OneDimension if is_array else ua.ValueRank.Scalar
+    attrs.ArrayDimensions = [0] if is_array else None
+    attrs.AccessLevel = attrs.UserAccessLevel = ua.AccessLevel.CurrentRead.mask
+    attrs.WriteMask = attrs.UserWriteMask = 0
+    item = ua.AddNodesItem(
+        RequestedNewNodeId=ua.NodeId(0, idx),
+        BrowseName=ua.QualifiedName(name, idx),
+        NodeClass=ua.NodeClass.Variable,
+        ParentNodeId=parent.nodeid,
+        ReferenceTypeId=ua.NodeId(ua.ObjectIds.HasComponent),
+        TypeDefinition=ua.NodeId(typedef or ua.ObjectIds.BaseDataVariableType),
+        NodeAttributes=attrs,
+    )
+    (result,) = await parent.session.add_nodes([item])
+    result.StatusCode.check()
+    return Node(parent.session, result.AddedNodeId)
 
 
 async def close_server(server, wait_s: float) -> None:

@@ -21,7 +21,8 @@ wall time), and its writer still finishes the file. A file being recorded is loc
 (``flock``): a second process that names it is refused before it truncates anything.
 A write that fails (the disk full), a writer killed or stalled stops the recording,
 says so once through the callbacks given to ``open_recorder``, and leaves the file
-readable up to its last complete chunk; the node goes on publishing.
+readable up to its last complete chunk (the writer closes one at least every half
+second; ``sorter recover`` makes a complete file of it); the node goes on publishing.
 """
 
 from __future__ import annotations
@@ -264,7 +265,7 @@ class Recorder:
         self.failure = (
             f'recording to {str(self.path)[:200]} stopped: {reason} after {written} '
             'messages; the file is readable up to its last complete chunk '
-            '(sorter replay --recover)'
+            '(sorter recover writes a complete copy of it)'
         )
         self._pending = bytearray()
         if self._proc.poll() is None:

@@ -10,7 +10,15 @@ A frame is a fixed head (``HEAD``: kind, channel id, time [ns], payload length) 
 payload: ``CHANNEL`` (JSON: topic, schema name, schema text, QoS YAML), ``MESSAGE``
 (the CDR bytes), ``METADATA`` (JSON: name, values), ``FINISH``. The file is finished
 (summary and footer) on ``FINISH`` and also when the input ends without it (the node
-was killed) or this process gets SIGTERM: what reached it is a complete file. SIGINT
+was killed) or this process gets SIGTERM: what reached it is a complete file.
+
+A chunk is closed and written out at least every ``CHUNK_S`` of wall time, and the
+file synced then (``fdatasync``): this process killed with the node (a whole process
+group, a container stopped, the power gone) leaves every message handed over more
+than about a second before in complete chunks, which ``sorter recover`` turns into a
+complete file. Every file opens with rosbag2's ``rosbag2`` metadata record (the bag's
+``serialized_metadata`` with ``ros_distro``, and ``ROS_DISTRO``) and a finished one
+repeats it with the counts, as rosbag2's MCAP storage writes it on close. SIGINT
 is ignored: Ctrl-C on a terminal reaches the whole process group, and the node
 finishes its recording through ``FINISH`` as it shuts down. A write that fails (the
 disk full) ends this process with status 3 after one line on its standard output,
@@ -21,14 +29,21 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import struct
 import sys
+import time
 
 HEAD = struct.Struct('<BHqI')  # kind, channel id, time [ns], payload length
 CHANNEL, MESSAGE, METADATA, FINISH = 1, 2, 3, 4
 FAILED_EXIT = 3
 PROFILE = 'ros2'  # MCAP's profile of ROS 2 recordings, as rosbag2 writes them
+CHUNK_S = 0.5  # s of wall time a chunk stays open at most: what a kill of both loses
+# the distribution the package is built for (its rclpy and message wheels are Jazzy's);
+# a sourced ROS environment says its own
+ROS_DISTRO = os.environ.get('ROS_DISTRO') or 'jazzy'
+BAG_VERSION = 9  # rosbag2's metadata version of Jazzy
 
 
 class _Terminated(Exception):
@@ -47,10 +62,179 @@ def _on_term(signum, frame):
     raise _Terminated
 
 
-def _read_exactly(stream, n: int) -> bytes | None:
-    """Return ``n`` bytes, or None when the input ends first (a torn last frame is dropped)."""
-    data = stream.read(n)
-    return data if data is not None and len(data) == n else None
+class _Input:
+    """The frames' pipe, read so that the writer gets a turn (``idle``) while it waits."""
+
+    def __init__(self, stream, idle):
+        self._fd = stream.fileno()
+        self._idle = idle
+
+    def read_exactly(self, n: int) -> bytes | None:
+        """Return ``n`` bytes, or None when the input ends first (a torn last frame is dropped)."""
+        parts, got = [], 0
+        while got < n:
+            ready, _, _ = select.select([self._fd], [], [], CHUNK_S / 2)
+            if not ready:
+                self._idle()
+                continue
+            data = os.read(self._fd, n - got)
+            if not data:
+                return None
+            parts.append(data)
+            got += len(data)
+        return b''.join(parts)
+
+
+def bag_metadata(
+    topics: dict | None = None, counts: dict | None = None, span=None, distro: str = ROS_DISTRO
+) -> dict:
+    """
+    Return the ``rosbag2`` metadata record's values, as rosbag2's MCAP storage writes them.
+
+    ``serialized_metadata`` is the bag's metadata (version 9, with ``ros_distro``) in
+    YAML; ``ROS_DISTRO`` is where older readers look.
+
+    Parameters
+    ----------
+    topics : dict, optional
+        {topic: (type, QoS YAML)} of the channels so far.
+    counts : dict, optional
+        {topic: messages}.
+    span : (int, int), optional
+        The first and last message time [ns].
+    distro : str
+        The ROS distribution the messages are of.
+
+    """
+    topics, counts = topics or {}, counts or {}
+    first, last = span or (0, 0)
+    meta = {
+        'version': BAG_VERSION,
+        'storage_identifier': 'mcap',
+        'duration': {'nanoseconds': last - first},
+        'starting_time': {'nanoseconds_since_epoch': first},
+        'message_count': sum(counts.values()),
+        'topics_with_message_count': [
+            {
+                'topic_metadata': {
+                    'name': topic,
+                    'type': msg_type,
+                    'serialization_format': 'cdr',
+                    'offered_qos_profiles': qos,
+                    'type_description_hash': '',
+                },
+                'message_count': counts.get(topic, 0),
+            }
+            for topic, (msg_type, qos) in topics.items()
+        ],
+        'compression_format': '',
+        'compression_mode': '',
+        'relative_file_paths': [],
+        'files': [],
+        'custom_data': {},
+        'ros_distro': distro,
+    }
+    # JSON is YAML: rosbag2's yaml-cpp reads it as it reads its own dump
+    return {'serialized_metadata': json.dumps(meta, indent=1), 'ROS_DISTRO': distro}
+
+
+class BagCounts:
+    """
+    What a bag holds so far, by channel: its topics, messages per topic, time span.
+
+    What the ``rosbag2`` metadata record counts (``record``), kept as the file is
+    written or, by ``sorter recover``, as it is read back.
+    """
+
+    def __init__(self):
+        self.topics: dict[str, tuple[str, str]] = {}  # topic -> (type, QoS YAML)
+        self.counts: dict[str, int] = {}
+        self.span: tuple[int, int] | None = None  # first and last message time [ns]
+        self.messages = 0
+        self._topic_of: dict[int, str] = {}
+
+    def channel(self, channel: int, topic: str, msg_type: str, qos: str) -> None:
+        self.topics[topic] = (msg_type, qos)
+        self._topic_of[channel] = topic
+
+    def message(self, channel: int, t_ns: int) -> None:
+        topic = self._topic_of[channel]
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        first, last = self.span or (t_ns, t_ns)
+        self.span = (min(first, t_ns), max(last, t_ns))
+        self.messages += 1
+
+    def record(self, distro: str = ROS_DISTRO) -> dict:
+        """Return the ``rosbag2`` metadata record's values for what was counted."""
+        return bag_metadata(self.topics, self.counts, self.span, distro)
+
+
+class _Bag:
+    """One MCAP file in the making: its writer, channels and counts, chunks closed in time."""
+
+    def __init__(self, out, chunk_size: int):
+        from mcap.writer import CompressionType, Writer
+
+        self._out = out
+        # LZ4 chunks rather than zstd: files about 1.5x larger, written faster; the data
+        # section's CRC too, so a reader finds a damaged file as such
+        self.writer = Writer(
+            out, chunk_size=chunk_size, compression=CompressionType.LZ4, enable_data_crcs=True
+        )
+        self.writer.start(profile=PROFILE, library='sorter_cell')
+        self.writer.add_metadata(name='rosbag2', data=bag_metadata())
+        self.schemas: dict[str, int] = {}
+        self.channels: dict[int, int] = {}
+        self.counts = BagCounts()
+        self._open_since: float | None = None  # when the open chunk took its first message
+        self.sync()
+
+    def frame(self, kind: int, channel: int, t_ns: int, payload: bytes) -> None:
+        w = self.writer
+        if kind == MESSAGE:
+            w.add_message(
+                channel_id=self.channels[channel], log_time=t_ns, publish_time=t_ns, data=payload
+            )
+            self.counts.message(channel, t_ns)
+            if self._open_since is None:
+                self._open_since = time.monotonic()
+            elif time.monotonic() - self._open_since >= CHUNK_S:
+                self.sync()
+        elif kind == CHANNEL:
+            c = json.loads(payload)
+            schema = self.schemas.get(c['type'])
+            if schema is None:
+                schema = self.schemas[c['type']] = w.register_schema(
+                    name=c['type'], encoding='ros2msg', data=c['definition'].encode()
+                )
+            self.channels[channel] = w.register_channel(
+                topic=c['topic'],
+                message_encoding='cdr',
+                schema_id=schema,
+                metadata={'offered_qos_profiles': c['qos']},
+            )
+            self.counts.channel(channel, c['topic'], c['type'], c['qos'])
+        elif kind == METADATA:
+            m = json.loads(payload)
+            w.add_metadata(name=m['name'], data=m['values'])
+
+    def idle(self) -> None:
+        """Close a chunk that has waited ``CHUNK_S`` while no frame came."""
+        if self._open_since is not None and time.monotonic() - self._open_since >= CHUNK_S:
+            self.sync()
+
+    def sync(self) -> None:
+        """Write the open chunk out and sync the file: what it holds survives any kill."""
+        self.writer.flush()
+        self._open_since = None
+        try:
+            os.fdatasync(self._out.fileno())
+        except (AttributeError, OSError, ValueError):
+            pass  # a pipe or a file system without it: written is what can be
+
+    def finish(self) -> None:
+        self.writer.add_metadata(name='rosbag2', data=self.counts.record())
+        self.writer.finish()
 
 
 def write_recording(stream, out, chunk_size: int) -> int:
@@ -60,11 +244,11 @@ def write_recording(stream, out, chunk_size: int) -> int:
     Parameters
     ----------
     stream : binary file
-        The frames.
+        The frames (a pipe or a file: read through its descriptor).
     out : binary file
         The recording.
     chunk_size : int
-        Bytes of messages per chunk.
+        Bytes of messages per chunk at most (a chunk also closes every ``CHUNK_S``).
 
     Returns
     -------
@@ -72,57 +256,30 @@ def write_recording(stream, out, chunk_size: int) -> int:
         The messages written.
 
     """
-    from mcap.writer import CompressionType, Writer
-
-    # LZ4 chunks rather than zstd: files about 1.5x larger, written faster; 1 MiB chunks,
-    # so a writer killed outright loses at most one of them; the data section's CRC too,
-    # so a reader finds a damaged file as such
-    writer = Writer(
-        out, chunk_size=chunk_size, compression=CompressionType.LZ4, enable_data_crcs=True
-    )
-    writer.start(profile=PROFILE, library='sorter_cell')
-    schemas: dict[str, int] = {}
-    channels: dict[int, int] = {}
-    messages = 0
+    try:
+        bag = _Bag(out, chunk_size)
+    except OSError as exc:
+        raise WriteFailed(0, exc.strerror or str(exc)) from None
+    frames = _Input(stream, bag.idle)
     try:
         while True:
-            head = _read_exactly(stream, HEAD.size)
+            head = frames.read_exactly(HEAD.size)
             if head is None:
                 break
             kind, channel, t_ns, length = HEAD.unpack(head)
-            payload = _read_exactly(stream, length) if length else b''
+            payload = frames.read_exactly(length) if length else b''
             if payload is None or kind == FINISH:
                 break
-            if kind == MESSAGE:
-                writer.add_message(
-                    channel_id=channels[channel], log_time=t_ns, publish_time=t_ns, data=payload
-                )
-                messages += 1
-            elif kind == CHANNEL:
-                c = json.loads(payload)
-                schema = schemas.get(c['type'])
-                if schema is None:
-                    schema = schemas[c['type']] = writer.register_schema(
-                        name=c['type'], encoding='ros2msg', data=c['definition'].encode()
-                    )
-                channels[channel] = writer.register_channel(
-                    topic=c['topic'],
-                    message_encoding='cdr',
-                    schema_id=schema,
-                    metadata={'offered_qos_profiles': c['qos']},
-                )
-            elif kind == METADATA:
-                m = json.loads(payload)
-                writer.add_metadata(name=m['name'], data=m['values'])
+            bag.frame(kind, channel, t_ns, payload)
     except _Terminated:
         pass
     except OSError as exc:
-        raise WriteFailed(messages, exc.strerror or str(exc)) from None
+        raise WriteFailed(bag.counts.messages, exc.strerror or str(exc)) from None
     try:
-        writer.finish()
+        bag.finish()
     except OSError as exc:
-        raise WriteFailed(messages, exc.strerror or str(exc)) from None
-    return messages
+        raise WriteFailed(bag.counts.messages, exc.strerror or str(exc)) from None
+    return bag.counts.messages
 
 
 def main(argv: list[str]) -> int:

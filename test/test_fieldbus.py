@@ -16,6 +16,7 @@ import socket
 import subprocess
 import sys
 import threading
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pytest
@@ -650,6 +651,33 @@ def test_an_independent_modbus_client_reads_and_writes_the_image(cell):
         client.close()
 
 
+def test_the_cell_answers_its_unit_id_and_refuses_others_as_the_line_does(cell):
+    """pyModbusTCP at unit ids 0, 1, 17, 247 and 255: the cell is unit 1 (and 255, TCP's)."""
+    from pyModbusTCP.client import ModbusClient
+
+    cell.advance(200)
+    t = MAP['cell.time']
+    answered, refused = {}, {}
+    for unit in (0, 1, 17, 247, 255):
+        client = ModbusClient(
+            host='127.0.0.1', port=cell.fieldbus.modbus_port, unit_id=unit, timeout=5.0
+        )
+        try:
+            regs = client.read_input_registers(t.address, 2)
+            if regs is None:
+                refused[unit] = client.last_except
+            else:
+                answered[unit] = ((regs[0] << 16) | regs[1]) * t.scale
+            # a write to a unit that is not there changes nothing
+            client.write_single_coil(MAP['diverter.popup'].address, unit not in (1, 255))
+        finally:
+            client.close()
+    assert answered == {1: pytest.approx(0.2, abs=1e-3), 255: pytest.approx(0.2, abs=1e-3)}
+    assert refused == {0: 0x0B, 17: 0x0B, 247: 0x0B}  # gateway target failed to respond
+    cell.advance(1)
+    assert float(cell.cell.act[ck.A_STROKE_TARGET]) == 0.0
+
+
 def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_refusal(cell):
     import asyncio
 
@@ -823,11 +851,13 @@ def test_an_opc_ua_subscription_sees_the_cell_move(cell):
     worker = threading.Thread(target=lambda: asyncio.run(subscribe()), daemon=True)
     worker.start()
     assert ready.wait(20.0), 'no subscription within 20 s'
+    started = datetime.now(timezone.utc)
     try:
         # 3 s of simulated time over about 3 s of wall time, as a real-time cell runs
         for _ in range(60):
             cell.advance(50)
             _time.sleep(0.05)
+        finished = datetime.now(timezone.utc)
         _time.sleep(0.5)
     finally:
         done.set()
@@ -838,11 +868,13 @@ def test_an_opc_ua_subscription_sees_the_cell_move(cell):
     enc = [v for v, _, _ in notes['belt.encoder']]
     assert len(enc) >= 15 and enc == sorted(enc)
     assert len(notes['sensor.pe_scan']) >= 2  # the initial value and at least one edge
-    origin = cell.fieldbus.time_origin
-    for value, source, server in notes['cell.time'][1:]:
-        # SourceTimestamp is the cell's time, mapped to UtcTime; the server stamps too
-        assert source is not None and server is not None
-        assert abs((source - origin).total_seconds() - value) < 1e-3
+    stamped = notes['cell.time'][1:]
+    for value, source, server in stamped:
+        # SourceTimestamp: when the cell sampled the value (wall clock); the server stamps too
+        assert source is not None and server is not None and source <= server
+        assert started <= source <= finished
+    sources = [source for _, source, _ in stamped]
+    assert sources == sorted(sources)
 
 
 def test_engineering_units_carry_their_unece_codes(cell, opcua):
@@ -948,3 +980,48 @@ def test_the_fieldbus_changes_nothing_a_subscriber_receives(ros, io_cycle):
     )
     assert plain.cell.outcome_counts == served.cell.outcome_counts
     assert sum(plain.cell.outcome_counts.values()) >= 2
+
+
+def test_ctrl_c_stops_the_node_and_its_fieldbus_process_without_a_traceback(tmp_path):
+    """Ctrl-C on a terminal: SIGINT to the whole process group, the servers' process too."""
+    import os
+    import signal
+    import time
+
+    proc = subprocess.Popen(
+        [
+            str(BIN / 'sim_node'),
+            '--ros-args',
+            '-p',
+            f'modbus_port:={free_port()}',
+            '-p',
+            f'opcua_port:={free_port()}',
+            '-p',
+            'arrival:=none',
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, as a terminal's job is
+    )
+    try:
+        seen = []
+        deadline = time.monotonic() + 50.0
+        while time.monotonic() < deadline:
+            line = proc.stderr.readline()
+            if not line:
+                break
+            seen.append(line)
+            if 'sorter cell ready' in line:
+                break
+        assert any('fieldbus I/O image' in x for x in seen), ''.join(seen)[-2000:]
+        time.sleep(0.5)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+    err = ''.join(seen) + err
+    assert proc.returncode == 0, err[-3000:]
+    assert 'Traceback' not in err and 'KeyboardInterrupt' not in err, err[-3000:]

@@ -293,7 +293,7 @@ def test_a_full_disk_stops_the_recording_with_one_message_and_the_node_runs_on(t
     import resource
 
     path = tmp_path / 'full.mcap'
-    limit = 1_500_000  # bytes: the second chunk does not fit
+    limit = 1_500_000  # bytes: the file grows a chunk at least every 0.5 s until it hits this
 
     def small_disk():
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
@@ -309,10 +309,10 @@ def test_a_full_disk_stops_the_recording_with_one_message_and_the_node_runs_on(t
     try:
         deadline = time.monotonic() + 45.0
         while time.monotonic() < deadline and not (
-            path.exists() and path.stat().st_size > 1_000_000
+            path.exists() and path.stat().st_size > limit - 200_000
         ):
             time.sleep(0.05)
-        time.sleep(3.0)  # well past the failed write, still running
+        time.sleep(3.0)  # well past the failed write (the next chunk), still running
         assert proc.poll() is None, proc.communicate()[1][-2000:]
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=20)
@@ -342,7 +342,8 @@ def test_a_file_being_recorded_is_refused_to_a_second_writer_before_it_starts(tm
         size = path.stat().st_size
         out = subprocess.run(_node_cmd(path), capture_output=True, text=True, timeout=60)
         assert out.returncode == 2, out.stderr[-2000:]
-        lines = out.stderr.strip().splitlines()
+        # one line of refusal; a loaded machine may add the kernels' warm-up note before it
+        lines = [x for x in out.stderr.strip().splitlines() if not x.startswith('[INFO]')]
         assert len(lines) == 1 and 'being recorded by another process' in lines[0], lines
         assert 'record_path' in lines[0]
         assert path.stat().st_size >= size  # not truncated under the first writer

@@ -216,3 +216,17 @@ def test_a_killed_server_process_leaves_the_cell_running_and_says_so(cell, plc):
     assert cell._fieldbus_diagnostics()['fieldbus_servers'] == 'ended'
     with pytest.raises(Exception):
         plc.db_read(1, 0, 8)
+
+
+def test_the_cpu_reports_run_as_s7_tools_read_it(cell, plc):
+    # the operating mode as Snap7's GetPlcStatus reads it: SZL W#16#0424, its record's
+    # fourth byte (after the SZL header, LENTHDR and N_DR), 0x08 RUN, 0x04 STOP
+    szl = plc.read_szl(0x0424, 0)
+    data = bytes(szl.Data[: szl.Header.LengthDR])
+    length, records = int.from_bytes(data[0:2], 'big'), int.from_bytes(data[2:4], 'big')
+    assert (length, records) == (20, 1) and len(data) == 4 + length
+    assert data[7] == 0x08, data.hex()
+    assert plc.get_cpu_state() == 'S7CpuStatusRun'
+    # the list of SZL ids names it, and the data blocks are served as before
+    assert b'\x04\x24' in plc.read_szl_list()
+    assert len(plc.db_read(1, 0, 8)) == 8

@@ -7,10 +7,10 @@ every physics period and takes the outputs clients wrote at the start of the nex
 one, the way a PLC's I/O image is exchanged once per cycle. ``FieldbusServers``
 serves it in one background thread (an asyncio loop): Modbus TCP
 (``modbus_server``: discrete inputs, coils, input and holding registers at the map's
-addresses and scaling) and OPC UA with asyncua (a folder per cell, ``Inputs`` and
-``Outputs`` with typed variables in engineering units; only outputs are writable,
-and only by anonymous sessions: no identity a client offers makes it an
-administrator).
+addresses and scaling) and OPC UA with asyncua (the address space of
+``opcua_model``: a folder per cell, ``Inputs`` and ``Outputs`` with typed variables in
+engineering units; only outputs are writable, and only by anonymous sessions: no
+identity a client offers makes it an administrator).
 
 Bad writes change nothing and get the protocol's own error: Modbus exception 2
 (illegal data address) for an address no output has, 3 (illegal data value) for
@@ -27,8 +27,8 @@ import asyncio
 import math
 import re
 import threading
+import time
 from collections import deque
-from datetime import datetime, timedelta, timezone
 
 from sorter_ros.opcua import close_server, new_server
 from sorter_sim.model.description import LABEL_RE
@@ -43,13 +43,9 @@ from sorter_sim.model.io_map import (
     by_name,
     table_size,
 )
-from sorter_sim.model.packml import COMMAND_NUMBERS, STATE_BY_NUMBER, TRANSITIONS
-from sorter_sim.model.packml import COMMANDS as PACKML_COMMANDS
 
 _TABLES = (DI, COIL, IR, HR)
 LABEL_QUEUE = 64  # labels the scanner keeps while the PLC has not acknowledged them
-PUSH_S = 0.02  # s between hand-overs of changed inputs to OPC UA subscriptions
-_UNSET = object()
 
 
 class IOImage:
@@ -76,6 +72,9 @@ class IOImage:
             self._store_output(self.by_name[name], value)
         self._pending: dict[str, object] = {}
         self._rises: set[str] = set()
+        # when the cell last sampled the inputs [ns since the epoch, wall clock]: what a
+        # value's OPC UA SourceTimestamp says, whatever the simulated clock reads
+        self.sampled_ns = 0
         self.stats = {
             'writes': 0,
             'refused': 0,  # writes refused
@@ -98,7 +97,9 @@ class IOImage:
 
         """
         inputs = self.inputs
+        sampled = time.time_ns()
         with self._lock:
+            self.sampled_ns = sampled
             for name, value in values.items():
                 if inputs[name] == value and type(inputs[name]) is type(value):
                     continue  # most inputs hold still from one period to the next
@@ -177,6 +178,20 @@ class IOImage:
         """Return several inputs' engineering values, all of the same period."""
         with self._lock:
             return tuple(self.inputs[n] for n in names)
+
+    def input_sample(self, names) -> tuple[tuple, int]:
+        """
+        Return several inputs' engineering values, of one period, and when it was sampled.
+
+        Returns
+        -------
+        (tuple, int)
+            The values, and the wall-clock time the cell sampled them [ns since the epoch;
+            0 before the first period].
+
+        """
+        with self._lock:
+            return tuple(self.inputs[n] for n in names), self.sampled_ns
 
     def owns(self, table: str, address: int) -> bool:
         """Return whether an output owns that coil or holding register."""
@@ -441,14 +456,6 @@ class Warehouse:
             self.table = list(rules)
 
 
-class MethodRefused(Exception):
-    """A warehouse method call refused: ``status`` is the OPC UA status code to answer."""
-
-    def __init__(self, status: int, message: str):
-        super().__init__(message)
-        self.status = status
-
-
 DESTINATIONS = ('left', 'right', 'straight')
 LINE_MAX = 256  # characters of a result, confirmation or rule line
 _CONFIRMATION_RE = re.compile(r'(%s)?(;[a-z_-]{1,32}){3}' % LABEL_RE.pattern)
@@ -514,12 +521,6 @@ class FieldbusServers:
         self.warehouse = Warehouse()
         self.modbus_port: int | None = None
         self.opcua_endpoint: str | None = None
-        # simulated time t [s] is served as the UtcTime time_origin + t (SourceTimestamp)
-        self.time_origin = datetime.now(timezone.utc) - timedelta(
-            seconds=float(image.inputs.get('cell.time', 0.0) or 0.0)
-        )
-        self._opc_inputs: list = []
-        self._outputs: set[str] = set()  # keys of opcua_nodes that are outputs
         self._pusher = None
 
     def start(self) -> None:
@@ -625,122 +626,31 @@ class FieldbusServers:
         self._modbus = server
 
     # ---------------------------------------------------------------- OPC UA
-    async def _add_warehouse(self, cell, idx, aspace) -> None:
-        """Add the ``Warehouse`` folder: routing requests, their results, confirmations."""
-        from asyncua import ua
-
-        wh = self.warehouse
-        folder = await cell.add_folder(idx, 'Warehouse')
-        String, UInt32 = ua.VariantType.String, ua.VariantType.UInt32
-        readers = {
-            'RouteRequests': (UInt32, lambda: wh.requested, 'routing changes asked so far'),
-            'PendingRoutes': (String, wh.pending, "requests the PLC has not taken: 'seq|rule'"),
-            'RouteResults': (String, lambda: list(wh.results), "'seq|rule: accepted/refused'"),
-            'Confirmations': (
-                String,
-                lambda: list(wh.confirmations),
-                "the PLC's sort confirmations: 'label;asked;reached;result'",
-            ),
-            'ConfirmationCount': (UInt32, lambda: wh.confirmed, 'confirmations so far'),
-            'RoutingTable': (String, lambda: list(wh.table), "the PLC's live routing table"),
-        }
-        for name, (vtype, get, meaning) in readers.items():
-            initial = ua.Variant(get(), vtype, is_array=vtype == String)
-            var = await folder.add_variable(idx, name, initial)
-            await var.write_attribute(
-                ua.AttributeIds.Description, ua.DataValue(ua.LocalizedText(meaning))
-            )
-            aspace.set_attribute_value_callback(
-                var.nodeid,
-                ua.AttributeIds.Value,
-                lambda nodeid, attr, get=get, vtype=vtype: ua.DataValue(
-                    ua.Variant(get(), vtype, is_array=vtype == String)
-                ),
-            )
-            self.opcua_nodes[f'Warehouse.{name}'] = var.nodeid
-
-        Bad = ua.StatusCodes
-
-        def method(arity, body):
-            """
-            Wrap a method: its argument count checked, a refusal counted and answered.
-
-            MethodRefused carries its own status; a ValueError of the warehouse (the
-            arguments' content) is BadInvalidArgument.
-            """
-
-            def call(parent, *args):
-                if len(args) != arity:
-                    wh.refused += 1
-                    return ua.StatusCode(
-                        Bad.BadArgumentsMissing if len(args) < arity else Bad.BadTooManyArguments
-                    )
-                try:
-                    return body(*args)
-                except MethodRefused as exc:
-                    wh.refused += 1
-                    return ua.StatusCode(exc.status)
-                except ValueError:
-                    wh.refused += 1
-                    return ua.StatusCode(Bad.BadInvalidArgument)
-
-            return call
-
-        def strings(arg, what, most):
-            """Return the String array an argument must be, else raise MethodRefused (why)."""
-            if arg.VariantType != String or not isinstance(arg.Value, list):
-                raise MethodRefused(Bad.BadTypeMismatch, f'{what} must be a String array')
-            if len(arg.Value) > most:
-                raise MethodRefused(Bad.BadInvalidArgument, f'{what}: at most {most} entries')
-            return arg.Value
-
-        def request_route(pattern, destination):
-            if pattern.VariantType != String or destination.VariantType != String:
-                raise MethodRefused(Bad.BadTypeMismatch, 'pattern and destination are Strings')
-            return [ua.Variant(wh.request(pattern.Value, destination.Value), UInt32)]
-
-        def take_routes(count, results):
-            if count.VariantType != UInt32:
-                raise MethodRefused(Bad.BadTypeMismatch, 'count must be a UInt32')
-            wh.take(count.Value, strings(results, 'results', Warehouse.MAX_PENDING))
-            return []
-
-        def confirm(lines):
-            wh.confirm(strings(lines, 'lines', Warehouse.KEEP))
-            return []
-
-        def publish_table(rules):
-            wh.set_table(strings(rules, 'rules', Warehouse.MAX_RULES))
-            return []
-
-        methods = {
-            'RequestRoute': (request_route, [String, String], [UInt32]),
-            'TakeRoutes': (take_routes, [UInt32, String], []),
-            'Confirm': (confirm, [String], []),
-            'PublishRoutingTable': (publish_table, [String], []),
-        }
-        for name, (func, inputs, outputs) in methods.items():
-            node = await folder.add_method(idx, name, method(len(inputs), func), inputs, outputs)
-            self.opcua_nodes[f'Warehouse.{name}'] = node.nodeid
-
     async def _start_opcua(self, host: str, port: int) -> None:
-        server, endpoint = await new_server(host, port, 'sorter_cell', 'sorter_cell')
+        from sorter_sim.frontends.opcua_model import CellAddressSpace, answer_writes_per_item
+
+        line = self.stations is not None
+        server, endpoint = await new_server(
+            host,
+            port,
+            'sorter_cell',
+            'sorter_cell',
+            f'{"line" if line else "cell"}:{self.cell_name}',
+        )
         idx = await server.register_namespace('urn:sorter_cell')
         cell = await server.nodes.objects.add_folder(idx, self.cell_name)
-        aspace = server.iserver.aspace
-        if self.stations is None:
-            await self._add_image(cell, idx, aspace, self.image, '')
-            await self._add_machine(cell, idx, aspace, self.image, '', self.cell_name)
-            await self._add_warehouse(cell, idx, aspace)
+        model = CellAddressSpace(server, idx)
+        self.opcua_nodes = model.nodes
+        if not line:
+            await model.add_image(cell, self.image, '')
+            await model.add_machine(cell, self.image, '', self.cell_name)
+            await model.add_warehouse(cell, self.warehouse)
         else:
             for name, image in self.stations:
                 folder = await cell.add_folder(idx, name)
-                await self._add_image(folder, idx, aspace, image, f'{name}.')
-                await self._add_machine(
-                    folder, idx, aspace, image, f'{name}.', f'{self.cell_name}/{name}'
-                )
-        writable = {self.opcua_nodes[key] for key in self._outputs}
-        _answer_writes_per_item(server, writable)
+                await model.add_image(folder, image, f'{name}.')
+                await model.add_machine(folder, image, f'{name}.', f'{self.cell_name}/{name}')
+        answer_writes_per_item(server, model.writable())
         try:
             await server.start()
         except (OSError, RuntimeError) as exc:
@@ -749,196 +659,7 @@ class FieldbusServers:
             ) from None
         self._opcua = server
         self.opcua_endpoint = endpoint
-        self._pusher = asyncio.ensure_future(self._push_inputs(aspace))
-
-    async def _add_machine(self, parent, idx, aspace, image: IOImage, prefix: str, serial):
-        """
-        Add ``Identification`` (OPC 40001-1) and ``PackML`` (OPC 30050) under ``parent``.
-
-        Identification carries Manufacturer, Model, SerialNumber, SoftwareRevision and
-        ProductInstanceUri with the names of OPC 40001-1's MachineIdentificationType (as
-        plain properties in this server's namespace: the companion specification's
-        nodeset is not loaded). PackML carries CurrentState (the state's name),
-        StateCurrent (its PackTags number) and one method per command, named as OPC
-        30050's state machine names them (Reset, Start, Stop, Hold, Unhold, Suspend,
-        Unsuspend, Abort, Clear). A method the current state does not take answers
-        BadInvalidState and changes nothing; one it takes is issued through the image's
-        ``packml.command`` output, applied at the cell's next period as a PLC's write.
-        """
-        from asyncua import ua
-
-        ident = await parent.add_object(idx, 'Identification')
-        for name, value in machine_identification(serial).items():
-            text = name in ('Manufacturer', 'Model')
-            variant = ua.Variant(
-                ua.LocalizedText(value) if text else value,
-                ua.VariantType.LocalizedText if text else ua.VariantType.String,
-            )
-            await ident.add_property(idx, name, variant)
-        packml = await parent.add_object(idx, 'PackML')
-
-        def state():
-            return STATE_BY_NUMBER.get(int(image.inputs['packml.state']), 'Undefined')
-
-        readers = {
-            'CurrentState': (
-                ua.VariantType.LocalizedText,
-                lambda n: ua.LocalizedText(STATE_BY_NUMBER.get(n, 'Undefined')),
-                "the cell's PackML state",
-            ),
-            'StateCurrent': (
-                ua.VariantType.Int32,
-                int,
-                'the state as PackTags StateCurrent numbers it (6 Execute)',
-            ),
-        }
-        for name, (vtype, shown, meaning) in readers.items():
-            number = int(image.inputs['packml.state'])
-            var = await packml.add_variable(idx, name, ua.Variant(shown(number), vtype))
-            await var.write_attribute(
-                ua.AttributeIds.Description, ua.DataValue(ua.LocalizedText(meaning))
-            )
-
-            def read(nodeid, attr, shown=shown, vtype=vtype):
-                number, t = image.input_values(('packml.state', 'cell.time'))  # one period
-                return ua.DataValue(
-                    ua.Variant(shown(int(number)), vtype),
-                    SourceTimestamp=self.time_origin + timedelta(seconds=float(t)),
-                    ServerTimestamp=datetime.now(timezone.utc),
-                )
-
-            aspace.set_attribute_value_callback(var.nodeid, ua.AttributeIds.Value, read)
-            self._opc_inputs.append((var.nodeid, read))
-            self.opcua_nodes[f'{prefix}PackML.{name}'] = var.nodeid
-
-        def command(name):
-            def call(parent_node, *args):
-                if args:
-                    image.count()
-                    return ua.StatusCode(ua.StatusCodes.BadTooManyArguments)
-                if state() not in TRANSITIONS[name]:
-                    image.count()
-                    return ua.StatusCode(ua.StatusCodes.BadInvalidState)
-                image.write_value('packml.command', COMMAND_NUMBERS[name])
-                return []
-
-            return call
-
-        for name in PACKML_COMMANDS:
-            node = await packml.add_method(idx, name.capitalize(), command(name), [], [])
-            self.opcua_nodes[f'{prefix}PackML.{name.capitalize()}'] = node.nodeid
-
-    async def _add_image(self, parent, idx, aspace, image: IOImage, prefix: str) -> None:
-        """Add an image's ``Inputs`` and ``Outputs`` under ``parent`` (node ids: prefix + name)."""
-        from asyncua import ua
-
-        folders = {
-            INPUT: await parent.add_folder(idx, 'Inputs'),
-            OUTPUT: await parent.add_folder(idx, 'Outputs'),
-        }
-        for s in image.signals:
-            vtype = getattr(ua.VariantType, s.opcua_type)
-            initial = image.inputs[s.name] if s.direction == INPUT else image.outputs[s.name]
-            var = await folders[s.direction].add_variable(
-                idx, s.name, ua.Variant(_opc_value(s, initial), vtype)
-            )
-            await var.write_attribute(
-                ua.AttributeIds.Description, ua.DataValue(ua.LocalizedText(s.meaning))
-            )
-            if s.unit:
-                await var.add_property(idx, 'EngineeringUnits', _eu_information(s.unit))
-            if s.direction == INPUT:
-                reader = _input_reader(image, s, vtype, self.time_origin)
-                aspace.set_attribute_value_callback(var.nodeid, ua.AttributeIds.Value, reader)
-                self._opc_inputs.append((var.nodeid, reader))
-            else:
-                if s.lo is not None:
-                    await var.add_property(idx, 'EURange', ua.Range(Low=s.lo, High=s.hi))
-                await var.set_writable()
-                aspace.set_attribute_value_setter(
-                    var.nodeid, ua.AttributeIds.Value, _output_writer(image, s)
-                )
-                self._outputs.add(prefix + s.name)
-            self.opcua_nodes[prefix + s.name] = var.nodeid
-
-    async def _push_inputs(self, aspace) -> None:
-        """
-        Hand every input that changed to the OPC UA subscriptions, every PUSH_S.
-
-        A read is answered from the image at once (a value callback), which asyncua's
-        subscriptions never see change: here each input a client monitors is written
-        through the address space when its value changed, so that its MonitoredItems
-        report it at their sampling interval (OPC UA Part 4, 5.12), stamped as a read is.
-        """
-        from asyncua import ua
-
-        value_attr = ua.AttributeIds.Value
-        # the value holders (asyncua keeps no public accessor for them)
-        holders = [
-            (nodeid, read, aspace._nodes[nodeid].attributes[value_attr])
-            for nodeid, read in self._opc_inputs
-        ]
-        last: dict = {}
-        while True:
-            await asyncio.sleep(PUSH_S)
-            for nodeid, read, attval in holders:
-                if not attval.datachange_callbacks:
-                    continue
-                dv = read(nodeid, value_attr)
-                value = dv.Value.Value
-                if last.get(nodeid, _UNSET) == value:
-                    continue
-                last[nodeid] = value
-                try:
-                    await aspace.write_attribute_value(nodeid, value_attr, dv)
-                finally:
-                    # the write replaces the callback with a stored value: reads stay live
-                    attval.value_callback = read
-
-
-def _answer_writes_per_item(server, writable: set) -> None:
-    """
-    Make the server answer a WriteRequest item by item, as OPC UA Part 4 (5.10.4) says.
-
-    A value the image refuses raises inside asyncua's value setter, which would fail
-    the whole request with a ServiceFault after the items before it were applied; here
-    each item gets its own status code (BadOutOfRange, BadTypeMismatch, ...). A client's
-    write to anything but an output's Value is BadUserAccessDenied, whatever its role.
-    """
-    from asyncua import ua
-    from asyncua.crypto.permission_rules import UserRole
-
-    service = server.iserver.attribute_service
-    write_one = service.write
-
-    async def write(params, user=None):
-        if user is None or user.role == UserRole.Admin:  # the server's own session
-            return await write_one(params) if user is None else await write_one(params, user)
-        results = []
-        for item in params.NodesToWrite:
-            if item.AttributeId != ua.AttributeIds.Value or item.NodeId not in writable:
-                results.append(ua.StatusCode(ua.StatusCodes.BadUserAccessDenied))
-                continue
-            try:
-                (code,) = await write_one(ua.WriteParameters(NodesToWrite=[item]), user)
-            except ua.UaStatusCodeError as exc:
-                code = ua.StatusCode(exc.code)
-            except Exception:  # a malformed value asyncua's setter cannot take
-                code = ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
-            results.append(code)
-        return results
-
-    service.write = write
-
-
-def _opc_value(s, value):
-    if s.type == 'bool':
-        return bool(value)
-    if s.type == 'string':
-        return str(value)
-    if s.opcua_type == 'Double':
-        return float(value)
-    return int(round(value)) & (0xFFFFFFFF if s.type == 'uint32' else 0xFFFF)
+        self._pusher = asyncio.ensure_future(model.push_inputs())
 
 
 def _stop_s7(server, wait_s: float) -> None:
@@ -970,82 +691,3 @@ def _stop_s7(server, wait_s: float) -> None:
     for t in threads:
         t.join(max(0.01, wait_s / max(1, len(threads))))
     server.server_socket = None
-
-
-def machine_identification(serial: str) -> dict:
-    """Return the OPC 40001-1 identification of a cell named ``serial``."""
-    try:
-        from importlib.metadata import version
-
-        revision = version('sorter_cell')
-    except Exception:  # not installed as a distribution (a source tree on sys.path)
-        revision = 'unknown'
-    return {
-        'Manufacturer': 'sorter_cell',
-        'Model': 'torsional-disk pivot diverter cell (emulated)',
-        'SerialNumber': serial,
-        'SoftwareRevision': revision,
-        'ProductInstanceUri': f'urn:sorter_cell:{serial}',
-    }
-
-
-def _input_reader(image: IOImage, s, vtype, origin: datetime):
-    from asyncua import ua
-
-    def read(nodeid, attr):
-        # SourceTimestamp: when the cell produced the value, on the simulated clock mapped
-        # to UtcTime (origin + simulated time); ServerTimestamp: when the server read it
-        value, t = image.input_values((s.name, 'cell.time'))  # of one period
-        return ua.DataValue(
-            ua.Variant(_opc_value(s, value), vtype),
-            SourceTimestamp=origin + timedelta(seconds=float(t)),
-            ServerTimestamp=datetime.now(timezone.utc),
-        )
-
-    return read
-
-
-# UNECE Recommendation 20 common codes of the map's units (OPC UA Part 8, 5.6.3)
-UNECE = {
-    'm': ('MTR', 'metre'),
-    's': ('SEC', 'second [unit of time]'),
-    'deg': ('DD', 'degree [unit of angle]'),
-    'm/s': ('MTS', 'metre per second'),
-    'deg/s': ('E96', 'degree per second'),
-}
-CEFACT_URI = 'http://www.opcfoundation.org/UA/units/un/cefact'
-
-
-def _eu_information(unit: str):
-    """Return the EUInformation of a unit: its UNECE code as UnitId, in the CEFACT namespace."""
-    from asyncua import ua
-
-    code, description = UNECE[unit]
-    unit_id = 0
-    for c in code:
-        unit_id = (unit_id << 8) | ord(c)
-    return ua.EUInformation(
-        NamespaceUri=CEFACT_URI,
-        UnitId=unit_id,
-        DisplayName=ua.LocalizedText(unit),
-        Description=ua.LocalizedText(description),
-    )
-
-
-def _output_writer(image: IOImage, s):
-    from asyncua import ua
-
-    def write(node, attr, value):
-        v = value.Value.Value if value.Value is not None else None
-        try:
-            image.write_value(s.name, v)
-        except WriteRefused as exc:
-            image.count()
-            raise ua.UaStatusCodeError(
-                ua.StatusCodes.BadOutOfRange
-                if exc.code == 'value'
-                else ua.StatusCodes.BadNotWritable
-            ) from None
-        node.attributes[attr].value = value
-
-    return write

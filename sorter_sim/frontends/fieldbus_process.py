@@ -22,12 +22,13 @@ image is exchanged as it is in the node, once per physics period:
   memory by the servers and read by the node's diagnostics.
 
 The child stops when the node asks it to, or when the pipe closes (the node died):
-no server outlives its cell.
+no server outlives its cell. It ignores SIGINT: Ctrl-C reaches the node, which stops it.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -50,8 +51,9 @@ STATS = (
 START_TIMEOUT_S = 60.0
 
 
-# the header: the inputs' sequence number, the outputs', then the servers' counters
-IN_SEQ, OUT_SEQ, HEAD = 0, 1, 2
+# the header: the inputs' sequence number, the outputs', when the inputs were sampled
+# [ns since the epoch], then the servers' counters
+IN_SEQ, OUT_SEQ, IN_WALL, HEAD = 0, 1, 2, 3
 
 
 def _layout(signals) -> dict:
@@ -123,6 +125,7 @@ class NodeImage(IOImage):
         head = self._head
         head[IN_SEQ] += 1  # odd: being written
         super().refresh_inputs(values)  # encodes what changed, into shared memory
+        head[IN_WALL] = self.sampled_ns
         head[IN_SEQ] += 1  # even: consistent
         self._local['refreshes'] += 1
 
@@ -173,21 +176,26 @@ class ServerImage(IOImage):
         self._out_index = {
             s.name: i for i, s in enumerate(s for s in self.signals if s.direction == OUTPUT)
         }
-        self._decoded = None  # (sequence number, {input: value}) of the last decode
+        self._decoded = None  # (sequence number, {input: value}, sampled [ns]) of the last decode
         self.inputs = _SharedInputs(self)
 
-    def snapshot_tables(self, tables) -> dict:
-        out = {}
+    def _consistent_inputs(self, tables=(DI, IR)) -> tuple[dict, int]:
+        """Return copies of the input tables and their sampling time, of one period (seqlock)."""
         head = self._head
-        wanted = [t for t in tables if t in (DI, IR)]
-        while wanted:
+        while True:
             seq = int(head[IN_SEQ])
             if seq % 2:
                 continue  # the node is writing: a microsecond
-            copy = {t: (self._di if t == DI else self._ir).tolist() for t in wanted}
+            copy = {t: (self._di if t == DI else self._ir).tolist() for t in tables}
+            sampled = int(head[IN_WALL])
             if int(head[IN_SEQ]) == seq:
-                out.update(copy)
-                break
+                return copy, sampled
+
+    def snapshot_tables(self, tables) -> dict:
+        out = {}
+        wanted = [t for t in tables if t in (DI, IR)]
+        if wanted:
+            out.update(self._consistent_inputs(wanted)[0])
         with self._lock:
             for t in tables:
                 if t not in (DI, IR):
@@ -201,6 +209,11 @@ class ServerImage(IOImage):
         values = self.decoded()
         return tuple(values[n] for n in names)
 
+    def input_sample(self, names) -> tuple[tuple, int]:
+        self.decoded()
+        _, values, sampled = self._decoded
+        return tuple(values[n] for n in names), sampled
+
     def decoded(self) -> dict:
         """
         Return every input's engineering value, of one period.
@@ -212,7 +225,7 @@ class ServerImage(IOImage):
         cached = self._decoded
         if cached is not None and cached[0] == seq and seq % 2 == 0:
             return cached[1]
-        tables = self.snapshot_tables((DI, IR))  # one consistent copy for all of them
+        tables, sampled = self._consistent_inputs()
         values = {}
         for s in self.signals:
             if s.direction != INPUT:
@@ -223,7 +236,7 @@ class ServerImage(IOImage):
                 if s.table == DI
                 else decode(s, regs[s.address : s.address + s.words])
             )
-        self._decoded = (seq, values)  # seq as read before the copy: at worst decoded again
+        self._decoded = (seq, values, sampled)  # seq read before the copy: at worst decoded again
         return values
 
     def count(self, key: str = 'refused') -> None:
@@ -292,7 +305,6 @@ def _serve(conn) -> None:
             servers.modbus_port,
             servers.opcua_endpoint,
             servers.s7_port,
-            servers.time_origin,
         )
     )
     try:
@@ -326,7 +338,7 @@ class FieldbusProcess:
 
     The same face as ``FieldbusServers`` for the node: ``start()`` (ValueError with one
     line when a server cannot listen), ``stop()``, ``modbus_port``, ``opcua_endpoint``,
-    ``s7_port``, ``time_origin``, ``warehouse.refused``; ``image`` is the node's side of
+    ``s7_port``, ``warehouse.refused``; ``image`` is the node's side of
     the shared image, exchanged as ``IOImage`` is.
     """
 
@@ -360,7 +372,7 @@ class FieldbusProcess:
             cell_name,
         )
         self._proc = None
-        self.modbus_port = self.opcua_endpoint = self.s7_port = self.time_origin = None
+        self.modbus_port = self.opcua_endpoint = self.s7_port = None
         self.warehouse = _WarehouseCounts(self.image._head)
 
     def start(self) -> None:
@@ -382,7 +394,7 @@ class FieldbusProcess:
         if answer[0] == 'error':
             self.stop()
             raise ValueError(answer[1])
-        _, self.modbus_port, self.opcua_endpoint, self.s7_port, self.time_origin = answer
+        _, self.modbus_port, self.opcua_endpoint, self.s7_port = answer
 
     @property
     def alive(self) -> bool:
@@ -426,4 +438,7 @@ class FieldbusProcess:
 
 
 if __name__ == '__main__':
+    # Ctrl-C on a terminal reaches the whole process group: the node stops this process
+    # through the pipe (or by closing it), so the interrupt is not this process's to take
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _serve(Connection(int(sys.argv[1])))

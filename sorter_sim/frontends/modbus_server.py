@@ -10,7 +10,10 @@ the project's clients (the soft PLC, the tests) still use pymodbus and other sta
 
 A line's stations share one server: the unit id of a request picks the station's
 image (``units``), and a unit id no station has is exception 0x0B (gateway target
-device failed to respond); a single cell answers whatever the unit id.
+device failed to respond). A single cell is unit 1 (the unit id Modbus clients send
+unless told otherwise, and station S01's in a line) and answers 255 too, the unit id
+the Modbus TCP implementation guide (4.4.1.2) gives a device addressed by its IP
+address alone; any other unit id is exception 0x0B, as on a line.
 
 Function codes: 1, 2 (read coils / discrete inputs), 3, 4 (read holding / input
 registers), 5, 6 (write single coil / register), 15, 16 (write multiple coils /
@@ -34,6 +37,7 @@ ILLEGAL_FUNCTION = 1
 ILLEGAL_ADDRESS = 2
 ILLEGAL_VALUE = 3
 GATEWAY_TARGET_FAILED = 0x0B
+CELL_UNITS = (1, 0xFF)  # the unit ids a single cell answers
 
 VENDOR = 'sorter_cell'
 PRODUCT = 'sorter_cell emulated pivot diverter'
@@ -99,12 +103,12 @@ class ModbusTcpImageServer:
                 if protocol != 0:
                     self.image.count('frames_dropped')
                     continue
-                if self.units is None:
+                if self.units is None and unit in CELL_UNITS:
                     reply = self.answer(pdu)
-                elif unit in self.units:
+                elif self.units is not None and unit in self.units:
                     reply = self.units[unit].answer(pdu)
                 else:
-                    # no station at this unit id: what a gateway answers for a device
+                    # no device at this unit id: what a gateway answers for a device
                     # that is not there (Modbus Application Protocol 7, code 0x0B)
                     self.units_refused += 1
                     reply = bytes([pdu[0] | 0x80, GATEWAY_TARGET_FAILED])

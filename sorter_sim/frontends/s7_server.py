@@ -24,7 +24,8 @@ or area, 0x05 (invalid address) for bytes no output has or beyond the block,
 written in halves, or a bit write of more than one bit. Program upload or
 download, PLC stop and start are refused with error class 0x81 code 0x04
 (function not available in this context): the emulated PLC's program is the
-cell. Every refusal is counted in the image (``fieldbus_writes_refused``).
+cell. Every refusal is counted in the image (``fieldbus_writes_refused``). The CPU's
+operating mode (SZL W#16#0424, what S7 tools show as the CPU state) is RUN.
 """
 
 from __future__ import annotations
@@ -56,6 +57,9 @@ INVALID_ADDRESS = 0x05
 TYPE_INCONSISTENT = 0x07
 NO_OBJECT = 0x0A
 NOT_AVAILABLE = 0x8104  # header error: function not available in this context
+SZL_MODE = 0x0424  # SZL id of the CPU's current operating mode
+SZL_MODE_RECORD = 20  # bytes of its data record
+CPU_RUN = 0x08  # the mode byte (bzu-id) of a CPU in RUN
 
 _WORD_BYTES = {
     S7WordLen.BYTE: 1,
@@ -247,3 +251,20 @@ class CellS7Server(Server):
     _handle_plc_stop = _refuse
     _handle_start_upload = _refuse
     _handle_request_download = _refuse
+
+    def _get_szl_data(self, szl_id: int, szl_index: int) -> bytes | None:
+        """
+        Answer SZL W#16#0424 (the CPU's operating mode) as a CPU in RUN does; others as the base.
+
+        The emulated PLC runs while the cell is served (stop and start are refused
+        above), so its mode is RUN. The record is the one a CPU in RUN sends: event
+        W#16#5144, ae 0xFF, then bzu-id 0x08 (RUN), which S7 clients read as the CPU
+        state (Snap7's GetPlcStatus takes that byte: 0x08 RUN, 0x04 STOP).
+        """
+        if szl_id == SZL_MODE:
+            record = struct.pack('>HBB', 0x5144, 0xFF, CPU_RUN).ljust(SZL_MODE_RECORD, b'\0')
+            return struct.pack('>HH', SZL_MODE_RECORD, 1) + record
+        data = super()._get_szl_data(szl_id, szl_index)
+        if szl_id == 0x0000 and data is not None:
+            data += struct.pack('>H', SZL_MODE)  # the list of SZL ids names this one too
+        return data
