@@ -53,7 +53,8 @@ def run_line(args) -> int | str:
     from sorter_ros.env import apply_ros_env_defaults, find_config_dir
 
     n = args.stations
-    k_seg = getattr(args, 'segments', 1) or 1
+    k_seg = getattr(args, 'segments', None)
+    k_seg = 1 if k_seg is None else k_seg
     if not (isinstance(n, int) and 1 <= n <= 64):
         return f'--stations must be an integer in [1, 64], got {n}'
     if not (isinstance(k_seg, int) and 1 <= k_seg <= n):
@@ -200,7 +201,7 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import String
 
-    from sorter_control.wcs_node import WcsNode
+    from sorter_control.wcs_node import REQUEST_QOS, WcsNode
     from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
 
     n = args.stations
@@ -243,7 +244,7 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
     active = []
     obs.create_subscription(DiagnosticStatus, 'wcs/sort_plan/active', active.append, SENSOR_QOS)
     pub_plan = obs.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
-    pub_req = obs.create_publisher(KeyValue, 'wcs/requests', EVENT_QOS)
+    pub_req = obs.create_publisher(KeyValue, 'wcs/requests', REQUEST_QOS)
     infeed = AsyncParameterClient(obs, '/S01/sorter_sim')
     ex = line_executor(ctx, args.executor or 'events')
     for node in nodes:
@@ -282,10 +283,10 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
     expected = args.parcels or math.ceil(args.sim_time * 1.5) + 10
     for i in range(1, expected + 1):
         pub_req.publish(KeyValue(key=f'P{i:05d}', value=dests[int(rng.integers(len(dests)))]))
-        if i % 50 == 0:  # within the subscription's queue (depth 100)
-            spin_until(lambda i=i: len(wcs.wcs.requests) >= i, 10.0)
-    if not spin_until(lambda: len(wcs.wcs.requests) == expected, 10.0):
-        return f'the warehouse node took {len(wcs.wcs.requests)} of {expected} requests'
+        if i % 50 == 0:
+            spin_until(lambda i=i: wcs.wcs.n_taken >= i, 10.0)
+    if not spin_until(lambda: wcs.wcs.n_taken == expected, 10.0):
+        return f'the warehouse node took {wcs.wcs.n_taken} of {expected} requests'
     spin_until(lambda: False, 0.3)  # the routing updates reach the stations
     spin_until(lambda: clock['t'] > 0.0, 30.0)
     t0, wall0 = clock['t'], time.monotonic()
@@ -340,9 +341,12 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
     exit_counts = Counter(exits.values())
     codes = Counter(r['code'] for r in records)
     if args.dispositions:
-        with open(args.dispositions, 'w', encoding='utf-8') as f:
-            for r in records:
-                f.write(json.dumps(r, sort_keys=True) + '\n')
+        try:
+            with open(args.dispositions, 'w', encoding='utf-8') as f:
+                for r in records:
+                    f.write(json.dumps(r, sort_keys=True) + '\n')
+        except OSError as exc:  # a full disk, a device that refuses: one line, exit 2
+            return f'--dispositions {args.dispositions!r}: cannot write ({exc.strerror or exc})'
     summary = {
         'stations': n,
         'segments': segments,
