@@ -122,8 +122,7 @@ def output_problem(path: str, flag: str, kind: str, *, base: Path | None = None)
             return f"{flag} {str(p)!r}: cannot read it ({exc.strerror or exc})"
         if head and not head.startswith(OWN_FILES[kind]):
             return (
-                f"{flag} {str(p)!r} exists and is not a {kind} this command wrote: "
-                "not overwritten"
+                f"{flag} {str(p)!r} exists and is not a {kind} this command wrote: not overwritten"
             )
     return None
 
@@ -158,7 +157,10 @@ def _run_one(args) -> int | str:
         sc = load_scenario(args.file)
     except ScenarioError as exc:
         return str(exc)
-    for flag, path, kind in (("--junit", args.junit, "junit"), ("--record", args.record, "recording")):
+    for flag, path, kind in (
+        ("--junit", args.junit, "junit"),
+        ("--record", args.record, "recording"),
+    ):
         if path:
             problem = output_problem(path, flag, kind)
             if problem:
