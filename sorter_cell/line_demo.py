@@ -103,8 +103,15 @@ def run_line(args) -> int | str:
             )
             nodes += [*line.nodes, *ctls]
         else:
-            procs = _start_segments(args, n, k_seg)
-        return _run(args, ctx, nodes, line, ctls, procs)
+            try:
+                procs = _start_segments(args, n, k_seg)
+            except SegmentDied as exc:
+                return str(exc)
+        try:
+            return _run(args, ctx, nodes, line, ctls, procs)
+        except SegmentDied as exc:
+            # the line cannot finish without it: say so at once rather than wait
+            return str(exc)
     finally:
         for proc, _ in procs:
             if proc.poll() is None:
@@ -120,6 +127,35 @@ def run_line(args) -> int | str:
             except Exception:  # noqa: BLE001 - teardown goes on
                 pass
         rclpy.try_shutdown(context=ctx)
+
+
+class SegmentDied(RuntimeError):
+    """A segment process of the line ended while the line ran: the message names it."""
+
+
+def _dead_segment(procs) -> str:
+    """Return which segment process ended (and how), or '' while all run."""
+    for j, (proc, _) in enumerate(procs, 1):
+        code = proc.poll()
+        if code is not None:
+            return f'segment {j} of {len(procs)} (process {proc.pid}) ended with {_how(code)}'
+    return ''
+
+
+def _end_with_parent() -> None:
+    """Have a segment process end when the demo does (killed too): no orphan keeps its claim."""
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass  # not Linux: the demo's own teardown ends them
+
+
+def _how(code: int) -> str:
+    """Say how a process ended, from its return code."""
+    return f'signal {-code}' if code < 0 else f'exit code {code}'
 
 
 def segment_bounds(n: int, k_seg: int) -> list[tuple[int, int]]:
@@ -153,6 +189,7 @@ def segment_bounds(n: int, k_seg: int) -> list[tuple[int, int]]:
 
 def _start_segments(args, n: int, k_seg: int) -> list:
     """Start one process per segment; return (process, clock topic) each, once all are ready."""
+    import select
     import subprocess
     import sys
 
@@ -182,11 +219,35 @@ def _start_segments(args, n: int, k_seg: int) -> list:
             cmd += ['--rtf', str(float(args.rtf))]
         if getattr(args, 'sync', None):
             cmd += ['--sync', args.sync]
-        procs.append((subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, bufsize=1), clock))
-    for proc, _ in procs:
-        line = proc.stdout.readline().strip()
-        if line != 'ready':
-            raise RuntimeError(f'a segment process did not start: {line!r}')
+        procs.append(
+            (
+                subprocess.Popen(
+                    cmd,
+                    stdout=subprocess.PIPE,
+                    text=True,
+                    bufsize=1,
+                    preexec_fn=_end_with_parent,
+                ),
+                clock,
+            )
+        )
+    # every segment's first line, as it comes: one that ends first is said at once
+    waiting = {proc.stdout.fileno(): (j, proc) for j, (proc, _) in enumerate(procs, 1)}
+    while waiting:
+        ready, _, _ = select.select(list(waiting), [], [])
+        for fd in ready:
+            j, proc = waiting.pop(fd)
+            line = proc.stdout.readline().strip()
+            if line == 'ready':
+                continue
+            for other, _ in procs:
+                if other is not proc:
+                    other.kill()
+                other.wait()
+            said = f'said {line[:200]!r}' if line else f'ended with {_how(proc.returncode)}'
+            raise SegmentDied(
+                f'segment {j} of {len(procs)} (process {proc.pid}) did not start: {said}'
+            )
     return procs
 
 
@@ -256,6 +317,9 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
             if time.monotonic() > end:
                 return False
             ex.spin_once(timeout_sec=0.02)
+            dead = _dead_segment(procs)
+            if dead:
+                raise SegmentDied(dead)
         return True
 
     def set_arrival(value):
