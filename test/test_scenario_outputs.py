@@ -76,3 +76,11 @@ def test_no_folder_is_made_and_a_failed_write_is_one_line_exit_2(tmp_path, capsy
 def test_the_line_demo_refuses_zero_segments(capsys):
     assert main(['demo', '--stations', '3', '--segments', '0']) == 2
     assert '--segments must be an integer in [1, --stations]' in capsys.readouterr().err
+
+
+def test_a_bad_expectation_value_exits_2_naming_its_key(tmp_path, capsys):
+    sc = write(tmp_path, 'duration: 1.0\nexpect: [{at: 1, faults: [[1]]}]\n')
+    assert main(['scenario', 'run', str(sc)]) == 2
+    err = capsys.readouterr().err
+    assert 'expect[0].faults must be a list of estop, jam, watchdog' in err
+    assert 'Traceback' not in err and len(err.strip().splitlines()) == 1
