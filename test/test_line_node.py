@@ -469,9 +469,14 @@ def test_a_restarted_segment_gets_back_every_parcel_it_held_and_sorts_them_as_be
     _drop(ros, one)
     assert len(ref) == len(labels) and {e[2] for e in ref} == {3}  # all diverted at S04
 
-    up = make_line(ros, stations=2, line_stations=4, node_name='sorter_line_a')
-    mid = make_line(ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b')
-    down = make_line(ros, stations=1, first_station=4, node_name='sorter_line_c')
+    # a slice of a second: the most a segment runs in one pass (1000 periods below), and
+    # so the most its neighbour's horizon may move at once
+    slice_s = {'fast_slice': 1.0}
+    up = make_line(ros, stations=2, line_stations=4, node_name='sorter_line_a', **slice_s)
+    mid = make_line(
+        ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b', **slice_s
+    )
+    down = make_line(ros, stations=1, first_station=4, node_name='sorter_line_c', **slice_s)
     induct_and_raise(up, down.stations[0])
 
     def step(*lines, n=50):
@@ -491,7 +496,9 @@ def test_a_restarted_segment_gets_back_every_parcel_it_held_and_sorts_them_as_be
     _drop(ros, mid)  # the process dies: its stations, its parcels, its outbox are gone
     for _ in range(5):
         step(up, down)  # upstream waits with nobody to hand to; downstream waits for time
-    mid = make_line(ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b')
+    mid = make_line(
+        ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b', **slice_s
+    )
     assert mid.line.k == 0  # it starts again from t = 0
     while len(down.line.exits) < len(labels):
         assert time.monotonic() < deadline, f'{len(down.line.exits)} of {len(labels)} sorted'

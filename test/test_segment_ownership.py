@@ -10,13 +10,14 @@ taken again, the real parcel stays.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.parameter import Parameter
 
 from sorter_sim.frontends.segments import HANDOVER_QOS, handover_message
-from sorter_sim.runtime.cell import ParcelSpec
+from test_handover import REAL
 
 pytestmark = pytest.mark.ros
 
@@ -71,8 +72,10 @@ def test_a_second_claimant_of_a_station_holds_and_both_say_so(ros):
 def test_forged_horizons_hellos_and_parcel_ids_change_nothing(ros):
     up = segment(ros, 'sorter_line_a', stations=1, line_stations=2, fast_slice=0.05)
     down = segment(ros, 'sorter_line_b', stations=1, first_station=2, fast_slice=0.05)
-    for label in ('P1', 'P2'):
-        up.stations[0].cell.induct(ParcelSpec(0.5, 0.35, 4.0, label=label))
+    # two parcels half a metre before the exit of S01 (as a station upstream hands them
+    # in): S02 has them within a second of simulated time
+    for i in (1, 2):
+        up.stations[0].cell.hand_in(replace(REAL[0], parcel_id=i, label=f'P{i}'), -0.3 * i)
     forger = ros.make_node('forger')
     to_down = forger.create_publisher(DiagnosticStatus, '/line/handover/S02', HANDOVER_QOS)
     to_up = forger.create_publisher(DiagnosticStatus, '/line/handover/S02/left', HANDOVER_QOS)

@@ -250,6 +250,7 @@ class SegmentLink:
         self.outbox: dict[int, Handoff] = {}
         self._downstream_identity = None
         self._pending_hello = None  # a hello waiting for its sender's claim or its turn
+        self._pending_horizon = None  # (t_ns, sender): a horizon waiting for its owner's claim
         self._last_resend = -math.inf
         self._last_horizon_ns = None
         self._taken: set[int] = set()  # every parcel id taken, to drop a second copy
@@ -413,6 +414,12 @@ class SegmentLink:
         if self.owners is not None:
             self.owners.service()
         self._serve_hello()
+        pending, self._pending_horizon = self._pending_horizon, None
+        if pending is not None:
+            try:
+                self._take_horizon(*pending)
+            except HandoverError as exc:
+                self._refuse(str(exc))
         if self._pub_left is None:
             return
         if not self._hello_said and self._pub_left.get_subscription_count() > 0:
@@ -533,6 +540,10 @@ class SegmentLink:
 
     def _take_horizon(self, t_ns: int, sender: str) -> None:
         owner = self.owners.owner_of(self._owned[0] - 1)
+        if owner is None:
+            # its claim has not come yet (or it lapsed): the newest waits for it
+            self._pending_horizon = (t_ns, sender)
+            return
         if sender != owner:
             raise HandoverError(
                 f'a horizon from {sender!r}: the owner of station '
