@@ -519,12 +519,6 @@ class SegmentLink:
         if h.parcel_id in self._taken:
             self.stats['duplicates'] += 1  # sent again to a segment that has it, or forged
             return
-        realtime = self.node.values['time_mode'] == 'realtime'
-        if not realtime and self._horizon_heard and h.t_ns <= self.horizon_k * self.dt_ns:
-            raise HandoverError(
-                f'parcel {h.parcel_id} at t_ns {h.t_ns}: the segment upstream has handed '
-                f'over everything up to {self.horizon_k * self.dt_ns} ns already'
-            )
         if len(self.inbox) >= self._room():
             raise HandoverError(
                 f'parcel {h.parcel_id}: station {self.upstream} has no room for another '
@@ -539,20 +533,21 @@ class SegmentLink:
         self.inbox.append(h)
 
     def _take_horizon(self, t_ns: int, sender: str) -> None:
-        owner = self.owners.owner_of(self._owned[0] - 1)
-        if owner is None:
-            # its claim has not come yet (or it lapsed): the newest waits for it
+        if sender != self.owners.owner_of(self._owned[0] - 1):
+            # not (yet) the owner upstream: its claim has not come, or it restarted and
+            # the old claim has not lapsed. The newest waits; it counts only once its
+            # sender owns the station (a forger's never does)
             self._pending_horizon = (t_ns, sender)
             return
-        if sender != owner:
-            raise HandoverError(
-                f'a horizon from {sender!r}: the owner of station '
-                f'{station_name(self._owned[0] - 1)} is {owner!r}'
-            )
         k = t_ns // self.dt_ns
+        if self._horizon_heard and k <= self.horizon_k:
+            # said again (the answer to a hello ends with the last one), or a restarted
+            # upstream segment running up to the present: nothing new
+            self.owners.heard_from(sender)
+            return
         # the first horizon brings the upstream's present (it may have run before this
         # segment listened, or this one restarted); after it, a slice at a time
-        if self._horizon_heard and not self.horizon_k <= k <= self.horizon_k + self.max_step_k:
+        if self._horizon_heard and k > self.horizon_k + self.max_step_k:
             raise HandoverError(
                 f'a horizon moves forward by at most a slice ({self.max_step_k} periods) '
                 f'from period {self.horizon_k}, got period {k}'
