@@ -53,7 +53,8 @@ def run_line(args) -> int | str:
     from sorter_ros.env import apply_ros_env_defaults, find_config_dir
 
     n = args.stations
-    k_seg = getattr(args, 'segments', 1) or 1
+    k_seg = getattr(args, 'segments', None)
+    k_seg = 1 if k_seg is None else k_seg
     if not (isinstance(n, int) and 1 <= n <= 64):
         return f'--stations must be an integer in [1, 64], got {n}'
     if not (isinstance(k_seg, int) and 1 <= k_seg <= n):
@@ -102,8 +103,15 @@ def run_line(args) -> int | str:
             )
             nodes += [*line.nodes, *ctls]
         else:
-            procs = _start_segments(args, n, k_seg)
-        return _run(args, ctx, nodes, line, ctls, procs)
+            try:
+                procs = _start_segments(args, n, k_seg)
+            except SegmentDied as exc:
+                return str(exc)
+        try:
+            return _run(args, ctx, nodes, line, ctls, procs)
+        except SegmentDied as exc:
+            # the line cannot finish without it: say so at once rather than wait
+            return str(exc)
     finally:
         for proc, _ in procs:
             if proc.poll() is None:
@@ -119,6 +127,35 @@ def run_line(args) -> int | str:
             except Exception:  # noqa: BLE001 - teardown goes on
                 pass
         rclpy.try_shutdown(context=ctx)
+
+
+class SegmentDied(RuntimeError):
+    """A segment process of the line ended while the line ran: the message names it."""
+
+
+def _dead_segment(procs) -> str:
+    """Return which segment process ended (and how), or '' while all run."""
+    for j, (proc, _) in enumerate(procs, 1):
+        code = proc.poll()
+        if code is not None:
+            return f'segment {j} of {len(procs)} (process {proc.pid}) ended with {_how(code)}'
+    return ''
+
+
+def _end_with_parent() -> None:
+    """Have a segment process end when the demo does (killed too): no orphan keeps its claim."""
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass  # not Linux: the demo's own teardown ends them
+
+
+def _how(code: int) -> str:
+    """Say how a process ended, from its return code."""
+    return f'signal {-code}' if code < 0 else f'exit code {code}'
 
 
 def segment_bounds(n: int, k_seg: int) -> list[tuple[int, int]]:
@@ -152,6 +189,7 @@ def segment_bounds(n: int, k_seg: int) -> list[tuple[int, int]]:
 
 def _start_segments(args, n: int, k_seg: int) -> list:
     """Start one process per segment; return (process, clock topic) each, once all are ready."""
+    import select
     import subprocess
     import sys
 
@@ -181,11 +219,35 @@ def _start_segments(args, n: int, k_seg: int) -> list:
             cmd += ['--rtf', str(float(args.rtf))]
         if getattr(args, 'sync', None):
             cmd += ['--sync', args.sync]
-        procs.append((subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, bufsize=1), clock))
-    for proc, _ in procs:
-        line = proc.stdout.readline().strip()
-        if line != 'ready':
-            raise RuntimeError(f'a segment process did not start: {line!r}')
+        procs.append(
+            (
+                subprocess.Popen(
+                    cmd,
+                    stdout=subprocess.PIPE,
+                    text=True,
+                    bufsize=1,
+                    preexec_fn=_end_with_parent,
+                ),
+                clock,
+            )
+        )
+    # every segment's first line, as it comes: one that ends first is said at once
+    waiting = {proc.stdout.fileno(): (j, proc) for j, (proc, _) in enumerate(procs, 1)}
+    while waiting:
+        ready, _, _ = select.select(list(waiting), [], [])
+        for fd in ready:
+            j, proc = waiting.pop(fd)
+            line = proc.stdout.readline().strip()
+            if line == 'ready':
+                continue
+            for other, _ in procs:
+                if other is not proc:
+                    other.kill()
+                other.wait()
+            said = f'said {line[:200]!r}' if line else f'ended with {_how(proc.returncode)}'
+            raise SegmentDied(
+                f'segment {j} of {len(procs)} (process {proc.pid}) did not start: {said}'
+            )
     return procs
 
 
@@ -200,7 +262,7 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import String
 
-    from sorter_control.wcs_node import WcsNode
+    from sorter_control.wcs_node import REQUEST_QOS, WcsNode
     from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
 
     n = args.stations
@@ -243,7 +305,7 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
     active = []
     obs.create_subscription(DiagnosticStatus, 'wcs/sort_plan/active', active.append, SENSOR_QOS)
     pub_plan = obs.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
-    pub_req = obs.create_publisher(KeyValue, 'wcs/requests', EVENT_QOS)
+    pub_req = obs.create_publisher(KeyValue, 'wcs/requests', REQUEST_QOS)
     infeed = AsyncParameterClient(obs, '/S01/sorter_sim')
     ex = line_executor(ctx, args.executor or 'events')
     for node in nodes:
@@ -255,6 +317,9 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
             if time.monotonic() > end:
                 return False
             ex.spin_once(timeout_sec=0.02)
+            dead = _dead_segment(procs)
+            if dead:
+                raise SegmentDied(dead)
         return True
 
     def set_arrival(value):
@@ -282,10 +347,10 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
     expected = args.parcels or math.ceil(args.sim_time * 1.5) + 10
     for i in range(1, expected + 1):
         pub_req.publish(KeyValue(key=f'P{i:05d}', value=dests[int(rng.integers(len(dests)))]))
-        if i % 50 == 0:  # within the subscription's queue (depth 100)
-            spin_until(lambda i=i: len(wcs.wcs.requests) >= i, 10.0)
-    if not spin_until(lambda: len(wcs.wcs.requests) == expected, 10.0):
-        return f'the warehouse node took {len(wcs.wcs.requests)} of {expected} requests'
+        if i % 50 == 0:
+            spin_until(lambda i=i: wcs.wcs.n_taken >= i, 10.0)
+    if not spin_until(lambda: wcs.wcs.n_taken == expected, 10.0):
+        return f'the warehouse node took {wcs.wcs.n_taken} of {expected} requests'
     spin_until(lambda: False, 0.3)  # the routing updates reach the stations
     spin_until(lambda: clock['t'] > 0.0, 30.0)
     t0, wall0 = clock['t'], time.monotonic()
@@ -340,9 +405,12 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
     exit_counts = Counter(exits.values())
     codes = Counter(r['code'] for r in records)
     if args.dispositions:
-        with open(args.dispositions, 'w', encoding='utf-8') as f:
-            for r in records:
-                f.write(json.dumps(r, sort_keys=True) + '\n')
+        try:
+            with open(args.dispositions, 'w', encoding='utf-8') as f:
+                for r in records:
+                    f.write(json.dumps(r, sort_keys=True) + '\n')
+        except OSError as exc:  # a full disk, a device that refuses: one line, exit 2
+            return f'--dispositions {args.dispositions!r}: cannot write ({exc.strerror or exc})'
     summary = {
         'stations': n,
         'segments': segments,

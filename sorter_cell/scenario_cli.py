@@ -88,6 +88,70 @@ def run(args) -> int | str:
     return _campaign(args)
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"  # what a recording of this project starts with
+# what each kind of file this command writes starts with: one already there is replaced
+# only if it is one of these (a report or a recording from an earlier run)
+OWN_FILES = {"recording": (MCAP_MAGIC,), "junit": (b"<?xml", b"<testsuite")}
+
+
+def output_problem(path: str, flag: str, kind: str, *, base: Path | None = None) -> str | None:
+    """
+    Say why this command must not write ``path`` (None when it may).
+
+    Parameters
+    ----------
+    path : str
+        The file, as given.
+    flag : str
+        Where it was given (an option, or the scenario's key), for the message.
+    kind : str
+        What is written: ``recording`` or ``junit`` (``OWN_FILES``).
+    base : Path, optional
+        A scenario file's folder: a path the file names is relative to it and may not
+        leave it (a path given on the command line may go anywhere).
+
+    Returns
+    -------
+    str or None
+        One line: what is wrong and what is allowed.
+
+    """
+    p = Path(path)
+    if base is not None:
+        p = base / p
+        inside = base.resolve()
+        if p.resolve() != inside and inside not in p.resolve().parents:
+            return (
+                f"{flag} {path!r}: a scenario writes only inside its own folder "
+                f"({str(base)!r}); give another place on the command line"
+            )
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        return f"{flag} {str(p)!r}: folder {str(parent)!r} does not exist (it is not created)"
+    if p.is_symlink() or (p.exists() and not p.is_file()):
+        return f"{flag} {str(p)!r} exists and is not a plain file: not written"
+    if p.exists():
+        try:
+            with open(p, "rb") as f:
+                head = f.read(16)
+        except OSError as exc:
+            return f"{flag} {str(p)!r}: cannot read it ({exc.strerror or exc})"
+        if head and not head.startswith(OWN_FILES[kind]):
+            return (
+                f"{flag} {str(p)!r} exists and is not a {kind} this command wrote: not overwritten"
+            )
+    return None
+
+
+def write_output(path: str, text: str, flag: str) -> str | None:
+    """Write ``text`` to ``path``; return one line on failure (a full disk, no rights)."""
+    try:
+        Path(path).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        return f"{flag} {path!r}: cannot write ({exc.strerror or exc})"
+    return None
+
+
 def _result_dict(r) -> dict:
     return {
         "name": r.name,
@@ -124,7 +188,6 @@ def scenario_path(given: str) -> str:
 def _run_one(args) -> int | str:
     from sorter_cell.testing.scenario import ScenarioError, junit_xml, load_scenario, report
     from sorter_cell.testing.scenario import run_scenario
-    from sorter_sim.studies.outpaths import file_problem
 
     path = scenario_path(args.file)
     if not Path(path).exists():
@@ -138,16 +201,30 @@ def _run_one(args) -> int | str:
         sc = load_scenario(path)
     except ScenarioError as exc:
         return str(exc)
-    for flag, path in (("--junit", args.junit), ("--record", args.record)):
+    for flag, path, kind in (
+        ("--junit", args.junit, "junit"),
+        ("--record", args.record, "recording"),
+    ):
         if path:
-            problem = file_problem(path, flag)
+            problem = output_problem(path, flag, kind)
             if problem:
                 return problem
+    record = args.record
+    in_file = sc.cell.get("record_path")
+    if in_file and not record:
+        # the scenario's own recording: in its folder, named in the result
+        if not isinstance(in_file, str):
+            return f"cell.record_path must be a file name, got {in_file!r}"
+        base = Path(sc.path or args.file).parent
+        problem = output_problem(in_file, "cell.record_path", "recording", base=base)
+        if problem:
+            return problem
+        record = str(base / in_file)
     if args.seed is not None and not 0 <= args.seed < 2**31:
         return f"--seed must be in [0, 2^31), got {args.seed}"
     if args.record and args.no_record:
         return "--record and --no-record: give one of them"
-    record, scratch = args.record, None
+    scratch = None
     if not record and not args.no_record:
         import tempfile
 
@@ -160,7 +237,9 @@ def _run_one(args) -> int | str:
         shutil.rmtree(scratch, ignore_errors=True)  # evidence is kept for a failure only
         result.record = ""
     if args.junit:
-        Path(args.junit).write_text(junit_xml([result]))
+        problem = write_output(args.junit, junit_xml([result]), "--junit")
+        if problem:
+            return problem
     if args.json:
         print(json.dumps(_result_dict(result)))
     else:
@@ -222,7 +301,6 @@ def _campaign(args) -> int | str:
         junit_xml,
         load_scenario,
     )
-    from sorter_sim.studies.outpaths import file_problem
     from sorter_sim.studies.progress import progress_bar
 
     folder = Path(args.folder)
@@ -241,7 +319,7 @@ def _campaign(args) -> int | str:
     if not 1 <= args.workers <= 64:
         return f"--workers must be in [1, 64], got {args.workers}"
     if args.junit:
-        problem = file_problem(args.junit, "--junit")
+        problem = output_problem(args.junit, "--junit", "junit")
         if problem:
             return problem
     from sorter_cell.testing.domains import campaign_domains
@@ -330,5 +408,9 @@ def _campaign(args) -> int | str:
             )
             res.checks = [Check(c["text"], c["passed"], c["detail"]) for c in r["checks"]]
             results.append(res)
-        Path(args.junit).write_text(junit_xml(results, f"sorter campaign {folder.name}"))
+        problem = write_output(
+            args.junit, junit_xml(results, f"sorter campaign {folder.name}"), "--junit"
+        )
+        if problem:
+            return problem
     return 1 if failed else 0

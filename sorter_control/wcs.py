@@ -30,10 +30,12 @@ is here, in ``LineWcs`` (the logic, no ROS) and ``WcsNode`` (its ROS face):
 
 from __future__ import annotations
 
+import math
+import re
 from collections import deque
 from dataclasses import dataclass
 
-from sorter_sim.model.description import label_problem, station_name
+from sorter_sim.model.description import label_problem, shown, station_name
 
 DISPOSITIONS = (
     'sorted',
@@ -50,6 +52,13 @@ DISPOSITIONS = (
 )
 MAX_PLAN_ENTRIES = 10_000
 MAX_NAME = 64
+# requests of parcels not yet disposed of: more are refused, counted, never dropped
+MAX_PENDING = 100_000
+MAX_DISPOSED = 100_000
+MAX_T = 1e9  # s: a line exit's time (about 30 years)
+_DECIMAL = re.compile(
+    r'[0-9]{1,10}(\.[0-9]{1,9})?'
+)  # dispositions kept, for a request that comes after its parcel left
 
 
 class PlanError(ValueError):
@@ -74,6 +83,64 @@ def _name(value, what: str) -> str:
     if not value.isprintable() or '=' in value:
         raise PlanError(f'{what} must be printable and without "=", got {value!r}')
     return value.strip()
+
+
+EXIT_FIELDS = ('id', 'label', 'exit', 'station', 't')
+
+
+def parse_exit(pairs, chutes: list) -> tuple[str, str, int, float, str]:
+    """
+    Return (label, exit, station 0-based, t, cause) of a ``line/exits`` message.
+
+    Parameters
+    ----------
+    pairs : iterable of (str, str)
+        The message's keys and values.
+    chutes : list of (str, str)
+        The line's chutes, per station.
+
+    Raises
+    ------
+    PlanError
+        The first thing wrong, named with what is allowed.
+
+    """
+    v: dict[str, str] = {}
+    for key, value in pairs:
+        if key not in EXIT_FIELDS + ('cause',) or key in v:
+            raise PlanError(
+                f'a line exit has each of {", ".join(EXIT_FIELDS)} (and cause) once; got '
+                f'{shown(key, 40)}'
+            )
+        v[key] = value
+    missing = [k for k in EXIT_FIELDS if k not in v]
+    if missing:
+        raise PlanError(f'a line exit without {", ".join(missing)}')
+    problem = label_problem(v['label'])
+    if problem:
+        raise PlanError(problem)
+    names = [station_name(k) for k in range(len(chutes))]
+    if v['station'] not in names:
+        raise PlanError(
+            f'station must be one of {names[0]}..{names[-1]}, got {shown(v["station"], 40)}'
+        )
+    exits = {name for pair in chutes for name in pair} | {'straight_end', 'jammed'}
+    if v['exit'] not in exits:
+        raise PlanError(
+            f'exit must be a chute of the line, straight_end or jammed, got {shown(v["exit"], 40)}'
+        )
+    if not (v['id'].isascii() and v['id'].isdigit() and len(v['id']) <= 19):
+        raise PlanError(f'id must be a decimal integer >= 0, got {shown(v["id"], 40)}')
+    t_text = v['t']
+    t = float(t_text) if _DECIMAL.fullmatch(t_text) else math.nan
+    if not 0.0 <= t <= MAX_T:
+        raise PlanError(
+            f't must be a decimal number of seconds in [0, {MAX_T:g}], got {shown(t_text, 40)}'
+        )
+    cause = v.get('cause', '')
+    if len(cause) > MAX_NAME or not cause.isprintable():
+        raise PlanError(f'cause must be at most {MAX_NAME} printable characters')
+    return v['label'], v['exit'], names.index(v['station']), t, cause
 
 
 class LineWcs:
@@ -102,6 +169,8 @@ class LineWcs:
         self.results: dict[str, dict] = {}  # label -> {station: result}
         self.dispositions: dict[str, Disposition] = {}
         self.rules = [dict() for _ in self.chutes]  # the rules each station holds: label -> side
+        self._rule_of: dict[str, tuple[int, str]] = {}  # label -> (station, side) of its rule
+        self.n_taken = 0  # requests taken, ever
         self.passed_full: set[str] = set()  # passed its station while its chute was full
 
     # ------------------------------------------------------------------ plan and requests
@@ -174,8 +243,54 @@ class LineWcs:
         if destination == '':
             self.requests.pop(label, None)
         else:
-            self.requests[label] = _name(destination, f'the destination of {label!r}')
-        return self.rebuild()
+            destination = _name(destination, f'the destination of {label!r}')
+            if label not in self.requests and len(self.requests) >= MAX_PENDING:
+                raise PlanError(
+                    f'{MAX_PENDING} requests wait for their parcels already: {label!r} refused'
+                )
+            self.requests[label] = destination
+        self.n_taken += 1
+        # one parcel's rule: the cost of a request does not grow with the requests held
+        return self._retarget(label)
+
+    def _retarget(self, label: str) -> list:
+        """Move one parcel's rule to where it is bound now; return the routing updates."""
+        new = None
+        if label in self.requests and label not in self.dispositions:
+            new = self._target(label)
+        old = self._rule_of.pop(label, None)
+        if new is not None:
+            self._rule_of[label] = new
+        if old == new:
+            return []
+        updates = []
+        if old is not None:
+            del self.rules[old[0]][label]
+            updates.append((old[0], label, ''))
+        if new is not None:
+            self.rules[new[0]][label] = new[1]
+            updates.append((new[0], label, new[1]))
+        return updates
+
+    def forget(self, label: str) -> list:
+        """
+        Let a parcel that left the line go: its request, its rule, its results.
+
+        Parameters
+        ----------
+        label : str
+            The parcel's label.
+
+        Returns
+        -------
+        list of (int, str, str)
+            The routing update withdrawing its rule, if it had one.
+
+        """
+        self.requests.pop(label, None)
+        self.results.pop(label, None)
+        self.passed_full.discard(label)
+        return self._retarget(label)
 
     def chute_full(self, chute: str, full: bool) -> list:
         """
@@ -221,6 +336,9 @@ class LineWcs:
                 if have.get(label) != side:
                     updates.append((k, label, side))
         self.rules = want
+        self._rule_of = {
+            label: (k, side) for k, rules in enumerate(want) for label, side in rules.items()
+        }
         return updates
 
     # ------------------------------------------------------------------ tracking
@@ -320,8 +438,11 @@ class LineWcs:
             code = 'mis_sorted'
         d = Disposition(label, code, dest, chute, station_name(station), t)
         if label:
+            self.dispositions.pop(label, None)
             self.dispositions[label] = d
+            if len(self.dispositions) > MAX_DISPOSED:
+                del self.dispositions[next(iter(self.dispositions))]  # the oldest
         return d
 
 
-__all__ = ['DISPOSITIONS', 'Disposition', 'LineWcs', 'PlanError']
+__all__ = ['DISPOSITIONS', 'Disposition', 'LineWcs', 'PlanError', 'parse_exit']

@@ -10,7 +10,10 @@ topic                      type                                 meaning
                                                                 ``values`` destination -> chute
 ``wcs/sort_plan/active``   diagnostic_msgs/DiagnosticStatus     the plan in force (latched)
 ``wcs/sort_plan/refused``  std_msgs/String                      why a plan was refused
-``wcs/requests`` (sub)     diagnostic_msgs/KeyValue             label -> destination ('' withdraws)
+``wcs/requests`` (sub)     diagnostic_msgs/KeyValue             label -> destination ('' drops
+                                                                it); reliable, keep all
+``wcs/requests/answers``   diagnostic_msgs/KeyValue             one per request: label -> '' taken,
+                                                                or why it was refused
 ``wcs/dispositions``       diagnostic_msgs/DiagnosticStatus     one per parcel: ``name`` its label,
                                                                 ``message`` the code, ``values``
                                                                 label, code, destination, chute,
@@ -19,7 +22,12 @@ topic                      type                                 meaning
 
 Per station k it listens to ``Sk/sort/confirmations`` and (k > 1) ``Sk/sensors/edges``,
 and writes ``Sk/routing/updates`` and (k > 1) ``Sk/scanner/label``; it reads
-``line/exits`` and ``line/chutes/<name>/full``. Parameters: ``stations`` and
+``line/exits`` (an exit that is not the line's: a time not finite, a station or a
+chute the line does not have, a label outside the grammar, is refused in one line and
+counted, ``n_refused_exits``) and ``line/chutes/<name>/full``. At most ``MAX_PENDING``
+requests wait for their parcels (more are refused, each answered); a parcel's request
+and rule go when it leaves the line, so a request costs the same however many came
+before. Parameters: ``stations`` and
 ``chute_names`` as the line's, ``scan_eye`` (the stations' scanner eye),
 ``opcua_port`` (0: no OPC UA) and ``opcua_host`` (default 127.0.0.1): the same plan,
 requests and dispositions in an OPC UA ``Warehouse`` folder (``wcs_opcua``).
@@ -36,10 +44,11 @@ import threading
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import TimeReference
 from std_msgs.msg import Bool, String
 
-from sorter_control.wcs import LineWcs, PlanError
+from sorter_control.wcs import LineWcs, PlanError, parse_exit
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
@@ -47,6 +56,9 @@ from sorter_ros.interface import EVENT_QOS, SENSOR_QOS
 
 NODE_NAME = 'sorter_wcs'
 LATCHED = SENSOR_QOS
+# requests: none dropped in a burst (a writer and a reader that keep all); each answered
+REQUEST_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+MAX_ANSWERED_LABEL = 256  # an answer names the label, cut to this (the refusal says why)
 
 
 class WcsNode(Node):
@@ -86,6 +98,7 @@ class WcsNode(Node):
             except ValueError as exc:
                 raise ValueError(f"parameter 'record_path': {exc}") from None
         self.n_refused = 0
+        self.n_refused_exits = 0
         self._lock = threading.Lock()  # the executor's callbacks and the OPC UA calls
         self.opcua = None
         self._pub_routing = [
@@ -114,7 +127,8 @@ class WcsNode(Node):
                     EVENT_QOS,
                 )
         self.create_subscription(DiagnosticStatus, 'wcs/sort_plan', self._on_plan, EVENT_QOS)
-        self.create_subscription(KeyValue, 'wcs/requests', self._on_request, EVENT_QOS)
+        self.create_subscription(KeyValue, 'wcs/requests', self._on_request, REQUEST_QOS)
+        self._pub_answers = self.create_publisher(KeyValue, 'wcs/requests/answers', REQUEST_QOS)
         self.create_subscription(DiagnosticStatus, 'line/exits', self._on_exit, EVENT_QOS)
         for name in self.wcs.where:
             self.create_subscription(
@@ -223,7 +237,9 @@ class WcsNode(Node):
         self.take_plan(msg.name, [(kv.key, kv.value) for kv in msg.values])
 
     def _on_request(self, msg: KeyValue) -> None:
-        self.take_request(msg.key, msg.value)
+        # every request answered: '' taken, or why it was refused
+        why = self.take_request(msg.key, msg.value)
+        self._pub_answers.publish(KeyValue(key=msg.key[:MAX_ANSWERED_LABEL], value=why))
 
     def _on_full(self, chute: str, msg: Bool) -> None:
         with self._lock:
@@ -250,21 +266,17 @@ class WcsNode(Node):
             self._pub_label[k].publish(String(data=label))
 
     def _on_exit(self, msg: DiagnosticStatus) -> None:
-        v = {kv.key: kv.value for kv in msg.values}
         try:
-            station = int(v.get('station', 'S01')[1:]) - 1
-            t = float(v.get('t', 'nan'))
-        except ValueError:
-            self.get_logger().warning(f'line/exits: not a line exit, ignored: {v}')
-            return
-        if not 0 <= station < len(self.wcs.chutes):
-            self.get_logger().warning(f'line/exits: no station {v.get("station")!r}, ignored')
+            label, exit, station, t, cause = parse_exit(
+                [(kv.key, kv.value) for kv in msg.values], self.wcs.chutes
+            )
+        except PlanError as exc:
+            self.n_refused_exits += 1
+            self.get_logger().warning(f'line/exits: {exc}; refused', throttle_duration_sec=1.0)
             return
         with self._lock:
-            d = self.wcs.exited(
-                v.get('label', ''), v.get('exit', msg.message), station, t, v.get('cause', '')
-            )
-            self._send(self.wcs.rebuild())  # its rule is no longer needed
+            d = self.wcs.exited(label, exit, station, t, cause)
+            self._send(self.wcs.forget(label))  # its request and rule are no longer needed
         if self.opcua is not None:
             self.opcua.disposition(
                 ';'.join((d.label, d.code, d.destination, d.chute, d.station, f'{d.t:.6f}'))

@@ -400,11 +400,10 @@ def test_the_live_view_shows_the_whole_line_to_a_foxglove_client(ros):
 @pytest.mark.parametrize('sync', ['conservative', 'barrier'])
 def test_a_line_split_into_segments_gives_every_parcel_the_same_exit_at_the_same_time(ros, sync):
     """Stations 1-2 and 3-4 as two segments joined over DDS against one line of four."""
-    labels = [f'P{i}' for i in range(1, 7)]
+    labels = [f'P{i}' for i in range(1, 5)]
 
     def induct_and_raise(first_node, s3):
-        for label in labels:
-            first_node.stations[0].cell.induct(ParcelSpec(0.5, 0.35, 4.0, label=label))
+        hand_into_s02(first_node, labels)
         s3.set_parameters([Parameter('alpha_deg', value=60.0)])
         assert s3.cell.popup(True)[0]
 
@@ -443,6 +442,18 @@ def test_a_line_split_into_segments_gives_every_parcel_the_same_exit_at_the_same
     assert down.segment.stats['refused'] == 0 and not up.line.exits
 
 
+def hand_into_s02(line, labels, ahead: float = 0.0) -> None:
+    """Put parcels on station S02 one behind the other, ``ahead`` m past its entry [m]."""
+    from dataclasses import replace
+
+    from test_handover import REAL
+
+    pitch = line.line.positions[1] - line.line.positions[0]
+    for i, label in enumerate(labels):
+        parcel = replace(REAL[0], parcel_id=i + 1, label=label)
+        line.stations[1].cell.hand_in(parcel, -pitch + ahead + 0.8 * i)
+
+
 def _drop(ros, line) -> None:
     """Take a line node out of the test's executor and destroy it (a segment that dies)."""
     for n in line.nodes:
@@ -453,11 +464,10 @@ def _drop(ros, line) -> None:
 
 def test_a_restarted_segment_gets_back_every_parcel_it_held_and_sorts_them_as_before(ros):
     """S01-S02, S03, S04 as three segments; S03 dies with parcels on it and comes back."""
-    labels = [f'P{i}' for i in range(1, 6)]
+    labels = [f'P{i}' for i in range(1, 5)]
 
     def induct_and_raise(first_node, s4):
-        for label in labels:
-            first_node.stations[0].cell.induct(ParcelSpec(0.5, 0.35, 4.0, label=label))
+        hand_into_s02(first_node, labels, ahead=3.0)  # at S02's disk field, disks down
         s4.set_parameters([Parameter('alpha_deg', value=60.0)])
         assert s4.cell.popup(True)[0]
 
@@ -469,9 +479,14 @@ def test_a_restarted_segment_gets_back_every_parcel_it_held_and_sorts_them_as_be
     _drop(ros, one)
     assert len(ref) == len(labels) and {e[2] for e in ref} == {3}  # all diverted at S04
 
-    up = make_line(ros, stations=2, line_stations=4, node_name='sorter_line_a')
-    mid = make_line(ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b')
-    down = make_line(ros, stations=1, first_station=4, node_name='sorter_line_c')
+    # a slice of a second: the most a segment runs in one pass (1000 periods below), and
+    # so the most its neighbour's horizon may move at once
+    slice_s = {'fast_slice': 1.0}
+    up = make_line(ros, stations=2, line_stations=4, node_name='sorter_line_a', **slice_s)
+    mid = make_line(
+        ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b', **slice_s
+    )
+    down = make_line(ros, stations=1, first_station=4, node_name='sorter_line_c', **slice_s)
     induct_and_raise(up, down.stations[0])
 
     def step(*lines, n=50):
@@ -491,7 +506,9 @@ def test_a_restarted_segment_gets_back_every_parcel_it_held_and_sorts_them_as_be
     _drop(ros, mid)  # the process dies: its stations, its parcels, its outbox are gone
     for _ in range(5):
         step(up, down)  # upstream waits with nobody to hand to; downstream waits for time
-    mid = make_line(ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b')
+    mid = make_line(
+        ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b', **slice_s
+    )
     assert mid.line.k == 0  # it starts again from t = 0
     while len(down.line.exits) < len(labels):
         assert time.monotonic() < deadline, f'{len(down.line.exits)} of {len(labels)} sorted'

@@ -230,3 +230,39 @@ def test_the_cpu_reports_run_as_s7_tools_read_it(cell, plc):
     # the list of SZL ids names it, and the data blocks are served as before
     assert b'\x04\x24' in plc.read_szl_list()
     assert len(plc.db_read(1, 0, 8)) == 8
+
+
+def test_sixteen_idle_clients_never_lock_a_new_one_out(cell):
+    """Every slot taken by a client that says nothing: a new client gets the idlest's slot."""
+    from sorter_sim.frontends.s7_server import IDLE_S, SLOTS
+
+    port = cell.fieldbus.s7_port
+    idle = []
+    try:
+        for _ in range(SLOTS):
+            c = snap7.client.Client()
+            c.connect('127.0.0.1', 0, 1, port)
+            idle.append(c)
+        t_full = time.monotonic()
+        # once they have been silent for the idle time, a newcomer is always served
+        time.sleep(max(0.0, IDLE_S + 0.5 - (time.monotonic() - t_full)))
+        for _ in range(3):
+            fresh = snap7.client.Client()
+            fresh.connect('127.0.0.1', 0, 1, port)
+            assert fresh.db_read(1, 0, 8) is not None
+            idle.append(fresh)
+        # the ones it displaced were the idle ones, closed: the newest still serve
+        assert all(c.db_read(1, 0, 8) is not None for c in idle[-3:])
+        closed = 0
+        for c in idle[:SLOTS]:
+            try:
+                c.db_read(1, 0, 8)
+            except Exception:  # noqa: BLE001 - a closed connection raises in the client
+                closed += 1
+        assert closed >= 3
+    finally:
+        for c in idle:
+            try:
+                c.disconnect()
+            except Exception:  # noqa: BLE001 - closed by the server already
+                pass

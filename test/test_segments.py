@@ -194,3 +194,66 @@ def test_two_segments_on_two_hosts_hand_parcels_over_their_link(tmp_path):
                 p.kill()
         for side in 'ab':
             subprocess.run(['ip', 'netns', 'del', ns[side]], capture_output=True, timeout=20)
+
+
+def _children(pid: int) -> list[tuple[int, str]]:
+    """Return (pid, command line) of a process's children, from /proc."""
+    out = []
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f'/proc/{entry}/stat') as f:
+                ppid = int(f.read().rsplit(')', 1)[1].split()[1])
+            if ppid != pid:
+                continue
+            with open(f'/proc/{entry}/cmdline', 'rb') as f:
+                out.append((int(entry), f.read().replace(b'\0', b' ').decode()))
+        except (OSError, ValueError, IndexError):
+            continue
+    return out
+
+
+@pytest.mark.parametrize('when', ['starting', 'running'])
+def test_the_demo_says_at_once_when_a_segment_process_dies(ros, when):
+    """SIGKILL of segment 2: the demo ends within seconds, non-zero, naming it."""
+    from rosgraph_msgs.msg import Clock
+
+    from sorter_ros.interface import STREAM_QOS
+
+    clock = []
+    probe = ros.make_node('watcher')
+    probe.create_subscription(
+        Clock,
+        '/line/segment2/clock',
+        lambda m: clock.append(m.clock.sec + 1e-9 * m.clock.nanosec),
+        STREAM_QOS,
+    )
+    demo = subprocess.Popen(
+        [sys.executable, '-m', 'sorter_cell', 'demo', '--stations', '2', '--segments', '2']
+        + ['--parcels', '150', '--json'],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 50.0
+        victim = None
+        while victim is None:
+            assert time.monotonic() < deadline and demo.poll() is None, 'no segment 2'
+            time.sleep(0.2)
+            victim = next((p for p, cmd in _children(demo.pid) if '--first 2 ' in cmd + ' '), None)
+        if when == 'running':  # its simulated time runs
+            ros.spin_until(lambda: clock and clock[-1] > 0.1, 50.0)
+            assert clock and clock[-1] > 0.1, 'segment 2 did not run'
+        os.kill(victim, signal.SIGKILL)
+        t_kill = time.monotonic()
+        out, err = demo.communicate(timeout=30)
+        assert time.monotonic() - t_kill < 10.0
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.communicate()
+    assert demo.returncode != 0
+    assert f'segment 2 of 2 (process {victim})' in err and 'signal 9' in err, err
+    assert 'Traceback' not in err and len(err.strip().splitlines()) == 1

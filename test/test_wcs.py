@@ -466,3 +466,107 @@ def test_the_wcs_executable_refuses_a_bad_parameter_in_one_line():
     assert done.stderr.strip().splitlines() == [
         "wcs_node: parameter 'stations' must be an integer in [1, 64], got 0"
     ]
+
+
+def test_a_request_costs_the_same_however_many_are_held():
+    """Each request rewrites only its parcel's rule (the benchmark prints the figures)."""
+    sys.path.insert(0, str(__import__('pathlib').Path(__file__).resolve().parents[1]))
+    from benchmarks.bench_wcs_requests import per_request_s
+
+    few = per_request_s(0, leave=False)
+    many = per_request_s(20_000, leave=False)
+    assert many < 4.0 * few + 20e-6, (few, many)  # was linear: a rebuild of every rule
+
+
+def test_requests_over_the_bound_are_refused_and_counted_and_answered_ones_pruned(monkeypatch):
+    import sorter_control.wcs as wcs_module
+
+    monkeypatch.setattr(wcs_module, 'MAX_PENDING', 3)
+    w = wcs_with_plan()
+    for label in ('A', 'B', 'C'):
+        w.request(label, 'D2')
+    with pytest.raises(PlanError, match='3 requests wait for their parcels already'):
+        w.request('D', 'D2')
+    assert 'D' not in w.requests and w.rules[1] == {'A': 'right', 'B': 'right', 'C': 'right'}
+    w.request('A', 'D3')  # a change of a held request is not a new one
+    # a parcel that left: its request, rule and results go, and room is made
+    w.confirmed(1, 'B', 'right', 'sorted')
+    w.exited('B', 'S02R', 1, 3.0)
+    assert w.forget('B') == [(1, 'B', '')]
+    assert 'B' not in w.requests and 'B' not in w.results and 'B' in w.dispositions
+    w.request('D', 'D2')
+    assert w.n_taken == 5
+
+
+@pytest.mark.parametrize(
+    'values, named',
+    [
+        ({'t': 'nan'}, 't must be a decimal number'),
+        ({'t': 'inf'}, 't must be a decimal number'),
+        ({'t': '-1.0'}, 't must be a decimal number'),
+        ({'station': 'S\u0663'}, 'station must be one of S01..S03'),
+        ({'station': 'S09'}, 'station must be one of S01..S03'),
+        ({'label': 'x' * 100_000}, 'a label is'),
+        ({'label': ''}, 'a label is'),
+        ({'label': 'P\x1b[2J'}, 'a label is'),
+        ({'exit': 'S07L'}, 'exit must be a chute of the line'),
+        ({'id': '-4'}, 'id must be'),
+        ({'extra': '1'}, 'once'),
+    ],
+)
+def test_a_forged_line_exit_is_refused_naming_what_is_wrong(values, named):
+    from sorter_control.wcs import parse_exit
+
+    good = {'id': '7', 'label': 'P7', 'exit': 'S02R', 'station': 'S02', 't': '12.500000000'}
+    assert parse_exit(good.items(), CHUTES) == ('P7', 'S02R', 1, 12.5, '')
+    with pytest.raises(PlanError, match=named):
+        parse_exit({**good, **values}.items(), CHUTES)
+    with pytest.raises(PlanError, match='without'):
+        parse_exit([], CHUTES)
+
+
+@pytest.mark.ros
+def test_the_wcs_node_answers_every_request_of_a_burst_and_refuses_forged_exits(ros):
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    from rclpy.parameter import Parameter
+
+    from sorter_control.wcs_node import REQUEST_QOS, WcsNode
+    from sorter_ros.interface import EVENT_QOS
+
+    node = ros.add(
+        WcsNode(context=ros.context, parameter_overrides=[Parameter('stations', value=3)])
+    )
+    probe = ros.make_node('wms')
+    answers, disp = [], []
+    probe.create_subscription(KeyValue, 'wcs/requests/answers', answers.append, REQUEST_QOS)
+    probe.create_subscription(DiagnosticStatus, 'wcs/dispositions', disp.append, EVENT_QOS)
+    req = probe.create_publisher(KeyValue, 'wcs/requests', REQUEST_QOS)
+    exits = probe.create_publisher(DiagnosticStatus, 'line/exits', EVENT_QOS)
+    ros.spin_until(lambda: req.get_subscription_count() and exits.get_subscription_count(), 10.0)
+    ros.spin_until(lambda: node._pub_answers.get_subscription_count(), 10.0)
+    burst = 1000
+    for i in range(burst):
+        req.publish(KeyValue(key=f'P{i:05d}', value='D1'))
+    req.publish(KeyValue(key='bad label', value='D1'))
+    ros.spin_until(lambda: len(answers) == burst + 1, 40.0)
+    assert len(answers) == burst + 1 and node.wcs.n_taken == burst
+    assert [a.value for a in answers[:burst]] == [''] * burst  # taken, none dropped
+    assert answers[-1].key == 'bad label' and 'refused' in answers[-1].value
+    # forged exits: refused, counted, no disposition
+    for values in (
+        {'t': 'nan'},
+        {'t': 'inf'},
+        {'station': 'S\u0663'},
+        {'label': 'x' * 100_000},
+    ):
+        good = {'id': '1', 'label': 'P00001', 'exit': 'S01L', 'station': 'S01', 't': '1.0'}
+        exits.publish(
+            DiagnosticStatus(
+                name='parcel/1',
+                values=[KeyValue(key=k, value=v) for k, v in {**good, **values}.items()],
+            )
+        )
+    exits.publish(DiagnosticStatus())
+    ros.spin_until(lambda: node.n_refused_exits == 5, 10.0)
+    assert node.n_refused_exits == 5 and disp == []
+    assert 'P00001' in node.wcs.requests

@@ -343,7 +343,9 @@ def _expectation(k: int, entry, labels: set, controller: ControllerSpec | None) 
             raise ScenarioError(f'{key} needs faults or controller_state at {entry["at"]}')
         if 'faults' in entry:
             faults = entry['faults']
-            if not isinstance(faults, list) or not set(faults) <= {'estop', 'jam', 'watchdog'}:
+            if not isinstance(faults, list) or not all(
+                isinstance(f, str) and f in ('estop', 'jam', 'watchdog') for f in faults
+            ):
                 raise ScenarioError(
                     f'{key}.faults must be a list of estop, jam, watchdog, got {faults!r}'
                 )

@@ -34,6 +34,7 @@ start with one line naming the parameter and what it allows.
 
 from __future__ import annotations
 
+import math
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -62,6 +63,7 @@ from sorter_sim.frontends.node import SimNode, burst_limit, realtime_tick
 from sorter_sim.frontends.segments import SegmentLink
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_sim.runtime.cell import STATE_NAMES, SensorEdge
+from sorter_sim.runtime.handover import HandoverLimits
 from sorter_sim.runtime.line import Line, LineExit, LineLayout, StationEvent
 from sorter_sim.runtime.params import SPECS, ParamError
 
@@ -291,24 +293,29 @@ class LineNode(Node):
         for pub in self._pub_full.values():
             self._publish(pub, Bool(data=False))
         self.create_service(Trigger, 'line/step', self._srv_step, qos_profile=SERVICE_QOS)
+        self._slice = max(1, round(values['fast_slice'] / self.line.dt))
+        # bursts every station's watchdog can follow (``node.burst_limit``)
+        self._burst_s = min(burst_limit(s.params.watchdog_timeout) for s in self.stations)
+        p0 = self.stations[0].params
         # hand-overs between segments (``segments.py``): the next segment's entry, and ours
         self.segment = SegmentLink(
             self,
             upstream=station_name(f0) if f0 else None,
             downstream=station_name(last) if self.hand_on else None,
             dx=-self._pitch,
-            dt_ns=self.line.stations[0].params.control_period_ns,
-            barrier=(f0, n, values['line_stations'] or f0 + n)
-            if values['segment_sync'] == 'barrier'
-            else None,
+            dt_ns=p0.control_period_ns,
+            owned=(f0, n, total),
+            limits=HandoverLimits.from_params(p0),
+            # the most the segment upstream runs in one pass: a slice, or a burst on the
+            # wall clock
+            max_step_k=max(self._slice, math.ceil(self._burst_s / self.line.dt) + 1),
+            room=lambda: p0.max_parcels - self.stations[0].cell.n_parcels,
+            barrier=values['segment_sync'] == 'barrier',
         )
-        self._slice = max(1, round(values['fast_slice'] / self.line.dt))
         self.exits = 0
         # wall time spent in the line's physics and in publishing what it reports
         self.cost = {'physics_s': 0.0, 'publish_s': 0.0}
         self._wall_ref = None
-        # bursts every station's watchdog can follow (``node.burst_limit``)
-        self._burst_s = min(burst_limit(s.params.watchdog_timeout) for s in self.stations)
         mode = values['time_mode']
         if mode == 'fast':
             self._timer = self.create_timer(0.0, self._tick_fast)
@@ -440,6 +447,8 @@ class LineNode(Node):
         """
         link = self.segment
         link.service()
+        if link.holds():
+            return  # its stations are another segment's, or its claim has not settled yet
         if self.values['time_mode'] != 'realtime':
             if link.downstream is not None and not link.connected():
                 return  # no segment downstream to take the hand-overs yet: they would be lost

@@ -31,7 +31,10 @@ operating mode (SZL W#16#0424, what S7 tools show as the CPU state) is RUN.
 from __future__ import annotations
 
 import logging
+import socket
 import struct
+import threading
+import time
 
 from snap7.datatypes import S7Area, S7WordLen
 from snap7.s7protocol import S7Function, S7PDUType
@@ -72,6 +75,12 @@ _WORD_BYTES = {
 }
 
 
+SLOTS = 16  # clients served at once
+# s without a byte after which a connection gives its slot to a new client (when all
+# are taken): a PLC polls every few hundred ms, so one silent this long has stopped
+IDLE_S = 5.0
+
+
 class CellS7Server(Server):
     """
     python-snap7's S7 server over one ``IOImage`` (see the module).
@@ -84,26 +93,71 @@ class CellS7Server(Server):
         The IPv4 address to listen on.
     port : int
         The TCP port (S7's own is 102).
+    slots : int
+        Clients served at once.
+    idle_s : float
+        A connection that sent nothing for this long [s] is closed when every slot is
+        taken and a new client comes: idle clients never lock the others out.
 
     """
 
-    def __init__(self, image, host: str, port: int):
-        super().__init__(log=False, max_clients=16)
+    def __init__(self, image, host: str, port: int, *, slots: int = SLOTS, idle_s: float = IDLE_S):
+        # one over the slots: the base server takes the new client, which then finds an
+        # idle one to close or is closed itself (``_handle_client``)
+        super().__init__(log=False, max_clients=slots + 1)
         logging.getLogger('snap7').setLevel(logging.CRITICAL)  # failures are answered
         self.image = image
         self.host = host
         self.listen_port = port
+        self.slots = slots
+        self.idle_s = idle_s
         self.sizes = {db: s7_size(image.signals, db) for db in (S7_INPUT_DB, S7_OUTPUT_DB)}
-        self._sockets: set = set()  # the clients' sockets, shut down at stop
+        self._sockets: dict = {}  # each client's socket -> when it last sent a request
+        self._by_address: dict = {}  # a client's address -> its socket
+        self.closed_idle = 0  # idle connections closed for a new client
+        self.refused_busy = 0  # new clients refused: every slot busy with a talking one
 
     def _handle_client(self, client_socket, address) -> None:
         with self.client_lock:
-            self._sockets.add(client_socket)
+            if len(self._sockets) >= self.slots and not self._close_idlest():
+                self.refused_busy += 1
+                client_socket.close()
+                # the base server counted this client in: it never runs its handler
+                if threading.current_thread() in self.clients:
+                    self.clients.remove(threading.current_thread())
+                self.client_count = max(0, self.client_count - 1)
+                return
+            self._sockets[client_socket] = time.monotonic()
+            self._by_address[address] = client_socket
         try:
             super()._handle_client(client_socket, address)
         finally:
             with self.client_lock:
-                self._sockets.discard(client_socket)
+                self._sockets.pop(client_socket, None)
+                if self._by_address.get(address) is client_socket:
+                    del self._by_address[address]
+
+    def _close_idlest(self) -> bool:
+        """Close the connection silent longest, if past ``idle_s``; return whether one was."""
+        if not self._sockets:
+            return False
+        sock, last = min(self._sockets.items(), key=lambda kv: kv[1])
+        if time.monotonic() - last < self.idle_s:
+            return False
+        del self._sockets[sock]  # its slot is the new client's now
+        try:
+            sock.shutdown(socket.SHUT_RDWR)  # its handler's receive ends; it cleans up
+        except OSError:
+            pass
+        self.closed_idle += 1
+        return True
+
+    def _process_request(self, request_data, client_address):
+        with self.client_lock:
+            sock = self._by_address.get(client_address)
+            if sock in self._sockets:
+                self._sockets[sock] = time.monotonic()
+        return super()._process_request(request_data, client_address)
 
     def serve(self) -> int:
         """Start listening; return the port. ValueError naming the address if it cannot."""

@@ -43,21 +43,50 @@ again. The first segment's stream is its own state: restarting it starts the
 stream over. In ``realtime`` mode a restarted segment's clock starts at 0 again and
 the parcels sent back wait for their time: restart a real-time line whole.
 
+Ownership: every segment says on ``line/owners`` (latched) which stations it owns,
+with its identity, every half second (``Ownership``). A second segment claiming a
+station is refused: the one that started later holds (takes nothing, runs nothing),
+and both say so in one line. A claim lapses when its segment has not been heard for
+``CLAIM_LEASE_S`` (it died): one restarted in its place takes over then. A segment
+answers a ``hello`` only from the owner of the stations downstream, at most once a
+second (``HELLO_MIN_S``), and takes ``left`` and horizons only from the owners next to it.
+
 The messages are ``diagnostic_msgs/DiagnosticStatus``: ``name`` ``parcel`` or
-``horizon`` downstream, ``left`` or ``hello`` upstream, ``values`` the fields. A
-malformed one is counted and dropped with a warning; it never stops the segment.
+``horizon`` downstream, ``left`` or ``hello`` upstream, ``owns`` and ``progress`` to
+all, ``values`` the fields. Each is read whole before it touches anything
+(``runtime.handover``: the fields, their ranges, the parcel's physics); a horizon moves
+forward by at most a slice once the first one is in; a parcel id this segment has
+taken is not taken again, nor one for a time its upstream has closed. A message that
+fails is refused in one line, counted (``stats['refused']``) and changes nothing; it
+never stops the segment.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from sorter_sim.model.description import shown, station_name
 from sorter_sim.runtime.cell import Handoff
+from sorter_sim.runtime.handover import (
+    HandoverError,
+    HandoverLimits,
+    MAX_IDS,
+    MAX_STATIONS,
+    message_fields,
+    parse_claim_fields,
+    parse_handover_fields,
+    parse_horizon_fields,
+    parse_identity,
+    parse_left_fields,
+    parse_progress_fields,
+)
 
 # every hand-over kept until delivered: a parcel must never be lost between segments
 HANDOVER_QOS = QoSProfile(
@@ -72,6 +101,17 @@ PROGRESS_QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
+# which segment owns which stations: each one's newest claim, for a segment that joins
+OWNERS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+CLAIM_PERIOD_S = 0.5  # s between a segment's claims
+CLAIM_LEASE_S = 3.0  # s a claim stands without the segment being heard
+CLAIM_SETTLE_S = 1.0  # s a segment's claim stands before it runs
+HELLO_MIN_S = 1.0  # s between two answers to a hello (each re-sends the whole outbox)
 
 
 def handover_message(h: Handoff, wall_ns: int) -> DiagnosticStatus:
@@ -106,14 +146,16 @@ def handover_message(h: Handoff, wall_ns: int) -> DiagnosticStatus:
     )
 
 
-def parse_handover(msg: DiagnosticStatus) -> tuple[Handoff, int]:
+def parse_handover(msg: DiagnosticStatus, limits: HandoverLimits) -> tuple[Handoff, int]:
     """
-    Return the hand-over a message carries and its send time; ValueError naming what is wrong.
+    Return the hand-over a message carries and its send time; HandoverError naming what is wrong.
 
     Parameters
     ----------
     msg : DiagnosticStatus
         A ``parcel`` message.
+    limits : HandoverLimits
+        What the receiving segment's first station can be handed (``runtime.handover``).
 
     Returns
     -------
@@ -121,30 +163,12 @@ def parse_handover(msg: DiagnosticStatus) -> tuple[Handoff, int]:
         The parcel and the wall-clock time it was sent [ns].
 
     """
-    v = {kv.key: kv.value for kv in msg.values}
-    try:
-        state = tuple(float.fromhex(x) for x in v['state'].split())
-        gauge = tuple(float.fromhex(x) for x in v['gauge'].split())
-        dims = tuple(float.fromhex(x) for x in v['dims'].split())
-        h = Handoff(
-            t_ns=int(v['t_ns']),
-            parcel_id=int(v['id']),
-            label=v['label'],
-            state=state,
-            mode=int(v['mode']),
-            gauge=gauge,
-            dims=dims,
-        )
-        wall_ns = int(v.get('wall_ns', '0'))
-    except KeyError as exc:
-        raise ValueError(f'a hand-over without {exc.args[0]!r}') from None
-    except ValueError as exc:
-        raise ValueError(f'a hand-over with a bad field: {exc}') from None
-    if len(state) != 6 or len(dims) != 3 or h.t_ns < 0 or not all(d > 0 for d in dims):
-        raise ValueError(
-            'a hand-over must carry 6 state values, 3 positive dimensions and a time >= 0'
-        )
-    return h, wall_ns
+    return parse_handover_fields(pairs(msg), limits)
+
+
+def pairs(msg: DiagnosticStatus) -> list:
+    """Return a message's (key, value) pairs."""
+    return [(kv.key, kv.value) for kv in msg.values]
 
 
 class SegmentLink:
@@ -162,22 +186,46 @@ class SegmentLink:
         The upstream station's origin minus this segment's first one's [m].
     dt_ns : int
         The control period [ns].
-    barrier : (int, int, int), optional
-        With ``segment_sync`` ``barrier``: this segment's first station (0-based), its
-        stations and the line's; every segment then says its time on ``line/progress``
-        and none runs more than a slice past the one furthest behind.
+    owned : (int, int, int)
+        This segment's first station (0-based), its stations and the line's.
+    limits : HandoverLimits
+        What its first station can be handed.
+    max_step_k : int
+        The most periods the segment upstream advances between two horizons (a slice).
+    room : callable
+        Returns how many more parcels the first station can take.
+    barrier : bool
+        With ``segment_sync`` ``barrier``: every segment then says its time on
+        ``line/progress`` and none runs more than a slice past the one furthest behind.
 
     """
 
-    def __init__(self, node, *, upstream, downstream, dx: float, dt_ns: int, barrier=None):
+    def __init__(
+        self,
+        node,
+        *,
+        upstream,
+        downstream,
+        dx: float,
+        dt_ns: int,
+        owned: tuple,
+        limits: HandoverLimits,
+        max_step_k: int,
+        room=lambda: 1,
+        barrier: bool = False,
+    ):
         self.node = node
         self.upstream = upstream
         self.downstream = downstream
         self.dx = dx
         self.dt_ns = dt_ns
+        self.limits = limits
+        self.max_step_k = max_step_k
+        self._room = room
         self.inbox: list[Handoff] = []
         # the period up to which the segment upstream has handed over everything
         self.horizon_k = 0 if upstream else None
+        self._horizon_heard = False
         self.stats = {
             'sent': 0,
             'received': 0,
@@ -187,13 +235,23 @@ class SegmentLink:
             'resent': 0,
             'duplicates': 0,
             'waits': 0,
+            'claim_conflicts': 0,
         }
         self.latencies_ns: list[int] = []  # wall time from sending to receiving
         # this segment's identity for its neighbours: a restart is a new one
         self.identity = f'{os.getpid()}-{time.time_ns()}'
+        self._owned = owned
+        self.owners = (
+            Ownership(node, self.identity, owned, lambda why: self._refuse(why, 'owners'))
+            if upstream or downstream
+            else None
+        )
         # custody (see the module): what this segment handed on and still answers for
         self.outbox: dict[int, Handoff] = {}
         self._downstream_identity = None
+        self._pending_hello = None  # a hello waiting for its sender's claim or its turn
+        self._pending_horizon = None  # (t_ns, sender): a horizon waiting for its owner's claim
+        self._last_resend = -math.inf
         self._last_horizon_ns = None
         self._taken: set[int] = set()  # every parcel id taken, to drop a second copy
         self._left: list[int] = []  # ids that left this segment, to tell upstream
@@ -207,30 +265,51 @@ class SegmentLink:
             node.create_subscription(
                 DiagnosticStatus,
                 f'line/handover/{downstream}/left',
-                self._on_custody,
+                self._guarded(self._on_custody, downstream),
                 HANDOVER_QOS,
             )
-        self._barrier = barrier
+        self._barrier = owned if barrier else None
         self._progress: dict[int, tuple[int, int]] = {}  # first station -> (stations, k)
-        if barrier is not None:
+        if barrier:
             self._pub_progress = node.create_publisher(
                 DiagnosticStatus, 'line/progress', PROGRESS_QOS
             )
             node.create_subscription(
-                DiagnosticStatus, 'line/progress', self._on_progress, PROGRESS_QOS
+                DiagnosticStatus,
+                'line/progress',
+                self._guarded(self._on_progress, 'progress'),
+                PROGRESS_QOS,
             )
-            self._progress[barrier[0]] = (barrier[1], 0)
+            self._progress[owned[0]] = (owned[1], 0)
         if upstream:
             node.create_subscription(
-                DiagnosticStatus, f'line/handover/{upstream}', self._on_message, HANDOVER_QOS
+                DiagnosticStatus,
+                f'line/handover/{upstream}',
+                self._guarded(self._on_message, None),
+                HANDOVER_QOS,
             )
             self._pub_left = node.create_publisher(
                 DiagnosticStatus, f'line/handover/{upstream}/left', HANDOVER_QOS
             )
 
+    def _guarded(self, callback, station):
+        """Return ``callback`` refusing, in one line, any message it cannot read."""
+
+        def guarded(msg):
+            try:
+                callback(msg)
+            except HandoverError as exc:
+                self._refuse(str(exc), station)
+
+        return guarded
+
     def connected(self) -> bool:
         """Return True when a segment downstream reads this one's hand-overs."""
         return self._pub is not None and self._pub.get_subscription_count() > 0
+
+    def holds(self) -> bool:
+        """Return True while the segment may not run: its stations are another's, or unsettled."""
+        return self.owners is not None and not self.owners.runs()
 
     def hand_on(self, handoffs: list) -> None:
         """Send the parcels the segment handed on (in order, behind any not yet sent)."""
@@ -249,7 +328,13 @@ class SegmentLink:
             return
         self._last_horizon_ns = t_ns
         self._queue.append(
-            DiagnosticStatus(name='horizon', values=[KeyValue(key='t_ns', value=str(t_ns))])
+            DiagnosticStatus(
+                name='horizon',
+                values=[
+                    KeyValue(key='t_ns', value=str(t_ns)),
+                    KeyValue(key='identity', value=self.identity),
+                ],
+            )
         )
         self._flush()
 
@@ -280,6 +365,7 @@ class SegmentLink:
             DiagnosticStatus(
                 name='progress',
                 values=[
+                    KeyValue(key='identity', value=self.identity),
                     KeyValue(key='first', value=str(first)),
                     KeyValue(key='stations', value=str(n)),
                     KeyValue(key='k', value=str(k)),
@@ -295,12 +381,26 @@ class SegmentLink:
         return min(k for _, k in self._progress.values())
 
     def _on_progress(self, msg: DiagnosticStatus) -> None:
-        v = {kv.key: kv.value for kv in msg.values}
-        try:
-            first, n, k = int(v['first']), int(v['stations']), int(v['k'])
-        except (KeyError, ValueError):
-            self._refuse('a progress message without integer first, stations and k', 'progress')
+        identity, first, n, k = parse_progress_fields(pairs(msg), self._barrier[2])
+        if identity == self.identity:
             return
+        claim = self.owners.claim_of(identity) if self.owners is not None else None
+        # its claim, or (said before its claim reached here, or lapsed in a stalled
+        # reader) a part of the line no other segment's times cover: never a second
+        # entry for stations already timed, which would hold the barrier back for good
+        other = [(f, m) for f, (m, _) in self._progress.items() if (f, m) != (first, n)] + [
+            (self._barrier[0], self._barrier[1])
+        ]
+        if (claim is not None and claim != (first, n)) or any(
+            f < first + n and first < f + m for f, m in other
+        ):
+            raise HandoverError(
+                f'progress for stations {first + 1}-{first + n} from {identity!r}, which '
+                'does not own them'
+            )
+        self.owners.heard_from(identity)
+        # only the newest of each segment's is kept on the way (a reader behind loses
+        # some): forward, by whatever it ran since
         old = self._progress.get(first, (n, 0))[1]
         self._progress[first] = (n, max(old, k))
 
@@ -310,7 +410,16 @@ class SegmentLink:
             self._left.append(int(parcel_id))
 
     def service(self) -> None:
-        """Say hello upstream once it listens, and tell it which parcels left (each slice)."""
+        """Keep the claim, say hello upstream once it listens, tell it which parcels left."""
+        if self.owners is not None:
+            self.owners.service()
+        self._serve_hello()
+        pending, self._pending_horizon = self._pending_horizon, None
+        if pending is not None:
+            try:
+                self._take_horizon(*pending)
+            except HandoverError as exc:
+                self._refuse(str(exc))
         if self._pub_left is None:
             return
         if not self._hello_said and self._pub_left.get_subscription_count() > 0:
@@ -322,34 +431,57 @@ class SegmentLink:
             self._hello_said = True
         if self._left and self._hello_said:
             ids, self._left = self._left, []
-            self._pub_left.publish(
-                DiagnosticStatus(
-                    name='left', values=[KeyValue(key='ids', value=' '.join(map(str, ids)))]
+            for j in range(0, len(ids), MAX_IDS):
+                self._pub_left.publish(
+                    DiagnosticStatus(
+                        name='left',
+                        values=[
+                            KeyValue(key='ids', value=' '.join(map(str, ids[j : j + MAX_IDS]))),
+                            KeyValue(key='identity', value=self.identity),
+                        ],
+                    )
                 )
-            )
+
+    def _downstream_owner(self) -> str | None:
+        return self.owners.owner_of(self._owned[0] + self._owned[1])
 
     def _on_custody(self, msg: DiagnosticStatus) -> None:
         """Take what the segment downstream says: parcels that left it, or its hello."""
-        values = {kv.key: kv.value for kv in msg.values}
         if msg.name == 'left':
-            try:
-                ids = [int(x) for x in values.get('ids', '').split()]
-            except ValueError:
-                self._refuse('a left message whose ids are not integers', self.downstream)
-                return
+            ids, sender = parse_left_fields(pairs(msg))
+            # from the owner downstream, or the restarted one whose hello was answered
+            if sender not in (self._downstream_owner(), self._downstream_identity):
+                raise HandoverError(
+                    f'a left message from {sender!r}, not the owner of {self.downstream}'
+                )
+            self.owners.heard_from(sender)
             for pid in ids:
                 if self.outbox.pop(pid, None) is not None:
                     self.left(pid)  # it has left this segment's custody too
             return
-        if msg.name != 'hello' or not values.get('identity'):
-            self._refuse(
-                f"a message named {msg.name[:40]!r}: 'left' or 'hello' with an identity expected",
-                self.downstream,
+        if msg.name != 'hello':
+            raise HandoverError(
+                f"a message named {shown(msg.name, 40)}: 'left' or 'hello' expected"
             )
+        v = message_fields(pairs(msg), 'hello', ('identity',))
+        identity = parse_identity(v['identity'])
+        if identity == self._downstream_identity or identity == self._pending_hello:
+            return  # said again: answered once
+        self._pending_hello = identity
+        self._serve_hello()
+
+    def _serve_hello(self) -> None:
+        """Answer a pending hello once its sender owns the stations and a second has passed."""
+        identity = self._pending_hello
+        if identity is None or self.owners is None:
             return
-        if values['identity'] == self._downstream_identity:
-            return
-        self._downstream_identity = values['identity']
+        if identity != self._downstream_owner():
+            return  # not (yet) the owner of the stations downstream: it waits
+        if time.monotonic() - self._last_resend < HELLO_MIN_S:
+            return  # at most one answer a second, whoever asks
+        self._pending_hello = None
+        self._downstream_identity = identity
+        self._last_resend = time.monotonic()
         # a segment that (re)started: everything it answers for, again, in time order
         now = time.time_ns()
         for h in sorted(self.outbox.values(), key=lambda h: (h.t_ns, h.parcel_id)):
@@ -374,40 +506,182 @@ class SegmentLink:
         return [(h, self.dx) for h in now]
 
     def _on_message(self, msg: DiagnosticStatus) -> None:
+        if self.owners is not None and self.owners.refused():
+            raise HandoverError('this segment holds: another segment owns its stations')
         if msg.name == 'horizon':
-            try:
-                t_ns = int({kv.key: kv.value for kv in msg.values}['t_ns'])
-            except (KeyError, ValueError):
-                self._refuse('a horizon without an integer t_ns')
-                return
-            self.horizon_k = max(self.horizon_k, t_ns // self.dt_ns)
+            self._take_horizon(*parse_horizon_fields(pairs(msg)))
             return
         if msg.name != 'parcel':
-            self._refuse(f"a message named {msg.name[:40]!r}: 'parcel' or 'horizon' expected")
-            return
-        try:
-            h, sent_ns = parse_handover(msg)
-        except ValueError as exc:
-            self._refuse(str(exc))
-            return
+            raise HandoverError(
+                f"a message named {shown(msg.name, 40)}: 'parcel' or 'horizon' expected"
+            )
+        h, sent_ns = parse_handover(msg, self.limits)
         if h.parcel_id in self._taken:
-            self.stats['duplicates'] += 1  # sent again to a segment that has it
+            self.stats['duplicates'] += 1  # sent again to a segment that has it, or forged
             return
+        if len(self.inbox) >= self._room():
+            raise HandoverError(
+                f'parcel {h.parcel_id}: station {self.upstream} has no room for another '
+                '(max_parcels)'
+            )
         self._taken.add(h.parcel_id)
         self.stats['received'] += 1
         if sent_ns:
-            self.latencies_ns.append(time.time_ns() - sent_ns)
+            self.latencies_ns.append(max(0, time.time_ns() - sent_ns))
         if h.t_ns // self.dt_ns < self.node.line.k:
             self.stats['late'] += 1  # on the wall clock: taken at once, as it left
         self.inbox.append(h)
 
+    def _take_horizon(self, t_ns: int, sender: str) -> None:
+        if sender != self.owners.owner_of(self._owned[0] - 1):
+            # not (yet) the owner upstream: its claim has not come, or it restarted and
+            # the old claim has not lapsed. The newest waits; it counts only once its
+            # sender owns the station (a forger's never does)
+            self._pending_horizon = (t_ns, sender)
+            return
+        k = t_ns // self.dt_ns
+        if self._horizon_heard and k <= self.horizon_k:
+            # said again (the answer to a hello ends with the last one), or a restarted
+            # upstream segment running up to the present: nothing new
+            self.owners.heard_from(sender)
+            return
+        # the first horizon brings the upstream's present (it may have run before this
+        # segment listened, or this one restarted); after it, a slice at a time
+        if self._horizon_heard and k > self.horizon_k + self.max_step_k:
+            raise HandoverError(
+                f'a horizon moves forward by at most a slice ({self.max_step_k} periods) '
+                f'from period {self.horizon_k}, got period {k}'
+            )
+        self._horizon_heard = True
+        self.horizon_k = k
+        self.owners.heard_from(sender)
+
     def _refuse(self, why: str, station: str | None = None) -> None:
         self.stats['refused'] += 1
         topic = (
-            'line/progress'
-            if station == 'progress'
+            f'line/{station}'
+            if station in ('progress', 'owners')
             else f'line/handover/{station}/left'
             if station
             else f'line/handover/{self.upstream}'
         )
-        self.node.get_logger().warning(f'{topic}: {why}; dropped', throttle_duration_sec=5.0)
+        self.node.get_logger().warning(f'{topic}: {why}; refused', throttle_duration_sec=1.0)
+
+
+class Ownership:
+    """
+    The claims of the line's segments on ``line/owners``: which segment owns which stations.
+
+    Every segment says, every ``CLAIM_PERIOD_S``, the stations it owns with its
+    identity (its process and start time). Two claims on a station: the segment that
+    started first owns it; the other is refused (it holds: it takes nothing and does
+    not run) and both say so in one line. A claim not said again within
+    ``CLAIM_LEASE_S`` lapses (its process died): a segment restarted in its place takes
+    the stations over then. A segment runs once its own claim has stood
+    ``CLAIM_SETTLE_S`` unchallenged, so that a claim already there reaches it first.
+    """
+
+    def __init__(self, node, identity: str, owned: tuple, refuse):
+        self.node = node
+        self._refuse = refuse
+        self.identity = identity
+        self.first, self.n, self.line_stations = owned
+        self._start = time.monotonic()
+        self._said = -math.inf
+        self._claims: dict[str, tuple[int, int, float]] = {}  # identity -> first, n, heard
+        self._reported: set[str] = set()
+        self.conflicts = 0
+        self._pub = node.create_publisher(DiagnosticStatus, 'line/owners', OWNERS_QOS)
+        node.create_subscription(DiagnosticStatus, 'line/owners', self._on_claim, OWNERS_QOS)
+        self.service()
+        # said on the wall clock, whether or not the segment runs (lock-step: between steps)
+        node.create_timer(
+            CLAIM_PERIOD_S, self.service, clock=Clock(clock_type=ClockType.STEADY_TIME)
+        )
+
+    def _stations(self, first: int, n: int) -> str:
+        return f'{station_name(first)}-{station_name(first + n - 1)}'
+
+    def service(self) -> None:
+        """Say the claim again when due; let lapsed claims go."""
+        now = time.monotonic()
+        if now - self._said >= CLAIM_PERIOD_S:
+            self._said = now
+            self._pub.publish(
+                DiagnosticStatus(
+                    name='owns',
+                    values=[
+                        KeyValue(key='identity', value=self.identity),
+                        KeyValue(key='first', value=str(self.first)),
+                        KeyValue(key='stations', value=str(self.n)),
+                    ],
+                )
+            )
+        for identity, (_, _, heard) in list(self._claims.items()):
+            if now - heard > CLAIM_LEASE_S:
+                del self._claims[identity]
+                self._reported.discard(identity)
+
+    def _on_claim(self, msg: DiagnosticStatus) -> None:
+        try:
+            identity, first, n = parse_claim_fields(pairs(msg), self.line_stations)
+        except HandoverError as exc:
+            self._refuse(str(exc))
+            return
+        if identity == self.identity:
+            return
+        if identity not in self._claims and len(self._claims) >= MAX_STATIONS:
+            self._refuse('more claims than a line has stations')
+            return
+        self._claims[identity] = (first, n, time.monotonic())
+        if identity in self._reported or not self._overlaps(first, n):
+            return
+        self._reported.add(identity)
+        self.conflicts += 1
+        mine, theirs = self._stations(self.first, self.n), self._stations(first, n)
+        if _older(identity, self.identity):
+            why = f'{identity} (started first) owns them: this segment holds, refused'
+        else:
+            why = f'{identity} claims them too and started later: refused'
+        self.node.get_logger().error(f'line/owners: stations {mine} overlap {theirs}; {why}')
+
+    def _overlaps(self, first: int, n: int) -> bool:
+        return first < self.first + self.n and self.first < first + n
+
+    def refused(self) -> bool:
+        """Return True while a segment that started first claims some of this one's stations."""
+        return any(
+            self._overlaps(f, n) and _older(i, self.identity)
+            for i, (f, n, _) in self._claims.items()
+        )
+
+    def runs(self) -> bool:
+        """Return True when this segment owns its stations (see the class)."""
+        return time.monotonic() - self._start >= CLAIM_SETTLE_S and not self.refused()
+
+    def heard_from(self, identity: str) -> None:
+        """Keep a segment's claim: a segment that speaks is alive, whenever its claims come."""
+        c = self._claims.get(identity)
+        if c is not None:
+            self._claims[identity] = (c[0], c[1], time.monotonic())
+
+    def claim_of(self, identity: str) -> tuple[int, int] | None:
+        """Return the (first, stations) a live claim of ``identity`` holds, or None."""
+        c = self._claims.get(identity)
+        return None if c is None else (c[0], c[1])
+
+    def owner_of(self, station: int) -> str | None:
+        """Return the identity owning ``station`` (0-based): the first started of its claims."""
+        owners = [i for i, (f, n, _) in self._claims.items() if f <= station < f + n]
+        if self.first <= station < self.first + self.n:
+            owners.append(self.identity)
+        return min(owners, key=_start_key) if owners else None
+
+
+def _start_key(identity: str) -> tuple[int, str]:
+    """Order identities by start time, then by name (two started in the same nanosecond)."""
+    return int(identity.partition('-')[2]), identity
+
+
+def _older(a: str, b: str) -> bool:
+    return _start_key(a) < _start_key(b)

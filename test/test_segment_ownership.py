@@ -1,0 +1,121 @@
+"""
+Who owns a station of a split line, and in what order its messages may come.
+
+Two segments claiming one station: the one that started later holds and both say so;
+horizons come from the owner upstream only and a slice at a time; hellos from anyone
+but the owner downstream re-send nothing; a parcel id a segment has taken is never
+taken again, the real parcel stays.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rclpy.parameter import Parameter
+
+from sorter_sim.frontends.segments import HANDOVER_QOS, handover_message
+from test_handover import REAL
+
+pytestmark = pytest.mark.ros
+
+
+def segment(ros, name, **values):
+    from sorter_sim.frontends.line_node import LineNode
+
+    node = LineNode(
+        node_name=name,
+        context=ros.context,
+        parameter_overrides=[
+            Parameter(k, value=v) for k, v in {'time_mode': 'lockstep', **values}.items()
+        ],
+        station_params={'arrival': 'none'},
+    )
+    for n in node.nodes:
+        ros.add(n)
+    return node
+
+
+def step(ros, *lines, n=50):
+    for line in lines:
+        line.advance(n)
+        for _ in range(30):
+            ros.executor.spin_once(timeout_sec=0.0)
+
+
+def test_a_second_claimant_of_a_station_holds_and_both_say_so(ros):
+    first = segment(ros, 'sorter_line_a', stations=1, first_station=2)
+    time.sleep(0.01)  # started later
+    second = segment(ros, 'sorter_line_b', stations=1, first_station=2)
+    ros.spin_until(
+        lambda: first.segment.owners.conflicts and second.segment.owners.conflicts, 10.0
+    )
+    assert first.segment.owners.conflicts == 1 == second.segment.owners.conflicts
+    ros.spin_for(1.2)  # past the claim's settling time
+    assert second.segment.holds() and second.segment.owners.refused()
+    assert not first.segment.holds()
+    # the one that holds takes nothing from upstream
+    msg = DiagnosticStatus(
+        name='horizon',
+        values=[KeyValue(key='t_ns', value='0'), KeyValue(key='identity', value='1-1')],
+    )
+    refused = second.segment.stats['refused']
+    callback = next(
+        s.callback for s in second.subscriptions if s.topic_name == '/line/handover/S02'
+    )
+    callback(msg)
+    assert second.segment.stats['refused'] == refused + 1
+
+
+def test_forged_horizons_hellos_and_parcel_ids_change_nothing(ros):
+    up = segment(ros, 'sorter_line_a', stations=1, line_stations=2, fast_slice=0.05)
+    down = segment(ros, 'sorter_line_b', stations=1, first_station=2, fast_slice=0.05)
+    # two parcels half a metre before the exit of S01 (as a station upstream hands them
+    # in): S02 has them within a second of simulated time
+    for i in (1, 2):
+        up.stations[0].cell.hand_in(replace(REAL[0], parcel_id=i, label=f'P{i}'), -0.3 * i)
+    forger = ros.make_node('forger')
+    to_down = forger.create_publisher(DiagnosticStatus, '/line/handover/S02', HANDOVER_QOS)
+    to_up = forger.create_publisher(DiagnosticStatus, '/line/handover/S02/left', HANDOVER_QOS)
+    ros.spin_until(
+        lambda: (
+            up.segment.connected()
+            and to_down.get_subscription_count()
+            and to_up.get_subscription_count()
+        ),
+        10.0,
+    )
+    deadline = time.monotonic() + 45.0
+    while down.segment.stats['received'] < 1:
+        assert time.monotonic() < deadline, 'no parcel handed over'
+        step(ros, up, down)
+    taken = down.segment.inbox[0] if down.segment.inbox else None
+    k_before = down.segment.horizon_k
+    refused = down.segment.stats['refused']
+    # a horizon far ahead, even in the owner's name: refused
+    to_down.publish(
+        DiagnosticStatus(
+            name='horizon',
+            values=[
+                KeyValue(key='t_ns', value=str(10**18)),
+                KeyValue(key='identity', value=up.segment.identity),
+            ],
+        )
+    )
+    # 200 hellos from segments that own nothing: nothing is sent again
+    for i in range(200):
+        to_up.publish(
+            DiagnosticStatus(name='hello', values=[KeyValue(key='identity', value=f'{i}-{i}')])
+        )
+    # a parcel with the id of one already taken, in a plausible state: not taken again
+    h = up.segment.outbox[next(iter(up.segment.outbox))]
+    to_down.publish(handover_message(h, time.time_ns()))
+    ros.spin_for(1.0)
+    assert down.segment.horizon_k <= k_before + up._slice
+    assert down.segment.stats['refused'] >= refused + 1
+    assert up.segment.stats['resent'] == 0  # none of them owns S02
+    assert down.segment.stats['duplicates'] >= 1 and down.segment.stats['received'] == 1
+    if taken is not None:
+        assert down.segment.inbox[0] is taken
