@@ -500,7 +500,8 @@ def test_a_restarted_segment_gets_back_every_parcel_it_held_and_sorts_them_as_be
     # run until S03 holds a parcel and S04 has been handed some, none sorted yet
     while not (mid.line.n_in_flight and down.segment.stats['received'] >= 2):
         assert time.monotonic() < deadline and not down.line.exits, 'no moment to crash'
-        step(up, mid, down)
+        # a fifth of a second at a time: parcels seconds apart on a station 4 s long
+        step(up, mid, down, n=200)
     held = mid.line.n_in_flight
     handed = down.segment.stats['received']
     _drop(ros, mid)  # the process dies: its stations, its parcels, its outbox are gone
@@ -510,6 +511,8 @@ def test_a_restarted_segment_gets_back_every_parcel_it_held_and_sorts_them_as_be
         ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b', **slice_s
     )
     assert mid.line.k == 0  # it starts again from t = 0
+    # its claim waits for the old one's to lapse (3 s on the wall clock), then it runs up
+    deadline = time.monotonic() + 40.0
     while len(down.line.exits) < len(labels):
         assert time.monotonic() < deadline, f'{len(down.line.exits)} of {len(labels)} sorted'
         step(up, mid, down, n=1000)  # the restarted one runs its time up to the present
