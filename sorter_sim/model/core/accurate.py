@@ -101,7 +101,7 @@ def _slip_scratch(nsurf, nb):
 @njit(cache=True)
 def _slip_scales(strips, parcel, y0, rtol, atol):
     """
-    The stick tolerance [m/s] and a bound on the slip's rate of fall [m/s²].
+    Return the stick tolerance [m/s] and a bound on the slip's rate of fall [m/s²].
 
     The stick tolerance is atol or rtol of the largest speed about (a surface's, the
     start's, at least 1 mm/s). The bound is 1.5 μ_max g: a patch's generalized friction
@@ -242,7 +242,7 @@ def _slip_start(y, K, h_try, contact, clip, limits, sc):
 @njit(cache=True)
 def _scrap_and_border_events(y, y_new, K, h, y_target, parcel, borders, sc):
     """
-    The earliest scrap-line or strip-border crossing inside an accepted step.
+    Find the earliest scrap-line or strip-border crossing inside an accepted step.
 
     The scrap line y_cog = ``y_target``, and a corner crossing a strip border (a sign
     change of ``_corner_event_values``, where the area functions have kinks), each
@@ -305,7 +305,7 @@ def _scrap_and_border_events(y, y_new, K, h, y_target, parcel, borders, sc):
 @njit(cache=True)
 def _stick_event(y, y_new, K, h, contact, earliest, stick_tol, sc):
     """
-    The earliest stick inside an accepted step: a surface's slip σ reaching zero.
+    Find the earliest stick inside an accepted step: a surface's slip σ reaching zero.
 
     Its projection on the step-start slip changes sign (located by bisection to
     1e-15 on the dense output), or it ends the step within ``stick_tol`` and falling,
@@ -366,7 +366,7 @@ def _stick_event(y, y_new, K, h, contact, earliest, stick_tol, sc):
 @njit(cache=True)
 def _step_events(y, y_new, K, h, slide, stick_tol, sc):
     """
-    The earliest event inside an accepted step (t, t + h]: scrap line, border or stick.
+    Find the earliest event inside an accepted step (t, t + h]: scrap line, border, stick.
 
     ``_scrap_and_border_events`` then ``_stick_event``; a stick at the same θ as a
     border crossing wins, one at the scrap line's does not.

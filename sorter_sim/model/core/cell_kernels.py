@@ -225,7 +225,7 @@ def toward(value, target, max_step):
 @njit(cache=True)
 def _period_strips(k, v, act, setup, strips, memo):
     """
-    The strips of period k (belt speed ``v``), and whether they are the last period's.
+    Make the strips of period k (belt speed ``v``); say if they are the last period's.
 
     α and the stroke at the period's midpoint, each slewing toward its command at its
     rate (``toward``), give the strips (``cell_strips``), written into ``strips`` and
@@ -319,7 +319,7 @@ def _wall_jams(k, cfg, parcels, work, log, n_ev):
 @njit(cache=True)
 def _sensor_edges(k, ntr, work, counts, log, n_ev):
     """
-    The sensors' edges over the period: the OR over parcels of their transitions, in time order.
+    Emit the sensors' edges over the period: the OR over parcels of their transitions.
 
     A sensor rises (EV_EDGE, b = 1) when its first parcel blocks it and falls (b = 0)
     when its last clears it; ``counts`` holds how many parcels block each.

@@ -159,7 +159,7 @@ def _cell_work(par, n_sens, b):
 @njit(cache=True)
 def _held_mode(m, s0, v, strips, disk_sid):
     """
-    The mode a parcel in mode ``m`` starts the period in: a stick holds to its velocity only.
+    Return the mode a parcel in mode ``m`` starts the period in: a stick holds to its velocity.
 
     A parcel stuck to the belt whose velocity is not the belt's this period (an e-stop,
     a restart), or stuck to disks that changed velocity (α slewing) or went down,
@@ -310,7 +310,7 @@ def _jam(q, other, k, tau, parcels, log, n_ev):
 @njit(cache=True)
 def _on_cell_events(i, k, hx0, cfg, parcels, s0, s1, log, n_ev):
     """
-    The scanner and the ways off the cell of parcel i, moved from ``s0`` to ``s1``.
+    Detect the scanner and the ways off the cell of parcel i, moved from ``s0`` to ``s1``.
 
     The scanner reads a label once its leading edge crosses the scanner line
     (EV_SCAN); the centre of gravity leaves over a chute entry line y = ±w/2 inside

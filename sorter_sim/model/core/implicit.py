@@ -358,7 +358,7 @@ def _stuck_step(y, h, vsx, vsy, y_out):
 @njit(cache=True)
 def _stick_test(y, h, mode, contact, exact, points, xis, twist, loads, scratch):
     """
-    The implicit step's stick test: the surface it stays on, or -1 and a start W for Newton.
+    Test the implicit step for a stick: the surface it stays on, or -1 and a Newton start W.
 
     Stuck to a surface s, the step's momentum balance M (v_s - W0)/h = W_s + Σ_o W_o
     (o the other surfaces) needs the wrench W_s within its patch's limit set

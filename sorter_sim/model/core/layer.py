@@ -238,7 +238,7 @@ def _layer_step_crosses(u, un, y_target, parcel, borders, yv, ev0, ev1):
 @njit(cache=True)
 def _slip_zero_fraction(u, K, h, us):
     """
-    The fraction θ of a layer step at which the slip s reaches zero (an approach to a stick).
+    Return the fraction θ of a layer step at which the slip s reaches zero (a stick nears).
 
     Bisection to 1e-15 on the step's 4th-order dense output, s(t + θ h) = 0; returns the
     upper end, so that the step redone to θ h ends at or just past the zero. ``us`` is

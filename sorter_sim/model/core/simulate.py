@@ -652,7 +652,7 @@ def simulate(  # noqa: PLR0913 — keyword-only options with defaults, as scipy.
 
 def _checked(y0, t_span, rtol, atol, dt, v_min, y_target, n_quad):
     """
-    ``simulate``'s numeric arguments checked against their ranges (``ValueError`` if not).
+    Check ``simulate``'s numeric arguments against their ranges (``ValueError`` if not).
 
     Returns
     -------
@@ -707,7 +707,7 @@ def _run_kernel(method, start, span, contact, tol, borders, h_max, reductions, t
 
 
 def _reductions_used(method, strips, reductions, rotation, counters) -> list[str]:
-    """The reductions of the full model a run used (``SimResult.reductions``)."""
+    """Return the reductions of the full model a run used (``SimResult.reductions``)."""
     used = []
     if reductions and all(s.law.is_constant for s in strips):
         used.append("closed_form_wrench")
@@ -724,7 +724,7 @@ def _reductions_used(method, strips, reductions, rotation, counters) -> list[str
 
 
 def _result(method, status, trail, log, wall, used, velocities) -> SimResult:
-    """The ``SimResult`` of a run from its trail and its log."""
+    """Return the ``SimResult`` of a run from its trail and its log."""
     counters, ev = log.counters, log.ev
     max_points = trail.ts.shape[0]
     n_out = min(int(counters[N_OUT]), max_points)

@@ -236,7 +236,7 @@ def smooth_order(eps):
 @borrowing
 def _fan_centre(qx, qy, ux_q, uy_q, omega, radius):
     """
-    The centre (cx, cy) of a strip part's quadrature fan, and whether it is the ICR.
+    Return the centre (cx, cy) of a strip part's quadrature fan, and whether it is the ICR.
 
     The instantaneous centre of the relative motion, c = q + ẑ×u_q/φ̇, where it lies
     within 4 ``radius`` of the centroid q (the kink of û is then near or inside the
