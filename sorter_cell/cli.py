@@ -1,6 +1,7 @@
 """
-The ``sorter`` command: ``run | paper | sweep | bench | demo | replay | scenario | recover``
-and ``warmup``.
+The ``sorter`` command and its verbs.
+
+``sorter run | paper | sweep | bench | demo | replay | scenario | recover | warmup``.
 
 The model's verbs come from ``sorter_sim.cli``; ``demo`` starts the simulation
 node and the controller together, so it sits here, above both packages.

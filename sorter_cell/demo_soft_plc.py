@@ -15,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from sorter_cell.demo import _controller_values, _Observer, _stream, cell_params
+from sorter_cell.demo_parts import _controller_values, _Observer, _stream, cell_params
 from sorter_cell.demo_summary import exit_code, exits_by_id, plot_paths, print_table, summarize
 
 

@@ -293,15 +293,10 @@ def _run_in_process(file: str, seed: int, domains: range) -> dict:
     return out
 
 
-def _campaign(args) -> int | str:
-    from sorter_cell.testing.scenario import (
-        Check,
-        ScenarioError,
-        ScenarioResult,
-        junit_xml,
-        load_scenario,
-    )
-    from sorter_sim.studies.progress import progress_bar
+def _campaign_inputs(args) -> tuple[list[str], object] | str:
+    """Check a campaign's folder, files and options; return its files and domains, or why not."""
+    from sorter_cell.testing.domains import campaign_domains
+    from sorter_cell.testing.scenario import ScenarioError, load_scenario
 
     folder = Path(args.folder)
     if not folder.is_dir():
@@ -322,12 +317,21 @@ def _campaign(args) -> int | str:
         problem = output_problem(args.junit, "--junit", "junit")
         if problem:
             return problem
-    from sorter_cell.testing.domains import campaign_domains
-
     try:
-        domains = campaign_domains(args.domains)
+        return files, campaign_domains(args.domains)
     except ValueError as exc:
         return str(exc)
+
+
+def _campaign(args) -> int | str:
+    from sorter_cell.testing.scenario import Check, ScenarioResult, junit_xml
+    from sorter_sim.studies.progress import progress_bar
+
+    checked = _campaign_inputs(args)
+    if isinstance(checked, str):
+        return checked
+    files, domains = checked
+    folder = Path(args.folder)
     from distributed import Client, LocalCluster, as_completed
 
     wall0 = time.perf_counter()

@@ -38,7 +38,7 @@ class DocCommand:
 
     @property
     def argv(self) -> list[str]:
-        """The command split as the shell would (no shell features are used)."""
+        """Return the command split as the shell would (no shell features are used)."""
         return shlex.split(self.text)
 
 

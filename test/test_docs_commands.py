@@ -70,7 +70,7 @@ def test_the_collector_finds_the_commands_and_every_skip_says_why():
 
 @pytest.fixture(scope='module')
 def reader_root(tmp_path_factory) -> Path:
-    """A folder laid out as the repository's root, for the commands to run in."""
+    """Return a folder laid out as the repository's root, for the commands to run in."""
     root = tmp_path_factory.mktemp('reader')
     for name in ('config', 'examples', 'benchmarks', 'scripts', '.venv'):
         (root / name).symlink_to(REPO / name)

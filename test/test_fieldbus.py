@@ -652,7 +652,7 @@ def test_an_independent_modbus_client_reads_and_writes_the_image(cell):
 
 
 def test_the_cell_answers_its_unit_id_and_refuses_others_as_the_line_does(cell):
-    """pyModbusTCP at unit ids 0, 1, 17, 247 and 255: the cell is unit 1 (and 255, TCP's)."""
+    """Ask at unit ids 0, 1, 17, 247 and 255 with pyModbusTCP: the cell is 1 (and TCP's 255)."""
     from pyModbusTCP.client import ModbusClient
 
     cell.advance(200)

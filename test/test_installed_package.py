@@ -29,13 +29,13 @@ pytestmark = [pytest.mark.ros, pytest.mark.xdist_group('installed_package')]
 
 @pytest.fixture(scope='module')
 def venv(tmp_path_factory) -> Path:
-    """The wheel, installed into a fresh virtualenv (once for this file's tests)."""
+    """Return the wheel, installed into a fresh virtualenv (once for this file's tests)."""
     return installed_venv(tmp_path_factory.mktemp('installed'))
 
 
 @pytest.fixture
 def outside(tmp_path) -> Path:
-    """A working folder outside the repository."""
+    """Return a working folder outside the repository."""
     assert REPO not in tmp_path.parents
     return tmp_path
 

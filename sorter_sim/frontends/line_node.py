@@ -239,18 +239,7 @@ class LineNode(Node):
         ]
         self.stations: list[SimNode] = []
         try:
-            for k in range(n):
-                self.stations.append(
-                    SimNode(
-                        station=True,
-                        not_mine=LINE_ONLY,
-                        context=self.context,
-                        namespace=f'{ns}/{station_name(f0 + k)}',
-                        parameter_overrides=list(overrides)
-                        # only the line's first station inducts a stream
-                        + ([Parameter('arrival', value='none')] if f0 + k else []),
-                    )
-                )
+            self._start_stations(ns, f0, n, overrides)
             p0 = self.stations[0].params
             self._pitch = span = p0.exit_x - p0.induct_x + values['station_gap']
             layout = LineLayout(
@@ -328,6 +317,21 @@ class LineNode(Node):
             f'sorter line ready: {n} stations ({", ".join(a + "/" + b for a, b in chutes[:3])}'
             f'{", ..." if n > 3 else ""}), {mode} mode'
         )
+
+    def _start_stations(self, ns: str, f0: int, n: int, overrides: list) -> None:
+        """Start this node's ``n`` stations, the line's ``f0 + 1`` .. ``f0 + n``."""
+        for k in range(n):
+            self.stations.append(
+                SimNode(
+                    station=True,
+                    not_mine=LINE_ONLY,
+                    context=self.context,
+                    namespace=f'{ns}/{station_name(f0 + k)}',
+                    parameter_overrides=list(overrides)
+                    # only the line's first station inducts a stream
+                    + ([Parameter('arrival', value='none')] if f0 + k else []),
+                )
+            )
 
     def _refuse_unknown_parameters(self) -> None:
         """Refuse a name neither the line nor its stations take, in one line."""

@@ -209,7 +209,7 @@ def _case(where, ok, measured, excess):
 
 # ---------------------------------------------------------------------------- the claims
 def _trend(where: str, vals, *, rising: bool, what: str, over: str, fmt="{:.3f} m") -> Case:
-    """A case: ``vals`` strictly rising (or falling) along one axis of the grid."""
+    """Return a case: ``vals`` strictly rising (or falling) along one axis of the grid."""
     vals = np.asarray(vals, float)
     d = np.diff(vals)
     ok = np.all(d > 0) if rising else np.all(d < 0)

@@ -285,10 +285,7 @@ def fig4(out: Path | None = None, quick: bool = False, stick: str = "seed") -> F
 # ---------------------------------------------------------------------------- Fig. 5
 @figure_parameters
 def fig5(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
-    """
-    Duration of the static stage F(3) of the first three stick-slip cycles against v_min.
-
-    """
+    """Duration of the static stage F(3) of the first three stick-slip cycles against v_min."""
     t0 = time.perf_counter()
     osc = Oscillator()
     v_mins = np.array([1e-5, 1e-4, 1e-3]) if quick else np.logspace(-6, -1, 11)

@@ -37,10 +37,7 @@ from sorter_sim.studies.paper_support import (
 # ---------------------------------------------------------------------------- Fig. 7
 @figure_parameters
 def fig7(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
-    """
-    Return the CoG path with (line 1) and without (line 2) the moment of friction forces.
-
-    """
+    """Return the CoG path with (line 1) and without (line 2) the moment of friction forces."""
     t0 = time.perf_counter()
     out = law_folder(out, stick)
     kw = dict(A=0.4, B=0.2, v=1.0, alpha_deg=90.0, b=math.inf, mu_a=SEED_MU, mu_b=SEED_MU)
@@ -263,13 +260,19 @@ def fig8(out: Path | None = None, quick: bool = False, stick: str = "seed") -> F
         "W_d": wd,
     }
     if out is not None:
-        _fig8_files(out, r, As, Bs, vs, als, mus, xa, xb, xc, xd)
+        _fig8_files(out, r, (As, Bs, vs, als, mus), (xa, xb, xc, xd))
     r.wall_s = time.perf_counter() - t0
     return r
 
 
-def _fig8_files(out: Path, r: FigureResult, As, Bs, vs, als, mus, xa, xb, xc, xd) -> None:
-    """Write Fig. 8's four CSV tables and its 2 x 2 picture; add them to ``r.files``."""
+def _fig8_files(out: Path, r: FigureResult, axes: tuple, fields: tuple) -> None:
+    """
+    Write Fig. 8's four CSV tables and its 2 x 2 picture; add them to ``r.files``.
+
+    ``axes``: the grids (A, B, v, α, μ); ``fields``: x_o over panels a-d.
+    """
+    As, Bs, vs, als, mus = axes
+    xa, xb, xc, xd = fields
     for tag, rows, cols, rname, cname, arr in (
         ("a", As, Bs, "A_m", "B_m", xa),
         ("b", vs, As, "v_m_s", "A_m", xb),
@@ -305,10 +308,7 @@ def _fig8_files(out: Path, r: FigureResult, As, Bs, vs, als, mus, xa, xb, xc, xd
 # ---------------------------------------------------------------------------- Fig. 9
 @figure_parameters
 def fig9(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
-    """
-    Capacity W_t = 3600/t_c [pcs/h] against v and A, for α = 90°, 45°, 30°.
-
-    """
+    """Capacity W_t = 3600/t_c [pcs/h] against v and A, for α = 90°, 45°, 30°."""
     t0 = time.perf_counter()
     out = law_folder(out, stick)
     As = [0.3, 0.7, 1.1] if quick else [0.2, 0.4, 0.6, 0.7, 0.8, 1.0, 1.2]

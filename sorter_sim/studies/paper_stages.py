@@ -34,10 +34,7 @@ ACC_WINDOW = 0.05  # s, the start of E2 over which the lateral acceleration is t
 
 @figure_parameters
 def fig10(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
-    """
-    Components of the rubbing speed in zones a and b over time, stages E1-E3 marked.
-
-    """
+    """Components of the rubbing speed in zones a and b over time, stages E1-E3 marked."""
     t0 = time.perf_counter()
     out = law_folder(out, stick)
     runs = {}
@@ -187,10 +184,7 @@ def fig10(out: Path | None = None, quick: bool = False, stick: str = "seed") -> 
 
 @figure_parameters
 def fig11(out: Path | None = None, quick: bool = False, stick: str = "seed") -> FigureResult:
-    """
-    Minimal disk-field width b against v and A for α = 90°, 45°, 30° (brentq per point).
-
-    """
+    """Minimal disk-field width b against v and A for α = 90°, 45°, 30° (brentq per point)."""
     t0 = time.perf_counter()
     out = law_folder(out, stick)
     As = [0.4] if quick else [0.2, 0.4, 0.6, 0.8, 1.0, 1.2]
