@@ -60,7 +60,9 @@ def read_recording(path: str | Path) -> dict:
     "damage": None or what is wrong with the file and where, "undecodable": {topic:
     count}}. Chunk and data-section CRCs are checked: a torn file (the process killed,
     the disk full) or a damaged one is read up to its last intact chunk and the damage
-    is named; messages whose schema cannot be decoded are counted, not decoded.
+    is named; a record outside a chunk is taken only once the data section's CRC has
+    vouched for it, so a damaged opcode never adds a message; messages whose schema
+    cannot be decoded are counted, not decoded.
     Raises ValueError with one line when nothing of the file is a readable recording.
 
     Parameters
@@ -74,8 +76,17 @@ def read_recording(path: str | Path) -> dict:
         What the recording holds.
 
     """
-    from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema, Statistics
-    from mcap.stream_reader import StreamReader
+    from mcap.records import (
+        Channel,
+        Chunk,
+        DataEnd,
+        Footer,
+        Message,
+        Metadata,
+        Schema,
+        Statistics,
+    )
+    from mcap.stream_reader import StreamReader, breakup_chunk
 
     state = _Reading()
     try:
@@ -90,18 +101,24 @@ def read_recording(path: str | Path) -> dict:
     in_data = True
     with f:
         try:
-            reader = StreamReader(f, validate_crcs=True, record_size_limit=RECORD_SIZE_LIMIT)
+            reader = StreamReader(
+                f, emit_chunks=True, validate_crcs=True, record_size_limit=RECORD_SIZE_LIMIT
+            )
             for record in reader.records:
-                if isinstance(record, Schema) and in_data:
-                    state.schemas[record.id] = record
-                elif isinstance(record, Channel) and in_data:
-                    state.channels[record.id] = record
-                elif isinstance(record, Message) and in_data:
-                    state.message(record)
+                if isinstance(record, Chunk) and in_data:
+                    # its CRC (when its writer wrote one) is checked before a record is taken;
+                    # a chunk holds only schemas, channels and messages, no index to mistake
+                    for inner in breakup_chunk(record, validate_crc=True):
+                        state.take(inner, vouched=True)
+                elif isinstance(record, (Schema, Channel, Message)) and in_data:
+                    # outside a chunk only the data section's CRC, at DataEnd, vouches for
+                    # it: a damaged opcode (a MessageIndex read as a Message) looks the same
+                    state.take(record, vouched=False)
                 elif isinstance(record, Metadata) and record.name == METADATA:
                     state.metadata(record.metadata)
                 elif isinstance(record, DataEnd):
                     in_data = False
+                    state.vouch_all()  # the reader has checked the data section's CRC, if any
                 elif isinstance(record, Statistics):
                     stats = record
                 elif isinstance(record, Footer):
@@ -109,10 +126,11 @@ def read_recording(path: str | Path) -> dict:
         except Exception as exc:  # whatever a damaged byte makes the parser do
             where = f"at byte {f.tell()} of {size}"
             what = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
-            if state.n_records == 0 and not state.schemas:
+            if state.n_records == 0 and not state.schemas and not state.pending:
                 raise ValueError(
                     f"{str(path)[:200]!r} is not a readable MCAP recording: {what}"
                 ) from None
+            unvouched = state.drop_unvouched()
             if type(exc).__name__ == "EndOfFile" or f.tell() >= size:
                 state.damage = (
                     f"the file ends at byte {size} in the middle of a record, without its "
@@ -124,7 +142,13 @@ def read_recording(path: str | Path) -> dict:
                     f"the file breaks off {where} ({type(exc).__name__}: {what}); "
                     f"{state.n_records} messages before it were read, the rest is lost"
                 )
+            if unvouched:
+                state.damage += (
+                    f"; {unvouched} messages outside chunks, which no CRC vouches for, "
+                    "were left out"
+                )
     if state.damage is None and not finished:
+        state.drop_unvouched()
         state.damage = (
             f"the file ends at byte {size} without its summary (cut short: the recorder was "
             f"killed or its disk filled); {state.n_records} messages were read"
@@ -154,6 +178,45 @@ class _Reading:
         self.cell = None
         self.damage: str | None = None
         self.n_records = 0
+        # records taken in file order but held until a CRC vouches for them: once one
+        # is held, the vouched ones after it wait too, so that order is kept
+        self.pending: list[tuple[object, bool]] = []
+
+    def take(self, record, vouched: bool) -> None:
+        """Take a Schema, Channel or Message record now, or hold it until vouched for."""
+        if vouched and not self.pending:
+            self._apply(record)
+        else:
+            self.pending.append((record, vouched))
+
+    def vouch_all(self) -> None:
+        """Take every held record: a CRC over all of them has been checked."""
+        held, self.pending = self.pending, []
+        for record, _ in held:
+            self._apply(record)
+
+    def drop_unvouched(self) -> int:
+        """Take the held records a chunk CRC vouched for, drop the others: their message count."""
+        from mcap.records import Message
+
+        held, self.pending = self.pending, []
+        dropped = 0
+        for record, vouched in held:
+            if vouched:
+                self._apply(record)
+            else:
+                dropped += isinstance(record, Message)
+        return dropped
+
+    def _apply(self, record) -> None:
+        from mcap.records import Channel, Schema
+
+        if isinstance(record, Schema):
+            self.schemas[record.id] = record
+        elif isinstance(record, Channel):
+            self.channels[record.id] = record
+        else:
+            self.message(record)
 
     def _decoder(self, channel):
         from mcap_ros2.decoder import DecoderFactory
