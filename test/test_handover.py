@@ -20,6 +20,8 @@ from sorter_sim.runtime.handover import (
     MAX_ID,
     HandoverError,
     HandoverLimits,
+    parse_answer_fields,
+    parse_claim,
     parse_claim_fields,
     parse_handover_fields,
     parse_horizon_fields,
@@ -160,6 +162,22 @@ def test_control_messages_are_read_strictly():
         parse_claim_fields([('identity', '1-2'), ('first', '2'), ('stations', '3')], 4)
     with pytest.raises(HandoverError, match='identity'):
         parse_claim_fields([('identity', 'me'), ('first', '0'), ('stations', '1')], 4)
+    # a claim names its node (a restart under the same name succeeds it) and an answer
+    # to a hello names the hello
+    claim = [('identity', '12-34'), ('first', '2'), ('stations', '2')]
+    assert parse_claim(claim + [('node', '/line/sorter_line_b')], 4) == (
+        '12-34',
+        2,
+        2,
+        '/line/sorter_line_b',
+    )
+    assert parse_claim(claim, 4)[3] == ''
+    for node in ('sorter_line_b', '/a b', '/x/', '/9lives', '/' + 'n' * 600):
+        with pytest.raises(HandoverError, match='node'):
+            parse_claim(claim + [('node', node)], 4)
+    assert parse_answer_fields([('identity', '1-2'), ('hello', '3-4')]) == ('1-2', '3-4')
+    with pytest.raises(HandoverError, match='without hello'):
+        parse_answer_fields([('identity', '1-2')])
 
 
 def test_a_taken_hand_over_is_a_parcel_a_station_can_integrate():

@@ -511,7 +511,8 @@ def test_a_restarted_segment_gets_back_every_parcel_it_held_and_sorts_them_as_be
         ros, stations=1, first_station=3, line_stations=4, node_name='sorter_line_b', **slice_s
     )
     assert mid.line.k == 0  # it starts again from t = 0
-    # its claim waits for the old one's to lapse (3 s on the wall clock), then it runs up
+    # the same node come back: its claim succeeds the old one at once (no lease to wait
+    # out); it runs once S01-S02 has answered its hello, every parcel back in its inbox
     deadline = time.monotonic() + 40.0
     while len(down.line.exits) < len(labels):
         assert time.monotonic() < deadline, f'{len(down.line.exits)} of {len(labels)} sorted'

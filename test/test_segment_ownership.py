@@ -119,3 +119,17 @@ def test_forged_horizons_hellos_and_parcel_ids_change_nothing(ros):
     assert down.segment.stats['duplicates'] >= 1 and down.segment.stats['received'] == 1
     if taken is not None:
         assert down.segment.inbox[0] is taken
+
+
+def test_the_same_node_restarted_takes_its_stations_over_at_once(ros):
+    """A later claim under the owner's own name and stations succeeds it, lease or not."""
+    up = segment(ros, 'sorter_line_a', stations=1, line_stations=2)
+    old = segment(ros, 'sorter_line_b', stations=1, first_station=2)
+    ros.spin_until(lambda: up.segment.owners.owner_of(1) == old.segment.identity, 10.0)
+    new = segment(ros, 'sorter_line_b', stations=1, first_station=2)
+    start = time.monotonic()
+    ros.spin_until(lambda: up.segment.owners.owner_of(1) == new.segment.identity, 10.0)
+    # well within the old claim's lease: the old one is alive and still claiming
+    assert time.monotonic() - start < 2.0
+    ros.spin_until(lambda: old.segment.owners.refused(), 5.0)
+    assert not new.segment.owners.refused() and old.segment.holds()

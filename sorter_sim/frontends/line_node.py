@@ -458,6 +458,10 @@ class LineNode(Node):
                 return  # no segment downstream to take the hand-overs yet: they would be lost
             if link.backlogged():
                 return  # the segment downstream has not taken what it was sent yet
+            if not link.answered:
+                # what the segment upstream answers for (a restart's parcels) not all in
+                # yet: run now and they would be taken late
+                return
             if link.upstream is not None:
                 # in step with the segment upstream: never past the time it has handed over to
                 n = min(n, link.horizon_k - self.line.k)

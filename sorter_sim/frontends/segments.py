@@ -30,10 +30,12 @@ the line's end, jammed, or handed on again and left the one after (each segment 
 its upstream neighbour, on ``line/handover/<its first station>/left``, the ids that
 left it, forwarding those its own downstream neighbour reports). A segment that
 starts says ``hello`` there with an identity of its own (its process and start
-time); the segment upstream answers a ``hello`` it has not heard before by sending
-its whole outbox again, then its horizon. A segment restarted after a crash thus
+time), again every ``HELLO_MIN_S`` until answered; the segment upstream answers a
+``hello`` it has not heard before by sending its whole outbox again, then its horizon,
+then ``answered`` naming the hello. In lock-step and fast mode a segment runs only once
+its hello is answered. A segment restarted after a crash thus
 gets back every parcel it held or was being handed, each in the state it was handed
-over in, and in lock-step it runs again from t = 0 (its stations empty, the time
+over in, before it runs again from t = 0 (its stations empty, the time
 up to the present quickly) and takes each at the period it first came: the parcels
 leave it as they did before, into the same chutes at the same times, except where
 one of them had met a parcel that had already left (which is not re-sent). A
@@ -44,16 +46,18 @@ stream over. In ``realtime`` mode a restarted segment's clock starts at 0 again 
 the parcels sent back wait for their time: restart a real-time line whole.
 
 Ownership: every segment says on ``line/owners`` (latched) which stations it owns,
-with its identity, every half second (``Ownership``). A second segment claiming a
+with its identity and node name, every half second (``Ownership``). A second segment claiming a
 station is refused: the one that started later holds (takes nothing, runs nothing),
 and both say so in one line. A claim lapses when its segment has not been heard for
-``CLAIM_LEASE_S`` (it died): one restarted in its place takes over then. A segment
+``CLAIM_LEASE_S`` (it died): one restarted in its place takes over then, or at once
+when it is the same node come back (its name and stations, started later: a node name
+is one node of the ROS graph), and the old one, were it still alive, holds. A segment
 answers a ``hello`` only from the owner of the stations downstream, at most once a
 second (``HELLO_MIN_S``), and takes ``left`` and horizons only from the owners next to it.
 
-The messages are ``diagnostic_msgs/DiagnosticStatus``: ``name`` ``parcel`` or
-``horizon`` downstream, ``left`` or ``hello`` upstream, ``owns`` and ``progress`` to
-all, ``values`` the fields. Each is read whole before it touches anything
+The messages are ``diagnostic_msgs/DiagnosticStatus``: ``name`` ``parcel``,
+``horizon`` or ``answered`` downstream, ``left`` or ``hello`` upstream, ``owns`` and
+``progress`` to all, ``values`` the fields. Each is read whole before it touches anything
 (``runtime.handover``: the fields, their ranges, the parcel's physics); a horizon moves
 forward by at most a slice once the first one is in; a parcel id this segment has
 taken is not taken again, nor one for a time its upstream has closed. A message that
@@ -80,7 +84,8 @@ from sorter_sim.runtime.handover import (
     MAX_IDS,
     MAX_STATIONS,
     message_fields,
-    parse_claim_fields,
+    parse_answer_fields,
+    parse_claim,
     parse_handover_fields,
     parse_horizon_fields,
     parse_identity,
@@ -226,6 +231,10 @@ class SegmentLink:
         # the period up to which the segment upstream has handed over everything
         self.horizon_k = 0 if upstream else None
         self._horizon_heard = False
+        # a segment with one upstream runs once its hello is answered (the answer ends
+        # with ``answered``): every parcel it answers for is in its inbox by then
+        self.answered = upstream is None
+        self._pending_answer = None  # the sender of an answer waiting for its claim
         self.stats = {
             'sent': 0,
             'received': 0,
@@ -255,7 +264,7 @@ class SegmentLink:
         self._last_horizon_ns = None
         self._taken: set[int] = set()  # every parcel id taken, to drop a second copy
         self._left: list[int] = []  # ids that left this segment, to tell upstream
-        self._hello_said = False
+        self._hello_said = -math.inf  # when the hello was last said (monotonic s)
         self._queue: list[DiagnosticStatus] = []  # to the segment downstream, in order
         self._pub = self._pub_left = None
         if downstream:
@@ -420,16 +429,25 @@ class SegmentLink:
                 self._take_horizon(*pending)
             except HandoverError as exc:
                 self._refuse(str(exc))
+        if self._pending_answer is not None:
+            self._take_answer(self._pending_answer)
         if self._pub_left is None:
             return
-        if not self._hello_said and self._pub_left.get_subscription_count() > 0:
+        now = time.monotonic()
+        if (
+            not self.answered
+            and now - self._hello_said >= HELLO_MIN_S
+            and self._pub_left.get_subscription_count() > 0
+        ):
+            # said again until answered: the segment upstream keeps one hello waiting,
+            # which another's may have taken the place of
             self._pub_left.publish(
                 DiagnosticStatus(
                     name='hello', values=[KeyValue(key='identity', value=self.identity)]
                 )
             )
-            self._hello_said = True
-        if self._left and self._hello_said:
+            self._hello_said = now
+        if self._left and self._hello_said > -math.inf:
             ids, self._left = self._left, []
             for j in range(0, len(ids), MAX_IDS):
                 self._pub_left.publish(
@@ -467,6 +485,9 @@ class SegmentLink:
         identity = parse_identity(v['identity'])
         if identity == self._downstream_identity or identity == self._pending_hello:
             return  # said again: answered once
+        owner = self._downstream_owner()
+        if self._pending_hello == owner and identity != owner:
+            return  # the owner's hello waits for its turn: another's does not take its place
         self._pending_hello = identity
         self._serve_hello()
 
@@ -489,6 +510,18 @@ class SegmentLink:
             self.stats['resent'] += 1
         if self._last_horizon_ns is not None:
             self.horizon(self._last_horizon_ns)
+        # the answer's end: behind every parcel on the one ordered topic, so the segment
+        # downstream has them all before it runs
+        self._queue.append(
+            DiagnosticStatus(
+                name='answered',
+                values=[
+                    KeyValue(key='identity', value=self.identity),
+                    KeyValue(key='hello', value=identity),
+                ],
+            )
+        )
+        self._flush()
         if self.outbox:
             self.node.get_logger().info(
                 f'the segment at {self.downstream} (re)started: sent it again the '
@@ -511,9 +544,15 @@ class SegmentLink:
         if msg.name == 'horizon':
             self._take_horizon(*parse_horizon_fields(pairs(msg)))
             return
+        if msg.name == 'answered':
+            sender, hello = parse_answer_fields(pairs(msg))
+            if hello == self.identity:
+                self._take_answer(sender)
+            return  # the answer to another segment's hello (one that holds, or a forger's)
         if msg.name != 'parcel':
             raise HandoverError(
-                f"a message named {shown(msg.name, 40)}: 'parcel' or 'horizon' expected"
+                f"a message named {shown(msg.name, 40)}: 'parcel', 'horizon' or 'answered' "
+                'expected'
             )
         h, sent_ns = parse_handover(msg, self.limits)
         if h.parcel_id in self._taken:
@@ -531,6 +570,15 @@ class SegmentLink:
         if h.t_ns // self.dt_ns < self.node.line.k:
             self.stats['late'] += 1  # on the wall clock: taken at once, as it left
         self.inbox.append(h)
+
+    def _take_answer(self, sender: str) -> None:
+        if sender != self.owners.owner_of(self._owned[0] - 1):
+            # as a horizon: it counts once its sender owns the station upstream
+            self._pending_answer = sender
+            return
+        self._pending_answer = None
+        self.answered = True
+        self.owners.heard_from(sender)
 
     def _take_horizon(self, t_ns: int, sender: str) -> None:
         if sender != self.owners.owner_of(self._owned[0] - 1):
@@ -577,8 +625,9 @@ class Ownership:
     started first owns it; the other is refused (it holds: it takes nothing and does
     not run) and both say so in one line. A claim not said again within
     ``CLAIM_LEASE_S`` lapses (its process died): a segment restarted in its place takes
-    the stations over then. A segment runs once its own claim has stood
-    ``CLAIM_SETTLE_S`` unchallenged, so that a claim already there reaches it first.
+    the stations over then, or at once if it is the same node (name) on the same
+    stations. A segment runs once its own claim has stood ``CLAIM_SETTLE_S``
+    unchallenged, so that a claim already there reaches it first.
     """
 
     def __init__(self, node, identity: str, owned: tuple, refuse):
@@ -588,7 +637,9 @@ class Ownership:
         self.first, self.n, self.line_stations = owned
         self._start = time.monotonic()
         self._said = -math.inf
-        self._claims: dict[str, tuple[int, int, float]] = {}  # identity -> first, n, heard
+        self.node_name = node.get_fully_qualified_name()
+        # identity -> (first, n, heard, node name)
+        self._claims: dict[str, tuple[int, int, float, str]] = {}
         self._reported: set[str] = set()
         self.conflicts = 0
         self._pub = node.create_publisher(DiagnosticStatus, 'line/owners', OWNERS_QOS)
@@ -614,17 +665,18 @@ class Ownership:
                         KeyValue(key='identity', value=self.identity),
                         KeyValue(key='first', value=str(self.first)),
                         KeyValue(key='stations', value=str(self.n)),
+                        KeyValue(key='node', value=self.node_name),
                     ],
                 )
             )
-        for identity, (_, _, heard) in list(self._claims.items()):
+        for identity, (_, _, heard, _) in list(self._claims.items()):
             if now - heard > CLAIM_LEASE_S:
                 del self._claims[identity]
                 self._reported.discard(identity)
 
     def _on_claim(self, msg: DiagnosticStatus) -> None:
         try:
-            identity, first, n = parse_claim_fields(pairs(msg), self.line_stations)
+            identity, first, n, name = parse_claim(pairs(msg), self.line_stations)
         except HandoverError as exc:
             self._refuse(str(exc))
             return
@@ -633,8 +685,16 @@ class Ownership:
         if identity not in self._claims and len(self._claims) >= MAX_STATIONS:
             self._refuse('more claims than a line has stations')
             return
-        self._claims[identity] = (first, n, time.monotonic())
+        self._claims[identity] = (first, n, time.monotonic(), name)
         if identity in self._reported or not self._overlaps(first, n):
+            return
+        if (first, n, name) == (self.first, self.n, self.node_name):
+            self._reported.add(identity)
+            if _older(self.identity, identity):
+                self.node.get_logger().error(
+                    f'line/owners: {identity} restarted as this node ({name}): it takes over '
+                    f'stations {self._stations(first, n)}; this segment holds'
+                )
             return
         self._reported.add(identity)
         self.conflicts += 1
@@ -648,11 +708,38 @@ class Ownership:
     def _overlaps(self, first: int, n: int) -> bool:
         return first < self.first + self.n and self.first < first + n
 
-    def refused(self) -> bool:
-        """Return True while a segment that started first claims some of this one's stations."""
+    def _succeeded(self, identity: str, first: int, n: int, name: str) -> bool:
+        """
+        Return True when a claim has a successor: the same node, restarted, on the same stations.
+
+        A node name is one node of the ROS graph: a later claim under it for the same
+        stations is that node come back (its process died and was started again), which
+        takes its own stations over at once rather than after the old claim's lease.
+        """
+        if not name:
+            return False
+        mine = (self.first, self.n, self.node_name, self.identity)
         return any(
-            self._overlaps(f, n) and _older(i, self.identity)
-            for i, (f, n, _) in self._claims.items()
+            (f, m, nm) == (first, n, name) and _older(identity, i)
+            for f, m, nm, i in [mine] + [(c[0], c[1], c[3], j) for j, c in self._claims.items()]
+        )
+
+    def _standing(self):
+        """Yield (identity, first, n) of the claims that stand: known and not succeeded."""
+        for i, (f, n, _, name) in self._claims.items():
+            if not self._succeeded(i, f, n, name):
+                yield i, f, n
+
+    def refused(self) -> bool:
+        """
+        Return True while a segment that started first claims some of this one's stations.
+
+        Or while this segment's own node has restarted: its later claim succeeds this one.
+        """
+        if self._succeeded(self.identity, self.first, self.n, self.node_name):
+            return True
+        return any(
+            self._overlaps(f, n) and _older(i, self.identity) for i, f, n in self._standing()
         )
 
     def runs(self) -> bool:
@@ -663,7 +750,7 @@ class Ownership:
         """Keep a segment's claim: a segment that speaks is alive, whenever its claims come."""
         c = self._claims.get(identity)
         if c is not None:
-            self._claims[identity] = (c[0], c[1], time.monotonic())
+            self._claims[identity] = (c[0], c[1], time.monotonic(), c[3])
 
     def claim_of(self, identity: str) -> tuple[int, int] | None:
         """Return the (first, stations) a live claim of ``identity`` holds, or None."""
@@ -672,8 +759,10 @@ class Ownership:
 
     def owner_of(self, station: int) -> str | None:
         """Return the identity owning ``station`` (0-based): the first started of its claims."""
-        owners = [i for i, (f, n, _) in self._claims.items() if f <= station < f + n]
-        if self.first <= station < self.first + self.n:
+        owners = [i for i, f, n in self._standing() if f <= station < f + n]
+        if self.first <= station < self.first + self.n and not self._succeeded(
+            self.identity, self.first, self.n, self.node_name
+        ):
             owners.append(self.identity)
         return min(owners, key=_start_key) if owners else None
 

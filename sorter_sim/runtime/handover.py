@@ -18,6 +18,7 @@ it holds and what is allowed; the caller refuses it whole.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 from sorter_sim.model.core.cell_kernels import MODE_BELT, MODE_DISKS, MODE_SLIDE
@@ -38,6 +39,7 @@ HANDOVER_FIELDS = ('t_ns', 'id', 'label', 'state', 'mode', 'gauge', 'dims')
 SPEED_MARGIN = 1.5
 MAX_TURN = 4.0 * math.pi  # |φ| a parcel can have turned by at a straight exit [rad]
 MAX_GAUGE = 1e12  # a warm start's magnitude; only finite and bounded is checked
+NODE_NAME = re.compile(r'(/[A-Za-z_][A-Za-z0-9_]*)+')  # rcl's fully qualified node names
 
 
 class HandoverError(ValueError):
@@ -255,10 +257,32 @@ def parse_claim_fields(pairs, line_stations: int) -> tuple[str, int, int]:
         The line's stations: a claim lies within them.
 
     """
-    v = message_fields(pairs, 'claim', ('identity', 'first', 'stations'))
+    return parse_claim(pairs, line_stations)[:3]
+
+
+def parse_claim(pairs, line_stations: int) -> tuple[str, int, int, str]:
+    """
+    Return (identity, first 0-based, stations, node) of an ``owns`` message.
+
+    ``node`` is the claiming node's fully qualified name ('' when the claim has none):
+    a segment restarted under its old name succeeds its own claim
+    (``frontends.segments.Ownership``).
+    """
+    v = message_fields(pairs, 'claim', ('identity', 'first', 'stations'), ('node',))
     first = integer(v['first'], 'first', 0, line_stations - 1)
     n = integer(v['stations'], 'stations', 1, line_stations - first)
-    return parse_identity(v['identity']), first, n
+    node = v.get('node', '')
+    if node and not NODE_NAME.fullmatch(node):
+        raise HandoverError(
+            f'node must be a fully qualified node name (/ns/name), got {shown(node, 40)}'
+        )
+    return parse_identity(v['identity']), first, n, node
+
+
+def parse_answer_fields(pairs) -> tuple[str, str]:
+    """Return (sender, hello answered) of an ``answered`` message; HandoverError otherwise."""
+    v = message_fields(pairs, 'answer', ('identity', 'hello'))
+    return parse_identity(v['identity']), parse_identity(v['hello'])
 
 
 def parse_progress_fields(pairs, line_stations: int) -> tuple[str, int, int, int]:
@@ -275,6 +299,8 @@ __all__ = [
     'HandoverError',
     'HandoverLimits',
     'message_fields',
+    'parse_answer_fields',
+    'parse_claim',
     'parse_claim_fields',
     'parse_handover_fields',
     'parse_horizon_fields',
