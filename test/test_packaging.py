@@ -65,6 +65,7 @@ ROSDEP = {
     'pytest': ['python3-pytest'],
     'pytest-xdist': ['python3-pytest-xdist'],
     'import-linter': [],
+    'build': [],
     'ruff': ['python3-ruff-pip'],
     'ament-lint-pep257': ['ament_pep257'],
     'hypothesis': ['python3-hypothesis'],

@@ -406,7 +406,7 @@ def _record_starts(data: bytes) -> list[int]:
 
 @pytest.fixture(scope='module')
 def small_recording(tmp_path_factory):
-    """A recording of several chunks, its bytes and what replay makes of it."""
+    """Return a recording of several chunks, its bytes and what replay makes of it."""
     tmp = tmp_path_factory.mktemp('small')
     _small_recording(tmp / 'clean.mcap')
     data = (tmp / 'clean.mcap').read_bytes()
