@@ -128,9 +128,16 @@ def bench_latency(parcels: int, executor: str, processes: int) -> dict:
             wall = rc.run_for(t_run)
             rc.finish()
             log, results = list(rc.ctl.command_log), list(rc.ctl.confirmations)
+        _stop_if_asked(rc)
     else:
         log, results, probe, wall = _latency_two_processes(t_run, executor)
     return _latency_figures(log, results, probe.edge_walls(), wall)
+
+
+def _stop_if_asked(rc) -> None:
+    """End the benchmark after a run a Ctrl-C cut short, not only that run."""
+    if rc.stop is not None and rc.stop.is_set():
+        raise KeyboardInterrupt
 
 
 def _latency_two_processes(t_run: float, executor: str):
@@ -278,6 +285,7 @@ def run_stream(gap: float, labels: list[str], sim_s: float, rtf, executor: str) 
         t_end = rc.finish()
         obs = rc.obs
         late = int(obs.ctl_diag.get("late", 0))
+    _stop_if_asked(rc)
     t0 = rc.t_start + 3.0  # the first parcel reaches the disk field ~2 s after the stream starts
     ok = mis = jams = flagged = 0
     for label, o in obs.outcomes.items():

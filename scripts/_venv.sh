@@ -15,6 +15,10 @@ STAMP_FILE="$VENV_DIR/.sorter_cell_stamp"
 
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 
+# Ctrl-C while the virtualenv is made or refreshed is a stop, not a failed install: the
+# stamp is written only after a whole install, so the next run installs again
+trap 'echo "stopped (Ctrl-C); the next run finishes the set-up" >&2; exit 130' INT
+
 _sorter_die() {
     echo "error: $*" >&2
     exit 1
@@ -57,3 +61,4 @@ if [ ! -f "$STAMP_FILE" ] || [ "$(cat "$STAMP_FILE")" != "$_sorter_want" ]; then
     echo "$_sorter_want" > "$STAMP_FILE"
 fi
 unset _sorter_want
+trap - INT

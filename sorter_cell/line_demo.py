@@ -50,7 +50,7 @@ def run_line(args) -> int | str:
     from rclpy.signals import SignalHandlerOptions
 
     from sorter_cell.line_segment import build_segment
-    from sorter_ros.env import apply_ros_env_defaults, find_config_dir
+    from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
 
     n = args.stations
     k_seg = getattr(args, 'segments', None)
@@ -70,6 +70,10 @@ def run_line(args) -> int | str:
     apply_ros_env_defaults()
     config = find_config_dir()
     ctx = Context()
+    # Ctrl-C (or SIGTERM) is a flag the spin loop reads between callbacks: a signal
+    # raised inside the executor's wait would come out of rclpy as a RuntimeError and
+    # could leave its wait set half torn down (see StopSignals)
+    stop = StopSignals().install()
     rclpy.init(
         context=ctx,
         signal_handler_options=SignalHandlerOptions.NO,
@@ -108,11 +112,12 @@ def run_line(args) -> int | str:
             except SegmentDied as exc:
                 return str(exc)
         try:
-            return _run(args, ctx, nodes, line, ctls, procs)
+            return _run(args, ctx, nodes, line, ctls, procs, stop)
         except SegmentDied as exc:
             # the line cannot finish without it: say so at once rather than wait
             return str(exc)
     finally:
+        stop.quiet = True  # the teardown is short and bounded: let it finish
         for proc, _ in procs:
             if proc.poll() is None:
                 proc.terminate()
@@ -127,6 +132,7 @@ def run_line(args) -> int | str:
             except Exception:  # noqa: BLE001 - teardown goes on
                 pass
         rclpy.try_shutdown(context=ctx)
+        stop.restore()
 
 
 class SegmentDied(RuntimeError):
@@ -251,7 +257,7 @@ def _start_segments(args, n: int, k_seg: int) -> list:
     return procs
 
 
-def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
+def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
     """Drive the line (in this process, or its segments' processes) and report."""
     from sorter_cell.line_segment import line_executor
     import numpy as np
@@ -314,6 +320,8 @@ def _run(args, ctx, nodes, line, ctls, procs) -> int | str:
     def spin_until(pred, wall_s):
         end = time.monotonic() + wall_s
         while not pred():
+            if stop.is_set():
+                raise KeyboardInterrupt  # Ctrl-C: the line stops where it is (exit 130)
             if time.monotonic() > end:
                 return False
             ex.spin_once(timeout_sec=0.02)

@@ -243,6 +243,7 @@ class ControllerNode(Node):
                     "node's cell parameters"
                 )
                 self._cell_params_client = None
+                self._startup_timer.cancel()
                 self._start(dict(self.values))
                 return
             if client.service_is_ready():
@@ -264,6 +265,7 @@ class ControllerNode(Node):
             if v is not None:
                 values[key] = v
         self._cell_params_client = None
+        self._startup_timer.cancel()  # now, not on a tick to come: the node may be gone by then
         try:
             self._start(values)
         except ValueError as exc:

@@ -10,6 +10,12 @@ C thread that needs no GIL: when a test (set-up, call and teardown) runs past
 the worker process. pytest.ini runs the tests in one pytest-xdist worker, so xdist
 reports that test as an ordinary failure and goes on with the next test in a fresh
 worker; ``pytest_handlecrashitem`` below makes the failure say what happened.
+
+With ``--dist loadgroup`` xdist (3.8) puts the whole unfinished group of a crashed worker
+back in the queue, the test that crashed included: that test then ran again in the
+next worker, crashed it again, and so on up to ``--max-worker-restart`` times, one
+time limit each. ``_NoRerunLoadGroup`` marks the crashed test done before the rest of
+its group goes back, so it fails once and the tests after it run.
 """
 
 import faulthandler
@@ -67,3 +73,28 @@ def pytest_handlecrashitem(crashitem, report, sched):
         f'{_timeout(sched.config):g} s (the stacks dumped on stderr show where), or its process '
         f'died. The suite went on in a new worker.'
     )
+
+
+def _no_rerun_scheduler(config, log):
+    from xdist.scheduler import LoadGroupScheduling
+
+    class _NoRerunLoadGroup(LoadGroupScheduling):
+        def remove_node(self, node):
+            crashitem = None
+            for unit in self.assigned_work.get(node, {}).values():
+                crashitem = next((nid for nid, done in unit.items() if not done), None)
+                if crashitem is not None:
+                    unit[crashitem] = True  # reported once, by pytest_handlecrashitem
+                    break
+            super().remove_node(node)  # the rest of the group goes back in the queue
+            return crashitem
+
+    return _NoRerunLoadGroup(config, log)
+
+
+@pytest.hookimpl(optionalhook=True, tryfirst=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadgroup``, but a test that crashed its worker is not run again."""
+    if config.getvalue('dist') != 'loadgroup':
+        return None
+    return _no_rerun_scheduler(config, log)

@@ -188,7 +188,13 @@ class LockStep:
         """Stop spinning ``node`` and destroy it."""
         if node in self.nodes:
             self.nodes.remove(node)
+            # a timer of the node that came due just now may still be on the executor's
+            # queue: cancelled, it stays quiet, and one spin lets the executor let go of
+            # the node before it is destroyed (its callbacks would meet destroyed handles)
+            for timer in list(node.timers):
+                timer.cancel()
             self.executor.remove_node(node)
+            self.executor.spin_once(timeout_sec=0.0)
         node.destroy_node()
 
     # ------------------------------------------------------------------ time
