@@ -110,10 +110,14 @@ def run_line(args) -> int | str:
             try:
                 procs = _start_segments(args, n, k_seg)
             except SegmentDied as exc:
+                if stop.is_set():
+                    raise KeyboardInterrupt from None  # Ctrl-C ended it too: a stop (130)
                 return str(exc)
         try:
             return _run(args, ctx, nodes, line, ctls, procs, stop)
         except SegmentDied as exc:
+            if stop.is_set():
+                raise KeyboardInterrupt from None  # Ctrl-C ended it too: a stop (130)
             # the line cannot finish without it: say so at once rather than wait
             return str(exc)
     finally:

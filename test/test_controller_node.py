@@ -355,7 +355,7 @@ def test_diverter_service_withheld_times_out_without_retry(ros):
     ros.spin_until(lambda: answered, 5.0, "the controller's first pop-up command")
     ros.executor.remove_node(stand_in)  # from now on nobody answers
     cell.induct("A4")
-    cell.wait_state("diverter_timeout", 15.0)
+    cell.wait_state("diverter_timeout", 30.0)  # wall time: a loaded machine lags
     assert "not retried" in cell.status.message
     ros.spin_for(1.0)
     popups = _popups(cell.ctl)

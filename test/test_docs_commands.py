@@ -14,19 +14,23 @@ command that was stopped, as is an end by the signal itself, which a shell repor
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import pytest
 from docs_commands import REPO, collect
 
-# one worker, in the documents' order: a command may read what the one before it wrote
-pytestmark = [pytest.mark.ros, pytest.mark.xdist_group('docs_commands')]
+# a page's commands in one worker, in the page's order: a command may read what the one
+# before it wrote (``FEEDS_LATER``); the pages share out over the workers
+pytestmark = [pytest.mark.ros]
 
 BRIEF_S = 8.0  # the most a command runs before it is stopped
 STOP_S = 30.0  # the most it may take to end after Ctrl-C
@@ -68,6 +72,14 @@ def test_the_collector_finds_the_commands_and_every_skip_says_why():
     assert any('--record' in c.text for c in RUNNABLE if (c.doc, c.line) in FEEDS_LATER)
 
 
+# the pages whose commands open the fieldbus ports (5020, 4840, 1102) take turns
+_PORTS = {'README.md', 'docs/fieldbus.md'}
+
+
+def _group(cmd) -> str:
+    return 'docs:fieldbus ports' if cmd.doc in _PORTS else f'docs:{cmd.doc}'
+
+
 @pytest.fixture(scope='module')
 def reader_root(tmp_path_factory) -> Path:
     """Return a folder laid out as the repository's root, for the commands to run in."""
@@ -88,39 +100,70 @@ def _argv(cmd) -> list[str]:
     return argv
 
 
-@pytest.mark.parametrize('cmd', RUNNABLE, ids=[f'{c.doc}:{c.line}' for c in RUNNABLE])
-def test_a_documented_command_runs_as_written(cmd, reader_root):
+def _feeders(cmd) -> list:
+    """Return the commands before ``cmd`` on its page that write a file it reads."""
+    i = RUNNABLE.index(cmd)
+    return [
+        c
+        for c in RUNNABLE[:i]
+        if c.doc == cmd.doc and (c.doc, c.line) in FEEDS_LATER and _files(c) & _files(cmd)
+    ]
+
+
+_done = set()  # the commands that ran whole in this worker's reader_root
+
+
+@contextlib.contextmanager
+def _ports_lock(cmd):
+    """Let one worker at a time run a command that opens the fieldbus or live-view ports."""
+    if not any(w.startswith('--io') or w.endswith('_port') or '_port:=' in w for w in cmd.argv):
+        yield
+        return
+    with open(Path(tempfile.gettempdir()) / f'sorter_docs_ports_{os.getuid()}.lock', 'w') as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _run_as_written(cmd, reader_root) -> None:
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['PATH'] = f'{BIN}{os.pathsep}{env.get("PATH", "")}'
-    proc = subprocess.Popen(
-        _argv(cmd),
-        cwd=reader_root,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        start_new_session=True,
-    )
-    stopped = False
-    brief = WHOLE_S if (cmd.doc, cmd.line) in FEEDS_LATER else BRIEF_S
-    try:
-        out, _ = proc.communicate(timeout=brief)
-    except subprocess.TimeoutExpired:
-        stopped = True
-        t0 = time.monotonic()
-        os.killpg(proc.pid, signal.SIGINT)
+    with _ports_lock(cmd):
+        proc = subprocess.Popen(
+            _argv(cmd),
+            cwd=reader_root,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
+        stopped = False
+        brief = WHOLE_S if (cmd.doc, cmd.line) in FEEDS_LATER else BRIEF_S
         try:
-            out, _ = proc.communicate(timeout=STOP_S)
+            out, _ = proc.communicate(timeout=brief)
         except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            out, _ = proc.communicate()
-            pytest.fail(
-                f'{cmd.doc}:{cmd.line}: `{cmd.text}` did not end within {STOP_S:g} s of '
-                f'Ctrl-C; it printed:\n{out[-3000:]}'
+            stopped = True
+            t0 = time.monotonic()
+            os.killpg(proc.pid, signal.SIGINT)
+            try:
+                out, _ = proc.communicate(timeout=STOP_S)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                out, _ = proc.communicate()
+                pytest.fail(
+                    f'{cmd.doc}:{cmd.line}: `{cmd.text}` did not end within {STOP_S:g} s of '
+                    f'Ctrl-C; it printed:\n{out[-3000:]}'
+                )
+            took = time.monotonic() - t0
+            assert took < STOP_S
+            assert brief == BRIEF_S, (
+                f'{cmd.doc}:{cmd.line}: `{cmd.text}` did not end within {WHOLE_S:g} s; the '
+                f'commands after it read what it writes. It printed:\n{out[-3000:]}'
             )
-        took = time.monotonic() - t0
-        assert took < STOP_S
     where = f'{cmd.doc}:{cmd.line}: `{cmd.text}`'
     # a process ended by the SIGINT itself is what a shell reports as 130
     allowed = (0, 130, -signal.SIGINT) if stopped else (0,)
@@ -129,3 +172,20 @@ def test_a_documented_command_runs_as_written(cmd, reader_root):
         f'{out[-3000:]}'
     )
     assert 'Traceback (most recent call last)' not in out, f'{where} printed a traceback:\n{out}'
+    _done.add((cmd.doc, cmd.line))
+
+
+@pytest.mark.parametrize(
+    'cmd',
+    [
+        pytest.param(c, id=f'{c.doc}:{c.line}', marks=pytest.mark.xdist_group(_group(c)))
+        for c in RUNNABLE
+    ],
+)
+def test_a_documented_command_runs_as_written(cmd, reader_root):
+    # what it reads is made first, as the reader made it, should this worker not have run the
+    # command before it (the workers share the pages out)
+    for feeder in _feeders(cmd):
+        if (feeder.doc, feeder.line) not in _done:
+            _run_as_written(feeder, reader_root)
+    _run_as_written(cmd, reader_root)

@@ -858,7 +858,13 @@ def test_an_opc_ua_subscription_sees_the_cell_move(cell):
             cell.advance(50)
             _time.sleep(0.05)
         finished = datetime.now(timezone.utc)
-        _time.sleep(0.5)
+        # the last changes reach the client a publishing interval or two later (more on a
+        # loaded machine): wait for the cell's final time, at most 10 s
+        t_end, until = cell.cell.t, _time.monotonic() + 10.0
+        while _time.monotonic() < until and not (
+            notes['cell.time'] and notes['cell.time'][-1][0] >= t_end - 0.2
+        ):
+            _time.sleep(0.05)
     finally:
         done.set()
         worker.join(20.0)
