@@ -301,12 +301,22 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
         EVENT_QOS,
     )
     obs.create_subscription(String, '/S01/scanner/label', lambda m: scanned.add(m.data), EVENT_QOS)
-    # the line's time: its last segment's (the others are ahead of it in a lock-step line)
+    # the line's time: its last segment's (the others are ahead of it in a lock-step line);
+    # and station 1's, whose stream the run is
+    first_clock = {'t': 0.0}
+    for topic, into in (
+        (procs[-1][1] if procs else '/clock', clock),
+        (procs[0][1] if procs else '/clock', first_clock),
+    ):
+        obs.create_subscription(
+            Clock,
+            topic,
+            lambda m, into=into: into.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
+            STREAM_QOS,
+        )
+    packml = {'state': ''}  # station 1's machine state: Completing once its stream is out
     obs.create_subscription(
-        Clock,
-        procs[-1][1] if procs else '/clock',
-        lambda m: clock.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
-        STREAM_QOS,
+        String, '/S01/status/packml', lambda m: packml.__setitem__('state', m.data), SENSOR_QOS
     )
     active = []
     obs.create_subscription(DiagnosticStatus, 'wcs/sort_plan/active', active.append, SENSOR_QOS)
@@ -330,9 +340,11 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
                 raise SegmentDied(dead)
         return True
 
-    def set_arrival(value):
-        fut = infeed.set_parameters([Parameter('arrival', value=value)])
-        return spin_until(fut.done, 20.0) and fut.result().results[0].successful
+    def set_arrival(value, **more):
+        values = [Parameter('arrival', value=value)]
+        values += [Parameter(k, value=v) for k, v in more.items()]
+        fut = infeed.set_parameters(values)
+        return spin_until(fut.done, 20.0) and all(r.successful for r in fut.result().results)
 
     if ctls is not None and not spin_until(
         lambda: all(c.logic is not None and c.logic.state == 'running' for c in ctls), 120.0
@@ -365,8 +377,12 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
     if line is not None:
         line.cost = {'physics_s': 0.0, 'publish_s': 0.0}
         scans0 = [c.logic.scan_wall_total for c in ctls]
-    if not set_arrival('gap'):
+    # a timed stream is station 1's own span of simulated time (arrival_duration_s), so
+    # that it gives the same parcels whatever the line's split and pace; a batch, its count
+    span = {} if args.parcels else {'arrival_duration_s': float(args.sim_time)}
+    if not set_arrival('gap', **span):
         return 'station 1 did not take arrival: gap'
+    t_opened = first_clock['t']  # station 1's time once it answered: the stream opened before
     p0 = line.stations[0].params if line is not None else _cell_params()
     transit = n * (p0.exit_x - p0.induct_x) / p0.belt_speed
     if args.parcels:
@@ -388,6 +404,15 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
             'controllers': round(ctl_s, 3),
             'other': round(wall - c['physics_s'] - c['publish_s'] - ctl_s, 3),
         }
+    if span and not args.no_drain:
+        # the stream ends on station 1's clock, ahead of the one measured by: wait until
+        # it has (station 1 completes once its last parcel is out), or station 1 is well
+        # past the span's end (held by a jam, say)
+        t_closed = t_opened + args.sim_time + 2.0 * transit / n + 10.0
+        spin_until(
+            lambda: packml['state'] in ('Completing', 'Complete') or first_clock['t'] >= t_closed,
+            math.inf,
+        )
     # the infeed stops and the line runs empty, so that every parcel inducted gets its
     # disposition: at most the belt's transit over the whole line, twice, + 10 s
     set_arrival('none')
@@ -410,6 +435,8 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
         on_line = line.line.n_in_flight
     else:
         on_line = sum(st['parcels'] for st in seg_stats)
+        # station 1's own count, where its segment said it (every parcel scanned, else)
+        inducted = next((st['inducted'] for st in seg_stats if 'inducted' in st), inducted)
     exit_counts = Counter(exits.values())
     codes = Counter(r['code'] for r in records)
     if args.dispositions:

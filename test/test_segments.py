@@ -31,7 +31,8 @@ def test_segments_split_the_line_evenly_upstream_first():
     assert segment_bounds(48, 1) == [(1, 48)]
 
 
-def _demo(tmp_path, segments: int) -> tuple[dict, list]:
+def _demo(tmp_path, segments: int, *run: str) -> tuple[dict, list]:
+    """Run the demo on 3 stations in K segments (12 parcels, or `run`): summary, dispositions."""
     path = tmp_path / f'k{segments}.jsonl'
     done = subprocess.run(
         [
@@ -43,8 +44,7 @@ def _demo(tmp_path, segments: int) -> tuple[dict, list]:
             '3',
             '--segments',
             str(segments),
-            '--parcels',
-            '12',
+            *(run or ('--parcels', '12')),
             '--json',
             '--dispositions',
             str(path),
@@ -82,6 +82,44 @@ def test_three_segment_processes_sort_every_parcel_as_one_process_does(tmp_path)
         )
 
     assert timeline(d3) == timeline(d1)
+
+
+def timeline(records):
+    """Return every parcel's (label, code, chute, station, exit time from the first exit)."""
+    t0 = min(float(r['t']) for r in records)
+    return sorted(
+        (r['label'], r['code'], r['chute'], r['station'], round(float(r['t']) - t0, 6))
+        for r in records
+    )
+
+
+TIMED = ('--sim-time', '12')  # about eight parcels through three stations
+
+
+@pytest.fixture(scope='module')
+def timed_one_process(tmp_path_factory):
+    """The timed line in one process: what every split of it must give."""
+    return _demo(tmp_path_factory.mktemp('timed'), 1, *TIMED)
+
+
+@pytest.mark.xdist_group('timed_line')
+@pytest.mark.parametrize('segments', [1, 2, 3])
+def test_a_timed_line_inducts_and_sorts_the_same_parcels_however_it_is_split(
+    timed_one_process, tmp_path, segments
+):
+    """--sim-time T: the stream's span is station 1's simulated time, not an observer's."""
+    one, d1 = timed_one_process
+    summary, records = (one, d1) if segments == 1 else _demo(tmp_path, segments, *TIMED)
+    assert summary['segments'] == segments
+    # every parcel inducted accounted for once: an exit, a jam or still on the line
+    labels = [r['label'] for r in records]
+    assert len(labels) == len(set(labels))
+    assert summary['inducted'] == len(records) + summary['in_cell_at_end'] > 0
+    assert summary['mis_sorted'] == 0 and summary['jams'] == 0
+    # and the same parcels as in one process, each into the same chute at the same time
+    assert summary['inducted'] == one['inducted']
+    assert summary['exits'] == one['exits']
+    assert timeline(records) == timeline(d1)
 
 
 def _netns_problem() -> str | None:
