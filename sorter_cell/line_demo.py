@@ -63,6 +63,11 @@ def run_line(args) -> int | str:
         return f'--parcels must be an integer in [0, 100000], got {args.parcels}'
     if getattr(args, 'sync', None) and k_seg == 1:
         return '--sync is how segments keep time together: use it with --segments K > 1'
+    restarts = getattr(args, 'restart', 0) or 0
+    if not (isinstance(restarts, int) and 0 <= restarts <= 100):
+        return f'--restart must be an integer in [0, 100], got {restarts}'
+    if restarts and k_seg == 1:
+        return '--restart starts a segment process again: use it with --segments K > 1'
     if k_seg > 1 and (args.record or args.foxglove):
         return (
             '--segments K > 1: --record and --foxglove are a single process\'s, not a segment\'s'
@@ -141,11 +146,68 @@ class SegmentDied(RuntimeError):
 
 def _dead_segment(procs) -> str:
     """Return which segment process ended (and how), or '' while all run."""
-    for j, (proc, _) in enumerate(procs, 1):
-        code = proc.poll()
-        if code is not None:
-            return f'segment {j} of {len(procs)} (process {proc.pid}) ended with {_how(code)}'
-    return ''
+    j = _ended(procs)
+    if j is None:
+        return ''
+    proc = procs[j][0]
+    return f'segment {j + 1} of {len(procs)} (process {proc.pid}) ended with {_how(proc.poll())}'
+
+
+def _ended(procs) -> int | None:
+    """Return the index of a segment process that ended, or None while all run."""
+    return next((j for j, (proc, _) in enumerate(procs) if proc.poll() is not None), None)
+
+
+class Restarts:
+    """
+    ``--restart R``: a segment process after station 1's that ends is started again, R times.
+
+    The new process is the same segment under the same node name: its claim succeeds
+    the dead one's at once, the segment upstream sends it back every parcel it answers
+    for, and it runs its time up to the present before it goes on
+    (``frontends.segments``). Station 1's segment is the stream itself and is not
+    restarted: its end ends the demo.
+    """
+
+    def __init__(self, procs: list, cmds: list, allowed: int):
+        self.procs = procs
+        self.cmds = cmds
+        self.left = allowed
+        self.done: list[str] = []  # what was restarted, said in the summary
+
+    def check(self) -> None:
+        """Start an ended segment again when allowed; SegmentDied otherwise."""
+        import subprocess
+        import sys
+
+        j = _ended(self.procs)
+        if j is None:
+            return
+        dead = _dead_segment(self.procs)
+        if j == 0 or self.left <= 0:
+            why = (
+                'station 1\'s segment is the stream: not restarted'
+                if j == 0 and self.left > 0
+                else f'{len(self.done)} restart(s) of --restart {len(self.done) + self.left} used'
+                if self.done
+                else ''
+            )
+            raise SegmentDied(f'{dead} ({why})' if why else dead)
+        proc, clock = self.procs[j]
+        proc.communicate()  # what it said before it ended: nothing more will come
+        self.left -= 1
+        self.procs[j] = (
+            subprocess.Popen(
+                self.cmds[j],
+                stdout=subprocess.PIPE,
+                text=True,
+                bufsize=1,
+                preexec_fn=_end_with_parent,
+            ),
+            clock,
+        )
+        self.done.append(dead)
+        print(f'{dead}: started again (process {self.procs[j][0].pid})', file=sys.stderr)
 
 
 def _end_with_parent() -> None:
@@ -197,34 +259,9 @@ def _start_segments(args, n: int, k_seg: int) -> list:
     """Start one process per segment; return (process, clock topic) each, once all are ready."""
     import select
     import subprocess
-    import sys
 
     procs = []
-    for j, (first, count) in enumerate(segment_bounds(n, k_seg), 1):
-        clock = f'/line/segment{j}/clock'
-        cmd = [
-            sys.executable,
-            '-m',
-            'sorter_cell.line_segment',
-            '--first',
-            str(first),
-            '--stations',
-            str(count),
-            '--line-stations',
-            str(n),
-            '--seed',
-            str(int(args.seed)),
-            '--clock',
-            clock,
-        ]
-        if args.gap:
-            cmd += ['--gap', *(str(float(g)) for g in args.gap)]
-        if args.parcels:
-            cmd += ['--parcels', str(args.parcels)]
-        if args.rtf != 'fast':
-            cmd += ['--rtf', str(float(args.rtf))]
-        if getattr(args, 'sync', None):
-            cmd += ['--sync', args.sync]
+    for cmd, clock in segment_commands(args, n, k_seg):
         procs.append(
             (
                 subprocess.Popen(
@@ -257,6 +294,40 @@ def _start_segments(args, n: int, k_seg: int) -> list:
     return procs
 
 
+def segment_commands(args, n: int, k_seg: int) -> list[tuple[list, str]]:
+    """Return the command line and clock topic of each segment process."""
+    import sys
+
+    out = []
+    for j, (first, count) in enumerate(segment_bounds(n, k_seg), 1):
+        clock = f'/line/segment{j}/clock'
+        cmd = [
+            sys.executable,
+            '-m',
+            'sorter_cell.line_segment',
+            '--first',
+            str(first),
+            '--stations',
+            str(count),
+            '--line-stations',
+            str(n),
+            '--seed',
+            str(int(args.seed)),
+            '--clock',
+            clock,
+        ]
+        if args.gap:
+            cmd += ['--gap', *(str(float(g)) for g in args.gap)]
+        if args.parcels:
+            cmd += ['--parcels', str(args.parcels)]
+        if args.rtf != 'fast':
+            cmd += ['--rtf', str(float(args.rtf))]
+        if getattr(args, 'sync', None):
+            cmd += ['--sync', args.sync]
+        out.append((cmd, clock))
+    return out
+
+
 def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
     """Drive the line (in this process, or its segments' processes) and report."""
     from sorter_cell.line_segment import line_executor
@@ -273,6 +344,11 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
 
     n = args.stations
     segments = len(procs) or 1
+    restarts = Restarts(
+        procs,
+        [cmd for cmd, _ in segment_commands(args, n, segments)] if procs else [],
+        getattr(args, 'restart', 0) or 0,
+    )
     wcs = WcsNode(
         context=ctx,
         parameter_overrides=[
@@ -335,9 +411,7 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
             if time.monotonic() > end:
                 return False
             ex.spin_once(timeout_sec=0.02)
-            dead = _dead_segment(procs)
-            if dead:
-                raise SegmentDied(dead)
+            restarts.check()
         return True
 
     def set_arrival(value, **more):
@@ -467,6 +541,8 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
         # where the wall time went: the line's physics, the stations' publishing, the PLC
         # programs' scans; the rest is DDS, the executor and the callbacks around them
         summary['cost_s'] = cost
+    if restarts.done:
+        summary['restarted'] = restarts.done
     if seg_stats:
         summary['segment_stats'] = seg_stats
         summary['handovers'] = sum(s['handed_on'] for s in seg_stats)
