@@ -297,13 +297,23 @@ def test_the_demo_says_at_once_when_a_segment_process_dies(ros, when):
     assert 'Traceback' not in err and len(err.strip().splitlines()) == 1
 
 
-KILL_RUNS = [(sync, after) for sync in ('conservative', 'barrier') for after in (1, 2, 3, 4)]
+# (sync, the parcels that reached segment 2, wall seconds after): of the batch of 5,
+# P00002-P00004 go to station 2's chutes, so one to three reach it
+KILL_RUNS = [
+    (sync, after, delay)
+    for sync in ('conservative', 'barrier')
+    for after, delay in ((1, 0.0), (2, 0.0), (3, 0.0), (1, 0.3))
+]
 
 
-@pytest.mark.parametrize('sync, after', KILL_RUNS, ids=[f'{s}-{a}' for s, a in KILL_RUNS])
-def test_a_segment_process_killed_mid_run_comes_back_and_loses_nothing(ros, tmp_path, sync, after):
+@pytest.mark.parametrize(
+    'sync, after, delay', KILL_RUNS, ids=[f'{s}-{a}-{d:g}' for s, a, d in KILL_RUNS]
+)
+def test_a_segment_process_killed_mid_run_comes_back_and_loses_nothing(
+    ros, tmp_path, sync, after, delay
+):
     """
-    SIGKILL of segment 2 once ``after`` parcels reached it; ``--restart 1`` starts it again.
+    SIGKILL of segment 2 while it holds parcels; ``--restart 1`` starts it again.
 
     Every parcel of the batch once in the dispositions, each into its own chute: none
     lost, none twice, none mis-sorted.
@@ -336,6 +346,7 @@ def test_a_segment_process_killed_mid_run_comes_back_and_loses_nothing(ros, tmp_
             victim = next((p for p, cmd in _children(demo.pid) if '--first 2 ' in cmd + ' '), None)
         ros.spin_until(lambda: len(seen) >= after, 50.0)
         assert len(seen) >= after, f'{len(seen)} parcels reached segment 2'
+        time.sleep(delay)
         os.kill(victim, signal.SIGKILL)
         out, err = demo.communicate(timeout=50)
     finally:
@@ -352,3 +363,5 @@ def test_a_segment_process_killed_mid_run_comes_back_and_loses_nothing(ros, tmp_
     assert sorted(labels) == [f'P{i:05d}' for i in range(1, parcels + 1)], 'a parcel lost'
     assert {r['code'] for r in records} == {'sorted'}, records
     assert summary['inducted'] == parcels and summary['in_cell_at_end'] == 0
+    # it held parcels when it died: segment 1 sent them back to the new process
+    assert summary['segment_stats'][0]['resent'] >= 1
