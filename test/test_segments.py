@@ -98,7 +98,7 @@ TIMED = ('--sim-time', '12')  # about eight parcels through three stations
 
 @pytest.fixture(scope='module')
 def timed_one_process(tmp_path_factory):
-    """The timed line in one process: what every split of it must give."""
+    """Run the timed line in one process: what every split of it must give."""
     return _demo(tmp_path_factory.mktemp('timed'), 1, *TIMED)
 
 
