@@ -113,7 +113,7 @@ def run_line(args) -> int | str:
             nodes += [*line.nodes, *ctls]
         else:
             try:
-                procs = _start_segments(args, n, k_seg)
+                procs = _start_segments(args, n, k_seg, stop)
             except SegmentDied as exc:
                 return str(exc)
         try:
@@ -255,7 +255,7 @@ def segment_bounds(n: int, k_seg: int) -> list[tuple[int, int]]:
     return out
 
 
-def _start_segments(args, n: int, k_seg: int) -> list:
+def _start_segments(args, n: int, k_seg: int, stop=None) -> list:
     """Start one process per segment; return (process, clock topic) each, once all are ready."""
     import select
     import subprocess
@@ -287,6 +287,8 @@ def _start_segments(args, n: int, k_seg: int) -> list:
                 if other is not proc:
                     other.kill()
                 other.wait()
+            if stop is not None and stop.is_set():
+                raise KeyboardInterrupt  # Ctrl-C while they started: they stopped with it (130)
             said = f'said {line[:200]!r}' if line else f'ended with {_how(proc.returncode)}'
             raise SegmentDied(
                 f'segment {j} of {len(procs)} (process {proc.pid}) did not start: {said}'
