@@ -83,6 +83,15 @@ def add_arguments(parser) -> None:
         "(barrier)",
     )
     parser.add_argument(
+        "--restart",
+        type=int,
+        default=0,
+        metavar="R",
+        help="with --segments K > 1: start a segment process after station 1's that "
+        "ended again, up to R times in all (default 0: a segment that ends ends the demo, "
+        "exit 2)",
+    )
+    parser.add_argument(
         "--parcels",
         type=int,
         default=0,
@@ -596,11 +605,13 @@ def run(args) -> int | str:
         or args.dispositions
         or args.segments != 1
         or args.sync
+        or args.restart
         or args.parcels
         or args.no_drain
     ):
         return (
-            "--executor, --segments, --sync, --parcels, --no-drain and --dispositions are "
+            "--executor, --segments, --sync, --restart, --parcels, --no-drain and "
+            "--dispositions are "
             "the line's: use them with --stations N > 1"
         )
     err = _check_args(args)

@@ -63,6 +63,11 @@ def run_line(args) -> int | str:
         return f'--parcels must be an integer in [0, 100000], got {args.parcels}'
     if getattr(args, 'sync', None) and k_seg == 1:
         return '--sync is how segments keep time together: use it with --segments K > 1'
+    restarts = getattr(args, 'restart', 0) or 0
+    if not (isinstance(restarts, int) and 0 <= restarts <= 100):
+        return f'--restart must be an integer in [0, 100], got {restarts}'
+    if restarts and k_seg == 1:
+        return '--restart starts a segment process again: use it with --segments K > 1'
     if k_seg > 1 and (args.record or args.foxglove):
         return (
             '--segments K > 1: --record and --foxglove are a single process\'s, not a segment\'s'
@@ -108,7 +113,7 @@ def run_line(args) -> int | str:
             nodes += [*line.nodes, *ctls]
         else:
             try:
-                procs = _start_segments(args, n, k_seg)
+                procs = _start_segments(args, n, k_seg, stop)
             except SegmentDied as exc:
                 if stop.is_set():
                     raise KeyboardInterrupt from None  # Ctrl-C ended it too: a stop (130)
@@ -145,11 +150,68 @@ class SegmentDied(RuntimeError):
 
 def _dead_segment(procs) -> str:
     """Return which segment process ended (and how), or '' while all run."""
-    for j, (proc, _) in enumerate(procs, 1):
-        code = proc.poll()
-        if code is not None:
-            return f'segment {j} of {len(procs)} (process {proc.pid}) ended with {_how(code)}'
-    return ''
+    j = _ended(procs)
+    if j is None:
+        return ''
+    proc = procs[j][0]
+    return f'segment {j + 1} of {len(procs)} (process {proc.pid}) ended with {_how(proc.poll())}'
+
+
+def _ended(procs) -> int | None:
+    """Return the index of a segment process that ended, or None while all run."""
+    return next((j for j, (proc, _) in enumerate(procs) if proc.poll() is not None), None)
+
+
+class Restarts:
+    """
+    ``--restart R``: a segment process after station 1's that ends is started again, R times.
+
+    The new process is the same segment under the same node name: its claim succeeds
+    the dead one's at once, the segment upstream sends it back every parcel it answers
+    for, and it runs its time up to the present before it goes on
+    (``frontends.segments``). Station 1's segment is the stream itself and is not
+    restarted: its end ends the demo.
+    """
+
+    def __init__(self, procs: list, cmds: list, allowed: int):
+        self.procs = procs
+        self.cmds = cmds
+        self.left = allowed
+        self.done: list[str] = []  # what was restarted, said in the summary
+
+    def check(self) -> None:
+        """Start an ended segment again when allowed; SegmentDied otherwise."""
+        import subprocess
+        import sys
+
+        j = _ended(self.procs)
+        if j is None:
+            return
+        dead = _dead_segment(self.procs)
+        if j == 0 or self.left <= 0:
+            why = (
+                'station 1\'s segment is the stream: not restarted'
+                if j == 0 and self.left > 0
+                else f'{len(self.done)} restart(s) of --restart {len(self.done) + self.left} used'
+                if self.done
+                else ''
+            )
+            raise SegmentDied(f'{dead} ({why})' if why else dead)
+        proc, clock = self.procs[j]
+        proc.communicate()  # what it said before it ended: nothing more will come
+        self.left -= 1
+        self.procs[j] = (
+            subprocess.Popen(
+                self.cmds[j],
+                stdout=subprocess.PIPE,
+                text=True,
+                bufsize=1,
+                preexec_fn=_end_with_parent,
+            ),
+            clock,
+        )
+        self.done.append(dead)
+        print(f'{dead}: started again (process {self.procs[j][0].pid})', file=sys.stderr)
 
 
 def _end_with_parent() -> None:
@@ -197,38 +259,13 @@ def segment_bounds(n: int, k_seg: int) -> list[tuple[int, int]]:
     return out
 
 
-def _start_segments(args, n: int, k_seg: int) -> list:
+def _start_segments(args, n: int, k_seg: int, stop=None) -> list:
     """Start one process per segment; return (process, clock topic) each, once all are ready."""
     import select
     import subprocess
-    import sys
 
     procs = []
-    for j, (first, count) in enumerate(segment_bounds(n, k_seg), 1):
-        clock = f'/line/segment{j}/clock'
-        cmd = [
-            sys.executable,
-            '-m',
-            'sorter_cell.line_segment',
-            '--first',
-            str(first),
-            '--stations',
-            str(count),
-            '--line-stations',
-            str(n),
-            '--seed',
-            str(int(args.seed)),
-            '--clock',
-            clock,
-        ]
-        if args.gap:
-            cmd += ['--gap', *(str(float(g)) for g in args.gap)]
-        if args.parcels:
-            cmd += ['--parcels', str(args.parcels)]
-        if args.rtf != 'fast':
-            cmd += ['--rtf', str(float(args.rtf))]
-        if getattr(args, 'sync', None):
-            cmd += ['--sync', args.sync]
+    for cmd, clock in segment_commands(args, n, k_seg):
         procs.append(
             (
                 subprocess.Popen(
@@ -254,11 +291,47 @@ def _start_segments(args, n: int, k_seg: int) -> list:
                 if other is not proc:
                     other.kill()
                 other.wait()
+            if stop is not None and stop.is_set():
+                raise KeyboardInterrupt  # Ctrl-C while they started: they stopped with it (130)
             said = f'said {line[:200]!r}' if line else f'ended with {_how(proc.returncode)}'
             raise SegmentDied(
                 f'segment {j} of {len(procs)} (process {proc.pid}) did not start: {said}'
             )
     return procs
+
+
+def segment_commands(args, n: int, k_seg: int) -> list[tuple[list, str]]:
+    """Return the command line and clock topic of each segment process."""
+    import sys
+
+    out = []
+    for j, (first, count) in enumerate(segment_bounds(n, k_seg), 1):
+        clock = f'/line/segment{j}/clock'
+        cmd = [
+            sys.executable,
+            '-m',
+            'sorter_cell.line_segment',
+            '--first',
+            str(first),
+            '--stations',
+            str(count),
+            '--line-stations',
+            str(n),
+            '--seed',
+            str(int(args.seed)),
+            '--clock',
+            clock,
+        ]
+        if args.gap:
+            cmd += ['--gap', *(str(float(g)) for g in args.gap)]
+        if args.parcels:
+            cmd += ['--parcels', str(args.parcels)]
+        if args.rtf != 'fast':
+            cmd += ['--rtf', str(float(args.rtf))]
+        if getattr(args, 'sync', None):
+            cmd += ['--sync', args.sync]
+        out.append((cmd, clock))
+    return out
 
 
 def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
@@ -277,6 +350,11 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
 
     n = args.stations
     segments = len(procs) or 1
+    restarts = Restarts(
+        procs,
+        [cmd for cmd, _ in segment_commands(args, n, segments)] if procs else [],
+        getattr(args, 'restart', 0) or 0,
+    )
     wcs = WcsNode(
         context=ctx,
         parameter_overrides=[
@@ -305,12 +383,22 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
         EVENT_QOS,
     )
     obs.create_subscription(String, '/S01/scanner/label', lambda m: scanned.add(m.data), EVENT_QOS)
-    # the line's time: its last segment's (the others are ahead of it in a lock-step line)
+    # the line's time: its last segment's (the others are ahead of it in a lock-step line);
+    # and station 1's, whose stream the run is
+    first_clock = {'t': 0.0}
+    for topic, into in (
+        (procs[-1][1] if procs else '/clock', clock),
+        (procs[0][1] if procs else '/clock', first_clock),
+    ):
+        obs.create_subscription(
+            Clock,
+            topic,
+            lambda m, into=into: into.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
+            STREAM_QOS,
+        )
+    packml = {'state': ''}  # station 1's machine state: Completing once its stream is out
     obs.create_subscription(
-        Clock,
-        procs[-1][1] if procs else '/clock',
-        lambda m: clock.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
-        STREAM_QOS,
+        String, '/S01/status/packml', lambda m: packml.__setitem__('state', m.data), SENSOR_QOS
     )
     active = []
     obs.create_subscription(DiagnosticStatus, 'wcs/sort_plan/active', active.append, SENSOR_QOS)
@@ -329,14 +417,14 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
             if time.monotonic() > end:
                 return False
             ex.spin_once(timeout_sec=0.02)
-            dead = _dead_segment(procs)
-            if dead:
-                raise SegmentDied(dead)
+            restarts.check()
         return True
 
-    def set_arrival(value):
-        fut = infeed.set_parameters([Parameter('arrival', value=value)])
-        return spin_until(fut.done, 20.0) and fut.result().results[0].successful
+    def set_arrival(value, **more):
+        values = [Parameter('arrival', value=value)]
+        values += [Parameter(k, value=v) for k, v in more.items()]
+        fut = infeed.set_parameters(values)
+        return spin_until(fut.done, 20.0) and all(r.successful for r in fut.result().results)
 
     if ctls is not None and not spin_until(
         lambda: all(c.logic is not None and c.logic.state == 'running' for c in ctls), 120.0
@@ -369,8 +457,12 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
     if line is not None:
         line.cost = {'physics_s': 0.0, 'publish_s': 0.0}
         scans0 = [c.logic.scan_wall_total for c in ctls]
-    if not set_arrival('gap'):
+    # a timed stream is station 1's own span of simulated time (arrival_duration_s), so
+    # that it gives the same parcels whatever the line's split and pace; a batch, its count
+    span = {} if args.parcels else {'arrival_duration_s': float(args.sim_time)}
+    if not set_arrival('gap', **span):
         return 'station 1 did not take arrival: gap'
+    t_opened = first_clock['t']  # station 1's time once it answered: the stream opened before
     p0 = line.stations[0].params if line is not None else _cell_params()
     transit = n * (p0.exit_x - p0.induct_x) / p0.belt_speed
     if args.parcels:
@@ -392,6 +484,15 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
             'controllers': round(ctl_s, 3),
             'other': round(wall - c['physics_s'] - c['publish_s'] - ctl_s, 3),
         }
+    if span and not args.no_drain:
+        # the stream ends on station 1's clock, ahead of the one measured by: wait until
+        # it has (station 1 completes once its last parcel is out), or station 1 is well
+        # past the span's end (held by a jam, say)
+        t_closed = t_opened + args.sim_time + 2.0 * transit / n + 10.0
+        spin_until(
+            lambda: packml['state'] in ('Completing', 'Complete') or first_clock['t'] >= t_closed,
+            math.inf,
+        )
     # the infeed stops and the line runs empty, so that every parcel inducted gets its
     # disposition: at most the belt's transit over the whole line, twice, + 10 s
     set_arrival('none')
@@ -414,6 +515,8 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
         on_line = line.line.n_in_flight
     else:
         on_line = sum(st['parcels'] for st in seg_stats)
+        # station 1's own count, where its segment said it (every parcel scanned, else)
+        inducted = next((st['inducted'] for st in seg_stats if 'inducted' in st), inducted)
     exit_counts = Counter(exits.values())
     codes = Counter(r['code'] for r in records)
     if args.dispositions:
@@ -444,6 +547,8 @@ def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
         # where the wall time went: the line's physics, the stations' publishing, the PLC
         # programs' scans; the rest is DDS, the executor and the callbacks around them
         summary['cost_s'] = cost
+    if restarts.done:
+        summary['restarted'] = restarts.done
     if seg_stats:
         summary['segment_stats'] = seg_stats
         summary['handovers'] = sum(s['handed_on'] for s in seg_stats)

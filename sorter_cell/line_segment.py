@@ -163,7 +163,7 @@ def segment_stats(line, ctls) -> dict:
     def pct(q):
         return round(lat[min(len(lat) - 1, int(q * len(lat)))] * 1e-6, 3) if lat else None
 
-    return {
+    stats = {
         'first_station': line.first + 1,
         'stations': len(line.stations),
         't': line.line.t,
@@ -185,6 +185,9 @@ def segment_stats(line, ctls) -> dict:
             'controllers': round(sum(c.logic.scan_wall_total for c in ctls if c.logic), 3),
         },
     }
+    if line.first == 0:
+        stats['inducted'] = line.stations[0].cell.n_inducted  # the line's stream is its
+    return stats
 
 
 def main(argv=None) -> int:

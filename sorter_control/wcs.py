@@ -166,6 +166,11 @@ class LineWcs:
         self.requests: dict[str, str] = {}
         self.full: set[str] = set()
         self.queues = [deque() for _ in self.chutes]  # labels each station expects next
+        # per station, the labels given at its scanner eye by the time of the edge, and
+        # the newest such time: a station restarted runs its time again from 0
+        self.given: list[dict] = [dict() for _ in self.chutes]
+        self._newest_edge: list = [None] * len(self.chutes)
+        self.n_replayed = 0  # edges, confirmations and exits a restarted station said again
         self.results: dict[str, dict] = {}  # label -> {station: result}
         self.dispositions: dict[str, Disposition] = {}
         self.rules = [dict() for _ in self.chutes]  # the rules each station holds: label -> side
@@ -358,6 +363,11 @@ class LineWcs:
             The program's result code.
 
         """
+        if label and station in self.results.get(label, {}):
+            # said again by a station that restarted and ran its time again: the parcel
+            # joined the next queue the first time
+            self.n_replayed += 1
+            return
         self.results.setdefault(label, {})[station] = result
         chute = self.plan.get(self.requests.get(label, ''))
         if reached == 'straight' and chute in self.full and self.where[chute][0] == station:
@@ -367,7 +377,7 @@ class LineWcs:
             # the next station must not give its neighbour's label to it
             self.queues[station + 1].append(label or None)
 
-    def arriving(self, station: int) -> str | None:
+    def arriving(self, station: int, t_ns: int | None = None) -> str | None:
         """
         Return the label of the parcel a station's scanner eye sees arrive (or None).
 
@@ -375,6 +385,11 @@ class LineWcs:
         ----------
         station : int
             The station (1-based stations after the first; 0 has the real scanner).
+        t_ns : int, optional
+            The edge's time on the station's clock [ns]. An edge no later than one seen
+            before is that station's time run again (its segment restarted, from t = 0,
+            with the parcels it held sent back): it gets the label given at that time
+            then, and the queue is left as it is.
 
         Returns
         -------
@@ -382,8 +397,20 @@ class LineWcs:
             The label to give its program.
 
         """
+        if t_ns is not None:
+            newest = self._newest_edge[station]
+            if newest is not None and t_ns <= newest:
+                self.n_replayed += 1
+                return self.given[station].get(t_ns)
+            self._newest_edge[station] = t_ns
         q = self.queues[station]
-        return q.popleft() if q else None  # None also for a parcel that had no label
+        label = q.popleft() if q else None  # None also for a parcel that had no label
+        if t_ns is not None:
+            given = self.given[station]
+            given[t_ns] = label
+            if len(given) > MAX_DISPOSED:
+                del given[next(iter(given))]  # the oldest
+        return label
 
     # ------------------------------------------------------------------ dispositions
     def exited(

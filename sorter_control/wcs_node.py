@@ -260,8 +260,9 @@ class WcsNode(Node):
     def _on_edge(self, k: int, msg: TimeReference) -> None:
         if msg.source != 'rising' or msg.header.frame_id.rsplit('/', 1)[-1] != self.scan_eye:
             return
+        t_ns = msg.time_ref.sec * 1_000_000_000 + msg.time_ref.nanosec
         with self._lock:
-            label = self.wcs.arriving(k)
+            label = self.wcs.arriving(k, t_ns)
         if label is not None:
             self._pub_label[k].publish(String(data=label))
 
@@ -275,6 +276,11 @@ class WcsNode(Node):
             self.get_logger().warning(f'line/exits: {exc}; refused', throttle_duration_sec=1.0)
             return
         with self._lock:
+            if label and label in self.wcs.dispositions:
+                # a restarted segment that sorted it again (the segment upstream had not
+                # yet heard it left): it has its disposition
+                self.wcs.n_replayed += 1
+                return
             d = self.wcs.exited(label, exit, station, t, cause)
             self._send(self.wcs.forget(label))  # its request and rule are no longer needed
         if self.opcua is not None:

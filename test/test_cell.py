@@ -571,6 +571,32 @@ def test_pending_inducts_are_capped_and_the_excess_counted():
     assert cell.pending_inducts == PENDING_INDUCTS_MAX and cell.n_induct_refused == 1
 
 
+def test_a_stream_of_a_known_span_stops_that_long_after_it_opens_however_it_is_sliced():
+    """arrival_duration_s counts from the period the stream opens, in simulated time."""
+
+    def run(span, slices):
+        cell = make_cell(arrival='none', arrival_gap=[0.3, 0.4], arrival_duration_s=span)
+        cell.advance(1234)  # the line runs empty before the stream opens
+        cell.update_params(cell.params.with_changes({'arrival': 'gap'}))
+        events = []
+        for n in slices:
+            events += cell.advance(n)
+        outcomes = [(e.t_ns, e.parcel_id, e.exit) for e in events if isinstance(e, Outcome)]
+        return cell, outcomes
+
+    one, out = run(2.0, [20_000])
+    # a parcel every 0.3-0.4 m of gap plus 0.3-0.7 m of length at 1.5 m/s: 3 to 4 in
+    # 2 s, none after, and the cell completes once the last is out
+    assert 3 <= one.n_streamed <= 4 and len(out) == one.n_streamed
+    assert one.n_parcels == 0 and one.packml.state == 'Complete'
+    # the same parcels at the same times, however the time is sliced
+    sliced, out_sliced = run(2.0, [7] * 2000 + [6000])
+    assert out_sliced == out
+    # the span counts from the opening, not from t = 0: a longer one gives more
+    longer, _ = run(4.0, [20_000])
+    assert longer.n_streamed >= one.n_streamed + 2
+
+
 def test_a_batch_stream_stops_after_arrival_count_parcels_and_the_cell_completes():
     cell = make_cell(arrival='gap', arrival_gap=[0.3, 0.4], arrival_count=3)
     cell.advance(20_000)

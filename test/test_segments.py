@@ -31,7 +31,8 @@ def test_segments_split_the_line_evenly_upstream_first():
     assert segment_bounds(48, 1) == [(1, 48)]
 
 
-def _demo(tmp_path, segments: int) -> tuple[dict, list]:
+def _demo(tmp_path, segments: int, *run: str) -> tuple[dict, list]:
+    """Run the demo on 3 stations in K segments (12 parcels, or `run`): summary, dispositions."""
     path = tmp_path / f'k{segments}.jsonl'
     done = subprocess.run(
         [
@@ -43,8 +44,7 @@ def _demo(tmp_path, segments: int) -> tuple[dict, list]:
             '3',
             '--segments',
             str(segments),
-            '--parcels',
-            '12',
+            *(run or ('--parcels', '12')),
             '--json',
             '--dispositions',
             str(path),
@@ -82,6 +82,44 @@ def test_three_segment_processes_sort_every_parcel_as_one_process_does(tmp_path)
         )
 
     assert timeline(d3) == timeline(d1)
+
+
+def timeline(records):
+    """Return every parcel's (label, code, chute, station, exit time from the first exit)."""
+    t0 = min(float(r['t']) for r in records)
+    return sorted(
+        (r['label'], r['code'], r['chute'], r['station'], round(float(r['t']) - t0, 6))
+        for r in records
+    )
+
+
+TIMED = ('--sim-time', '12')  # about eight parcels through three stations
+
+
+@pytest.fixture(scope='module')
+def timed_one_process(tmp_path_factory):
+    """Run the timed line in one process: what every split of it must give."""
+    return _demo(tmp_path_factory.mktemp('timed'), 1, *TIMED)
+
+
+@pytest.mark.xdist_group('timed_line')
+@pytest.mark.parametrize('segments', [1, 2, 3])
+def test_a_timed_line_inducts_and_sorts_the_same_parcels_however_it_is_split(
+    timed_one_process, tmp_path, segments
+):
+    """--sim-time T: the stream's span is station 1's simulated time, not an observer's."""
+    one, d1 = timed_one_process
+    summary, records = (one, d1) if segments == 1 else _demo(tmp_path, segments, *TIMED)
+    assert summary['segments'] == segments
+    # every parcel inducted accounted for once: an exit, a jam or still on the line
+    labels = [r['label'] for r in records]
+    assert len(labels) == len(set(labels))
+    assert summary['inducted'] == len(records) + summary['in_cell_at_end'] > 0
+    assert summary['mis_sorted'] == 0 and summary['jams'] == 0
+    # and the same parcels as in one process, each into the same chute at the same time
+    assert summary['inducted'] == one['inducted']
+    assert summary['exits'] == one['exits']
+    assert timeline(records) == timeline(d1)
 
 
 def _netns_problem() -> str | None:
@@ -257,3 +295,73 @@ def test_the_demo_says_at_once_when_a_segment_process_dies(ros, when):
     assert demo.returncode != 0
     assert f'segment 2 of 2 (process {victim})' in err and 'signal 9' in err, err
     assert 'Traceback' not in err and len(err.strip().splitlines()) == 1
+
+
+# (sync, the parcels that reached segment 2, wall seconds after): of the batch of 5,
+# P00002-P00004 go to station 2's chutes, so one to three reach it
+KILL_RUNS = [
+    (sync, after, delay)
+    for sync in ('conservative', 'barrier')
+    for after, delay in ((1, 0.0), (2, 0.0), (3, 0.0), (1, 0.3))
+]
+
+
+@pytest.mark.parametrize(
+    'sync, after, delay', KILL_RUNS, ids=[f'{s}-{a}-{d:g}' for s, a, d in KILL_RUNS]
+)
+def test_a_segment_process_killed_mid_run_comes_back_and_loses_nothing(
+    ros, tmp_path, sync, after, delay
+):
+    """
+    SIGKILL of segment 2 while it holds parcels; ``--restart 1`` starts it again.
+
+    Every parcel of the batch once in the dispositions, each into its own chute: none
+    lost, none twice, none mis-sorted.
+    """
+    from std_msgs.msg import String
+
+    from sorter_ros.interface import EVENT_QOS
+
+    parcels = 5
+    seen = []  # the labels the warehouse gave station 2's program, as its eye saw them
+    probe = ros.make_node('watcher')
+    probe.create_subscription(
+        String, '/S02/scanner/label', lambda m: seen.append(m.data), EVENT_QOS
+    )
+    path = tmp_path / 'dispositions.jsonl'
+    demo = subprocess.Popen(
+        [sys.executable, '-m', 'sorter_cell', 'demo', '--stations', '2', '--segments', '2']
+        + ['--parcels', str(parcels), '--restart', '1', '--sync', sync, '--json']
+        + ['--dispositions', str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 50.0
+        victim = None
+        while victim is None:
+            assert time.monotonic() < deadline and demo.poll() is None, 'no segment 2'
+            time.sleep(0.2)
+            victim = next((p for p, cmd in _children(demo.pid) if '--first 2 ' in cmd + ' '), None)
+        ros.spin_until(lambda: len(seen) >= after, 50.0)
+        assert len(seen) >= after, f'{len(seen)} parcels reached segment 2'
+        time.sleep(delay)
+        os.kill(victim, signal.SIGKILL)
+        out, err = demo.communicate(timeout=50)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.communicate()
+    assert demo.returncode == 0, out[-2000:] + err[-2000:]
+    assert f'(process {victim}) ended with signal 9: started again' in err, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert len(summary['restarted']) == 1
+    records = [json.loads(line) for line in path.read_text().splitlines()]
+    labels = [r['label'] for r in records]
+    assert len(labels) == len(set(labels)), 'a parcel disposed of twice'
+    assert sorted(labels) == [f'P{i:05d}' for i in range(1, parcels + 1)], 'a parcel lost'
+    assert {r['code'] for r in records} == {'sorted'}, records
+    assert summary['inducted'] == parcels and summary['in_cell_at_end'] == 0
+    # it held parcels when it died: segment 1 sent them back to the new process
+    assert summary['segment_stats'][0]['resent'] >= 1

@@ -74,6 +74,22 @@ def test_tracking_hands_labels_downstream_first_in_first_out():
     assert all(not q for q in w.queues)
 
 
+def test_a_station_that_runs_its_time_again_gets_the_labels_it_was_given_and_nothing_shifts():
+    """A segment restarted from t = 0 says its edges and confirmations again (replayed)."""
+    w = wcs_with_plan()
+    for label in 'ABC':
+        w.confirmed(0, label, 'straight', 'sorted')
+    assert [w.arriving(1, t) for t in (10, 20)] == ['A', 'B']
+    w.confirmed(1, 'A', 'straight', 'sorted')
+    # station 2 restarts: its time runs from 0 again, the parcels it held come back
+    assert [w.arriving(1, t) for t in (10, 20)] == ['A', 'B']
+    w.confirmed(1, 'A', 'straight', 'sorted')  # said again: A is in station 3's queue once
+    assert w.arriving(1, 30) == 'C'  # past the time it had reached: the queue goes on
+    w.confirmed(1, 'B', 'straight', 'sorted')
+    assert [w.arriving(2, t) for t in (40, 50, 60)] == ['A', 'B', None]
+    assert w.n_replayed == 3
+
+
 def test_every_disposition_code():
     w = wcs_with_plan()
     for label, dest in (
@@ -225,12 +241,14 @@ def test_the_line_demo_refuses_bad_options_in_one_line(capsys, tmp_path):
         (['--sim-time', '-1'], '--sim-time must be in (0, 3600]'),
         (['--dispositions', str(tmp_path)], '--dispositions'),
         (['--sync', 'barrier'], '--sync is how segments keep time together'),
+        (['--restart', '1'], '--restart starts a segment process again'),
+        (['--segments', '3', '--restart', '-1'], '--restart must be an integer in [0, 100]'),
     ):
         assert main(['demo', '--stations', '3', *extra]) == 2
         assert message in capsys.readouterr().err
     assert main(['demo', '--stations', '0']) == 2
     assert '--stations must be in [1, 64]' in capsys.readouterr().err
-    for extra in (['--executor', 'single'], ['--sync', 'barrier']):
+    for extra in (['--executor', 'single'], ['--sync', 'barrier'], ['--restart', '2']):
         assert main(['demo', *extra]) == 2
         assert "the line's: use them with --stations N > 1" in capsys.readouterr().err
 

@@ -253,6 +253,8 @@ class Cell:
         self.n_induct_refused = 0  # inducts refused because too many were waiting
         self._stream_next: tuple[ParcelSpec, float] | None = None
         self._stream_due_k: int | None = None
+        # the period the stream opened in (arrival_duration_s counts from it); None: off
+        self._stream_open_k: int | None = None if params.arrival == 'none' else 0
         self._pending_edges: list[SensorEdge] = []  # made by a PackML command
         # one period can log per parcel a few sensor changes, a scan, an exit and a jam
         self._ev_reserve = cap * (n_sens + 4) + 8
@@ -316,6 +318,10 @@ class Cell:
         """
         self._packml_dirty = True
         changed_alpha = params.alpha_deg != self.params.alpha_deg
+        if params.arrival == 'none':
+            self._stream_open_k = None
+        elif self.params.arrival == 'none':
+            self._stream_open_k = self.k  # it opens now: its span counts from this period
         self.params = params
         if changed_alpha:
             self.act[ck.A_ALPHA_CMD] = params.alpha_rad
@@ -432,9 +438,7 @@ class Cell:
             and not on_cell
             and (k - self._busy_k) * dt >= p.packml_starved_s - 1e-12
         )
-        batch_done = bool(
-            p.arrival_count and self.n_streamed >= p.arrival_count and not self._external
-        )
+        batch_done = self.stream_closed() and not self._external
         return Conditions(
             estop=self.estop,
             hold_cause='jam' if self.jam else 'watchdog' if self.watchdog_tripped else '',
@@ -467,11 +471,32 @@ class Cell:
             for k0 in self._chute_blocked_k.values():
                 due = k0 + math.ceil(p.packml_blocked_s / dt - 1e-9)
                 out = min(out, max(1, due - k))
-        if state == 'Stopping' or (
-            state == 'Execute' and p.arrival_count and self.n_streamed >= p.arrival_count
-        ):
+        if state == 'Stopping' or (state == 'Execute' and self.stream_closed()):
             out = 1
+        elif state == 'Execute' and self._stream_end_k() is not None:
+            out = min(out, max(1, self._stream_end_k() - k))
         return out
+
+    def _stream_end_k(self) -> int | None:
+        """Return the period the stream's span (``arrival_duration_s``) ends at, or None."""
+        span = self.params.arrival_duration_s
+        if not span or self._stream_open_k is None:
+            return None
+        return self._stream_open_k + math.ceil(span / self.dt - 1e-9)
+
+    def stream_closed(self) -> bool:
+        """
+        Return True once the stream has given all it will: its batch, or its span.
+
+        ``arrival_count`` parcels streamed, or ``arrival_duration_s`` of simulated time
+        since it opened: either is a stream of a known size, the same parcels however the
+        run is sliced or paced.
+        """
+        p = self.params
+        if p.arrival_count and self.n_streamed >= p.arrival_count:
+            return True
+        end = self._stream_end_k()
+        return end is not None and self.k >= end
 
     @property
     def packml_dirty(self) -> bool:
@@ -863,8 +888,8 @@ class Cell:
         p = self.params
         if self._external:
             return 'external', self._external[0], p.arrival_gap[0]
-        if p.arrival_count and self.n_streamed >= p.arrival_count:
-            return None  # the batch is in
+        if self.stream_closed():
+            return None  # the batch is in, or the span is over
         if p.arrival == 'gap':
             if self._stream_next is None:
                 spec = self._draw_stream_parcel()

@@ -260,6 +260,17 @@ SCHEMA: tuple[ParamSpec, ...] = (
         2**31 - 1,
         read_only=False,
     ),
+    _p(
+        'arrival_duration_s',
+        DOUBLE,
+        0.0,
+        'the stream stops this long (simulated) after it opens (0: it never stops): a '
+        'stream of a known span, the same parcels however fast the run goes',
+        's',
+        0.0,
+        1e6,
+        read_only=False,
+    ),
     quantity_spec(
         'parcel_A',
         Q['parcel.length'],
@@ -718,6 +729,7 @@ class CellParams:
     arrival_gap: tuple
     arrival_rate: float
     arrival_count: int
+    arrival_duration_s: float
     parcel_A: tuple
     parcel_B: tuple
     parcel_m: tuple
