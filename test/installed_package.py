@@ -37,10 +37,35 @@ def _run(cmd: list, **kw) -> subprocess.CompletedProcess:
     return done
 
 
+def _source_tree(where: Path) -> Path:
+    """
+    Return a copy of the checkout's tracked files under ``where`` (the checkout itself
+    when it is not a git checkout).
+
+    The build reads every file of the tree; other tests running beside this one write
+    and remove files of their own in it (outputs, caches), and a file gone between the
+    listing and the copy failed the sdist ("No such file or directory"). What is
+    released is what git tracks.
+    """
+    listed = subprocess.run(
+        ['git', '-C', str(REPO), 'ls-files', '-z'], capture_output=True, timeout=60
+    )
+    if listed.returncode:
+        return REPO
+    tree = where / 'source'
+    for name in listed.stdout.decode().split('\0'):
+        src = REPO / name
+        if name and src.is_file():
+            (tree / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, tree / name)
+    return tree
+
+
 def build_dists(out: Path) -> tuple[Path, Path]:
     """Build the sdist and, from it, the wheel (``python -m build``); return both paths."""
+    tree = _source_tree(out.parent)
     # --no-isolation: the build backend from this environment (setuptools, no network)
-    _run([sys.executable, '-m', 'build', '--no-isolation', '--outdir', str(out), str(REPO)])
+    _run([sys.executable, '-m', 'build', '--no-isolation', '--outdir', str(out), str(tree)])
     (wheel,) = out.glob('sorter_cell-*.whl')
     (sdist,) = out.glob('sorter_cell-*.tar.gz')
     return wheel, sdist
