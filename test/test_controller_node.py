@@ -590,6 +590,13 @@ def test_a_stopped_controller_leaves_the_disks_down_and_a_new_one_takes_over(ros
     cell = Cell(ros, sim={"watchdog_timeout": 0.3})
     sim = cell.sim
     ros.spin_until(lambda: sim.cell.watchdog_armed, 20.0, "the controller's first heartbeat")
+    # the controller lowers the disks once as it starts: that command is through before
+    # the test raises them (else it lands after and lowers them again)
+    ros.spin_until(
+        lambda: any(e[1] is False and e[3] is not None for e in _popups(cell.ctl)),
+        20.0,
+        "the controller's first pop-up command answered",
+    )
     # the disks up, as a divert in progress leaves them; then the controller stops
     assert sim.cell.popup(True)[0]
     ros.spin_until(lambda: sim.cell.stroke == 1.0, 20.0, "the disks up")
