@@ -234,6 +234,17 @@ def test_two_segments_on_two_hosts_hand_parcels_over_their_link(tmp_path):
             subprocess.run(['ip', 'netns', 'del', ns[side]], capture_output=True, timeout=20)
 
 
+def _segment_2(demo) -> int:
+    """Return the pid of the demo's segment 2 process, once it is started (at most 50 s)."""
+    deadline = time.monotonic() + 50.0
+    while True:
+        assert time.monotonic() < deadline and demo.poll() is None, 'no segment 2'
+        time.sleep(0.2)
+        pid = next((p for p, cmd in _children(demo.pid) if '--first 2 ' in cmd + ' '), None)
+        if pid is not None:
+            return pid
+
+
 def _children(pid: int) -> list[tuple[int, str]]:
     """Return (pid, command line) of a process's children, from /proc."""
     out = []
@@ -275,12 +286,7 @@ def test_the_demo_says_at_once_when_a_segment_process_dies(ros, when):
         text=True,
     )
     try:
-        deadline = time.monotonic() + 50.0
-        victim = None
-        while victim is None:
-            assert time.monotonic() < deadline and demo.poll() is None, 'no segment 2'
-            time.sleep(0.2)
-            victim = next((p for p, cmd in _children(demo.pid) if '--first 2 ' in cmd + ' '), None)
+        victim = _segment_2(demo)
         if when == 'running':  # its simulated time runs
             ros.spin_until(lambda: clock and clock[-1] > 0.1, 50.0)
             assert clock and clock[-1] > 0.1, 'segment 2 did not run'
@@ -338,12 +344,7 @@ def test_a_segment_process_killed_mid_run_comes_back_and_loses_nothing(
         text=True,
     )
     try:
-        deadline = time.monotonic() + 50.0
-        victim = None
-        while victim is None:
-            assert time.monotonic() < deadline and demo.poll() is None, 'no segment 2'
-            time.sleep(0.2)
-            victim = next((p for p, cmd in _children(demo.pid) if '--first 2 ' in cmd + ' '), None)
+        victim = _segment_2(demo)
         ros.spin_until(lambda: len(seen) >= after, 50.0)
         assert len(seen) >= after, f'{len(seen)} parcels reached segment 2'
         time.sleep(delay)
