@@ -39,13 +39,13 @@ def _run(cmd: list, **kw) -> subprocess.CompletedProcess:
 
 def _source_tree(where: Path) -> Path:
     """
-    Return a copy of the checkout's tracked files under ``where`` (the checkout itself
-    when it is not a git checkout).
+    Return a copy of the checkout's tracked files under ``where``.
 
-    The build reads every file of the tree; other tests running beside this one write
-    and remove files of their own in it (outputs, caches), and a file gone between the
-    listing and the copy failed the sdist ("No such file or directory"). What is
-    released is what git tracks.
+    The checkout itself is returned when it is not a git checkout. The build reads
+    every file of the tree; other tests running beside this one write and remove files
+    of their own in it (outputs, caches), and a file gone between the listing and the
+    copy failed the sdist ("No such file or directory"). What is released is what git
+    tracks.
     """
     listed = subprocess.run(
         ['git', '-C', str(REPO), 'ls-files', '-z'], capture_output=True, timeout=60
