@@ -30,12 +30,19 @@ import sys
 import time
 from pathlib import Path
 
+from sorter_cell.demo_parts import (  # noqa: F401 (the demo's public names, as before)
+    LABEL_CYCLE,
+    ROUTING,
+    _controller_values,
+    _Observer,
+    _stream,
+    cell_params,
+    stream_plan,
+)
 from sorter_cell.demo_summary import exit_code, exits_by_id, plot_paths, print_table, summarize
 from sorter_sim.model.description import Q
 from sorter_sim.studies.outpaths import file_problem
 
-LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
-ROUTING = ["A*=left", "B*=right", "C*=straight"]
 FOXGLOVE_PORT = 8765  # Foxglove's usual WebSocket port
 FAST_SLICE = 0.005  # s of simulated time per executor pass of the cell in fast mode
 
@@ -209,131 +216,6 @@ def _check_args(args) -> str | None:
     if problem:
         return problem
     return None
-
-
-def _controller_values(config_dir: Path) -> dict:
-    """
-    Return the controller's parameter values as controller.yaml sets them.
-
-    The file is checked as the node checks it: unknown names and bad values are a
-    ValueError naming the file and the parameter.
-    """
-    from sorter_control.node import NODE_NAME
-    from sorter_control.parameters import SCHEMA, config_from_values
-    from sorter_ros.params_file import read_params_file
-
-    path = config_dir / "controller.yaml"
-    values = {s.name: s.default for s in SCHEMA}
-    given = read_params_file(path, NODE_NAME)
-    given.pop("use_sim_time", None)  # rclpy's own parameter, not the controller's
-    unknown = sorted(set(given) - set(values))
-    if unknown:
-        raise ValueError(
-            f"{path}: unknown controller parameter(s) {', '.join(map(repr, unknown))}"
-        )
-    values.update(given)
-    try:
-        config_from_values(values)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
-    values["routing.rules"] = list(ROUTING)
-    return values
-
-
-def stream_plan(parcel_lengths: tuple[float, float], config_dir: Path) -> dict:
-    """
-    Return the least gap of a mixed stream of these lengths, and the seed's capacity.
-
-    Parameters
-    ----------
-    parcel_lengths : (float, float)
-        The stream's range of parcel lengths [m].
-    config_dir : Path
-        The folder of cell.yaml and controller.yaml.
-
-    Returns
-    -------
-    dict
-        The least gap, the gap range and the seed's capacity.
-
-    """
-    from sorter_control.logic import SorterLogic
-    from sorter_control.parameters import config_from_values
-    from sorter_control.timing import seed_capacity
-
-    cfg = config_from_values(_controller_values(config_dir))
-    logic = SorterLogic(cfg)
-    lo, hi = parcel_lengths
-    lengths = sorted({lo, 0.5 * (lo + hi), hi})
-    worst = max(logic.min_gap(a)["worst"] for a in lengths)
-    mean = 0.5 * (lo + hi)
-    return {
-        "min_gap_m": worst,
-        "mean_length_m": mean,
-        "seed_capacity_pcs_h": seed_capacity(
-            cfg.cell, mean, cfg.belt_speed, abs(cfg.divert_alpha_deg)
-        ),
-        "belt_speed": cfg.belt_speed,
-    }
-
-
-class _Observer:
-    """Watch what a warehouse would, from an ordinary node: outcomes, confirmations, poses."""
-
-    def __init__(self, node, want_paths: bool):
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-        from geometry_msgs.msg import PoseArray
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-        from rosgraph_msgs.msg import Clock
-        from std_msgs.msg import UInt32MultiArray
-
-        events = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        stream = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.node = node
-        self.t_sim = 0.0
-        self.outcomes: dict[str, dict] = {}  # label -> values
-        self.confirmations: dict[str, dict] = {}
-        self.ctl_diag: dict = {}
-        self.ids_seen: set[int] = set()
-        self.paths: dict[int, list] = {}
-        self._ids = None
-        node.create_subscription(Clock, "/clock", self._on_clock, stream)
-        node.create_subscription(DiagnosticStatus, "sort/outcomes", self._on_outcome, events)
-        node.create_subscription(
-            DiagnosticStatus, "sort/confirmations", self._on_confirmation, events
-        )
-        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, stream)
-        node.create_subscription(UInt32MultiArray, "parcels/ids", self._on_ids, stream)
-        if want_paths:
-            node.create_subscription(PoseArray, "parcels/poses", self._on_poses, stream)
-
-    def _on_clock(self, msg):
-        self.t_sim = msg.clock.sec + 1e-9 * msg.clock.nanosec
-
-    def _on_outcome(self, msg):
-        values = {kv.key: kv.value for kv in msg.values}
-        self.outcomes[values.get("label") or msg.name] = values
-
-    def _on_confirmation(self, msg):
-        values = {kv.key: kv.value for kv in msg.values}
-        self.confirmations[values.get("label", msg.name)] = values
-
-    def _on_diag(self, msg):
-        for st in msg.status:
-            values = {kv.key: kv.value for kv in st.values}
-            if st.name.endswith(": controller"):
-                self.ctl_diag = values
-
-    def _on_ids(self, msg):
-        self._ids = list(msg.data)
-        self.ids_seen.update(self._ids)
-
-    def _on_poses(self, msg):
-        ids = self._ids
-        if ids is None or len(ids) != len(msg.poses):
-            return
-        for pid, pose in zip(ids, msg.poses):
-            self.paths.setdefault(int(pid), []).append((pose.position.x, pose.position.y))
 
 
 class RunningCell:
@@ -623,6 +505,8 @@ def run(args) -> int | str:
                 "--io modbus|opcua|s7 runs the cell and the soft PLC in step: no --rtf, "
                 "--foxglove or --record with it"
             )
+        from sorter_cell.demo_soft_plc import run_soft_plc
+
         return run_soft_plc(args)
     from sorter_ros.env import find_config_dir
 
@@ -675,220 +559,6 @@ def run(args) -> int | str:
         print(f"  paths                      {args.out}")
         if args.record:
             print(f"  recording                  {args.record} (sorter replay {args.record})")
-    return exit_code(summary)
-
-
-def cell_params(sim) -> dict:
-    """
-    Return what ``plot_paths`` needs of the cell, from the simulation node's parameters.
-
-    Parameters
-    ----------
-    sim : rclpy.node.Node
-        The simulation node.
-
-    Returns
-    -------
-    dict
-        The cell's geometry.
-
-    """
-    out = {
-        k: sim.get_parameter(k).value
-        for k in ("belt_width", "disk_field_length", "chute_margin", "induct_x", "exit_x")
-    }
-    out["photo_eyes.names"] = list(sim.get_parameter("photo_eyes.names").value)
-    out["photo_eyes.x"] = list(sim.get_parameter("photo_eyes.x").value)
-    return out
-
-
-def _stream(args, config_dir: Path):
-    """Return the plan of the demo's stream (gaps, capacity) and the cell's stream values."""
-    from sorter_ros.params_file import read_params_file
-
-    cell = read_params_file(config_dir / "cell.yaml", "sorter_sim")
-    lengths = tuple(cell.get("parcel_A", [0.3, 0.7]))
-    plan = stream_plan(lengths, config_dir)
-    gap = (
-        tuple(args.gap)
-        if args.gap is not None
-        else (round(plan["min_gap_m"] + 0.02, 3), round(plan["min_gap_m"] + 0.4, 3))
-    )
-    plan["stream_gap_m"] = list(gap)
-    return plan, {
-        "arrival": "gap",
-        "arrival_gap": list(gap),
-        "labels": list(LABEL_CYCLE),
-        "seed": int(args.seed),
-    }
-
-
-def run_soft_plc(args) -> int | str:
-    """
-    ``sorter demo --io modbus|opcua|s7``: the PLC program as a soft PLC on the cell's fieldbus.
-
-    The cell runs in this process with its Modbus TCP or OPC UA server; the soft PLC
-    (``sorter_control.soft_plc``) connects to it as a client, as a real PLC would, and
-    scans the I/O image once every scan period of simulated time: the cell advances a
-    scan period, the PLC reads its inputs, decides and writes its outputs, and so on
-    (the two step together, so the run is as fast as the machine and as repeatable as
-    the ROS demo). An observer node watches the cell's outcomes over ROS, as a
-    warehouse would.
-
-    Parameters
-    ----------
-    args : list of str or argparse.Namespace
-        The command line, or the parsed arguments.
-
-    Returns
-    -------
-    int or str
-        The exit code, or a message.
-
-    """
-    import socket
-
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.parameter import Parameter
-    from rclpy.signals import SignalHandlerOptions
-
-    from sorter_control.parameters import config_from_values
-    from sorter_control.soft_plc import FieldbusError, ModbusIO, OpcUaIO, S7IO, SoftPLC
-    from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
-    from sorter_sim.frontends.node import SimNode
-
-    apply_ros_env_defaults()
-    config_dir = find_config_dir()
-    plan, stream = _stream(args, config_dir)
-    cfg = config_from_values(_controller_values(config_dir))
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    ctx = Context()
-    log_level = "info" if args.verbose else "warn"
-    # Ctrl-C ends the stream where it is, as in the ROS demo; rclpy's own handler stays out
-    stop = StopSignals().install()
-    rclpy.init(
-        signal_handler_options=SignalHandlerOptions.NO,
-        context=ctx,
-        args=[
-            "--ros-args",
-            "--params-file",
-            str(config_dir / "cell.yaml"),
-            "--log-level",
-            log_level,
-        ],
-    )
-    nodes, io = [], None
-    try:
-        sim = SimNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter(k, value=v)
-                for k, v in {
-                    "time_mode": "lockstep",
-                    "pose_rate_hz": 50.0,
-                    f"{args.io}_port": port,
-                    **stream,
-                    "arrival": "none",
-                }.items()
-            ],
-        )
-        nodes.append(sim)
-        watcher = rclpy.create_node("sorter_demo", context=ctx)
-        nodes.append(watcher)
-        obs = _Observer(watcher, want_paths=True)
-        executor = SingleThreadedExecutor(context=ctx)
-        for n in nodes:
-            executor.add_node(n)
-        sensors = sim.cell.sensor_names
-        try:
-            if args.io == "modbus":
-                io = ModbusIO("127.0.0.1", sim.fieldbus.modbus_port, sensors)
-            elif args.io == "s7":
-                io = S7IO("127.0.0.1", sim.fieldbus.s7_port, sensors)
-            else:
-                io = OpcUaIO(sim.fieldbus.opcua_endpoint, "cell", sensors)
-        except FieldbusError as exc:
-            return str(exc)
-        plc = SoftPLC(cfg, io)
-        lo, hi = sim.params.parcel_A
-        plc.logic.warm_up(plc.logic.warm_lengths(lo, hi))
-        sim.set_parameters([Parameter("arrival", value="gap")])
-        per_scan = max(1, round(cfg.scan_period / sim.cell.dt))
-        t0, wall0 = sim.cell.t, time.monotonic()
-        from sorter_sim.studies.progress import progress_bar
-
-        bar = progress_bar(
-            round(args.sim_time, 3), f"sorter demo --io {args.io}", "s", quiet=args.quiet
-        )
-        shown = 0.0
-        while sim.cell.t - t0 < args.sim_time and not stop.is_set():
-            sim.advance(per_scan)
-            plc.scan()
-            executor.spin_once(timeout_sec=0.0)
-            if sim.cell.t - t0 - shown >= 0.1:
-                bar.update(round(sim.cell.t - t0 - shown, 3))
-                shown = sim.cell.t - t0
-        bar.close()
-        wall = time.monotonic() - wall0
-        t_end = sim.cell.t - t0
-        deadline = time.monotonic() + 0.5
-        while time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.02)
-        for c in plc.confirmations:
-            obs.confirmations[c.label] = {
-                "label": c.label,
-                "destination_asked": c.destination_asked,
-                "destination_reached": c.destination_reached,
-                "result": c.result,
-            }
-        st = plc.logic.status()
-        obs.ctl_diag = {
-            "state": st["state"],
-            **{k: str(v) for k, v in st["counts"].items()},
-            **{f"fault_{k}": str(v) for k, v in st["faults"].items()},
-            "scan_wall_p99_ms": f"{st['scan_wall_p99_ms']:.3f}",
-        }
-        summary = summarize(obs, plan, t_end, wall, f"soft PLC over {args.io}")
-        summary["io"] = args.io
-        summary["io_requests"] = io.requests
-        summary["io_write_errors"] = plc.write_errors
-        summary["png"] = str(args.out)
-        params = cell_params(sim)
-        title = (
-            f"sorter demo, soft PLC over {args.io}: {summary['inducted']} parcels in "
-            f"{summary['sim_time_s']:g} s, mis-sorted {summary['mis_sorted']}, "
-            f"jams {summary['jams']}"
-        )
-        try:
-            plot_paths(
-                obs.paths, exits_by_id(obs.outcomes.values()), params, title, Path(args.out)
-            )
-        except OSError as exc:
-            summary["png"] = None
-            print(
-                f"sorter demo: cannot write {args.out!r}: {exc.strerror or exc}", file=sys.stderr
-            )
-    finally:
-        stop.quiet = True
-        if io is not None:
-            io.close()
-        for n in nodes:
-            n.destroy_node()
-        rclpy.try_shutdown(context=ctx)
-        stop.restore()
-    if args.json:
-        print(json.dumps(summary, sort_keys=True))
-    else:
-        print_table(summary)
-        print(
-            f"  fieldbus                   {args.io}: {summary['io_requests']} requests, "
-            f"{summary['io_write_errors']} refused writes"
-        )
-        print(f"  paths                      {args.out}")
     return exit_code(summary)
 
 

@@ -10,14 +10,15 @@ left (a chute, straight on, or jammed), the actuators' positions and the faults.
 The node (``sorter_sim/frontends/node.py``) turns these into messages.
 
 Time is an integer count of control periods, so stamps are exact nanoseconds.
-Parameters come checked from ``params.CellParams``.
+Parameters come checked from ``params.CellParams``. What the cell reports and takes
+are the records of ``cell_records`` (re-exported here); the faults injected into
+its sensors are a ``sensor_faults.SensorFaults``.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,174 +29,34 @@ from sorter_sim.model.core.layout import PARCEL_WIDTH, STRIP_WIDTH
 from sorter_sim.model.core.simulate import Parcel, parcel_array
 from sorter_sim.model.core.stick import GAUGE_CARRY
 from sorter_sim.model.core.wrench import gauss_legendre_01
-from sorter_sim.model.description import PENDING_INDUCTS_MAX, label_problem, shown
+from sorter_sim.model.description import PENDING_INDUCTS_MAX, shown
 from sorter_sim.model.packml import Conditions, PackMLMachine
+from sorter_sim.runtime.cell_records import (
+    CHATTER_PERIOD_RANGE,
+    SENSOR_FAULTS,
+    WATCHDOG_REFUSAL,
+    Handoff,
+    LabelRead,
+    Outcome,
+    ParcelSpec,
+    SensorEdge,
+    SensorFault,
+    WatchdogTrip,
+    check_parcel,
+)
 from sorter_sim.runtime.params import (
-    SPECS,
     CellParams,
     ParamError,
     format_label,
     parcel_half_extents,
 )
+from sorter_sim.runtime.sensor_faults import SensorFaults
 
 EXIT_NAMES = {ck.EV_LEFT: 'left', ck.EV_RIGHT: 'right', ck.EV_STRAIGHT: 'straight'}
 # parcel states for markers, indexed by the kernels' S_* codes
 STATE_NAMES = ('on_belt', 'on_disks', 'sliding', 'diverted', 'straight', 'jammed')
 CHUTE_SENSORS = ('chute_left', 'chute_right')
 N_QUAD = 8
-
-
-@dataclass(frozen=True)
-class SensorEdge:
-    """A sensor became blocked (``blocked`` True: rising edge) or clear, at ``t_ns``."""
-
-    t_ns: int
-    sensor: str
-    blocked: bool
-
-
-@dataclass(frozen=True)
-class LabelRead:
-    """The scanner read ``label`` as the parcel's leading edge crossed the scanner line."""
-
-    t_ns: int
-    parcel_id: int
-    label: str
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """
-    Where a parcel left the cell: exit in left | right | straight | jammed.
-
-    (x, y): the centre of gravity where it crossed the chute entry line or the exit,
-    or where it stopped when jammed [m]; cause says what jammed it.
-    """
-
-    t_ns: int
-    parcel_id: int
-    label: str
-    exit: str
-    x: float
-    y: float
-    cause: str = ''
-
-    @property
-    def jammed(self) -> bool:
-        return self.exit == 'jammed'
-
-
-@dataclass(frozen=True)
-class Handoff:
-    """
-    A parcel that left over the straight exit, with all it takes to go on downstream.
-
-    t_ns: the end of the period it crossed the exit line in (its state is at that time);
-    state: (x, y, φ, vx, vy, ω) in this cell's frame; mode: the kernels' MODE_* (riding
-    the belt, the disks, or sliding); gauge: its stick-gauge warm start; dims: A, B, m.
-    """
-
-    t_ns: int
-    parcel_id: int
-    label: str
-    state: tuple
-    mode: int
-    gauge: tuple
-    dims: tuple
-
-
-@dataclass(frozen=True)
-class WatchdogTrip:
-    """The controller's heartbeat stopped: at t_ns the cell went to its safe state."""
-
-    t_ns: int
-    silent_s: float  # simulated time since the last heartbeat [s]
-
-
-WATCHDOG_REFUSAL = 'refused: the controller watchdog holds the disks down (no heartbeat)'
-
-# faults a test bench injects into a sensor's signal (the physics is untouched): held
-# blocked, held clear, or toggling with a period (a loose connector, a flickering eye)
-SENSOR_FAULTS = ('blocked', 'clear', 'chatter')
-CHATTER_PERIOD_RANGE = (0.002, 10.0)  # s, a toggle per half period
-
-
-@dataclass(frozen=True)
-class SensorFault:
-    """An injected sensor fault (``fault`` in SENSOR_FAULTS); chatter toggles every half_k."""
-
-    fault: str
-    half_k: int = 0
-    k0: int = 0
-
-    def blocked_at(self, k: int) -> bool:
-        """Return what the sensor shows at period ``k``."""
-        if self.fault == 'chatter':
-            return ((k - self.k0) // self.half_k) % 2 == 0
-        return self.fault == 'blocked'
-
-
-@dataclass(frozen=True)
-class ParcelSpec:
-    """
-    Describe a parcel to induct.
-
-    A parcel to induct: A x B [m] (A along the belt at φ = 0), mass m [kg], skew φ0
-    [rad], lateral offset y0 [m] of its centre of gravity, and its label ('' = generated).
-    """
-
-    A: float
-    B: float
-    m: float
-    phi0: float = 0.0
-    y0: float = 0.0
-    label: str = ''
-
-
-def check_parcel(spec: ParcelSpec, belt_width: float) -> ParcelSpec:
-    """
-    Raise ParamError unless the parcel is physical and fits on the belt at induct.
-
-    Parameters
-    ----------
-    spec : ParcelSpec
-        The parcel.
-    belt_width : float
-        The belt's width [m].
-
-    Returns
-    -------
-    ParcelSpec
-        The parcel, its numbers as floats.
-
-    Raises
-    ------
-    ParamError
-        A size, mass, skew or offset out of range, or a bad label, named.
-
-    """
-    limits = {'A': SPECS['parcel_A'], 'B': SPECS['parcel_B'], 'm': SPECS['parcel_m']}
-    for key, ps in limits.items():
-        v = getattr(spec, key)
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and ps.lo <= v <= ps.hi):
-            raise ParamError(
-                f'{key} must be a finite number in [{ps.lo:g}, {ps.hi:g}] {ps.units}, '
-                f'got {shown(v)}'
-            )
-    if not (math.isfinite(spec.phi0) and abs(spec.phi0) <= math.pi / 2):
-        phi = math.degrees(spec.phi0)
-        raise ParamError(f'phi0_deg must be in [-90, 90] deg, got {shown(phi)}')
-    if not math.isfinite(spec.y0):
-        raise ParamError(f'y must be finite, got {shown(spec.y0)}')
-    _, hy = parcel_half_extents(spec.A, spec.B, spec.phi0)
-    if abs(spec.y0) + hy > 0.5 * belt_width + 1e-12:
-        raise ParamError(
-            f'the parcel must fit on the belt: |y| + half its width across the belt '
-            f'= {abs(spec.y0) + hy:.4g} m exceeds belt_width/2 = {0.5 * belt_width:g} m'
-        )
-    if spec.label != '' and label_problem(spec.label) is not None:
-        raise ParamError(label_problem(spec.label))
-    return spec
 
 
 class Cell:
@@ -237,7 +98,7 @@ class Cell:
         self.watchdog_trips = 0
         self.heartbeat_cut = False  # an injected fault: heartbeats no longer reach the cell
         self.heartbeats_lost = 0
-        self.sensor_faults: dict[str, SensorFault] = {}
+        self._sensor_faults = SensorFaults(self.sensor_names)
         self._heartbeat_k: int | None = None
         self._heartbeat_value: int | None = None  # the last counter that fed it
         self.heartbeats_frozen = 0  # heartbeats that repeated the last counter: not fed
@@ -650,8 +511,12 @@ class Cell:
 
     def _shows_blocked(self, s: int, name: str) -> bool:
         """Return what sensor ``s`` shows now: its count, or the fault injected into it."""
-        fault = self.sensor_faults.get(name)
-        return fault.blocked_at(self.k) if fault is not None else bool(self.counts[s] > 0)
+        return self._sensor_faults.shows_blocked(name, self.k, bool(self.counts[s] > 0))
+
+    @property
+    def sensor_faults(self) -> dict[str, SensorFault]:
+        """Return the faults injected into sensors now, by sensor name."""
+        return self._sensor_faults.active
 
     def inject_sensor_fault(self, sensor: str, fault: str, period: float = 0.1) -> list:
         """
@@ -682,49 +547,15 @@ class Cell:
 
         """
         self._packml_dirty = True
-        if sensor not in self.sensor_names:
-            raise ParamError(
-                f'unknown sensor {shown(sensor)}; the cell has {", ".join(self.sensor_names)}'
-            )
-        if fault not in (*SENSOR_FAULTS, 'ok'):
-            raise ParamError(
-                f'sensor fault must be one of {", ".join((*SENSOR_FAULTS, "ok"))}, '
-                f'got {shown(fault)}'
-            )
-        lo, hi = CHATTER_PERIOD_RANGE
-        half_k = 0
-        if fault == 'chatter':
-            if not (isinstance(period, (int, float)) and math.isfinite(period)):
-                raise ParamError(f'chatter period must be a finite number, got {shown(period)}')
-            if not lo <= period <= hi:
-                raise ParamError(f'chatter period must be in [{lo:g}, {hi:g}] s, got {period:g} s')
-            half_k = max(1, round(0.5 * period / self.dt))
+        half_k = self._sensor_faults.check(sensor, fault, period, self.dt)
         before = self.sensor_states()[sensor]
-        if fault == 'ok':
-            self.sensor_faults.pop(sensor, None)
-        else:
-            self.sensor_faults[sensor] = SensorFault(fault, half_k, self.k)
+        self._sensor_faults.set(sensor, fault, half_k, self.k)
         after = self.sensor_states()[sensor]
         return [] if after == before else [SensorEdge(self.t_ns, sensor, after)]
 
     def _faulted_edges(self, events: list, k_from: int) -> list:
         """Replace the faulted sensors' true edges by what they show over (k_from, k]."""
-        if not self.sensor_faults:
-            return events
-        out = [
-            e for e in events if not (isinstance(e, SensorEdge) and e.sensor in self.sensor_faults)
-        ]
-        dt_ns = self.params.control_period_ns
-        for name, f in self.sensor_faults.items():
-            if f.fault != 'chatter':
-                continue
-            # the first toggle after k_from, then every half_k periods up to self.k
-            j = (k_from - f.k0) // f.half_k + 1
-            k = f.k0 + j * f.half_k
-            while k <= self.k:
-                out.append(SensorEdge(k * dt_ns, name, f.blocked_at(k)))
-                k += f.half_k
-        return out
+        return self._sensor_faults.edges(events, k_from, self.k, self.params.control_period_ns)
 
     def cut_heartbeat(self, cut: bool) -> None:
         """
@@ -1182,8 +1013,13 @@ class Cell:
         return int(np.count_nonzero(self.phase == ck.PH_CELL))
 
 
+# the records are part of this module's interface, as before they had their own
 __all__ = [
     'Cell',
+    'CHATTER_PERIOD_RANGE',
+    'CHUTE_SENSORS',
+    'WATCHDOG_REFUSAL',
+    'WatchdogTrip',
     'ParcelSpec',
     'SensorEdge',
     'LabelRead',

@@ -11,7 +11,8 @@ prints it).
 the oscillation is a frictional harmonic oscillator (ω² = 2μg/A) and must keep its
 energy (drift per cycle reported), with the B-spline law it must decay.
 ``reductions`` measures each "leave out what a scene does not need" against the full
-model. Everything returns plain rows for ``bench.py`` to print and for the tests.
+model. Everything returns plain rows for ``bench.py`` to print and for the tests. The
+scenes themselves are ``stiff_scenes`` (re-exported here).
 """
 
 from __future__ import annotations
@@ -23,20 +24,29 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sorter_sim.model.build import BSPLINE_DEFAULT
 from sorter_sim.model.core.common import _contact_surfaces
 from sorter_sim.model.core.layout import Contact
 from sorter_sim.model.core.simulate import (
     G_STANDARD,
-    FrictionLaw,
-    Parcel,
-    Strip,
     parcel_array,
     strip_array,
     surface_velocities,
-    three_zone_strips,
 )
 from sorter_sim.model.core.wrench import clip_scratch, evaluate_surfaces, gauss_legendre_01
+from sorter_sim.studies.stiff_scenes import (
+    DEFAULT_SETTINGS,
+    KNOWN_DEFECTS,
+    SCRAP_S,
+    StiffCase,
+    _law_range,
+    bspline_law,
+    const_law,
+    matrix,
+    sorting_case,
+    two_belt_1d,
+    two_belt_case,
+    two_belt_exact,
+)
 from sorter_sim.studies.workprecision import ParcelCase, Trajectory, timed
 
 CHECKS = """\
@@ -72,406 +82,7 @@ CHECKS = """\
   the finest run: |p2 - p3| <= |p1 - p3| (or both below 1e-12 m).
 """
 
-SCRAP_S = 0.7  # m, the seed's conveyor width s
 MAX_SWITCHES_PER_S = 10  # chatter bound: stick/break switches in any 1 s window
-DEFAULT_SETTINGS = {
-    "accurate": {"rtol": 1e-8, "atol": 1e-10},  # the scenes' defaults
-    "implicit": {"dt": 1e-3},
-    "threshold": {"dt": 1e-4, "v_min": 1e-6},
-}
-
-
-def const_law(mu: float) -> FrictionLaw:
-    """
-    Return the constant friction law of coefficient mu.
-
-    Parameters
-    ----------
-    mu : float
-        The friction coefficient.
-
-    Returns
-    -------
-    FrictionLaw
-        The law.
-
-    """
-    return FrictionLaw("const1", (mu,))
-
-
-def bspline_law() -> FrictionLaw:
-    return FrictionLaw("bspline", tuple(BSPLINE_DEFAULT))
-
-
-def sorting_case(
-    *,
-    v=1.5,
-    alpha_deg=90.0,
-    mu_a=0.6,
-    mu_b=0.6,
-    b=math.inf,
-    A=0.7,
-    B=0.2,
-    m=5.0,
-    phi0_deg=0.0,
-    t_max=3.0,
-    y0=None,
-    rotation=True,
-) -> ParcelCase:
-    """
-    Return a parcel case of the seed's sorting cell.
-
-    The seed's cell (Fig. 6) around the Fig. 9a point, with the leading edge on the
-    a/b border moving with the belt (the start of ``sorter run``) unless y0 is given.
-
-    Parameters
-    ----------
-    v : float
-        The belt speed [m/s].
-    alpha_deg : float
-        The disk angle [deg].
-    mu_a : float
-        μ of the belt before the disks.
-    mu_b : float
-        μ of the disks.
-    b : float
-        The disk field's length [m].
-    A : float
-        The parcel's length [m].
-    B : float
-        The parcel's width [m].
-    m : float
-        Its mass [kg].
-    phi0_deg : float
-        The parcel's skew [deg].
-    t_max : float
-        The longest run [s].
-    y0 : array_like, shape (6,), optional
-        The start's state (default: the leading edge on the a/b border, moving with
-        the belt).
-    rotation : bool
-        The moment of friction forces on.
-
-    Returns
-    -------
-    ParcelCase
-        The case.
-
-    """
-    parcel = Parcel(A, B, m)
-    strips = three_zone_strips(v, math.radians(alpha_deg), b, const_law(mu_a), const_law(mu_b))
-    phi = math.radians(phi0_deg)
-    if y0 is None:
-        y0 = [-parcel.leading_edge_offset(phi), 0.0, phi, v, 0.0, 0.0]
-    return ParcelCase(parcel, strips, np.array(y0, float), (0.0, t_max), SCRAP_S, rotation)
-
-
-def two_belt_case(
-    law: FrictionLaw,
-    t_end: float = 20.0,
-    x0: float = 0.05,
-    phi0_deg: float = 0.0,
-    rotation: bool = True,
-    v: float = 0.37,
-    A: float = 0.4,
-    B: float = 0.3,
-    m: float = 5.0,
-) -> ParcelCase:
-    """
-    Return the Fig. 13 two-belt positioning case.
-
-    Seed Fig. 13: two belts driven against each other (x < 0 at +v, x > 0 at -v),
-    v = 0.37 m/s, 0.4 x 0.3 m, the parcel let go at rest x0 off the centre line.
-
-    Parameters
-    ----------
-    law : FrictionLaw
-        The law of both belts.
-    t_end : float
-        The end [s].
-    x0 : float
-        The start's offset [m].
-    phi0_deg : float
-        The parcel's skew [deg].
-    rotation : bool
-        The moment of friction forces on.
-    v : float
-        The belt speed [m/s].
-    A : float
-        The parcel's length [m].
-    B : float
-        The parcel's width [m].
-    m : float
-        Its mass [kg].
-
-    Returns
-    -------
-    ParcelCase
-        The case.
-
-    """
-    strips = [
-        Strip(-math.inf, 0.0, v, 0.0, law, name="left"),
-        Strip(0.0, math.inf, -v, 0.0, law, name="right"),
-    ]
-    y0 = np.array([x0, 0.0, math.radians(phi0_deg), 0.0, 0.0, 0.0])
-    return ParcelCase(Parcel(A, B, m), strips, y0, (0.0, t_end), math.inf, rotation)
-
-
-def two_belt_exact(case: ParcelCase, mu: float) -> Trajectory:
-    """
-    Return the exact two-belt solution for a constant μ.
-
-    Constant μ, pure translation, |ẋ| < v: m ẍ = -(2μmg/A) x, so x = x0 cos ωt with
-    ω² = 2μg/A (the areas over the two belts differ by 2Bx). Exact while |x| < A/2.
-
-    Parameters
-    ----------
-    case : ParcelCase
-        The case.
-    mu : float
-        The friction coefficient.
-
-    Returns
-    -------
-    Trajectory
-        The exact trajectory.
-
-    """
-    w = math.sqrt(2.0 * mu * G_STANDARD / case.parcel.A)
-    x0 = float(case.y0[0])
-    t0, t1 = case.t_span
-    t = np.linspace(t0, t1, int((t1 - t0) * 200) + 1)
-
-    def exact(tq):
-        tq = np.asarray(tq, float)
-        q = np.zeros((len(tq), 3))
-        dq = np.zeros((len(tq), 3))
-        q[:, 0] = x0 * np.cos(w * tq)
-        dq[:, 0] = -x0 * w * np.sin(w * tq)
-        return q, dq
-
-    q, dq = exact(t)
-    return Trajectory(t, q, dq, [], pieces=[(t0, t1 + 1e-9, exact)])
-
-
-def two_belt_1d(case: ParcelCase, law: FrictionLaw, rtol: float = 1e-13, atol: float = 1e-15):
-    """
-    Solve the two-belt case as an independent 1-D ODE.
-
-    An independent reference for the two-belt case in pure translation: the 1-D ODE
-    ẍ = (g/A)[μ(v - ẋ)(A/2 - x) - μ(v + ẋ)(A/2 + x)] by solve_ivp (DOP853), using only
-    the friction law (no footprint clipping, no wrench code). Valid while |x| < A/2.
-
-    Parameters
-    ----------
-    case : ParcelCase
-        The case.
-    law : FrictionLaw
-        The law of both belts.
-    rtol : float
-        The relative tolerance.
-    atol : float
-        The absolute tolerance.
-
-    """
-    from scipy.integrate import solve_ivp
-
-    from sorter_sim.model.core.friction import mu_kinetic
-
-    v = case.strips[0].vx
-    A = case.parcel.A
-    row = law.row()
-    lid = law.law_id
-
-    def f(t, z):
-        x, xd = z
-        left = mu_kinetic(lid, row, abs(v - xd)) * math.copysign(1.0, v - xd) * (0.5 * A - x)
-        right = mu_kinetic(lid, row, abs(v + xd)) * math.copysign(1.0, v + xd) * (0.5 * A + x)
-        return [xd, G_STANDARD / A * (left - right)]
-
-    sol = solve_ivp(
-        f,
-        case.t_span,
-        [case.y0[0], case.y0[3]],
-        method="DOP853",
-        rtol=rtol,
-        atol=atol,
-        dense_output=True,
-    )
-
-    def dense(tq):
-        z = sol.sol(np.asarray(tq, float))
-        q = np.zeros((z.shape[1], 3))
-        dq = np.zeros((z.shape[1], 3))
-        q[:, 0], dq[:, 0] = z[0], z[1]
-        return q, dq
-
-    q, dq = dense(sol.t)
-    return Trajectory(
-        sol.t, q, dq, [], n_rhs=sol.nfev, pieces=[(sol.t[0], sol.t[-1] + 1e-9, dense)]
-    )
-
-
-# ------------------------------------------------------------------ the matrix
-@dataclass
-class StiffCase:
-    """
-    Hold one scene of the stiff/extreme-case matrix.
-
-    One scene of the matrix, the methods (with settings) it runs, and whether the
-    suite's quick subset includes it.
-    """
-
-    name: str
-    group: str
-    case: ParcelCase
-    methods: dict = field(default_factory=lambda: dict(DEFAULT_SETTINGS))
-    quick: bool = False
-    converge: tuple = ("accurate",)
-    mu_range: tuple = (0.6, 0.6)  # (μ_lo, μ_hi) over every law and speed in the scene
-    note: str = ""
-
-
-def matrix(quick: bool = False) -> list[StiffCase]:
-    """
-    Return the extreme-case matrix. ``quick`` keeps the suite's subset.
-
-    Parameters
-    ----------
-    quick : bool
-        Coarse grids, for tests and quick looks.
-
-    Returns
-    -------
-    list of StiffCase
-        The cases.
-
-    """
-    cases: list[StiffCase] = []
-
-    def add(name, group, case, quick_=False, **kw):
-        cases.append(StiffCase(name, group, case, quick=quick_, **kw))
-
-    thr = "threshold"
-    for v_min in (1e-3, 1e-5, 1e-7, 1e-9):
-        add(
-            f"v_min={v_min:g}",
-            "threshold speed v_min (Fig. 9a, RK4 h = 1e-4 s)",
-            sorting_case(),
-            v_min in (1e-3, 1e-9),
-            methods={thr: {"dt": 1e-4, "v_min": v_min}},
-            converge=(),
-        )
-    for mu in (0.0, 0.3, 0.6, 1.5):
-        add(
-            f"mu={mu:g}",
-            "friction coefficient μa = μb",
-            sorting_case(mu_a=mu, mu_b=mu),
-            mu in (0.0, 1.5),
-            mu_range=(mu, mu),
-        )
-    add(
-        "mu_b>>mu_a",
-        "friction coefficient μa = μb",
-        sorting_case(mu_a=0.05, mu_b=1.5),
-        True,
-        mu_range=(0.05, 1.5),
-        note="μa = 0.05, μb = 1.5",
-    )
-    add(
-        "mu_b<<mu_a",
-        "friction coefficient μa = μb",
-        sorting_case(mu_a=1.5, mu_b=0.05),
-        True,
-        mu_range=(0.05, 1.5),
-        note="μa = 1.5, μb = 0.05",
-    )
-    for alpha in (0.0, 1.0, 89.9, 90.0):
-        add(
-            f"alpha={alpha:g}",
-            "disk angle α",
-            sorting_case(alpha_deg=alpha),
-            alpha in (0.0, 1.0, 89.9),
-        )
-    for b, label in ((0.0, "0"), (0.05, "0.05 (<< A = 0.7)"), (math.inf, "inf")):
-        add(
-            f"b={label.split()[0]}",
-            "disk field width b",
-            sorting_case(b=b),
-            b in (0.0, 0.05),
-            note=f"b = {label} m",
-            converge=("accurate", "implicit") if b == math.inf else ("accurate",),
-        )
-    add("long_thin", "parcel shape", sorting_case(A=1.2, B=0.05), True, note="1.2 x 0.05 m")
-    add("square", "parcel shape", sorting_case(A=0.4, B=0.4), note="0.4 x 0.4 m")
-    for phi in (0.0, 45.0, 90.0):
-        add(f"phi0={phi:g}", "initial angle φ0", sorting_case(phi0_deg=phi), phi in (45.0, 90.0))
-    for v in (0.05, 0.5, 3.0):
-        add(
-            f"v={v:g}",
-            "belt speed v",
-            sorting_case(v=v, t_max=30.0 if v < 0.1 else 4.0),
-            v in (0.5, 3.0),
-        )
-    add(
-        "resting_on_disks",
-        "parcel at rest on the disks",
-        sorting_case(y0=[1.0, 0.0, 0.0, 0.0, 1.5, 0.0]),
-        True,
-        note="wholly on the disks, moving with them (stuck) from t = 0",
-    )
-    add(
-        "placed_on_disks",
-        "parcel at rest on the disks",
-        sorting_case(y0=[1.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
-        True,
-        note="at rest in the frame, wholly on the running disks",
-    )
-    add(
-        "all_stopped",
-        "parcel at rest on the disks",
-        sorting_case(v=0.0, y0=[0.1, 0.0, 0.3, 0.0, 0.0, 0.0], t_max=2.0),
-        True,
-        note="belt and disks stopped, parcel at rest across the a/b border",
-    )
-    # the fixed-step method from 1e-6 s to 1e-2 s, over a window around the break-away
-    # (the leading edge 0.33 m into the disk field: break-away ~13 ms later)
-    near_break = [0.33 - 0.35, 0.0, 0.0, 1.5, 0.0, 0.0]
-    for dt, span in ((1e-6, 0.05), (1e-5, 1.5), (1e-4, 1.5), (1e-3, 1.5), (1e-2, 1.5)):
-        add(
-            f"implicit_h={dt:g}",
-            "implicit method step h",
-            sorting_case(y0=near_break, t_max=span),
-            dt in (1e-6, 1e-2),
-            methods={"implicit": {"dt": dt}},
-            converge=(),
-            note=f"{span:g} s from 13 ms before the break-away",
-        )
-    two_belt_methods = dict(DEFAULT_SETTINGS, threshold={"dt": 1e-3, "v_min": 1e-6})
-    add(
-        "two_belt_5s",
-        "two-belt positioning (Fig. 13)",
-        two_belt_case(const_law(0.6), 5.0),
-        True,
-        methods=two_belt_methods,
-        converge=("accurate", "implicit"),
-        note="μ = 0.6, rotation on, 5 s",
-    )
-    add(
-        "two_belt_20s_bspline",
-        "two-belt positioning (Fig. 13)",
-        two_belt_case(bspline_law(), 20.0),
-        methods=two_belt_methods,
-        converge=("accurate", "implicit"),
-        mu_range=_law_range(bspline_law()),
-        note="B-spline law, rotation on, 20 s",
-    )
-    return [c for c in cases if c.quick or not quick]
-
-
-# (case, method) -> what goes wrong; the report and the tests keep these as failures
-KNOWN_DEFECTS: dict[tuple[str, str], str] = {}
 
 
 # ------------------------------------------------------------------ checks
@@ -569,6 +180,80 @@ def _max_in_window(times: np.ndarray, window: float = 1.0) -> int:
     return int(np.max(j - np.arange(len(times))))
 
 
+def _energy_checks(case, vel, traj: Trajectory, S: float, tol_v: float, mu_hi: float) -> list:
+    """
+    Return the two energy checks of ``CHECKS`` on one run's trajectory.
+
+    energy_single_surface: T_k does not grow between records over surface k alone;
+    energy_surface_power: each surface's friction power in its own frame is <= 0.
+    ``vel`` holds the surface velocities, S the largest speed, tol_v the run's
+    velocity tolerance and mu_hi the largest μ.
+    """
+    parcel = case.parcel
+    arr = strip_array(case.strips)
+    g = G_STANDARD
+    V = traj.dq[:, :2]
+    checks = []
+    # (i) single-surface intervals; (ii) surface power at records
+    nodes, weights = gauss_legendre_01(case.n_quad)
+    par = parcel_array(parcel, case.rotation, case.n_quad)
+    nsurf = len(vel)
+    areas = np.zeros((len(traj.t), nsurf))
+    clip = clip_scratch()
+    for i in range(len(traj.t)):
+        st = np.concatenate([traj.q[i], traj.dq[i]])
+        _contact_surfaces(st, arr, par, clip, areas[i])
+    worst_rise = 0.0
+    for k in range(nsurf):
+        alone = (areas[:, k] > 0) & (np.sum(areas > 0, axis=1) == 1)
+        Tk = (
+            0.5 * parcel.m * np.sum((V - vel[k]) ** 2, axis=1)
+            + 0.5 * parcel.inertia * traj.dq[:, 2] ** 2
+        )
+        both = alone[:-1] & alone[1:]
+        if np.any(both):
+            worst_rise = max(worst_rise, float(np.max(np.diff(Tk)[both])))
+    tol_e = parcel.m * max(S, 1e-3) * tol_v
+    checks.append(
+        Check(
+            "energy_single_surface",
+            worst_rise <= tol_e,
+            worst_rise,
+            f"largest rise of T_k between records on one surface {worst_rise:.1e} J "
+            f"(tol {tol_e:.1e} J)",
+        )
+    )
+    idx = np.unique(np.linspace(0, len(traj.t) - 1, min(400, len(traj.t))).astype(int))
+    kin = np.empty((nsurf, 3))
+    stat = np.empty((nsurf, 2))
+    area = np.empty(nsurf)
+    slip = np.empty(nsurf)
+    worst_p = -math.inf
+    for i in idx:
+        st = np.concatenate([traj.q[i], traj.dq[i]])
+        evaluate_surfaces(st, Contact(arr, par, nodes, weights), -2, False, kin, stat, area, slip)
+        for k in range(nsurf):
+            if area[k] > 0:
+                p_k = (
+                    (st[3] - vel[k, 0]) * kin[k, 0]
+                    + (st[4] - vel[k, 1]) * kin[k, 1]
+                    + st[5] * kin[k, 2]
+                )
+                worst_p = max(worst_p, p_k)
+    worst_p = max(worst_p, 0.0) if worst_p > -math.inf else 0.0
+    tol_p = 1e-9 * max(mu_hi, 1e-3) * parcel.m * g * max(S, 1e-3)
+    checks.append(
+        Check(
+            "energy_surface_power",
+            worst_p <= tol_p,
+            worst_p,
+            f"max friction power of a surface in its own frame {worst_p:.1e} W "
+            f"(tol {tol_p:.1e} W)",
+        )
+    )
+    return checks
+
+
 def check_run(sc: StiffCase, method: str, settings: dict, res, traj: Trajectory) -> list:
     """
     Return the checks of the module docstring on one run.
@@ -658,63 +343,7 @@ def check_run(sc: StiffCase, method: str, settings: dict, res, traj: Trajectory)
             f"bound {bound:.3g} m/s",
         )
     )
-    # energy (i): single-surface intervals; (ii) surface power at records
-    nodes, weights = gauss_legendre_01(case.n_quad)
-    par = parcel_array(parcel, case.rotation, case.n_quad)
-    nsurf = len(vel)
-    areas = np.zeros((len(traj.t), nsurf))
-    clip = clip_scratch()
-    for i in range(len(traj.t)):
-        st = np.concatenate([traj.q[i], traj.dq[i]])
-        _contact_surfaces(st, arr, par, clip, areas[i])
-    worst_rise = 0.0
-    for k in range(nsurf):
-        alone = (areas[:, k] > 0) & (np.sum(areas > 0, axis=1) == 1)
-        Tk = (
-            0.5 * parcel.m * np.sum((V - vel[k]) ** 2, axis=1)
-            + 0.5 * parcel.inertia * traj.dq[:, 2] ** 2
-        )
-        both = alone[:-1] & alone[1:]
-        if np.any(both):
-            worst_rise = max(worst_rise, float(np.max(np.diff(Tk)[both])))
-    tol_e = parcel.m * max(S, 1e-3) * tol_v
-    checks.append(
-        Check(
-            "energy_single_surface",
-            worst_rise <= tol_e,
-            worst_rise,
-            f"largest rise of T_k between records on one surface {worst_rise:.1e} J "
-            f"(tol {tol_e:.1e} J)",
-        )
-    )
-    idx = np.unique(np.linspace(0, len(traj.t) - 1, min(400, len(traj.t))).astype(int))
-    kin = np.empty((nsurf, 3))
-    stat = np.empty((nsurf, 2))
-    area = np.empty(nsurf)
-    slip = np.empty(nsurf)
-    worst_p = -math.inf
-    for i in idx:
-        st = np.concatenate([traj.q[i], traj.dq[i]])
-        evaluate_surfaces(st, Contact(arr, par, nodes, weights), -2, False, kin, stat, area, slip)
-        for k in range(nsurf):
-            if area[k] > 0:
-                p_k = (
-                    (st[3] - vel[k, 0]) * kin[k, 0]
-                    + (st[4] - vel[k, 1]) * kin[k, 1]
-                    + st[5] * kin[k, 2]
-                )
-                worst_p = max(worst_p, p_k)
-    worst_p = max(worst_p, 0.0) if worst_p > -math.inf else 0.0
-    tol_p = 1e-9 * max(mu_hi, 1e-3) * parcel.m * g * max(S, 1e-3)
-    checks.append(
-        Check(
-            "energy_surface_power",
-            worst_p <= tol_p,
-            worst_p,
-            f"max friction power of a surface in its own frame {worst_p:.1e} W "
-            f"(tol {tol_p:.1e} W)",
-        )
-    )
+    checks += _energy_checks(case, vel, traj, S, tol_v, mu_hi)
     sw = _switch_times(traj)
     n_win = _max_in_window(sw)
     span = traj.t_end - traj.t[0]
@@ -964,15 +593,6 @@ def two_belt_long(
     return out
 
 
-def _law_range(law: FrictionLaw, vmax: float = 3.0) -> tuple:
-    from sorter_sim.model.core.friction import mu_kinetic, mu_static
-
-    row = law.row()
-    mus = [mu_kinetic(law.law_id, row, s) for s in np.linspace(1e-9, vmax, 3001)]
-    mus.append(mu_static(law.law_id, row))
-    return float(min(mus)), float(max(mus))
-
-
 def _oscillation_figures(case: ParcelCase, traj: Trajectory, mu: float) -> dict:
     """
     Return the oscillation figures of a two-belt run.
@@ -1004,3 +624,25 @@ def _oscillation_figures(case: ParcelCase, traj: Trajectory, mu: float) -> dict:
         "phi_end_deg": float(math.degrees(traj.q[-1, 2])),
         "phi_max_deg": float(math.degrees(np.abs(traj.q[:, 2]).max())),
     }
+
+
+# the scenes are part of this module's interface (``sx.*``), as before they had their own
+__all__ = [
+    "CHECKS",
+    "DEFAULT_SETTINGS",
+    "KNOWN_DEFECTS",
+    "LONG_CASES",
+    "SCRAP_S",
+    "StiffCase",
+    "bspline_law",
+    "check_run",
+    "const_law",
+    "convergence_check",
+    "matrix",
+    "run_case",
+    "sorting_case",
+    "two_belt_1d",
+    "two_belt_case",
+    "two_belt_exact",
+    "two_belt_long",
+]

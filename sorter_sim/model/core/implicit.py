@@ -356,6 +356,231 @@ def _stuck_step(y, h, vsx, vsy, y_out):
 
 
 @njit(cache=True)
+def _stick_test(y, h, mode, contact, exact, points, xis, twist, loads, scratch):
+    """
+    Test the implicit step for a stick: the surface it stays on, or -1 and a Newton start W.
+
+    Stuck to a surface s, the step's momentum balance M (v_s - W0)/h = W_s + Σ_o W_o
+    (o the other surfaces) needs the wrench W_s within its patch's limit set
+    (``_stick_load`` <= 1). Tested first on the surface stuck to, then on any other
+    the step could bring to rest (the change of momentum within its static limits and
+    the most the others can pull, ``pull``). Where a stick fails off a kink, the
+    Newton start W moves to about where the surplus takes the parcel in one step.
+    ``points`` is (npt, pts, clip): the step's point set and a footprint scratch;
+    ``twist`` is (W, W0, mass); ``loads`` holds the wrenches at W (updated);
+    ``scratch`` is (st, others, pull): a state, the other surfaces' wrenches and each
+    surface's most pull.
+
+    Returns
+    -------
+    (int, int)
+        The surface stuck to (-1: none) and the friction evaluations taken.
+
+    """
+    npt, pts, clip = points
+    W, W0, mass = twist
+    st, others, pull = scratch
+    kin, stat, area, slip = loads.kin, loads.stat, loads.area, loads.slip
+    strips = contact.strips
+    m = mass[0]
+    rot = contact.parcel[P_ROTATION] > 0.5
+    nsurf = xis.shape[0]
+    n_eval = 0
+    pull_f = 0.0
+    pull_t = 0.0
+    for s in range(nsurf):
+        pull_f += pull[s, 0]
+        pull_t += pull[s, 1]
+    # --- stick: first the surface stuck to, then any other the step could bring to rest
+    for s in range(-1, nsurf):
+        cand = mode if s < 0 else s
+        if cand < 0 or (s >= 0 and s == mode) or area[cand] <= 0.0:
+            continue
+        vsx, vsy = surface_velocity(strips, cand)
+        dfx = m * (vsx - W0[0]) / h
+        dfy = m * (vsy - W0[1]) / h
+        dt_ = -mass[2] * W0[2] / h
+        if cand != mode:
+            # necessary: the change of momentum to rest on cand within cand's static
+            # limits and the most the others can pull
+            reach_f = stat[cand, 0] + pull_f - pull[cand, 0]
+            reach_t = stat[cand, 1] + pull_t - pull[cand, 1]
+            if math.hypot(dfx, dfy) > reach_f * (1.0 + 1e-9) or (
+                rot and abs(dt_) > reach_t * (1.0 + 1e-9)
+            ):
+                continue
+            st[3] = vsx
+            st[4] = vsy
+            st[5] = 0.0
+            _step_wrenches(
+                exact,
+                st,
+                cand,
+                False,
+                contact,
+                npt,
+                pts,
+                Loads(others, stat, area, slip),
+            )
+            n_eval += 1
+            src = others
+        else:
+            src = kin
+        wfx = dfx
+        wfy = dfy
+        wt = dt_
+        for o in range(nsurf):
+            if o != cand:
+                wfx -= src[o, 0]
+                wfy -= src[o, 1]
+                wt -= src[o, 2]
+        load = _stick_load(y, contact, cand, wfx, wfy, wt, stat, xis[cand], clip)
+        if load <= 1.0:
+            return cand, n_eval
+        # no stick: the surplus the patch cannot hold moves the parcel off its velocity
+        # by about b in one step. A start within 1 % of that from the velocity sits on
+        # the kink of its friction (just stuck, or a slip just broken away), where
+        # Newton's steps shrink to nothing: start at b instead (Newton and its line
+        # search take it from there).
+        excess = 1.0 - 1.0 / load if load < math.inf else 1.0
+        bx = -excess * h * wfx / m
+        by = -excess * h * wfy / m
+        bt = -excess * h * wt / mass[2] if rot else 0.0
+        off = m * ((W[0] - vsx) ** 2 + (W[1] - vsy) ** 2) + mass[2] * W[2] ** 2
+        if cand == mode or off < 1e-4 * (m * (bx * bx + by * by) + mass[2] * bt * bt):
+            W[0] = vsx + bx
+            W[1] = vsy + by
+            W[2] = bt
+            _set_twist(st, W)
+            _step_wrenches(
+                exact,
+                st,
+                -1,
+                False,
+                contact,
+                npt,
+                pts,
+                Loads(kin, stat, area, slip),
+            )
+            n_eval += 1
+    return -1, n_eval
+
+
+@njit(cache=True)
+def _newton_slide(twist, h, contact, exact, fresh, model, st, loads, f_all):
+    """
+    Newton on the step's objective f(W) = ½ (W-W0)ᵀM(W-W0)/h + D(W), from W (updated).
+
+    A backtracking (Armijo) line search on f, or on the gradient where the gain is
+    below f's rounding; stops where the (M/h)-strong convexity bound h |∇f|_M⁻¹ falls
+    below SOLVE_RATIO of how far W has moved, or the gradient reaches the wrenches'
+    rounding (``f_all`` the static limits' sum). ``twist`` is (W, W0, mass); ``model``
+    is (npt, pts, hess), hess the Hessian model of D: the point set's own, or for the
+    exact wrench a BFGS-updated model refreshed where ``fresh`` or where it misled a
+    step. ``loads`` and ``st`` are scratch.
+
+    Returns
+    -------
+    int
+        The friction evaluations taken.
+
+    """
+    W, W0, mass = twist
+    npt, pts, hess = model
+    kin = loads.kin
+    strips, parcel = contact.strips, contact.parcel
+    m = mass[0]
+    rot = parcel[P_ROTATION] > 0.5
+    nvar = 3 if rot else 2
+    nsurf = kin.shape[0]
+    n_eval = 0
+    grad = np.empty(3)
+    gt = np.empty(3)
+    Wt = np.empty(3)
+    H = np.empty((3, 3))
+    _set_twist(st, W)
+    if exact and fresh:
+        dissipation_hessian(st, strips, parcel, hess)
+    fval = _implicit_objective(W, W0, mass, h, kin, nsurf, strips, rot, grad)
+    # f is (M/h)-strongly convex: |W - W+|_M <= h |grad|_M⁻¹ whatever the Hessian
+    # model. The solve stops where that bound falls below SOLVE_RATIO of how far W has
+    # moved from its start (from a guess: about the step's local error), or the
+    # gradient reaches the wrenches' rounding. Not relative to the first gradient: a
+    # start at a kink (a slip just broken away) has the whole jump of a surface's
+    # friction in it. Not on f's rounding: at small h the velocity errors a gain below
+    # it leaves add up over the many steps.
+    g_round = 1e-12 * f_all / math.sqrt(m)
+    w_start = W.copy()
+    sv = np.empty(3)
+    yv = np.empty(3)
+    hs = np.empty(3)
+    for _ in range(60):
+        gnorm = 0.0
+        moved = 0.0
+        for i in range(nvar):
+            gnorm += grad[i] ** 2 / mass[i]
+            moved += mass[i] * (W[i] - w_start[i]) ** 2
+        gnorm = math.sqrt(gnorm)
+        moved = math.sqrt(moved)
+        if not exact:
+            _set_twist(st, W)
+            _points_hessian(st, npt, pts, hess)
+        for i in range(3):
+            for j in range(3):
+                H[i, j] = hess[i, j]
+            H[i, i] += mass[i] / h
+        dW = _solve_spd(H, grad, nvar)
+        if h * gnorm <= SOLVE_RATIO * moved or gnorm <= g_round:
+            # the model's Newton step costs nothing, and as H >= M/h it moves W by at
+            # most the bound that was just accepted
+            for i in range(nvar):
+                W[i] += dW[i]
+            break
+        f_noise = F_NOISE * abs(fval)
+        slope = grad[0] * dW[0] + grad[1] * dW[1] + grad[2] * dW[2]
+        step = 1.0
+        ok = False
+        ft = fval
+        for _ls in range(30):
+            for i in range(3):
+                Wt[i] = W[i] + step * dW[i]
+            _set_twist(st, Wt)
+            _step_wrenches(exact, st, -1, False, contact, npt, pts, loads)
+            n_eval += 1
+            ft = _implicit_objective(Wt, W0, mass, h, kin, nsurf, strips, rot, gt)
+            if -step * slope > f_noise:
+                ok = ft <= fval + 1e-4 * step * slope
+            else:
+                # a gain below f's rounding (small steps h): the gradient decides
+                gt_norm = 0.0
+                for i in range(nvar):
+                    gt_norm += gt[i] ** 2 / mass[i]
+                ok = math.sqrt(gt_norm) <= (1.0 - 0.5 * step) * gnorm
+            if ok:
+                break
+            step *= 0.5
+        if not ok:
+            if fresh:
+                break  # no descent left at rounding level
+            # the carried model misled the step: start again from a fresh one
+            _set_twist(st, W)
+            dissipation_hessian(st, strips, parcel, hess)
+            fresh = True
+            continue
+        if exact:
+            # D's part of the accepted step's secant pair
+            for i in range(nvar):
+                sv[i] = Wt[i] - W[i]
+                yv[i] = gt[i] - grad[i] - mass[i] * sv[i] / h
+            _bfgs_update(hess, sv, yv, nvar, hs)
+        for i in range(3):
+            W[i] = Wt[i]
+            grad[i] = gt[i]
+        fval = ft
+    return n_eval
+
+
+@njit(cache=True)
 def implicit_step(
     y,
     h,
@@ -424,7 +649,6 @@ def implicit_step(
     nsurf = xis.shape[0]
     mass = np.array([m, m, parcel[P_INERTIA] if rot else 1.0])
     W0 = np.array([y[3], y[4], y[5] if rot else 0.0])
-    nvar = 3 if rot else 2
     kin = np.empty((nsurf, 3))
     others = np.empty((nsurf, 3))
     stat = np.empty((nsurf, 2))
@@ -459,186 +683,29 @@ def implicit_step(
         if not rot:
             W[2] = 0.0
     _set_twist(st, W)
-    _step_wrenches(exact, st, mode, True, contact, npt, pts, Loads(kin, stat, area, slip))
+    loads = Loads(kin, stat, area, slip)
+    _step_wrenches(exact, st, mode, True, contact, npt, pts, loads)
     n_eval = 1
     if exact:
         for s in range(nsurf):
             pull[s, 0] = _scaled(mu_ratio, stat[s, 0])
             pull[s, 1] = _scaled(mu_ratio, stat[s, 1])
-    pull_f = 0.0
-    pull_t = 0.0
     f_all = 0.0
     for s in range(nsurf):
-        pull_f += pull[s, 0]
-        pull_t += pull[s, 1]
         f_all += stat[s, 0]
     # --- stick: first the surface stuck to, then any other the step could bring to rest
-    for s in range(-1, nsurf):
-        cand = mode if s < 0 else s
-        if cand < 0 or (s >= 0 and s == mode) or area[cand] <= 0.0:
-            continue
-        vsx, vsy = surface_velocity(strips, cand)
-        dfx = m * (vsx - W0[0]) / h
-        dfy = m * (vsy - W0[1]) / h
-        dt_ = -mass[2] * W0[2] / h
-        if cand != mode:
-            # necessary: the change of momentum to rest on cand within cand's static
-            # limits and the most the others can pull
-            reach_f = stat[cand, 0] + pull_f - pull[cand, 0]
-            reach_t = stat[cand, 1] + pull_t - pull[cand, 1]
-            if math.hypot(dfx, dfy) > reach_f * (1.0 + 1e-9) or (
-                rot and abs(dt_) > reach_t * (1.0 + 1e-9)
-            ):
-                continue
-            st[3] = vsx
-            st[4] = vsy
-            st[5] = 0.0
-            _step_wrenches(
-                exact,
-                st,
-                cand,
-                False,
-                contact,
-                npt,
-                pts,
-                Loads(others, stat, area, slip),
-            )
-            n_eval += 1
-            src = others
-        else:
-            src = kin
-        wfx = dfx
-        wfy = dfy
-        wt = dt_
-        for o in range(nsurf):
-            if o != cand:
-                wfx -= src[o, 0]
-                wfy -= src[o, 1]
-                wt -= src[o, 2]
-        load = _stick_load(y, contact, cand, wfx, wfy, wt, stat, xis[cand], clip)
-        if load <= 1.0:
-            _stuck_step(y, h, vsx, vsy, y_out)
-            return cand, n_eval
-        # no stick: the surplus the patch cannot hold moves the parcel off its velocity
-        # by about b in one step. A start within 1 % of that from the velocity sits on
-        # the kink of its friction (just stuck, or a slip just broken away), where
-        # Newton's steps shrink to nothing: start at b instead (Newton and its line
-        # search take it from there).
-        excess = 1.0 - 1.0 / load if load < math.inf else 1.0
-        bx = -excess * h * wfx / m
-        by = -excess * h * wfy / m
-        bt = -excess * h * wt / mass[2] if rot else 0.0
-        off = m * ((W[0] - vsx) ** 2 + (W[1] - vsy) ** 2) + mass[2] * W[2] ** 2
-        if cand == mode or off < 1e-4 * (m * (bx * bx + by * by) + mass[2] * bt * bt):
-            W[0] = vsx + bx
-            W[1] = vsy + by
-            W[2] = bt
-            _set_twist(st, W)
-            _step_wrenches(
-                exact,
-                st,
-                -1,
-                False,
-                contact,
-                npt,
-                pts,
-                Loads(kin, stat, area, slip),
-            )
-            n_eval += 1
+    twist = (W, W0, mass)
+    stuck, n_stick = _stick_test(
+        y, h, mode, contact, exact, (npt, pts, clip), xis, twist, loads, (st, others, pull)
+    )
+    n_eval += n_stick
+    if stuck >= 0:
+        vsx, vsy = surface_velocity(strips, stuck)
+        _stuck_step(y, h, vsx, vsy, y_out)
+        return stuck, n_eval
     # --- slide: Newton on f with a backtracking line search
-    grad = np.empty(3)
-    gt = np.empty(3)
-    Wt = np.empty(3)
-    H = np.empty((3, 3))
-    _set_twist(st, W)
     fresh = fresh or mode >= 0 or not exact  # the point set's Hessian is exact anyway
-    if exact and fresh:
-        dissipation_hessian(st, strips, parcel, hess)
-    fval = _implicit_objective(W, W0, mass, h, kin, nsurf, strips, rot, grad)
-    # f is (M/h)-strongly convex: |W - W+|_M <= h |grad|_M⁻¹ whatever the Hessian
-    # model. The solve stops where that bound falls below SOLVE_RATIO of how far W has
-    # moved from its start (from a guess: about the step's local error), or the
-    # gradient reaches the wrenches' rounding. Not relative to the first gradient: a
-    # start at a kink (a slip just broken away) has the whole jump of a surface's
-    # friction in it. Not on f's rounding: at small h the velocity errors a gain below
-    # it leaves add up over the many steps.
-    g_round = 1e-12 * f_all / math.sqrt(m)
-    w_start = W.copy()
-    sv = np.empty(3)
-    yv = np.empty(3)
-    hs = np.empty(3)
-    for _ in range(60):
-        gnorm = 0.0
-        moved = 0.0
-        for i in range(nvar):
-            gnorm += grad[i] ** 2 / mass[i]
-            moved += mass[i] * (W[i] - w_start[i]) ** 2
-        gnorm = math.sqrt(gnorm)
-        moved = math.sqrt(moved)
-        if not exact:
-            _set_twist(st, W)
-            _points_hessian(st, npt, pts, hess)
-        for i in range(3):
-            for j in range(3):
-                H[i, j] = hess[i, j]
-            H[i, i] += mass[i] / h
-        dW = _solve_spd(H, grad, nvar)
-        if h * gnorm <= SOLVE_RATIO * moved or gnorm <= g_round:
-            # the model's Newton step costs nothing, and as H >= M/h it moves W by at
-            # most the bound that was just accepted
-            for i in range(nvar):
-                W[i] += dW[i]
-            break
-        f_noise = F_NOISE * abs(fval)
-        slope = grad[0] * dW[0] + grad[1] * dW[1] + grad[2] * dW[2]
-        step = 1.0
-        ok = False
-        ft = fval
-        for _ls in range(30):
-            for i in range(3):
-                Wt[i] = W[i] + step * dW[i]
-            _set_twist(st, Wt)
-            _step_wrenches(
-                exact,
-                st,
-                -1,
-                False,
-                contact,
-                npt,
-                pts,
-                Loads(kin, stat, area, slip),
-            )
-            n_eval += 1
-            ft = _implicit_objective(Wt, W0, mass, h, kin, nsurf, strips, rot, gt)
-            if -step * slope > f_noise:
-                ok = ft <= fval + 1e-4 * step * slope
-            else:
-                # a gain below f's rounding (small steps h): the gradient decides
-                gt_norm = 0.0
-                for i in range(nvar):
-                    gt_norm += gt[i] ** 2 / mass[i]
-                ok = math.sqrt(gt_norm) <= (1.0 - 0.5 * step) * gnorm
-            if ok:
-                break
-            step *= 0.5
-        if not ok:
-            if fresh:
-                break  # no descent left at rounding level
-            # the carried model misled the step: start again from a fresh one
-            _set_twist(st, W)
-            dissipation_hessian(st, strips, parcel, hess)
-            fresh = True
-            continue
-        if exact:
-            # D's part of the accepted step's secant pair
-            for i in range(nvar):
-                sv[i] = Wt[i] - W[i]
-                yv[i] = gt[i] - grad[i] - mass[i] * sv[i] / h
-            _bfgs_update(hess, sv, yv, nvar, hs)
-        for i in range(3):
-            W[i] = Wt[i]
-            grad[i] = gt[i]
-        fval = ft
+    n_eval += _newton_slide(twist, h, contact, exact, fresh, (npt, pts, hess), st, loads, f_all)
     y_out[3] = W[0]
     y_out[4] = W[1]
     y_out[5] = W[2] if rot else 0.0

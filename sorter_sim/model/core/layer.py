@@ -216,6 +216,49 @@ _layer_step = make_step(_layer_stage, allocates=True)
 
 
 @njit(cache=True)
+def _layer_step_crosses(u, un, y_target, parcel, borders, yv, ev0, ev1):
+    """
+    Whether a layer step from pose ``u`` to ``un`` crosses the scrap line or a strip border.
+
+    The scrap line is y = ``y_target`` for the centre of gravity; a border crossing is a
+    sign change of a corner's offset from a strip border (``_corner_event_values``), where
+    the area functions have kinks. Either ends the layer: the full model locates it.
+    ``yv``, ``ev0`` and ``ev1`` are scratch.
+    """
+    crossed = y_target < math.inf and u[1] < y_target <= un[1]
+    if borders.shape[0] > 0 and not crossed:
+        yv[:3] = u[:3]
+        _corner_event_values(yv, parcel, borders, ev0)
+        yv[:3] = un[:3]
+        _corner_event_values(yv, parcel, borders, ev1)
+        crossed = sign_change(ev0, ev1) >= 0
+    return crossed
+
+
+@njit(cache=True)
+def _slip_zero_fraction(u, K, h, us):
+    """
+    Return the fraction θ of a layer step at which the slip s reaches zero (a stick nears).
+
+    Bisection to 1e-15 on the step's 4th-order dense output, s(t + θ h) = 0; returns the
+    upper end, so that the step redone to θ h ends at or just past the zero. ``us`` is
+    scratch.
+    """
+    lo = 0.0
+    hi = 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        dense(u, K, h, mid, us)
+        if us[3] <= 0.0:
+            hi = mid
+        else:
+            lo = mid
+        if hi - lo < 1e-15:
+            break
+    return hi
+
+
+@njit(cache=True)
 def _layer(
     y,
     t,
@@ -302,13 +345,7 @@ def _layer(
             un[j] = us[j]
         counters[0] += 6
         en = error_norm(err, u, un, rtol, atol, atol_scale, rtol_ref)
-        crossed = y_target < math.inf and u[1] < y_target <= un[1]
-        if nb > 0 and not crossed:
-            yv[:3] = u[:3]
-            _corner_event_values(yv, parcel, borders, ev0)
-            yv[:3] = un[:3]
-            _corner_event_values(yv, parcel, borders, ev1)
-            crossed = sign_change(ev0, ev1) >= 0
+        crossed = _layer_step_crosses(u, un, y_target, parcel, borders, yv, ev0, ev1)
         if not math.isfinite(en) or en > 1.0 or crossed:
             h *= 0.25 if (crossed or not math.isfinite(en)) else step_factor(en)
             if crossed and h < 1e-9:
@@ -319,18 +356,7 @@ def _layer(
             # the slip reaches zero inside the step (an approach to a stick): end the
             # layer there, at the zero of the step's interpolant, by redoing the step
             # to it so that no stage sees past it
-            lo = 0.0
-            hi = 1.0
-            for _ in range(60):
-                mid = 0.5 * (lo + hi)
-                dense(u, K, h, mid, us)
-                if us[3] <= 0.0:
-                    hi = mid
-                else:
-                    lo = mid
-                if hi - lo < 1e-15:
-                    break
-            h *= hi
+            h *= _slip_zero_fraction(u, K, h, us)
             _layer_step(u, h, K, stage, us, err)
             for j in range(4):
                 un[j] = us[j]

@@ -546,7 +546,7 @@ def initial_mode(y0, arr: np.ndarray, parcel_arr: np.ndarray, velocities=None) -
     return MODE_SLIDE
 
 
-def simulate(
+def simulate(  # noqa: PLR0913 — keyword-only options with defaults, as scipy.integrate.solve_ivp
     parcel: Parcel,
     strips: list[Strip],
     y0,
@@ -627,86 +627,87 @@ def simulate(
     if method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
     check_kernel_cache()
-    y0 = np.asarray(y0, dtype=float)
-    if y0.shape != (6,) or not np.all(np.isfinite(y0)):
-        raise ValueError(f"y0 must be 6 finite numbers (x, y, phi, vx, vy, omega), got {y0!r}")
-    t0 = _finite("t_span[0]", t_span[0])
-    t_end = _finite("t_span[1]", t_span[1], t0, math.inf, lo_open=True)
-    rtol = _finite("rtol", rtol, 1e-14, 1e-1)
-    atol = _finite("atol", atol, 1e-16, 1.0)
-    dt = _finite("dt", dt, 0.0, 1.0, lo_open=True)
-    v_min = _finite("v_min", v_min, 0.0, 1.0, lo_open=True)
-    y_target = _finite("y_target", y_target, allow_inf=True)
-    n_quad = int(_finite("n_quad", n_quad, 2, 24))
+    y0, t0, t_end, tol = _checked(y0, t_span, rtol, atol, dt, v_min, y_target, n_quad)
     if not strips:
         raise ValueError("strips must not be empty")
     arr = strip_array(strips)
     if not rotation and y0[5] != 0.0:
         raise ValueError("y0[5] (omega) must be 0 when rotation is off")
-    par = parcel_array(parcel, rotation, n_quad, reductions, g, stick)
-    nodes, weights = gauss_legendre_01(n_quad)
-    borders = strip_borders(strips)
-    ts = np.empty(max_points)
-    ys = np.empty((max_points, 6))
-    ms = np.empty(max_points, dtype=np.int64)
-    ev = np.empty((4096, 3))
-    counters = np.zeros(N_COUNTERS, dtype=np.int64)
-    y_target_eff = y_target if math.isfinite(y_target) else math.inf
+    par = parcel_array(parcel, rotation, int(tol["n_quad"]), reductions, g, stick)
+    nodes, weights = gauss_legendre_01(int(tol["n_quad"]))
+    trail = Trail(np.empty(max_points), np.empty((max_points, 6)), np.empty(max_points, np.int64))
+    log = Log(np.empty((4096, 3)), np.zeros(N_COUNTERS, dtype=np.int64))
     velocities = surface_velocities(arr)
+    contact = Contact(arr, par, nodes, weights)
     mode0 = initial_mode(y0, arr, par, velocities)
+    borders = strip_borders(strips)
     wall = time.perf_counter()
+    status = _run_kernel(
+        method, (y0, mode0), (t0, t_end), contact, tol, borders, h_max, reductions, trail, log
+    )
+    wall = time.perf_counter() - wall
+    used = _reductions_used(method, strips, reductions, rotation, log.counters)
+    return _result(method, status, trail, log, wall, used, velocities)
+
+
+def _checked(y0, t_span, rtol, atol, dt, v_min, y_target, n_quad):
+    """
+    Check ``simulate``'s numeric arguments against their ranges (``ValueError`` if not).
+
+    Returns
+    -------
+    (ndarray, float, float, dict)
+        y0 as 6 floats, t0, t_end, and rtol, atol, dt, v_min, y_target (inf where not
+        finite) and n_quad by name.
+
+    """
+    y0 = np.asarray(y0, dtype=float)
+    if y0.shape != (6,) or not np.all(np.isfinite(y0)):
+        raise ValueError(f"y0 must be 6 finite numbers (x, y, phi, vx, vy, omega), got {y0!r}")
+    t0 = _finite("t_span[0]", t_span[0])
+    t_end = _finite("t_span[1]", t_span[1], t0, math.inf, lo_open=True)
+    tol = {
+        "rtol": _finite("rtol", rtol, 1e-14, 1e-1),
+        "atol": _finite("atol", atol, 1e-16, 1.0),
+        "dt": _finite("dt", dt, 0.0, 1.0, lo_open=True),
+        "v_min": _finite("v_min", v_min, 0.0, 1.0, lo_open=True),
+    }
+    y_target = _finite("y_target", y_target, allow_inf=True)
+    tol["n_quad"] = int(_finite("n_quad", n_quad, 2, 24))
+    tol["y_target"] = y_target if math.isfinite(y_target) else math.inf
+    return y0, t0, t_end, tol
+
+
+def _run_kernel(method, start, span, contact, tol, borders, h_max, reductions, trail, log):
+    """Run ``method``'s kernel from ``start`` (y0, mode0) over ``span`` (t0, t_end): its status."""
+    y0, mode0 = start
+    t0, t_end = span
     if method == "accurate":
-        status, t_fin, mode = run_accurate(
-            y0,
-            mode0,
-            t0,
-            t_end,
-            Slide(
-                y_target_eff,
-                Contact(arr, par, nodes, weights),
-                n_surf_of(arr),
-                borders,
-                rtol,
-                atol,
-                h_max,
-            ),
-            reductions,
-            Trail(ts, ys, ms),
-            Log(ev, counters),
-            np.zeros(GAUGE_CARRY),
+        slide = Slide(
+            tol["y_target"],
+            contact,
+            n_surf_of(contact.strips),
+            borders,
+            tol["rtol"],
+            tol["atol"],
+            h_max,
+        )
+        status, _, _ = run_accurate(
+            y0, mode0, t0, t_end, slide, reductions, trail, log, np.zeros(GAUGE_CARRY)
         )
     elif method == "implicit":
-        status, t_fin, mode = run_implicit(
-            y0,
-            mode0,
-            t0,
-            t_end,
-            y_target_eff,
-            Contact(arr, par, nodes, weights),
-            dt,
-            Trail(ts, ys, ms),
-            Log(ev, counters),
+        status, _, _ = run_implicit(
+            y0, mode0, t0, t_end, tol["y_target"], contact, tol["dt"], trail, log
         )
     else:
-        status, t_fin, mode = run_threshold(
-            y0,
-            mode0,
-            t0,
-            t_end,
-            y_target_eff,
-            Contact(arr, par, nodes, weights),
-            dt,
-            v_min,
-            Trail(ts, ys, ms),
-            Log(ev, counters),
+        status, _, _ = run_threshold(
+            y0, mode0, t0, t_end, tol["y_target"], contact, tol["dt"], tol["v_min"], trail, log
         )
-    wall = time.perf_counter() - wall
-    n_out = min(int(counters[N_OUT]), max_points)
-    n_ev = min(int(counters[N_EVENTS]), ev.shape[0])
-    events = [
-        (float(ev[i, 0]), EVENT_NAMES.get(int(ev[i, 1]), str(int(ev[i, 1]))), int(ev[i, 2]))
-        for i in range(n_ev)
-    ]
+    return status
+
+
+def _reductions_used(method, strips, reductions, rotation, counters) -> list[str]:
+    """Return the reductions of the full model a run used (``SimResult.reductions``)."""
     used = []
     if reductions and all(s.law.is_constant for s in strips):
         used.append("closed_form_wrench")
@@ -719,10 +720,23 @@ def simulate(
         used.append("zone_c_absent")
     if "a" in names and "b" not in names:
         used.append("zone_b_absent")
+    return used
+
+
+def _result(method, status, trail, log, wall, used, velocities) -> SimResult:
+    """Return the ``SimResult`` of a run from its trail and its log."""
+    counters, ev = log.counters, log.ev
+    max_points = trail.ts.shape[0]
+    n_out = min(int(counters[N_OUT]), max_points)
+    n_ev = min(int(counters[N_EVENTS]), ev.shape[0])
+    events = [
+        (float(ev[i, 0]), EVENT_NAMES.get(int(ev[i, 1]), str(int(ev[i, 1]))), int(ev[i, 2]))
+        for i in range(n_ev)
+    ]
     return SimResult(
-        t=ts[:n_out].copy(),
-        y=ys[:n_out].copy(),
-        mode=ms[:n_out].copy(),
+        t=trail.ts[:n_out].copy(),
+        y=trail.ys[:n_out].copy(),
+        mode=trail.ms[:n_out].copy(),
         events=events,
         status=int(status),
         message=STATUS_MESSAGES[int(status)]

@@ -33,6 +33,14 @@ import math
 import numpy as np
 from numba import njit
 
+from sorter_sim.model.core.dissipation import add_slip_curvature, dissipation_hessian
+from sorter_sim.model.core.footprint import (
+    CLIP_ROWS,
+    clip_scratch,
+    place_box,
+    strip_part,
+    surface_area,
+)
 from sorter_sim.model.core.friction import (
     law_is_constant,
     law_smooth_reach,
@@ -41,11 +49,8 @@ from sorter_sim.model.core.friction import (
 )
 from sorter_sim.model.core.geometry import (
     MAX_VERTS,
-    box_corners,
-    clip_to_strip,
     distance_integrals,
     max_radius,
-    polygon_area_centroid,
 )
 from sorter_sim.model.core.jit import borrowing
 from sorter_sim.model.core.layout import (
@@ -60,8 +65,6 @@ from sorter_sim.model.core.layout import (
     S_VX,
     S_VY,
     S_WEIGHT,
-    S_XHI,
-    S_XLO,
 )
 
 # |φ̇| R / |u_q| below which the exact formula is not used: it loses about
@@ -129,8 +132,11 @@ def closed_form_applies(poly, n, qx, qy, ux_q, uy_q, omega):
     return abs(omega) * max_radius(poly, n, qx, qy) >= SMALL_ROTATION * math.hypot(ux_q, uy_q)
 
 
+# The innermost kernels take scalars: a bundle would be packed and unpacked at each of
+# the millions of calls a run makes, and these compile without reference counting
+# (``jit.borrowing``), which a tuple of arrays would bring back.
 @borrowing
-def strip_wrench_closed(poly, n, area, qx, qy, gx, gy, ux_q, uy_q, omega, mu, pressure):
+def strip_wrench_closed(poly, n, area, qx, qy, gx, gy, ux_q, uy_q, omega, mu, pressure):  # noqa: PLR0913 — innermost borrowing kernel: scalars, no bundle to build per call (jit.py)
     """
     Exact friction wrench (Fx, Fy, T about g) of a constant-μ strip part.
 
@@ -228,7 +234,48 @@ def smooth_order(eps):
 
 
 @borrowing
-def strip_wrench_quad(
+def _fan_centre(qx, qy, ux_q, uy_q, omega, radius):
+    """
+    Return the centre (cx, cy) of a strip part's quadrature fan, and whether it is the ICR.
+
+    The instantaneous centre of the relative motion, c = q + ẑ×u_q/φ̇, where it lies
+    within 4 ``radius`` of the centroid q (the kink of û is then near or inside the
+    part, and the Duffy fan from c takes it at s = 0); else the centroid itself.
+    """
+    if omega != 0.0:
+        icx = qx - uy_q / omega
+        icy = qy + ux_q / omega
+        if math.hypot(icx - qx, icy - qy) < 4.0 * radius:
+            return icx, icy, True
+    return qx, qy, False
+
+
+@borrowing
+def _smooth_points(ux_q, uy_q, omega, radius, constant, law, params, nq):
+    """
+    Gauss points per direction enough where μ is analytic over a patch's speeds.
+
+    ε = |φ̇| R / min(|u_q|, reach) (``smooth_order``), reach the law's smooth reach
+    (``law_smooth_reach``, inf for a constant μ), where that reach is at least 3|φ̇|R;
+    ``nq`` (no fewer points to take) otherwise.
+    """
+    uq = math.hypot(ux_q, uy_q)
+    ns = nq
+    spread = abs(omega) * radius  # the patch's speeds lie within uq ± spread
+    reach = math.inf if constant else law_smooth_reach(law, params, uq)
+    if uq > 0.0 and spread == 0.0:
+        # a patch in pure translation rubs at one speed: μ is one number over it,
+        # whatever the law (a law not analysed for smoothness has reach 0, and
+        # 0/0 below would be no order at all)
+        ns = smooth_order(0.0)
+    elif uq > 0.0 and reach >= 3.0 * spread:
+        # analytic over a disk ~min(uq, reach)/|φ̇| wide: ε measured against both
+        ns = smooth_order(spread / min(uq, reach))
+    return ns
+
+
+@borrowing
+def strip_wrench_quad(  # noqa: PLR0913 — innermost borrowing kernel: scalars, no bundle to build per call (jit.py)
     poly,
     n,
     qx,
@@ -301,16 +348,7 @@ def strip_wrench_quad(
 
     """
     radius = max_radius(poly, n, qx, qy)
-    cx = qx
-    cy = qy
-    at_icr = False
-    if omega != 0.0:
-        icx = qx - uy_q / omega
-        icy = qy + ux_q / omega
-        if math.hypot(icx - qx, icy - qy) < 4.0 * radius:
-            cx = icx
-            cy = icy
-            at_icr = True
+    cx, cy, at_icr = _fan_centre(qx, qy, ux_q, uy_q, omega, radius)
     fx = 0.0
     fy = 0.0
     t = 0.0
@@ -318,18 +356,7 @@ def strip_wrench_quad(
     constant = mu_fixed >= 0.0 or law_is_constant(law)
     mu_const = mu_fixed if mu_fixed >= 0.0 else mu_kinetic(law, params, 1.0)
     if adapt and not at_icr:
-        uq = math.hypot(ux_q, uy_q)
-        ns = nq
-        spread = abs(omega) * radius  # the patch's speeds lie within uq ± spread
-        reach = math.inf if constant else law_smooth_reach(law, params, uq)
-        if uq > 0.0 and spread == 0.0:
-            # a patch in pure translation rubs at one speed: μ is one number over it,
-            # whatever the law (a law not analysed for smoothness has reach 0, and
-            # 0/0 below would be no order at all)
-            ns = smooth_order(0.0)
-        elif uq > 0.0 and reach >= 3.0 * spread:
-            # analytic over a disk ~min(uq, reach)/|φ̇| wide: ε measured against both
-            ns = smooth_order(spread / min(uq, reach))
+        ns = _smooth_points(ux_q, uy_q, omega, radius, constant, law, params, nq)
         if ns < nq:
             nq = ns
             nodes = _GL_NODES[ns, :ns]
@@ -386,215 +413,7 @@ def strip_wrench_quad(
 
 
 @borrowing
-def add_slip_curvature(out, c, ux, uy, sp, rx, ry):
-    """
-    Add the Hessian of c |u| in the twist, c Jᵀ(I - ûûᵀ)J / |u|, to the upper triangle of ``out``.
-
-    u = (ux, uy) the rubbing velocity of a point at r = (rx, ry) from g, sp = |u| > 0,
-    J = [[1, 0, -r_y], [0, 1, r_x]] its velocity's derivative in the twist. As
-    I - ûûᵀ = n nᵀ with n = ẑ × û, it is one rank-one term.
-
-    Parameters
-    ----------
-    out : ndarray
-        Receives the result.
-    c : float
-        The coefficient of |u|.
-    ux : float
-        The twist's velocity x [m/s].
-    uy : float
-        The twist's velocity y [m/s].
-    sp : float
-        The rubbing speed |u| [m/s].
-    rx : float
-        The point's offset x from the centre of gravity [m].
-    ry : float
-        Its offset y [m].
-
-    """
-    c = c / sp
-    jn0 = -uy / sp
-    jn1 = ux / sp
-    jn2 = -ry * jn0 + rx * jn1
-    out[0, 0] += c * jn0 * jn0
-    out[0, 1] += c * jn0 * jn1
-    out[0, 2] += c * jn0 * jn2
-    out[1, 1] += c * jn1 * jn1
-    out[1, 2] += c * jn1 * jn2
-    out[2, 2] += c * jn2 * jn2
-
-
-@njit(cache=True)
-def dissipation_hessian(state, strips, parcel, out):
-    """
-    Model the Hessian of the dissipation rate D at the twist in ``state`` (3 x 3, ``out``).
-
-    D(V, φ̇) = Σ ∫ μ p |u| dA over the footprint, so ∇²D = Σ ∫ μ p Jᵀ(I - ûûᵀ)J / |u| dA
-    with J = [[1, 0, -r_y], [0, 1, r_x]], r = p - g (moments about g), μ taken as
-    constant at each point's speed. Summed here at the centroid of each triangle of
-    the centroid fan: the integrand's 1/|u| is integrable but not smooth at an
-    instantaneous centre inside a patch, so this is a model that sets the scale and
-    shape of Newton's steps (the implicit step's), not a value.
-
-    Parameters
-    ----------
-    state : ndarray, shape (6,)
-        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
-    strips : ndarray, shape (n, STRIP_WIDTH)
-        The strips (``layout``).
-    parcel : ndarray, shape (PARCEL_WIDTH,)
-        The parcel's row (``layout``).
-    out : ndarray
-        Receives the result.
-
-    """
-    x = state[0]
-    y = state[1]
-    half_a = parcel[P_HALF_A]
-    half_b = parcel[P_HALF_B]
-    p_unit = parcel[P_MASS] * parcel[P_GRAV] / (4.0 * half_a * half_b)
-    corners = np.empty((4, 2))
-    poly = np.empty((MAX_VERTS, 2))
-    work = np.empty((MAX_VERTS, 2))
-    box_corners(x, y, state[2], half_a, half_b, corners)
-    out[:, :] = 0.0
-    for k in range(strips.shape[0]):
-        w = strips[k, S_WEIGHT]
-        if w <= 0.0:
-            continue
-        n = clip_to_strip(corners, strips[k, S_XLO], strips[k, S_XHI], poly, work)
-        a, qx, qy = polygon_area_centroid(poly, n)
-        if a <= 0.0:
-            continue
-        law = int(strips[k, S_LAW])
-        params = strips[k, S_PARAMS:]
-        for i in range(n):
-            j = (i + 1) % n
-            e0x = poly[i, 0] - qx
-            e0y = poly[i, 1] - qy
-            dex = poly[j, 0] - poly[i, 0]
-            dey = poly[j, 1] - poly[i, 1]
-            det = e0x * dey - e0y * dex
-            rx = qx + (e0x + e0x + dex) / 3.0 - x
-            ry = qy + (e0y + e0y + dey) / 3.0 - y
-            ux = state[3] - state[5] * ry - strips[k, S_VX]
-            uy = state[4] + state[5] * rx - strips[k, S_VY]
-            sp = max(math.sqrt(ux * ux + uy * uy), 1e-300)
-            c = 0.5 * det * p_unit * w * mu_kinetic(law, params, sp)
-            add_slip_curvature(out, c, ux, uy, sp, rx, ry)
-    out[1, 0] = out[0, 1]
-    out[2, 0] = out[0, 2]
-    out[2, 1] = out[1, 2]
-
-
-# A footprint scratch (``clip_scratch``): rows [0, 4) the box's corners, then the part
-# clipped to a strip (rows [4, 4 + MAX_VERTS)) and the clipper's work polygon. The
-# kernels that take one allocate nothing, so they compile without reference counting
-# (``jit.borrowing``); a caller makes one for many evaluations.
-CLIP_ROWS = 4 + 2 * MAX_VERTS
-
-
-@njit(cache=True)
-def clip_scratch():
-    """Return a footprint scratch for the kernels that take ``clip``."""
-    return np.empty((CLIP_ROWS, 2))
-
-
-@borrowing
-def place_box(state, parcel, clip):
-    """
-    Put the corners of the parcel in ``state`` into ``clip``; returns their x range.
-
-    Parameters
-    ----------
-    state : ndarray, shape (6,)
-        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
-    parcel : ndarray, shape (PARCEL_WIDTH,)
-        The parcel's row (``layout``).
-    clip : ndarray
-        A footprint scratch (``wrench.clip_scratch``).
-
-    Returns
-    -------
-    (float, float)
-        The corners' x range [m].
-
-    """
-    c = clip[0:4]
-    box_corners(state[0], state[1], state[2], parcel[P_HALF_A], parcel[P_HALF_B], c)
-    return min(c[0, 0], c[1, 0], c[2, 0], c[3, 0]), max(c[0, 0], c[1, 0], c[2, 0], c[3, 0])
-
-
-@borrowing
-def strip_part(clip, strips, k, xmin, xmax):
-    """
-    Clip the box placed in ``clip`` to strip k, into clip[PART]; returns (n, area, qx, qy).
-
-    A strip of no load share, or beyond the box's x range [xmin, xmax], has none (n = 0,
-    area 0) for the price of two comparisons.
-
-    Parameters
-    ----------
-    clip : ndarray
-        A footprint scratch (``wrench.clip_scratch``).
-    strips : ndarray, shape (n, STRIP_WIDTH)
-        The strips (``layout``).
-    k : int
-        The strip's row.
-    xmin : float
-        The box's x range, low [m].
-    xmax : float
-        High [m].
-
-    Returns
-    -------
-    (int, float, float, float)
-        The part's vertex count, area [m²] and centroid [m].
-
-    """
-    if strips[k, S_WEIGHT] <= 0.0 or strips[k, S_XHI] <= xmin or strips[k, S_XLO] >= xmax:
-        return 0, 0.0, 0.0, 0.0
-    poly = clip[4 : 4 + MAX_VERTS]
-    n = clip_to_strip(clip[0:4], strips[k, S_XLO], strips[k, S_XHI], poly, clip[4 + MAX_VERTS :])
-    a, qx, qy = polygon_area_centroid(poly, n)
-    return n, a, qx, qy
-
-
-@borrowing
-def surface_area(state, strips, parcel, surf, clip):
-    """
-    Footprint area over surface ``surf``, weighted by load share [m²] (clipping only).
-
-    Parameters
-    ----------
-    state : ndarray, shape (6,)
-        The state: x, y [m], φ [rad], ẋ, ẏ [m/s], φ̇ [rad/s] of the centre of gravity.
-    strips : ndarray, shape (n, STRIP_WIDTH)
-        The strips (``layout``).
-    parcel : ndarray, shape (PARCEL_WIDTH,)
-        The parcel's row (``layout``).
-    surf : int
-        A surface id.
-    clip : ndarray
-        A footprint scratch (``wrench.clip_scratch``).
-
-    Returns
-    -------
-    float
-        The area [m²].
-
-    """
-    xmin, xmax = place_box(state, parcel, clip)
-    total = 0.0
-    for k in range(strips.shape[0]):
-        if int(strips[k, S_SURF]) == surf:
-            _, a, _, _ = strip_part(clip, strips, k, xmin, xmax)
-            total += strips[k, S_WEIGHT] * a
-    return total
-
-
-@borrowing
-def strip_part_wrench(
+def strip_part_wrench(  # noqa: PLR0913 — innermost borrowing kernel: scalars, no bundle to build per call (jit.py)
     poly,
     n,
     a,
@@ -981,6 +800,8 @@ def rest_surface_wrench(state, contact, surf, ux, uy, om, kinetic, clip):
 
 __all__ = [
     "CLIP_ROWS",
+    "add_slip_curvature",
+    "dissipation_hessian",
     "clip_scratch",
     "evaluate_surfaces",
     "kinetic_wrench",
