@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from sorter_sim.model.core.cell_layout import (
@@ -106,6 +105,7 @@ from sorter_sim.model.core.cell_sensing import (
     sensor_blocked,
     upstream_room,
 )
+from sorter_sim.model.core.jit import borrowing, kernel_step
 from sorter_sim.model.core.layout import (
     P_HALF_A,
     P_HALF_B,
@@ -222,7 +222,7 @@ def toward(value, target, max_step):
     return max(target, value - max_step)
 
 
-@njit(cache=True)
+@kernel_step
 def _period_strips(k, v, act, setup, strips, memo):
     """
     Make the strips of period k (belt speed ``v``); say if they are the last period's.
@@ -256,7 +256,7 @@ def _period_strips(k, v, act, setup, strips, memo):
     return n_strips, disk_sid, same_strips
 
 
-@njit(cache=True)
+@kernel_step
 def _parcel_jams(k, h, parcels, work, log, n_ev):
     """
     Jam the parcels that overlap after the period (separating-axis test, ``rectangles_overlap``).
@@ -296,7 +296,7 @@ def _parcel_jams(k, h, parcels, work, log, n_ev):
     return n_ev
 
 
-@njit(cache=True)
+@kernel_step
 def _wall_jams(k, cfg, parcels, work, log, n_ev):
     """Jam the parcels that cross a side wall outside the chute openings (EV_JAM, b = -1)."""
     state, phase, par = parcels.state, parcels.phase, parcels.par
@@ -316,28 +316,50 @@ def _wall_jams(k, cfg, parcels, work, log, n_ev):
     return n_ev
 
 
-@njit(cache=True)
+@kernel_step
+def _time_order(tau, n, order):
+    """
+    Write into ``order[:n]`` the indices of ``tau[:n]`` in increasing order, ties in index order.
+
+    The order of ``np.argsort(tau[:n], kind='mergesort')`` (stable, NaN last), found by
+    insertion, in place: a period has a few sensor transitions, and the period's steps
+    allocate nothing (``_advance_periods``).
+    """
+    for q in range(n):
+        x = tau[q]
+        r = q
+        while r > 0:
+            y = tau[order[r - 1]]
+            if not (x < y or (y != y and x == x)):
+                break
+            order[r] = order[r - 1]
+            r -= 1
+        order[r] = q
+
+
+@kernel_step
 def _sensor_edges(k, ntr, work, counts, log, n_ev):
     """
-    Emit the sensors' edges over the period: the OR over parcels of their transitions.
+    Emit the sensors' edges over the period: the OR over parcels of its ``ntr`` transitions.
 
     A sensor rises (EV_EDGE, b = 1) when its first parcel blocks it and falls (b = 0)
-    when its last clears it; ``counts`` holds how many parcels block each.
+    when its last clears it, in time order; ``counts`` holds how many parcels block each.
     """
-    if ntr > 0:
-        order = np.argsort(work.tr_tau[:ntr], kind='mergesort')
-        for q in order:
-            s = work.tr_s[q]
-            before = counts[s]
-            counts[s] += work.tr_d[q]
-            if before == 0 and counts[s] > 0:
-                n_ev = _emit(log.ev_i, log.ev_f, n_ev, k, EV_EDGE, s, 1, work.tr_tau[q], 0.0, 0.0)
-            elif before > 0 and counts[s] == 0:
-                n_ev = _emit(log.ev_i, log.ev_f, n_ev, k, EV_EDGE, s, 0, work.tr_tau[q], 0.0, 0.0)
+    order = work.order
+    _time_order(work.tr_tau, ntr, order)
+    for r in range(ntr):
+        q = order[r]
+        s = work.tr_s[q]
+        before = counts[s]
+        counts[s] += work.tr_d[q]
+        if before == 0 and counts[s] > 0:
+            n_ev = _emit(log.ev_i, log.ev_f, n_ev, k, EV_EDGE, s, 1, work.tr_tau[q], 0.0, 0.0)
+        elif before > 0 and counts[s] == 0:
+            n_ev = _emit(log.ev_i, log.ev_f, n_ev, k, EV_EDGE, s, 0, work.tr_tau[q], 0.0, 0.0)
     return n_ev
 
 
-@njit(cache=True)
+@kernel_step
 def _actuators_end(act, cfg):
     """Slew α and the stroke to their end-of-period positions at their rates; record the rates."""
     h = cfg[C_DT]
@@ -349,6 +371,48 @@ def _actuators_end(act, cfg):
     act[A_STROKE_DOT] = (st_end - st_start) / h
     act[A_ALPHA] = a_end
     act[A_STROKE] = st_end
+
+
+@borrowing
+def _advance_periods(n_periods, k0, setup, act, parcels, sensors, log, memo, work):
+    """
+    Advance the cell period by period: ``advance_cell``'s loop, with its scratch ``work``.
+
+    Each period: its strips, every parcel's motion, events and sensor transitions, the
+    jams, the sensors' edges, the actuators. Compiled without reference counting
+    (``jit.borrowing``) and its steps inlined (``jit.kernel_step``): the loop runs for
+    every slot of the cell every period, and counting the references of the thirty
+    arrays its steps receive cost more than a parcel's closed-form motion;
+    ``advance_cell`` holds the arrays.
+
+    Returns
+    -------
+    (int, int)
+        The periods done and the events written.
+
+    """
+    cfg, stats = setup.cfg, memo.stats
+    ev_rows, reserve = log.ev_i.shape[0], log.reserve
+    n_ev = 0
+    done = 0
+    for step in range(n_periods):
+        k = k0 + step
+        v = cfg[C_V] if act[A_BELT_ON] > 0.5 else 0.0
+        n_strips, disk_sid, same_strips = _period_strips(k, v, act, setup, work.strips, memo)
+        period = (v, n_strips, disk_sid, same_strips)
+        ntr = 0
+        for i in range(parcels.state.shape[0]):
+            n_ev, ntr = _advance_parcel(
+                i, k, period, setup, parcels, sensors, work, stats, log, (n_ev, ntr)
+            )
+        n_ev = _parcel_jams(k, cfg[C_DT], parcels, work, log, n_ev)
+        n_ev = _wall_jams(k, cfg, parcels, work, log, n_ev)
+        n_ev = _sensor_edges(k, ntr, work, sensors.counts, log, n_ev)
+        _actuators_end(act, cfg)
+        done += 1
+        if ev_rows - n_ev < reserve:
+            break
+    return done, n_ev
 
 
 @njit(cache=True)
@@ -392,29 +456,9 @@ def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
         The periods done and the events written.
 
     """
-    cfg = setup.cfg
     n_sens = sensors.eye_x.shape[0] + 2
-    work = _cell_work(parcels.par, n_sens, cfg[C_B])
-    n_ev = 0
-    done = 0
-    for step in range(n_periods):
-        k = k0 + step
-        v = cfg[C_V] if act[A_BELT_ON] > 0.5 else 0.0
-        n_strips, disk_sid, same_strips = _period_strips(k, v, act, setup, work.strips, memo)
-        period = (v, n_strips, disk_sid, same_strips)
-        ntr = 0
-        for i in range(parcels.state.shape[0]):
-            n_ev, ntr = _advance_parcel(
-                i, k, period, setup, parcels, sensors, work, memo.stats, log, (n_ev, ntr)
-            )
-        n_ev = _parcel_jams(k, cfg[C_DT], parcels, work, log, n_ev)
-        n_ev = _wall_jams(k, cfg, parcels, work, log, n_ev)
-        n_ev = _sensor_edges(k, ntr, work, sensors.counts, log, n_ev)
-        _actuators_end(act, cfg)
-        done += 1
-        if log.ev_i.shape[0] - n_ev < log.reserve:
-            break
-    return done, n_ev
+    work = _cell_work(parcels.par, n_sens, setup.cfg[C_B])
+    return _advance_periods(n_periods, k0, setup, act, parcels, sensors, log, memo, work)
 
 
 # what the runtime and the tests use of the cell (``ck.*``): the layout and the sensing

@@ -70,6 +70,7 @@ from sorter_sim.model.core.common import (
     n_surf_of,
 )
 from sorter_sim.model.core.implicit import run_implicit
+from sorter_sim.model.core.jit import borrowing, kernel_step
 from sorter_sim.model.core.layout import (
     P_HALF_A,
     P_HALF_B,
@@ -86,7 +87,7 @@ from sorter_sim.model.core.layout import (
 _INT_BUF = 512  # integrator output rows per parcel-period (a few are used)
 
 
-@njit(cache=True)
+@borrowing
 def _emit(ev_i, ev_f, n_ev, k, kind, a, b, tau, x, y):
     if n_ev < ev_i.shape[0]:
         ev_i[n_ev, 0] = k
@@ -103,8 +104,8 @@ def _emit(ev_i, ev_f, n_ev, k, kind, a, b, tau, x, y):
 # period's strips and the disk field's borders, the integrator's trail, events and
 # counters, a parcel's state at the period's start and end, which parcels moved rigidly
 # with the belt, each footprint's circumradius [m] (bounding its extent in any
-# direction), this period's sensor transitions (tau, sensor, +1/-1), and the sensor
-# conditions
+# direction), this period's sensor transitions (tau, sensor, +1/-1) and their time
+# order, and the sensor conditions
 CellWork = namedtuple(
     'CellWork',
     [
@@ -122,6 +123,7 @@ CellWork = namedtuple(
         'tr_tau',
         'tr_s',
         'tr_d',
+        'order',
         'conditions',
     ],
 )
@@ -152,11 +154,12 @@ def _cell_work(par, n_sens, b):
         np.empty(cap * n_sens),
         np.empty(cap * n_sens, dtype=np.int64),
         np.empty(cap * n_sens, dtype=np.int64),
+        np.empty(cap * n_sens, dtype=np.int64),
         Conditions(np.empty(4, np.int64), np.empty(4), np.empty(4)),
     )
 
 
-@njit(cache=True)
+@kernel_step
 def _held_mode(m, s0, v, strips, disk_sid):
     """
     Return the mode a parcel in mode ``m`` starts the period in: a stick holds to its velocity.
@@ -180,7 +183,7 @@ def _held_mode(m, s0, v, strips, disk_sid):
     return m
 
 
-@njit(cache=True)
+@kernel_step
 def _closed_form(i, m, period, setup, parcels, work, stats):
     """
     Move parcel i over the period in closed form where no force can break its stick.
@@ -241,7 +244,7 @@ def _closed_form(i, m, period, setup, parcels, work, stats):
     return rigid[i] or on_disks_alone, hx0
 
 
-@njit(cache=True)
+@kernel_step
 def _integrate(i, k, m, n_strips, setup, parcels, work, stats, log, n_ev):
     """
     Integrate parcel i over the period with the model core, from mode ``m``.
@@ -295,7 +298,7 @@ def _integrate(i, k, m, n_strips, setup, parcels, work, stats, log, n_ev):
     return PH_CELL, n_ev
 
 
-@njit(cache=True)
+@kernel_step
 def _jam(q, other, k, tau, parcels, log, n_ev):
     """Jam parcel q where it stands (EV_JAM, b = ``other``: a slot, -1 wall, -2 integration)."""
     state = parcels.state
@@ -307,7 +310,7 @@ def _jam(q, other, k, tau, parcels, log, n_ev):
     return _emit(log.ev_i, log.ev_f, n_ev, k, EV_JAM, q, other, tau, state[q, 0], state[q, 1])
 
 
-@njit(cache=True)
+@kernel_step
 def _on_cell_events(i, k, hx0, cfg, parcels, s0, s1, log, n_ev):
     """
     Detect the scanner and the ways off the cell of parcel i, moved from ``s0`` to ``s1``.
@@ -358,7 +361,7 @@ def _on_cell_events(i, k, hx0, cfg, parcels, s0, s1, log, n_ev):
     return new_phase, tau_phase, n_ev
 
 
-@njit(cache=True)
+@kernel_step
 def _on_chute(i, k, ph, cfg, parcels, s0, s1, log, n_ev):
     """
     Parcel i on a chute: it slides off at the velocity it left with until it is gone.
@@ -388,7 +391,7 @@ def _on_chute(i, k, ph, cfg, parcels, s0, s1, log, n_ev):
     return ph, -1.0, n_ev
 
 
-@njit(cache=True)
+@kernel_step
 def _sensor_changes(i, hx0, moved, cfg, parcels, sensors, work, ntr):
     """
     Parcel i's own sensor transitions over the period, each at its located time.
@@ -437,7 +440,7 @@ def _sensor_changes(i, hx0, moved, cfg, parcels, sensors, work, ntr):
     return ntr
 
 
-@njit(cache=True)
+@kernel_step
 def _advance_parcel(i, k, period, setup, parcels, sensors, work, stats, log, counts):
     """
     Advance parcel i over period k: closed form or integrated, then its events and sensors.
