@@ -54,6 +54,7 @@ from sorter_sim.model.core.common import (
 )
 from sorter_sim.model.core.dopri import dense, error_norm, step_factor
 from sorter_sim.model.core.friction import mu_kinetic, mu_static
+from sorter_sim.model.core.jit import allocating
 from sorter_sim.model.core.layout import (
     MODE_SLIDE,
     P_GRAV,
@@ -472,7 +473,7 @@ def _land_event(y, t, kind, surf, contact, stick_tol, sig, ev, n_ev):
 # The automaton's loop keeps its dozen counters and its step size in locals that numba
 # holds in registers; its phases (stick, settling, a step, its events) are the steps
 # above, and what is left is their order.
-@njit(cache=True)
+@allocating
 def run_accurate(y0, mode0, t0, t_end, slide, reductions, trail, log, xi):  # noqa: PLR0915 — the loop's state stays local
     """
     Integrate the hybrid model from y0 by event-located Dormand-Prince steps.

@@ -43,6 +43,7 @@ from sorter_sim.model.core.cell_layout import (
     S_STRAIGHT,
 )
 from sorter_sim.model.core.geometry import box_corners
+from sorter_sim.model.core.jit import allocating
 from sorter_sim.model.core.layout import P_HALF_A, P_HALF_B
 
 
@@ -313,7 +314,7 @@ def rectangles_overlap(s1, ha1, hb1, s2, ha2, hb2, tol):
     return True
 
 
-@njit(cache=True)
+@allocating
 def crosses_wall(s, half_a, half_b, half_w, open_lo, open_hi, tol):
     """
     Return True if the footprint reaches past a side wall y = ±w/2 beside the chute openings.

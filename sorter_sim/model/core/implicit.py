@@ -47,6 +47,7 @@ from sorter_sim.model.core.geometry import (
     clip_to_strip,
     polygon_area_centroid,
 )
+from sorter_sim.model.core.jit import allocating
 from sorter_sim.model.core.layout import (
     MODE_SLIDE,
     P_GRAV,
@@ -741,7 +742,7 @@ def _constant_friction(strips):
     return constant, ratio
 
 
-@njit(cache=True)
+@allocating
 def run_implicit(y0, mode0, t0, t_end, y_target, contact, h, trail, log):
     """
     Integrate at a fixed step by backward Euler in velocity (``implicit_step``).

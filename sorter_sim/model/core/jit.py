@@ -19,6 +19,13 @@ function, a step that takes the cell's bundles (``CellSetup``, ``Parcels``, the
 scratch) receives some thirty arrays: passing them, and counting their references,
 cost more per parcel-period than the parcel's own closed-form motion (the cell ran
 10-30x slower with its steps as calls).
+
+``allocating`` compiles a kernel that allocates (its scratch, its trajectory) and that a
+``borrowing`` kernel calls: the cell's loop calls the integrators. numba compiles a
+callee with its caller's runtime setting unless the callee names its own, so without
+it the integrators compiled runtime-free whenever the cell's loop was the first to
+call them (a cold cache) and failed to compile (``np.empty`` has no runtime-free
+form); it worked only where a single-parcel run had compiled them first.
 """
 
 from __future__ import annotations
@@ -27,5 +34,6 @@ from numba import njit
 
 borrowing = njit(cache=True, _nrt=False)
 kernel_step = njit(cache=True, inline='always')
+allocating = njit(cache=True, _nrt=True)
 
-__all__ = ["borrowing", "kernel_step"]
+__all__ = ["allocating", "borrowing", "kernel_step"]
