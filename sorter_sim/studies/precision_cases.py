@@ -125,31 +125,21 @@ def core_settings(
     threshold model by step at ``v_min`` and by v_min at the step ``thr_vmin_dt``: one
     list, so that the oscillator and the parcels sweep the same families by one name.
     """
-    return (
-        [
-            ("accurate (rtol)", f"rtol={rt:g}", "accurate", {"rtol": rt, "atol": rt * 1e-2})
-            for rt in sw.acc_rtol
+    out = [
+        ("accurate (rtol)", f"rtol={rt:g}", "accurate", {"rtol": rt, "atol": rt * 1e-2})
+        for rt in sw.acc_rtol
+    ]
+    out += [("implicit (h)", f"h={dt:g}", "implicit", {"dt": dt}) for dt in sw.imp_dt]
+    by_h = [(f"h={dt:g}", dt, v_min) for dt in sw.thr_dt]
+    by_v_min = [(f"v_min={vm:g}", thr_vmin_dt, vm) for vm in sw.thr_vmin]
+    for family, sweep in (
+        (f"threshold (h, v_min={v_min:g})", by_h),
+        (f"threshold (v_min, h={thr_vmin_dt:g})", by_v_min),
+    ):
+        out += [
+            (family, setting, "threshold", {"dt": dt, "v_min": vm}) for setting, dt, vm in sweep
         ]
-        + [("implicit (h)", f"h={dt:g}", "implicit", {"dt": dt}) for dt in sw.imp_dt]
-        + [
-            (
-                f"threshold (h, v_min={v_min:g})",
-                f"h={dt:g}",
-                "threshold",
-                {"dt": dt, "v_min": v_min},
-            )
-            for dt in sw.thr_dt
-        ]
-        + [
-            (
-                f"threshold (v_min, h={thr_vmin_dt:g})",
-                f"v_min={vm:g}",
-                "threshold",
-                {"dt": thr_vmin_dt, "v_min": vm},
-            )
-            for vm in sw.thr_vmin
-        ]
-    )
+    return out
 
 
 def scipy_runs(sp: ScipyParcel, method: str, rtol: float, budget: float, threshold: bool = False):
