@@ -237,6 +237,9 @@ def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_re
         ua.VariantType.Int32,
     )
 
+    def strings(values):  # an array of strings, as the methods take their lists
+        return ua.Variant(values, S, is_array=True)
+
     async def run():
         async with Client(cell.fieldbus.opcua_endpoint, timeout=10) as client:
             idx = await client.get_namespace_index('urn:sorter_cell')
@@ -263,42 +266,21 @@ def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_re
                 'take all with no results': (
                     'TakeRoutes',
                     ua.Variant(4294967295, U32),
-                    ua.Variant([], S, is_array=True),
+                    strings([]),
                 ),
                 'take more than wait': (
                     'TakeRoutes',
                     ua.Variant(3, U32),
-                    ua.Variant(['accepted: a', 'accepted: b', 'accepted: c'], S, is_array=True),
+                    strings(['accepted: a', 'accepted: b', 'accepted: c']),
                 ),
-                'Int64 count': (
-                    'TakeRoutes',
-                    ua.Variant(1, I64),
-                    ua.Variant(['accepted: x'], S, is_array=True),
-                ),
-                'Boolean count': (
-                    'TakeRoutes',
-                    ua.Variant(True, B),
-                    ua.Variant(['accepted: x'], S, is_array=True),
-                ),
-                'garbage result': (
-                    'TakeRoutes',
-                    ua.Variant(1, U32),
-                    ua.Variant(['\x00'], S, is_array=True),
-                ),
-                'empty confirmation': (
-                    'Confirm',
-                    ua.Variant(['', '\x00', ';;;;'], S, is_array=True),
-                ),
+                'Int64 count': ('TakeRoutes', ua.Variant(1, I64), strings(['accepted: x'])),
+                'Boolean count': ('TakeRoutes', ua.Variant(True, B), strings(['accepted: x'])),
+                'garbage result': ('TakeRoutes', ua.Variant(1, U32), strings(['\x00'])),
+                'empty confirmation': ('Confirm', strings(['', '\x00', ';;;;'])),
                 'int table': ('PublishRoutingTable', ua.Variant([1, 2, 3], I32, is_array=True)),
-                'bad rule': ('PublishRoutingTable', ua.Variant(['A*=up'], S, is_array=True)),
-                'huge table': (
-                    'PublishRoutingTable',
-                    ua.Variant(['A*=left'] * 1001, S, is_array=True),
-                ),
-                'long line': (
-                    'Confirm',
-                    ua.Variant(['A1;left;left;' + 's' * 300], S, is_array=True),
-                ),
+                'bad rule': ('PublishRoutingTable', strings(['A*=up'])),
+                'huge table': ('PublishRoutingTable', strings(['A*=left'] * 1001)),
+                'long line': ('Confirm', strings(['A1;left;left;' + 's' * 300])),
             }
             got = {why: await call(*args) for why, args in refusals.items()}
             for why, outcome in got.items():
@@ -313,14 +295,14 @@ def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_re
                 await call(
                     'TakeRoutes',
                     ua.Variant(2, U32),
-                    ua.Variant(['accepted: A*=left', 'refused: no'], S, is_array=True),
+                    strings(['accepted: A*=left', 'refused: no']),
                 )
                 is None
             )
             lines = ['A1;left;left;sorted', ';straight;straight;rejected']
-            assert await call('Confirm', ua.Variant(lines, S, is_array=True)) is None
+            assert await call('Confirm', strings(lines)) is None
             table = ['A*=left', '*=straight']
-            assert await call('PublishRoutingTable', ua.Variant(table, S, is_array=True)) is None
+            assert await call('PublishRoutingTable', strings(table)) is None
             pending, results, _, live_table = await warehouse()
             assert not pending and len(results) == 2 and live_table == table
             assert await count_node.read_value() == 2
