@@ -334,234 +334,346 @@ def segment_commands(args, n: int, k_seg: int) -> list[tuple[list, str]]:
 
 def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
     """Drive the line (in this process, or its segments' processes) and report."""
-    from sorter_cell.line_segment import line_executor
-    import numpy as np
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-    from rclpy.parameter import Parameter
-    from rclpy.parameter_client import AsyncParameterClient
-    from rosgraph_msgs.msg import Clock
-    from std_msgs.msg import String
+    run = _LineRun(args, ctx, nodes, line, ctls, procs, stop)
+    problem = run.prepare() or run.stream()
+    if problem:
+        return problem
+    return run.report(run.drain())
 
-    from sorter_control.wcs_node import REQUEST_QOS, WcsNode
-    from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
 
-    n = args.stations
-    segments = len(procs) or 1
-    restarts = Restarts(
-        procs,
-        [cmd for cmd, _ in segment_commands(args, n, segments)] if procs else [],
-        getattr(args, 'restart', 0) or 0,
-    )
-    wcs = WcsNode(
-        context=ctx,
-        parameter_overrides=[
-            Parameter('stations', value=n),
-            Parameter('use_sim_time', value=line is not None),  # recording on the line's clock
-            Parameter('record_path', value=args.record or ''),
-        ],
-    )
-    nodes.append(wcs)
-    obs = rclpy.create_node('sorter_line_demo', context=ctx)
-    nodes.append(obs)
-    records: list[dict] = []  # every disposition, in the order the WCS gave them
-    exits: dict[str, str] = {}
-    scanned: set[str] = set()
-    clock = {'t': 0.0}
-    obs.create_subscription(
-        DiagnosticStatus,
-        'wcs/dispositions',
-        lambda m: records.append({kv.key: kv.value for kv in m.values}),
-        EVENT_QOS,
-    )
-    obs.create_subscription(
-        DiagnosticStatus,
-        'line/exits',
-        lambda m: exits.__setitem__({kv.key: kv.value for kv in m.values}['label'], m.message),
-        EVENT_QOS,
-    )
-    obs.create_subscription(String, '/S01/scanner/label', lambda m: scanned.add(m.data), EVENT_QOS)
-    # the line's time: its last segment's (the others are ahead of it in a lock-step line);
-    # and station 1's, whose stream the run is
-    first_clock = {'t': 0.0}
-    for topic, into in (
-        (procs[-1][1] if procs else '/clock', clock),
-        (procs[0][1] if procs else '/clock', first_clock),
-    ):
-        obs.create_subscription(
-            Clock,
-            topic,
-            lambda m, into=into: into.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
-            STREAM_QOS,
+class _LineRun:
+    """
+    One drive of the line as the demo sees it: the warehouse and an observer, and what it heard.
+
+    ``_run`` calls its steps in order: prepare (the controllers, the sort plan, the
+    requests), stream (the infeed open for the simulated time or the batch), drain (the
+    infeed closed until every parcel has its disposition) and report. Every wait goes
+    through ``spin_until``, which also restarts (or reports) a segment process that
+    ended, so that no wait of the run can miss one.
+    """
+
+    def __init__(self, args, ctx, nodes, line, ctls, procs, stop):
+        import rclpy
+        from rclpy.parameter import Parameter
+
+        from sorter_control.wcs_node import WcsNode
+
+        self.args, self.nodes, self.line, self.ctls = args, nodes, line, ctls
+        self.procs, self.stop = procs, stop
+        self.n = args.stations
+        self.segments = len(procs) or 1
+        self.restarts = Restarts(
+            procs,
+            [cmd for cmd, _ in segment_commands(args, self.n, self.segments)] if procs else [],
+            getattr(args, 'restart', 0) or 0,
         )
-    packml = {'state': ''}  # station 1's machine state: Completing once its stream is out
-    obs.create_subscription(
-        String, '/S01/status/packml', lambda m: packml.__setitem__('state', m.data), SENSOR_QOS
-    )
-    active = []
-    obs.create_subscription(DiagnosticStatus, 'wcs/sort_plan/active', active.append, SENSOR_QOS)
-    pub_plan = obs.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
-    pub_req = obs.create_publisher(KeyValue, 'wcs/requests', REQUEST_QOS)
-    infeed = AsyncParameterClient(obs, '/S01/sorter_sim')
-    ex = line_executor(ctx, args.executor or 'events')
-    for node in nodes:
-        ex.add_node(node)
+        self.wcs = WcsNode(
+            context=ctx,
+            parameter_overrides=[
+                Parameter('stations', value=self.n),
+                Parameter('use_sim_time', value=line is not None),  # recording on the line's clock
+                Parameter('record_path', value=args.record or ''),
+            ],
+        )
+        nodes.append(self.wcs)
+        self.obs = rclpy.create_node('sorter_line_demo', context=ctx)
+        nodes.append(self.obs)
+        self._listen()
+        self._open_outputs(ctx)
 
-    def spin_until(pred, wall_s):
+    def _listen(self) -> None:
+        """
+        Subscribe the observer to what the report counts and the waits watch.
+
+        The dispositions and exits are the summary's; the scanner's labels count what
+        was inducted where a segment process holds station 1; the clocks, station 1's
+        PackML state and the active sort plan are what the steps wait on.
+        """
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from rosgraph_msgs.msg import Clock
+        from std_msgs.msg import String
+
+        from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS
+
+        obs, procs = self.obs, self.procs
+        self.records: list[dict] = []  # every disposition, in the order the WCS gave them
+        self.exits: dict[str, str] = {}
+        self.scanned: set[str] = set()
+        self.clock = {'t': 0.0}
+        obs.create_subscription(
+            DiagnosticStatus,
+            'wcs/dispositions',
+            lambda m: self.records.append({kv.key: kv.value for kv in m.values}),
+            EVENT_QOS,
+        )
+        obs.create_subscription(
+            DiagnosticStatus,
+            'line/exits',
+            lambda m: self.exits.__setitem__(
+                {kv.key: kv.value for kv in m.values}['label'], m.message
+            ),
+            EVENT_QOS,
+        )
+        obs.create_subscription(
+            String, '/S01/scanner/label', lambda m: self.scanned.add(m.data), EVENT_QOS
+        )
+        # the line's time: its last segment's (the others are ahead of it in a lock-step line);
+        # and station 1's, whose stream the run is
+        self.first_clock = {'t': 0.0}
+        for topic, into in (
+            (procs[-1][1] if procs else '/clock', self.clock),
+            (procs[0][1] if procs else '/clock', self.first_clock),
+        ):
+            obs.create_subscription(
+                Clock,
+                topic,
+                lambda m, into=into: into.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
+                STREAM_QOS,
+            )
+        self.packml = {'state': ''}  # station 1's machine state: Completing once its stream is out
+        obs.create_subscription(
+            String,
+            '/S01/status/packml',
+            lambda m: self.packml.__setitem__('state', m.data),
+            SENSOR_QOS,
+        )
+        self.active = []
+        obs.create_subscription(
+            DiagnosticStatus, 'wcs/sort_plan/active', self.active.append, SENSOR_QOS
+        )
+
+    def _open_outputs(self, ctx) -> None:
+        """Make the plan and request publishers, station 1's parameter client, the executor."""
+        from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+        from rclpy.parameter_client import AsyncParameterClient
+
+        from sorter_cell.line_segment import line_executor
+        from sorter_control.wcs_node import REQUEST_QOS
+        from sorter_ros.interface import EVENT_QOS
+
+        self.pub_plan = self.obs.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
+        self.pub_req = self.obs.create_publisher(KeyValue, 'wcs/requests', REQUEST_QOS)
+        self.infeed = AsyncParameterClient(self.obs, '/S01/sorter_sim')
+        self.ex = line_executor(ctx, self.args.executor or 'events')
+        for node in self.nodes:
+            self.ex.add_node(node)
+
+    def spin_until(self, pred, wall_s) -> bool:
+        """Spin until ``pred()`` holds (True) or ``wall_s`` of wall time passed (False)."""
         end = time.monotonic() + wall_s
         while not pred():
-            if stop.is_set():
+            if self.stop.is_set():
                 raise KeyboardInterrupt  # Ctrl-C: the line stops where it is (exit 130)
             if time.monotonic() > end:
                 return False
-            ex.spin_once(timeout_sec=0.02)
-            restarts.check()
+            self.ex.spin_once(timeout_sec=0.02)
+            self.restarts.check()
         return True
 
-    def set_arrival(value, **more):
+    def set_arrival(self, value, **more) -> bool:
+        """Set station 1's arrival (and ``more`` parameters); True once it took them all."""
+        from rclpy.parameter import Parameter
+
         values = [Parameter('arrival', value=value)]
         values += [Parameter(k, value=v) for k, v in more.items()]
-        fut = infeed.set_parameters(values)
-        return spin_until(fut.done, 20.0) and all(r.successful for r in fut.result().results)
+        fut = self.infeed.set_parameters(values)
+        return self.spin_until(fut.done, 20.0) and all(r.successful for r in fut.result().results)
 
-    if ctls is not None and not spin_until(
-        lambda: all(c.logic is not None and c.logic.state == 'running' for c in ctls), 120.0
-    ):
-        return 'the stations\' controllers did not start within 120 s'
-    if not spin_until(infeed.services_are_ready, 30.0):
-        return 'station 1\'s parameter services did not appear within 30 s'
-    chutes = [name for pair in wcs.wcs.chutes for name in pair]
-    dests = [f'D{j + 1:02d}' for j in range(len(chutes))]
-    spin_until(lambda: pub_plan.get_subscription_count() > 0, 10.0)
-    pub_plan.publish(
-        DiagnosticStatus(
-            name='v1', values=[KeyValue(key=d, value=c) for d, c in zip(dests, chutes)]
+    def prepare(self) -> str | None:
+        """
+        Have every station ready and every parcel requested before the infeed opens.
+
+        The controllers running, station 1's parameters served, the sort plan taken and
+        every request taken by the warehouse: a parcel that reached its scanner first
+        would have no destination. Return what failed, or None.
+        """
+        import numpy as np
+        from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+        args, ctls, spin_until = self.args, self.ctls, self.spin_until
+        if ctls is not None and not spin_until(
+            lambda: all(c.logic is not None and c.logic.state == 'running' for c in ctls), 120.0
+        ):
+            return 'the stations\' controllers did not start within 120 s'
+        if not spin_until(self.infeed.services_are_ready, 30.0):
+            return 'station 1\'s parameter services did not appear within 30 s'
+        self.chutes = [name for pair in self.wcs.wcs.chutes for name in pair]
+        dests = [f'D{j + 1:02d}' for j in range(len(self.chutes))]
+        spin_until(lambda: self.pub_plan.get_subscription_count() > 0, 10.0)
+        self.pub_plan.publish(
+            DiagnosticStatus(
+                name='v1', values=[KeyValue(key=d, value=c) for d, c in zip(dests, self.chutes)]
+            )
         )
-    )
-    if not spin_until(lambda: active, 10.0):
-        return 'the warehouse node did not take the sort plan'
-    rng = np.random.default_rng(int(args.seed))
-    # more than the infeed can send in the time, or the batch
-    expected = args.parcels or math.ceil(args.sim_time * 1.5) + 10
-    for i in range(1, expected + 1):
-        pub_req.publish(KeyValue(key=f'P{i:05d}', value=dests[int(rng.integers(len(dests)))]))
-        if i % 50 == 0:
-            spin_until(lambda i=i: wcs.wcs.n_taken >= i, 10.0)
-    if not spin_until(lambda: wcs.wcs.n_taken == expected, 10.0):
-        return f'the warehouse node took {wcs.wcs.n_taken} of {expected} requests'
-    spin_until(lambda: False, 0.3)  # the routing updates reach the stations
-    spin_until(lambda: clock['t'] > 0.0, 30.0)
-    t0, wall0 = clock['t'], time.monotonic()
-    if line is not None:
-        line.cost = {'physics_s': 0.0, 'publish_s': 0.0}
-        scans0 = [c.logic.scan_wall_total for c in ctls]
-    # a timed stream is station 1's own span of simulated time (arrival_duration_s), so
-    # that it gives the same parcels whatever the line's split and pace; a batch, its count
-    span = {} if args.parcels else {'arrival_duration_s': float(args.sim_time)}
-    if not set_arrival('gap', **span):
-        return 'station 1 did not take arrival: gap'
-    t_opened = first_clock['t']  # station 1's time once it answered: the stream opened before
-    p0 = line.stations[0].params if line is not None else _cell_params()
-    transit = n * (p0.exit_x - p0.induct_x) / p0.belt_speed
-    if args.parcels:
-        # a batch: until every parcel has its disposition (10 s a parcel at the most)
-        end = t0 + 10.0 * args.parcels + 2.0 * transit
-        spin_until(lambda: len(records) >= args.parcels or clock['t'] >= end, math.inf)
-    else:
-        spin_until(lambda: clock['t'] >= t0 + args.sim_time, math.inf)
-    wall = time.monotonic() - wall0
-    sim = clock['t'] - t0
-    n_out = len(exits)
-    cost = None
-    if line is not None:
-        ctl_s = sum(c.logic.scan_wall_total - w0 for c, w0 in zip(ctls, scans0))
-        c = line.cost
-        cost = {
-            'physics': round(c['physics_s'], 3),
-            'publishing': round(c['publish_s'], 3),
-            'controllers': round(ctl_s, 3),
-            'other': round(wall - c['physics_s'] - c['publish_s'] - ctl_s, 3),
+        if not spin_until(lambda: self.active, 10.0):
+            return 'the warehouse node did not take the sort plan'
+        rng = np.random.default_rng(int(args.seed))
+        # more than the infeed can send in the time, or the batch
+        expected = args.parcels or math.ceil(args.sim_time * 1.5) + 10
+        for i in range(1, expected + 1):
+            self.pub_req.publish(
+                KeyValue(key=f'P{i:05d}', value=dests[int(rng.integers(len(dests)))])
+            )
+            if i % 50 == 0:
+                spin_until(lambda i=i: self.wcs.wcs.n_taken >= i, 10.0)
+        if not spin_until(lambda: self.wcs.wcs.n_taken == expected, 10.0):
+            return f'the warehouse node took {self.wcs.wcs.n_taken} of {expected} requests'
+        return None
+
+    def stream(self) -> str | None:
+        """
+        Open the infeed and run the line for the simulated time, or until the batch is out.
+
+        What the summary measures (wall and simulated time, parcels out, where the wall
+        time went) is taken here, before the drain, so that the throughput is the open
+        infeed's. Return what failed, or None.
+        """
+        args, line, ctls, clock = self.args, self.line, self.ctls, self.clock
+        spin_until = self.spin_until
+        spin_until(lambda: False, 0.3)  # the routing updates reach the stations
+        spin_until(lambda: clock['t'] > 0.0, 30.0)
+        t0, wall0 = clock['t'], time.monotonic()
+        if line is not None:
+            line.cost = {'physics_s': 0.0, 'publish_s': 0.0}
+            scans0 = [c.logic.scan_wall_total for c in ctls]
+        # a timed stream is station 1's own span of simulated time (arrival_duration_s), so
+        # that it gives the same parcels whatever the line's split and pace; a batch, its count
+        self.span = {} if args.parcels else {'arrival_duration_s': float(args.sim_time)}
+        if not self.set_arrival('gap', **self.span):
+            return 'station 1 did not take arrival: gap'
+        # station 1's time once it answered: the stream opened before
+        self.t_opened = self.first_clock['t']
+        p0 = line.stations[0].params if line is not None else _cell_params()
+        self.transit = self.n * (p0.exit_x - p0.induct_x) / p0.belt_speed
+        if args.parcels:
+            # a batch: until every parcel has its disposition (10 s a parcel at the most)
+            end = t0 + 10.0 * args.parcels + 2.0 * self.transit
+            spin_until(lambda: len(self.records) >= args.parcels or clock['t'] >= end, math.inf)
+        else:
+            spin_until(lambda: clock['t'] >= t0 + args.sim_time, math.inf)
+        self.wall = time.monotonic() - wall0
+        self.sim = clock['t'] - t0
+        self.n_out = len(self.exits)
+        self.cost = None
+        if line is not None:
+            ctl_s = sum(c.logic.scan_wall_total - w0 for c, w0 in zip(ctls, scans0))
+            c = line.cost
+            self.cost = {
+                'physics': round(c['physics_s'], 3),
+                'publishing': round(c['publish_s'], 3),
+                'controllers': round(ctl_s, 3),
+                'other': round(self.wall - c['physics_s'] - c['publish_s'] - ctl_s, 3),
+            }
+        return None
+
+    def drain(self) -> int:
+        """
+        Close the infeed and run the line empty; return the parcels inducted.
+
+        Every parcel inducted gets its disposition this way, so that the report's
+        balance (dispositions + parcels still on the line = inducted) can be checked.
+        """
+        args, line, clock, spin_until = self.args, self.line, self.clock, self.spin_until
+        if self.span and not args.no_drain:
+            # the stream ends on station 1's clock, ahead of the one measured by: wait until
+            # it has (station 1 completes once its last parcel is out), or station 1 is well
+            # past the span's end (held by a jam, say)
+            t_closed = self.t_opened + args.sim_time + 2.0 * self.transit / self.n + 10.0
+            spin_until(
+                lambda: (
+                    self.packml['state'] in ('Completing', 'Complete')
+                    or self.first_clock['t'] >= t_closed
+                ),
+                math.inf,
+            )
+        # the infeed stops and the line runs empty, so that every parcel inducted gets its
+        # disposition: at most the belt's transit over the whole line, twice, + 10 s
+        self.set_arrival('none')
+        # (--no-drain: at once)
+        t_drain = clock['t'] + (0.0 if args.no_drain else 2.0 * self.transit + 10.0)
+        if args.no_drain:
+            inducted = line.stations[0].cell.n_inducted if line is not None else len(self.scanned)
+        elif line is not None:
+            spin_until(lambda: line.line.n_parcels == 0 or line.line.t >= t_drain, math.inf)
+            inducted = line.stations[0].cell.n_inducted
+        else:
+            spin_until(
+                lambda: len(self.records) >= len(self.scanned) or clock['t'] >= t_drain,
+                math.inf,
+            )
+            inducted = len(self.scanned)
+        if line is not None:
+            self.ex.remove_node(line)  # stop the clock; let the last messages in
+        spin_until(lambda: len(self.records) >= inducted, 0.5 if args.no_drain else 5.0)
+        return inducted
+
+    def report(self, inducted: int) -> int | str:
+        """
+        Stop the segments, write the dispositions, print the summary; return the exit code.
+
+        0 when nothing was mis-sorted or jammed, every parcel inducted is accounted for
+        and no segment refused a parcel; 1 otherwise; a message when the dispositions
+        file cannot be written.
+        """
+        args, line, records = self.args, self.line, self.records
+        seg_stats = _stop_segments(self.procs)
+        # the parcels still on the stations' belts and disks, counted where they are
+        if line is not None:
+            on_line = line.line.n_in_flight
+        else:
+            on_line = sum(st['parcels'] for st in seg_stats)
+            # station 1's own count, where its segment said it (every parcel scanned, else)
+            inducted = next((st['inducted'] for st in seg_stats if 'inducted' in st), inducted)
+        exit_counts = Counter(self.exits.values())
+        codes = Counter(r['code'] for r in records)
+        if args.dispositions:
+            try:
+                with open(args.dispositions, 'w', encoding='utf-8') as f:
+                    for r in records:
+                        f.write(json.dumps(r, sort_keys=True) + '\n')
+            except OSError as exc:  # a full disk, a device that refuses: one line, exit 2
+                return (
+                    f'--dispositions {args.dispositions!r}: cannot write ({exc.strerror or exc})'
+                )
+        sim, wall = self.sim, self.wall
+        summary = {
+            'stations': self.n,
+            'segments': self.segments,
+            'inducted': inducted,
+            'mis_sorted': codes.get('mis_sorted', 0),
+            'jams': codes.get('jammed', 0),
+            'in_cell_at_end': on_line,
+            'exits': dict(sorted(exit_counts.items())),
+            'dispositions': dict(sorted(codes.items())),
+            'throughput_pcs_h': 3600.0 * self.n_out / sim if sim > 0 else 0.0,
+            'real_time_factor': sim / wall if wall > 0 else 0.0,
+            'sim_time_s': sim,
+            'executor': type(self.ex).__name__,
+            'wall_s': wall,
+            'chutes_reached': sum(1 for c in self.chutes if exit_counts.get(c)),
+            'chutes': len(self.chutes),
         }
-    if span and not args.no_drain:
-        # the stream ends on station 1's clock, ahead of the one measured by: wait until
-        # it has (station 1 completes once its last parcel is out), or station 1 is well
-        # past the span's end (held by a jam, say)
-        t_closed = t_opened + args.sim_time + 2.0 * transit / n + 10.0
-        spin_until(
-            lambda: packml['state'] in ('Completing', 'Complete') or first_clock['t'] >= t_closed,
-            math.inf,
+        if self.cost is not None:
+            # where the wall time went: the line's physics, the stations' publishing, the PLC
+            # programs' scans; the rest is DDS, the executor and the callbacks around them
+            summary['cost_s'] = self.cost
+        if self.restarts.done:
+            summary['restarted'] = self.restarts.done
+        if seg_stats:
+            summary['segment_stats'] = seg_stats
+            summary['handovers'] = sum(s['handed_on'] for s in seg_stats)
+        ok = (
+            summary['mis_sorted'] == 0
+            and summary['jams'] == 0
+            and sum(codes.values()) + on_line == inducted
+            and all(s['refused'] == 0 for s in seg_stats)
         )
-    # the infeed stops and the line runs empty, so that every parcel inducted gets its
-    # disposition: at most the belt's transit over the whole line, twice, + 10 s
-    set_arrival('none')
-    # (--no-drain: at once)
-    t_drain = clock['t'] + (0.0 if args.no_drain else 2.0 * transit + 10.0)
-    if args.no_drain:
-        inducted = line.stations[0].cell.n_inducted if line is not None else len(scanned)
-    elif line is not None:
-        spin_until(lambda: line.line.n_parcels == 0 or line.line.t >= t_drain, math.inf)
-        inducted = line.stations[0].cell.n_inducted
-    else:
-        spin_until(lambda: len(records) >= len(scanned) or clock['t'] >= t_drain, math.inf)
-        inducted = len(scanned)
-    if line is not None:
-        ex.remove_node(line)  # stop the clock; let the last messages in
-    spin_until(lambda: len(records) >= inducted, 0.5 if args.no_drain else 5.0)
-    seg_stats = _stop_segments(procs)
-    # the parcels still on the stations' belts and disks, counted where they are
-    if line is not None:
-        on_line = line.line.n_in_flight
-    else:
-        on_line = sum(st['parcels'] for st in seg_stats)
-        # station 1's own count, where its segment said it (every parcel scanned, else)
-        inducted = next((st['inducted'] for st in seg_stats if 'inducted' in st), inducted)
-    exit_counts = Counter(exits.values())
-    codes = Counter(r['code'] for r in records)
-    if args.dispositions:
-        try:
-            with open(args.dispositions, 'w', encoding='utf-8') as f:
-                for r in records:
-                    f.write(json.dumps(r, sort_keys=True) + '\n')
-        except OSError as exc:  # a full disk, a device that refuses: one line, exit 2
-            return f'--dispositions {args.dispositions!r}: cannot write ({exc.strerror or exc})'
-    summary = {
-        'stations': n,
-        'segments': segments,
-        'inducted': inducted,
-        'mis_sorted': codes.get('mis_sorted', 0),
-        'jams': codes.get('jammed', 0),
-        'in_cell_at_end': on_line,
-        'exits': dict(sorted(exit_counts.items())),
-        'dispositions': dict(sorted(codes.items())),
-        'throughput_pcs_h': 3600.0 * n_out / sim if sim > 0 else 0.0,
-        'real_time_factor': sim / wall if wall > 0 else 0.0,
-        'sim_time_s': sim,
-        'executor': type(ex).__name__,
-        'wall_s': wall,
-        'chutes_reached': sum(1 for c in chutes if exit_counts.get(c)),
-        'chutes': len(chutes),
-    }
-    if cost is not None:
-        # where the wall time went: the line's physics, the stations' publishing, the PLC
-        # programs' scans; the rest is DDS, the executor and the callbacks around them
-        summary['cost_s'] = cost
-    if restarts.done:
-        summary['restarted'] = restarts.done
-    if seg_stats:
-        summary['segment_stats'] = seg_stats
-        summary['handovers'] = sum(s['handed_on'] for s in seg_stats)
-    ok = (
-        summary['mis_sorted'] == 0
-        and summary['jams'] == 0
-        and sum(codes.values()) + on_line == inducted
-        and all(s['refused'] == 0 for s in seg_stats)
-    )
-    if args.json:
-        print(json.dumps(summary, sort_keys=True))
-    else:
-        for key, v in summary.items():
-            print(f'  {key:<22} {v}')
-    return 0 if ok else 1
+        if args.json:
+            print(json.dumps(summary, sort_keys=True))
+        else:
+            for key, v in summary.items():
+                print(f'  {key:<22} {v}')
+        return 0 if ok else 1
 
 
 def _cell_params():

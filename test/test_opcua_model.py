@@ -21,12 +21,12 @@ from asyncua import ua
 from asyncua.sync import Client
 from rclpy.parameter import Parameter
 from ros_harness import free_port
-import test_fieldbus
+import fieldbus_helpers
 
 
 pytestmark = pytest.mark.ros
-MAP = test_fieldbus.MAP
-cell = test_fieldbus.cell  # the fixture: a cell serving Modbus TCP and OPC UA
+MAP = fieldbus_helpers.MAP
+cell = fieldbus_helpers.cell  # the fixture: a cell serving Modbus TCP and OPC UA
 ANALOG_ITEM = ua.NodeId(ua.ObjectIds.AnalogItemType)
 UNECE = {'m': 'MTR', 's': 'SEC', 'deg': 'DD'}
 

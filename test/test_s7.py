@@ -16,38 +16,18 @@ import time
 
 import pytest
 import snap7
-from rclpy.parameter import Parameter
 from ros_harness import free_port
 from snap7.type import Area, WordLen
-from test_sim_node import SHORT_CELL
+from fieldbus_helpers import MAP, SENSORS, cell_state, serving_cell
 
-from sorter_sim.frontends.node import SimNode
-from sorter_sim.model.core import cell_kernels as ck
-from sorter_sim.model.io_map import by_name, io_map, s7_size
+from sorter_sim.model.io_map import io_map, s7_size
 
 pytestmark = pytest.mark.ros
-SENSORS = ['pe_scan', 'pe_divert', 'pe_exit', 'chute_left', 'chute_right']
-MAP = by_name(io_map(SENSORS))
 
 
 @pytest.fixture
 def cell(ros):
-    node = SimNode(
-        context=ros.context,
-        parameter_overrides=[
-            Parameter(k, value=v)
-            for k, v in {
-                **SHORT_CELL,
-                'arrival': 'gap',
-                'arrival_gap': [1.0, 1.0],
-                'alpha_deg': 60.0,
-                's7_port': free_port(),
-                'modbus_port': free_port(),
-            }.items()
-        ],
-    )
-    ros.add(node)
-    return node
+    return serving_cell(ros, s7_port=free_port(), modbus_port=free_port())
 
 
 @pytest.fixture
@@ -129,21 +109,9 @@ def test_outputs_written_as_bits_words_and_a_whole_block_act_one_period_later(ce
     assert plc.db_read(2, 0, len(db2)) == db2  # the outputs read back as written
 
 
-def _state(cell):
-    c = cell.cell
-    return (
-        cell.get_parameter('alpha_deg').value,
-        float(c.act[ck.A_STROKE_TARGET]),
-        c.estop,
-        c.belt_run,
-        c.watchdog_armed,
-        c.packml.state,
-    )
-
-
 def test_bad_requests_get_s7_return_codes_and_change_nothing(cell, plc):
     cell.advance(5)
-    before = _state(cell)
+    before = cell_state(cell)
     alpha = MAP['diverter.alpha_setpoint']
     a = alpha.s7[1]
     cases = [
@@ -170,7 +138,7 @@ def test_bad_requests_get_s7_return_codes_and_change_nothing(cell, plc):
             call()
         assert 'class=0x81, code=0x04' in str(err.value)
     cell.advance(5)
-    assert _state(cell) == before
+    assert cell_state(cell) == before
     diag = cell._fieldbus_diagnostics()
     assert int(diag['fieldbus_writes_refused']) == len(cases)
     assert int(diag['fieldbus_reads_refused']) == 1

@@ -177,10 +177,26 @@ def io_map(sensor_names) -> tuple[Signal, ...]:
     names = list(sensor_names)
     if len(names) > MAX_SENSORS:
         raise ValueError(f'the I/O map takes at most {MAX_SENSORS} sensors, got {len(names)}')
-    sig = []
-    for i, name in enumerate(names):
-        sig.append(Signal(f'sensor.{name}', INPUT, DI, i, 'bool', '', f'{name} blocked'))
-    sig += [
+    # the order is the image's: sensor bits, fixed inputs, edge times, then the outputs
+    sig = [
+        Signal(f'sensor.{name}', INPUT, DI, i, 'bool', '', f'{name} blocked')
+        for i, name in enumerate(names)
+    ]
+    sig += _status_inputs()
+    sig += _edge_time_inputs(names)
+    sig += _outputs()
+    return tuple(sig)
+
+
+def _status_inputs() -> list[Signal]:
+    """
+    Return the inputs that do not depend on the sensors: scanner, diverter, status, counters.
+
+    Their addresses are fixed (discrete inputs from 16, past the MAX_SENSORS sensor bits;
+    input registers 0 .. 8 + LABEL_REGISTERS) so that a PLC program written for one cell
+    reads them at the same place on a cell with other sensors.
+    """
+    return [
         Signal(
             'scanner.ready',
             INPUT,
@@ -268,6 +284,17 @@ def io_map(sensor_names) -> tuple[Signal, ...]:
             words=LABEL_REGISTERS,
         ),
     ]
+
+
+def _edge_time_inputs(names) -> list[Signal]:
+    """
+    Return each sensor's rise and fall time registers, four registers a sensor.
+
+    Sensor i's edges sit at SENSOR_EDGE_BASE + 4 i, after the fixed registers, as a fast
+    input card latches them: the PLC times a parcel from them to the physics period
+    rather than to its own scan.
+    """
+    sig = []
     for i, name in enumerate(names):
         base = SENSOR_EDGE_BASE + 4 * i
         for k, edge in enumerate(('rise', 'fall')):
@@ -285,7 +312,17 @@ def io_map(sensor_names) -> tuple[Signal, ...]:
                     words=2,
                 )
             )
-    sig += [
+    return sig
+
+
+def _outputs() -> list[Signal]:
+    """
+    Return the PLC's outputs: the coils and holding registers the cell acts on.
+
+    The setpoint and the PackML command carry the engineering range the cell accepts, so
+    that the servers refuse a write outside it with the protocol's own error code.
+    """
+    return [
         Signal('diverter.popup', OUTPUT, COIL, 0, 'bool', '', 'raise the disks (0: lower)'),
         Signal('cell.reset', OUTPUT, COIL, 1, 'bool', '', 'a rising edge clears the faults'),
         Signal('belt.run', OUTPUT, COIL, 2, 'bool', '', 'run the belt (0: stop it)'),
@@ -337,7 +374,6 @@ def io_map(sensor_names) -> tuple[Signal, ...]:
             hi=9,
         ),
     ]
-    return tuple(sig)
 
 
 def by_name(signals) -> dict[str, Signal]:

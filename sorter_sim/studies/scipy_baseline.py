@@ -244,6 +244,75 @@ class ScipyParcel:
                 return tr, state(tr), "break"
         return t_stop, state(t_stop), reason
 
+    def _slide_events(self, y, y_target: float, eps: float, offs, direction_next: dict):
+        """
+        Return the events that end a sliding segment from ``y``, their kinds, its slip speeds.
+
+        The scrap line, each corner (``offs``) crossing each zone border (the friction
+        changes there, which solve_ivp's step control would smear), and each surface's slip
+        reaching zero.
+        A slip that is not already small is watched through its projection on its start
+        direction, which crosses zero cleanly where its norm only touches it; ``eps`` is
+        the stick band used otherwise. ``direction_next`` holds the borders just crossed:
+        only a crossing back counts there, or the segment would end where it starts.
+        """
+        evs, kinds = [], []
+        if y_target < math.inf:
+
+            def e_target(tt, z):
+                return z[1] - y_target
+
+            e_target.terminal, e_target.direction = True, 1
+            evs.append(e_target)
+            kinds.append(("scrap", None))
+        for c, (ox, oy) in enumerate(offs):
+            for b, xb in enumerate(self.borders):
+
+                def e_border(tt, z, ox=ox, oy=oy, xb=xb):
+                    return z[0] + math.cos(z[2]) * ox - math.sin(z[2]) * oy - xb
+
+                e_border.terminal = True
+                # right after a crossing only a crossing back counts
+                e_border.direction = direction_next.get((c, b), 0)
+                evs.append(e_border)
+                kinds.append(("border", (c, b)))
+        slip_start = {}
+        for s in range(self.nsurf):
+            sig0 = self.slip(y, s)
+            n0 = float(np.linalg.norm(sig0))
+            slip_start[s] = n0
+            if n0 > 10.0 * eps:
+                d = sig0 / n0
+
+                def e_stick(tt, z, s=s, d=d):
+                    return float(self.slip(z, s) @ d)
+            else:
+
+                def e_stick(tt, z, s=s):
+                    return float(np.linalg.norm(self.slip(z, s))) - eps
+
+            e_stick.terminal, e_stick.direction = True, -1
+            evs.append(e_stick)
+            kinds.append(("stick", s))
+        return evs, kinds, slip_start
+
+    def _land_on_stick(self, y, s: int, slip_start: float, tol: float):
+        """
+        Return the state snapped onto surface ``s``'s velocity, and whether the stick holds.
+
+        The slip's projection also changes sign when the slip turns by more than 90
+        degrees within one segment: that is no stick, and ``y`` comes back as it was so
+        that the next segment starts aimed along the new slip. Otherwise the parcel takes
+        the surface's velocity (the stick's closed form) and sticks if the surface can
+        hold it (``margin``); if not, it slides on from the snapped state.
+        """
+        if np.linalg.norm(self.slip(y, s)) > 1e-2 * slip_start + tol:
+            return y, False
+        z = y.copy()
+        z[3], z[4], z[5] = self.vel[s][0], self.vel[s][1], 0.0
+        m, a = self.margin(z, s)
+        return z, a > 0.0 and m <= 0.0
+
     def run(
         self,
         method: str = "DOP853",
@@ -312,44 +381,7 @@ class ScipyParcel:
                     events.append((t, "break", mode))
                     mode = -1
                 continue
-            evs, kinds = [], []
-            if y_target < math.inf:
-
-                def e_target(tt, z):
-                    return z[1] - y_target
-
-                e_target.terminal, e_target.direction = True, 1
-                evs.append(e_target)
-                kinds.append(("scrap", None))
-            for c, (ox, oy) in enumerate(offs):
-                for b, xb in enumerate(self.borders):
-
-                    def e_border(tt, z, ox=ox, oy=oy, xb=xb):
-                        return z[0] + math.cos(z[2]) * ox - math.sin(z[2]) * oy - xb
-
-                    e_border.terminal = True
-                    # right after a crossing only a crossing back counts
-                    e_border.direction = direction_next.get((c, b), 0)
-                    evs.append(e_border)
-                    kinds.append(("border", (c, b)))
-            slip_start = {}
-            for s in range(self.nsurf):
-                sig0 = self.slip(y, s)
-                n0 = float(np.linalg.norm(sig0))
-                slip_start[s] = n0
-                if n0 > 10.0 * eps:
-                    d = sig0 / n0
-
-                    def e_stick(tt, z, s=s, d=d):
-                        return float(self.slip(z, s) @ d)
-                else:
-
-                    def e_stick(tt, z, s=s):
-                        return float(np.linalg.norm(self.slip(z, s))) - eps
-
-                e_stick.terminal, e_stick.direction = True, -1
-                evs.append(e_stick)
-                kinds.append(("stick", s))
+            evs, kinds, slip_start = self._slide_events(y, y_target, eps, offs, direction_next)
             direction_next = {}
             sol = solve_ivp(
                 self.f,
@@ -380,20 +412,11 @@ class ScipyParcel:
                 g0 = evs[k](sol.t[0], sol.y[:, 0])
                 direction_next[info] = 1 if g0 > 0 else -1
                 continue
-            s = info
-            # the projection also changes sign when the slip turns by more than 90 degrees
-            # within one segment: that is no stick; restart aimed along the new slip
-            if np.linalg.norm(self.slip(y, s)) > 1e-2 * slip_start[s] + 10.0 * (
-                atol + rtol * vscale
-            ):
-                continue
-            z = y.copy()
-            z[3], z[4], z[5] = self.vel[s][0], self.vel[s][1], 0.0
-            m, a = self.margin(z, s)
-            y = z
-            if a > 0.0 and m <= 0.0:
-                events.append((t, "stick", s))
-                mode = s
+            tol = 10.0 * (atol + rtol * vscale)
+            y, holds = self._land_on_stick(y, info, slip_start[info], tol)
+            if holds:
+                events.append((t, "stick", info))
+                mode = info
                 T.append(t)
                 Y.append(y.copy())
         else:
