@@ -59,7 +59,7 @@ def _allocates(kernel, seen):
 
 
 def _called_from_the_loop():
-    """The kernels the runtime-free loop calls, looking through its inlined steps."""
+    """Return the kernels the runtime-free loop calls, looking through its inlined steps."""
     called, seen = {}, set()
     stack = [cell_kernels._advance_periods]
     while stack:
