@@ -58,10 +58,13 @@ def _allocates(kernel, seen):
     )
 
 
+LOOPS = [cell_kernels._advance_periods_accurate, cell_kernels._advance_periods_implicit]
+
+
 def _called_from_the_loop():
-    """Return the kernels the runtime-free loop calls, looking through its inlined steps."""
+    """Return the kernels the runtime-free loops call, looking through their inlined steps."""
     called, seen = {}, set()
-    stack = [cell_kernels._advance_periods]
+    stack = list(LOOPS)
     while stack:
         kernel = stack.pop()
         for callee in _callees(kernel):
@@ -77,7 +80,8 @@ def _called_from_the_loop():
 
 def test_the_cell_loop_is_compiled_without_the_runtime():
     # the premise: if the loop gets numba's runtime back, this check is moot
-    assert cell_kernels._advance_periods.targetoptions.get('_nrt') is False
+    for loop in LOOPS:
+        assert loop.targetoptions.get('_nrt') is False
 
 
 def test_every_allocating_kernel_the_loop_calls_has_its_own_runtime():

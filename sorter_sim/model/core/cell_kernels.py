@@ -96,7 +96,14 @@ from sorter_sim.model.core.cell_layout import (
     Parcels,
     Sensors,
 )
-from sorter_sim.model.core.cell_parcel import _advance_parcel, _cell_work, _emit, _jam
+from sorter_sim.model.core.cell_parcel import (
+    _advance_parcel,
+    _cell_work,
+    _emit,
+    _integrate_accurate,
+    _integrate_implicit,
+    _jam,
+)
 from sorter_sim.model.core.cell_sensing import (
     cell_snapshot,
     crosses_wall,
@@ -373,52 +380,105 @@ def _actuators_end(act, cfg):
     act[A_STROKE] = st_end
 
 
-@borrowing
-def _advance_periods(n_periods, k0, setup, act, parcels, sensors, log, memo, work):
+def _compiled_for(method: str, function, decorator):
     """
-    Advance the cell period by period: ``advance_cell``'s loop, with its scratch ``work``.
+    Compile ``function``, a kernel made for one method, under a name of its own.
 
-    Each period: its strips, every parcel's motion, events and sensor transitions, the
-    jams, the sensors' edges, the actuators. Compiled without reference counting
-    (``jit.borrowing``) and its steps inlined (``jit.kernel_step``): the loop runs for
-    every slot of the cell every period, and counting the references of the thirty
-    arrays its steps receive cost more than a parcel's closed-form motion;
-    ``advance_cell`` holds the arrays.
-
-    Returns
-    -------
-    (int, int)
-        The periods done and the events written.
-
+    numba names a kernel's cache files after its qualified name, and the factories'
+    functions share theirs (``_period_loop.<locals>.advance_periods``); named per method,
+    each method's kernel has its own cache files and is compiled or loaded alone.
     """
-    cfg, stats = setup.cfg, memo.stats
-    ev_rows, reserve = log.ev_i.shape[0], log.reserve
-    n_ev = 0
-    done = 0
-    for step in range(n_periods):
-        k = k0 + step
-        v = cfg[C_V] if act[A_BELT_ON] > 0.5 else 0.0
-        n_strips, disk_sid, same_strips = _period_strips(k, v, act, setup, work.strips, memo)
-        period = (v, n_strips, disk_sid, same_strips)
-        ntr = 0
-        for i in range(parcels.state.shape[0]):
-            n_ev, ntr = _advance_parcel(
-                i, k, period, setup, parcels, sensors, work, stats, log, (n_ev, ntr)
+    function.__name__ = f"{function.__name__}_{method}"
+    function.__qualname__ = function.__name__
+    return decorator(function)
+
+
+def _period_loop(accurate: bool):
+    """
+    Return the period loop with one integration method compiled in.
+
+    ``accurate`` is a constant of the loop's code: numba drops the branch it rules out
+    before it types the code, so the loop compiles (and a cold start waits for) one
+    integrator and what it calls, not both.
+    """
+
+    def advance_periods(n_periods, k0, setup, act, parcels, sensors, log, memo, work):
+        """
+        Advance the cell period by period: ``advance_cell``'s loop, with its scratch ``work``.
+
+        Each period: its strips, every parcel's motion, events and sensor transitions,
+        the jams, the sensors' edges, the actuators. Compiled without reference
+        counting (``jit.borrowing``) and its steps inlined (``jit.kernel_step``): the
+        loop runs for every slot of the cell every period, and counting the references
+        of the thirty arrays its steps receive cost more than a parcel's closed-form
+        motion; ``advance_cell`` holds the arrays.
+
+        Returns
+        -------
+        (int, int)
+            The periods done and the events written.
+
+        """
+        cfg, stats = setup.cfg, memo.stats
+        ev_rows, reserve = log.ev_i.shape[0], log.reserve
+        n_ev = 0
+        done = 0
+        for step in range(n_periods):
+            k = k0 + step
+            v = cfg[C_V] if act[A_BELT_ON] > 0.5 else 0.0
+            n_strips, disk_sid, same_strips = _period_strips(k, v, act, setup, work.strips, memo)
+            if accurate:
+                period = (v, n_strips, disk_sid, same_strips, _integrate_accurate)
+            else:
+                period = (v, n_strips, disk_sid, same_strips, _integrate_implicit)
+            ntr = 0
+            for i in range(parcels.state.shape[0]):
+                n_ev, ntr = _advance_parcel(
+                    i, k, period, setup, parcels, sensors, work, stats, log, (n_ev, ntr)
+                )
+            n_ev = _parcel_jams(k, cfg[C_DT], parcels, work, log, n_ev)
+            n_ev = _wall_jams(k, cfg, parcels, work, log, n_ev)
+            n_ev = _sensor_edges(k, ntr, work, sensors.counts, log, n_ev)
+            _actuators_end(act, cfg)
+            done += 1
+            if ev_rows - n_ev < reserve:
+                break
+        return done, n_ev
+
+    return _compiled_for("accurate" if accurate else "implicit", advance_periods, borrowing)
+
+
+_advance_periods_accurate = _period_loop(True)
+_advance_periods_implicit = _period_loop(False)
+
+
+def _cell_kernel(accurate: bool):
+    """Return ``advance_cell`` compiled for one method (see ``_period_loop``)."""
+
+    def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
+        n_sens = sensors.eye_x.shape[0] + 2
+        work = _cell_work(parcels.par, n_sens, setup.cfg[C_B])
+        if accurate:
+            return _advance_periods_accurate(
+                n_periods, k0, setup, act, parcels, sensors, log, memo, work
             )
-        n_ev = _parcel_jams(k, cfg[C_DT], parcels, work, log, n_ev)
-        n_ev = _wall_jams(k, cfg, parcels, work, log, n_ev)
-        n_ev = _sensor_edges(k, ntr, work, sensors.counts, log, n_ev)
-        _actuators_end(act, cfg)
-        done += 1
-        if ev_rows - n_ev < reserve:
-            break
-    return done, n_ev
+        return _advance_periods_implicit(
+            n_periods, k0, setup, act, parcels, sensors, log, memo, work
+        )
+
+    return _compiled_for("accurate" if accurate else "implicit", advance_cell, njit(cache=True))
 
 
-@njit(cache=True)
+advance_cell_accurate = _cell_kernel(True)
+advance_cell_implicit = _cell_kernel(False)
+
+
 def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
     """
     Advance the cell over up to ``n_periods`` control periods from period index ``k0``.
+
+    Runs the kernel of the cell's method (``cfg[C_METHOD]``): ``advance_cell_accurate``
+    or ``advance_cell_implicit``, each compiled with its integrator only.
 
     Parameters
     ----------
@@ -456,9 +516,8 @@ def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
         The periods done and the events written.
 
     """
-    n_sens = sensors.eye_x.shape[0] + 2
-    work = _cell_work(parcels.par, n_sens, setup.cfg[C_B])
-    return _advance_periods(n_periods, k0, setup, act, parcels, sensors, log, memo, work)
+    kernel = advance_cell_accurate if setup.cfg[C_METHOD] < 0.5 else advance_cell_implicit
+    return kernel(n_periods, k0, setup, act, parcels, sensors, log, memo)
 
 
 # what the runtime and the tests use of the cell (``ck.*``): the layout and the sensing

@@ -20,14 +20,13 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from sorter_sim.model.core.accurate import run_accurate
+from sorter_sim.model.core.accurate import run_accurate_reduced
 from sorter_sim.model.core.cell_layout import (
     C_ATOL,
     C_B,
     C_DT,
     C_EXIT_X,
     C_HALF_W,
-    C_METHOD,
     C_OPEN_HI,
     C_OPEN_LO,
     C_RTOL,
@@ -245,14 +244,73 @@ def _closed_form(i, m, period, setup, parcels, work, stats):
 
 
 @kernel_step
-def _integrate(i, k, m, n_strips, setup, parcels, work, stats, log, n_ev):
+def _integrate_accurate(i, m, n_strips, setup, parcels, work, counters):
+    """
+    Integrate parcel i over the period by the accurate method, from mode ``m``.
+
+    ``accurate.run_accurate``: event-located Dormand-Prince, restarted every period,
+    under the period's ``n_strips`` strips. Returns its status and the mode reached;
+    the trajectory is in the scratch (``work.ys``), the counts in ``counters``.
+    """
+    cfg, nodes, weights = setup.cfg, setup.nodes, setup.weights
+    h = cfg[C_DT]
+    strip_view = work.strips[:n_strips]
+    contact = Contact(strip_view, parcels.par[i], nodes, weights)
+    slide = Slide(
+        math.inf,
+        contact,
+        n_surf_of(strip_view),
+        work.borders,
+        cfg[C_RTOL],
+        cfg[C_ATOL],
+        h,
+    )
+    # the reductions always apply in the cell
+    status, _, m_new = run_accurate_reduced(
+        work.s0,
+        m,
+        0.0,
+        h,
+        slide,
+        Trail(work.ts, work.ys, work.ms),
+        Log(work.evb, counters),
+        parcels.gauge_xi[i],
+    )
+    return status, m_new
+
+
+@kernel_step
+def _integrate_implicit(i, m, n_strips, setup, parcels, work, counters):
+    """
+    Integrate parcel i over the period by one backward-Euler step, from mode ``m``.
+
+    ``implicit.run_implicit`` (exact stick too) under the period's ``n_strips``
+    strips. Returns its status and the mode reached, as ``_integrate_accurate``.
+    """
+    h = setup.cfg[C_DT]
+    contact = Contact(work.strips[:n_strips], parcels.par[i], setup.nodes, setup.weights)
+    status, _, m_new = run_implicit(
+        work.s0,
+        m,
+        0.0,
+        h,
+        math.inf,
+        contact,
+        h,
+        Trail(work.ts, work.ys, work.ms),
+        Log(work.evb, counters),
+    )
+    return status, m_new
+
+
+@kernel_step
+def _integrate(i, k, m, period, setup, parcels, work, stats, log, n_ev):
     """
     Integrate parcel i over the period with the model core, from mode ``m``.
 
-    The accurate method (``accurate.run_accurate``, event-located Dormand-Prince,
-    restarted every period) or one backward-Euler step (``implicit.run_implicit``),
-    under the period's ``n_strips`` strips. A failed integration jams the parcel
-    (EV_JAM, b = -2).
+    ``period`` is as ``_advance_parcel``'s: its strips' count and the cell's method
+    (``_integrate_accurate`` or ``_integrate_implicit``, fixed when the kernel is
+    compiled) are used. A failed integration jams the parcel (EV_JAM, b = -2).
 
     Returns
     -------
@@ -260,38 +318,17 @@ def _integrate(i, k, m, n_strips, setup, parcels, work, stats, log, n_ev):
         The parcel's phase after it (PH_CELL or PH_JAMMED) and the events.
 
     """
-    cfg, nodes, weights = setup.cfg, setup.nodes, setup.weights
-    state, par = parcels.state, parcels.par
-    s0, ys, counters = work.s0, work.ys, work.counters
-    h = cfg[C_DT]
-    strip_view = work.strips[:n_strips]
-    contact = Contact(strip_view, par[i], nodes, weights)
-    trail = Trail(work.ts, ys, work.ms)
+    n_strips, integrate = period[1], period[4]
+    state, ys, counters = parcels.state, work.ys, work.counters
     counters[:] = 0
-    if cfg[C_METHOD] < 0.5:
-        slide = Slide(
-            math.inf,
-            contact,
-            n_surf_of(strip_view),
-            work.borders,
-            cfg[C_RTOL],
-            cfg[C_ATOL],
-            h,
-        )
-        status, _, m_new = run_accurate(
-            s0, m, 0.0, h, slide, True, trail, Log(work.evb, counters), parcels.gauge_xi[i]
-        )
-    else:
-        status, _, m_new = run_implicit(
-            s0, m, 0.0, h, math.inf, contact, h, trail, Log(work.evb, counters)
-        )
+    status, m_new = integrate(i, m, n_strips, setup, parcels, work, counters)
     stats[1] += 1
     stats[2] += counters[N_STEPS]
     stats[3] += counters[N_RHS]
     last = counters[N_OUT] - 1
     if (status != ST_END and status != ST_TARGET) or not 0 <= last < _INT_BUF:
         # the physics failed for this parcel: stop it and say so
-        return PH_JAMMED, _jam(i, -2, k, h, parcels, log, n_ev)
+        return PH_JAMMED, _jam(i, -2, k, setup.cfg[C_DT], parcels, log, n_ev)
     for j in range(6):
         state[i, j] = ys[last, j]
     parcels.mode[i] = m_new
@@ -445,8 +482,9 @@ def _advance_parcel(i, k, period, setup, parcels, sensors, work, stats, log, cou
     """
     Advance parcel i over period k: closed form or integrated, then its events and sensors.
 
-    ``period`` is (v, n_strips, disk_sid, same_strips), ``counts`` (n_ev, ntr): the
-    events and sensor transitions so far. A free or jammed slot does not move.
+    ``period`` is (v, n_strips, disk_sid, same_strips, integrate), the last the cell's
+    method (see ``_integrate``); ``counts`` (n_ev, ntr): the events and sensor
+    transitions so far. A free or jammed slot does not move.
 
     Returns
     -------
@@ -454,7 +492,7 @@ def _advance_parcel(i, k, period, setup, parcels, sensors, work, stats, log, cou
         The events and the sensor transitions after it.
 
     """
-    v, n_strips, disk_sid, same_strips = period
+    v, _, disk_sid, same_strips, _ = period
     n_ev, ntr = counts
     cfg = setup.cfg
     state, phase, s0, s1 = parcels.state, parcels.phase, work.s0, work.s1
@@ -470,7 +508,7 @@ def _advance_parcel(i, k, period, setup, parcels, sensors, work, stats, log, cou
         moved, hx0 = _closed_form(i, m, (v, disk_sid, same_strips), setup, parcels, work, stats)
         new_phase = PH_CELL
         if not moved:
-            new_phase, n_ev = _integrate(i, k, m, n_strips, setup, parcels, work, stats, log, n_ev)
+            new_phase, n_ev = _integrate(i, k, m, period, setup, parcels, work, stats, log, n_ev)
         for j in range(6):
             s1[j] = state[i, j]
         tau_phase = -1.0

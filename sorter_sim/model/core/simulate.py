@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sorter_sim.model.core.accurate import run_accurate
+from sorter_sim.model.core.accurate import run_accurate, run_accurate_reduced
 from sorter_sim.model.core.cache import check_kernel_cache
 from sorter_sim.model.core.common import (
     EV_BORDER,
@@ -692,9 +692,12 @@ def _run_kernel(method, start, span, contact, tol, borders, h_max, reductions, t
             tol["atol"],
             h_max,
         )
-        status, _, _ = run_accurate(
-            y0, mode0, t0, t_end, slide, reductions, trail, log, np.zeros(GAUGE_CARRY)
-        )
+        xi = np.zeros(GAUGE_CARRY)
+        if reductions:
+            # the cell's compiled integrator (see ``run_accurate_reduced``)
+            status, _, _ = run_accurate_reduced(y0, mode0, t0, t_end, slide, trail, log, xi)
+        else:
+            status, _, _ = run_accurate(y0, mode0, t0, t_end, slide, False, trail, log, xi)
     elif method == "implicit":
         status, _, _ = run_implicit(
             y0, mode0, t0, t_end, tol["y_target"], contact, tol["dt"], trail, log
