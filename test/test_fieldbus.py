@@ -252,7 +252,7 @@ def test_a_client_that_leaves_mid_request_and_two_writers_at_once(cell, modbus):
 
 
 def _diag(cell):
-    return cell._fieldbus_diagnostics()
+    return cell.fieldbus_bridge.diagnostics()
 
 
 def test_a_busy_fieldbus_port_is_refused_in_one_line(ros):
