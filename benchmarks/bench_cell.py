@@ -178,7 +178,8 @@ class _Subscriber:
         )
         assert self.proc.stdout.readline().strip() == 'ready'
         deadline = time.monotonic() + 20.0
-        while node._pub_poses.get_subscription_count() == 0 and time.monotonic() < deadline:
+        poses = node.publisher_set.pub_poses
+        while poses.get_subscription_count() == 0 and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.01)
 
     def close(self) -> int:
@@ -252,9 +253,9 @@ def bench_node(sim_s: float, parcels: int, extras=()) -> dict:
                 time.sleep(0.01)
         warm_up(node.cell, parcels)
         plc = _FieldbusClients(node) if 'fieldbus' in extras else None
-        k0, msgs0 = node.cell.k, node.n_messages
+        k0, msgs0 = node.cell.k, node.publisher_set.n_messages
         frames0 = node.live_view.frames_sent if live else 0
-        node._cost = {'step_s': 0.0, 'periods': 0, 'publish_s': 0.0, 'messages': 0}
+        node.cost.reset()
         t_end = node.cell.t + sim_s
         t0, cpu0 = time.perf_counter(), time.thread_time()
         while node.cell.t < t_end:
@@ -262,13 +263,13 @@ def bench_node(sim_s: float, parcels: int, extras=()) -> dict:
         wall = time.perf_counter() - t0
         cpu = time.thread_time() - cpu0
         sim = (node.cell.k - k0) * node.cell.dt
-        c = node._cost
+        c = node.cost
         out = {
             'rtf': sim / wall,
             'cpu_rtf': sim / cpu,
-            'us_per_period': 1e6 * c['step_s'] / c['periods'],
-            'us_per_message': 1e6 * c['publish_s'] / c['messages'],
-            'messages_per_sim_s': (node.n_messages - msgs0) / sim,
+            'us_per_period': 1e6 * c.step_s / c.periods,
+            'us_per_message': 1e6 * c.publish_s / c.messages,
+            'messages_per_sim_s': (node.publisher_set.n_messages - msgs0) / sim,
             'parcels': node.cell.n_parcels,
             'jams': node.cell.outcome_counts['jammed'],
         }

@@ -99,4 +99,4 @@ def cell_state(cell):
 
 def diagnostics(cell):
     """Return the fieldbus counters the node reports in its diagnostics."""
-    return cell._fieldbus_diagnostics()
+    return cell.fieldbus_bridge.diagnostics()

@@ -29,7 +29,7 @@ from sorter_control.logic import (
     RoutingTable,
     SorterLogic,
 )
-from sorter_sim.frontends.node import induct_spec
+from sorter_sim.frontends.node_commands import induct_spec
 from sorter_sim.runtime.cell import Cell, ParcelSpec, check_parcel
 from sorter_sim.runtime.params import SPECS, CellParams, ParamError
 from sorter_sim.runtime.scene import _RULES, SceneError, apply_overrides, load_scene, validate

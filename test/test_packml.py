@@ -448,7 +448,7 @@ def _diagnostics(ros, sim):
     got = []
     probe.create_subscription(DiagnosticArray, '/diagnostics', got.append, 10)
     ros.spin_until(lambda: probe.count_publishers('/diagnostics') > 0, 5.0, 'diagnostics')
-    sim._publish_diagnostics()
+    sim.diagnostics.publish()
     ros.spin_until(lambda: got, 5.0, 'a diagnostics message')
     return got[-1].status[0]
 
@@ -512,7 +512,7 @@ def test_packml_and_machinery_over_opc_ua_with_asyncua_and_the_register_over_mod
         assert bad.isError() and bad.exception_code == 3
         assert mb.write_register(command.address, 2).isError() is False  # start: refused
         sim.advance(1)
-        assert sim.cell.packml.state == 'Held' and sim._io_refused == 1
+        assert sim.cell.packml.state == 'Held' and sim.fieldbus_bridge.refused == 1
         assert mb.write_register(command.address, 5).isError() is False  # unhold
         sim.advance(1)
         assert mb.read_input_registers(state.address, count=1).registers == [6]

@@ -139,7 +139,7 @@ def test_bad_requests_get_s7_return_codes_and_change_nothing(cell, plc):
         assert 'class=0x81, code=0x04' in str(err.value)
     cell.advance(5)
     assert cell_state(cell) == before
-    diag = cell._fieldbus_diagnostics()
+    diag = cell.fieldbus_bridge.diagnostics()
     assert int(diag['fieldbus_writes_refused']) == len(cases)
     assert int(diag['fieldbus_reads_refused']) == 1
     assert int(diag['fieldbus_illegal_functions']) == 2
@@ -173,7 +173,7 @@ def test_a_killed_server_process_leaves_the_cell_running_and_says_so(cell, plc):
     import signal
 
     pid = cell.fieldbus.pid
-    assert pid and cell._fieldbus_diagnostics()['fieldbus_servers'] == 'running'
+    assert pid and cell.fieldbus_bridge.diagnostics()['fieldbus_servers'] == 'running'
     os.kill(pid, signal.SIGKILL)
     deadline = time.monotonic() + 5.0
     while cell.fieldbus.alive and time.monotonic() < deadline:
@@ -181,7 +181,7 @@ def test_a_killed_server_process_leaves_the_cell_running_and_says_so(cell, plc):
     k = cell.cell.k
     cell.advance(500)  # the image is still exchanged with nobody: the cell runs on
     assert cell.cell.k == k + 500
-    assert cell._fieldbus_diagnostics()['fieldbus_servers'] == 'ended'
+    assert cell.fieldbus_bridge.diagnostics()['fieldbus_servers'] == 'ended'
     with pytest.raises(Exception):
         plc.db_read(1, 0, 8)
 

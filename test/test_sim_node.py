@@ -247,14 +247,15 @@ def test_markers_are_built_only_while_someone_subscribes(ros):
     probe.induct(A=0.4, B=0.3)
     probe.settle()
     probe.step(40)
-    assert sim.n_marker_arrays == 0
+    assert sim.publisher_set.n_marker_arrays == 0
     got = []
     sub = probe.node.create_subscription(MarkerArray, 'parcels/markers', got.append, STREAM_QOS)
     ros.spin_until(lambda: sub.get_publisher_count() > 0, 5.0, 'marker publisher')
-    ros.spin_until(lambda: sim._pub_markers.get_subscription_count() > 0, 5.0, 'marker subscriber')
+    markers = sim.publisher_set.pub_markers
+    ros.spin_until(lambda: markers.get_subscription_count() > 0, 5.0, 'marker subscriber')
     probe.step(40)
     ros.spin_until(lambda: len(got) >= 2, 5.0, 'markers')
-    assert sim.n_marker_arrays == 2
+    assert sim.publisher_set.n_marker_arrays == 2
     clear, box = got[-1].markers
     assert clear.action == Marker.DELETEALL
     assert box.type == Marker.CUBE and box.id == 1 and box.text == 'on_belt'

@@ -143,7 +143,7 @@ def check_station_program(
             line.induct(label, dest)
             line.run(SPACING_S)
         # the last parcels are past the disks: the station is held for the next one
-        st.sim._srv_packml('hold', Trigger.Response())
+        st.sim.commands.packml('hold', Trigger.Response())
         line.run(0.2)
         packml_state = st.sim.cell.packml.state
         line.induct(HELD_LABEL, 'D01')

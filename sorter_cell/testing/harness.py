@@ -257,7 +257,7 @@ class SorterCell(LockStep):
             What the cell did.
 
         """
-        done = self.sim.inject_fault(fault, arguments)
+        done = self.sim.diagnostics.inject_fault(fault, arguments)
         self.spin_idle()
         return done
 
@@ -265,7 +265,7 @@ class SorterCell(LockStep):
         """Clear the e-stop and jams, as the cell's ``reset`` service does."""
         from std_srvs.srv import Trigger
 
-        self.sim._srv_reset(Trigger.Request(), Trigger.Response())
+        self.sim.commands.reset(Trigger.Request(), Trigger.Response())
         self.spin_idle()
 
     def sensor(self, name: str) -> bool:

@@ -407,7 +407,7 @@ class LineNode(Node):
         """Serve every station's I/O image: Modbus unit id k and OPC UA folder Sk for station k."""
         v = self.values
         stations = [
-            (station_name(self.first + k), s.attach_io_image())
+            (station_name(self.first + k), s.fieldbus_bridge.attach_io_image())
             for k, s in enumerate(self.stations)
         ]
         self.fieldbus = FieldbusServers(
@@ -478,7 +478,7 @@ class LineNode(Node):
             t0 = time.perf_counter()
             if self.fieldbus is not None:
                 for node in self.stations:
-                    node.io_before_period()
+                    node.fieldbus_bridge.before_period()
             events = self.line.advance(m, link.due(k + m))
             t1 = time.perf_counter()
             self.cost['physics_s'] += t1 - t0
@@ -492,10 +492,10 @@ class LineNode(Node):
                     self._publish(self._pub_full[e.sensor.rsplit('.', 1)[0]], Bool(data=e.blocked))
             if self.fieldbus is not None:
                 for node, evs in zip(self.stations, per_station):
-                    node.io_after_period(evs)
+                    node.fieldbus_bridge.after_period(evs)
                 time.sleep(0)  # the servers' thread serves a waiting request within a period
             for node, evs in zip(self.stations, per_station):
-                node.publish_period(evs)
+                node.publisher_set.publish_period(evs)
             view = self.live_view
             if view is not None and self.line.k % self._strides[0] == 0 and view.due():
                 view.update_stations(
