@@ -533,7 +533,7 @@ def test_a_frozen_heartbeat_does_not_feed_the_watchdog_nor_clear_it():
     assert trips[0].t_ns == (k0 + 300) * cell.params.control_period_ns
     assert cell.heartbeats_frozen == 30
     # tripped 0.3 s after the last changed counter, not fed by the 30 repeats
-    assert cell._heartbeat_k == k0
+    assert cell.watchdog.fed_k == k0
     # the same value does not clear it either; a changed one does
     assert cell.heartbeat(7) is False and cell.watchdog_tripped
     assert cell.heartbeat(8) is True and not cell.watchdog_tripped

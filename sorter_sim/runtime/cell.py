@@ -11,14 +11,16 @@ The node (``sorter_sim/frontends/node.py``) turns these into messages.
 
 Time is an integer count of control periods, so stamps are exact nanoseconds.
 Parameters come checked from ``params.CellParams``. What the cell reports and takes
-are the records of ``cell_records`` (re-exported here); the faults injected into
-its sensors are a ``sensor_faults.SensorFaults``.
+are the records of ``cell_records`` (re-exported here). Its collaborators, one job
+each: ``cell_infeed.Infeed`` (which parcel comes in next), ``cell_watchdog.Watchdog``
+(the controller's heartbeats), ``cell_packml.PackMLTimers`` (starved and blocked),
+``sensor_faults.SensorFaults`` (faults injected into its sensors) and ``cell_view``
+(what a camera sees of its parcels).
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import numpy as np
 
@@ -29,10 +31,11 @@ from sorter_sim.model.core.layout import PARCEL_WIDTH, STRIP_WIDTH
 from sorter_sim.model.core.simulate import Parcel, parcel_array
 from sorter_sim.model.core.stick import GAUGE_CARRY
 from sorter_sim.model.core.wrench import gauss_legendre_01
-from sorter_sim.model.description import PENDING_INDUCTS_MAX, shown
+from sorter_sim.model.description import shown
 from sorter_sim.model.packml import Conditions, PackMLMachine
 from sorter_sim.runtime.cell_records import (
     CHATTER_PERIOD_RANGE,
+    NEVER,
     SENSOR_FAULTS,
     WATCHDOG_REFUSAL,
     Handoff,
@@ -50,6 +53,10 @@ from sorter_sim.runtime.params import (
     format_label,
     parcel_half_extents,
 )
+from sorter_sim.runtime import cell_view
+from sorter_sim.runtime.cell_infeed import Infeed
+from sorter_sim.runtime.cell_packml import PackMLTimers
+from sorter_sim.runtime.cell_watchdog import Watchdog
 from sorter_sim.runtime.sensor_faults import SensorFaults
 
 EXIT_NAMES = {ck.EV_LEFT: 'left', ck.EV_RIGHT: 'right', ck.EV_STRAIGHT: 'straight'}
@@ -92,30 +99,15 @@ class Cell:
         self.k = 0
         self.estop = False
         self.jam = False
-        # the controller watchdog: armed by the first heartbeat, tripped when the next one
-        # is later than watchdog_timeout (simulated time), cleared by a heartbeat
-        self.watchdog_tripped = False
-        self.watchdog_trips = 0
-        self.heartbeat_cut = False  # an injected fault: heartbeats no longer reach the cell
-        self.heartbeats_lost = 0
+        self.watchdog = Watchdog()
         self._sensor_faults = SensorFaults(self.sensor_names)
-        self._heartbeat_k: int | None = None
-        self._heartbeat_value: int | None = None  # the last counter that fed it
-        self.heartbeats_frozen = 0  # heartbeats that repeated the last counter: not fed
         self.n_inducted = 0
-        self.n_streamed = 0  # of them from the stream (arrival_count counts these)
         # a station of a line hands each parcel leaving straight to the next one
         # (``runtime.line``): their full states, collected by ``take_handoffs``
         self.keep_handoffs = False
         self._handoffs: list[Handoff] = []
         self.outcome_counts = {'left': 0, 'right': 0, 'straight': 0, 'jammed': 0}
-        self._stream_rng = np.random.Generator(np.random.PCG64(params.seed))
-        self._external = deque()
-        self.n_induct_refused = 0  # inducts refused because too many were waiting
-        self._stream_next: tuple[ParcelSpec, float] | None = None
-        self._stream_due_k: int | None = None
-        # the period the stream opened in (arrival_duration_s counts from it); None: off
-        self._stream_open_k: int | None = None if params.arrival == 'none' else 0
+        self.infeed = Infeed(params, self.dt)
         self._pending_edges: list[SensorEdge] = []  # made by a PackML command
         # one period can log per parcel a few sensor changes, a scan, an exit and a jam
         self._ev_reserve = cap * (n_sens + 4) + 8
@@ -125,19 +117,15 @@ class Cell:
         # the kernel's note of the last period's strips (see ``advance_cell``)
         self._last_strips = np.zeros((ck.MAX_STRIPS, STRIP_WIDTH))
         self._last_info = np.array([-1, 0], dtype=np.int64)
-        self._snapshot = np.zeros((cap, 7))
+        self.snapshot_rows = np.zeros((cap, 7))  # cell_view.parcels fills it
         # the machine state (PackML): in automatic mode it resets and starts at once, so a
         # cell that nobody commands runs from period 0 as it always has
         self.packml = PackMLMachine(auto=params.packml_auto)
-        self._busy_k = 0  # last period with a parcel on the cell or an induct (starved)
-        self._inducted_seen = 0
-        self._on_cell = False  # a parcel on the belt or the disks, at the last evaluation
+        self._timers = PackMLTimers((n, self.sensor_names.index(n)) for n in CHUTE_SENSORS)
         # set by whatever can change the machine state's conditions between two advances
         # (commands, faults, parcels from outside); advance evaluates it first then
         self._packml_dirty = True
         self._packml_due_k = 0  # the period a condition's time falls due (starved, ...)
-        self._chute_index = [(n, self.sensor_names.index(n)) for n in CHUTE_SENSORS]
-        self._chute_blocked_k: dict[str, int] = {}  # chute eye -> period it was seen blocked
         self.update_packml()
         self._kernel(0)  # compile (or load from numba's cache) now, not in a callback
 
@@ -179,15 +167,10 @@ class Cell:
         """
         self._packml_dirty = True
         changed_alpha = params.alpha_deg != self.params.alpha_deg
-        if params.arrival == 'none':
-            self._stream_open_k = None
-        elif self.params.arrival == 'none':
-            self._stream_open_k = self.k  # it opens now: its span counts from this period
+        self.infeed.update_params(params, self.k)
         self.params = params
         if changed_alpha:
             self.act[ck.A_ALPHA_CMD] = params.alpha_rad
-        if params.arrival != 'rate':
-            self._stream_due_k = None
 
     # ------------------------------------------------------------------ time
     @property
@@ -281,25 +264,11 @@ class Cell:
         p, k, dt = self.params, self.k, self.dt
         phase = self.phase
         on_cell = bool((phase == ck.PH_CELL).any())
-        self._on_cell = on_cell
-        # time not spent producing (stopped, held, ...) is not time starving
-        if on_cell or self.n_inducted != self._inducted_seen or not self.packml.infeed_open:
-            self._busy_k, self._inducted_seen = k, self.n_inducted
-        since = self._chute_blocked_k
-        for name, s in self._chute_index:
-            if self._shows_blocked(s, name):
-                since.setdefault(name, k)
-            elif since:
-                since.pop(name, None)
-        blocked = p.packml_blocked_s > 0 and any(
-            (k - k0) * dt >= p.packml_blocked_s - 1e-12 for k0 in since.values()
-        )
-        starved = (
-            p.packml_starved_s > 0
-            and not on_cell
-            and (k - self._busy_k) * dt >= p.packml_starved_s - 1e-12
-        )
-        batch_done = self.stream_closed() and not self._external
+        timers = self._timers
+        timers.observe(k, on_cell, self.n_inducted, self.packml.infeed_open, self._shows_blocked)
+        blocked = timers.blocked(k, dt, p)
+        starved = timers.starved(k, dt, p)
+        batch_done = self.stream_closed() and not self.infeed.external
         return Conditions(
             estop=self.estop,
             hold_cause='jam' if self.jam else 'watchdog' if self.watchdog_tripped else '',
@@ -321,29 +290,15 @@ class Cell:
         """
         p, k, dt = self.params, self.k, self.dt
         state = self.packml.state
-        out = 1 << 40
+        out = self._timers.horizon(k, dt, p, state == 'Execute')
         if state == 'Aborting':
             rate = self.cfg[ck.C_STROKE_RATE]
             out = 1 if not math.isfinite(rate) else max(1, math.ceil(self.stroke / (rate * dt)))
-        if p.packml_starved_s > 0 and state == 'Execute' and not self._on_cell:
-            due = self._busy_k + math.ceil(p.packml_starved_s / dt - 1e-9)
-            out = min(out, max(1, due - k))
-        if p.packml_blocked_s > 0 and state == 'Execute':
-            for k0 in self._chute_blocked_k.values():
-                due = k0 + math.ceil(p.packml_blocked_s / dt - 1e-9)
-                out = min(out, max(1, due - k))
         if state == 'Stopping' or (state == 'Execute' and self.stream_closed()):
             out = 1
-        elif state == 'Execute' and self._stream_end_k() is not None:
-            out = min(out, max(1, self._stream_end_k() - k))
+        elif state == 'Execute' and self.infeed.end_k() is not None:
+            out = min(out, max(1, self.infeed.end_k() - k))
         return out
-
-    def _stream_end_k(self) -> int | None:
-        """Return the period the stream's span (``arrival_duration_s``) ends at, or None."""
-        span = self.params.arrival_duration_s
-        if not span or self._stream_open_k is None:
-            return None
-        return self._stream_open_k + math.ceil(span / self.dt - 1e-9)
 
     def stream_closed(self) -> bool:
         """
@@ -353,11 +308,7 @@ class Cell:
         since it opened: either is a stream of a known size, the same parcels however the
         run is sliced or paced.
         """
-        p = self.params
-        if p.arrival_count and self.n_streamed >= p.arrival_count:
-            return True
-        end = self._stream_end_k()
-        return end is not None and self.k >= end
+        return self.infeed.closed(self.k)
 
     @property
     def packml_dirty(self) -> bool:
@@ -472,37 +423,26 @@ class Cell:
 
         """
         self._packml_dirty = True
-        if self.heartbeat_cut:
-            self.heartbeats_lost += 1
-            return False
-        if self._heartbeat_value is not None and counter == self._heartbeat_value:
-            self.heartbeats_frozen += 1
-            return False
-        self._heartbeat_value = counter
-        self._heartbeat_k = self.k
-        if self.watchdog_tripped:
-            self.watchdog_tripped = False
-            return True
-        return False
+        return self.watchdog.feed(counter, self.k)
 
-    @property
-    def watchdog_armed(self) -> bool:
-        return self._heartbeat_k is not None and self.params.watchdog_timeout > 0.0
+    # what the watchdog shows, by the names the node's diagnostics and the tests use
+    watchdog_tripped = property(lambda self: self.watchdog.tripped)
+    watchdog_trips = property(lambda self: self.watchdog.trips)
+    heartbeat_cut = property(lambda self: self.watchdog.cut)
+    heartbeats_lost = property(lambda self: self.watchdog.lost)
+    heartbeats_frozen = property(lambda self: self.watchdog.frozen)
+    watchdog_armed = property(lambda self: self.watchdog.armed(self.params.watchdog_timeout))
 
     def _watchdog_deadline(self) -> int | None:
         """Period index at which the watchdog trips, or None when it cannot."""
-        if not self.watchdog_armed or self.watchdog_tripped:
-            return None
-        late = math.ceil(self.params.watchdog_timeout / self.dt - 1e-9)
-        return self._heartbeat_k + max(1, late)
+        return self.watchdog.deadline(self.params.watchdog_timeout, self.dt)
 
     def _trip_watchdog(self) -> WatchdogTrip:
         """Fail safe as a diverter does when its PLC stops: disks down, α to its safe value."""
-        self.watchdog_tripped = True
-        self.watchdog_trips += 1
+        late_s = self.watchdog.trip(self.k, self.dt)
         self.act[ck.A_STROKE_TARGET] = 0.0
         self.act[ck.A_ALPHA_CMD] = math.radians(self.params.safe_alpha_deg)
-        return WatchdogTrip(self.t_ns, (self.k - self._heartbeat_k) * self.dt)
+        return WatchdogTrip(self.t_ns, late_s)
 
     # ------------------------------------------------------------------ sensors
     def sensor_states(self) -> dict[str, bool]:
@@ -570,7 +510,7 @@ class Cell:
             Cut or mend.
 
         """
-        self.heartbeat_cut = bool(cut)
+        self.watchdog.cut = bool(cut)
 
     def jam_parcel(self, which: str) -> list:
         """
@@ -641,14 +581,7 @@ class Cell:
 
         """
         self._packml_dirty = True
-        spec = check_parcel(spec, self.params.belt_width)
-        if len(self._external) >= PENDING_INDUCTS_MAX:
-            self.n_induct_refused += 1
-            raise ParamError(
-                f'{PENDING_INDUCTS_MAX} inducts already wait for room on the belt; '
-                'this one is refused'
-            )
-        self._external.append(spec)
+        self.infeed.queue(check_parcel(spec, self.params.belt_width))
 
     def take_handoffs(self) -> list[Handoff]:
         """Return the parcels that left straight since the last call (``keep_handoffs``)."""
@@ -702,43 +635,18 @@ class Cell:
 
     @property
     def pending_inducts(self) -> int:
-        return len(self._external)
+        """Return the parcels from outside waiting for room on the belt."""
+        return len(self.infeed.external)
 
-    def _draw_stream_parcel(self) -> ParcelSpec:
-        p = self.params
-        u = self._stream_rng.uniform
-        A = u(*p.parcel_A)
-        B = u(*p.parcel_B)
-        m = u(*p.parcel_m)
-        phi0 = math.radians(u(*p.parcel_phi0_deg))
-        y0 = u(*p.parcel_y0)
-        return ParcelSpec(A, B, m, phi0, y0)
+    @property
+    def n_induct_refused(self) -> int:
+        """Return the inducts refused because PENDING_INDUCTS_MAX were waiting."""
+        return self.infeed.n_refused
 
-    def _next_candidate(self) -> tuple[str, ParcelSpec, float] | None:
-        """Return the parcel waiting to be placed next, with the belt gap it needs [m]."""
-        p = self.params
-        if self._external:
-            return 'external', self._external[0], p.arrival_gap[0]
-        if self.stream_closed():
-            return None  # the batch is in, or the span is over
-        if p.arrival == 'gap':
-            if self._stream_next is None:
-                spec = self._draw_stream_parcel()
-                self._stream_next = (spec, self._stream_rng.uniform(*p.arrival_gap))
-        elif p.arrival == 'rate':
-            if self._stream_due_k is None:
-                self._stream_due_k = self.k + self._draw_interarrival()
-            if self.k < self._stream_due_k:
-                return None
-            if self._stream_next is None:
-                self._stream_next = (self._draw_stream_parcel(), p.arrival_gap[0])
-        else:
-            return None
-        return 'stream', self._stream_next[0], self._stream_next[1]
-
-    def _draw_interarrival(self) -> int:
-        dt_s = self._stream_rng.exponential(1.0 / self.params.arrival_rate)
-        return max(1, math.ceil(dt_s / self.dt))
+    @property
+    def n_streamed(self) -> int:
+        """Return the parcels placed from the stream (``arrival_count`` counts these)."""
+        return self.infeed.n_streamed
 
     def _upstream_room(self) -> tuple[float, int]:
         """
@@ -754,7 +662,7 @@ class Cell:
         edges: list[SensorEdge] = []
         if self.estop or not self.packml.infeed_open:
             return edges
-        cand = self._next_candidate()
+        cand = self.infeed.candidate(self.k)
         if cand is None:
             return edges
         source, spec, gap = cand
@@ -762,13 +670,7 @@ class Cell:
         free = np.flatnonzero(self.phase == ck.PH_FREE)
         if room < gap or free.size == 0:
             return edges
-        if source == 'external':
-            self._external.popleft()
-        else:
-            self._stream_next = None
-            self.n_streamed += 1
-            if self.params.arrival == 'rate':
-                self._stream_due_k = self.k + self._draw_interarrival()
+        self.infeed.taken(source, self.k)
         i = int(free[0])
         self.n_inducted += 1
         self._packml_dirty = True
@@ -818,13 +720,10 @@ class Cell:
     def _periods_until_placement(self) -> int:
         """Return a lower bound on the periods before the next induct can happen (>= 1)."""
         if self.estop or not self.packml.infeed_open:
-            return 1 << 40
-        p = self.params
-        cand = self._next_candidate()
+            return NEVER
+        cand = self.infeed.candidate(self.k)
         if cand is None:
-            if p.arrival == 'rate' and self._stream_due_k is not None and not self._external:
-                return max(1, self._stream_due_k - self.k)
-            return 1 << 40
+            return self.infeed.periods_until_due(self.k)
         room, j = self._upstream_room()
         if j < 0 or not np.any(self.phase == ck.PH_FREE):
             return 1
@@ -951,57 +850,12 @@ class Cell:
 
     # ------------------------------------------------------------------ observation
     def parcels(self) -> dict[str, np.ndarray]:
-        """
-        Return the parcels in the cell.
-
-        Parcels in the cell (on it, jammed, or sliding onto a chute), in id order:
-        id, x, y, phi, A, B, state (index into STATE_NAMES).
-        """
-        n = ck.cell_snapshot(
-            self.phase,
-            self.mode,
-            self.ids,
-            self.state,
-            self.par,
-            self.params.disk_field_length,
-            self._snapshot,
-        )
-        rows = self._snapshot[:n]
-        return {
-            'id': rows[:, 0].astype(np.int64),
-            'x': rows[:, 1].copy(),
-            'y': rows[:, 2].copy(),
-            'phi': rows[:, 3].copy(),
-            'A': rows[:, 4].copy(),
-            'B': rows[:, 5].copy(),
-            'state': rows[:, 6].astype(np.int64),
-        }
+        """Return the parcels in the cell, in id order (``cell_view.parcels``)."""
+        return cell_view.parcels(self)
 
     def parcel_motion(self) -> dict:
-        """
-        Return label, speed and slip of each parcel in the cell, in id order (as ``parcels``).
-
-        speed: of the centre of gravity [m/s]; slip_belt, slip_disks: its speed relative to
-        the belt's and to the disks' surface [m/s], the relative speeds the friction zones
-        see at the CoG. Parcels riding a surface are advanced in closed form: their velocity
-        is that surface's.
-        """
-        idx = np.flatnonzero(self.phase != ck.PH_FREE)
-        idx = idx[np.argsort(self.ids[idx], kind='mergesort')]
-        v = self.state[idx, 3:5].copy()
-        mode, phase = self.mode[idx], self.phase[idx]
-        speed = self.belt_velocity
-        belt = np.array([speed, 0.0])
-        disks = speed * np.array([math.cos(self.alpha), math.sin(self.alpha)])
-        riding = phase == ck.PH_CELL
-        v[riding & (mode == ck.MODE_BELT)] = belt
-        v[riding & (mode == ck.MODE_DISKS)] = disks
-        return {
-            'label': [self.labels[i] for i in idx],
-            'speed': np.hypot(v[:, 0], v[:, 1]),
-            'slip_belt': np.hypot(v[:, 0] - belt[0], v[:, 1] - belt[1]),
-            'slip_disks': np.hypot(v[:, 0] - disks[0], v[:, 1] - disks[1]),
-        }
+        """Return label, speed and slips of each parcel (``cell_view.parcel_motion``)."""
+        return cell_view.parcel_motion(self)
 
     @property
     def n_parcels(self) -> int:

@@ -84,6 +84,9 @@ class WatchdogTrip:
     silent_s: float  # simulated time since the last heartbeat [s]
 
 
+# a period count no run reaches: "not before something else changes"
+NEVER = 1 << 40
+
 WATCHDOG_REFUSAL = 'refused: the controller watchdog holds the disks down (no heartbeat)'
 
 # faults a test bench injects into a sensor's signal (the physics is untouched): held
