@@ -267,6 +267,10 @@ def run_node(
         raise SystemExit(2) from None
     node = None
     code = 0
+    # handlers this call installs itself are its caller's to have back (a test, a program
+    # that runs the node in-process and goes on); an executable's, from start_node, stay
+    # ignored to the end of the process
+    owned = stop is None
     try:
         if stop is None:
             stop = StopSignals(hurry_raises=False).install()
@@ -294,6 +298,8 @@ def run_node(
             rclpy.try_shutdown()
         except KeyboardInterrupt:
             pass
+        if owned and stop is not None:
+            stop.restore()
     if code:
         sys.exit(code)
 

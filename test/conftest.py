@@ -54,6 +54,35 @@ def ros(ros_context):
         yield harness
 
 
+def _sigint_ignored() -> bool:
+    """Return whether this process ignores SIGINT, as the kernel sees it (children inherit it)."""
+    import signal
+
+    with open('/proc/self/status', encoding='ascii') as f:
+        for line in f:
+            if line.startswith('SigIgn:'):
+                return bool(int(line.split()[1], 16) >> (signal.SIGINT - 1) & 1)
+    return False
+
+
+@pytest.fixture(autouse=True)
+def _ctrl_c_still_stops():
+    """
+    Fail a test that leaves its process ignoring SIGINT.
+
+    An ignored SIGINT is inherited over exec: every command a later test starts in this
+    worker would then shrug off Ctrl-C, and a user's pytest run calling the same code
+    could no longer be stopped.
+    """
+    before = _sigint_ignored()
+    yield
+    if not before and _sigint_ignored():
+        import signal
+
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # for the tests after it
+        pytest.fail('the test left the process ignoring SIGINT (Ctrl-C)')
+
+
 def pytest_configure(config):
     """Drop the core's stale numba kernels before a test calls one (tests call them directly)."""
     from sorter_sim.model.core.cache import check_kernel_cache
