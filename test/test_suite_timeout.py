@@ -1,11 +1,15 @@
 """
-The suite's own guard: a test that overruns is an ordinary failure and the run goes on.
+The suite's own guards: an overrunning test fails alone, and a group runs in one worker.
 
 A deliberately over-running test (a loop inside numba-compiled code, where a timeout
 signal could not be handled) is run by pytest in a subprocess with this project's
 pytest.ini and a short timeout. It must be reported as one failed test that names the
 timeout, the tests before and after it must pass, and pytest must end normally
 (exit code 1, no INTERNALERROR).
+
+Tests that share state across a file (a module fixture, a file one test writes and the
+next reads) carry an ``xdist_group`` mark: the suite's ``--dist loadgroup`` must keep
+each group in one worker, or they race and fail only when the machine is loaded.
 """
 
 import os
@@ -74,3 +78,53 @@ def test_an_overrunning_test_fails_alone_and_the_suite_goes_on(tmp_path):
     assert 'FAILED test_overrun.py::test_overruns_inside_compiled_code' in text, text[-3000:]
     assert 'PASSED test_overrun.py::test_after' in text, text[-3000:]
     assert 'ran past the per-test time limit of 4 s' in text, text[-3000:]
+
+
+GROUPED = textwrap.dedent('''
+    import pytest
+
+
+    @pytest.mark.xdist_group('shared')
+    @pytest.mark.parametrize('i', range(6))
+    def test_grouped(i):
+        pass
+
+
+    @pytest.mark.parametrize('i', range(6))
+    def test_free(i):
+        pass
+''')
+
+
+def test_an_xdist_group_runs_in_one_worker(tmp_path):
+    """The suite's own options (pytest.ini: -n 2 --dist loadgroup) keep a group together."""
+    (tmp_path / 'test_grouped.py').write_text(GROUPED)
+    env = dict(os.environ, PYTHONPATH=str(ROOT / 'test'))
+    out = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'pytest',
+            '-c',
+            str(ROOT / 'pytest.ini'),
+            '--rootdir',
+            str(tmp_path),
+            '-p',
+            'no:cacheprovider',
+            '-v',
+            str(tmp_path / 'test_grouped.py'),
+        ],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    text = out.stdout + out.stderr
+    assert out.returncode == 0, text[-3000:]
+    workers = {
+        line.split()[0]
+        for line in out.stdout.splitlines()
+        if 'PASSED' in line and '::test_grouped[' in line
+    }
+    assert len(workers) == 1, f'the group ran in {sorted(workers)}:\n{text[-3000:]}'

@@ -151,15 +151,28 @@ def _line_demo(tmp_path, executor, *extra):
     return s, records
 
 
+@pytest.fixture(scope='module')
+def events_line(tmp_path_factory):
+    """Return the recorded line demo under the events executor: summary, records, bag."""
+    tmp = tmp_path_factory.mktemp('events_line')
+    bag = tmp / 'line.mcap'
+    s, records = _line_demo(tmp, 'events', '--record', str(bag))
+    return s, records, bag
+
+
+# the two tests read one run of the line (events_line): in one worker
+LINE_RUN = pytest.mark.xdist_group('wcs:events line')
+
+
 @pytest.mark.ros
-def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs(tmp_path):
+@LINE_RUN
+def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs(events_line):
     from collections import Counter
 
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    bag = tmp_path / 'line.mcap'
-    s, records = _line_demo(tmp_path, 'events', '--record', str(bag))
+    s, records, bag = events_line
     # the recording holds the warehouse's side too: every disposition, and where each left
     topics = Counter()
     with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
@@ -186,8 +199,9 @@ def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs(
 
 
 @pytest.mark.ros
-def test_the_line_sorts_every_parcel_alike_under_either_executor(tmp_path):
-    _, events = _line_demo(tmp_path, 'events')
+@LINE_RUN
+def test_the_line_sorts_every_parcel_alike_under_either_executor(events_line, tmp_path):
+    _, events, _ = events_line
     _, single = _line_demo(tmp_path, 'single')
     assert len(events) > 10
     key = lambda r: (r['label'], r['code'], r['chute'], r['station'])  # noqa: E731
