@@ -49,7 +49,7 @@ def run_line(args) -> int | str:
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions
 
-    from sorter_cell.line_segment import build_segment
+    from sorter_cell.line_segment import SegmentRun, SegmentStream, build_segment
     from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
 
     n = args.stations
@@ -102,13 +102,13 @@ def run_line(args) -> int | str:
                 first=1,
                 stations=n,
                 line_stations=n,
-                seed=args.seed,
-                gap=args.gap,
-                fast=fast,
-                rtf=1.0 if fast else float(args.rtf),
-                record=args.record or '',
-                foxglove=int(args.foxglove or 0),
-                count=args.parcels or 0,
+                stream=SegmentStream(seed=args.seed, gap=args.gap, count=args.parcels or 0),
+                run=SegmentRun(
+                    fast=fast,
+                    rtf=1.0 if fast else float(args.rtf),
+                    record=args.record or '',
+                    foxglove=int(args.foxglove or 0),
+                ),
             )
             nodes += [*line.nodes, *ctls]
         else:

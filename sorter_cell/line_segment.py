@@ -25,8 +25,57 @@ from collections import Counter
 import signal
 import sys
 import time
+from dataclasses import dataclass
 
 FAST_SLICE = 0.005  # s of simulated time per pass of a line in fast mode
+
+
+@dataclass(frozen=True)
+class SegmentStream:
+    """
+    The parcel stream a line's first station inducts (the other segments' is unused).
+
+    Attributes
+    ----------
+    seed : int
+        The stream's seed (station 1's).
+    gap : (float, float), optional
+        The stream's gap range [m].
+    count : int
+        The stream stops after this many parcels (0: never).
+
+    """
+
+    seed: int
+    gap: tuple[float, float] | None = None
+    count: int = 0
+
+
+@dataclass(frozen=True)
+class SegmentRun:
+    """
+    How a segment runs: its pace, how it keeps time with the others, what it records.
+
+    Attributes
+    ----------
+    fast : bool
+        As fast as possible (True) or on the wall clock at ``rtf``.
+    rtf : float
+        The real-time factor on the wall clock.
+    sync : str
+        How the segments keep time together: ``conservative`` or ``barrier``.
+    record : str
+        An MCAP file for the whole segment, or ''.
+    foxglove : int
+        The live view's port, or 0.
+
+    """
+
+    fast: bool = True
+    rtf: float = 1.0
+    sync: str = 'conservative'
+    record: str = ''
+    foxglove: int = 0
 
 
 def build_segment(
@@ -35,14 +84,8 @@ def build_segment(
     first: int,
     stations: int,
     line_stations: int,
-    seed: int,
-    gap=None,
-    fast: bool = True,
-    rtf: float = 1.0,
-    record: str = '',
-    foxglove: int = 0,
-    count: int = 0,
-    sync: str = 'conservative',
+    stream: SegmentStream,
+    run: SegmentRun = SegmentRun(),
 ):
     """
     Return a segment's line node and one controller per station, in context ``ctx``.
@@ -57,22 +100,10 @@ def build_segment(
         Its stations.
     line_stations : int
         The whole line's.
-    seed : int
-        The stream's seed (station 1's).
-    gap : (float, float), optional
-        The stream's gap range [m].
-    fast : bool
-        As fast as possible (True) or on the wall clock at ``rtf``.
-    rtf : float
-        The real-time factor on the wall clock.
-    record : str
-        An MCAP file for the whole segment, or ''.
-    foxglove : int
-        The live view's port, or 0.
-    count : int
-        The stream stops after this many parcels (0: never).
-    sync : str
-        How the segments keep time together: ``conservative`` or ``barrier``.
+    stream : SegmentStream
+        The parcel stream station 1 inducts.
+    run : SegmentRun
+        Its pace, time keeping and outputs.
 
     Returns
     -------
@@ -92,25 +123,25 @@ def build_segment(
             Parameter('stations', value=stations),
             Parameter('first_station', value=first),
             Parameter('line_stations', value=line_stations),
-            Parameter('time_mode', value='fast' if fast else 'realtime'),
+            Parameter('time_mode', value='fast' if run.fast else 'realtime'),
             Parameter('fast_slice', value=FAST_SLICE),
-            Parameter('real_time_factor', value=1.0 if fast else float(rtf)),
-            Parameter('record_path', value=record),
-            Parameter('foxglove_port', value=int(foxglove)),
-            Parameter('segment_sync', value=sync),
+            Parameter('real_time_factor', value=1.0 if run.fast else float(run.rtf)),
+            Parameter('record_path', value=run.record),
+            Parameter('foxglove_port', value=int(run.foxglove)),
+            Parameter('segment_sync', value=run.sync),
         ],
         station_params={
             'arrival': 'none',
             'labels': ['P'],
             'label_pattern': '{label}{id:05d}',
-            'seed': int(seed),
+            'seed': int(stream.seed),
             'pose_rate_hz': 50.0,
-            'arrival_count': int(count),
-            **({'arrival_gap': [float(g) for g in gap]} if gap else {}),
+            'arrival_count': int(stream.count),
+            **({'arrival_gap': [float(g) for g in stream.gap]} if stream.gap else {}),
         },
     )
     try:
-        ctls = [station_controller(ctx, first - 1 + k, record) for k in range(stations)]
+        ctls = [station_controller(ctx, first - 1 + k, run.record) for k in range(stations)]
     except BaseException:
         line.destroy_node()
         raise
@@ -248,12 +279,8 @@ def main(argv=None) -> int:
         first=args.first,
         stations=args.stations,
         line_stations=args.line_stations,
-        seed=args.seed,
-        gap=args.gap,
-        fast=fast,
-        rtf=1.0 if fast else float(args.rtf),
-        count=args.parcels,
-        sync=args.sync,
+        stream=SegmentStream(seed=args.seed, gap=args.gap, count=args.parcels),
+        run=SegmentRun(fast=fast, rtf=1.0 if fast else float(args.rtf), sync=args.sync),
     )
     if args.start:
         from rclpy.parameter import Parameter

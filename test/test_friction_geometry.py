@@ -6,6 +6,7 @@ and independent brute-force integrals.
 """
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -106,14 +107,29 @@ def test_clip_of_a_rotated_square_by_a_line_through_its_centre():
     assert cx == pytest.approx(0.3 * math.sqrt(2) / 2 / 3)
 
 
-def _brute_distance_integrals(corners, lo, hi, cx, cy, A, B, phi, x, y, n=1200):
+class Box(NamedTuple):
+    """A parcel's footprint: A x B [m], turned by phi [rad], its centre at (x, y) [m]."""
+
+    A: float
+    B: float
+    phi: float
+    x: float
+    y: float
+
+
+def _fine_grid(box: Box, n: int):
+    """Return the centres (px, py) of an n x n grid of cells over the footprint, and dA."""
     s = (np.arange(n) + 0.5) / n
-    lx, ly = np.meshgrid((s - 0.5) * A, (s - 0.5) * B)
-    px = x + math.cos(phi) * lx - math.sin(phi) * ly
-    py = y + math.sin(phi) * lx + math.cos(phi) * ly
+    lx, ly = np.meshgrid((s - 0.5) * box.A, (s - 0.5) * box.B)
+    px = box.x + math.cos(box.phi) * lx - math.sin(box.phi) * ly
+    py = box.y + math.sin(box.phi) * lx + math.cos(box.phi) * ly
+    return px, py, box.A * box.B / n / n
+
+
+def _brute_distance_integrals(box: Box, lo, hi, cx, cy, n=1200):
+    px, py, dA = _fine_grid(box, n)
     m = (px >= lo) & (px <= hi)
     r = np.hypot(px - cx, py - cy)
-    dA = A * B / n / n
     return (r[m].sum() * dA, ((px - cx) / r)[m].sum() * dA, ((py - cy) / r)[m].sum() * dA)
 
 
@@ -123,7 +139,7 @@ def test_exact_distance_integrals_against_a_fine_grid(c):
     corners = footprint(x, y, phi, A, B)
     poly, n = _clip(corners, 0.0, math.inf)
     exact = distance_integrals(poly, n, c[0], c[1])
-    brute = _brute_distance_integrals(corners, 0.0, math.inf, c[0], c[1], A, B, phi, x, y)
+    brute = _brute_distance_integrals(Box(A, B, phi, x, y), 0.0, math.inf, c[0], c[1])
     # the grid's own error is O(h²) ~ 1e-7 relative here
     assert np.allclose(exact, brute, rtol=2e-5, atol=2e-7)
 
@@ -208,17 +224,14 @@ def _cells(lo, hi, cut):
 
 
 # ---------------------------------------------------------------- wrench
-def _brute_wrench(A, B, phi, x, y, V, omega, vs, mu_of, lo=0.0, n=1500):
-    s = (np.arange(n) + 0.5) / n
-    lx, ly = np.meshgrid((s - 0.5) * A, (s - 0.5) * B)
-    px = x + math.cos(phi) * lx - math.sin(phi) * ly
-    py = y + math.sin(phi) * lx + math.cos(phi) * ly
+def _brute_wrench(box: Box, V, omega, vs, mu_of, lo=0.0, n=1500):
+    px, py, dA = _fine_grid(box, n)
+    x, y = box.x, box.y
     m = px >= lo
     ux = V[0] - omega * (py - y) - vs[0]
     uy = V[1] + omega * (px - x) - vs[1]
     sp = np.hypot(ux, uy)
     mu = mu_of(sp)
-    dA = A * B / n / n
     fx = -(mu * ux / sp)[m].sum() * dA
     fy = -(mu * uy / sp)[m].sum() * dA
     t = ((px - x) * (-mu * uy / sp) - (py - y) * (-mu * ux / sp))[m].sum() * dA
@@ -242,7 +255,7 @@ def test_closed_form_and_quadrature_wrench_against_a_fine_grid(V, omega):
     area, qx, qy = polygon_area_centroid(poly, n)
     ux_q = V[0] - omega * (qy - y) - vs[0]
     uy_q = V[1] + omega * (qx - x) - vs[1]
-    brute = _brute_wrench(A, B, phi, x, y, V, omega, vs, lambda s: 0.6 + 0 * s)
+    brute = _brute_wrench(Box(A, B, phi, x, y), V, omega, vs, lambda s: 0.6 + 0 * s)
     closed = np.array(
         strip_wrench_closed(poly, n, area, qx, qy, x, y, ux_q, uy_q, omega, 0.6, 1.0)
     )
@@ -280,11 +293,7 @@ def test_quadrature_of_a_speed_dependent_law_converges_to_the_fine_grid():
     ux_q = V[0] - omega * (qy - y) - vs[0]
     uy_q = V[1] + omega * (qx - x) - vs[1]
     brute = _brute_wrench(
-        A,
-        B,
-        phi,
-        x,
-        y,
+        Box(A, B, phi, x, y),
         V,
         omega,
         vs,

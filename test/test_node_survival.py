@@ -242,17 +242,90 @@ def test_the_executables_load_nothing_heavy_before_their_handlers():
     assert out.strip() == '[]'
 
 
-def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_promptly():
-    """OPC UA subscriptions, idle Modbus sockets, WebSocket clients that stopped reading."""
-    import asyncio
-    import json
+def _wait_listening(ports: dict, timeout: float) -> None:
+    """Wait until every server accepts connections on its port, or the time is up."""
     import socket
+
+    deadline = time.monotonic() + timeout
+    for key in ('foxglove_port', 'modbus_port', 'opcua_port'):
+        while time.monotonic() < deadline:
+            with socket.socket() as s:
+                if s.connect_ex(('127.0.0.1', ports[key])) == 0:
+                    break
+            time.sleep(0.2)
+
+
+def _subscribe_opcua(endpoint: str, stop_clients) -> None:
+    """Start three OPC UA clients subscribed to the cell's time; they hold on until told."""
+    import asyncio
     import threading
 
     from asyncua import Client
+
+    async def subscribers():
+        class Quiet:
+            def datachange_notification(self, node, val, data):
+                pass
+
+        clients = []
+        for _ in range(3):
+            c = Client(endpoint, timeout=10)
+            await c.connect()
+            idx = await c.get_namespace_index('urn:sorter_cell')
+            # the cell's folder is named by its namespace
+            folder = NS.strip('/').replace('/', '_')
+            t = await c.nodes.objects.get_child(
+                [f'{idx}:{folder}', f'{idx}:Inputs', f'{idx}:cell.time']
+            )
+            sub = await c.create_subscription(50, Quiet())
+            await sub.subscribe_data_change(t)
+            clients.append(c)
+        subscribed.set()
+        while not stop_clients.is_set():
+            await asyncio.sleep(0.1)
+
+    subscribed = threading.Event()
+    threading.Thread(target=lambda: asyncio.run(subscribers()), daemon=True).start()
+    assert subscribed.wait(30.0), 'the OPC UA subscribers did not connect'
+
+
+def _connect_modbus(port: int, held: list) -> None:
+    """Connect three Modbus clients that read once and then stay idle."""
     from pymodbus.client import ModbusTcpClient
-    from ros_harness import free_port
+
+    for _ in range(3):
+        m = ModbusTcpClient('127.0.0.1', port=port, timeout=5, retries=0)
+        assert m.connect() and not m.read_input_registers(0, count=10).isError()
+        held.append(m)
+
+
+def _stall_foxglove(port: int, held: list) -> None:
+    """Subscribe three WebSocket clients to every channel, with small buffers they never read."""
+    import json
+    import socket
+
     from websockets.sync.client import connect
+
+    for _ in range(3):
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        sock.connect(('127.0.0.1', port))
+        ws = connect(f'ws://127.0.0.1:{port}', sock=sock, subprotocols=['foxglove.sdk.v1'])
+        while True:
+            msg = ws.recv(timeout=10)
+            if isinstance(msg, str) and json.loads(msg).get('op') == 'advertise':
+                break
+        channels = json.loads(msg)['channels']
+        subs = [{'id': i, 'channelId': c['id']} for i, c in enumerate(channels)]
+        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+        held.append(ws)  # never read again
+
+
+def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_promptly():
+    """OPC UA subscriptions, idle Modbus sockets, WebSocket clients that stopped reading."""
+    import threading
+
+    from ros_harness import free_port
 
     ports = {'modbus_port': free_port(), 'opcua_port': free_port(), 'foxglove_port': free_port()}
     args = [a for k, v in ports.items() for a in ('-p', f'{k}:={v}')]
@@ -261,60 +334,10 @@ def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_prom
     stop_clients = threading.Event()
     held = []
     try:
-        deadline = time.monotonic() + 60.0
-        for key in ('foxglove_port', 'modbus_port', 'opcua_port'):  # all of them listening
-            while time.monotonic() < deadline:
-                with socket.socket() as s:
-                    if s.connect_ex(('127.0.0.1', ports[key])) == 0:
-                        break
-                time.sleep(0.2)
-
-        async def subscribers():
-            class Quiet:
-                def datachange_notification(self, node, val, data):
-                    pass
-
-            clients = []
-            for _ in range(3):
-                c = Client(endpoint, timeout=10)
-                await c.connect()
-                idx = await c.get_namespace_index('urn:sorter_cell')
-                # the cell's folder is named by its namespace
-                folder = NS.strip('/').replace('/', '_')
-                t = await c.nodes.objects.get_child(
-                    [f'{idx}:{folder}', f'{idx}:Inputs', f'{idx}:cell.time']
-                )
-                sub = await c.create_subscription(50, Quiet())
-                await sub.subscribe_data_change(t)
-                clients.append(c)
-            subscribed.set()
-            while not stop_clients.is_set():
-                await asyncio.sleep(0.1)
-
-        subscribed = threading.Event()
-        threading.Thread(target=lambda: asyncio.run(subscribers()), daemon=True).start()
-        assert subscribed.wait(30.0), 'the OPC UA subscribers did not connect'
-        for _ in range(3):
-            m = ModbusTcpClient('127.0.0.1', port=ports['modbus_port'], timeout=5, retries=0)
-            assert m.connect() and not m.read_input_registers(0, count=10).isError()
-            held.append(m)
-        for _ in range(3):
-            sock = socket.socket()
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-            sock.connect(('127.0.0.1', ports['foxglove_port']))
-            ws = connect(
-                f'ws://127.0.0.1:{ports["foxglove_port"]}',
-                sock=sock,
-                subprotocols=['foxglove.sdk.v1'],
-            )
-            while True:
-                msg = ws.recv(timeout=10)
-                if isinstance(msg, str) and json.loads(msg).get('op') == 'advertise':
-                    break
-            channels = json.loads(msg)['channels']
-            subs = [{'id': i, 'channelId': c['id']} for i, c in enumerate(channels)]
-            ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
-            held.append(ws)  # never read again
+        _wait_listening(ports, 60.0)
+        _subscribe_opcua(endpoint, stop_clients)
+        _connect_modbus(ports['modbus_port'], held)
+        _stall_foxglove(ports['foxglove_port'], held)
         time.sleep(5.0)  # frames pile up for the stalled clients
         assert proc.poll() is None
         # the fieldbus servers' process: it must not outlive the node

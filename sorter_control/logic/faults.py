@@ -17,7 +17,7 @@ import math
 
 from sorter_control.timing import side_of
 from sorter_control.logic.image import ScanIO
-from sorter_control.logic.tracking import R_FAULT, R_LATE, R_MISSED, Tracker
+from sorter_control.logic.tracking import R_FAULT, R_LATE, R_MISSED, Tracked, Tracker
 
 STATES = (
     "running",
@@ -218,11 +218,21 @@ class Supervisor:
             The fault state.
 
         """
+        self._check_held_eyes(io, tr, faults)
+        self._check_chute_sensors(io, tr, faults)
+        if not tr.belt_running:
+            return
+        for p in tr.parcels:
+            x_lead = tr.lead_x(p)
+            self._check_transit(io, tr, faults, p, x_lead)
+            if p.done:
+                continue
+            self._infer_outcome(io, tr, faults, p, x_lead)
+
+    def _check_held_eyes(self, io: ScanIO, tr: Tracker, faults: Faults) -> None:
+        """Report the photo-eyes blocked too long: jam (a parcel due to have passed), stuck on."""
         cfg = self.config
         v = tr.v
-        tol_x = cfg.tracking_tolerance + v * cfg.scan_period
-        b = cfg.cell.disk_field_length
-        # photo-eyes blocked too long: jam (a parcel that should have passed) or stuck on
         for name in tr.eye_x:
             eye = tr.eyes[name]
             if not eye.blocked or not tr.belt_running:
@@ -256,6 +266,11 @@ class Supervisor:
                         f"(longest parcel: {cfg.max_parcel_length / v:.2f} s)",
                         name,
                     )
+
+    def _check_chute_sensors(self, io: ScanIO, tr: Tracker, faults: Faults) -> None:
+        """Report a chute sensor blocked longer than the longest parcel takes: a jam."""
+        cfg = self.config
+        v = tr.v
         for name in tr.side_of_sensor:
             eye = tr.eyes[name]
             if (
@@ -270,60 +285,77 @@ class Supervisor:
                     "at the chute entry",
                     name,
                 )
-        if not tr.belt_running:
-            return
-        for p in tr.parcels:
-            x_lead = tr.lead_x(p)
-            # transit windows at the checkpoints (a straight parcel is done before the eyes
-            # downstream of the field see it, and still checked there)
-            for name, x_e in tr.eye_x.items():
-                if name in p.confirmed or not tr.checkpoint(p, name):
-                    continue
-                if x_lead > x_e + tol_x:
-                    # a blocked eye means merged with the parcel ahead (or the eye is stuck
-                    # on): the blocked-time check decides
-                    p.confirmed[name] = None
-                    if not tr.eyes[name].blocked and faults.running:
-                        io.fault(
-                            "stuck_off",
-                            f"{name}: parcel {p.seq} ({p.label}) should have "
-                            f"blocked it {(x_lead - x_e) / v:.2f} s ago",
-                            name,
-                        )
-            if p.done:
+
+    def _check_transit(
+        self, io: ScanIO, tr: Tracker, faults: Faults, p: Tracked, x_lead: float
+    ) -> None:
+        """
+        Report an eye a parcel's transit window passed without blocking: stuck off.
+
+        A straight parcel is done before the eyes downstream of the field see it, and is
+        still checked there.
+        """
+        v = tr.v
+        tol_x = self.config.tracking_tolerance + v * self.config.scan_period
+        for name, x_e in tr.eye_x.items():
+            if name in p.confirmed or not tr.checkpoint(p, name):
                 continue
-            # outcomes the controller infers from time
-            length = p.length if p.length is not None else cfg.max_parcel_length
-            if not p.committed:
-                if x_lead > length + b + tol_x:
-                    # never decided (fault state or unknown length): it went through with the
-                    # disks down
-                    io.finish(p, "straight", R_FAULT if not faults.running else R_LATE)
-                continue
-            side = side_of(p.plan)
-            if side == 0:
-                if x_lead > length + b + tol_x:
-                    io.finish(p, "straight")
-            elif p.prediction is not None:
-                deadline = tr.t_enter(p) + p.prediction.t_chute + cfg.missed_divert_margin
-                if tr.t > deadline:
-                    chute = tr.chute_of["left" if side > 0 else "right"]
-                    if not faults.running or faults.after_cell_watchdog(tr.t):
-                        # the disks were dropped by the fault (or by the cell's watchdog): its
-                        # fate is not the divert's doing
-                        if faults.running:
-                            faults.counts["after_cell_watchdog"] += 1
-                            io.log(
-                                "warn",
-                                f"parcel {p.seq} ({p.label}) did not reach {chute}: after "
-                                "the cell's watchdog trip, not latched",
-                            )
-                        io.finish(p, "unknown", R_FAULT)
-                        continue
-                    io.finish(p, "unknown", R_MISSED)
-                    self.counts["missed"] += 1
+            if x_lead > x_e + tol_x:
+                # a blocked eye means merged with the parcel ahead (or the eye is stuck
+                # on): the blocked-time check decides
+                p.confirmed[name] = None
+                if not tr.eyes[name].blocked and faults.running:
                     io.fault(
-                        "missed_divert",
-                        f"parcel {p.seq} ({p.label}) did not reach {chute} by {deadline:.3f} s",
-                        chute,
+                        "stuck_off",
+                        f"{name}: parcel {p.seq} ({p.label}) should have "
+                        f"blocked it {(x_lead - x_e) / v:.2f} s ago",
+                        name,
                     )
+
+    def _infer_outcome(
+        self, io: ScanIO, tr: Tracker, faults: Faults, p: Tracked, x_lead: float
+    ) -> None:
+        """
+        Finish a parcel whose outcome time tells: gone straight, or a divert missed.
+
+        A parcel never decided went straight; a straight one past the field is done; a
+        divert with no chute sensor by its deadline is missed (a fault), unless the disks
+        were dropped by a fault or the cell's watchdog first.
+        """
+        cfg = self.config
+        tol_x = cfg.tracking_tolerance + tr.v * cfg.scan_period
+        b = cfg.cell.disk_field_length
+        length = p.length if p.length is not None else cfg.max_parcel_length
+        if not p.committed:
+            if x_lead > length + b + tol_x:
+                # never decided (fault state or unknown length): it went through with the
+                # disks down
+                io.finish(p, "straight", R_FAULT if not faults.running else R_LATE)
+            return
+        side = side_of(p.plan)
+        if side == 0:
+            if x_lead > length + b + tol_x:
+                io.finish(p, "straight")
+        elif p.prediction is not None:
+            deadline = tr.t_enter(p) + p.prediction.t_chute + cfg.missed_divert_margin
+            if tr.t > deadline:
+                chute = tr.chute_of["left" if side > 0 else "right"]
+                if not faults.running or faults.after_cell_watchdog(tr.t):
+                    # the disks were dropped by the fault (or by the cell's watchdog): its
+                    # fate is not the divert's doing
+                    if faults.running:
+                        faults.counts["after_cell_watchdog"] += 1
+                        io.log(
+                            "warn",
+                            f"parcel {p.seq} ({p.label}) did not reach {chute}: after "
+                            "the cell's watchdog trip, not latched",
+                        )
+                    io.finish(p, "unknown", R_FAULT)
+                    return
+                io.finish(p, "unknown", R_MISSED)
+                self.counts["missed"] += 1
+                io.fault(
+                    "missed_divert",
+                    f"parcel {p.seq} ({p.label}) did not reach {chute} by {deadline:.3f} s",
+                    chute,
+                )

@@ -178,6 +178,45 @@ class LineNode(Node):
     ):
         # the segments of a line in one ROS graph each need a name of their own
         super().__init__(node_name, **kwargs)
+        self.values = values = self._declare_line_params()
+        self._refuse_unknown_parameters()
+        n = values['stations']
+        f0, last, total = self._segment_span(n)
+        chutes = self._station_chutes(n, f0, last)
+        ns = self.get_namespace().rstrip('/')
+        station_params = self._open_line_recorder(dict(station_params or {}))
+        overrides = [
+            Parameter(k, value=v) for k, v in {**self._line_owned(), **station_params}.items()
+        ]
+        self.stations: list[SimNode] = []
+        self._build_line(ns, f0, n, overrides, chutes)
+        self.fieldbus = None
+        self.live_view = None
+        if values['foxglove_port']:
+            self._open_live_view()
+        if values['modbus_port'] or values['opcua_port']:
+            self._open_fieldbus()
+        self._create_line_interfaces()
+        self._link_segments(f0, n, last, total)
+        self.exits = 0
+        # wall time spent in the line's physics and in publishing what it reports
+        self.cost = {'physics_s': 0.0, 'publish_s': 0.0}
+        self._wall_ref = None
+        mode = values['time_mode']
+        if mode == 'fast':
+            self._timer = self.create_timer(0.0, self._tick_fast)
+        elif mode == 'realtime':
+            self._timer = self.create_timer(0.001, self._tick_realtime)
+        else:
+            self._timer = None
+        self._publish_clock()
+        self.get_logger().info(
+            f'sorter line ready: {n} stations ({", ".join(a + "/" + b for a, b in chutes[:3])}'
+            f'{", ..." if n > 3 else ""}), {mode} mode'
+        )
+
+    def _declare_line_params(self) -> dict:
+        """Declare the line's own parameters; return their values, each checked for its range."""
         doubles = [n for n, (d, _, _) in LINE_PARAMS.items() if isinstance(d, float)]
         accept_integers_for_doubles(self, dict.fromkeys(doubles, ParameterType.PARAMETER_DOUBLE))
         values = {}
@@ -192,10 +231,17 @@ class LineNode(Node):
             if not check(value):
                 raise ParamError(f'parameter {name!r} must be {allowed}, got {value!r}')
             values[name] = value
-        self.values = values
-        self._refuse_unknown_parameters()
-        n = values['stations']
-        # a segment of a longer line: stations first .. first + n - 1 of line_stations
+        return values
+
+    def _segment_span(self, n: int) -> tuple[int, int, int]:
+        """
+        Place this node's ``n`` stations on the line; return (first, end, the line's total).
+
+        A segment of a longer line runs stations ``first_station`` .. ``first_station +
+        n - 1`` of ``line_stations`` (0-based here: ``first`` .. ``end - 1``); it hands
+        parcels on when the line goes on past its end.
+        """
+        values = self.values
         f0 = self.first = values['first_station'] - 1
         last = f0 + n
         total = values['line_stations'] or last
@@ -210,34 +256,51 @@ class LineNode(Node):
                 f'station), got {total}'
             )
         self.hand_on = last < total
+        return f0, last, total
+
+    def _station_chutes(self, n: int, f0: int, last: int) -> list:
+        """Return the stations' (left, right) chute names: the ones given, or the line's."""
+        names = self.values['chute_names']
         try:
             # names given name this node's stations; the default ones follow the line's
-            chutes = chute_pairs(n, values['chute_names'])
-            if not any(values['chute_names']):
+            chutes = chute_pairs(n, names)
+            if not any(names):
                 chutes = chute_pairs(last)[f0:]
         except ValueError as exc:
             raise ParamError(str(exc)) from None
-        ns = self.get_namespace().rstrip('/')
-        station_params = dict(station_params or {})
+        return chutes
+
+    def _open_line_recorder(self, station_params: dict) -> dict:
+        """
+        Open the line's recorder when it records; return the stations' params, recording too.
+
+        One file for the whole line: every station records into the line's recorder
+        (``open_recorder`` shares a path within a process), the line its own topics.
+        """
+        path = self.values['record_path']
         self.recorder = None
-        if values['record_path']:
-            # one file for the whole line: every station records into the line's recorder
-            # (``open_recorder`` shares a path within a process), the line its own topics
-            given = station_params.get('record_path', values['record_path'])
-            if given != values['record_path']:
+        if path:
+            given = station_params.get('record_path', path)
+            if given != path:
                 raise ParamError(
                     f"parameter 'record_path': the stations record to {given!r}, the line to "
-                    f"{values['record_path']!r}; a line records into one file"
+                    f"{path!r}; a line records into one file"
                 )
-            station_params['record_path'] = values['record_path']
+            station_params['record_path'] = path
             try:
-                self.recorder = open_recorder(values['record_path'], self.get_logger().error)
+                self.recorder = open_recorder(path, self.get_logger().error)
             except ValueError as exc:
                 raise ParamError(f"parameter 'record_path': {exc}") from None
-        overrides = [
-            Parameter(k, value=v) for k, v in {**self._line_owned(), **station_params}.items()
-        ]
-        self.stations: list[SimNode] = []
+        return station_params
+
+    def _build_line(self, ns: str, f0: int, n: int, overrides: list, chutes: list) -> None:
+        """
+        Start the stations and join their cells into the line, laid out a pitch apart.
+
+        The stations must publish at the same rates: the line publishes for them all on
+        one count of periods. On a failure, what was started is released.
+        """
+        values = self.values
         try:
             self._start_stations(ns, f0, n, overrides)
             p0 = self.stations[0].params
@@ -267,12 +330,9 @@ class LineNode(Node):
             if self.recorder is not None:
                 release_recorder(self.recorder)
             raise
-        self.fieldbus = None
-        self.live_view = None
-        if values['foxglove_port']:
-            self._open_live_view()
-        if values['modbus_port'] or values['opcua_port']:
-            self._open_fieldbus()
+
+    def _create_line_interfaces(self) -> None:
+        """Create the line's clock, exit and chute-full publishers and its step service."""
         self._pub_clock = self.create_publisher(Clock, '/clock', STREAM_QOS)
         self._pub_exits = self.create_publisher(DiagnosticStatus, 'line/exits', EVENT_QOS)
         self._pub_full = {
@@ -282,11 +342,19 @@ class LineNode(Node):
         for pub in self._pub_full.values():
             self._publish(pub, Bool(data=False))
         self.create_service(Trigger, 'line/step', self._srv_step, qos_profile=SERVICE_QOS)
+
+    def _link_segments(self, f0: int, n: int, last: int, total: int) -> None:
+        """
+        Size the line's passes and link it to the segments up and down the line.
+
+        A pass is a slice in fast mode, or a burst every station's watchdog can follow
+        (``node.burst_limit``) on the wall clock; the hand-overs between segments
+        (``segments.py``) are the next segment's entry, and ours.
+        """
+        values = self.values
         self._slice = max(1, round(values['fast_slice'] / self.line.dt))
-        # bursts every station's watchdog can follow (``node.burst_limit``)
         self._burst_s = min(burst_limit(s.params.watchdog_timeout) for s in self.stations)
         p0 = self.stations[0].params
-        # hand-overs between segments (``segments.py``): the next segment's entry, and ours
         self.segment = SegmentLink(
             self,
             upstream=station_name(f0) if f0 else None,
@@ -300,22 +368,6 @@ class LineNode(Node):
             max_step_k=max(self._slice, math.ceil(self._burst_s / self.line.dt) + 1),
             room=lambda: p0.max_parcels - self.stations[0].cell.n_parcels,
             barrier=values['segment_sync'] == 'barrier',
-        )
-        self.exits = 0
-        # wall time spent in the line's physics and in publishing what it reports
-        self.cost = {'physics_s': 0.0, 'publish_s': 0.0}
-        self._wall_ref = None
-        mode = values['time_mode']
-        if mode == 'fast':
-            self._timer = self.create_timer(0.0, self._tick_fast)
-        elif mode == 'realtime':
-            self._timer = self.create_timer(0.001, self._tick_realtime)
-        else:
-            self._timer = None
-        self._publish_clock()
-        self.get_logger().info(
-            f'sorter line ready: {n} stations ({", ".join(a + "/" + b for a, b in chutes[:3])}'
-            f'{", ..." if n > 3 else ""}), {mode} mode'
         )
 
     def _start_stations(self, ns: str, f0: int, n: int, overrides: list) -> None:

@@ -41,6 +41,7 @@ from sorter_sim.studies.precision_cases import (
 from sorter_sim.studies.precision_report import (
     QUICK_LONG_S,
     TARGET_ERROR,
+    PrecisionParts,
     _report_markdown,
     _scipy_rows,
 )
@@ -530,17 +531,19 @@ def write_precision_report(
             done("quadrature")
     bar.close()
     md = _report_markdown(
-        cases,
-        core_text=core_text,
-        core_fig=core_fig,
-        matrix_runs=matrix_runs,
-        long_runs=long_runs,
-        red_rows=red_rows,
+        PrecisionParts(
+            cases=cases,
+            core_text=core_text,
+            core_fig=core_fig,
+            matrix_runs=matrix_runs,
+            long_runs=long_runs,
+            red_rows=red_rows,
+            quad=quad,
+        ),
         info=info,
         quick=quick,
         img=img,
         elapsed=time.perf_counter() - t_start,
-        quad=quad,
     )
     path = out / "accuracy.md"
     path.write_text(md)

@@ -209,31 +209,15 @@ def _fmt(v) -> str:
 
 
 # ---------------------------------------------------------------------------- helpers
-def sorting_scene(
-    *,
-    A=0.7,
-    B=0.2,
-    m=5.0,
-    v=1.5,
-    alpha_deg=90.0,
-    b=math.inf,
-    mu_a=SEED_MU,
-    mu_b=SEED_MU,
-    mu_c="mu_a",
-    model="const1",
-    law=None,
-    rotation=True,
-    t_max=20.0,
-    s=SEED_S,
-    stick="seed",
-) -> dict:
+@dataclass(frozen=True)
+class SortingScene:
     """
-    Return a validated scene of the seed's sorting cell; zone c takes μ_a unless told.
+    The seed's sorting cell as the figures vary it; zone c takes μ_a unless told.
 
     The figures reproduce the seed's computations, so its decoupled stick test is the
     default here (``stick="exact"`` for the limit-set stick every other part uses).
 
-    Parameters
+    Attributes
     ----------
     A : float
         The parcel's length [m].
@@ -252,7 +236,7 @@ def sorting_scene(
     mu_b : float
         μ of the disks.
     mu_c : float
-        μ of the belt after them.
+        μ of the belt after them (``"mu_a"``: μ_a's).
     model : str
         The friction law's name.
     law : FrictionLaw
@@ -266,31 +250,72 @@ def sorting_scene(
     stick : str
         The stick law, exact or seed.
 
+    """
+
+    A: float = 0.7
+    B: float = 0.2
+    m: float = 5.0
+    v: float = 1.5
+    alpha_deg: float = 90.0
+    b: float = math.inf
+    mu_a: float | None = SEED_MU
+    mu_b: float | None = SEED_MU
+    mu_c: float | str | None = "mu_a"
+    model: str = "const1"
+    law: FrictionLaw | None = None
+    rotation: bool = True
+    t_max: float = 20.0
+    s: float = SEED_S
+    stick: str = "seed"
+
+    def scene(self) -> dict:
+        """
+        Return the scene, validated.
+
+        Returns
+        -------
+        dict
+            The scene.
+
+        """
+        fr = {"model": self.model}
+        if self.law is not None:
+            fr[self.model] = list(self.law)
+        return validate(
+            {
+                "parcel": {"A": self.A, "B": self.B, "m": self.m, "phi0_deg": 0.0},
+                "belt": {"v": self.v, "s": self.s},
+                "zones": {
+                    "b": self.b,
+                    "mu_a": self.mu_a,
+                    "mu_b": self.mu_b,
+                    "mu_c": self.mu_a if self.mu_c == "mu_a" else self.mu_c,
+                },
+                "diverter": {"alpha_deg": self.alpha_deg},
+                "friction": fr,
+                "model": {"rotation": self.rotation, "stick": self.stick},
+                "solver": {"t_max": self.t_max},
+            }
+        )
+
+
+def sorting_scene(**kw) -> dict:
+    """
+    Return a validated scene of the seed's sorting cell; zone c takes μ_a unless told.
+
+    Parameters
+    ----------
+    **kw
+        ``SortingScene``'s fields (the parcel, the belt, the zones' μ, the friction law,
+        the stick law, the run's length), each defaulting to the seed's section 5.
+
     Returns
     -------
     dict
         The scene.
 
     """
-    fr = {"model": model}
-    if law is not None:
-        fr[model] = list(law)
-    return validate(
-        {
-            "parcel": {"A": A, "B": B, "m": m, "phi0_deg": 0.0},
-            "belt": {"v": v, "s": s},
-            "zones": {
-                "b": b,
-                "mu_a": mu_a,
-                "mu_b": mu_b,
-                "mu_c": mu_a if mu_c == "mu_a" else mu_c,
-            },
-            "diverter": {"alpha_deg": alpha_deg},
-            "friction": fr,
-            "model": {"rotation": rotation, "stick": stick},
-            "solver": {"t_max": t_max},
-        }
-    )
+    return SortingScene(**kw).scene()
 
 
 def sort_once(**kw) -> dict:

@@ -79,20 +79,48 @@ _DEFINITIONS = """\
 """
 
 
+@dataclass(frozen=True)
+class PrecisionParts:
+    """
+    What a precision run measured, part by part; a part not run stays empty.
+
+    Attributes
+    ----------
+    cases : list
+        The work-precision cases (``precision_cases``).
+    core_text : str or None
+        The core benchmark's table (Fig. 9a), or None.
+    core_fig : dict
+        The core benchmark's figures.
+    matrix_runs : list
+        (case, runs) of the stiff and extreme matrix.
+    long_runs : list
+        The two-belt long runs.
+    red_rows : list
+        The reductions' rows.
+    quad : tuple
+        The implicit method's error by quadrature order.
+
+    """
+
+    cases: list = field(default_factory=list)
+    core_text: str | None = None
+    core_fig: dict = field(default_factory=dict)
+    matrix_runs: list = field(default_factory=list)
+    long_runs: list = field(default_factory=list)
+    red_rows: list = field(default_factory=list)
+    quad: tuple = ()
+
+
 def _report_markdown(
-    cases,
+    parts: PrecisionParts,
     *,
-    core_text,
-    core_fig,
-    matrix_runs,
-    long_runs,
-    red_rows,
     info,
     quick,
     img: Path,
     elapsed: float,
-    quad=(),
 ) -> str:
+    cases = parts.cases
     L = []
     L.append("# Accuracy and run time of the integration methods")
     L.append("")
@@ -109,17 +137,19 @@ def _report_markdown(
     if cases:
         L.extend(_headline_markdown(cases))
         L.extend(_levels_markdown(cases))
-    if core_text is not None:
-        L.extend(["## Core benchmark: Fig. 9a", "", "```", core_text, "```", ""])
+    if parts.core_text is not None:
+        L.extend(["## Core benchmark: Fig. 9a", "", "```", parts.core_text, "```", ""])
     for pc in cases:
         L.extend(_case_markdown(pc, img))
-    if matrix_runs:
-        L.append(_matrix_markdown(matrix_runs))
-    if long_runs:
-        L.append(_long_markdown(long_runs))
-    if red_rows:
-        L.append(_reductions_markdown(red_rows))
-    L.append(_findings_markdown(cases, matrix_runs, long_runs, core_fig, quad))
+    if parts.matrix_runs:
+        L.append(_matrix_markdown(parts.matrix_runs))
+    if parts.long_runs:
+        L.append(_long_markdown(parts.long_runs))
+    if parts.red_rows:
+        L.append(_reductions_markdown(parts.red_rows))
+    L.append(
+        _findings_markdown(cases, parts.matrix_runs, parts.long_runs, parts.core_fig, parts.quad)
+    )
     return with_contents("\n".join(L) + "\n")
 
 

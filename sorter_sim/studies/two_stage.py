@@ -148,26 +148,13 @@ class PreShift:
     settled: bool
 
 
-def pre_shift(
-    b1: float,
-    *,
-    A=0.7,
-    B=0.2,
-    m=5.0,
-    v=1.5,
-    alpha1_deg=90.0,
-    mu=SEED_MU,
-    s=SEED_S,
-    stick="seed",
-    rotation=True,
-) -> PreShift:
+@dataclass(frozen=True)
+class StageSetup:
     """
-    Run the parcel over a preliminary field of width b1 until it rides the belt again.
+    What the two fields of a study share: the parcel, the belt, the first field's angle.
 
-    Parameters
+    Attributes
     ----------
-    b1 : float
-        The first field's length [m].
     A : float
         The parcel's length [m].
     B : float
@@ -177,7 +164,7 @@ def pre_shift(
     v : float
         The belt speed [m/s].
     alpha1_deg : float
-        Its disk angle [deg].
+        The first field's disk angle [deg].
     mu : float
         The friction coefficient.
     s : float
@@ -187,15 +174,41 @@ def pre_shift(
     rotation : bool
         The moment of friction forces on.
 
+    """
+
+    A: float = 0.7
+    B: float = 0.2
+    m: float = 5.0
+    v: float = 1.5
+    alpha1_deg: float = 90.0
+    mu: float = SEED_MU
+    s: float = SEED_S
+    stick: str = "seed"
+    rotation: bool = True
+
+
+def pre_shift(b1: float, **setup) -> PreShift:
+    """
+    Run the parcel over a preliminary field of width b1 until it rides the belt again.
+
+    Parameters
+    ----------
+    b1 : float
+        The first field's length [m].
+    **setup
+        ``StageSetup``'s fields: the parcel, the belt, the field's angle, μ.
+
     Returns
     -------
     PreShift
         The shift.
 
     """
-    law = FrictionLaw("const1", (mu,))
-    strips = disk_field_strips(v, [DiskField(0.0, b1, alpha1_deg, "pre")], law)
-    res = _run(strips, A, B, m, v, 4.0 + 8.0 * s / v, s, stick, rotation)
+    st = StageSetup(**setup)
+    A, B, v, s = st.A, st.B, st.v, st.s
+    law = FrictionLaw("const1", (st.mu,))
+    strips = disk_field_strips(v, [DiskField(0.0, b1, st.alpha1_deg, "pre")], law)
+    res = _run(strips, A, B, st.m, v, 4.0 + 8.0 * s / v, s, st.stick, st.rotation)
     x, y, phi, vx, vy, om = res.y[-1]
     settled = res.t_target is None and int(res.mode[-1]) == 0 and x - 0.5 * A > b1
     # the leading corner when it settled: the belt stick after the field was left
@@ -248,21 +261,7 @@ def size_pre_field(d_target: float, *, b1_hi=None, xtol=1e-4, **kw) -> PreShift:
     return pre_shift(b1, **kw)
 
 
-def final_min_width(
-    pre: PreShift,
-    *,
-    A=0.7,
-    B=0.2,
-    m=5.0,
-    v=1.5,
-    alpha1_deg=90.0,
-    alpha2_deg=30.0,
-    mu=SEED_MU,
-    s=SEED_S,
-    xtol=1e-3,
-    stick="seed",
-    rotation=True,
-):
+def final_min_width(pre: PreShift, *, alpha2_deg=30.0, xtol=1e-3, **setup):
     """
     Minimal width of the final field behind a preliminary one (the Fig. 11 criterion).
 
@@ -270,28 +269,12 @@ def final_min_width(
     ----------
     pre : PreShift
         The first field's result.
-    A : float
-        The parcel's length [m].
-    B : float
-        Its width [m].
-    m : float
-        Its mass [kg].
-    v : float
-        The belt speed [m/s].
-    alpha1_deg : float
-        Its disk angle [deg].
     alpha2_deg : float
-        The final field's [deg].
-    mu : float
-        The friction coefficient.
-    s : float
-        The scrap distance across the belt [m].
+        The final field's disk angle [deg].
     xtol : float
         The bracket's tolerance [m].
-    stick : str
-        The stick law (seed or exact).
-    rotation : bool
-        The moment of friction forces on.
+    **setup
+        ``StageSetup``'s fields: the parcel, the belt, the first field's angle, μ.
 
     Returns
     -------
@@ -299,15 +282,17 @@ def final_min_width(
         Where the final field starts [m], and its least width.
 
     """
-    law = FrictionLaw("const1", (mu,))
+    st = StageSetup(**setup)
+    A, B, v, s = st.A, st.B, st.v, st.s
+    law = FrictionLaw("const1", (st.mu,))
     x2 = pre.x_front + GAP_MARGIN
 
     def scrapes(b2):
         fields = [DiskField(x2, b2, alpha2_deg, "final")]
         if pre.b1 > 0.0:
-            fields.insert(0, DiskField(0.0, pre.b1, alpha1_deg, "pre"))
+            fields.insert(0, DiskField(0.0, pre.b1, st.alpha1_deg, "pre"))
         strips = disk_field_strips(v, fields, law)
-        res = _run(strips, A, B, m, v, 6.0 + 8.0 * s / v, s, stick, rotation)
+        res = _run(strips, A, B, st.m, v, 6.0 + 8.0 * s / v, s, st.stick, st.rotation)
         disk = disk_surface(res, v, math.radians(alpha2_deg))
         return res.t_target is not None and disk is not None and int(res.mode[-1]) == disk
 

@@ -68,7 +68,7 @@ def _basis(z, normal, sphere, planar, p, q):
     return k
 
 
-def make_plane_newton(objective, sphere):
+def make_plane_newton(objective, sphere):  # noqa: PLR0915 — its statements are the solver's below
     """
     Compile Newton's method in a tangent plane for ``objective``.
 
@@ -105,7 +105,7 @@ def make_plane_newton(objective, sphere):
     """
 
     @borrowing
-    def solve(z, ctx, normal, planar, scale_floor, metric, f, g, work):
+    def solve(z, ctx, normal, planar, scale_floor, metric, f, g, work):  # noqa: PLR0912, PLR0915 — one Newton iteration read as one loop
         gp = work[0]
         zt = work[1]
         p = work[2]

@@ -237,7 +237,7 @@ _osc_step = make_step(_osc_rhs)
 
 
 @njit(cache=True)
-def _run_accurate(p, t_end, rtol, atol, h_max, oscrecord, oscevents, counters):
+def _run_accurate(p, t_end, rtol, atol, h_max, oscrecord, oscevents, counters):  # noqa: PLR0915 — one stick-slip cycle read as one loop
     ev_t, ev_k = oscevents.ev_t, oscevents.ev_k
     ts, xs, vs, rows = oscrecord.ts, oscrecord.xs, oscrecord.vs, oscrecord.rows
     f_stat, k, vd = p[2], p[3], p[4]

@@ -324,7 +324,7 @@ def _break_time(
 
 
 @njit(cache=True)
-def _stick_advance(
+def _stick_advance(  # noqa: PLR0915 — scan, jump, locate the break: the ride's state stays local
     y,
     surf,
     t,
