@@ -1,7 +1,8 @@
 """
 What an overhead camera sees of a cell: its parcels' poses and how they move.
 
-Read-only views of a ``Cell``'s slots, for the node's pose and marker topics, the live
+Read-only views of a ``runtime.cell.Cell``'s slots (taken as it is, not imported: the
+cell imports this module), for the node's pose and marker topics, the live
 view and the tests; they change nothing in the cell. Parcels riding a surface are
 advanced in closed form by the kernel, which keeps no velocity for them: their
 velocity is that surface's, and is filled in here.
@@ -10,17 +11,13 @@ velocity is that surface's, and is filled in here.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sorter_sim.model.core import cell_kernels as ck
 
-if TYPE_CHECKING:
-    from sorter_sim.runtime.cell import Cell
 
-
-def parcels(cell: Cell) -> dict[str, np.ndarray]:
+def parcels(cell) -> dict[str, np.ndarray]:
     """
     Return the parcels in the cell.
 
@@ -48,7 +45,7 @@ def parcels(cell: Cell) -> dict[str, np.ndarray]:
     }
 
 
-def parcel_motion(cell: Cell) -> dict:
+def parcel_motion(cell) -> dict:
     """
     Return label, speed and slip of each parcel in the cell, in id order (as ``parcels``).
 
