@@ -127,6 +127,26 @@ def _ports_lock(cmd):
             fcntl.flock(f, fcntl.LOCK_UN)
 
 
+def _as_from_a_shell() -> None:
+    """
+    Give the command the signal state a reader's shell gives it: Ctrl-C default, none blocked.
+
+    Run in the child between fork and exec. A pytest worker is a long-lived process
+    that other tests' libraries may have left with SIGINT ignored or blocked, and both
+    are inherited over exec: the command would then shrug off the Ctrl-C that stops it.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_SETMASK, set())
+
+
+def _signal_state() -> str:
+    """Return this process's ignored and blocked signal masks, for a failure's message."""
+    with open('/proc/self/status', encoding='ascii') as f:
+        return ', '.join(
+            line.strip() for line in f if line.startswith(('SigIgn:', 'SigBlk:', 'SigCgt:'))
+        )
+
+
 def _run_as_written(cmd, reader_root) -> None:
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -140,6 +160,7 @@ def _run_as_written(cmd, reader_root) -> None:
             stderr=subprocess.STDOUT,
             text=True,
             start_new_session=True,
+            preexec_fn=_as_from_a_shell,
         )
         stopped = False
         brief = WHOLE_S if (cmd.doc, cmd.line) in FEEDS_LATER else BRIEF_S
@@ -156,7 +177,7 @@ def _run_as_written(cmd, reader_root) -> None:
                 out, _ = proc.communicate()
                 pytest.fail(
                     f'{cmd.doc}:{cmd.line}: `{cmd.text}` did not end within {STOP_S:g} s of '
-                    f'Ctrl-C; it printed:\n{out[-3000:]}'
+                    f'Ctrl-C (the test process: {_signal_state()}); it printed:\n{out[-3000:]}'
                 )
             took = time.monotonic() - t0
             assert took < STOP_S
