@@ -197,6 +197,23 @@ def test_the_paper_figure_9_from_any_folder(venv, outside):
 
 
 EXAMPLE_TESTS = sorted(p.name for p in (REPO / 'examples').glob('test_*.py'))
+
+
+def _example_test_ids() -> list[str]:
+    """Return each example test as 'file::name': one pytest run each, as a user runs one."""
+    import ast
+
+    ids = []
+    for name in EXAMPLE_TESTS:
+        tree = ast.parse((REPO / 'examples' / name).read_text(encoding='utf-8'))
+        ids += [
+            f'{name}::{node.name}'
+            for node in tree.body
+            if isinstance(node, ast.FunctionDef) and node.name.startswith('test_')
+        ]
+    return ids
+
+
 EXAMPLE_SCENARIOS = sorted(p.name for p in (REPO / 'examples').glob('*.yaml'))
 
 
@@ -209,8 +226,8 @@ def examples(outside) -> Path:
     return outside
 
 
-@pytest.mark.parametrize('test_file', EXAMPLE_TESTS)
-def test_the_pytest_plugin_runs_the_examples_outside_the_repository(venv, examples, test_file):
+@pytest.mark.parametrize('test_id', _example_test_ids())
+def test_the_pytest_plugin_runs_the_examples_outside_the_repository(venv, examples, test_id):
     """The fixtures (a cell, a line with the user's station program) from the installed plugin."""
     done = run(
         venv,
@@ -221,11 +238,11 @@ def test_the_pytest_plugin_runs_the_examples_outside_the_repository(venv, exampl
         '-q',
         '-p',
         'no:cacheprovider',
-        test_file,
+        test_id,
         timeout=55.0,
     )
     assert done.returncode == 0, done.stdout + done.stderr
-    assert ' passed' in done.stdout and 'failed' not in done.stdout, done.stdout
+    assert '1 passed' in done.stdout and 'failed' not in done.stdout, done.stdout
 
 
 @pytest.mark.parametrize('scenario', EXAMPLE_SCENARIOS)
