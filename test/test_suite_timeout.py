@@ -46,10 +46,9 @@ OVERRUNNING = textwrap.dedent('''
 ''')
 
 
-def test_an_overrunning_test_fails_alone_and_the_suite_goes_on(tmp_path):
-    (tmp_path / 'test_overrun.py').write_text(OVERRUNNING)
-    env = dict(os.environ, PYTHONPATH=str(ROOT / 'test'))
-    out = subprocess.run(
+def _pytest_with_the_suites_options(tmp_path, test_file: str, *options: str):
+    """Run pytest on ``tmp_path/test_file`` with this project's pytest.ini and ``options``."""
+    return subprocess.run(
         [
             sys.executable,
             '-m',
@@ -58,18 +57,23 @@ def test_an_overrunning_test_fails_alone_and_the_suite_goes_on(tmp_path):
             str(ROOT / 'pytest.ini'),
             '--rootdir',
             str(tmp_path),
-            '-o',
-            'test_timeout=4',
             '-p',
             'no:cacheprovider',
-            '-rA',
-            str(tmp_path / 'test_overrun.py'),
+            *options,
+            str(tmp_path / test_file),
         ],
         cwd=tmp_path,
-        env=env,
+        env=dict(os.environ, PYTHONPATH=str(ROOT / 'test')),
         capture_output=True,
         text=True,
         timeout=120,
+    )
+
+
+def test_an_overrunning_test_fails_alone_and_the_suite_goes_on(tmp_path):
+    (tmp_path / 'test_overrun.py').write_text(OVERRUNNING)
+    out = _pytest_with_the_suites_options(
+        tmp_path, 'test_overrun.py', '-o', 'test_timeout=4', '-rA'
     )
     text = out.stdout + out.stderr
     assert out.returncode == 1, text[-3000:]
@@ -99,27 +103,7 @@ GROUPED = textwrap.dedent('''
 def test_an_xdist_group_runs_in_one_worker(tmp_path):
     """The suite's own options (pytest.ini: -n 2 --dist loadgroup) keep a group together."""
     (tmp_path / 'test_grouped.py').write_text(GROUPED)
-    env = dict(os.environ, PYTHONPATH=str(ROOT / 'test'))
-    out = subprocess.run(
-        [
-            sys.executable,
-            '-m',
-            'pytest',
-            '-c',
-            str(ROOT / 'pytest.ini'),
-            '--rootdir',
-            str(tmp_path),
-            '-p',
-            'no:cacheprovider',
-            '-v',
-            str(tmp_path / 'test_grouped.py'),
-        ],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    out = _pytest_with_the_suites_options(tmp_path, 'test_grouped.py', '-v')
     text = out.stdout + out.stderr
     assert out.returncode == 0, text[-3000:]
     workers = {
