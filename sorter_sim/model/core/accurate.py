@@ -19,7 +19,6 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.common import (
     APPROACH_STEPS,
@@ -54,7 +53,7 @@ from sorter_sim.model.core.common import (
 )
 from sorter_sim.model.core.dopri import dense, error_norm, step_factor
 from sorter_sim.model.core.friction import mu_kinetic, mu_static
-from sorter_sim.model.core.jit import allocating, kernel_step
+from sorter_sim.model.core.jit import allocating, kernel, kernel_step
 from sorter_sim.model.core.layout import (
     MODE_SLIDE,
     P_GRAV,
@@ -80,7 +79,7 @@ SlipScratch = namedtuple(
 )
 
 
-@njit(cache=True)
+@kernel
 def _slip_scratch(nsurf, nb):
     """Return a ``SlipScratch`` for ``nsurf`` surfaces and ``nb`` strip borders."""
     # After breaking away from a surface its slip starts at zero: re-sticking to it is
@@ -99,7 +98,7 @@ def _slip_scratch(nsurf, nb):
     )
 
 
-@njit(cache=True)
+@kernel
 def _slip_scales(strips, parcel, y0, rtol, atol):
     """
     Return the stick tolerance [m/s] and a bound on the slip's rate of fall [m/s²].
@@ -122,7 +121,7 @@ def _slip_scales(strips, parcel, y0, rtol, atol):
     return stick_tol, 1.5 * mu_top * parcel[P_GRAV]
 
 
-@njit(cache=True)
+@kernel
 def _stuck_phase(y, mode, span, slide, carry, s_check, sc, out, work):
     """
     Carry a stick on surface ``mode`` in closed form until it ends: target, break or leave.
@@ -174,7 +173,7 @@ def _stuck_phase(y, mode, span, slide, carry, s_check, sc, out, work):
     return t, mode, reason, n_out, n_ev
 
 
-@njit(cache=True)
+@kernel
 def _slip_start(y, K, h_try, contact, clip, limits, sc):
     """
     Each surface's generalized slip σ at a step's start, and whether one is to settle.
@@ -240,7 +239,7 @@ def _slip_start(y, K, h_try, contact, clip, limits, sc):
     return small, n_rhs
 
 
-@njit(cache=True)
+@kernel
 def _scrap_and_border_events(y, y_new, K, h, y_target, parcel, borders, sc):
     """
     Find the earliest scrap-line or strip-border crossing inside an accepted step.
@@ -303,7 +302,7 @@ def _scrap_and_border_events(y, y_new, K, h, y_target, parcel, borders, sc):
     return theta_ev, ev_kind, ev_info
 
 
-@njit(cache=True)
+@kernel
 def _stick_event(y, y_new, K, h, contact, earliest, stick_tol, sc):
     """
     Find the earliest stick inside an accepted step: a surface's slip σ reaching zero.
@@ -364,7 +363,7 @@ def _stick_event(y, y_new, K, h, contact, earliest, stick_tol, sc):
     return theta_ev, ev_kind, stick_surf
 
 
-@njit(cache=True)
+@kernel
 def _step_events(y, y_new, K, h, slide, stick_tol, sc):
     """
     Find the earliest event inside an accepted step (t, t + h]: scrap line, border, stick.
@@ -390,7 +389,7 @@ def _step_events(y, y_new, K, h, slide, stick_tol, sc):
     return theta_ev, ev_kind, ev_info
 
 
-@njit(cache=True)
+@kernel
 def _count(counters, n_steps, n_rhs, n_rej, n_out, n_ev, stick_counters):
     """Write a run's counters (``common.N_*``); the closed-form stick's scans count as rhs."""
     counters[N_STEPS] = n_steps
@@ -402,7 +401,7 @@ def _count(counters, n_steps, n_rhs, n_rej, n_out, n_ev, stick_counters):
     counters[N_STICK_SCANS] = stick_counters[0]
 
 
-@njit(cache=True)
+@kernel
 def _settle_small_slip(y, t, t_end, slide, s_check, sc, out, work):
     """
     Settle a slip below its settling size: stick, or carry it on in ln |σ|.
@@ -434,7 +433,7 @@ def _settle_small_slip(y, t, t_end, slide, s_check, sc, out, work):
     return t_new, MODE_SLIDE, n_out, n_ev
 
 
-@njit(cache=True)
+@kernel
 def _land_event(y, t, kind, surf, contact, stick_tol, sig, ev, n_ev):
     """
     Act on a border crossing or a stick that ends a sliding step at time t.

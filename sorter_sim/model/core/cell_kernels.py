@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
 
 from sorter_sim.model.core.cell_layout import (
     A_ALPHA,
@@ -112,7 +111,7 @@ from sorter_sim.model.core.cell_sensing import (
     sensor_blocked,
     upstream_room,
 )
-from sorter_sim.model.core.jit import borrowing, kernel_step
+from sorter_sim.model.core.jit import borrowing, kernel, kernel_step
 from sorter_sim.model.core.layout import (
     P_HALF_A,
     P_HALF_B,
@@ -128,13 +127,13 @@ from sorter_sim.model.core.layout import (
 )
 
 
-@njit(cache=True)
+@kernel
 def _isclose(a, b):
     # math.isclose(a, b, abs_tol=1e-15), as simulate.strip_array merges surfaces
     return abs(a - b) <= max(1e-9 * max(abs(a), abs(b)), 1e-15)
 
 
-@njit(cache=True)
+@kernel
 def _set_strip(out, k, x_lo, x_hi, vx, vy, weight, surf, law_id, law):
     out[k, S_XLO] = x_lo
     out[k, S_XHI] = x_hi
@@ -147,7 +146,7 @@ def _set_strip(out, k, x_lo, x_hi, vx, vy, weight, surf, law_id, law):
         out[k, S_PARAMS + j] = law[j]
 
 
-@njit(cache=True)
+@kernel
 def cell_strips(v, alpha, b, stroke, law_a_id, law_a, law_b_id, law_b, out):
     """
     Return the cell's strips for one period, as ``strip_array(three_zone_strips(...))``.
@@ -204,7 +203,7 @@ def cell_strips(v, alpha, b, stroke, law_a_id, law_a, law_b_id, law_b, out):
     return n + 1, disk_sid
 
 
-@njit(cache=True)
+@kernel
 def toward(value, target, max_step):
     """
     Move ``value`` toward ``target`` by at most ``max_step`` (a slew-rate limit).
@@ -466,7 +465,7 @@ def _cell_kernel(accurate: bool):
             n_periods, k0, setup, act, parcels, sensors, log, memo, work
         )
 
-    return _compiled_for("accurate" if accurate else "implicit", advance_cell, njit(cache=True))
+    return _compiled_for("accurate" if accurate else "implicit", advance_cell, kernel)
 
 
 advance_cell_accurate = _cell_kernel(True)

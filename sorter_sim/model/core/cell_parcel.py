@@ -18,7 +18,6 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.accurate import run_accurate_reduced
 from sorter_sim.model.core.cell_layout import (
@@ -69,7 +68,7 @@ from sorter_sim.model.core.common import (
     n_surf_of,
 )
 from sorter_sim.model.core.implicit import run_implicit
-from sorter_sim.model.core.jit import borrowing, kernel_step
+from sorter_sim.model.core.jit import borrowing, kernel, kernel_step
 from sorter_sim.model.core.layout import (
     P_HALF_A,
     P_HALF_B,
@@ -128,7 +127,7 @@ CellWork = namedtuple(
 )
 
 
-@njit(cache=True)
+@kernel
 def _cell_work(par, n_sens, b):
     """Return the ``CellWork`` scratch of a cell: parcel rows ``par``, ``n_sens`` sensors."""
     cap = par.shape[0]

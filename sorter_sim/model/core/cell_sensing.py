@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.cell_layout import (
     C_HALF_W,
@@ -43,11 +42,11 @@ from sorter_sim.model.core.cell_layout import (
     S_STRAIGHT,
 )
 from sorter_sim.model.core.geometry import box_corners
-from sorter_sim.model.core.jit import allocating
+from sorter_sim.model.core.jit import allocating, kernel
 from sorter_sim.model.core.layout import P_HALF_A, P_HALF_B
 
 
-@njit(cache=True)
+@kernel
 def half_extents(phi, half_a, half_b):
     """
     Half extents along x and y of the footprint turned by φ [m].
@@ -72,7 +71,7 @@ def half_extents(phi, half_a, half_b):
     return half_a * c + half_b * s, half_a * s + half_b * c
 
 
-@njit(cache=True)
+@kernel
 def _hermite(p0, v0, p1, v1, h, tau):
     s = tau / h
     s2 = s * s
@@ -85,7 +84,7 @@ def _hermite(p0, v0, p1, v1, h, tau):
     )
 
 
-@njit(cache=True)
+@kernel
 def _feature(kind, x, y, phi, half_a, half_b):
     hx, hy = half_extents(phi, half_a, half_b)
     if kind == F_XMAX:
@@ -101,7 +100,7 @@ def _feature(kind, x, y, phi, half_a, half_b):
     return y
 
 
-@njit(cache=True)
+@kernel
 def _feature_at(kind, motion, tau, half_a, half_b):
     s0, s1, h = motion.s0, motion.s1, motion.h
     x = _hermite(s0[0], s0[3], s1[0], s1[3], h, tau)
@@ -110,7 +109,7 @@ def _feature_at(kind, motion, tau, half_a, half_b):
     return _feature(kind, x, y, phi, half_a, half_b)
 
 
-@njit(cache=True)
+@kernel
 def crossing_time(kind, level, motion, half_a, half_b):
     """
     When in [0, h] the feature crosses ``level`` (it must be on opposite sides at the ends).
@@ -159,7 +158,7 @@ def crossing_time(kind, level, motion, half_a, half_b):
     return hi
 
 
-@njit(cache=True)
+@kernel
 def _condition(conditions, c, kind, level, sign):
     kinds, levels, signs = conditions.kinds, conditions.levels, conditions.signs
     kinds[c] = kind
@@ -167,7 +166,7 @@ def _condition(conditions, c, kind, level, sign):
     signs[c] = sign
 
 
-@njit(cache=True)
+@kernel
 def _conditions(sensor, n_eyes, eye_x, cfg, conditions):
     """Return the conditions that block a sensor: every sign*(feature - level) > 0."""
     if sensor < n_eyes:
@@ -184,7 +183,7 @@ def _conditions(sensor, n_eyes, eye_x, cfg, conditions):
     return 4
 
 
-@njit(cache=True)
+@kernel
 def _phase_counts(sensor, n_eyes, phase):
     if phase == PH_CELL or phase == PH_JAMMED:
         return True
@@ -195,7 +194,7 @@ def _phase_counts(sensor, n_eyes, phase):
     return False
 
 
-@njit(cache=True)
+@kernel
 def sensor_blocked(sensor, n_eyes, eye_x, cfg, s, phase, half_a, half_b):
     """
     Return whether a parcel blocks a sensor.
@@ -242,7 +241,7 @@ def sensor_blocked(sensor, n_eyes, eye_x, cfg, s, phase, half_a, half_b):
     )
 
 
-@njit(cache=True)
+@kernel
 def _edge_time(sensor, n_eyes, eye_x, cfg, motion, half_a, half_b, rising, tau_phase, conditions):
     """
     Time of a parcel's own block/unblock of a sensor inside the period.
@@ -270,7 +269,7 @@ def _edge_time(sensor, n_eyes, eye_x, cfg, motion, half_a, half_b, rising, tau_p
     return best
 
 
-@njit(cache=True)
+@kernel
 def rectangles_overlap(s1, ha1, hb1, s2, ha2, hb2, tol):
     """
     Separating-axis test of two turned rectangles: True if they interpenetrate by > tol.
@@ -360,7 +359,7 @@ def crosses_wall(s, half_a, half_b, half_w, open_lo, open_hi, tol):
     return False
 
 
-@njit(cache=True)
+@kernel
 def upstream_room(state, phase, par, induct_x):
     """
     Return the free belt length in front of the induct point.
@@ -397,7 +396,7 @@ def upstream_room(state, phase, par, induct_x):
     return room, slot
 
 
-@njit(cache=True)
+@kernel
 def cell_snapshot(phase, mode, ids, state, par, b, out):
     """
     Write the rows of the parcels in the cell into ``out``.

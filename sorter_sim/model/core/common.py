@@ -17,11 +17,10 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
 
 from sorter_sim.model.core.dopri import make_step
 from sorter_sim.model.core.geometry import corner_x
-from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.jit import borrowing, kernel
 from sorter_sim.model.core.layout import (
     P_HALF_A,
     P_HALF_B,
@@ -254,7 +253,7 @@ def _time_to_next_border(state, vx, parcel, borders):
     return best
 
 
-@njit(cache=True)
+@kernel
 def _take_fixed_step(y, y_new, t, t_next, y_target):
     """
     Take a fixed step, stopping at the scrap line.

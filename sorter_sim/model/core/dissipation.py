@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.friction import mu_kinetic
 from sorter_sim.model.core.geometry import (
@@ -20,7 +19,7 @@ from sorter_sim.model.core.geometry import (
     clip_to_strip,
     polygon_area_centroid,
 )
-from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.jit import borrowing, kernel
 from sorter_sim.model.core.layout import (
     P_GRAV,
     P_HALF_A,
@@ -75,7 +74,7 @@ def add_slip_curvature(out, c, ux, uy, sp, rx, ry):
     out[2, 2] += c * jn2 * jn2
 
 
-@njit(cache=True)
+@kernel
 def dissipation_hessian(state, strips, parcel, out):
     """
     Model the Hessian of the dissipation rate D at the twist in ``state`` (3 x 3, ``out``).

@@ -24,9 +24,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
-from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.jit import borrowing, kernel
 
 # nodes c_i, coefficients a_ij, 5th-order weights b_i, and e_i = b_i - b*_i (the
 # 4th-order embedded solution's difference, FSAL stage 7 included)
@@ -180,7 +179,7 @@ def make_step(rhs, allocates=False):
         embedded error estimate ``err``; returns whether every stage was valid.
 
     """
-    jit = njit(cache=True) if allocates else borrowing
+    jit = kernel if allocates else borrowing
 
     @jit
     def step(y, h, K, ctx, y_new, err):

@@ -9,7 +9,6 @@ surface (``surface_area``), all into one footprint scratch (``clip_scratch``).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.geometry import (
     MAX_VERTS,
@@ -17,7 +16,7 @@ from sorter_sim.model.core.geometry import (
     clip_to_strip,
     polygon_area_centroid,
 )
-from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.jit import borrowing, kernel
 from sorter_sim.model.core.layout import (
     P_HALF_A,
     P_HALF_B,
@@ -34,7 +33,7 @@ from sorter_sim.model.core.layout import (
 CLIP_ROWS = 4 + 2 * MAX_VERTS
 
 
-@njit(cache=True)
+@kernel
 def clip_scratch():
     """Return a footprint scratch for the kernels that take ``clip``."""
     return np.empty((CLIP_ROWS, 2))

@@ -18,7 +18,6 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.common import (
     EV_BREAK,
@@ -47,7 +46,7 @@ from sorter_sim.model.core.geometry import (
     clip_to_strip,
     polygon_area_centroid,
 )
-from sorter_sim.model.core.jit import allocating
+from sorter_sim.model.core.jit import allocating, kernel, kernel_step
 from sorter_sim.model.core.layout import (
     MODE_SLIDE,
     P_GRAV,
@@ -89,7 +88,7 @@ SOLVE_RATIO = 1e-2  # the implicit solve's error bound, relative to how far it m
 PT_X, PT_Y, PT_C, PT_SURF, PT_VX, PT_VY = 0, 1, 2, 3, 4, 5
 
 
-@njit(cache=True)
+@kernel
 def _build_points(y, contact, pts, stat, pull, area):
     """
     Quadrature points of the footprint (centroid fans, Gauss n x n per triangle).
@@ -163,7 +162,7 @@ def _build_points(y, contact, pts, stat, pull, area):
     return npt
 
 
-@njit(cache=True)
+@kernel
 def _points_wrench(st, npt, pts, skip, kin):
     """Kinetic wrench per surface of the point set at the twist in ``st`` (``skip``: zero)."""
     kin[:, :] = 0.0
@@ -185,7 +184,7 @@ def _points_wrench(st, npt, pts, skip, kin):
             kin[s, 2] += rx * fy - ry * fx
 
 
-@njit(cache=True)
+@kernel
 def _points_hessian(st, npt, pts, out):
     """Put the point set's dissipation Hessian Σ c_k Jᵀ(I - ûûᵀ)J / |u_k| at ``st`` in ``out``."""
     out[:, :] = 0.0
@@ -203,7 +202,7 @@ def _points_hessian(st, npt, pts, out):
 
 # inlined: a call would count references to the point set and the other arrays at every
 # evaluation, a tenth of an exact step's cost
-@njit(cache=True, inline="always")
+@kernel_step
 def _step_wrenches(exact, st, skip, need, contact, npt, pts, loads):
     """
     Every surface's kinetic wrench at the twist in ``st`` (``skip`` left out) into ``kin``.
@@ -220,7 +219,7 @@ def _step_wrenches(exact, st, skip, need, contact, npt, pts, loads):
         _points_wrench(st, npt, pts, skip, kin)
 
 
-@njit(cache=True)
+@kernel
 def _solve_spd(H, grad, nvar):
     """-H⁻¹ grad for the 2x2 or 3x3 symmetric positive-definite Newton system (Cramer)."""
     out = np.zeros(3)
@@ -243,7 +242,7 @@ def _solve_spd(H, grad, nvar):
     return out
 
 
-@njit(cache=True)
+@kernel
 def _ratio(load, limit):
     """Return load / limit, where a zero limit holds a zero load only."""
     if limit > 0.0:
@@ -251,7 +250,7 @@ def _ratio(load, limit):
     return 0.0 if load == 0.0 else math.inf
 
 
-@njit(cache=True)
+@kernel
 def _stick_load(y, contact, s, rfx, rfy, rt, stat, xi, clip):
     """
     How far the wrench (rfx, rfy, rt) that surface ``s`` must supply loads its stick.
@@ -278,7 +277,7 @@ def _stick_load(y, contact, s, rfx, rfy, rt, stat, xi, clip):
     return load
 
 
-@njit(cache=True)
+@kernel
 def _implicit_objective(W, W0, mass, h, kin, nsurf, strips, rot, grad):
     """
     f(W) = ½ (W-W0)ᵀM(W-W0)/h + Σ_s D_s(W) and its gradient, from the surfaces' wrenches at W.
@@ -302,13 +301,13 @@ def _implicit_objective(W, W0, mass, h, kin, nsurf, strips, rot, grad):
     return f
 
 
-@njit(cache=True)
+@kernel
 def _scaled(ratio, x):
     """Return ratio · x for x >= 0, with 0 for x = 0 even where ratio is inf."""
     return ratio * x if x > 0.0 else 0.0
 
 
-@njit(cache=True)
+@kernel
 def _bfgs_update(hess, sv, yv, nvar, hs):
     """
     BFGS update of ``hess`` (its leading nvar x nvar block) by the secant pair (sv, yv).
@@ -337,7 +336,7 @@ def _bfgs_update(hess, sv, yv, nvar, hs):
                     hess[i, j] -= hs[i] * hs[j] / shs
 
 
-@njit(cache=True)
+@kernel
 def _set_twist(state, w):
     """Put the twist w = (ẋ, ẏ, φ̇) into ``state``'s velocities."""
     state[3] = w[0]
@@ -345,7 +344,7 @@ def _set_twist(state, w):
     state[5] = w[2]
 
 
-@njit(cache=True)
+@kernel
 def _stuck_step(y, h, vsx, vsy, y_out):
     """Take a step stuck to a surface moving at (vsx, vsy): rigid translation with it."""
     y_out[0] = y[0] + h * vsx
@@ -356,7 +355,7 @@ def _stuck_step(y, h, vsx, vsy, y_out):
     y_out[5] = 0.0
 
 
-@njit(cache=True)
+@kernel
 def _stick_test(y, h, mode, contact, exact, points, xis, twist, loads, scratch):
     """
     Test the implicit step for a stick: the surface it stays on, or -1 and a Newton start W.
@@ -467,7 +466,7 @@ def _stick_test(y, h, mode, contact, exact, points, xis, twist, loads, scratch):
     return -1, n_eval
 
 
-@njit(cache=True)
+@kernel
 def _newton_slide(twist, h, contact, exact, fresh, model, st, loads, f_all):
     """
     Newton on the step's objective f(W) = ½ (W-W0)ᵀM(W-W0)/h + D(W), from W (updated).
@@ -581,7 +580,7 @@ def _newton_slide(twist, h, contact, exact, fresh, model, st, loads, f_all):
     return n_eval
 
 
-@njit(cache=True)
+@kernel
 def implicit_step(
     y,
     h,
@@ -716,7 +715,7 @@ def implicit_step(
     return MODE_SLIDE, n_eval
 
 
-@njit(cache=True)
+@kernel
 def _constant_friction(strips):
     """
     (every loaded strip has a constant μ, the largest μ_k / μ_s among them).

@@ -15,7 +15,6 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.common import (
     STIFF_RATIO,
@@ -24,7 +23,7 @@ from sorter_sim.model.core.common import (
     surface_velocity,
 )
 from sorter_sim.model.core.dopri import dense, error_norm, make_step, sign_change, step_factor
-from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.jit import borrowing, kernel
 from sorter_sim.model.core.layout import P_INERTIA, P_MASS, P_ROTATION
 from sorter_sim.model.core.newton import make_plane_newton
 from sorter_sim.model.core.stick import limit_gauge
@@ -83,7 +82,7 @@ def _negative_pull(z, ctx, g):
 _pull_newton = make_plane_newton(_negative_pull, True)
 
 
-@njit(cache=True)
+@kernel
 def _pull_direction(yp, contact, surf, ox, oy, ow, pull, clip):
     """
     Find the unit slip σ̂ (in ``z``) maximising W_o·σ - D_k(σ), W_o = (ox, oy, ow).
@@ -159,7 +158,7 @@ def _layer_state(u, z, vsx, vsy, parcel, out):
     return sl
 
 
-@njit(cache=True)
+@kernel
 def _layer_rhs(u, contact, clip, surf, vsx, vsy, pull, yv, acc, out):
     """
     Right-hand side of the slip layer on ``surf``: u = (x, y, φ, s), s the slip magnitude.
@@ -196,7 +195,7 @@ def _layer_rhs(u, contact, clip, surf, vsx, vsy, pull, yv, acc, out):
     return fmag
 
 
-@njit(cache=True)
+@kernel
 def _layer_stage(us, c, h, ctx, out):
     """
     Evaluate ``_layer_rhs`` at a stage of a layer step.
@@ -215,7 +214,7 @@ def _layer_stage(us, c, h, ctx, out):
 _layer_step = make_step(_layer_stage, allocates=True)
 
 
-@njit(cache=True)
+@kernel
 def _layer_step_crosses(u, un, y_target, parcel, borders, yv, ev0, ev1):
     """
     Whether a layer step from pose ``u`` to ``un`` crosses the scrap line or a strip border.
@@ -235,7 +234,7 @@ def _layer_step_crosses(u, un, y_target, parcel, borders, yv, ev0, ev1):
     return crossed
 
 
-@njit(cache=True)
+@kernel
 def _slip_zero_fraction(u, K, h, us):
     """
     Return the fraction θ of a layer step at which the slip s reaches zero (a stick nears).
@@ -258,7 +257,7 @@ def _slip_zero_fraction(u, K, h, us):
     return hi
 
 
-@njit(cache=True)
+@kernel
 def _layer(
     y,
     t,

@@ -26,9 +26,8 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
 
-from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.jit import borrowing, kernel
 
 NEWTON_ITERATIONS = 60
 LINE_SEARCH_HALVINGS = 40
@@ -42,7 +41,7 @@ CONVERGED = 1e-9
 ROUNDING = 1e-15  # a predicted decrease or a move below this (relative) is rounding
 
 
-@njit(cache=True)
+@kernel
 def _basis(z, normal, sphere, planar, p, q):
     """Fill an orthonormal basis (p, q) of the tangent plane; return the axis it is built on."""
     n = z if sphere else normal

@@ -27,11 +27,10 @@ from collections import namedtuple
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.cache import check_kernel_cache
 from sorter_sim.model.core.dopri import error_norm, make_step, step_factor
-from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.jit import borrowing, kernel
 
 # what a run of the body writes: its records (t, x, v, the active row of eq. 3.1) and events
 OscRecord = namedtuple('OscRecord', ['ts', 'xs', 'vs', 'rows'])
@@ -216,7 +215,7 @@ def exact_solution(osc: Oscillator, t_end: float, n: int = 2001, t_eval=None) ->
 
 
 # ------------------------------------------------------------------ numerical methods
-@njit(cache=True)
+@kernel
 def _accel(x, v, t, p, sigma):
     """Sliding acceleration with friction sign σ (the sign of v while sliding)."""
     m, f_kin, k, vd = p[0], p[1], p[3], p[4]
@@ -236,7 +235,7 @@ def _osc_rhs(y, c, h, ctx, out):
 _osc_step = make_step(_osc_rhs)
 
 
-@njit(cache=True)
+@kernel
 def _run_accurate(p, t_end, rtol, atol, h_max, oscrecord, oscevents, counters):  # noqa: PLR0915 — one stick-slip cycle read as one loop
     ev_t, ev_k = oscevents.ev_t, oscevents.ev_k
     ts, xs, vs, rows = oscrecord.ts, oscrecord.xs, oscrecord.vs, oscrecord.rows
@@ -341,7 +340,7 @@ def _run_accurate(p, t_end, rtol, atol, h_max, oscrecord, oscevents, counters): 
     counters[3] = nrhs
 
 
-@njit(cache=True)
+@kernel
 def _run_implicit(p, t_end, dt, oscrecord, oscevents, counters):
     """Backward Euler in velocity with set-valued friction (Kikuuwe et al. 2005)."""
     ev_t, ev_k = oscevents.ev_t, oscevents.ev_k
@@ -395,7 +394,7 @@ def _run_implicit(p, t_end, dt, oscrecord, oscevents, counters):
     counters[3] = n_steps
 
 
-@njit(cache=True)
+@kernel
 def _threshold_force(x, v, t, p, v_min):
     """Friction by eq. (3.1) and the active row."""
     f_kin, f_stat, k, vd = p[1], p[2], p[3], p[4]
@@ -407,7 +406,7 @@ def _threshold_force(x, v, t, p, v_min):
     return f_stat * (1.0 if pe > 0 else -1.0), 3
 
 
-@njit(cache=True)
+@kernel
 def _run_threshold(p, t_end, dt, v_min, oscrecord, oscevents, counters):
     ev_t, ev_k = oscevents.ev_t, oscevents.ev_k
     ts, xs, vs, rows = oscrecord.ts, oscrecord.xs, oscrecord.vs, oscrecord.rows

@@ -19,7 +19,6 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.common import (
     _alone_on,
@@ -34,7 +33,7 @@ from sorter_sim.model.core.geometry import (
     clip_to_strip,
     polygon_area_centroid,
 )
-from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.jit import borrowing, kernel
 from sorter_sim.model.core.layout import (
     P_GRAV,
     P_HALF_A,
@@ -90,7 +89,7 @@ def _dissipation(z, ctx, g):
 _gauge_newton = make_plane_newton(_dissipation, False)
 
 
-@njit(cache=True)
+@kernel
 def limit_gauge(state, contact, surf, wx, wy, wt, xi, clip):
     """
     Gauge of the wrench (wx, wy, wt) in the limit set of ``surf``'s patch: <= 1 iff it holds.
@@ -167,7 +166,7 @@ def limit_gauge(state, contact, surf, wx, wy, wt, xi, clip):
     return (w[0] * z[0] + w[1] * z[1] + w[2] * z[2]) / d
 
 
-@njit(cache=True)
+@kernel
 def stick_margin(state, contact, nsurf, surf, xi):
     """
     Break-away margin of sticking to ``surf`` at this pose (> 0: the stick breaks).
@@ -231,7 +230,7 @@ def stick_margin(state, contact, nsurf, surf, xi):
     return margin, area[surf], fx, fy, t
 
 
-@njit(cache=True)
+@kernel
 def _margin_at(tt, ride, contact, nsurf, surf, xi):
     """
     Stick margin and contact area on ``surf`` at time tt of a parcel carried from t0.
@@ -246,7 +245,7 @@ def _margin_at(tt, ride, contact, nsurf, surf, xi):
     return m, a
 
 
-@njit(cache=True)
+@kernel
 def _break_time(
     lo,
     hi,
@@ -323,7 +322,7 @@ def _break_time(
     return xcur if fcur > 0.0 else xblk
 
 
-@njit(cache=True)
+@kernel
 def _stick_advance(  # noqa: PLR0915 — scan, jump, locate the break: the ride's state stays local
     y,
     surf,
@@ -452,7 +451,7 @@ def _stick_advance(  # noqa: PLR0915 — scan, jump, locate the break: the ride'
     return t, reason_stop
 
 
-@njit(cache=True)
+@kernel
 def inside_limit_set(state, strips, parcel, surf, fx, fy, t):
     """
     Return True if the wrench (fx, fy, t about g) lies in ``surf``'s limit set, by a bound.

@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.common import (
     EV_BREAK,
@@ -34,10 +33,11 @@ from sorter_sim.model.core.common import (
 )
 from sorter_sim.model.core.layout import MODE_SLIDE, P_INERTIA, P_MASS, P_ROTATION
 from sorter_sim.model.core.wrench import evaluate_surfaces
+from sorter_sim.model.core.jit import kernel
 
 
 # ---------------------------------------------------------------- the seed's threshold model
-@njit(cache=True)
+@kernel
 def rhs_threshold(state, contact, nsurf, v_min, out, modes_out):
     """
     Eqs. 4.1/4.2/4.4: kinetic where a surface slips faster than v_min, else static.
@@ -110,7 +110,7 @@ def rhs_threshold(state, contact, nsurf, v_min, out, modes_out):
     out[5] = t / parcel[P_INERTIA] if rot else 0.0
 
 
-@njit(cache=True)
+@kernel
 def run_threshold(
     y0,
     mode0,

@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.common import (
     _contact_surfaces,
@@ -24,14 +23,14 @@ from sorter_sim.model.core.common import (
     surface_velocity,
 )
 from sorter_sim.model.core.dopri import error_norm, make_step, sign_change, step_factor
-from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.jit import borrowing, kernel
 from sorter_sim.model.core.layer import _layer
 from sorter_sim.model.core.layout import MODE_SLIDE, P_INERTIA, P_MASS, P_ROTATION
 from sorter_sim.model.core.stick import GAUGE_CARRY, stick_margin
 from sorter_sim.model.core.wrench import clip_scratch
 
 
-@njit(cache=True)
+@kernel
 def _break_away(
     y,
     t,
@@ -171,7 +170,7 @@ def _approach_stage(un, c, h, ctx, out):
 _approach_step = make_step(_approach_stage)
 
 
-@njit(cache=True)
+@kernel
 def _approach(
     y,
     t,
@@ -311,7 +310,7 @@ def _approach(
     return t, reason
 
 
-@njit(cache=True)
+@kernel
 def _small_slip(
     y,
     t,

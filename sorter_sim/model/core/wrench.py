@@ -31,7 +31,6 @@ import functools
 import math
 
 import numpy as np
-from numba import njit
 
 from sorter_sim.model.core.dissipation import add_slip_curvature, dissipation_hessian
 from sorter_sim.model.core.footprint import (
@@ -52,7 +51,7 @@ from sorter_sim.model.core.geometry import (
     distance_integrals,
     max_radius,
 )
-from sorter_sim.model.core.jit import borrowing
+from sorter_sim.model.core.jit import borrowing, kernel
 from sorter_sim.model.core.layout import (
     P_CLOSED,
     P_GRAV,
@@ -574,7 +573,7 @@ def kinetic_wrench(state, contact, skip, clip):
     return fx, fy, t
 
 
-@njit(cache=True)
+@kernel
 def evaluate_surfaces(state, contact, skip_kinetic, need_static, kin, stat, area, slip_c):
     """
     Per-surface kinetic wrench, static limits, contact area and centroid slip speed.
