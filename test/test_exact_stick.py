@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 import pytest
-from regularised_reference import Scene, solve
+from regularised_reference import Scene, footprint_friction, solve
 
 from sorter_sim.model.build import cell_strips, entry_state
 from sorter_sim.model.core.accurate import run_accurate
@@ -230,6 +230,26 @@ def test_exact_stick_matches_the_regularised_reference(name):
         assert abs(seed[0] - fine.t_scrap) > 0.5e-2 * fine.t_scrap
         assert abs(seed[1] - fine.phi_deg) > 1.0
         assert abs(seed[2] - t_break_0) > 0.02
+
+
+def test_the_references_jacobian_is_the_derivative_of_its_friction():
+    # Radau trusts this Jacobian for its Newton iterations: each column against central
+    # differences, at a state sliding on both zones and turning (b = 0.9 m: the far
+    # belt too), with ε large enough that the law is smooth at the difference's scale
+    A, B, v, alpha, b, eps = 0.7, 0.2, 1.5, math.radians(45.0), 0.9, 3e-3
+    xi = (np.arange(70) + 0.5) / 70 * A - 0.5 * A
+    eta = (np.arange(20) + 0.5) / 20 * B - 0.5 * B
+    XI, ETA = (a.ravel() for a in np.meshgrid(xi, eta, indexing="ij"))
+    args = (XI, ETA, b, v, v * math.cos(alpha), v * math.sin(alpha), 0.6 * 5.0 * 9.81 / 1400, eps)
+    state = np.array([0.1, 0.2, 0.3, 1.2, 0.5, 0.4])
+    _, jac = footprint_friction(state, *args, True)
+    assert np.all(footprint_friction(state, *args, False)[1] == 0.0)
+    for column, q in enumerate((2, 3, 4, 5)):  # φ, v_x, v_y, ω
+        h = np.zeros(6)
+        h[q] = 1e-6
+        plus = footprint_friction(state + h, *args, False)[0]
+        minus = footprint_friction(state - h, *args, False)[0]
+        assert jac[:, column] == pytest.approx((plus - minus) / 2e-6, rel=1e-6, abs=1e-9), q
 
 
 @pytest.mark.slow
