@@ -426,11 +426,16 @@ class ControllerNode(Node):
 
         """
         client = self._svc["popup"]
+        deadline = time.monotonic() + timeout
+        # stopped soon after its start, on a loaded machine, the controller may not have
+        # discovered the cell's service yet: discovery runs in DDS's own threads, so wait
+        # for it within the same budget rather than leave the disks up
+        while not client.service_is_ready() and time.monotonic() < deadline:
+            time.sleep(0.01)
         if not client.service_is_ready():
             self.get_logger().warning("stopping: the cell's diverter/popup is not there")
             return False
         future = client.call_async(SetBool.Request(data=False))
-        deadline = time.monotonic() + timeout
         while not future.done() and time.monotonic() < deadline and self.context.ok():
             executor.spin_once(timeout_sec=0.02)
         ok = future.done() and future.exception() is None and bool(future.result().success)

@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import math
 
-
 from sorter_sim.model.core.cell_layout import (
     A_ALPHA,
     A_ALPHA_CMD,

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 
-
 from sorter_sim.model.core.dopri import make_step
 from sorter_sim.model.core.geometry import corner_x
 from sorter_sim.model.core.jit import borrowing, kernel

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import math
 
-
 from sorter_sim.model.core.jit import borrowing, kernel
 
 NEWTON_ITERATIONS = 60
