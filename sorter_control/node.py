@@ -429,7 +429,8 @@ class ControllerNode(Node):
         deadline = time.monotonic() + timeout
         # stopped soon after its start, on a loaded machine, the controller may not have
         # discovered the cell's service yet: discovery runs in DDS's own threads, so wait
-        # for it within the same budget rather than leave the disks up
+        # for it within the same budget rather than leave the disks up (rclpy's
+        # wait_for_service polls every 0.25 s, half of this whole budget)
         while not client.service_is_ready() and time.monotonic() < deadline:
             time.sleep(0.01)
         if not client.service_is_ready():
