@@ -1,8 +1,62 @@
+import os
+import subprocess
+import sys
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
+from setuptools.command.build_py import build_py
+
+try:  # setuptools >= 70.1; a colcon build with an older one (Ubuntu 24.04's) makes no wheel
+    from setuptools.command.bdist_wheel import bdist_wheel
+except ImportError:
+    bdist_wheel = None
 
 package_name = 'sorter_cell'
+HERE = Path(__file__).resolve().parent
+SHIPPED_KERNELS = Path('sorter_sim', 'model', 'core', 'shipped_kernels')
+
+
+class BuildPyWithKernels(build_py):
+    """
+    build_py that, for a wheel, ships the core's kernels compiled for any x86-64 CPU.
+
+    Without them a user's first run compiles the model for minutes; with them it loads
+    what it needs (sorter_sim/model/portable_kernels.py says how, and why portable).
+    SORTER_KERNELS=none builds without them; SORTER_KERNELS_FROM=<a checkout with these
+    sources> compiles there, reusing that tree's cache (the test suite's).
+    """
+
+    ship_kernels = False
+
+    def run(self):
+        super().run()
+        if not self.ship_kernels or os.environ.get('SORTER_KERNELS', '') == 'none':
+            return
+        root = Path(os.environ.get('SORTER_KERNELS_FROM') or HERE).resolve()
+        dest = Path(self.build_lib).resolve() / SHIPPED_KERNELS
+        command = [sys.executable, '-m', 'sorter_sim.model.portable_kernels', str(dest)]
+        command += ['--from', str(root), '--sources', str(HERE / SHIPPED_KERNELS.parent)]
+        # ahead of what is there: an isolated build (pip) finds its build environment
+        # through PYTHONPATH
+        path = os.pathsep.join(filter(None, [str(root), os.environ.get('PYTHONPATH')]))
+        env = dict(os.environ, PYTHONPATH=path)
+        subprocess.run(command, cwd=root, env=env, check=True)
+
+
+COMMANDS = {'build_py': BuildPyWithKernels}
+if bdist_wheel is not None:
+
+    class BdistWheelWithKernels(bdist_wheel):
+        """bdist_wheel whose build ships the portable kernels (a release's wheel)."""
+
+        def run(self):
+            self.get_finalized_command('build_py').ship_kernels = True
+            super().run()
+
+    COMMANDS['bdist_wheel'] = BdistWheelWithKernels
+
+
 # config/ and the folders of shipped scenes, scenarios and sweeps in it
 CONFIG_DIRS = ['', 'scenes/', 'scenarios/', 'sweeps/']
 
@@ -94,6 +148,7 @@ setup(
     },
     # the parameter files are handed to rcl by path: they must be files on disk
     zip_safe=False,
+    cmdclass=COMMANDS,
     maintainer='sorter_cell maintainers',
     maintainer_email='sorter-cell@example.com',
     description=(

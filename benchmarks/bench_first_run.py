@@ -10,7 +10,13 @@ plugin's fixture (``examples/test_minimal_controller.py``, one test), ``sorter w
 and the start of ``sim_node`` (until it says it is ready). Prints a table with the
 machine's load, so that a figure is read with what else ran.
 
+``--venv DIR`` runs the commands of another virtualenv instead of this checkout's: the
+package installed there from its wheel, which ships the kernels compiled (an empty
+cache then compiles nothing on x86-64), e.g. after ``python -m build`` and
+``python -m venv /tmp/v && /tmp/v/bin/pip install dist/*.whl pytest``.
+
     .venv/bin/python benchmarks/bench_first_run.py [--cases demo,fixture,warmup,sim_node]
+        [--venv DIR]
 """
 
 from __future__ import annotations
@@ -31,7 +37,8 @@ BIN = Path(sys.executable).parent
 
 
 def _env(cache: Path, domain: int) -> dict:
-    env = dict(os.environ)
+    # a user's numba: no setting of the suite's (scripts/test.sh compiles for any CPU)
+    env = {k: v for k, v in os.environ.items() if not k.startswith('NUMBA_')}
     env.update(
         NUMBA_CACHE_DIR=str(cache),
         ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
@@ -49,11 +56,16 @@ def _timed(argv: list[str], cache: Path, cwd: Path, domain: int) -> float:
     return wall
 
 
-def _node_ready(cache: Path, cwd: Path, domain: int) -> float:
+def _node_ready(cache: Path, cwd: Path, domain: int, bin_dir: Path) -> float:
     """Seconds from starting sim_node until it logs that it is ready."""
     t0 = time.perf_counter()
     proc = subprocess.Popen(
-        [str(BIN / 'sim_node'), '--ros-args', '--params-file', str(REPO / 'config/cell.yaml')],
+        [
+            str(bin_dir / 'sim_node'),
+            '--ros-args',
+            '--params-file',
+            str(REPO / 'config/cell.yaml'),
+        ],
         cwd=cwd,
         env=_env(cache, domain),
         stdout=subprocess.PIPE,
@@ -74,15 +86,17 @@ def main() -> int:
     """Run the cases cold then warm and print the table."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--cases', default='demo,fixture,warmup,sim_node')
+    parser.add_argument('--venv', type=Path, help="another virtualenv's commands (a wheel's)")
     args = parser.parse_args()
+    bin_dir = args.venv.resolve() / 'bin' if args.venv else BIN
     cases = args.cases.split(',')
     work = Path(tempfile.mkdtemp(prefix='first_run_'))
     shutil.copy(REPO / 'examples' / 'minimal_controller.py', work)
     shutil.copy(REPO / 'examples' / 'test_minimal_controller.py', work)
     commands = {
-        'demo': [str(BIN / 'sorter'), 'demo', '--sim-time', '10', '--quiet'],
+        'demo': [str(bin_dir / 'sorter'), 'demo', '--sim-time', '10', '--quiet'],
         'fixture': [
-            sys.executable,
+            str(bin_dir / 'python') if args.venv else sys.executable,
             '-m',
             'pytest',
             '-q',
@@ -93,19 +107,20 @@ def main() -> int:
             '-k',
             'test_l_parcels',
         ],
-        'warmup': [str(BIN / 'sorter'), 'warmup', '--quiet'],
+        'warmup': [str(bin_dir / 'sorter'), 'warmup', '--quiet'],
     }
     print(
         f'machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; '
-        f'python {platform.python_version()}; load at start {os.getloadavg()[0]:.2f}'
+        f'python {platform.python_version()}; load at start {os.getloadavg()[0]:.2f}; '
+        f'commands of {bin_dir}'
     )
     print(f'{"case":<10} {"cold [s]":>9} {"warm [s]":>9}')
     for k, case in enumerate(cases):
         cache = work / f'cache_{case}'
         domain = 180 + k
         if case == 'sim_node':
-            cold = _node_ready(cache, work, domain)
-            warm = _node_ready(cache, work, domain)
+            cold = _node_ready(cache, work, domain, bin_dir)
+            warm = _node_ready(cache, work, domain, bin_dir)
         else:
             cold = _timed(commands[case], cache, work, domain)
             warm = _timed(commands[case], cache, work, domain)

@@ -12,7 +12,9 @@ verb pays it up front, with progress on standard error:
   the studies' (what ``scripts/test.sh`` runs before the suite).
 
 A CI job keeps the result between runs by caching the folder it names
-(``NUMBA_CACHE_DIR``; docs/testing.md).
+(``NUMBA_CACHE_DIR``; docs/testing.md). An installed wheel ships the kernels compiled
+for any x86-64 CPU: there this verb loads them in seconds, and it says whether they fit
+(the same numba and Python as the wheel was built with) or why not.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ def warm_shipped() -> None:
 
 def run(args) -> int:
     """Compile (or load) the kernels; print where they are cached and how long it took."""
-    from sorter_sim.model.core.cache import kernel_cache_dir
+    from sorter_sim.model.core.cache import SHIPPED_DIR, kernel_cache_dir, shipped_kernels_fit
 
     t0 = time.perf_counter()
     if args.all:
@@ -60,15 +62,22 @@ def run(args) -> int:
         warm_shipped()
     wall = time.perf_counter() - t0
     what = "every kernel" if args.all else "the kernels the demo and the nodes need"
+    unfit = shipped_kernels_fit(SHIPPED_DIR)
     if args.json:
         print(
             json.dumps(
-                {"all": args.all, "seconds": round(wall, 2), "cache": str(kernel_cache_dir())}
+                {
+                    "all": args.all,
+                    "seconds": round(wall, 2),
+                    "cache": str(kernel_cache_dir()),
+                    "shipped": str(SHIPPED_DIR) if unfit is None else None,
+                }
             )
         )
     else:
+        shipped = f"shipped kernels in {SHIPPED_DIR}" if unfit is None else unfit
         print(
             f"sorter warmup: {what}, compiled or loaded in {wall:.1f} s; "
-            f"cached in {kernel_cache_dir()}"
+            f"cached in {kernel_cache_dir()}; {shipped}"
         )
     return 0

@@ -10,10 +10,13 @@ seconds: numpy, rclpy and the ROS libraries under the new prefix's ``lib/`` and
 ``share/`` are the same files, the project's own files are the wheel's. The editable
 install of the checkout (its finder, its dist-info, its ament index entry) is left out.
 
-The numba kernels are compiled once per checkout (``scripts/test.sh``); their cache is
-copied next to the installed sources (the same sources, stamped alike), as a CI job
-keeps numba's cache between runs (docs/testing.md), so the commands run warm here and
-the cold compile is measured by ``benchmarks/bench_first_run.py``, not by the suite.
+The wheel ships the model's kernels compiled for any x86-64 CPU, as a release's does
+(setup.py). The build compiles them in the checkout (``SORTER_KERNELS_FROM``), where
+``scripts/test.sh`` compiled them that way before the suite: the build takes seconds,
+not the minutes of a cold compile. The installed commands then run with a user's numba
+set-up (no ``NUMBA_*`` variable, an empty cache) and load those shipped kernels; the
+tests check that nothing compiles. The cold compile where no shipped kernel fits is
+measured by ``benchmarks/bench_first_run.py``, not by the suite.
 """
 
 from __future__ import annotations
@@ -64,8 +67,13 @@ def _source_tree(where: Path) -> Path:
 def build_dists(out: Path) -> tuple[Path, Path]:
     """Build the sdist and, from it, the wheel (``python -m build``); return both paths."""
     tree = _source_tree(out.parent)
-    # --no-isolation: the build backend from this environment (setuptools, no network)
-    _run([sys.executable, '-m', 'build', '--no-isolation', '--outdir', str(out), str(tree)])
+    # --no-isolation: the build backend from this environment (setuptools, no network);
+    # the kernels compiled in the checkout, whose cache scripts/test.sh made portable
+    env = dict(os.environ, SORTER_KERNELS_FROM=str(REPO))
+    _run(
+        [sys.executable, '-m', 'build', '--no-isolation', '--outdir', str(out), str(tree)],
+        env=env,
+    )
     (wheel,) = out.glob('sorter_cell-*.whl')
     (sdist,) = out.glob('sorter_cell-*.tar.gz')
     return wheel, sdist
@@ -97,20 +105,6 @@ def _link_dependencies(venv: Path) -> None:
         marker.unlink()
 
 
-def _copy_kernel_cache(site: Path) -> None:
-    """Give the installed core the checkout's compiled kernels (same sources, same stamps)."""
-    src, dst = REPO / CORE, site / CORE
-    for py in src.glob('*.py'):
-        installed = dst / py.name
-        if installed.read_bytes() != py.read_bytes():
-            return  # not the same sources: let numba compile
-        shutil.copystat(py, installed)
-    (dst / '__pycache__').mkdir(exist_ok=True)
-    for f in (src / '__pycache__').iterdir():
-        if f.suffix in ('.nbi', '.nbc') or f.name == 'numba-sources.sha256':
-            shutil.copy2(f, dst / '__pycache__' / f.name)
-
-
 def installed_venv(where: Path) -> Path:
     """
     Build the dists and install the wheel into a fresh virtualenv under ``where``.
@@ -140,7 +134,6 @@ def installed_venv(where: Path) -> Path:
         ],
         env=user_env(venv),
     )
-    _copy_kernel_cache(venv / SITE.relative_to(sys.prefix))
     return venv
 
 
@@ -149,13 +142,14 @@ def user_env(venv: Path, domain: int | None = None) -> dict:
     Return the environment a user of ``venv`` has: its bin first, nothing of the checkout.
 
     No ``PYTHONPATH``, no ``AMENT_PREFIX_PATH``, no library path of the project's .venv
-    (the ROS wheels' bootstrap sets it for the new prefix).
+    (the ROS wheels' bootstrap sets it for the new prefix), no numba setting (the suite
+    compiles for the generic CPU, a user's numba for theirs).
     """
     env = {
         k: v
         for k, v in os.environ.items()
         if k not in ('PYTHONPATH', 'AMENT_PREFIX_PATH', 'LD_LIBRARY_PATH', 'VIRTUAL_ENV')
-        and not k.startswith('_ROS_WHEELS')
+        and not k.startswith(('_ROS_WHEELS', 'NUMBA_'))
         and not k.startswith('PYTEST')
     }
     env['PATH'] = f'{venv / "bin"}{os.pathsep}{env.get("PATH", "")}'

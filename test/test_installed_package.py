@@ -16,6 +16,7 @@ import os
 import shutil
 import signal
 import subprocess
+import tarfile
 import threading
 import time
 import zipfile
@@ -40,6 +41,11 @@ def outside(tmp_path) -> Path:
     return tmp_path
 
 
+# what a command prints on standard error while it compiles a kernel
+# (sorter_sim/model/compile_progress.py)
+COMPILING = "compiling the model's kernels"
+
+
 def _domain() -> int:
     return int(os.environ['ROS_DOMAIN_ID'])  # this worker's (conftest.py)
 
@@ -55,6 +61,7 @@ def run(venv: Path, cwd: Path, *argv: str, timeout: float = 50.0):
         timeout=timeout,
     )
     assert 'Traceback' not in done.stderr, done.stderr
+    assert COMPILING not in done.stderr, f'the shipped kernels were not used:\n{done.stderr}'
     return done
 
 
@@ -99,6 +106,7 @@ def start_and_stop(venv: Path, cwd: Path, ready: str, *argv: str, within: float 
     text = ''.join(lines)
     assert proc.returncode == 0, f'{argv[0]} exited {proc.returncode}:\n{text}'
     assert 'Traceback' not in text, text
+    assert COMPILING not in text, f'the shipped kernels were not used:\n{text}'
     return text
 
 
@@ -115,6 +123,23 @@ def test_the_wheel_carries_the_config_and_no_tests(venv):
         assert shipped in names, shipped
     assert not any(n.startswith(('test/', 'examples/', 'benchmarks/')) for n in names)
     print(f'wheel {wheel.name}: {wheel.stat().st_size / 1e3:.0f} kB')
+
+
+def test_the_wheel_ships_the_kernels_of_its_own_sources_for_any_x86_64_cpu(venv):
+    from sorter_sim.model.core.cache import python_tag, sources_digest
+
+    (wheel,) = (venv.parent / 'dist').glob('*.whl')
+    shipped = 'sorter_sim/model/core/shipped_kernels/'
+    with zipfile.ZipFile(wheel) as zf:
+        manifest = json.loads(zf.read(shipped + 'manifest.json'))
+        kernels = [n for n in zf.namelist() if n.startswith(shipped) and n.endswith('.nbi')]
+    import numba
+
+    assert manifest['sources'] == sources_digest(REPO / 'sorter_sim' / 'model' / 'core')
+    assert (manifest['numba'], manifest['python']) == (numba.__version__, python_tag())
+    assert manifest['signatures'] >= len(kernels) > 50, (manifest, len(kernels))
+    (sdist,) = (venv.parent / 'dist').glob('*.tar.gz')
+    assert not [n for n in tarfile.open(sdist).getnames() if 'shipped_kernels/' in n]
 
 
 def test_the_installed_package_finds_its_config_without_any_variable(venv, outside):

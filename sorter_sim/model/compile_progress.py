@@ -26,6 +26,7 @@ import time
 
 _lock = threading.Lock()
 _installed = False
+_compiles = 0
 _quiet = bool(os.environ.get('SORTER_QUIET_COMPILE', '').strip() not in ('', '0'))
 
 PREFIX = 'sorter_cell'
@@ -128,6 +129,11 @@ class _Progress:
             )
 
 
+def compiles() -> int:
+    """Return how many functions numba compiled in this process since ``install()``."""
+    return _compiles
+
+
 def install(out=None) -> None:
     """
     Listen to numba's compile events in this process (once; cheap when nothing compiles).
@@ -150,9 +156,11 @@ def install(out=None) -> None:
         current: _Progress | None = None
 
         def on_start(self, ev):
+            global _compiles
             d = ev.data.get('dispatcher')
             if d is None:
                 return
+            _compiles += 1  # numba's compile event fires on a cache miss only
             Listener.depth += 1
             if Listener.depth == 1:
                 Listener.current = _Progress(d, out or sys.stderr)

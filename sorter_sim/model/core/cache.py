@@ -10,15 +10,30 @@ The check runs where kernels are first needed, not at import: ``simulate``, the
 oscillator, the cell runtime, the warm-up and the command lines call
 ``check_kernel_cache()`` before their first kernel call; it does its work once per
 process and says on standard error what it dropped.
+
+A wheel ships the kernels compiled for any x86-64 CPU (``shipped_kernels/``, built by
+``sorter_sim.model.portable_kernels`` when the wheel is made): numba keys a cached kernel
+by the CPU it was compiled for, so a kernel compiled on the build machine would be
+refused on every other. ``KernelCache`` looks there after the user's own cache and
+before compiling, so the first run of an installed package loads what it needs instead
+of compiling it for minutes.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import json
 import sys
 from pathlib import Path
 
+import numba
+from numba.core.caching import FunctionCache, IndexDataCacheFile
+
 CORE_DIR = Path(__file__).resolve().parent
+SHIPPED_DIR = CORE_DIR / 'shipped_kernels'
+# what numba's codegen reports with NUMBA_CPU_NAME=generic: no CPU name, no extra feature
+PORTABLE_CPU = ('generic', '')
 _checked = False
 
 
@@ -47,6 +62,96 @@ def kernel_cache_dir(here: Path = CORE_DIR) -> Path:
     return here / '__pycache__'
 
 
+def sources_digest(here: Path = CORE_DIR) -> str:
+    """Return the hash of the core's sources that stamps its kernels (names and contents)."""
+    digest = hashlib.sha256()
+    for src in sorted(here.glob('*.py')):
+        digest.update(src.name.encode())
+        digest.update(src.read_bytes())
+    return digest.hexdigest()
+
+
+def python_tag() -> str:
+    """Return the interpreter tag numba names its cache files with (``py311``)."""
+    return f'py{sys.version_info[0]}{sys.version_info[1]}{getattr(sys, "abiflags", "")}'
+
+
+def read_manifest(folder: Path) -> dict | None:
+    """Return the manifest of a folder of shipped kernels, or None if it has none."""
+    try:
+        manifest = json.loads((folder / 'manifest.json').read_text())
+    except (OSError, ValueError):
+        return None
+    return manifest if isinstance(manifest, dict) else None
+
+
+def shipped_kernels_fit(folder: Path, here: Path = CORE_DIR) -> str | None:
+    """
+    Say why the shipped kernels in ``folder`` cannot serve the core in ``here``.
+
+    Returns
+    -------
+    str or None
+        None when they were built from these very sources, by this numba, for this
+        interpreter; otherwise what differs (the kernels then compile on first use).
+
+    """
+    manifest = read_manifest(folder)
+    if manifest is None:
+        return f'no shipped kernels in {folder}'
+    wanted = {'sources': sources_digest(here), 'numba': numba.__version__, 'python': python_tag()}
+    for key, value in wanted.items():
+        if manifest.get(key) != value:
+            return f'the shipped kernels are for {key} {manifest.get(key)!r}, this is {value!r}'
+    return None
+
+
+@functools.cache
+def shipped_kernels() -> Path | None:
+    """Return the folder of kernels shipped with this install, if they fit it."""
+    return SHIPPED_DIR if shipped_kernels_fit(SHIPPED_DIR) is None else None
+
+
+class KernelCache(FunctionCache):
+    """
+    numba's cache of a kernel, with the kernels shipped for any x86-64 CPU behind it.
+
+    A kernel is looked up in the user's cache under this CPU's key first (it holds what
+    was compiled here), then in the shipped folder under the portable CPU's key, and
+    compiled only when neither has it. Code for the generic x86-64 CPU runs on every
+    x86-64 CPU; on another architecture the key's target triple differs and the
+    shipped kernels are never used. What is loaded from the shipped folder is not
+    copied into the user's cache: it is read in place, read-only.
+    """
+
+    def _load_overload(self, sig, target_context):
+        data = super()._load_overload(sig, target_context)
+        if data is not None or not self._enabled:
+            return data
+        shipped = shipped_kernels()
+        if shipped is None:
+            return None
+        sig_key, (triple, _cpu, _features), code_key = self._index_key(
+            sig, target_context.codegen()
+        )
+        store = IndexDataCacheFile(
+            cache_path=str(shipped),
+            filename_base=self._impl.filename_base,
+            source_stamp=self._impl.locator.get_source_stamp(),
+        )
+        try:
+            data = store.load((sig_key, (triple, *PORTABLE_CPU), code_key))
+            return None if data is None else self._impl.rebuild(target_context, data)
+        except Exception as exc:  # a torn or foreign file: compile, as without it
+            print(
+                f'sorter_sim: the shipped kernel {self._impl.filename_base} in {shipped} '
+                f'cannot be read ({type(exc).__name__}: {exc}); compiling it instead',
+                file=sys.stderr,
+                flush=True,
+            )
+            return None
+
+
 def drop_stale_kernels(here: Path = CORE_DIR) -> list[Path]:
     """
     Drop the numba cache of the package in ``here`` if its sources changed.
@@ -64,13 +169,10 @@ def drop_stale_kernels(here: Path = CORE_DIR) -> list[Path]:
 
     """
     cache = kernel_cache_dir(here)
-    digest = hashlib.sha256()
-    for src in sorted(here.glob('*.py')):
-        digest.update(src.name.encode())
-        digest.update(src.read_bytes())
+    digest = sources_digest(here)
     stamp = cache / 'numba-sources.sha256'
     try:
-        if stamp.read_text() == digest.hexdigest():
+        if stamp.read_text() == digest:
             return []
     except OSError:
         pass
@@ -80,7 +182,7 @@ def drop_stale_kernels(here: Path = CORE_DIR) -> list[Path]:
         for old in list(cache.glob('*.nbi')) + list(cache.glob('*.nbc')):
             old.unlink(missing_ok=True)
             dropped.append(old)
-        stamp.write_text(digest.hexdigest())
+        stamp.write_text(digest)
     except OSError:  # a read-only install: numba then compiles in memory anyway
         pass
     return dropped

@@ -38,12 +38,17 @@ callee with its caller's runtime setting unless the callee names its own, so wit
 it the integrators compiled runtime-free whenever the cell's loop was the first to
 call them (a cold cache) and failed to compile (``np.empty`` has no runtime-free
 form); it worked only where a single-parcel run had compiled them first.
+
+Each decorator caches its kernel on disk with ``KernelCache`` (``cache.py``): numba's own
+cache, with the kernels a wheel ships compiled for any x86-64 CPU read behind it.
 """
 
 from __future__ import annotations
 
 from numba import njit
 from numba.core import types
+
+from sorter_sim.model.core.cache import KernelCache
 
 
 def _once_per_type(dispatcher):
@@ -69,15 +74,33 @@ def _once_per_type(dispatcher):
     return dispatcher
 
 
+def _cached(dispatcher):
+    """
+    Cache ``dispatcher`` on disk as ``cache=True`` would, with the shipped kernels behind.
+
+    ``KernelCache`` is numba's own cache of the kernel (the user's folder, the same
+    files) that also reads the kernels a wheel ships compiled for any x86-64 CPU.
+    """
+    dispatcher._cache = KernelCache(dispatcher.py_func)
+    return dispatcher
+
+
 def once_per_type(**options):
     """Return a decorator that compiles with numba's ``options``, once per argument types."""
+    cache = options.pop('cache', False)
     compile_with = njit(**options)
+    if cache:
+        return lambda function: _once_per_type(_cached(compile_with(function)))
     return lambda function: _once_per_type(compile_with(function))
+
+
+def _kernel_step(function):
+    return _cached(njit(inline='always')(function))
 
 
 kernel = once_per_type(cache=True)
 borrowing = once_per_type(cache=True, _nrt=False)
 allocating = once_per_type(cache=True, _nrt=True)
-kernel_step = njit(cache=True, inline='always')
+kernel_step = _kernel_step
 
 __all__ = ["allocating", "borrowing", "kernel", "kernel_step", "once_per_type"]
