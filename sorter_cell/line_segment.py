@@ -292,15 +292,18 @@ def main(argv=None) -> int:
         ex.add_node(node)
     try:
         told = False
-        next_report = time.monotonic() + args.report
+        next_report = 0.0
         while not stop:
             ex.spin_once(timeout_sec=0.05)
-            if args.report > 0 and time.monotonic() >= next_report:
+            # the reports follow "ready", never precede it: a reader takes the first line
+            # for it, and on a loaded machine the controllers can take longer than a period
+            if told and args.report > 0 and time.monotonic() >= next_report:
                 print(json.dumps(segment_stats(line, ctls), sort_keys=True), flush=True)
                 next_report += args.report
             if not told and all(c.logic is not None and c.logic.state == 'running' for c in ctls):
                 print('ready', flush=True)
                 told = True
+                next_report = time.monotonic() + args.report
         try:
             print(json.dumps(segment_stats(line, ctls), sort_keys=True), flush=True)
         except BrokenPipeError:  # the demo that reads it is gone (Ctrl-C): nobody to tell

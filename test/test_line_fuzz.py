@@ -19,6 +19,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -190,17 +191,27 @@ def test_fuzz_every_line_callback_of_a_segment(ros, segment):
 
 
 def test_a_segment_process_lives_through_every_forged_payload(ros):
-    """The issue's payloads over DDS to ``line_segment`` (S02 of 2): it refuses them all."""
+    """
+    The issue's payloads over DDS to ``line_segment`` (S02 of 2): it refuses them all.
+
+    It reports every 20 ms: its first line is still ``ready`` (a report printed before it,
+    when the controllers took longer than a period to run, was read as a failed start).
+    """
     proc = subprocess.Popen(
         [sys.executable, '-m', 'sorter_cell.line_segment', '--first', '2', '--stations', '1']
-        + ['--line-stations', '2'],
+        + ['--line-stations', '2', '--report', '0.02'],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         env={**os.environ, 'ROS_DOMAIN_ID': str(ros.context.get_domain_id())},
     )
+    lines = []
     try:
-        assert proc.stdout.readline().strip() == 'ready'
+        first = proc.stdout.readline().strip()
+        assert first == 'ready', first
+        # its reports drained as they come: a full pipe would stop the segment
+        reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+        reader.start()
         probe = ros.make_node('forger')
         pub = probe.create_publisher(DiagnosticStatus, '/line/handover/S02', HANDOVER_QOS)
         ros.spin_until(lambda: pub.get_subscription_count() > 0, 20.0)
@@ -211,8 +222,11 @@ def test_a_segment_process_lives_through_every_forged_payload(ros):
         assert proc.poll() is None, proc.stderr.read()
     finally:
         proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=30)
-    report = json.loads(out.strip().splitlines()[-1])
+        proc.wait(timeout=30)
+        err = proc.stderr.read()
+    reader.join(timeout=10)
+    assert len(lines) > 10, lines  # its reports, then its last words
+    report = json.loads(lines[-1])
     assert proc.returncode == 0, err
     # every one refused: the parcels as physics, the horizons as not the upstream owner's
     assert report['refused'] == len(payloads), report
