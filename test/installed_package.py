@@ -69,7 +69,7 @@ def build_dists(out: Path) -> tuple[Path, Path]:
     tree = _source_tree(out.parent)
     # --no-isolation: the build backend from this environment (setuptools, no network);
     # the kernels compiled in the checkout, whose cache scripts/test.sh made portable
-    env = dict(os.environ, SORTER_KERNELS_FROM=str(REPO))
+    env = dict(os.environ, SORTER_KERNELS_FROM=str(REPO), SORTER_KERNELS='required')
     _run(
         [sys.executable, '-m', 'build', '--no-isolation', '--outdir', str(out), str(tree)],
         env=env,

@@ -222,7 +222,11 @@ def test_a_segment_process_lives_through_every_forged_payload(ros):
         assert proc.poll() is None, proc.stderr.read()
     finally:
         proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=30)
+        try:
+            proc.wait(timeout=30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
         err = proc.stderr.read()
     reader.join(timeout=10)
     assert len(lines) > 10, lines  # its reports, then its last words

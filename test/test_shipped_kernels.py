@@ -25,8 +25,15 @@ from sorter_sim.model.portable_kernels import copy_portable
 
 
 def _manifest(folder, **changes):
+    from llvmlite import binding as llvm
+
     folder.mkdir(exist_ok=True)
-    fits = {'sources': sources_digest(), 'numba': numba.__version__, 'python': python_tag()}
+    fits = {
+        'sources': sources_digest(),
+        'numba': numba.__version__,
+        'python': python_tag(),
+        'triple': llvm.get_process_triple(),
+    }
     (folder / 'manifest.json').write_text(json.dumps(dict(fits, **changes)))
     return folder
 
@@ -37,7 +44,12 @@ def test_shipped_kernels_of_these_sources_numba_and_python_fit(tmp_path):
 
 @pytest.mark.parametrize(
     ('key', 'value'),
-    [('sources', '0' * 64), ('numba', '0.0.1'), ('python', 'py27')],
+    [
+        ('sources', '0' * 64),
+        ('numba', '0.0.1'),
+        ('python', 'py27'),
+        ('triple', 'aarch64-unknown-linux-gnu'),
+    ],
 )
 def test_shipped_kernels_of_other_sources_numba_or_python_are_refused_saying_which(
     tmp_path, key, value
@@ -188,6 +200,13 @@ def test_a_kernel_compiled_for_the_generic_cpu_is_loaded_on_this_one_without_com
     (compiled,) = [d for d in built.iterdir() if d.is_dir()]
     shipped = tmp_path / 'shipped'
     assert copy_portable(compiled, shipped) == 1
+    # the index's stamp of the source file is not what decides (the manifest's digest of
+    # the sources does): before numba 0.68 it was the file's time, which an install resets
+    (index,) = shipped.glob('*.nbi')
+    with open(index, 'rb') as f:
+        assert pickle.load(f) == numba.__version__
+        _stamp, overloads = pickle.loads(f.read())
+    _index(index, (0.0, 0), overloads)
     # this CPU's own key: nothing in an empty cache, the generic entry is found behind it
     assert probe(tmp_path / 'empty', shipped) == (6.0, 0)
     # without the shipped folder the same empty cache compiles

@@ -53,8 +53,13 @@ def compile_portable(source_root: Path) -> Path:
     # the tree ahead of what is there: an isolated build finds its build environment
     # through PYTHONPATH
     path = os.pathsep.join(filter(None, [str(source_root), os.environ.get('PYTHONPATH')]))
-    env = dict(os.environ, NUMBA_CPU_NAME='generic', PYTHONPATH=path)
-    env.pop('NUMBA_CPU_FEATURES', None)  # generic means no feature beyond the base ISA
+    # none of the build machine's numba settings (optimisation, bounds checks, debug
+    # information) reaches the shipped code, and no call into Intel's SVML library,
+    # which numba uses where it is installed and a user's machine may not have
+    env = {k: v for k, v in os.environ.items() if not k.startswith('NUMBA_')}
+    if 'NUMBA_CACHE_DIR' in os.environ:
+        env['NUMBA_CACHE_DIR'] = os.environ['NUMBA_CACHE_DIR']
+    env.update(NUMBA_CPU_NAME='generic', NUMBA_DISABLE_INTEL_SVML='1', PYTHONPATH=path)
     done = subprocess.run(
         [sys.executable, '-c', _WARM_UP],
         cwd=source_root,
@@ -84,7 +89,9 @@ def copy_portable(cache: Path, dest: Path) -> int:
     An index (``*.nbi``) maps each compiled signature, keyed with the CPU it was
     compiled for, to a data file (``*.nbc``). Only the generic CPU's entries are kept:
     the index is written again with those alone, and only their data files are
-    copied. Returns how many compiled signatures were copied.
+    copied. An entry whose data file is not there (numba writes the index first: a
+    compile beside the copy) is left out. Returns how many compiled signatures were
+    copied.
     """
     from numba.core.serialize import dumps
 
@@ -92,7 +99,11 @@ def copy_portable(cache: Path, dest: Path) -> int:
     copied = 0
     for index in sorted(cache.glob('*.nbi')):
         version, stamp, overloads = _read_index(index)
-        portable = {k: v for k, v in overloads.items() if tuple(k[1][1:]) == PORTABLE_CPU}
+        portable = {
+            k: v
+            for k, v in overloads.items()
+            if tuple(k[1][1:]) == PORTABLE_CPU and (cache / v).is_file()
+        }
         if not portable:
             continue
         with open(dest / index.name, 'wb') as f:
@@ -118,6 +129,7 @@ def build(dest: Path, source_root: Path, sources: Path | None = None) -> dict:
 
     """
     import numba
+    from llvmlite import binding as llvm
 
     core = source_root / 'sorter_sim' / 'model' / 'core'
     cache = compile_portable(source_root)
@@ -136,7 +148,8 @@ def build(dest: Path, source_root: Path, sources: Path | None = None) -> dict:
         'sources': digest,
         'numba': numba.__version__,
         'python': python_tag(),
-        'cpu': 'generic x86-64',
+        'triple': llvm.get_process_triple(),
+        'cpu': 'generic',
         'signatures': signatures,
     }
     (dest / 'manifest.json').write_text(json.dumps(manifest, indent=1) + '\n')

@@ -24,11 +24,13 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import pickle
 import sys
 from pathlib import Path
 
 import numba
-from numba.core.caching import FunctionCache, IndexDataCacheFile
+from llvmlite import binding as llvm
+from numba.core.caching import FunctionCache
 
 CORE_DIR = Path(__file__).resolve().parent
 SHIPPED_DIR = CORE_DIR / 'shipped_kernels'
@@ -93,13 +95,19 @@ def shipped_kernels_fit(folder: Path, here: Path = CORE_DIR) -> str | None:
     -------
     str or None
         None when they were built from these very sources, by this numba, for this
-        interpreter; otherwise what differs (the kernels then compile on first use).
+        interpreter and target (``x86_64-unknown-linux-gnu``); otherwise what differs (the
+        kernels then compile on first use).
 
     """
     manifest = read_manifest(folder)
     if manifest is None:
         return f'no shipped kernels in {folder}'
-    wanted = {'sources': sources_digest(here), 'numba': numba.__version__, 'python': python_tag()}
+    wanted = {
+        'sources': sources_digest(here),
+        'numba': numba.__version__,
+        'python': python_tag(),
+        'triple': llvm.get_process_triple(),
+    }
     for key, value in wanted.items():
         if manifest.get(key) != value:
             return f'the shipped kernels are for {key} {manifest.get(key)!r}, this is {value!r}'
@@ -124,6 +132,26 @@ class KernelCache(FunctionCache):
     copied into the user's cache: it is read in place, read-only.
     """
 
+    _shipped_index: dict | None = None
+
+    def _shipped_entries(self, shipped: Path) -> dict:
+        """
+        Return the shipped index of this kernel: its compiled signatures' data files.
+
+        numba's own reader would also compare the index's stamp of the kernel's source
+        file with the installed file's; the manifest's digest of every core source has
+        proven them the same already, and before numba 0.68 that stamp was the file's
+        time, which an install does not keep.
+        """
+        if self._shipped_index is None:
+            index = shipped / f'{self._impl.filename_base}.nbi'
+            self._shipped_index = {}
+            if index.is_file():
+                with open(index, 'rb') as f:
+                    if pickle.load(f) == numba.__version__:
+                        _stamp, self._shipped_index = pickle.loads(f.read())
+        return self._shipped_index
+
     def _load_overload(self, sig, target_context):
         data = super()._load_overload(sig, target_context)
         if data is not None or not self._enabled:
@@ -134,14 +162,13 @@ class KernelCache(FunctionCache):
         sig_key, (triple, _cpu, _features), code_key = self._index_key(
             sig, target_context.codegen()
         )
-        store = IndexDataCacheFile(
-            cache_path=str(shipped),
-            filename_base=self._impl.filename_base,
-            source_stamp=self._impl.locator.get_source_stamp(),
-        )
         try:
-            data = store.load((sig_key, (triple, *PORTABLE_CPU), code_key))
-            return None if data is None else self._impl.rebuild(target_context, data)
+            name = self._shipped_entries(shipped).get((sig_key, (triple, *PORTABLE_CPU), code_key))
+            if name is None:
+                return None
+            with open(shipped / name, 'rb') as f:
+                data = pickle.loads(f.read())
+            return self._impl.rebuild(target_context, data)
         except Exception as exc:  # a torn or foreign file: compile, as without it
             print(
                 f'sorter_sim: the shipped kernel {self._impl.filename_base} in {shipped} '
