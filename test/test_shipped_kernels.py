@@ -20,19 +20,18 @@ from sorter_sim.model.core.cache import (
     python_tag,
     shipped_kernels_fit,
     sources_digest,
+    target_triple,
 )
 from sorter_sim.model.portable_kernels import copy_portable
 
 
 def _manifest(folder, **changes):
-    from llvmlite import binding as llvm
-
     folder.mkdir(exist_ok=True)
     fits = {
         'sources': sources_digest(),
         'numba': numba.__version__,
         'python': python_tag(),
-        'triple': llvm.get_process_triple(),
+        'triple': target_triple(),
     }
     (folder / 'manifest.json').write_text(json.dumps(dict(fits, **changes)))
     return folder

@@ -29,7 +29,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from sorter_sim.model.core.cache import PORTABLE_CPU, python_tag, sources_digest
+from sorter_sim.model.core.cache import PORTABLE_CPU, python_tag, sources_digest, target_triple
 
 _WARM_UP = (
     'import sys\n'
@@ -129,7 +129,6 @@ def build(dest: Path, source_root: Path, sources: Path | None = None) -> dict:
 
     """
     import numba
-    from llvmlite import binding as llvm
 
     core = source_root / 'sorter_sim' / 'model' / 'core'
     cache = compile_portable(source_root)
@@ -148,7 +147,7 @@ def build(dest: Path, source_root: Path, sources: Path | None = None) -> dict:
         'sources': digest,
         'numba': numba.__version__,
         'python': python_tag(),
-        'triple': llvm.get_process_triple(),
+        'triple': target_triple(),
         'cpu': 'generic',
         'signatures': signatures,
     }

@@ -29,7 +29,6 @@ import sys
 from pathlib import Path
 
 import numba
-from llvmlite import binding as llvm
 from numba.core.caching import FunctionCache
 
 CORE_DIR = Path(__file__).resolve().parent
@@ -78,6 +77,13 @@ def python_tag() -> str:
     return f'py{sys.version_info[0]}{sys.version_info[1]}{getattr(sys, "abiflags", "")}'
 
 
+def target_triple() -> str:
+    """Return the target numba compiles for here: the triple in its cache keys."""
+    from numba.core.registry import cpu_target
+
+    return cpu_target.target_context.codegen().magic_tuple()[0]
+
+
 def read_manifest(folder: Path) -> dict | None:
     """Return the manifest of a folder of shipped kernels, or None if it has none."""
     try:
@@ -106,7 +112,7 @@ def shipped_kernels_fit(folder: Path, here: Path = CORE_DIR) -> str | None:
         'sources': sources_digest(here),
         'numba': numba.__version__,
         'python': python_tag(),
-        'triple': llvm.get_process_triple(),
+        'triple': target_triple(),
     }
     for key, value in wanted.items():
         if manifest.get(key) != value:
