@@ -18,6 +18,7 @@ from sorter_sim.model.core.cache import (
     CORE_DIR,
     PORTABLE_CPU,
     python_tag,
+    read_index,
     shipped_kernels_fit,
     sources_digest,
     target_triple,
@@ -99,9 +100,8 @@ def test_only_the_portable_entries_of_a_cache_are_copied(tmp_path):
         (cache / name).write_bytes(name.encode())
     assert copy_portable(cache, dest) == 1
     assert sorted(p.name for p in dest.iterdir()) == ['m.f-10.py311.2.nbc', 'm.f-10.py311.nbi']
-    with open(dest / 'm.f-10.py311.nbi', 'rb') as f:
-        assert pickle.load(f) == numba.__version__
-        stamp, overloads = pickle.loads(f.read())
+    version, stamp, overloads = read_index(dest / 'm.f-10.py311.nbi')
+    assert version == numba.__version__
     assert stamp == b'stamp' and overloads == {('sig1', portable, code): 'm.f-10.py311.2.nbc'}
 
 
@@ -202,9 +202,8 @@ def test_a_kernel_compiled_for_the_generic_cpu_is_loaded_on_this_one_without_com
     # the index's stamp of the source file is not what decides (the manifest's digest of
     # the sources does): before numba 0.68 it was the file's time, which an install resets
     (index,) = shipped.glob('*.nbi')
-    with open(index, 'rb') as f:
-        assert pickle.load(f) == numba.__version__
-        _stamp, overloads = pickle.loads(f.read())
+    version, _stamp, overloads = read_index(index)
+    assert version == numba.__version__
     _index(index, (0.0, 0), overloads)
     # this CPU's own key: nothing in an empty cache, the generic entry is found behind it
     assert probe(tmp_path / 'empty', shipped) == (6.0, 0)

@@ -14,7 +14,8 @@ core runs, best of 20 on one core: 0.635 against 0.640 ms accurate, 2.49 against
 on the sources in ``SOURCE_ROOT`` (its own numba cache: warm if that tree compiled
 them portably before, as ``scripts/test.sh`` does), then copies the portable entries
 of every kernel's cache into ``DEST`` with a manifest: the sources' digest, numba's
-version and the interpreter, which ``KernelCache`` checks before it reads any of them.
+version, the interpreter and the target triple, which ``KernelCache`` checks before it
+reads any of them.
 The wheel build calls it (``setup.py``).
 """
 
@@ -29,10 +30,15 @@ import subprocess
 import sys
 from pathlib import Path
 
-from sorter_sim.model.core.cache import PORTABLE_CPU, python_tag, sources_digest, target_triple
+from sorter_sim.model.core.cache import (
+    PORTABLE_CPU,
+    python_tag,
+    read_index,
+    sources_digest,
+    target_triple,
+)
 
 _WARM_UP = (
-    'import sys\n'
     'from sorter_sim.runtime.warmup import warm_up\n'
     'from sorter_sim.model.core.cache import kernel_cache_dir\n'
     'warm_up()\n'
@@ -75,13 +81,6 @@ def compile_portable(source_root: Path) -> Path:
     return Path(done.stdout.strip().splitlines()[-1])
 
 
-def _read_index(path: Path) -> tuple[str, object, dict]:
-    with open(path, 'rb') as f:
-        version = pickle.load(f)
-        stamp, overloads = pickle.loads(f.read())
-    return version, stamp, overloads
-
-
 def copy_portable(cache: Path, dest: Path) -> int:
     """
     Copy the portable entries of every kernel cached in ``cache`` into ``dest``.
@@ -98,7 +97,7 @@ def copy_portable(cache: Path, dest: Path) -> int:
     dest.mkdir(parents=True, exist_ok=True)
     copied = 0
     for index in sorted(cache.glob('*.nbi')):
-        version, stamp, overloads = _read_index(index)
+        version, stamp, overloads = read_index(index)
         portable = {
             k: v
             for k, v in overloads.items()

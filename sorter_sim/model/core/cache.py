@@ -84,6 +84,19 @@ def target_triple() -> str:
     return cpu_target.target_context.codegen().magic_tuple()[0]
 
 
+def read_index(path: Path) -> tuple[str, object, dict]:
+    """
+    Return a numba cache index's numba version, source stamp and compiled signatures.
+
+    numba's format: its version pickled, then the stamp and the signatures' data files
+    pickled together (``numba.core.caching.IndexDataCacheFile``).
+    """
+    with open(path, 'rb') as f:
+        version = pickle.load(f)
+        stamp, overloads = pickle.loads(f.read())
+    return version, stamp, overloads
+
+
 def read_manifest(folder: Path) -> dict | None:
     """Return the manifest of a folder of shipped kernels, or None if it has none."""
     try:
@@ -153,9 +166,9 @@ class KernelCache(FunctionCache):
             index = shipped / f'{self._impl.filename_base}.nbi'
             self._shipped_index = {}
             if index.is_file():
-                with open(index, 'rb') as f:
-                    if pickle.load(f) == numba.__version__:
-                        _stamp, self._shipped_index = pickle.loads(f.read())
+                version, _stamp, overloads = read_index(index)
+                if version == numba.__version__:
+                    self._shipped_index = overloads
         return self._shipped_index
 
     def _load_overload(self, sig, target_context):
