@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import contextlib
 import socket
+import subprocess
+import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -84,6 +86,29 @@ class RosHarness:
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=min(0.01, max(0.0, deadline - time.monotonic())))
+
+    def communicate(self, proc: subprocess.Popen, timeout_sec: float) -> tuple:
+        """
+        Return what the process printed (out, err) once it ends, the executor spun meanwhile.
+
+        A test's node that stops taking what it subscribed to slows the DDS traffic of the
+        processes it watches (a 5-parcel split line took twice as long), so a test that
+        waits for a process keeps its own nodes spinning; a thread reads the pipes.
+        """
+        box: dict = {}
+
+        def read() -> None:
+            try:
+                box['out'] = proc.communicate(timeout=timeout_sec)
+            except subprocess.TimeoutExpired as exc:
+                box['error'] = exc
+
+        reader = threading.Thread(target=read, daemon=True)
+        reader.start()
+        self.spin_until(lambda: not reader.is_alive(), timeout_sec + 5.0, f'{proc.args[:4]}')
+        if 'error' in box:
+            raise box['error']
+        return box['out']
 
     def call(self, client: Client, request: Any, timeout_sec: float = 5.0) -> Any:
         """Call a service and return its response; the server must be spun here too."""

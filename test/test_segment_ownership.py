@@ -133,3 +133,34 @@ def test_the_same_node_restarted_takes_its_stations_over_at_once(ros):
     assert time.monotonic() - start < 2.0
     ros.spin_until(lambda: old.segment.owners.refused(), 5.0)
     assert not new.segment.owners.refused() and old.segment.holds()
+
+
+def test_a_hello_said_again_after_its_answer_is_answered_again(ros):
+    """
+    The answer to a hello lost on its way (a restarted segment's subscription matched late).
+
+    The segment keeps saying hello: the one upstream answers it again, its parcels with
+    it, and the segment runs. Before, a hello it had answered once was never answered
+    again, and a restarted segment that missed its answer waited for ever.
+    """
+    up = segment(ros, 'sorter_line_a', stations=1, line_stations=2, fast_slice=0.05)
+    down = segment(ros, 'sorter_line_b', stations=1, first_station=2, fast_slice=0.05)
+    up.stations[0].cell.hand_in(replace(REAL[0], parcel_id=1, label='P1'), -0.3)
+    ros.spin_until(lambda: up.segment.connected(), 10.0)
+    deadline = time.monotonic() + 30.0
+    while not (down.segment.answered and down.segment.stats['received'] >= 1):
+        assert time.monotonic() < deadline, 'no parcel handed over'
+        step(ros, up, down)
+    assert up.segment.outbox  # S01 answers for it until it leaves S02
+    resent = up.segment.stats['resent']
+    # the answer, as if lost: the segment downstream did not hear it and says hello again
+    down.segment.answered = False
+    deadline = time.monotonic() + 10.0
+    while not down.segment.answered:
+        assert time.monotonic() < deadline, 'a hello said again was never answered'
+        for _ in range(30):
+            ros.executor.spin_once(timeout_sec=0.01)
+        up.segment.service()
+        down.segment.service()
+    assert up.segment.stats['resent'] > resent  # the parcel it answers for, sent again
+    assert down.segment.stats['duplicates'] >= 1 and down.segment.stats['received'] == 1

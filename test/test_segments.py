@@ -349,7 +349,7 @@ def test_a_segment_process_killed_mid_run_comes_back_and_loses_nothing(
         assert len(seen) >= after, f'{len(seen)} parcels reached segment 2'
         time.sleep(delay)
         os.kill(victim, signal.SIGKILL)
-        out, err = demo.communicate(timeout=50)
+        out, err = ros.communicate(demo, 50.0)
     finally:
         if demo.poll() is None:
             demo.kill()

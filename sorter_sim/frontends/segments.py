@@ -31,9 +31,10 @@ its upstream neighbour, on ``line/handover/<its first station>/left``, the ids t
 left it, forwarding those its own downstream neighbour reports). A segment that
 starts says ``hello`` there with an identity of its own (its process and start
 time), again every ``HELLO_MIN_S`` until answered; the segment upstream answers a
-``hello`` it has not heard before by sending its whole outbox again, then its horizon,
-then ``answered`` naming the hello. In lock-step and fast mode a segment runs only once
-its hello is answered. A segment restarted after a crash thus
+``hello`` by sending its whole outbox again, then its horizon, then ``answered`` naming
+the hello (a hello said again after its answer is answered again: the answer was
+lost). In lock-step and fast mode a segment runs only once its hello is answered. A
+segment restarted after a crash thus
 gets back every parcel it held or was being handed, each in the state it was handed
 over in, before it runs again from t = 0 (its stations empty, the time
 up to the present quickly) and takes each at the period it first came: the parcels
@@ -483,8 +484,12 @@ class SegmentLink:
             )
         v = message_fields(pairs(msg), 'hello', ('identity',))
         identity = parse_identity(v['identity'])
-        if identity == self._downstream_identity or identity == self._pending_hello:
-            return  # said again: answered once
+        if identity == self._pending_hello:
+            return  # said again: it waits for its turn already
+        # The one answered, said again: the answer did not reach it. A restarted segment's
+        # subscription may match this one's publisher after its own hello got here, and a
+        # volatile topic keeps nothing for a late reader: answered again (at most once a
+        # second, as any hello), it drops as duplicates what it had taken already.
         owner = self._downstream_owner()
         if self._pending_hello == owner and identity != owner:
             return  # the owner's hello waits for its turn: another's does not take its place
