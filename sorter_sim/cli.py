@@ -20,10 +20,11 @@ import math
 import sys
 
 from sorter_ros.env import apply_ros_env_defaults
-from sorter_sim.model.core.cache import check_kernel_cache
 from sorter_sim.model.compile_progress import set_quiet as set_compile_quiet
-from sorter_sim.runtime.scene import SceneError, apply_overrides, load_scene, run_scene
-from sorter_sim.studies.scene_args import add_scene_options
+
+# The model (numba, the kernels' cache), SciPy and rclpy load with the verb that needs
+# them, not before the command line is read: ``sorter --help``, a usage error or a
+# verb that needs less starts in a fraction of a second, not the two a full import takes.
 
 # verb -> (module, one-line help)
 VERBS = {
@@ -52,6 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         The verb's parser.
 
     """
+    from sorter_sim.studies.scene_args import add_scene_options
+
     parser.add_argument("scene", help="scene YAML file (see config/scenes/)")
     add_scene_options(parser)
 
@@ -87,6 +90,8 @@ def run(args) -> int | str:
         The exit code, or a message for a refused input (exit 2).
 
     """
+    from sorter_sim.runtime.scene import apply_overrides, load_scene, run_scene
+
     scene = load_scene(args.scene)
     if args.overrides:
         scene = apply_overrides(scene, args.overrides)
@@ -118,14 +123,43 @@ def run(args) -> int | str:
     return 0 if summary["success"] else 1
 
 
-def build_parser(verbs: dict | None = None) -> argparse.ArgumentParser:
+def chosen_verb(argv: list[str], verbs: dict) -> str | None:
+    """
+    Return the verb ``argv`` names (its first word that is not an option), or None.
+
+    Parameters
+    ----------
+    argv : list of str
+        The arguments.
+    verbs : dict
+        verb -> (module, help).
+
+    Returns
+    -------
+    str or None
+        The verb, when it is one of ``verbs``.
+
+    """
+    word = next((a for a in argv if not a.startswith("-")), None)
+    return word if word in verbs else None
+
+
+def build_parser(
+    verbs: dict | None = None, argv: list[str] | None = None
+) -> argparse.ArgumentParser:
     """
     Return the parser of the ``sorter`` command.
+
+    Only the module of the verb ``argv`` names is imported, for its arguments: the
+    others' sub-parsers carry their one-line help. A verb whose module is missing from
+    an installation does not break the others: it is refused when chosen.
 
     Parameters
     ----------
     verbs : dict, optional
         verb -> (module, help); default: this package's.
+    argv : list of str, optional
+        The arguments (default: the process's).
 
     Returns
     -------
@@ -133,16 +167,21 @@ def build_parser(verbs: dict | None = None) -> argparse.ArgumentParser:
         The parser, one sub-parser per verb.
 
     """
+    verbs = verbs or VERBS
+    chosen = chosen_verb(sys.argv[1:] if argv is None else argv, verbs)
     parser = _Parser(
         prog="sorter", description="Parcel sorter cell: model, studies and the running cell."
     )
     sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
-    for verb, (module, help_text) in (verbs or VERBS).items():
+    for verb, (module, help_text) in verbs.items():
+        p = sub.add_parser(verb, help=help_text, description=help_text)
+        if verb != chosen:
+            continue
         try:
             mod = importlib.import_module(module) if module != __name__ else sys.modules[__name__]
-        except ImportError:
+        except ImportError as exc:
+            p.set_defaults(_verb_main=lambda _args, exc=exc: f"not installed here ({exc})")
             continue
-        p = sub.add_parser(verb, help=help_text, description=help_text)
         mod.add_arguments(p)
         p.set_defaults(_verb_main=mod.run)
     return parser
@@ -167,8 +206,11 @@ def main(argv: list[str] | None = None, verbs: dict | None = None) -> int:
     """
     apply_ros_env_defaults()
     try:
-        check_kernel_cache()
-        parser = build_parser(verbs)  # imports every verb's module
+        if chosen_verb(sys.argv[1:] if argv is None else argv, verbs or VERBS):
+            from sorter_sim.model.core.cache import check_kernel_cache
+
+            check_kernel_cache()  # stale kernels dropped before any verb's module loads
+        parser = build_parser(verbs, argv)  # imports the chosen verb's module
     except KeyboardInterrupt:  # Ctrl-C while the modules load: a clean stop
         return 130
     args = parser.parse_args(argv)
@@ -179,7 +221,7 @@ def main(argv: list[str] | None = None, verbs: dict | None = None) -> int:
         return 2
     try:
         rc = args._verb_main(args)
-    except (SceneError, ValueError) as exc:
+    except ValueError as exc:  # SceneError is one
         print(f"sorter {args.verb}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -143,6 +143,36 @@ def test_missing_file_and_usage_errors_exit_2():
     assert r.returncode == 2 and "Traceback" not in r.stderr
 
 
+def test_help_names_every_verb_and_loads_no_model():
+    """``sorter --help`` lists each verb with its line; neither numba nor rclpy loads for it."""
+    from sorter_cell.cli import CELL_VERBS
+    from sorter_sim.cli import VERBS
+
+    probe = (
+        "import sys\nfrom sorter_cell.cli import main\n"
+        "try:\n    rc = main(['--help'])\nexcept SystemExit as e:\n    rc = e.code\n"
+        "print(rc, *sorted(m for m in ('numba', 'rclpy', 'scipy') if m in sys.modules))"
+    )
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    *help_lines, last = r.stdout.strip().splitlines()
+    assert last == "0", last  # exit 0, and none of the heavy modules loaded
+    text = "\n".join(help_lines)
+    for verb, (_, line) in {**VERBS, **CELL_VERBS}.items():
+        assert verb in text and line[:40] in " ".join(text.split()), verb
+
+
+def test_a_verb_whose_module_is_missing_is_refused_in_one_line_and_the_others_run(capsys):
+    """An installation without a verb's module: that verb says so; the others still run."""
+    from sorter_sim.cli import VERBS, main
+
+    verbs = dict(VERBS, gone=("sorter_sim.no_such_module", "a verb not installed"))
+    assert main(["gone"], verbs) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "sorter gone: error: not installed here" in err[0], err
+    assert main(["run", str(ROOT / "config" / "scenes" / "fig9a.yaml"), "--json"], verbs) == 0
+
+
 def test_validation_changes_nothing_on_error():
     scene = load_scene(ROOT / "config" / "scenes" / "fig9a.yaml")
     before = json.dumps(scene, sort_keys=True, default=str)
