@@ -27,6 +27,7 @@ from sorter_sim.studies.workprecision import (
     Trajectory,
     compare,
     dp5_pieces,
+    measure,
     oscillator_core,
     oscillator_exact,
     oscillator_trajectory,
@@ -186,6 +187,27 @@ def test_scipy_on_the_same_model_agrees_with_the_accurate_method():
     assert e.grid_max < 1e-7, e
     assert e.events["scrap"] < 1e-8 and e.events["break"] < 1e-8 and e.events["stick"] < 1e-6, e
     assert not e.missing, e
+
+
+@pytest.mark.parametrize("compiles, runs", [(True, 1 + 3), (False, 3)])
+def test_a_compiled_method_is_warmed_up_untimed_once_and_scipy_is_timed_from_its_first_run(
+    compiles, runs
+):
+    osc = Oscillator()
+    ref = oscillator_exact(osc, 1.0)
+    calls = []
+
+    def run():
+        calls.append(1)
+        return ref
+
+    key = ("warm-up test", compiles)
+    for _ in range(2):  # the second measurement of a family is not warmed up again
+        calls.clear()
+        row = measure("fig4", "family", "s", run, ref, None, 3, 1e9, key, compiles=compiles)
+        assert row.ok and row.n_runs == 3 and row.errors.final == 0.0, row
+        assert len(calls) == runs
+        runs = 3
 
 
 def test_scipy_oscillator_and_core_against_the_exact_fig4_solution():

@@ -165,7 +165,18 @@ def _parcel_rows(
     sp = ScipyParcel(case)
 
     def add(family, setting, run, finish, key=None):
-        r = measure(name, family, setting, run, ref, finish, sw.repeats, sw.budget_s, key)
+        r = measure(
+            name,
+            family,
+            setting,
+            run,
+            ref,
+            finish,
+            sw.repeats,
+            sw.budget_s,
+            key,
+            compiles=not family.startswith("scipy"),  # scipy's first run needs no warm-up
+        )
         rows.append(r)
         log(
             f"  {name:<12} {family:<28} {setting:<18} {fmt_ms(r.wall_s):>8} ms  "
@@ -277,7 +288,18 @@ def _fig4_case(quick: bool, log) -> PrecisionCase:
     rows = pc.rows
 
     def add(family, setting, run, finish, key):
-        r = measure("fig4", family, setting, run, ref, finish, sw.repeats, sw.budget_s, key)
+        r = measure(
+            "fig4",
+            family,
+            setting,
+            run,
+            ref,
+            finish,
+            sw.repeats,
+            sw.budget_s,
+            key,
+            compiles=not family.startswith("scipy"),  # scipy's first run needs no warm-up
+        )
         rows.append(r)
         log(
             f"  fig4         {family:<28} {setting:<18} {fmt_ms(r.wall_s):>8} ms  "

@@ -74,7 +74,8 @@ _DEFINITIONS = """\
   zone entry: a footprint corner crossing a zone border, located on the interpolated trajectory of
   every method; scrap: reaching the scrap line); "missed N" where the run has no such event.
 - **Timing**: wall time of the run alone (no post-processing), after one untimed warm-up run per
-  method family (compilation), minimum over several runs, the process pinned to one CPU.
+  compiled method family (the core's compilation; scipy compiles nothing and is timed from its
+  first run), minimum over several runs, the process pinned to one CPU.
   Failures (exceptions, step budgets, non-finite states) stay in the tables with the reason.
 """
 

@@ -444,6 +444,7 @@ def measure(
     repeats: int = 3,
     budget_s: float = 2.0,
     warm_key=None,
+    compiles: bool = True,
 ) -> WPRow:
     """
     Time ``run()`` and compare ``finish(result)`` (a Trajectory) with ``ref``.
@@ -474,6 +475,8 @@ def measure(
         The most time to spend [s].
     warm_key : object, optional
         Warm up once per key.
+    compiles : bool
+        False for a method with nothing to compile (scipy's): its first run is timed too.
 
     Returns
     -------
@@ -484,7 +487,7 @@ def measure(
     row = WPRow(case_name, family, setting)
     key = warm_key or family
     try:
-        if key not in _WARM:
+        if compiles and key not in _WARM:
             run()
             _WARM.add(key)
         out, wall, n = timed(run, repeats, budget_s)
