@@ -158,6 +158,27 @@ def scipy_runs(sp: ScipyParcel, method: str, rtol: float, budget: float, thresho
     )
 
 
+def _measured(name, family, setting, run, ref, finish, key, sw: Sweeps, log) -> WPRow:
+    """Measure one setting of a case (``workprecision.measure``) and log its line."""
+    r = measure(
+        name,
+        family,
+        setting,
+        run,
+        ref,
+        finish,
+        sw.repeats,
+        sw.budget_s,
+        key,
+        compiles=not family.startswith("scipy"),  # scipy's first run needs no warm-up
+    )
+    log(
+        f"  {name:<12} {family:<28} {setting:<18} {fmt_ms(r.wall_s):>8} ms  "
+        f"err {fmt_e(r.errors.final) if r.errors else '–':>8}  {r.failure}"
+    )
+    return r
+
+
 def _parcel_rows(
     name: str, case: ParcelCase, sw: Sweeps, ref: Trajectory, v_min: float, thr_vmin_dt: float, log
 ) -> list[WPRow]:
@@ -165,23 +186,7 @@ def _parcel_rows(
     sp = ScipyParcel(case)
 
     def add(family, setting, run, finish, key=None):
-        r = measure(
-            name,
-            family,
-            setting,
-            run,
-            ref,
-            finish,
-            sw.repeats,
-            sw.budget_s,
-            key,
-            compiles=not family.startswith("scipy"),  # scipy's first run needs no warm-up
-        )
-        rows.append(r)
-        log(
-            f"  {name:<12} {family:<28} {setting:<18} {fmt_ms(r.wall_s):>8} ms  "
-            f"err {fmt_e(r.errors.final) if r.errors else '–':>8}  {r.failure}"
-        )
+        rows.append(_measured(name, family, setting, run, ref, finish, key, sw, log))
 
     for family, setting, method, kw in core_settings(sw, v_min, thr_vmin_dt):
         add(
@@ -288,23 +293,7 @@ def _fig4_case(quick: bool, log) -> PrecisionCase:
     rows = pc.rows
 
     def add(family, setting, run, finish, key):
-        r = measure(
-            "fig4",
-            family,
-            setting,
-            run,
-            ref,
-            finish,
-            sw.repeats,
-            sw.budget_s,
-            key,
-            compiles=not family.startswith("scipy"),  # scipy's first run needs no warm-up
-        )
-        rows.append(r)
-        log(
-            f"  fig4         {family:<28} {setting:<18} {fmt_ms(r.wall_s):>8} ms  "
-            f"err {fmt_e(r.errors.final) if r.errors else '–':>8}  {r.failure}"
-        )
+        rows.append(_measured("fig4", family, setting, run, ref, finish, key, sw, log))
 
     def fin(res):
         return oscillator_trajectory(osc, res)
