@@ -204,7 +204,7 @@ def segment_stats(line, ctls) -> dict:
         'taken': link.stats['received'],
         'late': link.stats['late'],
         'refused': link.stats['refused'],
-        'resent': link.stats['resent'],  # sent again to a segment downstream that (re)started
+        'resent': link.stats['resent'],  # sent again: the segment downstream (re)started
         'duplicates': link.stats['duplicates'],  # copies of parcels it had, dropped
         'in_custody': len(link.outbox),  # handed on, not yet out of the segment downstream
         'exits': dict(Counter(e.exit for e in line.line.exits)),

@@ -150,8 +150,8 @@ def build_parser(
     """
     Return the parser of the ``sorter`` command.
 
-    Only the module of the verb ``argv`` names is imported, for its arguments: the
-    others' sub-parsers carry their one-line help. A verb whose module is missing from
+    With ``argv``, only the module of the verb it names is imported, for its arguments:
+    the others' sub-parsers carry their one-line help. A verb whose module is missing from
     an installation does not break the others: it is refused when chosen.
 
     Parameters
@@ -159,7 +159,8 @@ def build_parser(
     verbs : dict, optional
         verb -> (module, help); default: this package's.
     argv : list of str, optional
-        The arguments (default: the process's).
+        The arguments the parser is for: only the verb they name gets its arguments
+        (default: every verb's module imported, every verb complete).
 
     Returns
     -------
@@ -168,14 +169,14 @@ def build_parser(
 
     """
     verbs = verbs or VERBS
-    chosen = chosen_verb(sys.argv[1:] if argv is None else argv, verbs)
+    chosen = chosen_verb(argv, verbs) if argv is not None else None
     parser = _Parser(
         prog="sorter", description="Parcel sorter cell: model, studies and the running cell."
     )
     sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
     for verb, (module, help_text) in verbs.items():
         p = sub.add_parser(verb, help=help_text, description=help_text)
-        if verb != chosen:
+        if argv is not None and verb != chosen:
             continue
         try:
             mod = importlib.import_module(module) if module != __name__ else sys.modules[__name__]
@@ -205,8 +206,9 @@ def main(argv: list[str] | None = None, verbs: dict | None = None) -> int:
 
     """
     apply_ros_env_defaults()
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        if chosen_verb(sys.argv[1:] if argv is None else argv, verbs or VERBS):
+        if chosen_verb(argv, verbs or VERBS):
             from sorter_sim.model.core.cache import check_kernel_cache
 
             check_kernel_cache()  # stale kernels dropped before any verb's module loads

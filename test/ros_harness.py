@@ -100,7 +100,7 @@ class RosHarness:
         def read() -> None:
             try:
                 box['out'] = proc.communicate(timeout=timeout_sec)
-            except subprocess.TimeoutExpired as exc:
+            except BaseException as exc:  # noqa: BLE001 - raised again in the test's thread
                 box['error'] = exc
 
         reader = threading.Thread(target=read, daemon=True)

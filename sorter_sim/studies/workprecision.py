@@ -3,8 +3,9 @@ Work-precision measurement: run a method at a setting, time it, and measure its 
 
 This module owns the machinery behind ``sorter bench``, in the manner of SciML's
 work-precision diagrams (DiffEqDevTools ``benchmark.jl``): a stated reference, the
-warm-up run discarded, the minimum of several timed runs, failures kept in the table
-with their reason, and the machine and library versions printed with the figures.
+warm-up run of a compiled method discarded, the minimum of several timed runs, failures
+kept in the table with their reason, and the machine and library versions printed with
+the figures.
 
 - ``Trajectory`` and ``compare`` (``trajectory``, re-exported here): what any method
   produced, read at any time, and its errors against a reference trajectory.
@@ -451,7 +452,9 @@ def measure(
 
     Only ``run`` is timed; ``finish`` turns its result into a Trajectory (dense
     output, zone events) afterwards. The first call for each ``warm_key`` (default:
-    the family) runs once untimed, so compilation never enters a figure. A failure
+    the family) of a method that compiles runs once untimed, so compilation never enters
+    a figure; a scipy method (``compiles=False``; ``ScipyParcel`` loads its compiled
+    right-hand sides when it is made) is timed from its first run. A failure
     (an exception, a non-finite state, an unsuccessful status) is kept in the row
     with its reason.
 
