@@ -190,9 +190,17 @@ def test_scipy_on_the_same_model_agrees_with_the_accurate_method():
     assert not e.missing, e
 
 
-@pytest.mark.parametrize("compiles, runs", [(True, 1 + 3), (False, 3)])
+@pytest.mark.parametrize(
+    "family, compiles, runs",
+    [
+        ("family", True, 1 + 3),
+        ("family", False, 3),
+        ("accurate", None, 1 + 3),  # by its family's name
+        ("scipy RK45 (rtol)", None, 3),
+    ],
+)
 def test_a_compiled_method_is_warmed_up_untimed_once_and_scipy_is_timed_from_its_first_run(
-    compiles, runs
+    family, compiles, runs
 ):
     osc = Oscillator()
     ref = oscillator_exact(osc, 1.0)
@@ -202,11 +210,11 @@ def test_a_compiled_method_is_warmed_up_untimed_once_and_scipy_is_timed_from_its
         calls.append(1)
         return ref
 
-    key = ("warm-up test", compiles)
+    key = ("warm-up test", family, compiles)
     _WARM.discard(key)  # as if measured for the first time in this process
     for _ in range(2):  # the second measurement of a family is not warmed up again
         calls.clear()
-        row = measure("fig4", "family", "s", run, ref, None, 3, 1e9, key, compiles=compiles)
+        row = measure("fig4", family, "s", run, ref, None, 3, 1e9, key, compiles=compiles)
         assert row.ok and row.n_runs == 3 and row.errors.final == 0.0, row
         assert len(calls) == runs
         runs = 3

@@ -286,8 +286,7 @@ def _core_rows(
     budget = 4e5
 
     def add(family, setting, run, finish, key):
-        compiles = not family.startswith("scipy")  # scipy's first run needs no warm-up
-        r = measure("fig9a", family, setting, run, ref, finish, repeats, 5.0, key, compiles)
+        r = measure("fig9a", family, setting, run, ref, finish, repeats, 5.0, key)
         rows.append(r)
         log(f"{family} {setting}: {fmt_ms(r.wall_s)} ms")
 

@@ -170,7 +170,6 @@ def _measured(name, family, setting, run, ref, finish, key, sw: Sweeps, log) -> 
         sw.repeats,
         sw.budget_s,
         key,
-        compiles=not family.startswith("scipy"),  # scipy's first run needs no warm-up
     )
     log(
         f"  {name:<12} {family:<28} {setting:<18} {fmt_ms(r.wall_s):>8} ms  "

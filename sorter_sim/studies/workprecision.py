@@ -445,7 +445,7 @@ def measure(
     repeats: int = 3,
     budget_s: float = 2.0,
     warm_key=None,
-    compiles: bool = True,
+    compiles: bool | None = None,
 ) -> WPRow:
     """
     Time ``run()`` and compare ``finish(result)`` (a Trajectory) with ``ref``.
@@ -453,7 +453,7 @@ def measure(
     Only ``run`` is timed; ``finish`` turns its result into a Trajectory (dense
     output, zone events) afterwards. The first call for each ``warm_key`` (default:
     the family) of a method that compiles runs once untimed, so compilation never enters
-    a figure; a scipy method (``compiles=False``; ``ScipyParcel`` loads its compiled
+    a figure; a scipy method (a family ``scipy ...``; ``ScipyParcel`` loads its compiled
     right-hand sides when it is made) is timed from its first run. A failure
     (an exception, a non-finite state, an unsuccessful status) is kept in the row
     with its reason.
@@ -478,8 +478,9 @@ def measure(
         The most time to spend [s].
     warm_key : object, optional
         Warm up once per key.
-    compiles : bool
-        False for a method with nothing to compile (scipy's): its first run is timed too.
+    compiles : bool, optional
+        Whether the method compiles (default: every family but scipy's, named
+        ``scipy ...``); one that does not is timed from its first run.
 
     Returns
     -------
@@ -489,6 +490,8 @@ def measure(
     """
     row = WPRow(case_name, family, setting)
     key = warm_key or family
+    if compiles is None:
+        compiles = not family.startswith("scipy")  # scipy's first run needs no warm-up
     try:
         if compiles and key not in _WARM:
             run()
