@@ -11,6 +11,7 @@ The full matrix, 10 minutes of two-belt positioning and the quick report run beh
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 
@@ -31,6 +32,7 @@ from sorter_sim.studies.workprecision import (
     measure,
     oscillator_core,
     oscillator_exact,
+    one_core,
     oscillator_trajectory,
 )
 
@@ -218,6 +220,31 @@ def test_a_compiled_method_is_warmed_up_untimed_once_and_scipy_is_timed_from_its
         assert row.ok and row.n_runs == 3 and row.errors.final == 0.0, row
         assert len(calls) == runs
         runs = 3
+
+
+def _running_on() -> int:
+    with open("/proc/self/stat", encoding="ascii") as f:
+        return int(f.read().rsplit(")", 1)[1].split()[36])
+
+
+@pytest.mark.skipif(
+    not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
+    reason="needs Linux and two CPUs to choose from",
+)
+def test_timing_pins_to_the_cpu_it_runs_on_and_gives_the_others_back():
+    """Two timed runs side by side keep a core each: one_core takes the CPU it is on."""
+    allowed = os.sched_getaffinity(0)
+    last = max(allowed)
+    try:
+        os.sched_setaffinity(0, {last})  # moved to the last CPU, then free to move again:
+        os.sched_setaffinity(0, allowed)  # a running process stays where it is
+        with one_core():
+            pinned = os.sched_getaffinity(0)
+            assert pinned == {_running_on()}
+        assert pinned == {last}, f"pinned to {pinned} while running on CPU {last}"
+    finally:
+        os.sched_setaffinity(0, allowed)
+    assert os.sched_getaffinity(0) == allowed
 
 
 def test_scipy_oscillator_and_core_against_the_exact_fig4_solution():

@@ -68,7 +68,8 @@ from sorter_sim.runtime.line import Line, LineExit, LineLayout, StationEvent
 from sorter_sim.runtime.params import SPECS, ParamError
 
 NODE_NAME = 'sorter_line'
-WAIT_S = 0.0002  # s a segment in fast mode sleeps while its upstream neighbour is behind
+WAIT_S = 0.0002  # s a segment in fast mode first sleeps while a neighbour holds it back,
+WAIT_MAX_S = 0.002  # doubling each idle pass up to this (see _tick_fast)
 TIME_MODES = ('lockstep', 'fast', 'realtime')
 SEGMENT_SYNCS = ('conservative', 'barrier')
 
@@ -204,6 +205,7 @@ class LineNode(Node):
         self._wall_ref = None
         mode = values['time_mode']
         if mode == 'fast':
+            self._wait_s = WAIT_S
             self._timer = self.create_timer(0.0, self._tick_fast)
         elif mode == 'realtime':
             self._timer = self.create_timer(0.001, self._tick_realtime)
@@ -565,9 +567,14 @@ class LineNode(Node):
     def _tick_fast(self) -> None:
         k = self.line.k
         self.advance(max(1, round(self.values['fast_slice'] / self.line.dt)))
-        if self.line.k == k:
-            # waiting for the segment upstream: give the core to it rather than spin
-            time.sleep(WAIT_S)
+        if self.line.k != k:
+            self._wait_s = WAIT_S
+            return
+        # held back by a neighbour (its horizon, its acknowledgements, its claim): give the
+        # core to it rather than spin. An idle pass costs as much CPU as the first sleep, so
+        # a segment that waits long sleeps longer, and runs at once again when it can
+        time.sleep(self._wait_s)
+        self._wait_s = min(2.0 * self._wait_s, WAIT_MAX_S)
 
     def _tick_realtime(self) -> None:
         realtime_tick(self, self.line, self.values['real_time_factor'], self._burst_s)

@@ -98,14 +98,29 @@ def machine_line(info: dict | None = None) -> str:
     return f"{info['cpu']}, {info['cores']} cores, {info['os']}; {libs}"
 
 
+def _cpu_now(allowed: set) -> int:
+    """Return the CPU this process runs on now, if Linux says so and it is ``allowed``."""
+    try:
+        with open("/proc/self/stat", encoding="ascii") as f:
+            cpu = int(f.read().rsplit(")", 1)[1].split()[36])  # field 39, "processor"
+    except (OSError, ValueError, IndexError):
+        return min(allowed)
+    return cpu if cpu in allowed else min(allowed)
+
+
 class one_core:
-    """Pin this process to one CPU while timing (the targets are per core)."""
+    """
+    Pin this process to one CPU while timing (the targets are per core).
+
+    The CPU it already runs on, not always the first: two timed runs side by side (two
+    test workers, two benchmarks) then keep a core each instead of sharing the first.
+    """
 
     def __enter__(self):
         self._saved = None
         if hasattr(os, "sched_getaffinity"):
             self._saved = os.sched_getaffinity(0)
-            os.sched_setaffinity(0, {min(self._saved)})
+            os.sched_setaffinity(0, {_cpu_now(self._saved)})
         return self
 
     def __exit__(self, *exc):
