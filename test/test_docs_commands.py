@@ -5,11 +5,15 @@ Each command (``docs_commands.collect``: the fenced ``bash`` blocks, what cannot
 here marked where it stands) is started as a reader would start it, from a folder
 that looks like the repository's root (``config/``, ``examples/``, ``benchmarks/``
 and ``.venv`` linked, ``docs/`` copied, so what a command writes stays out of the
-checkout). A command that has not ended after ``BRIEF_S`` is stopped as a reader
-stops it, with Ctrl-C (SIGINT to its process group): it must then end within
-``STOP_S``. Either way its exit status must be 0 (130 is Ctrl-C's own, taken from a
-command that was stopped, as is an end by the signal itself, which a shell reports as
-130) and nothing it prints may be a traceback.
+checkout). A command still running is stopped as a reader stops it, with Ctrl-C
+(SIGINT to its process group), once it has shown that it works: a command that runs
+the cell or the line (``sorter demo``, ``scripts/run.sh``, ``sim_node``,
+``line_node``) once a clock it publishes on the test's ROS domain has passed
+``CELL_RUNS_S`` of simulated time (within ``CELL_START_S``, or it fails: a cell that
+starts but never runs is caught), any other after ``BRIEF_S``. It must then end
+within ``STOP_S``. Either way its exit status must be 0 (130 is Ctrl-C's own, taken
+from a command that was stopped, as is an end by the signal itself, which a shell
+reports as 130) and nothing it prints may be a traceback.
 """
 
 from __future__ import annotations
@@ -22,17 +26,21 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
 import pytest
 from docs_commands import REPO, collect
+from ros_harness import ros_context_scope, ros_harness_scope
 
 # a page's commands in one worker, in the page's order: a command may read what the one
 # before it wrote (``FEEDS_LATER``); the pages share out over the workers
 pytestmark = [pytest.mark.ros]
 
-BRIEF_S = 8.0  # the most a command runs before it is stopped
+BRIEF_S = 8.0  # the most a command that does not run the cell runs before it is stopped
+CELL_RUNS_S = 1.0  # simulated seconds a cell's clock passes before its command is stopped
+CELL_START_S = 45.0  # the most a command takes to get its cell's clock there
 STOP_S = 30.0  # the most it may take to end after Ctrl-C
 BIN = Path(sys.executable).parent
 
@@ -68,6 +76,8 @@ def test_the_collector_finds_the_commands_and_every_skip_says_why():
         assert c.skip == '' or len(c.skip) > 10, f'{c.doc}:{c.line}: a skip without a reason'
     # what the suite skips is the exception: ros2cli, a workspace build, the suite itself
     assert len(RUNNABLE) >= 25, [c.text for c in RUNNABLE]
+    # most commands that run on start the cell: their clock shows they work
+    assert sum(_starts_a_cell(c) for c in RUNNABLE) >= 12
     # the recording the replay reads is made whole first
     assert any('--record' in c.text for c in RUNNABLE if (c.doc, c.line) in FEEDS_LATER)
 
@@ -147,10 +157,56 @@ def _signal_state() -> str:
         )
 
 
+def _starts_a_cell(cmd) -> bool:
+    """Return whether ``cmd`` runs the cell or the line: its simulated clock shows it works."""
+    name = Path(cmd.argv[0]).name
+    return name in ('sim_node', 'line_node', 'run.sh') or (
+        name == 'sorter' and cmd.argv[1:2] == ['demo']
+    )
+
+
+class _ClockWatch:
+    """The latest time any clock topic on the test's ROS domain said (``/clock``, remapped)."""
+
+    def __init__(self, ros) -> None:
+        self.node = ros.make_node('docs_clock_watch')
+        self.t = 0.0
+        self._subs = {}
+
+    def look(self) -> None:
+        """Subscribe to the clock topics that appeared since the last look."""
+        from rclpy.qos import qos_profile_sensor_data
+        from rosgraph_msgs.msg import Clock
+
+        for name, types in self.node.get_topic_names_and_types():
+            if name.endswith('clock') and 'rosgraph_msgs/msg/Clock' in types:
+                if name not in self._subs:
+                    # best effort, volatile: matches any publisher's QoS
+                    self._subs[name] = self.node.create_subscription(
+                        Clock, name, self._on_clock, qos_profile_sensor_data
+                    )
+
+    def _on_clock(self, msg) -> None:
+        self.t = max(self.t, msg.clock.sec + 1e-9 * msg.clock.nanosec)
+
+
+def _until_its_clock_runs(reader: threading.Thread) -> float:
+    """Wait while the command runs and no clock passed ``CELL_RUNS_S``; return the latest time."""
+    with ros_context_scope() as ctx, ros_harness_scope(ctx) as ros:
+        watch = _ClockWatch(ros)
+        deadline = time.monotonic() + CELL_START_S
+        while reader.is_alive() and watch.t < CELL_RUNS_S and time.monotonic() < deadline:
+            watch.look()
+            ros.spin_for(0.1)
+        return watch.t
+
+
 def _run_as_written(cmd, reader_root) -> None:
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['PATH'] = f'{BIN}{os.pathsep}{env.get("PATH", "")}'
+    whole = (cmd.doc, cmd.line) in FEEDS_LATER
+    cell = _starts_a_cell(cmd) and not whole
     with _ports_lock(cmd):
         proc = subprocess.Popen(
             _argv(cmd),
@@ -162,29 +218,46 @@ def _run_as_written(cmd, reader_root) -> None:
             start_new_session=True,
             preexec_fn=_as_from_a_shell,
         )
-        stopped = False
-        brief = WHOLE_S if (cmd.doc, cmd.line) in FEEDS_LATER else BRIEF_S
-        try:
-            out, _ = proc.communicate(timeout=brief)
-        except subprocess.TimeoutExpired:
-            stopped = True
+        box = {}
+
+        def read() -> None:
+            try:
+                box['out'] = proc.communicate()[0]
+            except BaseException as exc:  # noqa: BLE001 (re-raised in the test)
+                box['error'] = exc
+
+        reader = threading.Thread(target=read, daemon=True)
+        reader.start()
+        if cell:
+            clock = _until_its_clock_runs(reader)
+        else:
+            reader.join(WHOLE_S if whole else BRIEF_S)
+        stopped = reader.is_alive()
+        if stopped:
             t0 = time.monotonic()
             os.killpg(proc.pid, signal.SIGINT)
-            try:
-                out, _ = proc.communicate(timeout=STOP_S)
-            except subprocess.TimeoutExpired:
+            reader.join(STOP_S)
+            if reader.is_alive():
                 os.killpg(proc.pid, signal.SIGKILL)
-                out, _ = proc.communicate()
+                reader.join()
                 pytest.fail(
                     f'{cmd.doc}:{cmd.line}: `{cmd.text}` did not end within {STOP_S:g} s of '
-                    f'Ctrl-C (the test process: {_signal_state()}); it printed:\n{out[-3000:]}'
+                    f'Ctrl-C (the test process: {_signal_state()}); it printed:\n'
+                    f'{box.get("out", "")[-3000:]}'
                 )
-            took = time.monotonic() - t0
-            assert took < STOP_S
-            assert brief == BRIEF_S, (
-                f'{cmd.doc}:{cmd.line}: `{cmd.text}` did not end within {WHOLE_S:g} s; the '
-                f'commands after it read what it writes. It printed:\n{out[-3000:]}'
-            )
+            assert time.monotonic() - t0 < STOP_S
+        if 'error' in box:
+            raise box['error']
+        out = box['out']
+        assert not (stopped and whole), (
+            f'{cmd.doc}:{cmd.line}: `{cmd.text}` did not end within {WHOLE_S:g} s; the '
+            f'commands after it read what it writes. It printed:\n{out[-3000:]}'
+        )
+        assert not (stopped and cell and clock < CELL_RUNS_S), (
+            f'{cmd.doc}:{cmd.line}: `{cmd.text}` ran {CELL_START_S:g} s and no clock of its '
+            f'cell passed {CELL_RUNS_S:g} s (the latest said {clock:g} s); it printed:\n'
+            f'{out[-3000:]}'
+        )
     where = f'{cmd.doc}:{cmd.line}: `{cmd.text}`'
     # a process ended by the SIGINT itself is what a shell reports as 130
     allowed = (0, 130, -signal.SIGINT) if stopped else (0,)
