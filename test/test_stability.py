@@ -27,12 +27,13 @@ from sorter_sim.studies.workprecision import (
     _WARM,
     ParcelCase,
     Trajectory,
+    _cpu_now,
     compare,
     dp5_pieces,
     measure,
+    one_core,
     oscillator_core,
     oscillator_exact,
-    one_core,
     oscillator_trajectory,
 )
 
@@ -223,7 +224,7 @@ def test_a_compiled_method_is_warmed_up_untimed_once_and_scipy_is_timed_from_its
 
 
 def _running_on() -> int:
-    with open("/proc/self/stat", encoding="ascii") as f:
+    with open("/proc/thread-self/stat", encoding="ascii") as f:
         return int(f.read().rsplit(")", 1)[1].split()[36])
 
 
@@ -236,15 +237,16 @@ def test_timing_pins_to_the_cpu_it_runs_on_and_gives_the_others_back():
     allowed = os.sched_getaffinity(0)
     last = max(allowed)
     try:
-        os.sched_setaffinity(0, {last})  # moved to the last CPU, then free to move again:
-        os.sched_setaffinity(0, allowed)  # a running process stays where it is
+        os.sched_setaffinity(0, {last})
+        assert _cpu_now(allowed) == last  # not the first CPU: the one it runs on
+        os.sched_setaffinity(0, allowed)
         with one_core():
             pinned = os.sched_getaffinity(0)
+            assert len(pinned) == 1 and pinned <= allowed
             assert pinned == {_running_on()}
-        assert pinned == {last}, f"pinned to {pinned} while running on CPU {last}"
+        assert os.sched_getaffinity(0) == allowed  # given back
     finally:
         os.sched_setaffinity(0, allowed)
-    assert os.sched_getaffinity(0) == allowed
 
 
 def test_scipy_oscillator_and_core_against_the_exact_fig4_solution():

@@ -68,8 +68,8 @@ from sorter_sim.runtime.line import Line, LineExit, LineLayout, StationEvent
 from sorter_sim.runtime.params import SPECS, ParamError
 
 NODE_NAME = 'sorter_line'
-WAIT_S = 0.0002  # s a segment in fast mode first sleeps while a neighbour holds it back,
-WAIT_MAX_S = 0.002  # doubling each idle pass up to this (see _tick_fast)
+WAIT_S = 0.0002  # s a fast-mode segment held back by a neighbour sleeps at first
+WAIT_MAX_S = 0.002  # s it sleeps at most, the sleep doubling while nothing comes (_tick_fast)
 TIME_MODES = ('lockstep', 'fast', 'realtime')
 SEGMENT_SYNCS = ('conservative', 'barrier')
 
@@ -205,7 +205,7 @@ class LineNode(Node):
         self._wall_ref = None
         mode = values['time_mode']
         if mode == 'fast':
-            self._wait_s = WAIT_S
+            self._wait_s, self._heard = WAIT_S, 0
             self._timer = self.create_timer(0.0, self._tick_fast)
         elif mode == 'realtime':
             self._timer = self.create_timer(0.001, self._tick_realtime)
@@ -567,12 +567,16 @@ class LineNode(Node):
     def _tick_fast(self) -> None:
         k = self.line.k
         self.advance(max(1, round(self.values['fast_slice'] / self.line.dt)))
+        heard = self.segment.heard
+        if self.line.k != k or heard != self._heard:
+            # it ran, or a neighbour said something (a horizon, an answer, its progress): a
+            # wait now is a short one, as a barrier line's at every slice
+            self._wait_s, self._heard = WAIT_S, heard
         if self.line.k != k:
-            self._wait_s = WAIT_S
             return
-        # held back by a neighbour (its horizon, its acknowledgements, its claim): give the
-        # core to it rather than spin. An idle pass costs as much CPU as the first sleep, so
-        # a segment that waits long sleeps longer, and runs at once again when it can
+        # held back by a neighbour: give the core to it rather than spin. An idle pass costs
+        # as much CPU as the first sleep, so the sleep doubles while nothing comes (a
+        # neighbour starting, a claim settling) and is short again once something does
         time.sleep(self._wait_s)
         self._wait_s = min(2.0 * self._wait_s, WAIT_MAX_S)
 

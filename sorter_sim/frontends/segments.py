@@ -248,6 +248,7 @@ class SegmentLink:
             'claim_conflicts': 0,
         }
         self.latencies_ns: list[int] = []  # wall time from sending to receiving
+        self.heard = 0  # messages from the neighbours (a waiting segment's cue to look again)
         # this segment's identity for its neighbours: a restart is a new one
         self.identity = f'{os.getpid()}-{time.time_ns()}'
         self._owned = owned
@@ -306,6 +307,7 @@ class SegmentLink:
         """Return ``callback`` refusing, in one line, any message it cannot read."""
 
         def guarded(msg):
+            self.heard += 1
             try:
                 callback(msg)
             except HandoverError as exc:

@@ -417,7 +417,7 @@ def _core_targets(
             speedup=ratio,
         )
     else:
-        lines.append("target 2: no scipy run reached 1e-6 m -> cannot compare")
+        lines.append("target 2: no scipy run within its budget reached 1e-6 m -> cannot compare")
     imp = next((r for r in rows if r.family == "implicit" and r.setting == "h=0.001"), None)
     if imp and imp.errors:
         per_step = imp.wall_s / (ref.t_end / 1e-3)

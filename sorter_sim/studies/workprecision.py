@@ -101,7 +101,8 @@ def machine_line(info: dict | None = None) -> str:
 def _cpu_now(allowed: set) -> int:
     """Return the CPU this process runs on now, if Linux says so and it is ``allowed``."""
     try:
-        with open("/proc/self/stat", encoding="ascii") as f:
+        # this thread's, the one sched_setaffinity(0) pins
+        with open("/proc/thread-self/stat", encoding="ascii") as f:
             cpu = int(f.read().rsplit(")", 1)[1].split()[36])  # field 39, "processor"
     except (OSError, ValueError, IndexError):
         return min(allowed)
@@ -113,7 +114,8 @@ class one_core:
     Pin this process to one CPU while timing (the targets are per core).
 
     The CPU it already runs on, not always the first: two timed runs side by side (two
-    test workers, two benchmarks) then keep a core each instead of sharing the first.
+    test workers, two benchmarks) are then most often on a core each, where pinning both
+    to the first made them share it.
     """
 
     def __enter__(self):
