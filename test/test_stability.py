@@ -21,6 +21,7 @@ import pytest
 from sorter_sim.model.core.oscillator import Oscillator
 from sorter_sim.model.core.simulate import three_zone_strips
 from sorter_sim.studies import stiff_cases as sx
+from sorter_sim.studies.bench import REPORT_PARTS, report_parts
 from sorter_sim.studies.reductions import reductions
 from sorter_sim.studies.scipy_baseline import ScipyParcel, oscillator_scipy
 from sorter_sim.studies.workprecision import (
@@ -359,12 +360,10 @@ def test_reductions_agree_with_the_full_model():
 # the quick report part by part, each well inside the suite's per-test budget: the
 # headings a part writes (and no other part's)
 _REPORT_PARTS = {
-    "cases": (
-        "## Fig. 4 stick-slip body",
-        "## Fig. 9a diversion",
-        "## Parcel straddling all three zones",
-        "## Fig. 13 two-belt positioning",
-    ),
+    "fig4": ("## Fig. 4 stick-slip body",),
+    "fig9a": ("## Fig. 9a diversion",),
+    "three_zones": ("## Parcel straddling all three zones",),
+    "fig13": ("## Fig. 13 two-belt positioning",),
     "core": ("## Core benchmark: Fig. 9a",),
     "matrix": ("## Stiff and extreme cases",),
     "long": ("## Two-belt positioning, long runs",),
@@ -400,8 +399,27 @@ def test_quick_precision_report(tmp_path, part):
     for other, headings in _REPORT_PARTS.items():
         if other != part:
             assert not any(h in text for h in headings), f"{other} ran with --parts {part}"
-    n_png = 5 if part == "cases" else 0
+    # a plot a case: Fig. 13 is two (constant μ, the B-spline law)
+    n_png = {"fig4": 1, "fig9a": 1, "three_zones": 1, "fig13": 2}.get(part, 0)
     assert len(list((tmp_path / "img").glob("accuracy_*.png"))) == n_png
+
+
+def test_the_report_parts_are_each_part_once_and_cases_names_every_case():
+    assert tuple(_REPORT_PARTS) == REPORT_PARTS  # the suite runs every part
+    assert report_parts("cases") == ["fig4", "fig9a", "three_zones", "fig13"]
+    assert report_parts("core, fig13,cases,core") == [
+        "fig4",
+        "fig9a",
+        "three_zones",
+        "fig13",
+        "core",
+    ]
+    with pytest.raises(ValueError, match=r"\(unknown: fig9b\)$") as err:
+        report_parts("fig9b,core")
+    assert "cases (fig4, fig9a, three_zones, fig13)" in str(err.value)
+    for empty in ("", " , "):
+        with pytest.raises(ValueError, match="--parts must list some of"):
+            report_parts(empty)
 
 
 def test_bench_command_line_errors_are_one_line_and_exit_2():

@@ -32,6 +32,7 @@ from sorter_sim.model.core.simulate import three_zone_strips
 from sorter_sim.studies import stiff_cases as sx
 from sorter_sim.studies.outpaths import dir_problem
 from sorter_sim.studies.precision_cases import (
+    CASE_GROUPS,
     SCIPY_METHODS,
     cross_check_tol,
     fig9a_case,
@@ -69,8 +70,39 @@ TARGET_IMPLICIT_FLOOR = 1e-7  # m: the implicit method's error gets below it (co
 TARGET_SPEEDUP = 20.0  # against the best scipy method at the same error
 
 
-# the report's parts, in its order; `--parts` picks some (the suite checks them one by one)
-REPORT_PARTS = ("cases", "core", "matrix", "long", "reductions", "quadrature")
+# the report's parts, in its order; `--parts` picks some (the suite checks them one by one):
+# its cases by group (``cases`` names the four), then the benchmark and the stability runs
+REPORT_PARTS = CASE_GROUPS + ("core", "matrix", "long", "reductions", "quadrature")
+
+
+def report_parts(text: str) -> list[str]:
+    """
+    Return the parts a ``--parts`` list names, ``cases`` standing for every case group.
+
+    Raises ``ValueError`` naming what is unknown and what is allowed.
+
+    Parameters
+    ----------
+    text : str
+        Comma-separated part names.
+
+    Returns
+    -------
+    list of str
+        The parts, each once, in the report's order.
+
+    """
+    named = {x.strip() for x in text.split(",") if x.strip()}
+    if "cases" in named:
+        named = (named - {"cases"}) | set(CASE_GROUPS)
+    bad = sorted(named - set(REPORT_PARTS))
+    if bad or not named:
+        raise ValueError(
+            f"--parts must list some of cases ({', '.join(CASE_GROUPS)}), "
+            f"{', '.join(REPORT_PARTS[len(CASE_GROUPS) :])}, got {text!r}"
+            + (f" (unknown: {', '.join(bad)})" if bad else "")
+        )
+    return [p for p in REPORT_PARTS if p in named]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -111,7 +143,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--parts",
         default=",".join(REPORT_PARTS),
         metavar="LIST",
-        help=f"comma-separated parts of the report to run (default all: {','.join(REPORT_PARTS)})",
+        help="comma-separated parts of the report to run (default all: cases, that is "
+        f"{','.join(CASE_GROUPS)}, then {','.join(REPORT_PARTS[len(CASE_GROUPS) :])})",
     )
     c = sub.add_parser(
         "core",
@@ -155,12 +188,10 @@ def run(args) -> int | str | None:
         text, _ = bench_core(repeats=args.repeats, quick=args.quick)
         print(text)
         return 0
-    parts = [x.strip() for x in args.parts.split(",") if x.strip()]
-    bad = sorted(set(parts) - set(REPORT_PARTS))
-    if bad or not parts:
-        return f"--parts must list some of {', '.join(REPORT_PARTS)}, got {args.parts!r}" + (
-            f" (unknown: {', '.join(bad)})" if bad else ""
-        )
+    try:
+        parts = report_parts(args.parts)
+    except ValueError as exc:
+        return str(exc)
     out = Path(args.out or ("out/precision_quick" if args.quick else "docs"))
     problem = dir_problem(out) or dir_problem(out / "img")
     if problem:
@@ -461,7 +492,7 @@ def write_precision_report(
     log : callable, optional
         Progress lines go here.
     parts : sequence of str, optional
-        The report's parts to run (default: all).
+        The report's parts to run (default: all; ``cases`` stands for every case group).
     quiet : bool
         No bar.
 
@@ -472,6 +503,7 @@ def write_precision_report(
 
     """
     t_start = time.perf_counter()
+    parts = report_parts(",".join(parts))  # ``cases`` as every case group
     matrix = sx.matrix(quick=quick) if "matrix" in parts else []
     bar = progress_bar(
         len(parts) - ("matrix" in parts) + len(matrix), "bench precision", "part", quiet=quiet
@@ -502,9 +534,10 @@ def write_precision_report(
         (),
     )
     with one_core():
-        if "cases" in parts:
-            cases = precision_cases(quick, log)
-            done("cases")
+        for group in CASE_GROUPS:
+            if group in parts:
+                cases += precision_cases(quick, log, (group,))
+                done(group)
         if "core" in parts:
             log("benchmark (Fig. 9a)")
             core_text, core_fig = bench_core(repeats=3 if quick else 7, quick=quick)
