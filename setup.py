@@ -79,12 +79,13 @@ setup(
     packages=find_packages(exclude=['test', 'test.*', 'benchmarks', 'examples'])
     + ['sorter_cell.config'],
     package_dir={'sorter_cell.config': 'config'},
-    package_data={'sorter_cell.config': [f'{d}*.yaml' for d in CONFIG_DIRS]},
+    package_data={'sorter_cell.config': [f'{d}*.yaml' for d in CONFIG_DIRS] + ['*.xml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
     ]
-    + [(f'share/{package_name}/config/{d}', glob(f'config/{d}*.yaml')) for d in CONFIG_DIRS],
+    + [(f'share/{package_name}/config/{d}', glob(f'config/{d}*.yaml')) for d in CONFIG_DIRS]
+    + [(f'share/{package_name}/config', glob('config/*.xml'))],
     python_requires='>=3.11',
     install_requires=[
         'setuptools',

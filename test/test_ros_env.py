@@ -107,3 +107,49 @@ def test_clear_error_when_nowhere(monkeypatch, tmp_path, ament_prefix):
         monkeypatch.setenv('AMENT_PREFIX_PATH', str(tmp_path / ament_prefix))
     with pytest.raises(FileNotFoundError, match='config directory not found'):
         ros_env.find_config_dir()
+
+
+def _no_profile(monkeypatch):
+    for var in (*ros_env.PROFILE_VARS, 'RMW_IMPLEMENTATION'):
+        monkeypatch.delenv(var, raising=False)
+
+
+def test_a_segment_takes_the_short_lease_profile_unless_the_user_set_one(monkeypatch, tmp_path):
+    _no_profile(monkeypatch)
+    config = ros_env.SOURCE_CONFIG_DIR
+    assert ros_env.use_segment_participant_profile(config)
+    for var in ros_env.PROFILE_VARS:
+        assert os.environ[var] == str(config / 'segment_participant.xml')
+    # the user's own profile wins, whichever name it is under
+    for var in ros_env.PROFILE_VARS:
+        _no_profile(monkeypatch)
+        monkeypatch.setenv(var, str(tmp_path / 'mine.xml'))
+        assert not ros_env.use_segment_participant_profile(config)
+        assert os.environ[var] == str(tmp_path / 'mine.xml')
+        assert all(
+            os.environ.get(v) in (None, str(tmp_path / 'mine.xml')) for v in ros_env.PROFILE_VARS
+        )
+    # another middleware: a Fast DDS profile is none of its business
+    _no_profile(monkeypatch)
+    monkeypatch.setenv('RMW_IMPLEMENTATION', 'rmw_cyclonedds_cpp')
+    assert not ros_env.use_segment_participant_profile(config)
+    assert not any(os.environ.get(v) for v in ros_env.PROFILE_VARS)
+    # a config folder without the file (an older install): nothing set
+    monkeypatch.delenv('RMW_IMPLEMENTATION')
+    assert not ros_env.use_segment_participant_profile(tmp_path)
+    assert not any(os.environ.get(v) for v in ros_env.PROFILE_VARS)
+
+
+def test_the_segment_profile_leases_a_participant_for_5_s_announced_each_second():
+    import xml.etree.ElementTree as ET
+
+    ns = {'f': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
+    root = ET.parse(ros_env.SOURCE_CONFIG_DIR / 'segment_participant.xml').getroot()
+    (participant,) = root.findall('f:participant', ns)
+    assert participant.get('is_default_profile') == 'true'
+    disc = participant.find('f:rtps/f:builtin/f:discovery_config', ns)
+    lease = int(disc.find('f:leaseDuration/f:sec', ns).text)
+    every = int(disc.find('f:leaseAnnouncement/f:sec', ns).text)
+    assert (lease, every) == (5, 1)  # several announcements a lease: a busy host keeps it
+    # nothing else: the discovery range and the transports stay rmw's
+    assert [e.tag.split('}')[1] for e in disc] == ['leaseDuration', 'leaseAnnouncement']
