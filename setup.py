@@ -79,13 +79,12 @@ setup(
     packages=find_packages(exclude=['test', 'test.*', 'benchmarks', 'examples'])
     + ['sorter_cell.config'],
     package_dir={'sorter_cell.config': 'config'},
-    package_data={'sorter_cell.config': [f'{d}*.yaml' for d in CONFIG_DIRS] + ['*.xml']},
+    package_data={'sorter_cell.config': [f'{d}*.yaml' for d in CONFIG_DIRS]},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
     ]
-    + [(f'share/{package_name}/config/{d}', glob(f'config/{d}*.yaml')) for d in CONFIG_DIRS]
-    + [(f'share/{package_name}/config', glob('config/*.xml'))],
+    + [(f'share/{package_name}/config/{d}', glob(f'config/{d}*.yaml')) for d in CONFIG_DIRS],
     python_requires='>=3.11',
     install_requires=[
         'setuptools',

@@ -253,17 +253,10 @@ def main(argv=None) -> int:
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions
 
-    from sorter_ros.env import (
-        apply_ros_env_defaults,
-        find_config_dir,
-        use_segment_participant_profile,
-    )
+    from sorter_ros.env import apply_ros_env_defaults, find_config_dir
 
     apply_ros_env_defaults()
     config = find_config_dir()
-    # a killed segment's readers go with its lease: 5 s, not Fast DDS's 20 s, for which
-    # the hand-over writer upstream would hold the line
-    use_segment_participant_profile(config)
     ctx = Context()
     rclpy.init(
         context=ctx,

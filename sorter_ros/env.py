@@ -48,46 +48,6 @@ def apply_ros_env_defaults() -> None:
         os.environ[DISCOVERY_RANGE_VAR] = DEFAULT_DISCOVERY_RANGE
 
 
-# Fast DDS reads its participant profile from here (Fast DDS 2, ROS 2 Jazzy's; 3 reads the
-# second name): a profile the user set is theirs, and wins
-PROFILE_VARS = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
-SEGMENT_PROFILE = 'segment_participant.xml'
-
-
-def use_segment_participant_profile(config_dir: Path) -> bool:
-    """
-    Give a line segment process the short DDS lease of ``config/segment_participant.xml``.
-
-    A dead segment's readers stay matched until its participant's lease runs out (Fast
-    DDS's default: 20 s), and the reliable hand-over writer upstream holds the line for
-    them meanwhile; with a 5 s lease a restarted segment takes over within seconds. Only
-    where rmw is Fast DDS (the default) and no profile file is set already. Call before
-    ``rclpy.init()``.
-
-    Parameters
-    ----------
-    config_dir : Path
-        The config folder (``find_config_dir``).
-
-    Returns
-    -------
-    bool
-        Whether the profile is now the process's.
-
-    """
-    rmw = os.environ.get('RMW_IMPLEMENTATION', '').strip()
-    if rmw and not rmw.startswith('rmw_fastrtps'):
-        return False
-    if any(os.environ.get(v, '').strip() for v in PROFILE_VARS):
-        return False
-    profile = Path(config_dir) / SEGMENT_PROFILE
-    if not profile.is_file():
-        return False
-    for var in PROFILE_VARS:
-        os.environ[var] = str(profile)
-    return True
-
-
 def _packaged_config_dir() -> Path | None:
     """Return the config folder installed as package data, if this is an installed package."""
     from importlib.util import find_spec

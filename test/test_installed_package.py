@@ -134,7 +134,6 @@ def test_the_wheel_carries_the_config_and_no_tests(venv):
         'sorter_cell/config/scenes/fig9a.yaml',
         'sorter_cell/config/scenarios/stuck_divert_eye.yaml',
         'sorter_cell/config/sweeps/example.yaml',
-        'sorter_cell/config/segment_participant.xml',
     ):
         assert shipped in names, shipped
     assert not any(n.startswith(('test/', 'examples/', 'benchmarks/')) for n in names)
