@@ -191,6 +191,56 @@ def test_boxes_overlap_separating_axes():
     assert not boxes_overlap(p, q45, 0.4, 0.4, 0.4, 0.4)[0]
 
 
+def _corners(x, y, phi, A, B):
+    c, s = math.cos(phi), math.sin(phi)
+    return [
+        (x + c * u - s * w, y + s * u + c * w)
+        for u, w in ((-A / 2, -B / 2), (A / 2, -B / 2), (A / 2, B / 2), (-A / 2, B / 2))
+    ]
+
+
+def _clipped_area(subject, clip):
+    """Area of convex ``subject`` clipped by convex ``clip`` (both counter-clockwise)."""
+    out = subject
+    for (ax, ay), (bx, by) in zip(clip, clip[1:] + clip[:1]):
+        pts, out = out, []
+        inside = [(bx - ax) * (py - ay) - (by - ay) * (px - ax) >= 0.0 for px, py in pts]
+        for i, (cur, prev) in enumerate(zip(pts, pts[-1:] + pts[:-1])):
+            if inside[i] != inside[i - 1]:  # the edge crosses the clip line
+                (px, py), (qx, qy) = prev, cur
+                d1 = (bx - ax) * (py - ay) - (by - ay) * (px - ax)
+                d2 = (bx - ax) * (qy - ay) - (by - ay) * (qx - ax)
+                f = d1 / (d1 - d2)
+                out.append((px + f * (qx - px), py + f * (qy - py)))
+            if inside[i]:
+                out.append(cur)
+        if not out:
+            return 0.0
+    return 0.5 * abs(sum(x1 * y2 - x2 * y1 for (x1, y1), (x2, y2) in zip(out, out[1:] + out[:1])))
+
+
+def test_boxes_overlap_is_where_the_footprints_share_area():
+    """Rectangles of unequal sizes at any angles: overlap exactly where clipping leaves area."""
+    rng = np.random.default_rng(7)
+    n = 4000
+    p = np.column_stack([np.zeros(n), np.zeros(n), rng.uniform(-math.pi, math.pi, n)])
+    q = np.column_stack(
+        [rng.uniform(-0.8, 0.8, n), rng.uniform(-0.6, 0.6, n), rng.uniform(-math.pi, math.pi, n)]
+    )
+    A1, B1, A2, B2, gap = 0.7, 0.25, 0.45, 0.4, 0.03
+    got = boxes_overlap(p, q, A1, B1, A2, B2, clearance=gap)
+    seen = set()
+    for i in range(n):
+        # the clearance inflates each box by half of it on every side
+        one = _corners(*p[i], A1 + gap, B1 + gap)
+        two = _corners(*q[i], A2 + gap, B2 + gap)
+        area = _clipped_area(two, one)
+        if 1e-9 < area or area == 0.0:  # leave out the grazing contacts
+            assert got[i] == (area > 0.0), (p[i], q[i], area)
+            seen.add(bool(got[i]))
+    assert seen == {True, False}
+
+
 def test_spacing_rules_closed_forms():
     act = Actuators(
         popup_stroke_time=0.1,

@@ -9,11 +9,13 @@ its controllers and the warehouse node over DDS.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
 import pytest
 
+from sorter_cell.testing.domains import DomainClaim, campaign_domains
 from sorter_control.wcs import LineWcs, PlanError
 
 CHUTES = [('S01L', 'S01R'), ('S02L', 'S02R'), ('S03L', 'S03R')]
@@ -122,45 +124,63 @@ def test_every_disposition_code():
     assert (d.code, d.chute, d.station, d.t) == ('mis_sorted', 'S03L', 'S03', 2.5)
 
 
-def _line_demo(tmp_path, executor, *extra):
-    path = tmp_path / f'{executor}.jsonl'
-    done = subprocess.run(
-        [
-            sys.executable,
-            '-m',
-            'sorter_cell',
-            'demo',
-            '--stations',
-            '3',
-            '--sim-time',
-            '25',
-            '--json',
-            '--executor',
-            executor,
-            '--dispositions',
-            str(path),
-            *extra,
-        ],
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
-    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    s = json.loads(done.stdout.strip().splitlines()[-1])
-    records = [json.loads(line) for line in path.read_text().splitlines()]
-    return s, records
+class _LineDemo:
+    """A line demo of three stations over 25 simulated seconds, started at once."""
+
+    def __init__(self, tmp_path, executor, *extra, domain=None):
+        self.path = tmp_path / f'{executor}.jsonl'
+        env = dict(os.environ) if domain is None else dict(os.environ, ROS_DOMAIN_ID=str(domain))
+        cmd = [sys.executable, '-m', 'sorter_cell', 'demo', '--stations', '3']
+        cmd += ['--sim-time', '25', '--json', '--executor', executor]
+        cmd += ['--dispositions', str(self.path), *extra]
+        self.proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+        )
+
+    def result(self):
+        """Return the demo's summary and disposition records once it has ended."""
+        try:
+            out, err = self.proc.communicate(timeout=240)
+        finally:
+            self.stop()
+        assert self.proc.returncode == 0, out[-2000:] + err[-2000:]
+        s = json.loads(out.strip().splitlines()[-1])
+        return s, [json.loads(line) for line in self.path.read_text().splitlines()]
+
+    def stop(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
 
 
 @pytest.fixture(scope='module')
-def events_line(tmp_path_factory):
+def line_runs(tmp_path_factory):
+    """
+    Start the line demo under each executor side by side.
+
+    The events run (recorded) and the single-threaded one, which is the slower; each
+    test waits for the run it reads. The single run has a ROS domain of its own
+    (claimed as a campaign claims one), so the two lines never hear each other.
+    """
+    tmp = tmp_path_factory.mktemp('line_runs')
+    with DomainClaim(campaign_domains()) as domain:
+        runs = {'events': _LineDemo(tmp, 'events', '--record', str(tmp / 'line.mcap'))}
+        runs['single'] = _LineDemo(tmp, 'single', domain=domain)
+        try:
+            yield runs
+        finally:
+            for run in runs.values():
+                run.stop()
+
+
+@pytest.fixture(scope='module')
+def events_line(line_runs):
     """Return the recorded line demo under the events executor: summary, records, bag."""
-    tmp = tmp_path_factory.mktemp('events_line')
-    bag = tmp / 'line.mcap'
-    s, records = _line_demo(tmp, 'events', '--record', str(bag))
-    return s, records, bag
+    s, records = line_runs['events'].result()
+    return s, records, line_runs['events'].path.parent / 'line.mcap'
 
 
-# the two tests read one run of the line (events_line): in one worker
+# the tests read the runs of the line started together (line_runs): in one worker
 LINE_RUN = pytest.mark.xdist_group('wcs:events line')
 
 
@@ -200,9 +220,9 @@ def test_the_line_demo_sorts_through_three_stations_with_their_plcs_and_the_wcs(
 
 @pytest.mark.ros
 @LINE_RUN
-def test_the_line_sorts_every_parcel_alike_under_either_executor(events_line, tmp_path):
+def test_the_line_sorts_every_parcel_alike_under_either_executor(events_line, line_runs):
     _, events, _ = events_line
-    _, single = _line_demo(tmp_path, 'single')
+    _, single = line_runs['single'].result()
     assert len(events) > 10
     key = lambda r: (r['label'], r['code'], r['chute'], r['station'])  # noqa: E731
     assert sorted(map(key, events)) == sorted(map(key, single))
