@@ -2,7 +2,7 @@
 Who owns a station of a split line, and in what order its messages may come.
 
 Two segments claiming one station: the one that started later holds and both say so;
-horizons come from the owner upstream only and a slice at a time; hellos from anyone
+horizons come from the owner upstream only and a few slices at a time; hellos from anyone
 but the owner downstream re-send nothing; a parcel id a segment has taken is never
 taken again, the real parcel stays.
 """
@@ -16,7 +16,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.parameter import Parameter
 
-from sorter_sim.frontends.segments import HANDOVER_QOS, handover_message
+from sorter_sim.frontends.segments import HANDOVER_QOS, HORIZON_STRIDE, handover_message
 from test_handover import REAL
 
 pytestmark = pytest.mark.ros
@@ -120,6 +120,57 @@ def test_forged_horizons_hellos_and_parcel_ids_change_nothing(ros):
     assert down.segment.stats['duplicates'] >= 1 and down.segment.stats['received'] == 1
     if taken is not None:
         assert down.segment.inbox[0] is taken
+
+
+def test_a_fast_segment_says_a_horizon_every_few_slices_and_the_newest_when_it_stops(ros):
+    """
+    Horizons coalesce on the sender and are bounded on the receiver.
+
+    A segment running on says one horizon in ``HORIZON_STRIDE - 1`` slices (each one
+    carries the earlier ones), the newest when it stops; the segment downstream takes
+    each, and refuses one more than ``HORIZON_STRIDE`` slices ahead even in the owner's name.
+    """
+    up = segment(ros, 'sorter_line_a', stations=1, line_stations=2, fast_slice=0.1)
+    down = segment(ros, 'sorter_line_b', stations=1, first_station=2, fast_slice=0.1)
+    link = up.segment
+    ros.spin_until(
+        lambda: link.connected() and down.segment.owners.owner_of(0) == link.identity, 10.0
+    )
+    m, dt = link.max_step_k, link.dt_ns
+    assert m == up._slice == 100  # a slice: more than a wall-clock burst
+    said = link.stats['messages']
+    for i in range(1, 50):  # a pass a slice, as _tick_fast runs them
+        link.horizon(i * m * dt, coalesce=True)
+    # slices 1, 8, 15, ..., 43: the first, then one every HORIZON_STRIDE - 1
+    assert link.stats['messages'] - said == 1 + 42 // (HORIZON_STRIDE - 1)
+    ros.spin_until(lambda: down.segment.horizon_k == 43 * m, 10.0)
+    link.flush_horizon()  # it stopped: the newest goes out
+    link.flush_horizon()  # and only once
+    assert link.stats['messages'] - said == 2 + 42 // (HORIZON_STRIDE - 1)
+    ros.spin_until(lambda: down.segment.horizon_k == 49 * m, 10.0)
+    assert down.segment.stats['refused'] == 0
+
+    forger = ros.make_node('forger')
+    to_down = forger.create_publisher(DiagnosticStatus, '/line/handover/S02', HANDOVER_QOS)
+    ros.spin_until(lambda: to_down.get_subscription_count(), 10.0)
+
+    def said_by_owner(k):
+        to_down.publish(
+            DiagnosticStatus(
+                name='horizon',
+                values=[
+                    KeyValue(key='t_ns', value=str(k * dt)),
+                    KeyValue(key='identity', value=link.identity),
+                ],
+            )
+        )
+        ros.spin_for(0.3)
+
+    top = 49 * m + HORIZON_STRIDE * m
+    said_by_owner(top + 1)
+    assert down.segment.horizon_k == 49 * m and down.segment.stats['refused'] == 1
+    said_by_owner(top)
+    assert down.segment.horizon_k == top and down.segment.stats['refused'] == 1
 
 
 def test_the_same_node_restarted_takes_its_stations_over_at_once(ros):

@@ -417,9 +417,13 @@ def test_the_report_parts_are_each_part_once_and_cases_names_every_case():
     with pytest.raises(ValueError, match=r"\(unknown: fig9b\)$") as err:
         report_parts("fig9b,core")
     assert "cases (fig4, fig9a, three_zones, fig13)" in str(err.value)
-    for empty in ("", " , "):
+    for empty in ("", " , ", ()):
         with pytest.raises(ValueError, match="--parts must list some of"):
             report_parts(empty)
+    # the names as a sequence (write_precision_report's parts) read as the text does
+    assert report_parts(("core", "cases")) == report_parts("core,cases")
+    with pytest.raises(ValueError, match=r"\(unknown: fig9b\)$"):
+        report_parts(["fig9b"])
 
 
 def test_bench_command_line_errors_are_one_line_and_exit_2():

@@ -560,20 +560,24 @@ class LineNode(Node):
             self.cost['publish_s'] += time.perf_counter() - t1
             n -= m
         if ran:
-            link.horizon(self.line.t_ns)  # once a call: every parcel up to now is sent
+            # once a call: every parcel up to now is sent (a fast segment running on says
+            # it at most every few ms; _tick_fast says the newest when it stops)
+            link.horizon(self.line.t_ns, coalesce=self.values['time_mode'] == 'fast')
             if self.values['segment_sync'] == 'barrier':
                 link.progress(self.line.k)
 
     def _tick_fast(self) -> None:
         k = self.line.k
         self.advance(max(1, round(self.values['fast_slice'] / self.line.dt)))
+        ran = self.line.k != k
         heard = self.segment.heard
-        if self.line.k != k or heard != self._heard:
+        if ran or heard != self._heard:
             # it ran, or a neighbour said something (a horizon, an answer, its progress): a
             # wait now is a short one, as a barrier line's at every slice
             self._wait_s, self._heard = WAIT_S, heard
-        if self.line.k != k:
+        if ran:
             return
+        self.segment.flush_horizon()  # what it ran up to, said before it waits
         # held back by a neighbour: give the core to it rather than spin. An idle pass costs
         # as much CPU as the first sleep, so the sleep doubles while nothing comes (a
         # neighbour starting, a claim settling) and is short again once something does

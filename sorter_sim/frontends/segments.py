@@ -11,7 +11,9 @@ pose and twist, contact mode, stick-gauge warm start and dimensions, every float
 as its exact hexadecimal form (``float.hex``), so the next segment continues from
 bit-identical numbers. After each slice the segment publishes a horizon on the same
 topic: every parcel it handed over up to that time has been sent (one reliable
-topic, one writer: the order holds).
+topic, one writer: the order holds). A fast segment running on says one every
+``HORIZON_STRIDE - 1`` slices, and the newest as soon as it stops: each carries the
+ones before it.
 
 Time, conservatively: a segment with a neighbour downstream in ``lockstep`` or
 ``fast`` mode does not start before that neighbour reads its hand-overs (a parcel
@@ -60,7 +62,7 @@ The messages are ``diagnostic_msgs/DiagnosticStatus``: ``name`` ``parcel``,
 ``horizon`` or ``answered`` downstream, ``left`` or ``hello`` upstream, ``owns`` and
 ``progress`` to all, ``values`` the fields. Each is read whole before it touches anything
 (``runtime.handover``: the fields, their ranges, the parcel's physics); a horizon moves
-forward by at most a slice once the first one is in; a parcel id this segment has
+forward by at most ``HORIZON_STRIDE`` slices once the first one is in; a parcel id this segment has
 taken is not taken again, nor one for a time its upstream has closed. A message that
 fails is refused in one line, counted (``stats['refused']``) and changes nothing; it
 never stops the segment.
@@ -118,6 +120,13 @@ CLAIM_PERIOD_S = 0.5  # s between a segment's claims
 CLAIM_LEASE_S = 3.0  # s a claim stands without the segment being heard
 CLAIM_SETTLE_S = 1.0  # s a segment's claim stands before it runs
 HELLO_MIN_S = 1.0  # s between two answers to a hello (each re-sends the whole outbox)
+# slices a fast segment runs on between two horizons it says. A horizon says only "all
+# sent up to t": the newest carries every earlier one, and the pass it stops in says it.
+# Each message stays in the reliable writer until every reader took it; a downstream
+# segment killed counts as a reader until DDS drops its participant (20 s), and a
+# horizon every slice (hundreds a second) filled the writer before then, so the segment
+# restarted in its place waited that long for its answer
+HORIZON_STRIDE = 8
 
 
 def handover_message(h: Handoff, wall_ns: int) -> DiagnosticStatus:
@@ -263,7 +272,8 @@ class SegmentLink:
         self._pending_hello = None  # a hello waiting for its sender's claim or its turn
         self._pending_horizon = None  # (t_ns, sender): a horizon waiting for its owner's claim
         self._last_resend = -math.inf
-        self._last_horizon_ns = None
+        self._last_horizon_ns = None  # the newest horizon (said, or waiting to be)
+        self._said_horizon_ns = None  # the newest one said
         self._taken: set[int] = set()  # every parcel id taken, to drop a second copy
         self._left: list[int] = []  # ids that left this segment, to tell upstream
         self._hello_said = -math.inf  # when the hello was last said (monotonic s)
@@ -334,11 +344,29 @@ class SegmentLink:
             self.stats['sent'] += 1
         self._flush()
 
-    def horizon(self, t_ns: int) -> None:
-        """Say that every parcel handed on up to ``t_ns`` has been sent."""
+    def horizon(self, t_ns: int, coalesce: bool = False) -> None:
+        """
+        Say that every parcel handed on up to ``t_ns`` has been sent.
+
+        Parameters
+        ----------
+        t_ns : int
+            The time [ns].
+        coalesce : bool
+            Say it only once it is ``HORIZON_STRIDE - 1`` slices past the last one said
+            (the next pass cannot take it past ``HORIZON_STRIDE``, the most a segment
+            downstream takes); until then it waits for a later one or for
+            ``flush_horizon`` (a fast segment running on).
+
+        """
         if self._pub is None:
             return
         self._last_horizon_ns = t_ns
+        said = self._said_horizon_ns
+        if coalesce and said is not None:
+            if t_ns - said < (HORIZON_STRIDE - 1) * self.max_step_k * self.dt_ns:
+                return
+        self._said_horizon_ns = t_ns
         self._queue.append(
             DiagnosticStatus(
                 name='horizon',
@@ -349,6 +377,11 @@ class SegmentLink:
             )
         )
         self._flush()
+
+    def flush_horizon(self) -> None:
+        """Say the newest horizon if it is still waiting (the segment stopped running)."""
+        if self._last_horizon_ns is not None and self._last_horizon_ns != self._said_horizon_ns:
+            self.horizon(self._last_horizon_ns)
 
     def backlogged(self) -> bool:
         """Return True while messages wait for the segment downstream to take them."""
@@ -604,11 +637,12 @@ class SegmentLink:
             self.owners.heard_from(sender)
             return
         # the first horizon brings the upstream's present (it may have run before this
-        # segment listened, or this one restarted); after it, a slice at a time
-        if self._horizon_heard and k > self.horizon_k + self.max_step_k:
+        # segment listened, or this one restarted); after it, a few slices at a time
+        step = HORIZON_STRIDE * self.max_step_k
+        if self._horizon_heard and k > self.horizon_k + step:
             raise HandoverError(
-                f'a horizon moves forward by at most a slice ({self.max_step_k} periods) '
-                f'from period {self.horizon_k}, got period {k}'
+                f'a horizon moves forward by at most {HORIZON_STRIDE} slices ({step} '
+                f'periods) from period {self.horizon_k}, got period {k}'
             )
         self._horizon_heard = True
         self.horizon_k = k

@@ -75,7 +75,7 @@ TARGET_SPEEDUP = 20.0  # against the best scipy method at the same error
 REPORT_PARTS = CASE_GROUPS + ("core", "matrix", "long", "reductions", "quadrature")
 
 
-def report_parts(text: str) -> list[str]:
+def report_parts(names) -> list[str]:
     """
     Return the parts a ``--parts`` list names, ``cases`` standing for every case group.
 
@@ -83,8 +83,8 @@ def report_parts(text: str) -> list[str]:
 
     Parameters
     ----------
-    text : str
-        Comma-separated part names.
+    names : str or sequence of str
+        Comma-separated part names (``--parts``), or the names.
 
     Returns
     -------
@@ -92,6 +92,7 @@ def report_parts(text: str) -> list[str]:
         The parts, each once, in the report's order.
 
     """
+    text = names if isinstance(names, str) else ",".join(map(str, names))
     named = {x.strip() for x in text.split(",") if x.strip()}
     if "cases" in named:
         named = (named - {"cases"}) | set(CASE_GROUPS)
@@ -503,7 +504,7 @@ def write_precision_report(
 
     """
     t_start = time.perf_counter()
-    parts = report_parts(",".join(parts))  # ``cases`` as every case group
+    parts = report_parts(parts)  # ``cases`` as every case group
     matrix = sx.matrix(quick=quick) if "matrix" in parts else []
     bar = progress_bar(
         len(parts) - ("matrix" in parts) + len(matrix), "bench precision", "part", quiet=quiet
