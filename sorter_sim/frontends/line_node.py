@@ -561,7 +561,7 @@ class LineNode(Node):
             n -= m
         if ran:
             # once a call: every parcel up to now is sent (a fast segment running on says
-            # it at most every few ms; _tick_fast says the newest when it stops)
+            # one every HORIZON_STRIDE - 1 slices; _tick_fast says the newest when it stops)
             link.horizon(self.line.t_ns, coalesce=self.values['time_mode'] == 'fast')
             if self.values['segment_sync'] == 'barrier':
                 link.progress(self.line.k)

@@ -62,8 +62,8 @@ The messages are ``diagnostic_msgs/DiagnosticStatus``: ``name`` ``parcel``,
 ``horizon`` or ``answered`` downstream, ``left`` or ``hello`` upstream, ``owns`` and
 ``progress`` to all, ``values`` the fields. Each is read whole before it touches anything
 (``runtime.handover``: the fields, their ranges, the parcel's physics); a horizon moves
-forward by at most ``HORIZON_STRIDE`` slices once the first one is in; a parcel id this segment has
-taken is not taken again, nor one for a time its upstream has closed. A message that
+forward by at most ``HORIZON_STRIDE`` slices once the first one is in; a parcel id this
+segment has taken is not taken again, nor one for a time its upstream has closed. A message that
 fails is refused in one line, counted (``stats['refused']``) and changes nothing; it
 never stops the segment.
 """
