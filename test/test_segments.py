@@ -59,11 +59,32 @@ def _demo(tmp_path, segments: int, *run: str) -> tuple[dict, list]:
     ]
 
 
-def test_three_segment_processes_sort_every_parcel_as_one_process_does(tmp_path):
-    one, d1 = _demo(tmp_path, 1)
+@pytest.fixture(scope='module')
+def batch_one_process(tmp_path_factory):
+    """Run the batch of 12 parcels on 3 stations in one process: what 3 processes must give."""
+    return _demo(tmp_path_factory.mktemp('batch'), 1)
+
+
+# the two tests read one run of the batch in one process (batch_one_process): in one
+# worker, so that each test runs one demo and stays well inside the per-test budget
+BATCH_RUN = pytest.mark.xdist_group('segments:batch in one process')
+
+
+@BATCH_RUN
+def test_one_process_sorts_the_batch_through_three_stations(batch_one_process):
+    one, d1 = batch_one_process
+    assert one['segments'] == 1 and one['inducted'] == len(d1) == 12
+    assert one['mis_sorted'] == 0 and one['jams'] == 0 and one['in_cell_at_end'] == 0
+
+
+@BATCH_RUN
+def test_three_segment_processes_sort_every_parcel_as_one_process_does(
+    tmp_path, batch_one_process
+):
+    one, d1 = batch_one_process
     three, d3 = _demo(tmp_path, 3)
-    assert one['segments'] == 1 and three['segments'] == 3
-    assert one['inducted'] == three['inducted'] == len(d1) == len(d3) == 12
+    assert three['segments'] == 3
+    assert three['inducted'] == len(d3) == one['inducted']
     assert three['mis_sorted'] == 0 and three['jams'] == 0 and three['in_cell_at_end'] == 0
     stats = three['segment_stats']
     assert [s['first_station'] for s in stats] == [1, 2, 3]
@@ -71,16 +92,8 @@ def test_three_segment_processes_sort_every_parcel_as_one_process_does(tmp_path)
     assert stats[0]['handed_on'] == stats[1]['taken'] > 0
     assert stats[1]['handed_on'] == stats[2]['taken'] > 0
     assert all(s['refused'] == 0 for s in stats)
-
-    def timeline(records):
-        # the two runs start their stream at different simulated times: compare each
-        # parcel's exit time from the first one's
-        t0 = min(float(r['t']) for r in records)
-        return sorted(
-            (r['label'], r['code'], r['chute'], r['station'], round(float(r['t']) - t0, 6))
-            for r in records
-        )
-
+    # the two runs start their stream at different simulated times: timeline compares
+    # each parcel's exit time from the first one's
     assert timeline(d3) == timeline(d1)
 
 
