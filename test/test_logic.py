@@ -30,6 +30,7 @@ from sorter_control.timing import (
     boxes_overlap,
     seed_capacity,
 )
+from sorter_sim.model.core.geometry import box_corners
 
 RULES = ("L*=left", "R*=right", "S*=straight", "VIP-1=right")
 # one predictor for the module: its cache is what a running controller keeps too
@@ -192,11 +193,10 @@ def test_boxes_overlap_separating_axes():
 
 
 def _corners(x, y, phi, A, B):
-    c, s = math.cos(phi), math.sin(phi)
-    return [
-        (x + c * u - s * w, y + s * u + c * w)
-        for u, w in ((-A / 2, -B / 2), (A / 2, -B / 2), (A / 2, B / 2), (-A / 2, B / 2))
-    ]
+    """Return the corners of an A x B box, counter-clockwise, from the model's geometry."""
+    out = np.empty((4, 2))
+    box_corners(x, y, phi, 0.5 * A, 0.5 * B, out)
+    return [tuple(c) for c in out]
 
 
 def _clipped_area(subject, clip):

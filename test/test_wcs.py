@@ -127,12 +127,15 @@ def test_every_disposition_code():
 class _LineDemo:
     """A line demo of three stations over 25 simulated seconds, started at once."""
 
-    def __init__(self, tmp_path, executor, *extra, domain=None):
+    def __init__(self, tmp_path, executor, *, record=False, domain=None):
         self.path = tmp_path / f'{executor}.jsonl'
+        self.bag = tmp_path / f'{executor}.mcap' if record else None
         env = dict(os.environ) if domain is None else dict(os.environ, ROS_DOMAIN_ID=str(domain))
         cmd = [sys.executable, '-m', 'sorter_cell', 'demo', '--stations', '3']
         cmd += ['--sim-time', '25', '--json', '--executor', executor]
-        cmd += ['--dispositions', str(self.path), *extra]
+        cmd += ['--dispositions', str(self.path)]
+        if record:
+            cmd += ['--record', str(self.bag)]
         self.proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
         )
@@ -164,7 +167,7 @@ def line_runs(tmp_path_factory):
     """
     tmp = tmp_path_factory.mktemp('line_runs')
     with DomainClaim(campaign_domains()) as domain:
-        runs = {'events': _LineDemo(tmp, 'events', '--record', str(tmp / 'line.mcap'))}
+        runs = {'events': _LineDemo(tmp, 'events', record=True)}
         runs['single'] = _LineDemo(tmp, 'single', domain=domain)
         try:
             yield runs
@@ -176,8 +179,9 @@ def line_runs(tmp_path_factory):
 @pytest.fixture(scope='module')
 def events_line(line_runs):
     """Return the recorded line demo under the events executor: summary, records, bag."""
-    s, records = line_runs['events'].result()
-    return s, records, line_runs['events'].path.parent / 'line.mcap'
+    run = line_runs['events']
+    s, records = run.result()
+    return s, records, run.bag
 
 
 # the tests read the runs of the line started together (line_runs): in one worker
