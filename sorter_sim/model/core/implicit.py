@@ -127,6 +127,10 @@ def _build_points(y, contact, pts, stat, pull, area):
         pressure = p_unit * w
         mus = mu_static(law, params)
         area[s_id] += w * a
+        # a parcel that does not turn slips alike at every point of a strip: μ once then
+        # (a b-spline law's μ is a Newton inversion, most of a step's cost otherwise)
+        sp_known = -1.0
+        mu = 0.0
         for i in range(n):
             j = (i + 1) % n
             e0x = poly[i, 0] - qx
@@ -144,8 +148,10 @@ def _build_points(y, contact, pts, stat, pull, area):
                     wk = weights[aa] * weights[bb] * s * det
                     ux = y[3] - y[5] * (yk - y[1]) - strips[k, S_VX]
                     uy = y[4] + y[5] * (xk - y[0]) - strips[k, S_VY]
-                    sp = math.sqrt(ux * ux + uy * uy)
-                    mu = mu_kinetic(law, params, max(sp, 1e-12))
+                    sp = max(math.sqrt(ux * ux + uy * uy), 1e-12)
+                    if sp != sp_known:
+                        mu = mu_kinetic(law, params, sp)
+                        sp_known = sp
                     c = wk * mu * pressure
                     pts[npt, PT_X] = xk
                     pts[npt, PT_Y] = yk
