@@ -171,20 +171,29 @@ class Restarts:
     restarted: its end ends the demo.
     """
 
+    POLL_S = 0.005
+
     def __init__(self, procs: list, cmds: list, allowed: int):
         self.procs = procs
         self.cmds = cmds
         self.left = allowed
         self.done: list[str] = []  # what was restarted, said in the summary
+        self._due = 0.0  # the monotonic time of the next look at the processes
 
     def check(self) -> None:
         """Start an ended segment again when allowed; SegmentDied otherwise."""
-        import subprocess
-        import sys
-
+        # called after every callback the line's executor runs, thousands a second: the
+        # processes are polled (a system call each) every POLL_S, which is soon enough
+        now = time.monotonic()
+        if now < self._due:
+            return
+        self._due = now + self.POLL_S
         j = _ended(self.procs)
         if j is None:
             return
+        import subprocess
+        import sys
+
         dead = _dead_segment(self.procs)
         if j == 0 or self.left <= 0:
             why = (

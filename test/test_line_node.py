@@ -43,11 +43,15 @@ def make_line(ros, node_name='sorter_line', **values):
     return node
 
 
-def run(ros, line, seconds, probe=None):
-    for _ in range(round(seconds / 0.005)):
-        line.advance(5)
-        for _ in range(5):
-            ros.executor.spin_once(timeout_sec=0.0)
+def run(ros, line, seconds):
+    """Advance a lock-step line ``seconds``, what it published taken every 25 ms."""
+    for _ in range(round(seconds / 0.025)):
+        line.advance(25)
+        ros.drain()
+
+
+def _ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def test_a_parcel_goes_through_two_stations_and_is_diverted_by_the_third(ros):
@@ -78,7 +82,13 @@ def test_a_parcel_goes_through_two_stations_and_is_diverted_by_the_third(ros):
     assert fut.result().success
     line.stations[0].cell.induct(ParcelSpec(0.4, 0.3, 4.0, label='L-1'))
     run(ros, line, 18.0)
-    ros.spin_until(lambda: got['exits'] and got['S03'], 5.0)
+    t_end = line.line.t_ns
+    ros.spin_until(
+        lambda: (
+            got['exits'] and got['S03'] and got['clock'] and _ns(got['clock'][-1].clock) == t_end
+        ),
+        5.0,
+    )
     (exit_msg,) = got['exits']
     v = {kv.key: kv.value for kv in exit_msg.values}
     assert (v['label'], v['exit'], v['station']) == ('L-1', 'S03R', 'S03')
@@ -114,7 +124,10 @@ def test_a_station_whose_heartbeat_stops_trips_alone(ros):
         for k, pub in beats.items():
             if k != 2 or counter < 10:  # station 2's controller stops at 0.5 s
                 pub.publish(UInt32(data=counter))
-        run(ros, line, 0.05)
+        for _ in range(10):  # 5 ms, and as long on the wall: the beats arrive in time
+            line.advance(5)
+            for _ in range(5):
+                ros.executor.spin_once(timeout_sec=0.0)
     ros.spin_until(lambda: status.get(2) is True and len(status) == 3, 5.0)
     assert [s.cell.watchdog_tripped for s in line.stations] == [False, True, False]
     assert status == {1: False, 2: True, 3: False}
@@ -227,7 +240,8 @@ def test_the_whole_line_records_into_one_file_that_rosbags_reads(ros, tmp_path):
     for topic, count in published.items():
         assert got[topic] == count, topic
     assert set(refused) <= {'/S01/diverter/state', '/S02/diverter/state'}
-    assert got['/line/exits'] == 1 and got['/clock'] > 2000
+    # the line says its time at the end of each advance, and at least once a pose period
+    assert got['/line/exits'] == 1 and got['/clock'] > 12.0 / 0.010
     assert got['/S02/sort/outcomes'] == 1 and got['/S01/sort/outcomes'] == 1
     assert main(['replay', str(path), '--json', '--out', str(tmp_path / 'paths.png')]) == 0
 
@@ -430,8 +444,7 @@ def test_a_line_split_into_segments_gives_every_parcel_the_same_exit_at_the_same
     deadline = time.monotonic() + 50.0
     while len(down.line.exits) < len(labels) and time.monotonic() < deadline:
         up.advance(50)
-        for _ in range(20):  # the hand-overs and the horizon reach the segment downstream
-            ros.executor.spin_once(timeout_sec=0.0)
+        ros.drain()  # the hand-overs and the horizon that reached the segment downstream
         down.advance(50)
         assert down.line.k <= up.line.k  # never past the upstream's horizon
         if sync == 'barrier':
@@ -492,8 +505,7 @@ def test_a_restarted_segment_gets_back_every_parcel_it_held_and_sorts_them_as_be
     def step(*lines, n=50):
         for line in lines:
             line.advance(n)
-            for _ in range(20):
-                ros.executor.spin_once(timeout_sec=0.0)
+            ros.drain()
 
     ros.spin_until(lambda: up.segment.connected() and mid.segment.connected(), 10.0)
     deadline = time.monotonic() + 45.0
