@@ -184,8 +184,8 @@ class _Radau(Radau):
 
     ``lu_solve`` checks its right-hand side is finite and dispatches over batches on
     each of its tens of thousands of calls here, a third of the solve's time; getrs is
-    the routine it ends in, so the numbers are the same. A non-finite residual still
-    ends the Newton iteration (Radau tests its norm).
+    the routine it ends in, so the numbers are the same. The check never fires here:
+    Radau leaves its Newton iteration at a non-finite right-hand side before it solves.
     """
 
     def __init__(self, *args, **kwargs):
