@@ -358,8 +358,20 @@ def test_a_segment_process_killed_mid_run_comes_back_and_loses_nothing(
     )
     try:
         victim = _segment_2(demo)
-        ros.spin_until(lambda: len(seen) >= after, 50.0)
-        assert len(seen) >= after, f'{len(seen)} parcels reached segment 2'
+        ros.spin_until(
+            lambda: len(seen) >= after or demo.poll() is not None,
+            50.0,
+            f'{after} label(s) for station 2 on /S02/scanner/label, from a running demo',
+        )
+        if len(seen) < after:
+            # the demo ended first: say how, and what the watcher heard (a watcher that
+            # hears nothing from a demo that sorted its batch is a DDS delivery failure)
+            out, err = demo.communicate()
+            pytest.fail(
+                f'the demo ended (exit {demo.returncode}) before the watcher heard {after} '
+                f'label(s) for station 2; it heard {seen}. The demo printed:\n'
+                f'{out[-1500:]}{err[-1500:]}'
+            )
         time.sleep(delay)
         os.kill(victim, signal.SIGKILL)
         out, err = ros.communicate(demo, 50.0)
