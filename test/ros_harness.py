@@ -81,18 +81,18 @@ class RosHarness:
                 pytest.fail(f'timed out after {timeout_sec}s waiting for: {message}')
             self.executor.spin_once(timeout_sec=0.01)
 
-    def drain(self) -> int:
+    def drain(self, limit: int = 10_000) -> int:
         """
-        Run every callback that is ready now; return how many ran.
+        Run every callback that is ready now (``limit`` at the most); return how many ran.
 
         ``spin_once(timeout_sec=0)`` runs one callback at the most and pays for a wait
         either way: the single-threaded executor builds its wait set anew for each, about
         a millisecond with a few station nodes. A fixed count of them pays that on every
         turn that finds nothing (most of a lock-step line test's time went there); this
-        stops at the first wait that finds nothing, as ``spin_once`` would have.
+        stops at the first wait that finds nothing. The limit ends it should a callback
+        keep itself ready (a timer whose period is shorter than its callback).
         """
-        ran = 0
-        while True:
+        for ran in range(limit):
             try:
                 handler, _, _ = self.executor.wait_for_ready_callbacks(timeout_sec=0.0)
             except (TimeoutException, ShutdownException):
@@ -100,7 +100,7 @@ class RosHarness:
             handler()
             if handler.exception() is not None:
                 raise handler.exception()
-            ran += 1
+        return limit
 
     def spin_for(self, seconds: float) -> None:
         """Spin the executor for a fixed wall-clock time."""

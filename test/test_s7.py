@@ -234,3 +234,48 @@ def test_sixteen_idle_clients_never_lock_a_new_one_out(cell):
                 c.disconnect()
             except Exception:  # noqa: BLE001 - closed by the server already
                 pass
+
+
+def test_a_new_client_is_served_while_a_closed_idle_ones_handler_still_finishes(cell, monkeypatch):
+    """
+    A connection closed for a new client counts in the base server until its thread ends.
+
+    On a loaded machine that thread can still be finishing when the next client comes:
+    the server must take that client (closing the next idle one for it), not turn it
+    away as if every place were held. Here the closed connections' handlers take 0.5 s
+    to finish, and one slot turns over twice within it.
+    """
+    import snap7.server
+
+    from sorter_sim.frontends.s7_server import CellS7Server
+
+    receive = snap7.server.ServerISOConnection.receive_data
+
+    def slow_to_finish(self):
+        try:
+            return receive(self)
+        except socket.timeout:
+            raise
+        except Exception:
+            time.sleep(0.5)  # a closed connection's handler, late to its clean-up
+            raise
+
+    monkeypatch.setattr(snap7.server.ServerISOConnection, 'receive_data', slow_to_finish)
+    server = CellS7Server(cell.fieldbus.image, '127.0.0.1', free_port(), slots=1, idle_s=0.1)
+    port = server.serve()
+    clients = []
+    try:
+        for _ in range(3):  # each one idle past 0.1 s before the next comes
+            c = snap7.client.Client()
+            c.connect('127.0.0.1', 0, 1, port)
+            assert c.db_read(1, 0, 8) is not None
+            clients.append(c)
+            time.sleep(0.2)
+        assert server.closed_idle == 2 and server.refused_busy == 0
+    finally:
+        for c in clients:
+            try:
+                c.disconnect()
+            except Exception:  # noqa: BLE001 - closed by the server already
+                pass
+        server.stop()

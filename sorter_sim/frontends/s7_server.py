@@ -102,9 +102,13 @@ class CellS7Server(Server):
     """
 
     def __init__(self, image, host: str, port: int, *, slots: int = SLOTS, idle_s: float = IDLE_S):
-        # one over the slots: the base server takes the new client, which then finds an
-        # idle one to close or is closed itself (``_handle_client``)
-        super().__init__(log=False, max_clients=slots + 1)
+        # the slots are kept here (``_handle_client``): a new client finds an idle one to
+        # close or is closed itself. The base server's own limit is a backstop against a
+        # flood of threads, with room for the new client and for the handlers of
+        # connections just closed: each counts until its thread has finished, and under
+        # load that can be after the next client comes (with room for one only, the base
+        # server turned that client away while a slot was free)
+        super().__init__(log=False, max_clients=2 * slots + 1)
         logging.getLogger('snap7').setLevel(logging.CRITICAL)  # failures are answered
         self.image = image
         self.host = host
