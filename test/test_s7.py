@@ -200,6 +200,15 @@ def test_the_cpu_reports_run_as_s7_tools_read_it(cell, plc):
     assert len(plc.db_read(1, 0, 8)) == 8
 
 
+def _disconnect(clients) -> None:
+    """Disconnect each client, those the server has closed already too."""
+    for c in clients:
+        try:
+            c.disconnect()
+        except Exception:  # noqa: BLE001 - closed by the server already
+            pass
+
+
 def test_sixteen_idle_clients_never_lock_a_new_one_out(cell):
     """Every slot taken by a client that says nothing: a new client gets the idlest's slot."""
     from sorter_sim.frontends.s7_server import IDLE_S, SLOTS
@@ -229,11 +238,7 @@ def test_sixteen_idle_clients_never_lock_a_new_one_out(cell):
                 closed += 1
         assert closed >= 3
     finally:
-        for c in idle:
-            try:
-                c.disconnect()
-            except Exception:  # noqa: BLE001 - closed by the server already
-                pass
+        _disconnect(idle)
 
 
 def test_a_new_client_is_served_while_a_closed_idle_ones_handler_still_finishes(cell, monkeypatch):
@@ -273,9 +278,5 @@ def test_a_new_client_is_served_while_a_closed_idle_ones_handler_still_finishes(
             time.sleep(0.2)
         assert server.closed_idle == 2 and server.refused_busy == 0
     finally:
-        for c in clients:
-            try:
-                c.disconnect()
-            except Exception:  # noqa: BLE001 - closed by the server already
-                pass
+        _disconnect(clients)
         server.stop()
