@@ -17,6 +17,7 @@ from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
+from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Bool, UInt32
 from std_srvs.srv import SetBool
@@ -50,10 +51,6 @@ def run(ros, line, seconds):
         ros.drain()
 
 
-def _ns(stamp) -> int:
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
 def test_a_parcel_goes_through_two_stations_and_is_diverted_by_the_third(ros):
     line = make_line(ros, stations=3)
     probe = ros.make_node('probe')
@@ -85,7 +82,10 @@ def test_a_parcel_goes_through_two_stations_and_is_diverted_by_the_third(ros):
     t_end = line.line.t_ns
     ros.spin_until(
         lambda: (
-            got['exits'] and got['S03'] and got['clock'] and _ns(got['clock'][-1].clock) == t_end
+            got['exits']
+            and got['S03']
+            and got['clock']
+            and Time.from_msg(got['clock'][-1].clock).nanoseconds == t_end
         ),
         5.0,
     )
