@@ -31,6 +31,38 @@ from pathlib import Path
 import numba
 from numba.core.caching import FunctionCache
 
+
+def _answer_numbas_blas_probe() -> None:
+    """
+    Spare every process the import of all of ``scipy.linalg`` at its first kernel.
+
+    When numba's target context first loads (a process's first kernel, compiled or
+    read from the cache), its array maths asks once whether a BLAS exists, by importing
+    ``scipy.linalg.cython_blas``, and Python imports the whole ``scipy.linalg`` package
+    before it: 0.3 s of a process's start, a sixth of a simulation node's, for kernels
+    that call no BLAS. scipy is a dependency of this package, so the answer is known.
+    That one question is answered yes without the import, and the probe is numba's own
+    again at once: compiling a call to ``np.dot`` still imports scipy's BLAS.
+    """
+    if 'numba.np.arraymath' in sys.modules:  # asked already
+        return
+    try:
+        from numba.np import linalg
+
+        probe = linalg.ensure_blas
+    except (ImportError, AttributeError):  # numba moved it: it asks as before
+        return
+
+    def ensure_blas():
+        linalg.ensure_blas = probe
+        if sys._getframe(1).f_code.co_name != '_check_blas':  # not the one question
+            probe()
+
+    linalg.ensure_blas = ensure_blas
+
+
+_answer_numbas_blas_probe()
+
 CORE_DIR = Path(__file__).resolve().parent
 SHIPPED_DIR = CORE_DIR / 'shipped_kernels'
 # what numba's codegen reports with NUMBA_CPU_NAME=generic: no CPU name, no extra feature
