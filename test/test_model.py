@@ -411,6 +411,41 @@ def test_the_kernel_cache_is_dropped_when_any_core_source_changes(tmp_path):
     assert not list(cache.glob("*.nb*"))
 
 
+def test_a_cache_of_kernels_that_inline_the_core_is_dropped_when_the_core_changes(tmp_path):
+    # the scipy baseline's wrappers compile the core's kernels into themselves: numba
+    # keys them by their own bytecode, so the core's sources stamp their cache too
+    from sorter_sim.model.core.cache import (
+        CORE_DIR,
+        drop_stale_kernels,
+        kernel_cache_dir,
+        sources_digest,
+    )
+    from sorter_sim.studies.scipy_baseline import STUDIES_DIR, check_wrapper_cache
+
+    study, core = tmp_path / "study", tmp_path / "core"
+    for folder, text in ((study, "w = 1\n"), (core, "k = 1\n")):
+        folder.mkdir()
+        (folder / "m.py").write_text(text)
+    cache = study / "__pycache__"
+
+    def fill():
+        cache.mkdir(exist_ok=True)
+        for name in ("m.w-3.py311.nbi", "m.w-3.py311.1.nbc"):
+            (cache / name).write_bytes(b"wrapper")
+
+    fill()
+    assert len(drop_stale_kernels(study, inlined=(core,))) == 2  # no stamp yet
+    fill()
+    assert drop_stale_kernels(study, inlined=(core,)) == []
+    (core / "m.py").write_text("k = 2\n")  # only the inlined core changes
+    assert len(drop_stale_kernels(study, inlined=(core,))) == 2
+    assert not list(cache.glob("*.nb*"))
+    # the baseline's own check stamps the studies' cache with both
+    check_wrapper_cache()
+    stamp = kernel_cache_dir(STUDIES_DIR) / "numba-sources.sha256"
+    assert stamp.read_text() == f"{sources_digest(STUDIES_DIR)} {sources_digest(CORE_DIR)}"
+
+
 def test_importing_the_model_touches_no_file(tmp_path):
     # the cache check runs at first use, not at import: a bare import of every module of
     # the model in a fresh interpreter leaves the core's cache folder as it was

@@ -230,7 +230,7 @@ class KernelCache(FunctionCache):
             return None
 
 
-def drop_stale_kernels(here: Path = CORE_DIR) -> list[Path]:
+def drop_stale_kernels(here: Path = CORE_DIR, inlined: tuple[Path, ...] = ()) -> list[Path]:
     """
     Drop the numba cache of the package in ``here`` if its sources changed.
 
@@ -238,6 +238,9 @@ def drop_stale_kernels(here: Path = CORE_DIR) -> list[Path]:
     ----------
     here : Path
         The package folder whose ``*.py`` sources stamp the cache in ``here/__pycache__``.
+    inlined : tuple of Path
+        Package folders whose kernels those of ``here`` compile into themselves: their
+        sources stamp the cache too (a study's kernels that call the core's).
 
     Returns
     -------
@@ -247,7 +250,7 @@ def drop_stale_kernels(here: Path = CORE_DIR) -> list[Path]:
 
     """
     cache = kernel_cache_dir(here)
-    digest = sources_digest(here)
+    digest = ' '.join(sources_digest(d) for d in (here, *inlined))
     stamp = cache / 'numba-sources.sha256'
     try:
         if stamp.read_text() == digest:
