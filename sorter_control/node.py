@@ -72,6 +72,7 @@ from sorter_ros.interface import (
     declare_typed,
     parameter_problem,
     plain,
+    quiet_publisher_events,
 )
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 
@@ -126,13 +127,20 @@ class ControllerNode(Node):
         )
         self._cell_request = None
         self._cell_wait_start = time.monotonic()
+        # without rclpy's default QoS-event handlers, as the cell's publishers: each is a
+        # waitable of every executor pass, and the subscribers warn of a mismatch anyway
+        quiet = quiet_publisher_events
         self._pub_confirm = self.create_publisher(
-            DiagnosticStatus, "sort/confirmations", EVENT_QOS
+            DiagnosticStatus, "sort/confirmations", EVENT_QOS, event_callbacks=quiet()
         )
         # absolute, where diagnostic aggregators and tools look; the status names the node
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", STREAM_QOS)
+        self._pub_diag = self.create_publisher(
+            DiagnosticArray, "/diagnostics", STREAM_QOS, event_callbacks=quiet()
+        )
         # the cell's watchdog expects this every scan: a scan that stops, stops it
-        self._pub_heartbeat = self.create_publisher(UInt32, "controller/heartbeat", STREAM_QOS)
+        self._pub_heartbeat = self.create_publisher(
+            UInt32, "controller/heartbeat", STREAM_QOS, event_callbacks=quiet()
+        )
         self._beats = 0
         self.create_service(Trigger, "~/reset", self._srv_reset, qos_profile=SERVICE_QOS)
         self.create_service(SetBool, "~/estop", self._srv_estop, qos_profile=SERVICE_QOS)

@@ -493,6 +493,18 @@ def test_bad_messages_change_nothing_and_the_node_survives(ros):
     assert cell.outcome("A6")["exit"] == "left"
 
 
+def test_the_nodes_publishers_carry_no_qos_event_handlers(ros):
+    # each handler is a waitable of every executor pass (sorter_ros.interface's
+    # quiet_publisher_events); the subscribing side still warns of a QoS mismatch.
+    # /parameter_events is rclpy's own publisher.
+    cell = Cell(ros)
+    for node in (cell.sim, cell.ctl):
+        publishers = [p for p in node.publishers if p.topic_name != "/parameter_events"]
+        assert len(publishers) >= 3
+        loud = [p.topic_name for p in publishers if p.event_handlers]
+        assert loud == [], (node.get_name(), loud)
+
+
 def test_parameters_validated_at_start_and_at_run_time(ros):
     with pytest.raises(ValueError, match="routing"):
         ControllerNode(
