@@ -416,11 +416,12 @@ def test_a_cache_of_kernels_that_inline_the_core_is_dropped_when_the_core_change
     # keys them by their own bytecode, so the core's sources stamp their cache too
     from sorter_sim.model.core.cache import (
         CORE_DIR,
+        check_kernel_cache,
         drop_stale_kernels,
         kernel_cache_dir,
         sources_digest,
     )
-    from sorter_sim.studies.scipy_baseline import STUDIES_DIR, check_wrapper_cache
+    from sorter_sim.studies.scipy_baseline import STUDIES_DIR
 
     study, core = tmp_path / "study", tmp_path / "core"
     for folder, text in ((study, "w = 1\n"), (core, "k = 1\n")):
@@ -440,8 +441,8 @@ def test_a_cache_of_kernels_that_inline_the_core_is_dropped_when_the_core_change
     (core / "m.py").write_text("k = 2\n")  # only the inlined core changes
     assert len(drop_stale_kernels(study, inlined=(core,))) == 2
     assert not list(cache.glob("*.nb*"))
-    # the baseline's own check stamps the studies' cache with both
-    check_wrapper_cache()
+    # the baseline's check stamps the studies' cache with both
+    check_kernel_cache(STUDIES_DIR, inlined=(CORE_DIR,))
     stamp = kernel_cache_dir(STUDIES_DIR) / "numba-sources.sha256"
     assert stamp.read_text() == f"{sources_digest(STUDIES_DIR)} {sources_digest(CORE_DIR)}"
 

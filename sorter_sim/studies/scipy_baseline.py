@@ -11,7 +11,6 @@ its evaluation budget raises ``BudgetExceeded``, and the report keeps it.
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,7 @@ from numba import njit
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-from sorter_sim.model.core.cache import CORE_DIR, drop_stale_kernels, kernel_cache_dir
+from sorter_sim.model.core.cache import CORE_DIR, check_kernel_cache
 from sorter_sim.model.core.common import n_surf_of, rhs_slide
 from sorter_sim.model.core.layout import Contact
 from sorter_sim.model.core.oscillator import Oscillator
@@ -36,39 +35,10 @@ from sorter_sim.model.core.wrench import clip_scratch, gauss_legendre_01
 from sorter_sim.studies.workprecision import ParcelCase, Trajectory, _after_start
 
 
+# the wrappers below compile the core's kernels they call into themselves, and numba keys
+# their cache by their own bytecode: the core's sources stamp their cache too, or after an
+# edit of the core they would go on running its old code
 STUDIES_DIR = Path(__file__).resolve().parent
-_wrappers_checked = False
-
-
-def check_wrapper_cache() -> int:
-    """
-    Drop the wrappers' cached machine code below once per process if the core changed.
-
-    Each wrapper compiles the core's kernels it calls into itself, and numba keys its
-    cache by the wrapper's own bytecode: after an edit of the core it would go on
-    running the core's old code. Their cache is stamped with the core's sources as
-    well as the studies'.
-
-    Returns
-    -------
-    int
-        How many cached files this call removed (0 after the first call).
-
-    """
-    global _wrappers_checked
-    if _wrappers_checked:
-        return 0
-    _wrappers_checked = True
-    dropped = drop_stale_kernels(STUDIES_DIR, inlined=(CORE_DIR,))
-    if dropped:
-        print(
-            f'sorter_sim: the model core or the studies changed since the scipy baseline\'s '
-            f'wrappers were cached; dropped {len(dropped)} cache files in '
-            f'{kernel_cache_dir(STUDIES_DIR)}, they compile again on first use',
-            file=sys.stderr,
-            flush=True,
-        )
-    return len(dropped)
 
 
 class BudgetExceeded(RuntimeError):
@@ -120,7 +90,7 @@ class ScipyParcel:
     """
 
     def __init__(self, case: ParcelCase, g: float = G_STANDARD):
-        check_wrapper_cache()
+        check_kernel_cache(STUDIES_DIR, inlined=(CORE_DIR,))
         self.case = case
         self.arr = strip_array(case.strips)
         self.par = parcel_array(case.parcel, case.rotation, case.n_quad, True, g)

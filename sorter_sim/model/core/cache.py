@@ -67,7 +67,7 @@ CORE_DIR = Path(__file__).resolve().parent
 SHIPPED_DIR = CORE_DIR / 'shipped_kernels'
 # what numba's codegen reports with NUMBA_CPU_NAME=generic: no CPU name, no extra feature
 PORTABLE_CPU = ('generic', '')
-_checked = False
+_checked: set[Path] = set()  # the package folders checked in this process
 
 
 def kernel_cache_dir(here: Path = CORE_DIR) -> Path:
@@ -269,9 +269,17 @@ def drop_stale_kernels(here: Path = CORE_DIR, inlined: tuple[Path, ...] = ()) ->
     return dropped
 
 
-def check_kernel_cache() -> int:
+def check_kernel_cache(here: Path = CORE_DIR, inlined: tuple[Path, ...] = ()) -> int:
     """
-    Drop the core's stale kernels once per process, before the first kernel call.
+    Drop a package's stale kernels once per process, before its first kernel call.
+
+    Parameters
+    ----------
+    here : Path
+        The package folder whose kernels are checked (the core's by default).
+    inlined : tuple of Path
+        The folders whose kernels those of ``here`` compile into themselves
+        (``drop_stale_kernels``).
 
     Returns
     -------
@@ -279,21 +287,20 @@ def check_kernel_cache() -> int:
         How many cached kernel files this call removed (0 after the first call).
 
     """
-    global _checked
-    if _checked:
+    if here in _checked:
         return 0
-    _checked = True
+    _checked.add(here)
     # a cold cache compiles for a minute or more: say so while it happens
     from sorter_sim.model.compile_progress import install
 
     install()
-    dropped = drop_stale_kernels()
+    dropped = drop_stale_kernels(here, inlined)
     if dropped:
         kernels = len({p.name.split('-')[0] for p in dropped})
         print(
-            f'sorter_sim: the model core changed since its kernels were cached; dropped '
-            f'{len(dropped)} cache files ({kernels} kernels) in {kernel_cache_dir()}, '
-            'they compile again on first use',
+            f'sorter_sim: the sources of the kernels cached in {kernel_cache_dir(here)} '
+            f'changed since; dropped {len(dropped)} cache files ({kernels} kernels), they '
+            'compile again on first use',
             file=sys.stderr,
             flush=True,
         )
