@@ -338,8 +338,10 @@ def _campaign(args) -> int | str:
     cluster = None
     try:
         if args.scheduler:
+            from sorter_sim.studies.scheduler import connect_scheduler
+
             try:
-                client = Client(args.scheduler, timeout="10s")
+                client = connect_scheduler(args.scheduler, 10.0)
             except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError by address kind
                 return f"--scheduler: cannot reach a Dask scheduler at {args.scheduler}: {exc}"
         else:

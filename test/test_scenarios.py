@@ -364,6 +364,8 @@ def test_a_campaign_on_an_existing_dask_scheduler(tmp_path):
         timeout=120,
     )
     assert bad.returncode == 2 and 'cannot reach a Dask scheduler' in bad.stderr
+    # refused at once, not after dask's 10 s of connecting again (sorter_sim.studies.scheduler)
+    assert 'connection refused: nothing listens on 127.0.0.1 port 9' in bad.stderr, bad.stderr
 
 
 def campaign(folder, *args, env=None) -> subprocess.Popen:

@@ -386,7 +386,9 @@ def test_unreachable_scheduler_is_a_clear_error(tmp_path, capsys):
         )
         == 2
     )
-    assert "cannot reach a Dask scheduler" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "cannot reach a Dask scheduler" in err
+    assert f"connection refused: nothing listens on 127.0.0.1 port {port}" in err, err
     assert not (tmp_path / "r.csv").exists()  # no header-only table left behind
 
 

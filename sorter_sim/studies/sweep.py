@@ -331,11 +331,13 @@ def _executor(workers: int, scheduler: str | None, timeout_s: float = 10.0):
     """
     if scheduler:
         try:
-            from distributed import Client, as_completed
+            from distributed import as_completed
         except ImportError:  # pragma: no cover - a declared dependency
             raise SpecError("--scheduler needs dask[distributed] installed") from None
+        from sorter_sim.studies.scheduler import connect_scheduler
+
         try:
-            client = Client(scheduler, timeout=f"{timeout_s}s")
+            client = connect_scheduler(scheduler, timeout_s)
         except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError by address kind
             raise SpecError(
                 f"--scheduler: cannot reach a Dask scheduler at {shown(scheduler)}: {exc}"
