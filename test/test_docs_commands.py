@@ -10,7 +10,9 @@ checkout). A command still running is stopped as a reader stops it, with Ctrl-C
 the cell or the line (``sorter demo``, ``scripts/run.sh``, ``sim_node``,
 ``line_node``) once a clock it publishes on the test's ROS domain has passed
 ``CELL_RUNS_S`` of simulated time (within ``CELL_START_S``, or it fails: a cell that
-starts but never runs is caught), any other after ``BRIEF_S``. It must then end
+starts but never runs is caught), a node of the controller side (``controller_node``,
+``wcs_node``) once its node is on the graph of the test's ROS domain (within
+``CELL_START_S``, or it fails), any other after ``BRIEF_S``. It must then end
 within ``STOP_S``. Either way its exit status must be 0 (130 is Ctrl-C's own, taken
 from a command that was stopped, as is an end by the signal itself, which a shell
 reports as 130) and nothing it prints may be a traceback.
@@ -165,6 +167,23 @@ def _starts_a_cell(cmd) -> bool:
     )
 
 
+# the node each controller-side executable starts (sorter_control's NODE_NAME)
+NODE_OF = {'controller_node': 'sorter_controller', 'wcs_node': 'sorter_wcs'}
+
+
+def _until_its_node_is_up(reader: threading.Thread, name: str) -> bool:
+    """Wait while the command runs and its node ``name`` is not on the graph; return if it came."""
+    with ros_context_scope() as ctx, ros_harness_scope(ctx) as ros:
+        watcher = ros.make_node('docs_node_watch')
+        deadline = time.monotonic() + CELL_START_S
+        while reader.is_alive() and time.monotonic() < deadline:
+            if name in watcher.get_node_names():
+                ros.spin_for(0.5)  # and it stays up a moment: a start that fails is seen
+                return reader.is_alive()
+            ros.spin_for(0.1)
+        return False
+
+
 class _ClockWatch:
     """The latest time any clock topic on the test's ROS domain said (``/clock``, remapped)."""
 
@@ -207,6 +226,7 @@ def _run_as_written(cmd, reader_root) -> None:
     env['PATH'] = f'{BIN}{os.pathsep}{env.get("PATH", "")}'
     whole = (cmd.doc, cmd.line) in FEEDS_LATER
     cell = _starts_a_cell(cmd) and not whole
+    node = None if whole else NODE_OF.get(Path(cmd.argv[0]).name)
     with _ports_lock(cmd):
         proc = subprocess.Popen(
             _argv(cmd),
@@ -232,6 +252,8 @@ def _run_as_written(cmd, reader_root) -> None:
         try:
             if cell:
                 clock = _until_its_clock_runs(reader)
+            elif node:
+                up = _until_its_node_is_up(reader, node)
             else:
                 reader.join(WHOLE_S if whole else BRIEF_S)
             stopped = reader.is_alive()
@@ -257,6 +279,10 @@ def _run_as_written(cmd, reader_root) -> None:
         assert not (stopped and whole), (
             f'{cmd.doc}:{cmd.line}: `{cmd.text}` did not end within {WHOLE_S:g} s; the '
             f'commands after it read what it writes. It printed:\n{out[-3000:]}'
+        )
+        assert not (stopped and node and not up), (
+            f'{cmd.doc}:{cmd.line}: `{cmd.text}` ran {CELL_START_S:g} s and its node {node} '
+            f'did not come on the graph; it printed:\n{out[-3000:]}'
         )
         assert not (stopped and cell and clock < CELL_RUNS_S), (
             f'{cmd.doc}:{cmd.line}: `{cmd.text}` ran {CELL_START_S:g} s and no clock of its '
