@@ -149,6 +149,12 @@ class WcsNode(Node):
                 self.opcua = None
                 raise ValueError(f"parameter 'opcua_port': {exc}") from None
             self.get_logger().info(f'warehouse over OPC UA on {self.opcua.endpoint}')
+        # what a line's integrator checks first: how many stations and chutes it serves
+        shown = ', '.join(list(self.wcs.where)[:3]) + (', ...' if len(self.wcs.where) > 3 else '')
+        self.get_logger().info(
+            f'sorter wcs ready: {n} station(s), {len(self.wcs.where)} chutes ({shown}); '
+            'sort plan on wcs/sort_plan, requests on wcs/requests'
+        )
 
     def destroy_node(self):
         """Stop the OPC UA server, finish the recording, then the node."""
