@@ -36,6 +36,9 @@ import pytest
 from docs_commands import REPO, collect
 from ros_harness import ros_context_scope, ros_harness_scope
 
+from sorter_control.node import NODE_NAME as CONTROLLER_NODE
+from sorter_control.wcs_node import NODE_NAME as WCS_NODE
+
 # a page's commands in one worker, in the page's order: a command may read what the one
 # before it wrote (``FEEDS_LATER``); the pages share out over the workers
 pytestmark = [pytest.mark.ros]
@@ -167,8 +170,8 @@ def _starts_a_cell(cmd) -> bool:
     )
 
 
-# the node each controller-side executable starts (sorter_control's NODE_NAME)
-NODE_OF = {'controller_node': 'sorter_controller', 'wcs_node': 'sorter_wcs'}
+# the node each controller-side executable starts
+NODE_OF = {'controller_node': CONTROLLER_NODE, 'wcs_node': WCS_NODE}
 
 
 def _until_its_node_is_up(reader: threading.Thread, name: str) -> bool:
