@@ -366,6 +366,15 @@ def test_a_campaign_on_an_existing_dask_scheduler(tmp_path):
     assert bad.returncode == 2 and 'cannot reach a Dask scheduler' in bad.stderr
     # refused at once, not after dask's 10 s of connecting again (sorter_sim.studies.scheduler)
     assert 'connection refused: nothing listens on 127.0.0.1 port 9' in bad.stderr, bad.stderr
+    beyond = subprocess.run(
+        [sys.executable, '-m', 'sorter_cell', 'scenario', 'campaign', str(folder)]
+        + ['--scheduler', 'tcp://127.0.0.1:99999'],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert beyond.returncode == 2, beyond.stderr
+    assert 'port 99999 is not a TCP port: it must be in 1-65535' in beyond.stderr, beyond.stderr
 
 
 def campaign(folder, *args, env=None) -> subprocess.Popen:

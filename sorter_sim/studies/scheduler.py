@@ -34,6 +34,8 @@ def connect_scheduler(address: str, timeout_s: float):
     ------
     OSError
         Nothing listens at a TCP or TLS address (said at once), or it did not answer.
+    ValueError
+        A TCP or TLS address whose port is not in 1-65535.
     Exception
         Whatever dask raises for an address it cannot use or a scheduler it cannot reach.
 
@@ -47,6 +49,8 @@ def connect_scheduler(address: str, timeout_s: float):
     except (ValueError, TypeError):
         scheme = None  # dask's own message says what is wrong with it
     if scheme in ('tcp', 'tls'):
+        if not 0 < port <= 65535:  # the socket layer would wrap it round to another port
+            raise ValueError(f'port {port} is not a TCP port: it must be in 1-65535')
         try:
             with socket.create_connection((host, port), timeout=timeout_s):
                 pass
