@@ -415,7 +415,7 @@ class _LineRun:
             lambda m: self.records.append({kv.key: kv.value for kv in m.values}),
             EVENT_QOS,
         )
-        obs.create_subscription(
+        self._exits = obs.create_subscription(
             DiagnosticStatus,
             'line/exits',
             lambda m: self.exits.__setitem__(
@@ -506,6 +506,21 @@ class _LineRun:
             return 'the stations\' controllers did not start within 120 s'
         if not spin_until(self.infeed.services_are_ready, 30.0):
             return 'station 1\'s parameter services did not appear within 30 s'
+        # every station's edges, labels, routes and confirmations matched with the
+        # warehouse, and every segment's exits with it and the observer: discovery across
+        # processes can take seconds, and what is sent before it is lost
+        writers = self.segments
+
+        def unmatched():
+            out = self.wcs.unmatched(writers)
+            return out + ['line/exits (the demo)'] * (self._exits.get_publisher_count() < writers)
+
+        if not spin_until(lambda: not unmatched(), 30.0):
+            missing = unmatched()
+            return (
+                f'the warehouse had no peer on {len(missing)} of the line\'s topics after '
+                f'30 s: {", ".join(missing[:6])}' + (', ...' if len(missing) > 6 else '')
+            )
         self.chutes = [name for pair in self.wcs.wcs.chutes for name in pair]
         dests = [f'D{j + 1:02d}' for j in range(len(self.chutes))]
         spin_until(lambda: self.pub_plan.get_subscription_count() > 0, 10.0)

@@ -112,24 +112,31 @@ class WcsNode(Node):
         self._pub_disp = self.create_publisher(DiagnosticStatus, 'wcs/dispositions', EVENT_QOS)
         self._pub_active = self.create_publisher(DiagnosticStatus, 'wcs/sort_plan/active', LATCHED)
         self._pub_refused = self.create_publisher(String, 'wcs/sort_plan/refused', EVENT_QOS)
+        self._sub_stations = []  # what the stations write to it: unmatched() looks at each
         for k in range(n):
-            self.create_subscription(
-                DiagnosticStatus,
-                f'{station_name(k)}/sort/confirmations',
-                lambda m, k=k: self._on_confirmation(k, m),
-                EVENT_QOS,
+            self._sub_stations.append(
+                self.create_subscription(
+                    DiagnosticStatus,
+                    f'{station_name(k)}/sort/confirmations',
+                    lambda m, k=k: self._on_confirmation(k, m),
+                    EVENT_QOS,
+                )
             )
             if k > 0:
-                self.create_subscription(
-                    TimeReference,
-                    f'{station_name(k)}/sensors/edges',
-                    lambda m, k=k: self._on_edge(k, m),
-                    EVENT_QOS,
+                self._sub_stations.append(
+                    self.create_subscription(
+                        TimeReference,
+                        f'{station_name(k)}/sensors/edges',
+                        lambda m, k=k: self._on_edge(k, m),
+                        EVENT_QOS,
+                    )
                 )
         self.create_subscription(DiagnosticStatus, 'wcs/sort_plan', self._on_plan, EVENT_QOS)
         self.create_subscription(KeyValue, 'wcs/requests', self._on_request, REQUEST_QOS)
         self._pub_answers = self.create_publisher(KeyValue, 'wcs/requests/answers', REQUEST_QOS)
-        self.create_subscription(DiagnosticStatus, 'line/exits', self._on_exit, EVENT_QOS)
+        self._sub_exits = self.create_subscription(
+            DiagnosticStatus, 'line/exits', self._on_exit, EVENT_QOS
+        )
         for name in self.wcs.where:
             self.create_subscription(
                 Bool, f'line/chutes/{name}/full', lambda m, c=name: self._on_full(c, m), LATCHED
@@ -165,6 +172,28 @@ class WcsNode(Node):
             release_recorder(self.recorder)
             self.recorder = None
         return super().destroy_node()
+
+    def unmatched(self, line_writers: int = 1) -> list[str]:
+        """
+        Return the line's topics on which this node has no peer yet.
+
+        A station's cell and controller in another process (a segment of the line) are
+        matched by DDS discovery, which on a loaded machine can take seconds: an edge
+        sent before it is lost, and its parcel reaches the station with no label and
+        goes straight on. A line opens its infeed once this is empty.
+
+        Parameters
+        ----------
+        line_writers : int
+            The processes that write ``line/exits`` (the line's segments).
+
+        """
+        out = [p.topic_name for p in self._pub_routing if p.get_subscription_count() == 0]
+        out += [p.topic_name for p in self._pub_label.values() if p.get_subscription_count() == 0]
+        out += [s.topic_name for s in self._sub_stations if s.get_publisher_count() == 0]
+        if self._sub_exits.get_publisher_count() < line_writers:
+            out.append(self._sub_exits.topic_name)
+        return out
 
     def _publish(self, publisher, msg) -> None:
         """Publish ``msg``, and record it (stamped with the node's clock) when recording."""

@@ -252,6 +252,17 @@ def test_the_wcs_node_refuses_a_bad_plan_in_one_message_and_keeps_the_good_one(r
     plan = probe.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
     req = probe.create_publisher(KeyValue, 'wcs/requests', EVENT_QOS)
     ros.spin_until(lambda: plan.get_subscription_count() and req.get_subscription_count(), 10.0)
+    ros.spin_until(lambda: len(node.unmatched()) < 7, 10.0)
+    # no station yet: every topic a station shares with it is named, but the one the
+    # probe reads (a line opens its infeed once the list is empty)
+    assert sorted(node.unmatched()) == [
+        '/S01/routing/updates',
+        '/S01/sort/confirmations',
+        '/S02/scanner/label',
+        '/S02/sensors/edges',
+        '/S02/sort/confirmations',
+        '/line/exits',
+    ]
     plan.publish(DiagnosticStatus(name='v1', values=[KeyValue(key='D1', value='S02R')]))
     ros.spin_until(lambda: active, 5.0)
     plan.publish(DiagnosticStatus(name='v2', values=[KeyValue(key='D1', value='S07L')]))
@@ -467,6 +478,7 @@ def test_the_line_sorts_through_a_plan_change_in_flight_and_a_chute_that_fills(r
         lambda: all(c.logic is not None and c.logic.state == 'running' for c in ctls), 60.0
     )
     ros.spin_until(lambda: plan.get_subscription_count() and req.get_subscription_count(), 10.0)
+    ros.spin_until(lambda: not wcs.unmatched(), 10.0)  # the line and its PLCs, every topic
 
     def send_plan(version, entries):
         plan.publish(
