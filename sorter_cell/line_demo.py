@@ -328,6 +328,7 @@ def segment_commands(args, n: int, k_seg: int) -> list[tuple[list, str]]:
             str(int(args.seed)),
             '--clock',
             clock,
+            '--warehouse',  # the demo's warehouse node gives the stations their labels
         ]
         if args.gap:
             cmd += ['--gap', *(str(float(g)) for g in args.gap)]
@@ -635,9 +636,7 @@ class _LineRun:
         """
         Stop the segments, write the dispositions, print the summary; return the exit code.
 
-        0 when nothing was mis-sorted or jammed, every parcel inducted is accounted for
-        and no segment refused a parcel; 1 otherwise; a message when the dispositions
-        file cannot be written.
+        ``line_exit_code``'s; a message when the dispositions file cannot be written.
         """
         args, line, records = self.args, self.line, self.records
         seg_stats = _stop_segments(self.procs)
@@ -666,6 +665,7 @@ class _LineRun:
             'inducted': inducted,
             'mis_sorted': codes.get('mis_sorted', 0),
             'jams': codes.get('jammed', 0),
+            'lost': codes.get('lost', 0),
             'in_cell_at_end': on_line,
             'exits': dict(sorted(exit_counts.items())),
             'dispositions': dict(sorted(codes.items())),
@@ -686,18 +686,33 @@ class _LineRun:
         if seg_stats:
             summary['segment_stats'] = seg_stats
             summary['handovers'] = sum(s['handed_on'] for s in seg_stats)
-        ok = (
-            summary['mis_sorted'] == 0
-            and summary['jams'] == 0
-            and sum(codes.values()) + on_line == inducted
-            and all(s['refused'] == 0 for s in seg_stats)
-        )
+        code = line_exit_code(summary, seg_stats)
         if args.json:
             print(json.dumps(summary, sort_keys=True))
         else:
             for key, v in summary.items():
                 print(f'  {key:<22} {v}')
-        return 0 if ok else 1
+        return code
+
+
+def line_exit_code(summary: dict, seg_stats: list) -> int:
+    """
+    Return the line demo's exit code from its summary and its segments' figures.
+
+    0 when no parcel was mis-sorted, jammed or lost (it went on past the station of
+    its destination, which never answered for it: the line lost track of it), every
+    parcel inducted has its disposition or is still on the line, and no segment
+    refused a hand-over; 1 otherwise.
+    """
+    accounted = sum(summary['dispositions'].values()) + summary['in_cell_at_end']
+    ok = (
+        summary['mis_sorted'] == 0
+        and summary['jams'] == 0
+        and summary['lost'] == 0
+        and accounted == summary['inducted']
+        and all(s['refused'] == 0 for s in seg_stats)
+    )
+    return 0 if ok else 1
 
 
 def _cell_params():

@@ -68,6 +68,9 @@ class SegmentRun:
         An MCAP file for the whole segment, or ''.
     foxglove : int
         The live view's port, or 0.
+    warehouse : bool
+        The line has a warehouse node: the segment's time holds until it reads the
+        edges of its stations (``wait_for_warehouse``).
 
     """
 
@@ -76,6 +79,7 @@ class SegmentRun:
     sync: str = 'conservative'
     record: str = ''
     foxglove: int = 0
+    warehouse: bool = False
 
 
 def build_segment(
@@ -129,6 +133,10 @@ def build_segment(
             Parameter('record_path', value=run.record),
             Parameter('foxglove_port', value=int(run.foxglove)),
             Parameter('segment_sync', value=run.sync),
+            # a segment of a line with a warehouse: its stations' labels come from the edges
+            # the warehouse hears, so it runs once the warehouse reads them (at its start,
+            # and when it is started again during the run)
+            Parameter('wait_for_warehouse', value=run.warehouse),
         ],
         station_params={
             'arrival': 'none',
@@ -233,6 +241,11 @@ def main(argv=None) -> int:
     ap.add_argument('--sync', choices=('conservative', 'barrier'), default='conservative')
     ap.add_argument('--parcels', type=int, default=0, help='the stream stops after these')
     ap.add_argument(
+        '--warehouse',
+        action='store_true',
+        help="hold the segment's time until a warehouse node reads its stations' edges",
+    )
+    ap.add_argument(
         '--start', action='store_true', help='start the stream at once (station 1 only)'
     )
     ap.add_argument(
@@ -280,7 +293,12 @@ def main(argv=None) -> int:
         stations=args.stations,
         line_stations=args.line_stations,
         stream=SegmentStream(seed=args.seed, gap=args.gap, count=args.parcels),
-        run=SegmentRun(fast=fast, rtf=1.0 if fast else float(args.rtf), sync=args.sync),
+        run=SegmentRun(
+            fast=fast,
+            rtf=1.0 if fast else float(args.rtf),
+            sync=args.sync,
+            warehouse=args.warehouse,
+        ),
     )
     if args.start:
         from rclpy.parameter import Parameter

@@ -69,7 +69,7 @@ from sorter_ros.interface import (
     SERVICE_QOS,
     STREAM_QOS,
     accept_integers_for_doubles,
-    declare_typed,
+    declare_checked,
     parameter_problem,
     plain,
     quiet_publisher_events,
@@ -97,10 +97,8 @@ class ControllerNode(Node):
         self.values = {}
         accept_integers_for_doubles(self, {spec.name: descriptor(spec).type for spec in SCHEMA})
         for spec in SCHEMA:
-            try:
-                p = declare_typed(self, spec.name, spec.default, descriptor(spec))
-            except Exception as exc:  # rclpy's InvalidParameter*Exception family
-                raise ValueError(f"parameter {spec.name!r}: {exc}") from None
+            # a value of another type is refused naming what the parameter allows
+            p = declare_checked(self, spec.name, spec.default, spec.allowed, descriptor(spec))
             self.values[spec.name] = plain(p.value)
         config_from_values(self.values)  # fail now, naming the parameter
         self.published = Counter()  # messages per topic, counted where they are published

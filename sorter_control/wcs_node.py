@@ -42,6 +42,7 @@ from __future__ import annotations
 import threading
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -52,7 +53,7 @@ from sorter_control.wcs import LineWcs, PlanError, parse_exit
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
-from sorter_ros.interface import EVENT_QOS, SENSOR_QOS
+from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, declare_checked
 
 NODE_NAME = 'sorter_wcs'
 LATCHED = SENSOR_QOS
@@ -66,12 +67,20 @@ class WcsNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        n = self.declare_parameter('stations', 1).value
-        names = self.declare_parameter('chute_names', ['']).value
-        self.scan_eye = self.declare_parameter('scan_eye', 'pe_scan').value
-        port = self.declare_parameter('opcua_port', 0).value
-        host = self.declare_parameter('opcua_host', '127.0.0.1').value
-        record = self.declare_parameter('record_path', '').value
+        # a value of another type (``stations:=x``) is refused naming what is allowed
+        n = declare_checked(self, 'stations', 1, 'an integer in [1, 64]').value
+        names = declare_checked(
+            self,
+            'chute_names',
+            [''],
+            'a list of names',
+            ParameterDescriptor(type=ParameterType.PARAMETER_STRING_ARRAY),
+        ).value
+        names = list(names)
+        self.scan_eye = declare_checked(self, 'scan_eye', 'pe_scan', "an eye's name").value
+        port = declare_checked(self, 'opcua_port', 0, 'an integer in [0, 65535]').value
+        host = declare_checked(self, 'opcua_host', '127.0.0.1', 'a host name or address').value
+        record = declare_checked(self, 'record_path', '', 'a file path').value
         if not (isinstance(n, int) and 1 <= n <= 64):
             raise ValueError(f"parameter 'stations' must be an integer in [1, 64], got {n!r}")
         if not (isinstance(port, int) and 0 <= port <= 65535):

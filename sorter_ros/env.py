@@ -249,6 +249,7 @@ def run_node(
     import sys
 
     import rclpy
+    from rclpy.exceptions import InvalidParameterTypeException
     from rclpy.signals import SignalHandlerOptions
 
     apply_ros_env_defaults()
@@ -279,6 +280,10 @@ def run_node(
         except config_errors as exc:
             print(f'{prog}: {exc}', file=sys.stderr)
             code = 2
+        except InvalidParameterTypeException as exc:
+            # a parameter rclpy declares itself (use_sim_time:=x), refused by its type
+            print(f'{prog}: {_type_refusal(exc)}', file=sys.stderr)
+            code = 2
         else:
             if node is not None:
                 spin_surviving(node, stop)
@@ -302,6 +307,24 @@ def run_node(
             stop.restore()
     if code:
         sys.exit(code)
+
+
+def _type_refusal(exc) -> str:
+    """Say rclpy's refusal of a parameter's type as the nodes' own refusals read."""
+    import re
+
+    said = re.match(
+        r"Trying to set parameter '([^']*)' to '(.*)' of type '(\w+)', expecting type '(\w+)'",
+        str(exc),
+        re.S,
+    )
+    if said is None:
+        return str(exc)
+    name, value, given, wanted = said.groups()
+    wanted = {'BOOL': 'true or false', 'INTEGER': 'an integer', 'DOUBLE': 'a number'}.get(
+        wanted, f'of type {wanted.lower()}'
+    )
+    return f'parameter {name!r} must be {wanted}, got {value!r} ({given.lower()})'
 
 
 def start_node(node_module: str, args=None) -> None:

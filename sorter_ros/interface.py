@@ -181,6 +181,34 @@ _ARRAY_TYPES = {
 }
 
 
+def _empty_sequence(value) -> bool:
+    return not isinstance(value, (str, bool, int, float)) and len(value) == 0
+
+
+def declare_checked(node, name: str, default, allowed: str, desc=None, error=ValueError):
+    """
+    Declare a parameter (``declare_typed``); a value of another type is ``error``, in words.
+
+    rclpy refuses an override whose type is not the default's with an exception that
+    names the types, not what the parameter allows (``-p stations:=x``); this one names
+    the parameter, what it allows and what it was given, as the range checks do.
+    ``node``, ``name``, ``default`` and ``desc`` (optional here) are ``declare_typed``'s;
+    ``allowed`` says in words what the parameter allows, ``error`` is the exception
+    raised (a ``ValueError``). Return the declared parameter.
+    """
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+
+    try:
+        return declare_typed(node, name, default, desc or ParameterDescriptor())
+    except (InvalidParameterTypeException, InvalidParameterValueException):
+        given = node._parameter_overrides[name]
+        raise error(
+            f'parameter {name!r} must be {allowed}, got {plain(given.value)!r} '
+            f'({given.type_.name.lower()})'
+        ) from None
+
+
 def declare_typed(node, name: str, default, desc):
     """
     Declare a parameter as ``node.declare_parameter`` does, taking an empty array for an array.
@@ -212,10 +240,11 @@ def declare_typed(node, name: str, default, desc):
     override = node._parameter_overrides.get(name)
     # rcl's params-file parser cannot type an empty sequence and hands it over unset
     # (NOT_SET, value None); the command line's ``[]`` arrives as an empty byte array
+    # (a scalar given for an array is left to rclpy, which refuses its type)
     if (
         override is not None
         and desc.type in _ARRAY_TYPES
-        and (override.value is None or len(override.value) == 0)
+        and (override.value is None or _empty_sequence(override.value))
     ):
         node.declare_parameter(name, default, desc, ignore_override=True)
         result = node.set_parameters([Parameter(name, Parameter.Type(desc.type), [])])[0]

@@ -144,11 +144,36 @@ def test_a_station_whose_heartbeat_stops_trips_alone(ros):
         ({'stations': 2, 'chute_names': ['a', 'b', 'c', 'a']}, "chute 'a' named twice"),
         ({'time_mode': 'slow'}, "'time_mode'"),
         ({'segment_sync': 'optimistic'}, "'segment_sync' must be one of conservative, barrier"),
+        # a value of another type: named with what is allowed, not rclpy's type error
+        ({'fast_slice': 'x'}, r"'fast_slice' must be a number in \(0, 1\] s, got 'x' \(string\)"),
+        ({'chute_names': 3}, r"'chute_names' must be a list of chute names.*got 3 \(integer\)"),
+        ({'wait_for_warehouse': 1}, r"'wait_for_warehouse' must be true or false.*got 1"),
     ],
 )
 def test_bad_line_parameters_stop_the_node_naming_them(ros, values, message):
     with pytest.raises(ParamError, match=message):
         make_line(ros, **values)
+
+
+def test_a_line_that_waits_for_its_warehouse_runs_once_the_edges_after_station_1_are_read(ros):
+    from sensor_msgs.msg import TimeReference
+
+    from sorter_ros.interface import EVENT_QOS
+
+    line = make_line(ros, stations=2, wait_for_warehouse=True)
+    edges = [s.publisher_set.pub_edges for s in line.stations]
+    probe = ros.make_node('warehouse')
+    probe.create_subscription(TimeReference, '/S01/sensors/edges', lambda m: None, EVENT_QOS)
+    ros.spin_until(lambda: edges[0].get_subscription_count() > 0, 10.0)
+    for _ in range(3):
+        line.advance(25)
+        ros.drain()
+    # station 1's label is its own scanner's; station 2's edges have no reader yet
+    assert line.line.k == 0
+    probe.create_subscription(TimeReference, '/S02/sensors/edges', lambda m: None, EVENT_QOS)
+    ros.spin_until(lambda: edges[1].get_subscription_count() > 0, 10.0)
+    line.advance(25)
+    assert line.line.k == 25
 
 
 def test_a_station_refuses_the_outputs_a_line_does_not_have_yet(ros, tmp_path):

@@ -394,3 +394,25 @@ def test_a_command_line_rcl_cannot_parse_is_refused_in_one_line():
     assert out.returncode == 2 and 'Traceback' not in out.stderr, out.stderr
     ours = [line for line in out.stderr.splitlines() if line.startswith('sim_node:')]
     assert len(ours) == 1 and 'modbus_host' in ours[0] and 'name:=value' in ours[0]
+
+
+@pytest.mark.parametrize(
+    'exe, given, said',
+    [
+        # rclpy's own parameter, declared before the node's: refused by rclpy's type check
+        ('controller_node', 'use_sim_time:=x', "'use_sim_time' must be true or false, got 'x'"),
+        # the node's own: named with what it allows
+        ('line_node', 'fast_slice:=x', "'fast_slice' must be a number in (0, 1] s, got 'x'"),
+    ],
+)
+def test_a_parameter_of_another_type_is_refused_in_one_line_naming_what_it_allows(
+    exe, given, said
+):
+    out = subprocess.run(
+        [str(BIN / exe), '--ros-args', '-p', given],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2 and 'Traceback' not in out.stderr, out.stderr
+    assert out.stderr.strip().splitlines() == [f'{exe}: parameter {said} (string)']

@@ -20,7 +20,7 @@ import time
 
 import pytest
 
-from sorter_cell.line_demo import segment_bounds
+from sorter_cell.line_demo import line_exit_code, segment_bounds
 
 pytestmark = pytest.mark.ros
 
@@ -57,6 +57,26 @@ def _demo(tmp_path, segments: int, *run: str) -> tuple[dict, list]:
     return json.loads(done.stdout.strip().splitlines()[-1]), [
         json.loads(line) for line in path.read_text().splitlines()
     ]
+
+
+def test_the_line_demo_exits_1_for_a_parcel_mis_sorted_jammed_lost_unaccounted_or_refused():
+    clean = {
+        'inducted': 5,
+        'mis_sorted': 0,
+        'jams': 0,
+        'lost': 0,
+        'in_cell_at_end': 1,
+        'dispositions': {'sorted': 3, 'late': 1},  # a late parcel is the stream's, not a fault
+    }
+    segs = [{'refused': 0}, {'refused': 0}]
+    assert line_exit_code(clean, segs) == 0
+    assert line_exit_code({**clean, 'mis_sorted': 1}, segs) == 1
+    assert line_exit_code({**clean, 'jams': 1}, segs) == 1
+    # the line lost track of three parcels (their station never answered for them)
+    lost = {**clean, 'lost': 3, 'dispositions': {'sorted': 1, 'lost': 3}}
+    assert line_exit_code(lost, segs) == 1
+    assert line_exit_code({**clean, 'in_cell_at_end': 0}, segs) == 1  # one unaccounted for
+    assert line_exit_code(clean, [{'refused': 0}, {'refused': 2}]) == 1
 
 
 @pytest.fixture(scope='module')

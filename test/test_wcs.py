@@ -521,19 +521,26 @@ def test_the_line_sorts_through_a_plan_change_in_flight_and_a_chute_that_fills(r
     }
 
 
-def test_the_wcs_executable_refuses_a_bad_parameter_in_one_line():
+@pytest.mark.parametrize(
+    'given, said',
+    [
+        ('stations:=0', "parameter 'stations' must be an integer in [1, 64], got 0"),
+        # another type: what is allowed, not rclpy's type error and its traceback
+        ('stations:=x', "parameter 'stations' must be an integer in [1, 64], got 'x' (string)"),
+        ('chute_names:=3', "parameter 'chute_names' must be a list of names, got 3 (integer)"),
+    ],
+)
+def test_the_wcs_executable_refuses_a_bad_parameter_in_one_line(given, said):
     from pathlib import Path
 
     done = subprocess.run(
-        [str(Path(sys.executable).parent / 'wcs_node'), '--ros-args', '-p', 'stations:=0'],
+        [str(Path(sys.executable).parent / 'wcs_node'), '--ros-args', '-p', given],
         capture_output=True,
         text=True,
         timeout=60,
     )
     assert done.returncode == 2
-    assert done.stderr.strip().splitlines() == [
-        "wcs_node: parameter 'stations' must be an integer in [1, 64], got 0"
-    ]
+    assert done.stderr.strip().splitlines() == [f'wcs_node: {said}']
 
 
 def test_a_request_costs_the_same_however_many_are_held():

@@ -23,6 +23,8 @@ Parameters (besides every station's cell parameters, from the params files'
 ``chute_names`` (2 per station, left then right; empty: S01L, S01R, ...),
 ``chute_capacity``, ``chute_drain_per_s``, ``time_mode``, ``fast_slice``,
 ``real_time_factor``, ``record_path`` (the whole line in one MCAP file),
+``wait_for_warehouse`` (hold the time until the edges of every station after the
+line's first have a reader: the warehouse that gives those stations their labels),
 ``modbus_port`` / ``opcua_port`` (0: off) and their ``*_host`` (127.0.0.1): one
 fieldbus server pair for every station's I/O image, exchanged every period: station
 k is Modbus unit id k (the single cell's addresses in each), and OPC UA folder
@@ -52,7 +54,7 @@ from sorter_ros.interface import (
     SERVICE_QOS,
     STREAM_QOS,
     accept_integers_for_doubles,
-    declare_typed,
+    declare_checked,
     plain,
 )
 from sorter_ros.env import run_node
@@ -113,6 +115,13 @@ LINE_PARAMS = {
         lambda v: v in SEGMENT_SYNCS,
         f'one of {", ".join(SEGMENT_SYNCS)} (lock-step and fast segments: each behind its '
         'upstream neighbour, or all within one slice of each other)',
+    ),
+    'wait_for_warehouse': (
+        False,
+        lambda v: isinstance(v, bool),
+        'true or false: hold the line\'s time until a reader (the warehouse node) takes the '
+        'edges of each of its stations after the line\'s first, which get their labels from '
+        'what the warehouse hears',
     ),
     'fast_slice': (
         0.005,
@@ -200,6 +209,7 @@ class LineNode(Node):
         self._create_line_interfaces()
         self._link_segments(f0, n, last, total)
         self.exits = 0
+        self._warehouse_heard = False  # wait_for_warehouse: every station's edges read
         # wall time spent in the line's physics and in publishing what it reports
         self.cost = {'physics_s': 0.0, 'publish_s': 0.0}
         self._wall_ref = None
@@ -223,11 +233,13 @@ class LineNode(Node):
         accept_integers_for_doubles(self, dict.fromkeys(doubles, ParameterType.PARAMETER_DOUBLE))
         values = {}
         for name, (default, check, allowed) in LINE_PARAMS.items():
-            if isinstance(default, list):  # an empty list, from a file or the command line
-                desc = ParameterDescriptor(type=ParameterType.PARAMETER_STRING_ARRAY)
-                value = plain(declare_typed(self, name, default, desc).value)
-            else:
-                value = plain(self.declare_parameter(name, default).value)
+            # an empty list, from a file or the command line, is a list (declare_typed)
+            desc = ParameterDescriptor(
+                type=ParameterType.PARAMETER_STRING_ARRAY
+                if isinstance(default, list)
+                else ParameterType.PARAMETER_NOT_SET
+            )
+            value = plain(declare_checked(self, name, default, allowed, desc, ParamError).value)
             if isinstance(default, float) and isinstance(value, int):
                 value = float(value)
             if not check(value):
@@ -505,17 +517,9 @@ class LineNode(Node):
         """
         link = self.segment
         link.service()
-        if link.holds():
-            return  # its stations are another segment's, or its claim has not settled yet
+        if self._held():
+            return
         if self.values['time_mode'] != 'realtime':
-            if link.downstream is not None and not link.connected():
-                return  # no segment downstream to take the hand-overs yet: they would be lost
-            if link.backlogged():
-                return  # the segment downstream has not taken what it was sent yet
-            if not link.answered:
-                # what the segment upstream answers for (a restart's parcels) not all in
-                # yet: run now and they would be taken late
-                return
             if link.upstream is not None:
                 # in step with the segment upstream: never past the time it has handed over to
                 n = min(n, link.horizon_k - self.line.k)
@@ -565,6 +569,39 @@ class LineNode(Node):
             link.horizon(self.line.t_ns, coalesce=self.values['time_mode'] == 'fast')
             if self.values['segment_sync'] == 'barrier':
                 link.progress(self.line.k)
+
+    def _held(self) -> bool:
+        """Return True when the line must not run now: its segment or a neighbour holds it."""
+        link = self.segment
+        if link.holds():
+            return True  # its stations are another segment's, or its claim has not settled yet
+        if self.values['time_mode'] == 'realtime':
+            return False
+        if link.downstream is not None and not link.connected():
+            return True  # no segment downstream to take the hand-overs yet: they would be lost
+        if link.backlogged():
+            return True  # the segment downstream has not taken what it was sent yet
+        if self.values['wait_for_warehouse'] and not self._warehouse_reads():
+            return True  # an edge sent now would be lost, and its parcel would have no label
+        # what the segment upstream answers for (a restart's parcels) not all in yet: run
+        # now and they would be taken late
+        return not link.answered
+
+    def _warehouse_reads(self) -> bool:
+        """Return True once every station after the line's first has a reader of its edges."""
+        if self._warehouse_heard:
+            return True
+        first = self.values['first_station']
+        for j, node in enumerate(self.stations):
+            if first + j > 1 and node.publisher_set.pub_edges.get_subscription_count() == 0:
+                self.get_logger().info(
+                    f'holding: nobody reads {node.publisher_set.pub_edges.topic_name} yet '
+                    '(wait_for_warehouse)',
+                    throttle_duration_sec=5.0,
+                )
+                return False
+        self._warehouse_heard = True  # not looked at again: a count is a query of the graph
+        return True
 
     def _tick_fast(self) -> None:
         k = self.line.k
