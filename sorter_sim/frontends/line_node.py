@@ -591,9 +591,9 @@ class LineNode(Node):
         """Return True once every station after the line's first has a reader of its edges."""
         if self._warehouse_heard:
             return True
-        first = self.values['first_station']
         for j, node in enumerate(self.stations):
-            if first + j > 1 and node.publisher_set.pub_edges.get_subscription_count() == 0:
+            # self.first: the 0-based line number of this node's first station
+            if self.first + j > 0 and node.publisher_set.pub_edges.get_subscription_count() == 0:
                 self.get_logger().info(
                     f'holding: nobody reads {node.publisher_set.pub_edges.topic_name} yet '
                     '(wait_for_warehouse)',
