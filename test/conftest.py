@@ -83,6 +83,41 @@ def _ctrl_c_still_stops():
         pytest.fail('the test left the process ignoring SIGINT (Ctrl-C)')
 
 
+def _foreground_threads() -> set:
+    """Return the threads, other than the main one, that keep the interpreter from exiting."""
+    import threading
+
+    main = threading.main_thread()
+    return {t for t in threading.enumerate() if t is not main and not t.daemon and t.is_alive()}
+
+
+@pytest.fixture(autouse=True)
+def _no_thread_left_running():
+    """
+    Fail a test that leaves a non-daemon thread running in the pytest process.
+
+    Such a thread (an OPC UA client's event loop whose connect failed, a server never
+    stopped) keeps the process from exiting: ``pytest -n 0`` on that file finished its
+    tests and then hung at shutdown. A thread still ending gets two seconds.
+    """
+    import time
+
+    before = _foreground_threads()
+    yield
+    deadline = time.monotonic() + 2.0
+    left = _foreground_threads() - before
+    while left and time.monotonic() < deadline:
+        time.sleep(0.02)
+        left = _foreground_threads() - before
+    if left:
+        names = ', '.join(
+            sorted(f'{t.name} ({type(t).__module__}.{type(t).__qualname__})' for t in left)
+        )
+        pytest.fail(
+            f'the test left non-daemon threads running, which keep pytest from exiting: {names}'
+        )
+
+
 def pytest_configure(config):
     """Drop the core's stale numba kernels before a test calls one (tests call them directly)."""
     from sorter_sim.model.core.cache import check_kernel_cache

@@ -100,3 +100,22 @@ def cell_state(cell):
 def diagnostics(cell):
     """Return the fieldbus counters the node reports in its diagnostics."""
     return cell.fieldbus_bridge.diagnostics()
+
+
+def refused_login(endpoint: str, user: str, password: str) -> Exception | None:
+    """
+    Log in to ``endpoint`` as ``user`` with asyncua's synchronous client; return its refusal.
+
+    None if the login was accepted. The client's own event-loop thread is stopped either
+    way: a failed ``connect`` leaves it running, and it would keep pytest from exiting.
+    """
+    client = OpcClient(endpoint, timeout=10)
+    client.set_user(user)
+    client.set_password(password)
+    try:
+        client.connect()
+    except Exception as exc:  # the refusal is what the caller checks
+        client.tloop.stop()
+        return exc
+    client.disconnect()
+    return None

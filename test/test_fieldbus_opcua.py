@@ -17,7 +17,7 @@ from asyncua.sync import Client as OpcClient
 from rclpy.parameter import Parameter
 from ros_harness import free_port
 import fieldbus_helpers as fb
-from fieldbus_helpers import diagnostics
+from fieldbus_helpers import diagnostics, refused_login
 
 from sorter_sim.frontends.node import SimNode
 from sorter_sim.model.core import cell_kernels as ck
@@ -137,12 +137,7 @@ def test_no_identity_a_client_offers_buys_more_than_anonymous_access(cell):
     endpoint = cell.fieldbus.opcua_endpoint
     # through an ordinary client: 'admin' with any password, other names
     for user, password in (('admin', 'x'), ('admin', ''), ('Admin', 'admin'), ('root', 'root')):
-        client = OpcClient(endpoint, timeout=10)
-        client.set_user(user)
-        client.set_password(password)
-        with pytest.raises(Exception):
-            client.connect()
-        client.disconnect_socket() if hasattr(client, 'disconnect_socket') else None
+        assert refused_login(endpoint, user, password) is not None, user
     # and as raw tokens, past whatever a client library checks on its own side
     names = [
         ua.UserNameIdentityToken(PolicyId='anonymous', UserName='admin', Password=b'x'),
