@@ -70,8 +70,10 @@ from sorter_sim.runtime.line import Line, LineExit, LineLayout, StationEvent
 from sorter_sim.runtime.params import SPECS, ParamError
 
 NODE_NAME = 'sorter_line'
-WAIT_S = 0.0002  # s a fast-mode segment held back by a neighbour sleeps at first
-WAIT_MAX_S = 0.002  # s it sleeps at most, the sleep doubling while nothing comes (_tick_fast)
+# s a fast-mode segment held back waits at most before it looks again (_tick_fast): a
+# neighbour's message wakes it at once, this catches what comes without one (a claim
+# settling, a reader matched)
+RECHECK_S = 0.002
 TIME_MODES = ('lockstep', 'fast', 'realtime')
 SEGMENT_SYNCS = ('conservative', 'barrier')
 
@@ -215,8 +217,10 @@ class LineNode(Node):
         self._wall_ref = None
         mode = values['time_mode']
         if mode == 'fast':
-            self._wait_s, self._heard = WAIT_S, 0
             self._timer = self.create_timer(0.0, self._tick_fast)
+            self._recheck = self.create_timer(RECHECK_S, self._wake)
+            self._recheck.cancel()
+            self.segment.on_heard = self._wake
         elif mode == 'realtime':
             self._timer = self.create_timer(0.001, self._tick_realtime)
         else:
@@ -606,20 +610,21 @@ class LineNode(Node):
     def _tick_fast(self) -> None:
         k = self.line.k
         self.advance(max(1, round(self.values['fast_slice'] / self.line.dt)))
-        ran = self.line.k != k
-        heard = self.segment.heard
-        if ran or heard != self._heard:
-            # it ran, or a neighbour said something (a horizon, an answer, its progress): a
-            # wait now is a short one, as a barrier line's at every slice
-            self._wait_s, self._heard = WAIT_S, heard
-        if ran:
+        if self.line.k != k:
             return
         self.segment.flush_horizon()  # what it ran up to, said before it waits
-        # held back by a neighbour: give the core to it rather than spin. An idle pass costs
-        # as much CPU as the first sleep, so the sleep doubles while nothing comes (a
-        # neighbour starting, a claim settling) and is short again once something does
-        time.sleep(self._wait_s)
-        self._wait_s = min(2.0 * self._wait_s, WAIT_MAX_S)
+        # held back by a neighbour: wait in the executor, not in this callback, so the
+        # message that lets it go on (a horizon, a barrier's progress, an answer) is taken
+        # the moment it comes and wakes it (_wake); a sleep here held that message back
+        # for the rest of the sleep, a barrier line's every slice
+        self._timer.cancel()
+        self._recheck.reset()
+
+    def _wake(self) -> None:
+        """Run the held fast-mode line again: a neighbour spoke, or it is time to look."""
+        if self._timer.is_canceled():
+            self._recheck.cancel()
+            self._timer.reset()
 
     def _tick_realtime(self) -> None:
         realtime_tick(self, self.line, self.values['real_time_factor'], self._burst_s)

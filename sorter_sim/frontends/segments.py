@@ -257,7 +257,8 @@ class SegmentLink:
             'claim_conflicts': 0,
         }
         self.latencies_ns: list[int] = []  # wall time from sending to receiving
-        self.heard = 0  # messages from the neighbours (a waiting segment's cue to look again)
+        self.heard = 0  # messages from the neighbours
+        self.on_heard = None  # called after each of them: a held line's cue to look again
         # this segment's identity for its neighbours: a restart is a new one
         self.identity = f'{os.getpid()}-{time.time_ns()}'
         self._owned = owned
@@ -322,6 +323,8 @@ class SegmentLink:
                 callback(msg)
             except HandoverError as exc:
                 self._refuse(str(exc), station)
+            if self.on_heard is not None:
+                self.on_heard()
 
         return guarded
 
