@@ -11,7 +11,8 @@ the simulation clock, hands the buffer to the logic as one input image and turns
 what the logic returns into asynchronous service calls (pop-up, disk angle via
 the cell's ``set_parameters``, e-stop, reset), sort confirmations, diagnostics
 and log lines. No callback ever waits: a call that has no answer within
-``service_timeout`` (wall time) is dropped with ``remove_pending_request`` and
+``service_timeout`` (on the wall clock and on the node's own, which is the
+simulation's under ``use_sim_time``) is dropped with ``remove_pending_request`` and
 reported to the logic as timed out, which it does not retry.
 
 Interface (all names relative): subscribes ``sensors/<name>`` (std_msgs/Bool),
@@ -157,9 +158,8 @@ class ControllerNode(Node):
         self._cell_jam: bool | None = None
         self._cell_packml: str | None = None  # latched: the cell's state, as last heard
         self._cell_status_t: float | None = None
-        self._in_flight: dict[
-            int, tuple
-        ] = {}  # command id -> (future, client, wall deadline, cmd)
+        # command id -> (future, client, (wall deadline, clock deadline), cmd, log entry)
+        self._in_flight: dict[int, tuple] = {}
         # [kind, value, wall at the scan's start, wall answered, accepted, wall sent]
         self.command_log: deque = deque(maxlen=10000)
         self.confirmations: deque = deque(maxlen=10000)
@@ -473,7 +473,8 @@ class ControllerNode(Node):
                 ]
             )
         future = client.call_async(req)
-        deadline = time.monotonic() + self.values["service_timeout"]
+        timeout = self.values["service_timeout"]
+        deadline = (time.monotonic() + timeout, self._now() + timeout)
         entry = [cmd.kind, cmd.value, wall0, None, None, time.perf_counter()]
         self.command_log.append(entry)
         self._in_flight[cmd.id] = (future, client, deadline, cmd, entry)
@@ -501,9 +502,14 @@ class ControllerNode(Node):
         self._replies.append(Reply(cid, ok, msg))
 
     def _expire_calls(self) -> None:
-        now = time.monotonic()
+        # a call fails once service_timeout has passed on the wall clock and on the
+        # controller's own: on the simulation's clock, a process too loaded to serve the
+        # cell's answer in time (a lock-step line's executor, a busy machine) also holds the
+        # simulated time back, and a cell that answers nothing still times out once its
+        # time runs on. On the wall clock the two are one.
+        now, clock = time.monotonic(), self._now()
         for cid, (future, client, deadline, cmd, entry) in list(self._in_flight.items()):
-            if now > deadline and not future.done():
+            if now > deadline[0] and clock > deadline[1] and not future.done():
                 client.remove_pending_request(future)
                 del self._in_flight[cid]
                 entry[4] = None

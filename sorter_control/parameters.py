@@ -161,7 +161,8 @@ SCHEMA = (
         "service_timeout",
         D,
         0.5,
-        "a service call without an answer after this long fails (not retried), wall [s]",
+        "a service call without an answer after this long fails (not retried), on the wall "
+        "clock and the controller's own [s]",
         lo=0.005,
         hi=60.0,
     ),

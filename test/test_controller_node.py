@@ -337,6 +337,61 @@ def test_missed_divert_without_chute_sensor(ros):
     assert cell.confirmation("A3")["result"] == "missed"
 
 
+def test_on_the_simulation_clock_a_call_times_out_once_both_clocks_are_past(ros):
+    """
+    ``service_timeout`` counts on the wall clock and on the controller's own.
+
+    On the simulation's clock, a process too loaded to take the cell's answer in time
+    holds the simulated time back too: its calls do not time out until that time has
+    run on as well (a lock-step line under load lost every later divert to a
+    ``diverter_timeout`` whose answer was already on its way).
+    """
+    import time
+
+    from builtin_interfaces.msg import Time
+    from rosgraph_msgs.msg import Clock
+
+    from sorter_control.logic.image import Command
+
+    ctl = ros.add(
+        ControllerNode(
+            context=ros.context,
+            namespace="/no_cell",  # nobody serves its pop-up: no call is ever answered
+            parameter_overrides=[
+                Parameter("use_sim_time", value=True),
+                Parameter("service_timeout", value=1.0),
+            ],
+        )
+    )
+    clock = ros.make_node("clock").create_publisher(Clock, "/clock", 10)
+
+    def at(t):
+        clock.publish(Clock(clock=Time(sec=int(t), nanosec=round(t % 1 * 1e9))))
+        ros.spin_until(lambda: abs(ctl._now() - t) < 1e-6, 10.0, f"the clock at {t} s")
+
+    def timed_out():
+        ctl._expire_calls()
+        return [r.command_id for r in ctl._replies if r.timed_out]
+
+    at(1.0)
+    sent = time.monotonic()
+    ctl._call(Command(1, "popup", True, 1.0), 0.0)
+    at(5.0)  # the simulated time ran on; the wall clock has not
+    if time.monotonic() - sent < 1.0:
+        assert timed_out() == []
+    time.sleep(max(0.0, sent + 1.05 - time.monotonic()))
+    assert timed_out() == [1]  # both past
+
+    sent = time.monotonic()
+    ctl._call(Command(2, "popup", False, 5.0), 0.0)
+    time.sleep(1.05)  # the wall clock ran on; the simulated time has not
+    assert timed_out() == [1]
+    at(5.5)
+    assert timed_out() == [1]
+    at(6.01)
+    assert timed_out() == [1, 2]
+
+
 def test_diverter_service_withheld_times_out_without_retry(ros):
     cell_kw = dict(remaps=["diverter/popup:=withheld/popup"])
     # a stand-in for the pop-up service that answers once, then is no longer served
