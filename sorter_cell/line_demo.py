@@ -26,6 +26,7 @@ import time
 from collections import Counter
 
 FAST_SLICE = 0.005
+ANSWER_S = 2.0  # s station 1 has to answer a parameter change before it is sent again
 
 
 def run_line(args) -> int | str:
@@ -481,13 +482,25 @@ class _LineRun:
         return True
 
     def set_arrival(self, value, **more) -> bool:
-        """Set station 1's arrival (and ``more`` parameters); True once it took them all."""
+        """
+        Set station 1's arrival (and ``more`` parameters); True once it took them all.
+
+        Sent again when no answer comes within ``ANSWER_S``, for 20 s: an answer is lost
+        when station 1's side of discovery has not yet matched this client's reader (its
+        server drops it: "client will not receive response"), though the client already
+        saw the service. The same values again change nothing: a stream already open
+        keeps its span, one closed stays closed.
+        """
         from rclpy.parameter import Parameter
 
         values = [Parameter('arrival', value=value)]
         values += [Parameter(k, value=v) for k, v in more.items()]
-        fut = self.infeed.set_parameters(values)
-        return self.spin_until(fut.done, 20.0) and all(r.successful for r in fut.result().results)
+        end = time.monotonic() + 20.0
+        while (left := end - time.monotonic()) > 0:
+            fut = self.infeed.set_parameters(values)
+            if self.spin_until(fut.done, min(ANSWER_S, left)):
+                return all(r.successful for r in fut.result().results)
+        return False
 
     def prepare(self) -> str | None:
         """

@@ -411,3 +411,42 @@ def test_a_segment_process_killed_mid_run_comes_back_and_loses_nothing(
     assert summary['inducted'] == parcels and summary['in_cell_at_end'] == 0
     # it held parcels when it died: segment 1 sent them back to the new process
     assert summary['segment_stats'][0]['resent'] >= 1
+
+
+def test_station_1_is_asked_again_when_its_answer_does_not_come(ros, monkeypatch):
+    """
+    The demo sends station 1's arrival again when no answer comes: the stream opens.
+
+    An answer is lost while discovery has not matched both ways yet (station 1 drops it,
+    "client will not receive response"); a lost answer failed the demo 20 s later with
+    "station 1 did not take arrival: gap", though its parcels had been streaming.
+    Here the first request goes out before station 1 serves anything.
+    """
+    import threading
+    from types import SimpleNamespace
+
+    import rclpy
+    from rclpy.parameter_client import AsyncParameterClient
+
+    from sorter_cell import line_demo
+
+    monkeypatch.setattr(line_demo, 'ANSWER_S', 0.3)
+    run = object.__new__(line_demo._LineRun)  # only what set_arrival uses
+    run.infeed = AsyncParameterClient(ros.make_node('observer'), '/S01/sorter_sim')
+    run.ex, run.stop = ros.executor, threading.Event()
+    run.restarts = SimpleNamespace(check=lambda: None)
+    sent = []
+    set_parameters = run.infeed.set_parameters
+    run.infeed.set_parameters = lambda values: sent.append(values) or set_parameters(values)
+    station = []
+
+    def start_station():
+        timer.cancel()
+        node = rclpy.create_node('sorter_sim', namespace='/S01', context=ros.context)
+        node.declare_parameter('arrival', 'none')
+        station.append(ros.add(node))
+
+    timer = ros.make_node('later').create_timer(0.05, start_station)
+    assert run.set_arrival('gap')
+    assert len(sent) >= 2  # the first went to nobody
+    assert station[0].get_parameter('arrival').value == 'gap'
