@@ -257,8 +257,8 @@ class SegmentLink:
             'claim_conflicts': 0,
         }
         self.latencies_ns: list[int] = []  # wall time from sending to receiving
-        self.heard = 0  # messages from the neighbours
-        self.on_heard = None  # called after each of them: a held line's cue to look again
+        # called after each message from a neighbour: a held line's cue to look again
+        self.on_heard = None
         # this segment's identity for its neighbours: a restart is a new one
         self.identity = f'{os.getpid()}-{time.time_ns()}'
         self._owned = owned
@@ -318,7 +318,6 @@ class SegmentLink:
         """Return ``callback`` refusing, in one line, any message it cannot read."""
 
         def guarded(msg):
-            self.heard += 1
             try:
                 callback(msg)
             except HandoverError as exc:
