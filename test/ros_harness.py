@@ -177,3 +177,22 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
         return s.getsockname()[1]
+
+
+def stalled_live_view_client(port: int, clients: contextlib.ExitStack):
+    """
+    Open a live-view client with a 4 kB receive buffer.
+
+    When ``clients`` ends, its socket is closed with no closing handshake, as a client
+    that stopped reading goes away.
+    """
+    from websockets.sync.client import connect
+
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.connect(('127.0.0.1', port))
+    ws = clients.enter_context(
+        connect(f'ws://127.0.0.1:{port}', sock=sock, subprotocols=['foxglove.sdk.v1'])
+    )
+    clients.callback(ws.socket.close)  # runs before the context's own close
+    return ws

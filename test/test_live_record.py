@@ -12,6 +12,7 @@ with the cell's clock, and its outcomes with the demo's summary.
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import os
 import signal
@@ -28,7 +29,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.parameter import Parameter
-from ros_harness import free_port
+from ros_harness import free_port, stalled_live_view_client
 from test_sim_node import SHORT_CELL
 from websockets.sync.client import connect
 
@@ -67,6 +68,13 @@ def _recv_json(ws, op: str, timeout: float = 5.0) -> dict:
             if msg.get('op') == op:
                 return msg
     pytest.fail(f'no {op!r} message from the live view within {timeout} s')
+
+
+def _subscribe_to_every_channel(ws) -> None:
+    """Subscribe a live-view client to every channel the view advertises."""
+    channels = _recv_json(ws, 'advertise')['channels']
+    subs = [{'id': i, 'channelId': c['id']} for i, c in enumerate(channels)]
+    ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
 
 
 def test_live_view_serves_the_cell_to_a_foxglove_client(ros):
@@ -350,25 +358,11 @@ def test_stalled_live_view_clients_cost_frames_not_memory(ros):
     node = _sim(ros, foxglove_port=port, foxglove_rate_hz=200.0, arrival_gap=[0.05, 0.1])
     node.advance(6000)
     assert node.cell.n_parcels >= 5
-    stalled = []
-    for _ in range(3):
-        sock = socket.socket()
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        sock.connect(('127.0.0.1', port))
-        ws = connect(f'ws://127.0.0.1:{port}', sock=sock, subprotocols=['foxglove.sdk.v1'])
-        channels = _recv_json(ws, 'advertise')['channels']
-        ws.send(
-            json.dumps(
-                {
-                    'op': 'subscribe',
-                    'subscriptions': [
-                        {'id': i, 'channelId': c['id']} for i, c in enumerate(channels)
-                    ],
-                }
-            )
-        )
-        stalled.append(ws)  # and never read again
-    try:
+    with contextlib.ExitStack() as clients:
+        for _ in range(3):
+            ws = stalled_live_view_client(port, clients)
+            _subscribe_to_every_channel(ws)
+        # the three subscribed, and never read from again
         ros.spin_until(node.live_view.listening, 5.0, 'the live view to see the clients')
         node.advance(2000)  # the queues fill
         # the server's process warms up over its first frames (its allocator, the
@@ -391,9 +385,6 @@ def test_stalled_live_view_clients_cost_frames_not_memory(ros):
         # the SDK's default backlog (1024 messages a client) kept 9 MB of this small cell's
         # frames (a 200-parcel cell: hundreds of MB); a bounded one six messages a client
         assert grown < 4.0, f'RSS grew {grown:.1f} MB for {frames} frames'
-    finally:
-        for ws in stalled:
-            ws.socket.close()
 
 
 def test_a_stalled_or_killed_live_view_process_never_holds_the_cell(ros):
@@ -402,17 +393,7 @@ def test_a_stalled_or_killed_live_view_process_never_holds_the_cell(ros):
     node = _sim(ros, foxglove_port=port, foxglove_rate_hz=200.0)
     view = node.live_view
     with connect(f'ws://127.0.0.1:{port}', subprotocols=['foxglove.sdk.v1']) as ws:
-        channels = _recv_json(ws, 'advertise')['channels']
-        ws.send(
-            json.dumps(
-                {
-                    'op': 'subscribe',
-                    'subscriptions': [
-                        {'id': i, 'channelId': c['id']} for i, c in enumerate(channels)
-                    ],
-                }
-            )
-        )
+        _subscribe_to_every_channel(ws)
         ros.spin_until(view.listening, 5.0, 'the live view to see the client')
         sent = view.frames_sent
         while view.frames_sent < sent + 3:

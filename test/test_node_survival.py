@@ -9,6 +9,7 @@ time source) must be logged and counted while the nodes go on serving; SIGINT th
 ends each with exit code 0 and no traceback.
 """
 
+import contextlib
 import os
 import re
 import signal
@@ -21,6 +22,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import Parameter, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
+from ros_harness import stalled_live_view_client
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
@@ -299,36 +301,29 @@ def _subscribe_opcua(endpoint: str, stop_clients) -> None:
     assert subscribed.wait(30.0), 'the OPC UA subscribers did not connect'
 
 
-def _connect_modbus(port: int, held: list) -> None:
+def _connect_modbus(port: int, clients: contextlib.ExitStack) -> None:
     """Connect three Modbus clients that read once and then stay idle."""
     from pymodbus.client import ModbusTcpClient
 
     for _ in range(3):
         m = ModbusTcpClient('127.0.0.1', port=port, timeout=5, retries=0)
+        clients.callback(m.close)
         assert m.connect() and not m.read_input_registers(0, count=10).isError()
-        held.append(m)
 
 
-def _stall_foxglove(port: int, held: list) -> None:
+def _stall_foxglove(port: int, clients: contextlib.ExitStack) -> None:
     """Subscribe three WebSocket clients to every channel, with small buffers they never read."""
     import json
-    import socket
-
-    from websockets.sync.client import connect
 
     for _ in range(3):
-        sock = socket.socket()
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        sock.connect(('127.0.0.1', port))
-        ws = connect(f'ws://127.0.0.1:{port}', sock=sock, subprotocols=['foxglove.sdk.v1'])
+        ws = stalled_live_view_client(port, clients)
         while True:
             msg = ws.recv(timeout=10)
             if isinstance(msg, str) and json.loads(msg).get('op') == 'advertise':
                 break
         channels = json.loads(msg)['channels']
         subs = [{'id': i, 'channelId': c['id']} for i, c in enumerate(channels)]
-        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
-        held.append(ws)  # never read again
+        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))  # never read again
 
 
 def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_promptly():
@@ -342,12 +337,12 @@ def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_prom
     proc = _start('sim_node', '-p', 'time_mode:=realtime', *args)
     endpoint = f'opc.tcp://127.0.0.1:{ports["opcua_port"]}/sorter_cell/'
     stop_clients = threading.Event()
-    held = []
+    clients = contextlib.ExitStack()
     try:
         _wait_listening(ports, 60.0)
         _subscribe_opcua(endpoint, stop_clients)
-        _connect_modbus(ports['modbus_port'], held)
-        _stall_foxglove(ports['foxglove_port'], held)
+        _connect_modbus(ports['modbus_port'], clients)
+        _stall_foxglove(ports['foxglove_port'], clients)
         time.sleep(5.0)  # frames pile up for the stalled clients
         assert proc.poll() is None
         # the fieldbus servers' process: it must not outlive the node
@@ -377,11 +372,7 @@ def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_prom
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
-        for h in held:
-            try:
-                h.close() if hasattr(h, 'connect') else h.socket.close()
-            except Exception:
-                pass
+        clients.close()
 
 
 def test_a_command_line_rcl_cannot_parse_is_refused_in_one_line():
