@@ -53,7 +53,7 @@ from sorter_control.wcs import LineWcs, PlanError, parse_exit
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
-from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, declare_checked
+from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, declare_checked, fix_at_start
 
 NODE_NAME = 'sorter_wcs'
 LATCHED = SENSOR_QOS
@@ -97,6 +97,18 @@ class WcsNode(Node):
             raise ValueError(f"parameter 'chute_names' must be a list of names, got {names!r}")
         if not isinstance(record, str):
             raise ValueError(f"parameter 'record_path' must be a file path, got {record!r}")
+        fix_at_start(
+            self,
+            {
+                'stations': 'an integer in [1, 64]',
+                'chute_names': 'a list of names',
+                'scan_eye': "an eye's name",
+                'opcua_port': 'an integer in [0, 65535]',
+                'opcua_host': 'a host name or address',
+                'record_path': 'a file path',
+                'use_sim_time': 'whether the warehouse follows /clock',
+            },
+        )
         chutes = chute_pairs(n, names)
         self.wcs = LineWcs(chutes)
         self.recorder = None

@@ -8,6 +8,8 @@ descriptors the same way. Both take these from here rather than keeping copies.
 
 from __future__ import annotations
 
+import copy
+
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -282,3 +284,21 @@ def accept_integers_for_doubles(node, declared: dict[str, int]) -> None:
         return [_widened(p, declared[p.name]) if p.name in declared else p for p in parameters]
 
     node.add_pre_set_parameters_callback(widen)
+
+
+def fix_at_start(node, allowed: dict) -> None:
+    """
+    Make parameters the node reads once, at start-up, read-only, each described in words.
+
+    Without this rclpy takes ``ros2 param set`` of any value for them (no callback says
+    no), and ``ros2 param get`` and ``param dump`` then show a value the node does not
+    run with. They are declared writable first, so that ``declare_typed`` can set an
+    empty array; here each gets its descriptor again, read-only, and ``ros2 param
+    describe`` says what it allows. ``allowed``: {name: what it allows, in words}, the
+    rclpy's own ``use_sim_time`` among them where the node reads its clock once.
+    """
+    for name, words in allowed.items():
+        desc = copy.deepcopy(node.describe_parameter(name))
+        desc.read_only = True
+        desc.description = desc.description or f'{words}; read at start-up'
+        node.set_descriptor(name, desc)

@@ -196,3 +196,27 @@ def stalled_live_view_client(port: int, clients: contextlib.ExitStack):
     )
     clients.callback(ws.socket.close)  # runs before the context's own close
     return ws
+
+
+def refused_at_run_time(ros, node, changes: dict) -> dict:
+    """
+    Set each of ``changes`` over the node's own ``set_parameters`` service, one at a time.
+
+    As ``ros2 param set`` does: a real client, a request over DDS. Return {name: the
+    reason it was refused, or None where it was taken}.
+    """
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    probe = ros.make_node(f'param_probe_{node.get_name()}')
+    client = probe.create_client(
+        SetParameters, f'{node.get_fully_qualified_name()}/set_parameters'
+    )
+    out = {}
+    for name, value in changes.items():
+        request = SetParameters.Request(
+            parameters=[Parameter(name, value=value).to_parameter_msg()]
+        )
+        result = ros.call(client, request, 10.0).results[0]
+        out[name] = None if result.successful else result.reason
+    return out

@@ -18,6 +18,7 @@ from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from rclpy.time import Time
+from ros_harness import refused_at_run_time
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Bool, UInt32
 from std_srvs.srv import SetBool
@@ -153,6 +154,25 @@ def test_a_station_whose_heartbeat_stops_trips_alone(ros):
 def test_bad_line_parameters_stop_the_node_naming_them(ros, values, message):
     with pytest.raises(ParamError, match=message):
         make_line(ros, **values)
+
+
+def test_the_line_options_are_fixed_once_it_runs_and_say_so(ros):
+    """``ros2 param set`` of a line's option or its use_sim_time changes nothing, and says so."""
+    line = make_line(ros, stations=2)
+    before = {n: line.get_parameter(n).value for n in ('stations', 'time_mode', 'use_sim_time')}
+    reasons = refused_at_run_time(
+        ros,
+        line,
+        # 500 stations and a mode that is none were taken, and dumped, before; use_sim_time
+        # true froze a fast line, its timers waiting for the /clock only it publishes
+        {'stations': 500, 'time_mode': 'bogus', 'use_sim_time': True, 'fast_slice': 0.002},
+    )
+    assert all(r and 'read-only' in r for r in reasons.values()), reasons
+    assert {n: line.get_parameter(n).value for n in before} == before
+    desc = line.describe_parameter('stations')
+    assert desc.read_only and desc.description == 'an integer in [1, 64]; read at start-up'
+    run(ros, line, 0.1)
+    assert line.line.k == 100 and len(line.stations) == 2
 
 
 def test_a_line_that_waits_for_its_warehouse_runs_once_the_edges_after_station_1_are_read(ros):

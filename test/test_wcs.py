@@ -279,6 +279,24 @@ def test_the_wcs_node_refuses_a_bad_plan_in_one_message_and_keeps_the_good_one(r
     assert [(m.key, m.value) for m in routing if m.key == 'P1'] == [('P1', 'right')]
 
 
+def test_the_wcs_node_options_are_fixed_once_it_runs_and_say_so(ros):
+    from rclpy.parameter import Parameter
+    from ros_harness import refused_at_run_time
+
+    from sorter_control.wcs_node import WcsNode
+
+    wcs = ros.add(
+        WcsNode(context=ros.context, parameter_overrides=[Parameter('stations', value=2)])
+    )
+    reasons = refused_at_run_time(
+        ros, wcs, {'stations': 0, 'chute_names': ['a', 'b'], 'use_sim_time': True}
+    )
+    assert all(r and 'read-only' in r for r in reasons.values()), reasons
+    assert wcs.get_parameter('stations').value == 2
+    assert not wcs.get_parameter('use_sim_time').value
+    assert 'read at start-up' in wcs.describe_parameter('chute_names').description
+
+
 def test_the_line_demo_refuses_bad_options_in_one_line(capsys, tmp_path):
     from sorter_cell.cli import main
 

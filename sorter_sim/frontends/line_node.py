@@ -55,6 +55,7 @@ from sorter_ros.interface import (
     STREAM_QOS,
     accept_integers_for_doubles,
     declare_checked,
+    fix_at_start,
     plain,
 )
 from sorter_ros.env import run_node
@@ -192,6 +193,12 @@ class LineNode(Node):
         super().__init__(node_name, **kwargs)
         self.values = values = self._declare_line_params()
         self._refuse_unknown_parameters()
+        # the line reads its own options once, and it is the simulation clock (/clock)
+        fix_at_start(
+            self,
+            {name: allowed for name, (_, _, allowed) in LINE_PARAMS.items()}
+            | {'use_sim_time': 'false: the line is the simulation clock (it publishes /clock)'},
+        )
         n = values['stations']
         f0, last, total = self._segment_span(n)
         chutes = self._station_chutes(n, f0, last)
