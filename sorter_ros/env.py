@@ -217,6 +217,34 @@ def _ignore_stop_signals() -> None:
             pass
 
 
+def _rcl_arguments_refused(error: str) -> str:
+    """
+    Say in one line why rcl refused the command line, and what it takes instead.
+
+    A params file rcl cannot open is named, with where this package's own are: the
+    docs' ``--params-file config/cell.yaml`` is a checkout's path, and an installed
+    package's copies are elsewhere.
+    """
+    import re
+
+    detail = error.split(', at ')[0].removeprefix('failed to initialize rcl: ')
+    detail = detail.replace('Error: error not set', '').strip().rstrip('.')
+    unread = re.search(r"params file: '--params-file (.*?)'\. Error: Error opening YAML", detail)
+    if unread is None:
+        return (
+            f'the ROS arguments are not valid: {detail}; a parameter is given as '
+            "-p name:=value (an empty string quoted: -p name:=\"''\")"
+        )
+    try:
+        shipped = f"this package's own are in {find_config_dir()}"
+    except FileNotFoundError as exc:
+        shipped = str(exc)
+    return (
+        f'the params file {unread.group(1)!r} cannot be opened (from {Path.cwd()}); '
+        f'{shipped} (cell.yaml, controller.yaml)'
+    )
+
+
 def run_node(
     make_node, prog: str, config_errors: tuple = (ValueError,), args=None, stop=None
 ) -> None:
@@ -258,13 +286,7 @@ def run_node(
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # rcl's RCLError: a command line rcl cannot parse
-        detail = str(exc).split(', at ')[0].removeprefix('failed to initialize rcl: ')
-        detail = detail.replace('Error: error not set', '').strip().rstrip('.')
-        print(
-            f'{prog}: the ROS arguments are not valid: {detail}; a parameter is given as '
-            "-p name:=value (an empty string quoted: -p name:=\"''\")",
-            file=sys.stderr,
-        )
+        print(f'{prog}: {_rcl_arguments_refused(str(exc))}', file=sys.stderr)
         raise SystemExit(2) from None
     node = None
     code = 0

@@ -387,6 +387,27 @@ def test_a_command_line_rcl_cannot_parse_is_refused_in_one_line():
     assert len(ours) == 1 and 'modbus_host' in ours[0] and 'name:=value' in ours[0]
 
 
+def test_a_params_file_that_is_not_there_is_named_with_where_the_shipped_ones_are(tmp_path):
+    """The docs' ``--params-file config/cell.yaml`` run where there is no ``config/``."""
+    out = subprocess.run(
+        [str(BIN / 'controller_node'), '--ros-args', '--params-file', 'config/controller.yaml'],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    assert out.returncode == 2 and 'Traceback' not in out.stderr, out.stderr
+    ours = [line for line in out.stderr.splitlines() if line.startswith('controller_node:')]
+    assert len(ours) == 1, out.stderr
+    said = re.fullmatch(
+        r"controller_node: the params file 'config/controller.yaml' cannot be opened "
+        r"\(from (.+)\); this package's own are in (.+) \(cell.yaml, controller.yaml\)",
+        ours[0],
+    )
+    assert said and Path(said[1]) == tmp_path, ours[0]
+    assert (Path(said[2]) / 'controller.yaml').is_file()
+
+
 @pytest.mark.parametrize(
     'exe, given, said',
     [
