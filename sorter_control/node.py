@@ -65,6 +65,7 @@ from sorter_ros.env import run_node
 from sorter_sim.model.packml import COMMANDS as PACKML_COMMANDS
 from sorter_sim.model.packml import STATES as PACKML_STATES
 from sorter_ros.interface import (
+    answer_every_parameter_request,
     EVENT_QOS,
     SENSOR_QOS,
     SERVICE_QOS,
@@ -95,6 +96,7 @@ class ControllerNode(Node):
     def __init__(self, **kwargs):
         kwargs.setdefault("parameter_overrides", [])
         super().__init__(NODE_NAME, **kwargs)
+        answer_every_parameter_request(self)  # a request rclpy cannot read too
         self.values = {}
         accept_integers_for_doubles(self, {spec.name: descriptor(spec).type for spec in SCHEMA})
         for spec in SCHEMA:

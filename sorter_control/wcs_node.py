@@ -53,7 +53,13 @@ from sorter_control.wcs import LineWcs, PlanError, parse_exit
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
-from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, declare_checked, fix_at_start
+from sorter_ros.interface import (
+    answer_every_parameter_request,
+    EVENT_QOS,
+    SENSOR_QOS,
+    declare_checked,
+    fix_at_start,
+)
 
 NODE_NAME = 'sorter_wcs'
 LATCHED = SENSOR_QOS
@@ -67,6 +73,7 @@ class WcsNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
+        answer_every_parameter_request(self)  # a request rclpy cannot read too
         # a value of another type (``stations:=x``) is refused naming what is allowed
         n = declare_checked(self, 'stations', 1, 'an integer in [1, 64]').value
         names = declare_checked(

@@ -12,6 +12,7 @@ import copy
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 # a sensor's or a state bit's current value: latched, so a late subscriber gets it
@@ -165,8 +166,6 @@ def parameter_problem(node, parameters) -> str | None:
 
 def _widened(param, declared_type: int):
     """Return ``param`` as a double (array) when it is an integer (array) given for one."""
-    from rclpy.parameter import Parameter
-
     t = param.type_
     if declared_type == ParameterType.PARAMETER_DOUBLE and t == Parameter.Type.INTEGER:
         return Parameter(param.name, value=float(param.value))
@@ -237,8 +236,6 @@ def declare_typed(node, name: str, default, desc):
         The declared parameter.
 
     """
-    from rclpy.parameter import Parameter
-
     override = node._parameter_overrides.get(name)
     # rcl's params-file parser cannot type an empty sequence and hands it over unset
     # (NOT_SET, value None); the command line's ``[]`` arrives as an empty byte array
@@ -302,3 +299,63 @@ def fix_at_start(node, allowed: dict) -> None:
         desc.read_only = True
         desc.description = desc.description or f'{words}; read at start-up'
         node.set_descriptor(name, desc)
+
+
+_KNOWN_TYPES = frozenset(t.value for t in Parameter.Type)  # ParameterType's, NOT_SET included
+_PARAMETER_TYPES = ', '.join(f'{t.value} {t.name.lower()}' for t in Parameter.Type)
+
+
+def answer_every_parameter_request(node) -> None:
+    """
+    Have the node's ``set_parameters`` services answer a request they cannot read.
+
+    rclpy's parameter service raises on a value whose type is none of ParameterType's
+    (``{type: 99}``), and the client never hears back; and it refuses a name the node
+    does not have with ``Invalid access to undeclared parameter(s): []``, naming none.
+    Here such a value is refused, naming its type and the types there are, and an unknown
+    name is named; the rest goes to rclpy as before, one parameter at a time as it does.
+    """
+    from rcl_interfaces.msg import SetParametersResult
+    from rcl_interfaces.srv import SetParameters, SetParametersAtomically
+
+    def problem(p) -> str | None:
+        if p.value.type not in _KNOWN_TYPES:
+            return (
+                f'parameter {p.name!r}: type {p.value.type} is not a parameter type '
+                f'(the types: {_PARAMETER_TYPES})'
+            )
+        return None
+
+    def named(p, result):
+        if not result.successful and result.reason.startswith('Invalid access to undeclared'):
+            result.reason = f'no parameter {p.name!r} on this node (ros2 param list names them)'
+        return result
+
+    for service in node.services:
+        if service.srv_type is SetParameters:
+            rclpy_set = service.callback
+
+            def set_each(request, response, rclpy_set=rclpy_set):
+                for p in request.parameters:
+                    why = problem(p)
+                    if why is not None:
+                        response.results.append(SetParametersResult(successful=False, reason=why))
+                        continue
+                    one = rclpy_set(
+                        SetParameters.Request(parameters=[p]), SetParameters.Response()
+                    )
+                    response.results.append(named(p, one.results[0]))
+                return response
+
+            service.callback = set_each
+        elif service.srv_type is SetParametersAtomically:
+            rclpy_atomic = service.callback
+
+            def set_all(request, response, rclpy_atomic=rclpy_atomic):
+                why = next(filter(None, map(problem, request.parameters)), None)
+                if why is not None:
+                    response.result = SetParametersResult(successful=False, reason=why)
+                    return response
+                return rclpy_atomic(request, response)
+
+            service.callback = set_all

@@ -49,6 +49,7 @@ from std_srvs.srv import Trigger
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 
 from sorter_ros.interface import (
+    answer_every_parameter_request,
     EVENT_QOS,
     SENSOR_QOS,
     SERVICE_QOS,
@@ -191,6 +192,7 @@ class LineNode(Node):
     ):
         # the segments of a line in one ROS graph each need a name of their own
         super().__init__(node_name, **kwargs)
+        answer_every_parameter_request(self)  # a request rclpy cannot read too
         self.values = values = self._declare_line_params()
         self._refuse_unknown_parameters()
         # the line reads its own options once, and it is the simulation clock (/clock)

@@ -32,6 +32,7 @@ from rclpy.parameter import Parameter
 
 from sorter_ros.env import run_node
 from sorter_ros.interface import (
+    answer_every_parameter_request,
     accept_integers_for_doubles,
     declare_typed,
     parameter_problem,
@@ -179,6 +180,7 @@ class SimNode(Node):
 
     def __init__(self, *, station: bool = False, not_mine=frozenset(), **kwargs):
         super().__init__(NODE_NAME, **kwargs)
+        answer_every_parameter_request(self)  # a request rclpy cannot read too
         # a line's options reach its stations through the process's arguments too
         # (``not_mine``, given by the line): they are the line's, not unknown names
         explicit = {p.name for p in kwargs.get('parameter_overrides') or ()}
