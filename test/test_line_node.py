@@ -242,6 +242,51 @@ def test_the_executable_refuses_a_bad_parameter_in_one_line():
     assert done.stderr.strip().splitlines()[-1].startswith("line_node: parameter 'stations'")
 
 
+def test_a_sorter_sim_rule_on_the_command_line_reaches_every_station():
+    """``-p sorter_sim:mu_disks:=0.45`` matched no station (they are /S01/sorter_sim ...)."""
+    import rclpy
+    from rclpy.context import Context
+
+    from sorter_sim.frontends.line_node import station_rules
+
+    given = ['line_node', '--ros-args', '-p', 'stations:=2', '-p', 'time_mode:=lockstep']
+    given += ['-p', 'sorter_sim:mu_disks:=0.45', '--param', '/sorter_sim:alpha_deg:=30']
+    args, refused = station_rules(given)
+    assert refused is None
+    context = Context()
+    rclpy.init(args=args, context=context)  # rcl parses the rewritten rules
+    try:
+        line = LineNode(context=context)
+        for station in line.stations:
+            assert station.get_parameter('mu_disks').value == 0.45, station.get_namespace()
+            assert station.get_parameter('alpha_deg').value == 30.0, station.get_namespace()
+        line.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+    # past a '--' the arguments are the program's, not ROS's: left as they are
+    assert station_rules(['x', '--ros-args', '--', '-p', 'sorter_sim:a:=1'])[0][-1] == (
+        'sorter_sim:a:=1'
+    )
+
+
+def test_a_sorter_sim_rule_for_a_line_option_is_refused_in_one_line():
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, '-m', 'sorter_sim.frontends.line_node', '--ros-args']
+        + ['-p', 'sorter_sim:time_mode:=fast'],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [
+        "line_node: -p sorter_sim:time_mode:=fast: 'time_mode' is the line's option, and its "
+        "stations take the line's: give it as -p time_mode:=VALUE"
+    ]
+
+
 def test_the_whole_line_records_into_one_file_that_rosbags_reads(ros, tmp_path):
     from collections import Counter
 

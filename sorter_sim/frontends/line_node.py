@@ -723,7 +723,63 @@ def main(args=None, stop=None):
         The executable's signal handlers, when it installed them first.
 
     """
-    run_node(LineNode, 'line_node', (ParamError,), args, stop)
+    import sys
+
+    args, refused = station_rules(sys.argv if args is None else list(args))
+
+    def make_line():
+        if refused:
+            raise ParamError(refused)
+        return LineNode()
+
+    run_node(make_line, 'line_node', (ParamError,), args, stop)
+
+
+STATION_NODE_PREFIXES = ('sorter_sim:', '/sorter_sim:')
+
+
+def station_rules(args: list) -> tuple[list, str | None]:
+    """
+    Give every station the command line's ``-p sorter_sim:NAME:=VALUE`` rules.
+
+    rcl matches such a rule's node name against a node's full name, and a line's
+    stations are ``/S01/sorter_sim`` and on (rcl takes no wildcard in ``-p``): the rule
+    reached none of them, silently. It is rewritten here as ``-p NAME:=VALUE``, which
+    reaches every node of the process: the stations take it, the line passes over a
+    cell parameter. A rule for one of the line's own options is refused, as the stations
+    are given the line's.
+
+    Parameters
+    ----------
+    args : list of str
+        The command line.
+
+    Returns
+    -------
+    tuple
+        (the command line, rewritten; what is wrong, or None).
+
+    """
+    out = list(args)
+    in_ros_args = False
+    for i, arg in enumerate(out[:-1]):
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg in ('-p', '--param'):
+            rule = out[i + 1]
+            prefix = next((p for p in STATION_NODE_PREFIXES if rule.startswith(p)), None)
+            if prefix is None:
+                continue
+            name = rule[len(prefix) :].split(':=', 1)[0]
+            if name in LINE_PARAMS:
+                return out, (
+                    f'-p {rule}: {name!r} is the line\'s option, and its stations take the '
+                    f"line's: give it as -p {name}:=VALUE"
+                )
+            out[i + 1] = rule[len(prefix) :]
+    return out, None
 
 
 if __name__ == '__main__':
