@@ -90,11 +90,14 @@ def test_routing_default_and_runtime_updates():
         ("x" * 65 + "=left", "1 to 64"),
         ("A B=left", "not allowed"),
         ("A=", "the destination is empty"),
+        ("A= ", "the destination is empty"),
     ],
 )
 def test_routing_rejects_bad_rules_with_a_reason(rule, words):
-    with pytest.raises(RoutingError, match=words):
+    with pytest.raises(RoutingError, match=words) as refused:
         RoutingTable([rule])
+    # a rule of the table cannot be empty: the refusal does not offer it
+    assert "or empty" not in str(refused.value)
 
 
 def test_routing_refuses_a_pattern_given_twice_and_a_removal_of_nothing():
@@ -666,8 +669,11 @@ def test_estop_reported_by_the_cell_and_refusal_reasons():
     out = logic2.scan(InputImage(t=0.0))  # the first scan writes the disks down
     (cmd,) = [c for c in out.commands if c.kind == "popup"]
     assert cmd.value is False
-    logic2.scan(InputImage(t=0.01, replies=[Reply(cmd.id, False, "e-stop active: use reset")]))
+    # the cell's own words (sim_node's popup service), said once in the PLC's log
+    cell_says = "refused: e-stop engaged (call reset first)"
+    logic2.scan(InputImage(t=0.01, replies=[Reply(cmd.id, False, cell_says)]))
     assert logic2.state == "estop"
+    assert logic2.fault["message"] == "popup False refused: e-stop engaged (call reset first)"
 
 
 def test_cell_status_older_than_the_last_reset_is_ignored():

@@ -550,7 +550,8 @@ class SorterLogic:
                 elif cmd.kind == "estop":
                     self.tracker.belt_running = False
                 continue
-            reason = r.message or "no reason given"
+            # the cell says "refused: <why>"; the lines below say refused themselves
+            reason = (r.message or "no reason given").removeprefix("refused: ")
             if cmd.kind == "packml":
                 # the cell moved on meanwhile (its automatic mode, an operator): the next
                 # scan sees its state and issues what that takes

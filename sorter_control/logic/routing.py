@@ -122,8 +122,6 @@ class RoutingTable:
                     f"routing rule {_show(rule)}: pattern {pattern!r} is given twice; "
                     "each pattern may appear once"
                 )
-            if dest == "":
-                raise RoutingError(f"routing rule {_show(rule)}: the destination is empty")
             seen.add(pattern)
             self.set(pattern, dest)
 
@@ -150,7 +148,10 @@ class RoutingTable:
             )
         pattern, _, dest = rule.partition("=")
         pattern = check_pattern(pattern)
-        return pattern, check_destination(dest, f"destination for {pattern!r}", allow_empty=True)
+        # a rule routes somewhere: an empty destination only removes one (routing/updates)
+        if isinstance(dest, str) and not dest.strip():
+            raise RoutingError(f"routing rule {_show(rule)}: the destination is empty")
+        return pattern, check_destination(dest, f"destination for {pattern!r}")
 
     def set(self, pattern: str, destination: str) -> str:
         """
