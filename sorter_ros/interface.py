@@ -291,7 +291,7 @@ def fix_at_start(node, allowed: dict) -> None:
     no), and ``ros2 param get`` and ``param dump`` then show a value the node does not
     run with. They are declared writable first, so that ``declare_typed`` can set an
     empty array; here each gets its descriptor again, read-only, and ``ros2 param
-    describe`` says what it allows. ``allowed``: {name: what it allows, in words}, the
+    describe`` says what it allows. ``allowed``: {name: what it allows, in words},
     rclpy's own ``use_sim_time`` among them where the node reads its clock once.
     """
     for name, words in allowed.items():
