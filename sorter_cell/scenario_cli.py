@@ -323,6 +323,27 @@ def _campaign_inputs(args) -> tuple[list[str], object] | str:
         return str(exc)
 
 
+def local_cluster(threads: int):
+    """
+    Start the campaign's own Dask cluster: one worker of ``threads`` threads, in-process.
+
+    Threads are enough, as each run is a process of its own. The scheduler's and the
+    worker's HTTP servers start whatever the dashboard setting: with None they listened on
+    every interface, the scheduler's at port 8787, which a second campaign on the host
+    found taken (a warning). Free ports on loopback keep campaigns apart and open nothing
+    off the host.
+    """
+    from distributed import LocalCluster
+
+    return LocalCluster(
+        n_workers=1,
+        threads_per_worker=threads,
+        processes=False,
+        dashboard_address="127.0.0.1:0",
+        worker_dashboard_address="127.0.0.1:0",
+    )
+
+
 def _campaign(args) -> int | str:
     from sorter_cell.testing.scenario import Check, ScenarioResult, junit_xml
     from sorter_sim.studies.progress import progress_bar
@@ -332,7 +353,7 @@ def _campaign(args) -> int | str:
         return checked
     files, domains = checked
     folder = Path(args.folder)
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, as_completed
 
     wall0 = time.perf_counter()
     cluster = None
@@ -345,13 +366,7 @@ def _campaign(args) -> int | str:
             except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError by address kind
                 return f"--scheduler: cannot reach a Dask scheduler at {args.scheduler}: {exc}"
         else:
-            # threads are enough: each run is a process of its own
-            cluster = LocalCluster(
-                n_workers=1,
-                threads_per_worker=args.workers,
-                processes=False,
-                dashboard_address=None,
-            )
+            cluster = local_cluster(args.workers)
             client = Client(cluster)
         jobs = [(f, s) for f in files for s in range(1, args.seeds + 1)]
         futures = [client.submit(_run_in_process, f, s, domains, pure=False) for f, s in jobs]

@@ -310,6 +310,47 @@ def test_a_campaign_with_a_bad_file_runs_nothing(tmp_path, capsys):
     assert main(['scenario', 'campaign', str(folder), '--workers', '0']) == 2
 
 
+def _listening_here() -> set:
+    """The TCP addresses this process listens on, as 'host:port' (from /proc)."""
+    import os
+
+    mine = set()
+    for fd in os.listdir('/proc/self/fd'):
+        try:
+            link = os.readlink(f'/proc/self/fd/{fd}')
+        except OSError:
+            continue
+        if link.startswith('socket:['):
+            mine.add(link[8:-1])
+    out = set()
+    for table, width in (('/proc/net/tcp', 8), ('/proc/net/tcp6', 32)):
+        for row in Path(table).read_text().splitlines()[1:]:
+            cols = row.split()
+            if cols[3] != '0A' or cols[9] not in mine:  # 0A: LISTEN
+                continue
+            host, port = cols[1].split(':')
+            out.add(('127.0.0.1' if host == '0100007F' else host) + f':{int(port, 16)}')
+    return out
+
+
+def test_two_campaigns_on_one_host_listen_on_loopback_only_and_on_ports_of_their_own():
+    import warnings
+
+    from sorter_cell.scenario_cli import local_cluster
+
+    before = _listening_here()
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter('always')
+        with local_cluster(1) as one, local_cluster(1) as two:
+            opened = _listening_here() - before
+            assert one.dashboard_link != two.dashboard_link
+    # the scheduler's and the worker's HTTP servers of each, and nothing else
+    assert len(opened) == 4 and all(a.startswith('127.0.0.1:') for a in opened), opened
+    assert not [w for w in said if 'already in use' in str(w.message)], [
+        str(w.message) for w in said
+    ]
+
+
 def test_a_campaign_on_an_existing_dask_scheduler(tmp_path):
     from distributed import LocalCluster
 
@@ -326,7 +367,11 @@ def test_a_campaign_on_an_existing_dask_scheduler(tmp_path):
         'one.yaml',
     )
     with LocalCluster(
-        n_workers=1, threads_per_worker=2, processes=True, dashboard_address=None
+        n_workers=1,
+        threads_per_worker=2,
+        processes=True,
+        dashboard_address='127.0.0.1:0',
+        worker_dashboard_address='127.0.0.1:0',
     ) as cluster:
         done = subprocess.run(
             [
