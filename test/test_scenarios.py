@@ -311,7 +311,7 @@ def test_a_campaign_with_a_bad_file_runs_nothing(tmp_path, capsys):
 
 
 def _listening_here() -> set:
-    """The TCP addresses this process listens on, as 'host:port' (from /proc)."""
+    """Return the TCP addresses this process listens on, as 'host:port' (from /proc)."""
     import os
 
     mine = set()
