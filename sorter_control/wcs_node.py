@@ -42,7 +42,6 @@ from __future__ import annotations
 import threading
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -57,7 +56,7 @@ from sorter_ros.interface import (
     answer_every_parameter_request,
     EVENT_QOS,
     SENSOR_QOS,
-    declare_checked,
+    declare_options,
     fix_at_start,
 )
 
@@ -68,54 +67,46 @@ REQUEST_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=Reliability
 MAX_ANSWERED_LABEL = 256  # an answer names the label, cut to this (the refusal says why)
 
 
+# the warehouse node's options: {name: (default, check, what it allows)}
+WCS_PARAMS = {
+    'stations': (1, lambda v: isinstance(v, int) and 1 <= v <= 64, 'an integer in [1, 64]'),
+    'chute_names': (
+        [''],
+        lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v),
+        'a list of names',
+    ),
+    'scan_eye': ('pe_scan', lambda v: isinstance(v, str), "an eye's name"),
+    'opcua_port': (
+        0,
+        lambda v: isinstance(v, int) and 0 <= v <= 65535,
+        'an integer in [0, 65535]',
+    ),
+    'opcua_host': (
+        '127.0.0.1',
+        lambda v: isinstance(v, str) and bool(v.strip()),
+        'a host name or address',
+    ),
+    'record_path': ('', lambda v: isinstance(v, str), 'a file path'),
+}
+
+
 class WcsNode(Node):
     """The line's warehouse side (see the module)."""
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         answer_every_parameter_request(self)  # a request rclpy cannot read too
-        # a value of another type (``stations:=x``) is refused naming what is allowed
-        n = declare_checked(self, 'stations', 1, 'an integer in [1, 64]').value
-        names = declare_checked(
-            self,
-            'chute_names',
-            [''],
-            'a list of names',
-            ParameterDescriptor(type=ParameterType.PARAMETER_STRING_ARRAY),
-        ).value
-        names = list(names)
-        self.scan_eye = declare_checked(self, 'scan_eye', 'pe_scan', "an eye's name").value
-        port = declare_checked(self, 'opcua_port', 0, 'an integer in [0, 65535]').value
-        host = declare_checked(self, 'opcua_host', '127.0.0.1', 'a host name or address').value
-        record = declare_checked(self, 'record_path', '', 'a file path').value
-        if not (isinstance(n, int) and 1 <= n <= 64):
-            raise ValueError(f"parameter 'stations' must be an integer in [1, 64], got {n!r}")
-        if not (isinstance(port, int) and 0 <= port <= 65535):
-            raise ValueError(
-                f"parameter 'opcua_port' must be an integer in [0, 65535], got {port!r}"
-            )
-        if not (isinstance(host, str) and host.strip()):
-            raise ValueError(
-                f"parameter 'opcua_host' must be a host name or address, got {host!r}"
-            )
-        if not isinstance(self.scan_eye, str):
-            raise ValueError(f"parameter 'scan_eye' must be an eye's name, got {self.scan_eye!r}")
-        if not (isinstance(names, list) and all(isinstance(x, str) for x in names)):
-            raise ValueError(f"parameter 'chute_names' must be a list of names, got {names!r}")
-        if not isinstance(record, str):
-            raise ValueError(f"parameter 'record_path' must be a file path, got {record!r}")
+        # a value of another type (``stations:=x``) or out of range is refused naming what
+        # is allowed; read once, at start-up
+        values = declare_options(self, WCS_PARAMS)
         fix_at_start(
             self,
-            {
-                'stations': 'an integer in [1, 64]',
-                'chute_names': 'a list of names',
-                'scan_eye': "an eye's name",
-                'opcua_port': 'an integer in [0, 65535]',
-                'opcua_host': 'a host name or address',
-                'record_path': 'a file path',
-                'use_sim_time': 'whether the warehouse follows /clock',
-            },
+            {name: allowed for name, (_, _, allowed) in WCS_PARAMS.items()}
+            | {'use_sim_time': 'whether the warehouse follows /clock'},
         )
+        n, names, record = values['stations'], values['chute_names'], values['record_path']
+        port, host = values['opcua_port'], values['opcua_host']
+        self.scan_eye = values['scan_eye']
         chutes = chute_pairs(n, names)
         self.wcs = LineWcs(chutes)
         self.recorder = None

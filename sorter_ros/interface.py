@@ -283,6 +283,35 @@ def accept_integers_for_doubles(node, declared: dict[str, int]) -> None:
     node.add_pre_set_parameters_callback(widen)
 
 
+def declare_options(node, table: dict, error=ValueError) -> dict:
+    """
+    Declare a node's options from its table; return their values, each checked.
+
+    ``table``: {name: (default, check, what it allows in words)}. A list default is a
+    string array (an empty one given is that, empty: ``declare_typed``); an integer
+    given for a double is that double (``accept_integers_for_doubles``). A value of
+    another type, or one ``check`` refuses, is ``error``, naming the parameter, what it
+    allows and what it was given.
+    """
+    doubles = [name for name, (default, _, _) in table.items() if isinstance(default, float)]
+    if doubles:
+        accept_integers_for_doubles(node, dict.fromkeys(doubles, ParameterType.PARAMETER_DOUBLE))
+    values = {}
+    for name, (default, check, allowed) in table.items():
+        desc = ParameterDescriptor(
+            type=ParameterType.PARAMETER_STRING_ARRAY
+            if isinstance(default, list)
+            else ParameterType.PARAMETER_NOT_SET
+        )
+        value = plain(declare_checked(node, name, default, allowed, desc, error).value)
+        if isinstance(default, float) and isinstance(value, int):
+            value = float(value)
+        if not check(value):
+            raise error(f'parameter {name!r} must be {allowed}, got {value!r}')
+        values[name] = value
+    return values
+
+
 def fix_at_start(node, allowed: dict) -> None:
     """
     Make parameters the node reads once, at start-up, read-only, each described in words.

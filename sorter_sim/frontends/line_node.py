@@ -46,18 +46,14 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
-
 from sorter_ros.interface import (
     answer_every_parameter_request,
     EVENT_QOS,
     SENSOR_QOS,
     SERVICE_QOS,
     STREAM_QOS,
-    accept_integers_for_doubles,
-    declare_checked,
+    declare_options,
     fix_at_start,
-    plain,
 )
 from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
@@ -193,7 +189,7 @@ class LineNode(Node):
         # the segments of a line in one ROS graph each need a name of their own
         super().__init__(node_name, **kwargs)
         answer_every_parameter_request(self)  # a request rclpy cannot read too
-        self.values = values = self._declare_line_params()
+        self.values = values = declare_options(self, LINE_PARAMS, ParamError)
         self._refuse_unknown_parameters()
         # the line reads its own options once, and it is the simulation clock (/clock)
         fix_at_start(
@@ -239,26 +235,6 @@ class LineNode(Node):
             f'sorter line ready: {n} stations ({", ".join(a + "/" + b for a, b in chutes[:3])}'
             f'{", ..." if n > 3 else ""}), {mode} mode'
         )
-
-    def _declare_line_params(self) -> dict:
-        """Declare the line's own parameters; return their values, each checked for its range."""
-        doubles = [n for n, (d, _, _) in LINE_PARAMS.items() if isinstance(d, float)]
-        accept_integers_for_doubles(self, dict.fromkeys(doubles, ParameterType.PARAMETER_DOUBLE))
-        values = {}
-        for name, (default, check, allowed) in LINE_PARAMS.items():
-            # an empty list, from a file or the command line, is a list (declare_typed)
-            desc = ParameterDescriptor(
-                type=ParameterType.PARAMETER_STRING_ARRAY
-                if isinstance(default, list)
-                else ParameterType.PARAMETER_NOT_SET
-            )
-            value = plain(declare_checked(self, name, default, allowed, desc, ParamError).value)
-            if isinstance(default, float) and isinstance(value, int):
-                value = float(value)
-            if not check(value):
-                raise ParamError(f'parameter {name!r} must be {allowed}, got {value!r}')
-            values[name] = value
-        return values
 
     def _segment_span(self, n: int) -> tuple[int, int, int]:
         """
