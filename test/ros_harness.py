@@ -198,6 +198,21 @@ def stalled_live_view_client(port: int, clients: contextlib.ExitStack):
     return ws
 
 
+def subscribe_to_every_channel(ws, timeout: float = 10.0) -> None:
+    """Subscribe a live-view client to every channel the view advertises (within ``timeout``)."""
+    import json
+
+    deadline = time.monotonic() + timeout
+    while (left := deadline - time.monotonic()) > 0:
+        frame = ws.recv(timeout=left)
+        if isinstance(frame, str) and json.loads(frame).get('op') == 'advertise':
+            channels = json.loads(frame)['channels']
+            subs = [{'id': i, 'channelId': c['id']} for i, c in enumerate(channels)]
+            ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+            return
+    pytest.fail(f"no 'advertise' message from the live view within {timeout} s")
+
+
 def refused_at_run_time(ros, node, changes: dict) -> dict:
     """
     Set each of ``changes`` over the node's own ``set_parameters`` service, one at a time.

@@ -29,7 +29,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.parameter import Parameter
-from ros_harness import free_port, stalled_live_view_client
+from ros_harness import free_port, stalled_live_view_client, subscribe_to_every_channel
 from test_sim_node import SHORT_CELL
 from websockets.sync.client import connect
 
@@ -68,13 +68,6 @@ def _recv_json(ws, op: str, timeout: float = 5.0) -> dict:
             if msg.get('op') == op:
                 return msg
     pytest.fail(f'no {op!r} message from the live view within {timeout} s')
-
-
-def _subscribe_to_every_channel(ws) -> None:
-    """Subscribe a live-view client to every channel the view advertises."""
-    channels = _recv_json(ws, 'advertise')['channels']
-    subs = [{'id': i, 'channelId': c['id']} for i, c in enumerate(channels)]
-    ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
 
 
 def test_live_view_serves_the_cell_to_a_foxglove_client(ros):
@@ -361,7 +354,7 @@ def test_stalled_live_view_clients_cost_frames_not_memory(ros):
     with contextlib.ExitStack() as clients:
         for _ in range(3):
             ws = stalled_live_view_client(port, clients)
-            _subscribe_to_every_channel(ws)
+            subscribe_to_every_channel(ws, 5.0)
         # the three subscribed, and never read from again
         ros.spin_until(node.live_view.listening, 5.0, 'the live view to see the clients')
         node.advance(2000)  # the queues fill
@@ -393,7 +386,7 @@ def test_a_stalled_or_killed_live_view_process_never_holds_the_cell(ros):
     node = _sim(ros, foxglove_port=port, foxglove_rate_hz=200.0)
     view = node.live_view
     with connect(f'ws://127.0.0.1:{port}', subprotocols=['foxglove.sdk.v1']) as ws:
-        _subscribe_to_every_channel(ws)
+        subscribe_to_every_channel(ws, 5.0)
         ros.spin_until(view.listening, 5.0, 'the live view to see the client')
         sent = view.frames_sent
         while view.frames_sent < sent + 3:

@@ -22,7 +22,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters, SetParametersAtomically
-from ros_harness import stalled_live_view_client
+from ros_harness import stalled_live_view_client, subscribe_to_every_channel
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
@@ -330,17 +330,8 @@ def _connect_modbus(port: int, clients: contextlib.ExitStack) -> None:
 
 def _stall_foxglove(port: int, clients: contextlib.ExitStack) -> None:
     """Subscribe three WebSocket clients to every channel, with small buffers they never read."""
-    import json
-
     for _ in range(3):
-        ws = stalled_live_view_client(port, clients)
-        while True:
-            msg = ws.recv(timeout=10)
-            if isinstance(msg, str) and json.loads(msg).get('op') == 'advertise':
-                break
-        channels = json.loads(msg)['channels']
-        subs = [{'id': i, 'channelId': c['id']} for i, c in enumerate(channels)]
-        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))  # never read again
+        subscribe_to_every_channel(stalled_live_view_client(port, clients))  # never read again
 
 
 def test_sigterm_with_every_server_busy_and_clients_connected_ends_the_node_promptly():
