@@ -2,18 +2,19 @@
 ``sorter demo``: the running cell, simulation node and controller, talking over ROS 2.
 
 Starts the simulation node (config/cell.yaml) and the controller (config/controller.yaml)
-in this process, in one rclpy context and one single-threaded executor, plus an
-observer node that watches what a warehouse would: the cell's outcomes, the
-controller's sort confirmations and diagnostics, the parcels' poses. The two
-nodes talk only over topics and services.
+in this process, on the project's run loop (``sorter_ros.run_loop``: one rclpy
+context, rclpy's events executor), plus an observer node that watches what a
+warehouse would: the cell's outcomes, the controller's sort confirmations and
+diagnostics, the parcels' poses. The two nodes talk only over topics and services.
 
-By default the cell runs as fast as possible (``time_mode: fast``) in slices of
-5 ms of simulated time; between two slices the executor serves every other
-callback, so the controller sees each sensor edge, runs its 10 ms scan and has
-its service calls answered within a slice or two of simulated time however
-fast or slow the machine is: a PLC that is never late, at whatever real-time
-factor the machine allows. ``--rtf F`` runs the cell on the wall clock at factor
-F instead (as a real cell would run with F = 1).
+By default the cell runs as fast as possible: the run loop advances it (``time_mode:
+lockstep``) in slices of 5 ms of simulated time and, after each, serves every
+callback until the controller has caught up (taken the clock, run its 10 ms scan if
+one fell due, had its service calls answered), so the controller sees each sensor
+edge and its commands reach the cell in the slice they were given in however fast or
+slow the machine is: a PLC that is never late, at whatever real-time factor the
+machine allows, and the same run on every machine. ``--rtf F`` runs the cell on the
+wall clock at factor F instead (as a real cell would run with F = 1).
 
 The parcel stream is the cell's, with a cycle of labels the routing table sends
 left, right, straight and (label D, unknown) to the reject destination, and belt
@@ -40,11 +41,15 @@ from sorter_cell.demo_parts import (  # noqa: F401 (the demo's public names, as 
     stream_plan,
 )
 from sorter_cell.demo_summary import exit_code, exits_by_id, plot_paths, print_table, summarize
+from sorter_ros.run_loop import RunLoop
 from sorter_sim.model.description import Q
 from sorter_sim.studies.outpaths import file_problem
 
 FOXGLOVE_PORT = 8765  # Foxglove's usual WebSocket port
-FAST_SLICE = 0.005  # s of simulated time per executor pass of the cell in fast mode
+# the longest slice of the run loop in fast mode [s of simulated time]; each ends at the
+# controller's next scan (align_to_timers), so this bounds only a run without one
+FAST_SLICE = 0.05
+PROGRESS_S = 0.1  # s of simulated time between two looks at the progress bar and Ctrl-C
 
 
 def add_arguments(parser) -> None:
@@ -218,16 +223,17 @@ def _check_args(args) -> str | None:
     return None
 
 
-class RunningCell:
+class RunningCell(RunLoop):
     """
-    The simulation node, the controller and an observer in one context and executor.
+    The simulation node, the controller and an observer on one run loop.
 
     Parameters come from config/cell.yaml and config/controller.yaml, then
     ``sim_params`` / ``controller_params`` override them. ``rtf`` is the cell's
-    real-time factor on the wall clock, or "fast" (as fast as possible, in slices
-    the executor interleaves with the controller). Use as a context manager:
-    ``run_until(t)`` spins until the simulation clock reaches t, ``finish()``
-    stops the cell's clock and lets the last messages arrive.
+    real-time factor on the wall clock, or "fast": as fast as possible, the cell in
+    ``lockstep`` time mode advanced by the run loop slice by slice, each slice ending
+    when the controller has caught up with it (``sorter_ros.run_loop``). Use as a
+    context manager: ``run_for(t)`` runs t simulated seconds of the stream,
+    ``finish()`` stops the cell's clock and lets the last messages arrive.
     """
 
     def __init__(
@@ -237,7 +243,7 @@ class RunningCell:
         controller_params: dict,
         rtf="fast",
         want_paths: bool = True,
-        executor: str = "single",
+        executor: str = "events",
         log_level: str = "warn",
     ):
         self.log_level = log_level
@@ -248,42 +254,34 @@ class RunningCell:
         self.want_paths = want_paths
         self.executor_kind = executor
         self.nodes = []
-        self.ctx = None
+        self.context = None
         self.stop = None  # SIGINT/SIGTERM, once the cell is up (sorter_ros.env.StopSignals)
         self.started = False
 
     def __enter__(self) -> "RunningCell":
         import rclpy
-        from rclpy.context import Context
         from rclpy.parameter import Parameter
-        from rclpy.signals import SignalHandlerOptions
 
         from sorter_control.node import ControllerNode
-        from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
+        from sorter_ros.env import StopSignals
         from sorter_sim.frontends.node import SimNode
 
-        apply_ros_env_defaults()
-        config_dir = find_config_dir()
-        self.ctx = Context()
         # Ctrl-C ends the run early, cleanly: the first one stops the stream where it is
         # and the summary covers what ran; a second one hurries (KeyboardInterrupt)
         self.stop = StopSignals().install()
-        rclpy.init(
-            signal_handler_options=SignalHandlerOptions.NO,
-            context=self.ctx,
-            args=[
-                "--ros-args",
-                "--params-file",
-                str(config_dir / "cell.yaml"),
-                "--params-file",
-                str(config_dir / "controller.yaml"),
-                "--log-level",
-                self.log_level,
-            ],
+        self._start_context(
+            None,
+            FAST_SLICE,
+            0.0,
+            events=self.executor_kind == "events",
+            log_level=self.log_level,
         )
+        self.ctx = self.context
+        # the controller acts in its scans only: a slice may run from one to the next
+        self.align_to_timers = True
         try:
             timing = (
-                {"time_mode": "fast", "fast_slice": FAST_SLICE}
+                {"time_mode": "lockstep"}
                 if self.rtf is None
                 else {"time_mode": "realtime", "real_time_factor": self.rtf, "wall_tick": 0.001}
             )
@@ -292,29 +290,32 @@ class RunningCell:
             self.arrival = sim_values.get("arrival", "none")
             sim_values["arrival"] = "none"
             self.sim = SimNode(
-                context=self.ctx,
+                context=self.context,
                 parameter_overrides=[Parameter(k, value=v) for k, v in sim_values.items()],
             )
-            self.nodes.append(self.sim)
+            self._stepper, self._timebase = self.sim, self.sim.cell
+            self.add_node(self.sim)
             ctl_values = {
                 "use_sim_time": True,
                 "diagnostics_period": 0.5,
                 **self.controller_params,
             }
             self.ctl = ControllerNode(
-                context=self.ctx,
+                context=self.context,
                 parameter_overrides=[Parameter(k, value=v) for k, v in ctl_values.items()],
             )
-            self.nodes.append(self.ctl)
-            self.watcher = rclpy.create_node("sorter_demo", context=self.ctx)
-            self.nodes.append(self.watcher)
+            self.add_node(self.ctl)
+            self.watcher = rclpy.create_node("sorter_demo", context=self.context)
             self.obs = _Observer(self.watcher, want_paths=self.want_paths)
-            self.executor = _executor(self.ctx, self.executor_kind)
-            for n in self.nodes:
-                self.executor.add_node(n)
-            if not self.spin_until(lambda: self.obs.ctl_diag.get("state") == "running", 60.0):
+            self.add_node(self.watcher)
+            running = lambda: self.obs.ctl_diag.get("state") == "running"  # noqa: E731
+            if self.rtf is None:
+                # the clock stands still while the controller starts: the stream starts at
+                # the same simulated time on any machine
+                running = lambda: self.ctl.logic is not None and self.ctl.logic.state == "running"  # noqa: E731,E501
+            if not self._spin_until(running, 60.0):
                 raise RuntimeError("the controller did not start within 60 s")
-            self.t_start = self.obs.t_sim
+            self.t_start = self.sim.cell.t if self.rtf is None else self.obs.t_sim
             if self.arrival != "none":
                 self._set_sim("arrival", self.arrival)
             self.started = True
@@ -329,7 +330,7 @@ class RunningCell:
         from rcl_interfaces.srv import SetParameters
 
         client = self.watcher.create_client(SetParameters, "sorter_sim/set_parameters")
-        if not self.spin_until(client.service_is_ready, 10.0):
+        if not self._spin_until(client.service_is_ready, 10.0):
             raise RuntimeError("the cell's set_parameters service is not there")
         future = client.call_async(
             SetParameters.Request(
@@ -343,44 +344,23 @@ class RunningCell:
                 ]
             )
         )
-        self.spin_until(future.done, 10.0)
+        self._spin_until(future.done, 10.0)
         result = future.result().results[0] if future.done() else None
         if result is None or not result.successful:
             raise RuntimeError(
                 f"the cell refused {name} = {value}: {result.reason if result else 'no answer'}"
             )
 
-    def spin_until(self, predicate, timeout_wall: float = math.inf) -> bool:
-        """
-        Spin the nodes until ``predicate()`` holds.
-
-        Parameters
-        ----------
-        predicate : callable
-            What to wait for.
-        timeout_wall : float
-            The most to wait [s, wall].
-
-        Returns
-        -------
-        bool
-            Whether the predicate came true in time.
-
-        """
-        deadline = time.monotonic() + timeout_wall
-        while not predicate():
-            if self.stop.is_set():
-                if not self.started:
-                    raise KeyboardInterrupt  # stopped while starting: nothing to report
-                return False
-            if time.monotonic() > deadline:
-                return False
-            self.executor.spin_once(timeout_sec=0.05)
-        return True
+    def _spin_until(self, predicate, timeout_wall: float) -> bool:
+        """Spin without advancing simulated time until ``predicate()``; a Ctrl-C ends it."""
+        if not self.spin_until(predicate, timeout_wall, stop=self.stop) and self.stop.is_set():
+            if not self.started:
+                raise KeyboardInterrupt  # stopped while starting: nothing to report
+        return predicate()
 
     def run_for(self, sim_time: float, quiet: bool = True) -> float:
         """
-        Spin until ``sim_time`` simulated seconds after the stream started.
+        Run ``sim_time`` simulated seconds after the stream started.
 
         Returns the wall time. Unless ``quiet``, a progress bar on a terminal shows the
         simulated seconds.
@@ -403,17 +383,25 @@ class RunningCell:
         wall0 = time.monotonic()
         bar = progress_bar(round(sim_time, 3), "sorter demo", "s", quiet=quiet)
         shown = 0.0
+        t_end = self.t_start + sim_time
+
+        def now() -> float:
+            return self.sim.cell.t if self.rtf is None else self.obs.t_sim
 
         def reached() -> bool:
             nonlocal shown
-            t = min(self.obs.t_sim - self.t_start, sim_time)
+            t = min(now() - self.t_start, sim_time)
             if t - shown >= 0.1:
                 bar.update(round(t - shown, 3))
                 shown = t
-            return self.obs.t_sim >= self.t_start + sim_time
+            return now() >= t_end - 1e-12
 
         try:
-            self.spin_until(reached)
+            if self.rtf is None:
+                while not reached() and not self.stop.is_set():
+                    self.run(min(PROGRESS_S, t_end - now()))
+            else:
+                self.spin_until(reached, stop=self.stop)
         finally:
             bar.close()
         return time.monotonic() - wall0
@@ -425,11 +413,15 @@ class RunningCell:
         Stop the cell's clock, let the last confirmations arrive; returns the simulated time
         since the stream started.
         """
-        t_end = self.obs.t_sim - self.t_start
-        self.executor.remove_node(self.sim)
-        deadline = time.monotonic() + 0.6
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.05)
+        if self.rtf is None:
+            t_end = self.sim.cell.t - self.t_start
+            self.spin_idle()  # the clock stands still: what is under way arrives
+        else:
+            t_end = self.obs.t_sim - self.t_start
+            self.executor.remove_node(self.sim)
+            deadline = time.monotonic() + 0.6
+            while time.monotonic() < deadline:
+                self.executor.spin_once(timeout_sec=0.05)
         self.obs.ctl_diag = {
             **self.obs.ctl_diag,
             **{k: str(v) for k, v in _diag_values(self.ctl).items()},
@@ -437,15 +429,9 @@ class RunningCell:
         return t_end
 
     def __exit__(self, *exc) -> None:
-        import rclpy
-
         if self.stop is not None:
             self.stop.quiet = True  # the teardown is short: it finishes whatever comes now
-        for n in self.nodes:
-            n.destroy_node()
-        self.nodes = []
-        if self.ctx is not None:
-            rclpy.try_shutdown(context=self.ctx)
+        self.close()
         if self.stop is not None:
             self.stop.restore()
 
@@ -560,26 +546,6 @@ def run(args) -> int | str:
         if args.record:
             print(f"  recording                  {args.record} (sorter replay {args.record})")
     return exit_code(summary)
-
-
-def _executor(ctx, kind: str = "single"):
-    """
-    Return the executor to run the demo's nodes in.
-
-    The SingleThreadedExecutor ("single"), or rclpy's experimental events executor
-    ("events", where there is one: cheaper callbacks, but its timers on the simulation
-    clock fire late when the cell runs fast, so it suits only real-time runs).
-    """
-    if kind == "events":
-        try:
-            from rclpy.experimental import EventsExecutor
-        except ImportError:
-            pass
-        else:
-            return EventsExecutor(context=ctx)
-    from rclpy.executors import SingleThreadedExecutor
-
-    return SingleThreadedExecutor(context=ctx)
 
 
 def _diag_values(ctl) -> dict:

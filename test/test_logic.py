@@ -740,3 +740,24 @@ def test_bad_scan_time_changes_nothing():
     assert logic.t == 1.0 and out.log == [] and logic.state == "running"
     out = logic.scan(InputImage(t=0.2))  # beyond it: the clock went back
     assert logic.t == 1.0 and "went back" in out.log[0][1] and logic.state == "clock"
+
+
+def test_a_jam_stays_a_jam_whatever_order_its_estop_and_disks_are_answered_in():
+    # L1 held under the divert eye while the disks are up for it: the jam's scan calls
+    # estop (estop_on_jam) and popup False; the plant answers in call order, so the
+    # disks' command meets the e-stop just engaged and is refused for it. The fault is
+    # still the jam (an executor serving services in another order answers popup first)
+    cfg, logic, plant = make()
+    parcels = plant.add_stream([("L1", 0.4, 0.0), ("L2", 0.4, safe_gap(logic))])
+
+    def hold(plant_, logic_):
+        if parcels[0].x >= cfg.eyes["pe_divert"]:
+            parcels[0].held = True
+
+    run = run_cell(plant, logic, 6.0, on_scan=hold)
+    t_jam = _fault_time(run, "jam")
+    same_scan = [(k, v) for t, k, v in run.commands if abs(t - t_jam) < 0.006]
+    assert same_scan[:2] == [("estop", True), ("popup", False)]
+    assert logic.state == "jam" and logic.fault["sensor"] == "pe_divert"
+    assert logic.sequencer.commanded_up is False
+    assert logic.status()["faults"]["estop"] == 0

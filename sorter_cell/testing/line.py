@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from sorter_cell.testing.lockstep import (
-    GRACE_S,
     SLICE_S,
     LockStep,
     exits_text,
@@ -176,7 +175,7 @@ class SorterLine(LockStep):
         programs: dict | None = None,
         domain_id: int | None = None,
         slice_s: float = SLICE_S,
-        grace_s: float = GRACE_S,
+        grace_s: float | None = None,
         record: str | None = None,
         start_timeout_s: float = 120.0,
     ):

@@ -64,7 +64,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sorter_cell.testing.lockstep import (
-    GRACE_S,
     FactoryError,
     load_node_factory,
     make_user_nodes,
@@ -539,7 +538,7 @@ def run_scenario(
     if sc.generated:
         params['arrival'] = 'none'  # the stream starts once the controller runs
     spec = sc.controller
-    grace = COMMAND_GRACE_S if spec is not None and spec.kind == 'command' else GRACE_S
+    grace = COMMAND_GRACE_S if spec is not None and spec.kind == 'command' else None
     timed: dict[int, Check] = {}
     with SorterCell(params, domain_id=domain_id, record=record, grace_s=grace) as cell:
         t0 = cell.t

@@ -559,7 +559,7 @@ class SorterLogic:
             elif cmd.kind == "reset":
                 self.faults.restore(io, f"reset refused by the cell: {reason}")
             elif any(w in reason.lower() for w in ("e-stop", "estop", "emergency")):
-                self._enter_estop(io, f"{what} refused: {reason}")
+                self._refused_for_estop(io, cmd, what, reason)
             elif cmd.kind in ("popup", "alpha"):
                 if cmd.kind == "popup":
                     seqr.commanded_up = None
@@ -568,6 +568,18 @@ class SorterLogic:
                 io.fault("diverter_refused", f"{what} refused by the cell: {reason}")
             else:
                 io.log("error", f"{what} refused by the cell: {reason}")
+
+    def _refused_for_estop(self, io: _Scan, cmd, what: str, reason: str) -> None:
+        if self.state == "jam" and self.faults.estop_on_jam:
+            # the e-stop is this jam's own (estop_on_jam), served before the disks' command
+            # of the same scan: the cell drops the disks on e-stop, and the fault stays the
+            # jam (as the cell's e-stop status keeps it), whatever order the cell answered
+            # the scan's calls in
+            if cmd.kind == "popup":
+                self.sequencer.commanded_up = False
+            io.log("info", f"{what} refused during the jam's own e-stop: {reason}")
+        else:
+            self._enter_estop(io, f"{what} refused: {reason}")
 
     def _enter_estop(self, io: _Scan, message: str) -> None:
         if not self.faults.enter_estop(io, message):

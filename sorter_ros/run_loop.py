@@ -1,0 +1,618 @@
+"""
+The run loop every runner of the cell and the line shares: one start-up, executor and slice loop.
+
+``RunLoop`` owns a private rclpy ``Context`` (initialised with the shipped parameter
+files, found through ``find_config_dir``, with discovery on this host unless the user
+chose otherwise), the executor that spins the simulation with
+every node added to it, and simulated time: ``run`` and ``run_until`` advance the
+stepper (a simulation node or a line in ``lockstep`` time mode) slice by slice, and
+after each slice ``spin_idle`` serves every callback until each node has caught up
+with it. The demo (``sorter_cell.demo``), the line demo, the soft-PLC demo, and the
+test harnesses (``sorter_cell.testing.SorterCell`` and ``SorterLine``) are faces of it
+that say only what differs: which nodes, which observer, which report.
+
+Why a slice ends where it ends. A node on simulated time has caught up when it has
+taken the clock's last tick, every timer on that clock that fell due has run and every
+service call it made has its answer; only then may time move on, or a scan or a command
+would land in another slice on another run. With rclpy's events executor (the default)
+the loop knows this exactly and at no cost in wall time: a message between nodes of one
+process is delivered inside the publisher's call (Fast DDS's intra-process delivery)
+and queued in order, so a marker message the loop sends itself after a slice is served
+only after everything the slice caused (``_drain``). The single-threaded executor gives no such
+order; with it, and for nodes in other processes, a slice ends after ``grace_s`` of
+wall time in which no callback came.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+SLICE_S = 0.005  # simulated time per slice [s]
+SETTLE_S = 0.2  # the most wall time a slice waits for answers to requests in flight
+MATCH_S = 10.0  # the most wall time the first run waits for new nodes' topics to match
+DRAIN_WALL_S = 5.0  # wall time after which a drain that never ends is given up (a stuck node)
+
+
+def events_executor_class():
+    """Return rclpy's events executor (C++, walks no wait set), or None where it is missing."""
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:
+        return None
+    return EventsExecutor
+
+
+def make_executor(context, events: bool = True):
+    """
+    Return rclpy's events executor for ``context`` (or, without one, the single-threaded one).
+
+    rclpy's events executor turns on ``faulthandler`` for the standard error it finds; a
+    standard error without a file descriptor (pytest's ``capsys``, an embedding program)
+    would refuse that and the executor with it: the process's own standard error is
+    handed over instead, for as long as the executor is made.
+    """
+    from rclpy.executors import SingleThreadedExecutor
+
+    events_class = events_executor_class() if events else None
+    if events_class is None:
+        return SingleThreadedExecutor(context=context)
+    stderr = sys.stderr
+    try:
+        stderr.fileno()
+    except (AttributeError, OSError, ValueError):
+        sys.stderr = sys.__stderr__
+    try:
+        return events_class(context=context)
+    finally:
+        sys.stderr = stderr
+
+
+class WaitTimedOut:
+    """
+    What ``run_until`` returns when the predicate did not come true: false, and why.
+
+    ``assert loop.run_until(...)`` then fails with the report (pytest shows this object's
+    text in the assertion), so the failure says where the run was.
+    """
+
+    def __init__(self, text: str):
+        self.text = text
+
+    def __bool__(self) -> bool:
+        return False
+
+    def __repr__(self) -> str:
+        return self.text
+
+    __str__ = __repr__
+
+
+class RunLoop:
+    """
+    A Context, its executor and simulated time, for any runner (see the module).
+
+    Parameters
+    ----------
+    domain_id : int, optional
+        The ROS domain (default: ``ROS_DOMAIN_ID``, else rcl's own, 0).
+    slice_s : float
+        Simulated seconds per slice of ``run``, in (0, 1].
+    grace_s : float
+        Wall seconds of quiet that end a slice's spin, for nodes the executor cannot
+        drain (in other processes; every node with the single-threaded executor).
+    events : bool
+        Spin with rclpy's events executor (where there is one), else the single-threaded one.
+    params_files : tuple of str
+        The shipped parameter files the Context reads (names in ``find_config_dir()``).
+    log_level : str
+        The nodes' log level.
+    align_to_timers : bool
+        End a slice early where a timer on simulated time falls due (``run``): a node
+        that acts only in its timers (a PLC's scan) then sees every slice end at one of
+        its scans, and a slice can be as long as the scan period with the same result.
+
+    """
+
+    what = 'the run'
+    align_to_timers = False
+
+    def __init__(
+        self,
+        *,
+        domain_id: int | None = None,
+        slice_s: float = SLICE_S,
+        grace_s: float = 0.0,
+        events: bool = True,
+        params_files: tuple = ('cell.yaml', 'controller.yaml'),
+        log_level: str = 'warn',
+        align_to_timers: bool = False,
+    ):
+        self.align_to_timers = align_to_timers
+        self._start_context(
+            domain_id,
+            slice_s,
+            grace_s,
+            events=events,
+            params_files=params_files,
+            log_level=log_level,
+        )
+
+    def _start_context(
+        self,
+        domain_id: int | None,
+        slice_s: float,
+        grace_s: float,
+        events: bool = True,
+        params_files: tuple = ('cell.yaml', 'controller.yaml'),
+        log_level: str = 'warn',
+    ) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.signals import SignalHandlerOptions
+
+        from sorter_ros.env import apply_ros_env_defaults, find_config_dir
+
+        if not (isinstance(slice_s, (int, float)) and 0.0 < slice_s <= 1.0):
+            raise ValueError(f'slice_s must be in (0, 1] s, got {slice_s!r}')
+        if not (isinstance(grace_s, (int, float)) and 0.0 <= grace_s <= 1.0):
+            raise ValueError(f'grace_s must be in [0, 1] s, got {grace_s!r}')
+        apply_ros_env_defaults()
+        self.wall0 = time.monotonic()
+        self.config_dir = find_config_dir()
+        self.slice_s = float(slice_s)
+        self.grace_s = float(grace_s)
+        self.nodes: list = []
+        self.record_path = ''
+        self._barrier = None
+        self._barrier_served = None
+        self.domain_id = None if domain_id is None else int(domain_id)
+        self.context = Context()
+        args = ['--ros-args']
+        for name in params_files:
+            args += ['--params-file', str(self.config_dir / name)]
+        rclpy.init(
+            context=self.context,
+            **({} if self.domain_id is None else {'domain_id': self.domain_id}),
+            signal_handler_options=SignalHandlerOptions.NO,
+            args=args + ['--log-level', log_level],
+        )
+        self._events = events and events_executor_class() is not None
+        self.executor = make_executor(self.context, self._events)
+
+    # ------------------------------------------------------------------ nodes
+    def add_node(self, node):
+        """
+        Spin ``node`` (or each of a list of nodes) with the simulation; it must be in ``context``.
+
+        Parameters
+        ----------
+        node : rclpy.node.Node or list of them
+            The node(s).
+
+        Returns
+        -------
+        rclpy.node.Node or list
+            The same.
+
+        """
+        if isinstance(node, (list, tuple)):
+            return [self.add_node(n) for n in node]
+        if getattr(node, 'context', None) is not self.context:
+            name = node.get_name() if hasattr(node, 'get_name') else repr(node)
+            raise ValueError(
+                f'node {name!r} belongs to another rclpy Context: create it '
+                'with context=sorter_cell.context'
+            )
+        if node not in self.nodes:
+            if self._barrier is None and self._events:
+                self._make_barrier(node)
+            self.nodes.append(node)
+            self.executor.add_node(node)
+            self._joined = True
+        return node
+
+    def _unmatched(self) -> list[str]:
+        """
+        Return the topics a node of ours publishes that our own readers are not all matched on.
+
+        Our own readers only: the graph may still list those of a process that ended
+        (until its lease runs out), which no writer will ever match.
+        """
+        readers: dict[str, int] = {}
+        for node in self.nodes:
+            for sub in node.subscriptions:
+                readers[sub.topic_name] = readers.get(sub.topic_name, 0) + 1
+        out = []
+        for node in self.nodes:
+            for pub in node.publishers:
+                if pub.get_subscription_count() < readers.get(pub.topic_name, 0):
+                    out.append(pub.topic_name)
+        return out
+
+    def _graph_settled(self) -> bool:
+        return not self._unmatched()
+
+    def _settle_graph(self) -> None:
+        """
+        Before time moves after nodes joined: wait until their topics are matched.
+
+        DDS matches a new reader to a writer on threads of its own; on a loaded machine
+        that takes seconds, and a message sent before it is lost (a routing update, a
+        label), so the run would depend on the machine. With the clock stopped until
+        every reader the graph knows is matched, it does not.
+        """
+        self._joined = False
+        deadline = time.monotonic() + MATCH_S
+        while not self._graph_settled() and time.monotonic() < deadline:
+            self.spin_idle()
+            time.sleep(0.002)
+
+    def remove_node(self, node) -> None:
+        """Stop spinning ``node`` and destroy it."""
+        if node in self.nodes:
+            self.nodes.remove(node)
+            # a timer of the node that came due just now may still be on the executor's
+            # queue: cancelled, it stays quiet, and one spin lets the executor let go of
+            # the node before it is destroyed (its callbacks would meet destroyed handles)
+            for timer in list(node.timers):
+                timer.cancel()
+            if node is getattr(self, '_barrier_node', None):
+                self._drop_barrier()
+            self.executor.remove_node(node)
+            self.executor.spin_once(timeout_sec=0.0)
+        node.destroy_node()
+
+    def _make_barrier(self, node) -> None:
+        """
+        Give the first node the drain's marker: a hidden topic it sends itself.
+
+        Made before the executor takes the node, so that the executor knows it from the
+        start. (The events executor serves no guard condition, which would cost less.)
+        """
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import Empty
+
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=4, reliability=ReliabilityPolicy.RELIABLE
+        )
+        topic = '~/_run_loop_drain'
+        self._barrier_node = node
+        self._barrier_msg = Empty()
+        self._barrier = node.create_publisher(Empty, topic, qos)
+        self._barrier_sub = node.create_subscription(Empty, topic, self._on_barrier, qos)
+
+    def _drop_barrier(self) -> None:
+        if self._barrier is not None:
+            self._barrier_node.destroy_subscription(self._barrier_sub)
+            self._barrier_node.destroy_publisher(self._barrier)
+        self._barrier = self._barrier_node = self._barrier_sub = None
+
+    # ------------------------------------------------------------------ time
+    # set by a face: the node whose ``advance(n)`` runs n control periods and the
+    # runtime whose ``dt``, ``t`` and ``t_ns`` are the simulated time (a cell, a line)
+    _stepper = None
+    _timebase = None
+    _joined = False  # nodes were added since time last moved
+
+    @property
+    def dt(self) -> float:
+        """Return the control period [s]."""
+        return self._timebase.dt
+
+    @property
+    def t(self) -> float:
+        """Return the simulated time [s]."""
+        return self._timebase.t
+
+    @property
+    def t_ns(self) -> int:
+        """Return the simulated time the clock last published [ns]."""
+        return self._timebase.t_ns
+
+    def _advance(self, n: int) -> None:
+        self._stepper.advance(n)
+
+    def _unsettled(self) -> bool:
+        """
+        Return True while a node has not yet caught up with the slice just run.
+
+        Caught up: every node on simulated time has taken the clock's last tick, every
+        timer on that clock that fell due has run, and every service call has its answer.
+        """
+        from rclpy.clock import ROSClock
+
+        t_ns = self.t_ns
+        for node in self.nodes:
+            if any(c._pending_requests for c in node.clients):
+                return True
+            clock = node.get_clock()
+            if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
+                continue
+            if clock.now().nanoseconds < t_ns:
+                return True
+            for timer in node.timers:
+                if timer.clock is clock and not timer.is_canceled():
+                    left = timer.time_until_next_call()
+                    if left is not None and left <= 0:
+                        return True
+        return False
+
+    def _periods_to_next_timer(self, most: int) -> int:
+        """
+        Return the control periods until a timer on simulated time falls due (1..most).
+
+        A timer falls due at the first period boundary at or after its next call.
+        """
+        from rclpy.clock import ROSClock
+
+        dt_ns = round(self.dt * 1e9)
+        n = most
+        for node in self.nodes:
+            clock = node.get_clock()
+            if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
+                continue
+            for timer in node.timers:
+                if timer.clock is clock and not timer.is_canceled():
+                    left = timer.time_until_next_call()
+                    if left is not None:
+                        n = min(n, max(1, -(-left // dt_ns)))
+        return n
+
+    def _on_barrier(self, _msg) -> None:
+        if self._barrier_served is not None:
+            self._barrier_served.set_result(True)
+
+    def _drain(self) -> bool:
+        """
+        Serve every callback queued so far, in order; return whether any but the marker ran.
+
+        The events executor serves its queue in the order events came, and a message
+        between nodes of this process is queued inside the publisher's call: a marker
+        sent now is served after everything already delivered. One marker is served
+        in one call to the executor (cheaper than a call an event); a second marker
+        served by the very next event then says nothing came behind the first.
+        """
+        from rclpy.task import Future
+
+        self._barrier_served = Future()
+        self._barrier.publish(self._barrier_msg)
+        self.executor.spin_until_future_complete(self._barrier_served, timeout_sec=DRAIN_WALL_S)
+        if not self._barrier_served.done():
+            return False  # a callback that never lets go: the settle check waits on its own
+        self._barrier_served = Future()
+        self._barrier.publish(self._barrier_msg)
+        self.executor.spin_once(timeout_sec=0.0)
+        if self._barrier_served.done():
+            return False
+        self.executor.spin_until_future_complete(self._barrier_served, timeout_sec=DRAIN_WALL_S)
+        return True
+
+    def spin_idle(self) -> None:
+        """
+        Serve every ready callback until every node has caught up with the slice.
+
+        With the events executor: drain its queue until nothing but the marker ran, then
+        (for nodes in other processes) until none came for ``grace_s``. With the
+        single-threaded one: until none came for ``grace_s``. Then, up to ``SETTLE_S``
+        of wall time, until every node has caught up (``_unsettled``): on a loaded
+        machine a service's answer or a timer can take longer, and a command must reach
+        the cell in the slice it was given in, or two runs would differ.
+        """
+        settle_end = None
+        while True:
+            if self._barrier is not None and self._drain():
+                continue
+            if self.grace_s > 0.0 and self._serve_one(self.grace_s):
+                continue
+            if not self._unsettled():
+                return
+            if not self._events:
+                # a timer on simulated time that the clock's tick made due does not wake
+                # the single-threaded executor's wait by itself: it would run a slice late
+                self.executor.wake()
+            now = time.monotonic()
+            settle_end = settle_end or now + SETTLE_S
+            if now > settle_end:
+                return
+            # what is awaited comes from another thread (DDS, a timer's own): wait for it
+            self._serve_one(0.0005)
+
+    def _serve_one(self, timeout_s: float) -> bool:
+        """Serve one ready callback; return False when none came within ``timeout_s``."""
+        from rclpy.executors import ShutdownException, TimeoutException
+
+        if self._events:
+            # the events executor says nothing of what it did: a call that returns before
+            # the timeout is up served an event
+            t0 = time.perf_counter()
+            self.executor.spin_once(timeout_sec=timeout_s)
+            return time.perf_counter() - t0 < timeout_s
+        try:
+            handler, _, _ = self.executor.wait_for_ready_callbacks(timeout_sec=timeout_s)
+        except (TimeoutException, ShutdownException):
+            return False
+        handler()
+        return True
+
+    def spin_until(self, predicate, timeout_wall: float = math.inf, stop=None) -> bool:
+        """
+        Spin, without advancing simulated time, until ``predicate()`` or ``timeout_wall``.
+
+        For a node that runs its own time (``realtime`` mode) or is starting up.
+
+        Parameters
+        ----------
+        predicate : callable
+            What to wait for.
+        timeout_wall : float
+            The most to wait [s, wall].
+        stop : threading.Event-like, optional
+            Ends the wait early when set (a SIGINT).
+
+        Returns
+        -------
+        bool
+            Whether the predicate came true in time.
+
+        """
+        deadline = time.monotonic() + timeout_wall
+        while not predicate():
+            if stop is not None and stop.is_set():
+                return False
+            if time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def wait_started(self, predicate, timeout_s: float, what: str) -> None:
+        """
+        Spin, without advancing simulated time, until ``predicate()`` (nodes starting up).
+
+        A node that starts (asks the cell for its geometry, warms a model) takes wall
+        time that depends on the machine; with the clock stopped meanwhile, the run
+        that follows starts at t = 0 on every machine, and runs repeat exactly.
+
+        Raises
+        ------
+        RuntimeError
+            Not within ``timeout_s`` wall seconds; the message is ``explain()``.
+
+        """
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            if time.monotonic() > deadline:
+                raise RuntimeError(self.explain(f'{what} within {timeout_s:g} s of wall time'))
+            self.spin_idle()
+            # the starting node's own threads (a service answer) get the core
+            self._serve_one(0.001)
+
+    def run(self, seconds: float) -> None:
+        """
+        Advance simulated time by ``seconds``, spinning every node after each slice.
+
+        Parameters
+        ----------
+        seconds : float
+            Simulated seconds, >= 0 (rounded to whole control periods).
+
+        """
+        if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds >= 0):
+            raise ValueError(f'seconds must be a finite number >= 0, got {seconds!r}')
+        total = round(seconds / self.dt)
+        step = max(1, round(self.slice_s / self.dt))
+        if self._joined:
+            self._settle_graph()
+        self.spin_idle()
+        while total > 0:
+            n = min(step, total)
+            if self.align_to_timers:
+                n = self._periods_to_next_timer(n)
+            self._advance(n)
+            total -= n
+            self.spin_idle()
+
+    def run_until(self, predicate, timeout_s: float = 60.0, what: str = '', stop=None):
+        """
+        Advance slice by slice until ``predicate()`` holds or ``timeout_s`` simulated seconds.
+
+        Parameters
+        ----------
+        predicate : callable
+            What to wait for.
+        timeout_s : float
+            The most simulated time to run [s].
+        what : str
+            What it waits for, in words, for the report.
+        stop : threading.Event-like, optional
+            Ends the run early when set (a SIGINT); the result is then a ``WaitTimedOut``
+            that says so.
+
+        Returns
+        -------
+        True or WaitTimedOut
+            True when it came true; else a false value whose text is ``explain()``.
+
+        """
+        t_start = self.t
+        t_end = t_start + timeout_s
+        while not predicate():
+            if stop is not None and stop.is_set():
+                return WaitTimedOut(self.explain('stopped'))
+            if self.t >= t_end - 1e-12:
+                name = what or getattr(predicate, '__name__', 'the predicate')
+                return WaitTimedOut(
+                    self.explain(
+                        f'waited {timeout_s:g} s of simulated time for {name}: it did not come'
+                    )
+                )
+            self.run(min(self.slice_s, t_end - self.t))
+        return True
+
+    def require(self, predicate, timeout_s: float = 60.0, what: str = '') -> None:
+        """Run as ``run_until``, but raise ``AssertionError`` with the report on a time-out."""
+        done = self.run_until(predicate, timeout_s, what)
+        if not done:
+            raise AssertionError(str(done))
+
+    # ------------------------------------------------------------------ the report
+    def state_lines(self) -> list[str]:
+        """Return the lines of the report after the time (a face says what it has)."""
+        return []
+
+    def explain(self, headline: str = '') -> str:
+        """
+        Return where the run is, for a failure: times, the face's state, the recording.
+
+        Parameters
+        ----------
+        headline : str
+            The first line (what went wrong).
+
+        Returns
+        -------
+        str
+            The report, one fact a line.
+
+        """
+        lines = [headline] if headline else []
+        lines.append(
+            f'{self.what}: t = {self.t:.3f} s simulated, '
+            f'{time.monotonic() - self.wall0:.1f} s wall since it started'
+        )
+        try:
+            lines += self.state_lines()
+        except Exception as exc:  # noqa: BLE001 - a report must not hide the failure
+            lines.append(f'(state not available: {exc})')
+        if self.record_path:
+            lines.append(f'recording: {self.record_path}')
+        return '\n'.join(lines)
+
+    # ------------------------------------------------------------------ teardown
+    def close(self) -> None:
+        """Destroy the nodes and shut the Context down."""
+        import rclpy
+
+        executor = getattr(self, 'executor', None)
+        if executor is not None:
+            for node in list(getattr(self, 'nodes', [])):
+                executor.remove_node(node)
+            executor.shutdown()
+            self.executor = None
+        if getattr(self, '_barrier', None) is not None:
+            self._drop_barrier()
+        for node in reversed(getattr(self, 'nodes', [])):
+            try:
+                node.destroy_node()
+            except Exception:  # noqa: BLE001 - a node's own teardown error ends nothing
+                pass
+        self.nodes = []
+        if getattr(self, 'context', None) is not None:
+            rclpy.try_shutdown(context=self.context)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
