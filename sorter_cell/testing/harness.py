@@ -83,12 +83,12 @@ class SorterCell(LockStep):
     record : str, optional
         An MCAP file: everything the cell publishes (named in every report).
     events : bool
-        Spin with rclpy's events executor (where it exists) instead of the
-        single-threaded one: about three times faster, since the single-threaded one
-        builds a wait set of every entity on each pass; but it serves requests that
-        arrive together in the order they came, where the single-threaded one serves
-        them in its entities' order, and a controller whose result depends on that
-        order (the project's, on a jam with ``estop_on_jam``) ends differently.
+        Spin with rclpy's events executor (the default, where it exists), else the
+        single-threaded one. The events executor serves requests in the order they
+        came and lets the run loop drain this process's nodes exactly after each slice
+        (``sorter_ros.run_loop``); the single-threaded one builds a wait set of every
+        entity on each pass, serves requests that arrive together in its entities'
+        order, and ends a slice after ``grace_s`` of quiet.
 
     """
 

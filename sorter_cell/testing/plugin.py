@@ -68,7 +68,7 @@ def pytest_configure(config):
     config.addinivalue_line(
         'markers',
         'sorter_cell(params, events): cell parameters for the sorter_cell fixture; '
-        'events=True: rclpy\'s events executor (faster)',
+        'events=False: rclpy\'s single-threaded executor (the default is the events executor)',
     )
     config.addinivalue_line(
         'markers',
@@ -175,7 +175,7 @@ def sorter_cell(request, tmp_path):
 
     record = _record_path(request, tmp_path, 'sorter_cell')
     marker = request.node.get_closest_marker('sorter_cell')
-    events = bool(marker.kwargs.get('events', False)) if marker is not None else False
+    events = bool(marker.kwargs.get('events', True)) if marker is not None else True
     cell = SorterCell(_marker_params(request, 'sorter_cell'), record=record, events=events)
     try:
         yield cell
