@@ -51,7 +51,7 @@ class LineSeal:
     def describe(self) -> str:
         """Return what a node says at its start about the line's messages."""
         if self.keyed:
-            return f'line key from {KEY_ENV}: every line message sealed and checked'
+            return 'a line key: every line message sealed, and checked on arrival'
         return (
             f'the line is open: no line key ({KEY_ENV} unset), its messages are taken on '
             'what they say (sorter line-key FILE makes one; docs/simulation-node.md)'

@@ -1,5 +1,5 @@
 """
-The line key and what no line takes even without one (``sorter_ros.line_key``, ``runtime.handover``).
+The line key, and what no line takes even without one (``line_key``, ``handover``).
 
 The key file (``sorter line-key``: new, random, mode 0600, never overwritten, refused
 when others can read it), the seal (a message altered, moved to another topic, sent

@@ -632,6 +632,7 @@ class SegmentLink:
                 'expected'
             )
         h, sent_ns = parse_handover(msg, self.limits)
+        self._check_ahead(h)
         if h.parcel_id in self._taken:
             first = self._recent.get(h.parcel_id)
             if first is None or _same_handoff(first, h):
@@ -644,7 +645,7 @@ class SegmentLink:
                 f'parcel {h.parcel_id}: a different parcel under this id was taken already; '
                 'said lost'
             )
-        self._check_plausible(h)
+        self._check_place(h)
         self._taken.add(h.parcel_id)
         if len(self.inbox) >= self._room():
             self._lose(h, f'no room at {self.upstream}')
@@ -660,15 +661,13 @@ class SegmentLink:
             self.stats['late'] += 1  # on the wall clock: taken at once, as it left
         self.inbox.append(h)
 
-    def _check_plausible(self, h: Handoff) -> None:
+    def _check_ahead(self, h: Handoff) -> None:
         """
-        Refuse a parcel no segment upstream can have handed on (HandoverError naming why).
+        Refuse a parcel further ahead of its upstream's horizon than that segment runs.
 
         Every parcel handed on is sent before the horizon that covers its time, and a
         segment runs at most ``HORIZON_STRIDE`` passes past its last horizon: a parcel
-        further ahead of the horizon is not its upstream's. Two parcels whose inner
-        circles (half their shorter side) overlap at the same time cannot both be on
-        the belt.
+        further ahead is not its upstream's (HandoverError).
         """
         k = h.t_ns // self.dt_ns
         lead = HORIZON_STRIDE * self.max_step_k
@@ -677,6 +676,9 @@ class SegmentLink:
                 f'parcel {h.parcel_id} at period {k}: ahead of its upstream\'s horizon (period '
                 f'{self.horizon_k}) by more than the {lead} periods it runs between two'
             )
+
+    def _check_place(self, h: Handoff) -> None:
+        """Refuse a parcel whose inner circle (half its shorter side) meets one at its time."""
         r = 0.5 * min(h.dims[0], h.dims[1])
         for other in self._at_time.get(h.t_ns, ()):
             gap = math.hypot(h.state[0] - other.state[0], h.state[1] - other.state[1])
