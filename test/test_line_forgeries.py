@@ -257,10 +257,18 @@ class Forger:
         self.exits.publish(message(f'parcel/{pid}', values + [('t', '1.000000000')]))
 
 
+def _two_segment_demo(ros, env: dict, *more: str) -> subprocess.Popen:
+    """Start ``sorter demo --stations 2 --segments 2 --json`` and ``more`` in the test's domain."""
+    env = dict(env, ROS_DOMAIN_ID=str(ros.context.get_domain_id()))
+    cmd = [sys.executable, '-m', 'sorter_cell', 'demo', '--stations', '2', '--segments', '2']
+    return subprocess.Popen(
+        cmd + ['--json', *more], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+    )
+
+
 def _forged_demo(ros, tmp_path, keyed: bool):
     """Run ``sorter demo --stations 2 --segments 2 --parcels 5`` with the forger; return all."""
     env = {k: v for k, v in os.environ.items() if k != KEY_ENV}
-    env['ROS_DOMAIN_ID'] = str(ros.context.get_domain_id())
     if keyed:
         key = tmp_path / 'line.key'
         new_key_file(str(key))
@@ -268,14 +276,7 @@ def _forged_demo(ros, tmp_path, keyed: bool):
         assert len(read_key_file(str(key))) == 32
     forger = Forger(ros, open_line=not keyed)
     path = tmp_path / 'dispositions.jsonl'
-    demo = subprocess.Popen(
-        [sys.executable, '-m', 'sorter_cell', 'demo', '--stations', '2', '--segments', '2']
-        + ['--parcels', '5', '--json', '--dispositions', str(path)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
+    demo = _two_segment_demo(ros, env, '--parcels', '5', '--dispositions', str(path))
     try:
         out, err = ros.communicate(demo, 150.0)
     finally:
@@ -343,14 +344,7 @@ def test_a_segment_that_dies_after_its_ready_while_another_starts_is_said_at_onc
     import signal
 
     watcher = ros.make_node('watcher')
-    demo = subprocess.Popen(
-        [sys.executable, '-m', 'sorter_cell', 'demo', '--stations', '2', '--segments', '2']
-        + ['--parcels', '3', '--json'],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, 'ROS_DOMAIN_ID': str(ros.context.get_domain_id())},
-    )
+    demo = _two_segment_demo(ros, dict(os.environ), '--parcels', '3')
     first = None
     try:
         first = _child(demo, '--first 1')
