@@ -646,13 +646,13 @@ class SegmentLink:
                 'said lost'
             )
         self._check_place(h)
-        self._taken.add(h.parcel_id)
         if len(self.inbox) >= self._room():
             self._lose(h, f'no room at {self.upstream}')
             raise HandoverError(
                 f'parcel {h.parcel_id}: station {self.upstream} has no room for another '
                 '(max_parcels); said lost'
             )
+        self._taken.add(h.parcel_id)
         self._remember(h)
         self.stats['received'] += 1
         if sent_ns:
