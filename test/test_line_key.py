@@ -153,3 +153,30 @@ def test_an_exit_into_another_stations_chute_is_refused_and_a_loss_has_its_cause
     wcs.request('P00008', 'D01')
     d = wcs.exited('P00008', 'straight_end', 2, 2.0)
     assert d.code == 'lost' and d.cause
+
+
+@pytest.mark.parametrize(
+    'command',
+    [
+        ['-m', 'sorter_sim.frontends.line_node'],
+        ['-m', 'sorter_control.wcs_node'],
+        ['-m', 'sorter_cell', 'demo', '--stations', '2', '--segments', '2'],
+    ],
+    ids=['line_node', 'wcs_node', 'line demo'],
+)
+def test_a_key_file_others_can_read_stops_the_line_in_one_line(tmp_path, command):
+    path = tmp_path / 'line.key'
+    new_key_file(str(path))
+    os.chmod(path, 0o644)
+    done = subprocess.run(
+        [sys.executable, *command],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, KEY_ENV: str(path)},
+    )
+    assert done.returncode == 2, done.stdout + done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert 'readable by others' in lines[-1] and str(path) in lines[-1], lines
+    assert 'Traceback' not in done.stderr
+    assert path.read_text().strip() not in done.stdout + done.stderr
