@@ -292,7 +292,7 @@ class SegmentLink:
         self._said_horizon_ns = None  # the newest one said
         self._taken: set[int] = set()  # every parcel id taken, to drop a second copy
         # the newest parcels taken, by id and by time: a copy is told from another parcel
-        self._recent: dict[int, Handoff] = {}
+        self._recent: dict[int, tuple[Handoff, str | None]] = {}  # and its owner upstream
         self._at_time: dict[int, list[Handoff]] = {}
         # called with (Handoff, why) for a parcel handed here that is lost (LineNode: an exit)
         self.on_lost = None
@@ -530,6 +530,9 @@ class SegmentLink:
                     ),
                 )
 
+    def _upstream_owner(self) -> str | None:
+        return self.owners.owner_of(self._owned[0] - 1) if self.owners is not None else None
+
     def _downstream_owner(self) -> str | None:
         return self.owners.owner_of(self._owned[0] + self._owned[1])
 
@@ -634,12 +637,15 @@ class SegmentLink:
         h, sent_ns = parse_handover(msg, self.limits)
         self._check_ahead(h)
         if h.parcel_id in self._taken:
-            first = self._recent.get(h.parcel_id)
-            if first is None or _same_handoff(first, h):
-                self.stats['duplicates'] += 1  # sent again to a segment that has it
+            first, sender = self._recent.get(h.parcel_id, (None, None))
+            if first is None or _same_handoff(first, h) or sender != self._upstream_owner():
+                # sent again to a segment that has it: a hello's answer, or a restarted
+                # segment upstream handing its parcels on again (one that met a parcel
+                # which had already left may differ: the first one taken stays)
+                self.stats['duplicates'] += 1
                 return
-            # a second, different parcel under an id taken: one of the two is not the
-            # one upstream handed on; the later one is refused, and said lost, not dropped
+            # a second, different parcel under an id taken, from the same owner upstream:
+            # one of the two is not its; the later one is refused, and said lost
             self._lose(h, 'handed over twice, differently')
             raise HandoverError(
                 f'parcel {h.parcel_id}: a different parcel under this id was taken already; '
@@ -689,11 +695,11 @@ class SegmentLink:
                 )
 
     def _remember(self, h: Handoff) -> None:
-        """Keep a parcel taken, by id and by time, for the checks above (the newest few)."""
-        self._recent[h.parcel_id] = h
+        """Keep a parcel taken, by id (with its owner upstream) and by time: the newest few."""
+        self._recent[h.parcel_id] = (h, self._upstream_owner())
         self._at_time.setdefault(h.t_ns, []).append(h)
         while len(self._recent) > MAX_REMEMBERED:
-            old = self._recent.pop(next(iter(self._recent)))
+            old, _ = self._recent.pop(next(iter(self._recent)))
             same = self._at_time.get(old.t_ns, [])
             if old in same:
                 same.remove(old)
