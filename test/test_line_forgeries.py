@@ -375,3 +375,24 @@ def test_a_segment_that_dies_after_its_ready_while_another_starts_is_said_at_onc
     assert f'segment 2 of 2 (process {victim}) ended with signal 9' in err, err
     assert 'Traceback' not in err and len(err.strip().splitlines()) == 1, err
     print(f'\na segment killed while another started: said after {said_after:.1f} s')
+
+
+@pytest.fixture
+def keyed_environment(tmp_path, monkeypatch):
+    """``SORTER_LINE_KEY`` naming a new key file, for the fixtures made after this one."""
+    path = tmp_path / 'line.key'
+    new_key_file(str(path))
+    monkeypatch.setenv(KEY_ENV, str(path))
+    return path
+
+
+@pytest.mark.sorter_line(stations=2)
+def test_the_line_fixture_takes_the_key_from_the_environment(keyed_environment, sorter_line):
+    assert sorter_line.line.seal.keyed and sorter_line.wcs.seal.keyed
+    sorter_line.induct('K-1', 'D03')
+    assert sorter_line.run_until(lambda: sorter_line.disposition('K-1') is not None, 30.0)
+    assert sorter_line.disposition('K-1').code == 'sorted'  # its exit sealed, and taken
+    assert sorter_line.wcs.n_refused_exits == 0
+    forged = [('id', '9'), ('label', 'K-2'), ('exit', 'S01L'), ('station', 'S01'), ('t', '1.0')]
+    sorter_line.wcs._on_exit(message('parcel/9', forged))
+    assert sorter_line.wcs.n_refused_exits == 1 and sorter_line.disposition('K-2') is None

@@ -63,9 +63,17 @@ The messages are ``diagnostic_msgs/DiagnosticStatus``: ``name`` ``parcel``,
 ``progress`` to all, ``values`` the fields. Each is read whole before it touches anything
 (``runtime.handover``: the fields, their ranges, the parcel's physics); a horizon moves
 forward by at most ``HORIZON_STRIDE`` slices once the first one is in; a parcel id this
-segment has taken is not taken again, nor one for a time its upstream has closed. A message that
+segment has taken is not taken again, nor one for a time its upstream has closed, nor
+one further ahead of the horizon than its upstream runs, nor a second parcel at the
+same place and time; a claim from an identity older than the host is refused. A message that
 fails is refused in one line, counted (``stats['refused']``) and changes nothing; it
-never stops the segment.
+never stops the segment. A parcel handed here that is not taken for want of room, or a
+different parcel under an id taken from the same owner upstream, is said lost
+(``on_lost``: the line node's exit ``lost``, with the cause), never dropped silently.
+
+With a line key (``sorter_ros.line_key``, ``SORTER_LINE_KEY``) every message is sealed
+as it is sent and its seal checked before anything above: one without a good seal,
+or a replay, is refused the same way (``sorter_ros.line_seal``).
 """
 
 from __future__ import annotations
