@@ -1,7 +1,8 @@
 """
 The ``sorter`` command and its verbs.
 
-``sorter run | paper | sweep | bench | demo | replay | scenario | recover | warmup``.
+``sorter run | paper | sweep | bench | demo | replay | scenario | recover | warmup |
+line-key``.
 
 The model's verbs come from ``sorter_sim.cli``; ``demo`` starts the simulation
 node and the controller together, so it sits here, above both packages.
@@ -22,6 +23,7 @@ CELL_VERBS = dict(
     scenario=("sorter_cell.scenario_cli", "run scenario files (one, or a campaign on Dask)"),
     recover=("sorter_cell.recover", "write a complete MCAP file from a recording cut short"),
     warmup=("sorter_cell.warmup_cli", "compile the model's kernels into numba's cache, once"),
+    **{"line-key": ("sorter_cell.line_key_cli", "write a new random key for a line's segments")},
 )
 
 

@@ -26,6 +26,7 @@ import time
 from collections import Counter
 
 FAST_SLICE = 0.005
+READY_POLL_S = 0.1  # s between two looks at the segments said ready while others start
 ANSWER_S = 2.0  # s station 1 has to answer a parameter change before it is sent again
 
 
@@ -73,6 +74,12 @@ def run_line(args) -> int | str:
         return (
             '--segments K > 1: --record and --foxglove are a single process\'s, not a segment\'s'
         )
+    from sorter_ros.line_key import LineKeyError, key_from_env
+
+    try:
+        key_from_env()  # SORTER_LINE_KEY: every segment and the warehouse read it
+    except LineKeyError as exc:
+        return str(exc)
     apply_ros_env_defaults()
     config = find_config_dir()
     ctx = Context()
@@ -286,10 +293,19 @@ def _start_segments(args, n: int, k_seg: int, stop=None) -> list:
                 clock,
             )
         )
-    # every segment's first line, as it comes: one that ends first is said at once
+    # every segment's first line, as it comes: one that ends first is said at once, and
+    # so is one that ends after its ``ready`` while the others still start (looked at
+    # every READY_POLL_S: its pipe is no longer watched)
     waiting = {proc.stdout.fileno(): (j, proc) for j, (proc, _) in enumerate(procs, 1)}
     while waiting:
-        ready, _, _ = select.select(list(waiting), [], [])
+        ready, _, _ = select.select(list(waiting), [], [], READY_POLL_S)
+        gone = _ended(procs)
+        if gone is not None and procs[gone][0].stdout.fileno() not in waiting:
+            dead = _dead_segment(procs)  # said before the others are ended too
+            for other, _ in procs:
+                other.kill()
+                other.wait()
+            raise SegmentDied(f'{dead}, while the others started')
         for fd in ready:
             j, proc = waiting.pop(fd)
             line = proc.stdout.readline().strip()

@@ -212,6 +212,7 @@ def segment_stats(line, ctls) -> dict:
         'taken': link.stats['received'],
         'late': link.stats['late'],
         'refused': link.stats['refused'],
+        'lost': link.stats['lost'],  # handed to it and not taken: said lost, with the cause
         'resent': link.stats['resent'],  # sent again: the segment downstream (re)started
         'duplicates': link.stats['duplicates'],  # copies of parcels it had, dropped
         'in_custody': len(link.outbox),  # handed on, not yet out of the segment downstream

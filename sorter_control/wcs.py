@@ -25,7 +25,9 @@ is here, in ``LineWcs`` (the logic, no ROS) and ``WcsNode`` (its ROS face):
   ``gap_too_short``, ``cannot_divert``, ``chute_full``, ``late``, ``not_executing``
   (its station was not in PackML Execute), ``mis_sorted``,
   ``jammed``, ``lost`` (left the line straight with no reason its planned station
-  gave, or never seen again), each with the station and the chute.
+  gave, or a segment could not take it: the line's exit ``lost``), each with the
+  station, the chute and, for a jam or a loss, its cause: a parcel is never lost
+  without one.
 """
 
 from __future__ import annotations
@@ -75,6 +77,7 @@ class Disposition:
     chute: str  # the chute it reached, '' for none
     station: str  # S01 .. where it left the line
     t: float
+    cause: str = ''  # the line's cause, when it gave one (a jam's, a loss's)
 
 
 def _name(value, what: str) -> str:
@@ -86,6 +89,7 @@ def _name(value, what: str) -> str:
 
 
 EXIT_FIELDS = ('id', 'label', 'exit', 'station', 't')
+LINE_EXITS = ('straight_end', 'jammed', 'lost')  # the exits that are no chute
 
 
 def parse_exit(pairs, chutes: list) -> tuple[str, str, int, float, str]:
@@ -124,10 +128,17 @@ def parse_exit(pairs, chutes: list) -> tuple[str, str, int, float, str]:
         raise PlanError(
             f'station must be one of {names[0]}..{names[-1]}, got {shown(v["station"], 40)}'
         )
-    exits = {name for pair in chutes for name in pair} | {'straight_end', 'jammed'}
+    exits = {name for pair in chutes for name in pair} | set(LINE_EXITS)
     if v['exit'] not in exits:
         raise PlanError(
-            f'exit must be a chute of the line, straight_end or jammed, got {shown(v["exit"], 40)}'
+            f'exit must be a chute of the line, straight_end, jammed or lost, got '
+            f'{shown(v["exit"], 40)}'
+        )
+    k = names.index(v['station'])
+    if v['exit'] not in LINE_EXITS and v['exit'] not in chutes[k]:
+        raise PlanError(
+            f'exit {v["exit"]} at station {v["station"]}, whose chutes are '
+            f'{" and ".join(chutes[k])}: a parcel reaches a chute at its own station'
         )
     if not (v['id'].isascii() and v['id'].isdigit() and len(v['id']) <= 19):
         raise PlanError(f'id must be a decimal integer >= 0, got {shown(v["id"], 40)}')
@@ -140,7 +151,7 @@ def parse_exit(pairs, chutes: list) -> tuple[str, str, int, float, str]:
     cause = v.get('cause', '')
     if len(cause) > MAX_NAME or not cause.isprintable():
         raise PlanError(f'cause must be at most {MAX_NAME} printable characters')
-    return v['label'], v['exit'], names.index(v['station']), t, cause
+    return v['label'], v['exit'], k, t, cause
 
 
 class LineWcs:
@@ -444,6 +455,8 @@ class LineWcs:
         chute = exit if exit in self.where else ''
         if exit == 'jammed':
             code = 'chute_full' if cause == 'chute full' else 'jammed'
+        elif exit == 'lost':
+            code = 'lost'  # the line said so, with its cause
         elif not label:
             code = 'no_read'
         elif planned is None:
@@ -461,9 +474,10 @@ class LineWcs:
                 code = 'no_read'
             else:
                 code = 'lost'
+                cause = cause or 'passed its station, which never answered for it'
         else:
             code = 'mis_sorted'
-        d = Disposition(label, code, dest, chute, station_name(station), t)
+        d = Disposition(label, code, dest, chute, station_name(station), t, cause)
         if label:
             self.dispositions.pop(label, None)
             self.dispositions[label] = d

@@ -49,6 +49,7 @@ from sensor_msgs.msg import TimeReference
 from std_msgs.msg import Bool, String
 
 from sorter_control.wcs import LineWcs, PlanError, parse_exit
+from sorter_ros.line_seal import LineSeal
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
@@ -93,8 +94,11 @@ WCS_PARAMS = {
 class WcsNode(Node):
     """The line's warehouse side (see the module)."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, *, line_key: bytes | None = None, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
+        # the exits the line's segments seal with the line key (None: SORTER_LINE_KEY's
+        # file, or an open line); a key that cannot be used is a ValueError naming it
+        self.seal = LineSeal(line_key)
         answer_every_parameter_request(self)  # a request rclpy cannot read too
         # a value of another type (``stations:=x``) or out of range is refused naming what
         # is allowed; read once, at start-up
@@ -322,10 +326,11 @@ class WcsNode(Node):
 
     def _on_exit(self, msg: DiagnosticStatus) -> None:
         try:
+            msg = self.seal.opened(self._sub_exits.topic_name, msg)
             label, exit, station, t, cause = parse_exit(
                 [(kv.key, kv.value) for kv in msg.values], self.wcs.chutes
             )
-        except PlanError as exc:
+        except ValueError as exc:  # PlanError, or a seal's HandoverError
             self.n_refused_exits += 1
             self.get_logger().warning(f'line/exits: {exc}; refused', throttle_duration_sec=1.0)
             return
@@ -348,7 +353,7 @@ class WcsNode(Node):
             ('chute', d.chute),
             ('station', d.station),
             ('t', f'{d.t:.6f}'),
-        ]
+        ] + ([('cause', d.cause)] if d.cause else [])
         self._publish(
             self._pub_disp,
             DiagnosticStatus(

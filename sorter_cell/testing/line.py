@@ -161,6 +161,9 @@ class SorterLine(LockStep):
         As ``SorterCell``'s.
     start_timeout_s : float
         The most wall time the project's programs may take to start.
+    line_key : str, optional
+        A line key file (``sorter line-key``): the line and the warehouse seal their
+        exits with it; default ``SORTER_LINE_KEY``'s file, or none.
 
     """
 
@@ -178,17 +181,20 @@ class SorterLine(LockStep):
         grace_s: float | None = None,
         record: str | None = None,
         start_timeout_s: float = 120.0,
+        line_key: str | None = None,
     ):
         from rclpy.parameter import Parameter
 
         from sorter_cell.line_segment import station_controller
         from sorter_control.wcs_node import WcsNode
+        from sorter_ros.line_key import read_key_file
         from sorter_sim.frontends.line_node import LineNode
 
         if isinstance(stations, bool) or not (
             isinstance(stations, int) and 1 <= stations <= MAX_STATIONS
         ):
             raise ValueError(f'stations must be an integer in [1, 64], got {stations!r}')
+        key = read_key_file(line_key) if line_key else None  # a LineKeyError is a ValueError
         programs = dict(programs or {})
         bad = [k for k in programs if not (isinstance(k, int) and 1 <= k <= stations)]
         if bad:
@@ -202,6 +208,7 @@ class SorterLine(LockStep):
         try:
             self.line = LineNode(
                 context=self.context,
+                line_key=key,
                 parameter_overrides=[
                     Parameter('stations', value=stations),
                     Parameter('time_mode', value='lockstep'),
@@ -213,6 +220,7 @@ class SorterLine(LockStep):
             self.add_node(self.line.nodes)
             self.wcs = WcsNode(
                 context=self.context,
+                line_key=key,
                 parameter_overrides=[
                     Parameter('stations', value=stations),
                     Parameter('use_sim_time', value=True),

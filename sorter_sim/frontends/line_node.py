@@ -12,8 +12,11 @@ only station 1 inducts (its stream, its ``parcels/induct``).
 
 The line node itself publishes ``/clock`` (the one clock of the line), where each
 parcel left the line on ``line/exits`` (a ``diagnostic_msgs/DiagnosticStatus``:
-label, id, exit: a chute's name, ``straight_end`` or ``jammed``, station, t,
-cause) and each chute's full sensor on ``line/chutes/<name>/full`` (latched).
+label, id, exit: a chute's name, ``straight_end``, ``jammed`` or ``lost`` (a parcel
+handed to a segment that it could not take: no room, or a second parcel under an id
+taken), station, t, cause) and each chute's full sensor on
+``line/chutes/<name>/full`` (latched). With a line key (``SORTER_LINE_KEY``) every
+message between segments and every exit carries its seal (``frontends.line_seal``).
 Time runs as for a cell: ``lockstep`` (``line/step`` advances one period),
 ``fast`` (slices of ``fast_slice``) or ``realtime`` (``real_time_factor``).
 
@@ -60,11 +63,13 @@ from sorter_ros.recording import open_recorder, publish_recorded, release_record
 from sorter_sim.frontends.cdr import clock_cdr
 from sorter_sim.frontends.fieldbus import FieldbusServers
 from sorter_sim.frontends.node import SimNode, burst_limit, realtime_tick
+from sorter_ros.line_seal import LineSeal
 from sorter_sim.frontends.segments import SegmentLink
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_sim.runtime.cell import STATE_NAMES, SensorEdge
 from sorter_sim.runtime.handover import HandoverLimits
 from sorter_sim.runtime.line import Line, LineExit, LineLayout, StationEvent
+from sorter_ros.line_key import LineKeyError
 from sorter_sim.runtime.params import SPECS, ParamError
 
 NODE_NAME = 'sorter_line'
@@ -184,10 +189,21 @@ class LineNode(Node):
     """The line's clock and its stations (see the module)."""
 
     def __init__(
-        self, *, station_params: dict | None = None, node_name: str = NODE_NAME, **kwargs
+        self,
+        *,
+        station_params: dict | None = None,
+        node_name: str = NODE_NAME,
+        line_key: bytes | None = None,
+        **kwargs,
     ):
         # the segments of a line in one ROS graph each need a name of their own
         super().__init__(node_name, **kwargs)
+        try:
+            # the line key (None: SORTER_LINE_KEY's file, or an open line): read first, so
+            # that a key that cannot be used stops the node before anything starts
+            self.seal = LineSeal(line_key)
+        except LineKeyError as exc:
+            raise ParamError(str(exc)) from None
         answer_every_parameter_request(self)  # a request rclpy cannot read too
         self.values = values = declare_options(self, LINE_PARAMS, ParamError)
         self._refuse_unknown_parameters()
@@ -231,6 +247,10 @@ class LineNode(Node):
         else:
             self._timer = None
         self._publish_clock()
+        if self.segment.upstream or self.segment.downstream or self.seal.keyed:
+            # said once: an open line takes any message in an owner's name on what it says
+            say = self.get_logger().info if self.seal.keyed else self.get_logger().warning
+            say(self.seal.describe())
         self.get_logger().info(
             f'sorter line ready: {n} stations ({", ".join(a + "/" + b for a, b in chutes[:3])}'
             f'{", ..." if n > 3 else ""}), {mode} mode'
@@ -372,6 +392,7 @@ class LineNode(Node):
             room=lambda: p0.max_parcels - self.stations[0].cell.n_parcels,
             barrier=values['segment_sync'] == 'barrier',
         )
+        self.segment.on_lost = self._lost_on_arrival
 
     def _start_stations(self, ns: str, f0: int, n: int, overrides: list) -> None:
         """Start this node's ``n`` stations, the line's ``f0 + 1`` .. ``f0 + n``."""
@@ -644,6 +665,10 @@ class LineNode(Node):
     def _publish_clock(self) -> None:
         self._publish(self._pub_clock, clock_cdr(self.line.t_ns))
 
+    def _lost_on_arrival(self, h, why: str) -> None:
+        """Say a parcel handed to this segment lost, at its first station, with why."""
+        self._publish_exit(LineExit(h.t_ns, h.parcel_id, h.label, 'lost', 0, why))
+
     def _publish_exit(self, e: LineExit) -> None:
         self.exits += 1
         values = [
@@ -655,16 +680,14 @@ class LineNode(Node):
         ]
         if e.cause:
             values.append(('cause', e.cause))
-        self._publish(
-            self._pub_exits,
-            DiagnosticStatus(
-                level=DiagnosticStatus.WARN if e.exit == 'jammed' else DiagnosticStatus.OK,
-                name=f'parcel/{e.parcel_id}',
-                message=e.exit,
-                hardware_id=self.get_fully_qualified_name(),
-                values=[KeyValue(key=k, value=v) for k, v in values],
-            ),
+        msg = DiagnosticStatus(
+            level=DiagnosticStatus.WARN if e.exit in ('jammed', 'lost') else DiagnosticStatus.OK,
+            name=f'parcel/{e.parcel_id}',
+            message=e.exit,
+            hardware_id=self.get_fully_qualified_name(),
+            values=[KeyValue(key=k, value=v) for k, v in values],
         )
+        self._publish(self._pub_exits, self.seal.sealed(self._pub_exits.topic_name, msg))
 
     def destroy_node(self):
         """Stop the fieldbus servers and the live view, destroy the stations, then this node."""

@@ -63,9 +63,17 @@ The messages are ``diagnostic_msgs/DiagnosticStatus``: ``name`` ``parcel``,
 ``progress`` to all, ``values`` the fields. Each is read whole before it touches anything
 (``runtime.handover``: the fields, their ranges, the parcel's physics); a horizon moves
 forward by at most ``HORIZON_STRIDE`` slices once the first one is in; a parcel id this
-segment has taken is not taken again, nor one for a time its upstream has closed. A message that
+segment has taken is not taken again, nor one for a time its upstream has closed, nor
+one further ahead of the horizon than its upstream runs, nor a second parcel at the
+same place and time; a claim from an identity older than the host is refused. A message that
 fails is refused in one line, counted (``stats['refused']``) and changes nothing; it
-never stops the segment.
+never stops the segment. A parcel handed here that is not taken for want of room, or a
+different parcel under an id taken from the same owner upstream, is said lost
+(``on_lost``: the line node's exit ``lost``, with the cause), never dropped silently.
+
+With a line key (``sorter_ros.line_key``, ``SORTER_LINE_KEY``) every message is sealed
+as it is sent and its seal checked before anything above: one without a good seal,
+or a replay, is refused the same way (``sorter_ros.line_seal``).
 """
 
 from __future__ import annotations
@@ -80,12 +88,15 @@ from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from sorter_sim.model.description import shown, station_name
+from sorter_ros.line_key import SealError
+from sorter_ros.line_seal import LineSeal
 from sorter_sim.runtime.cell import Handoff
 from sorter_sim.runtime.handover import (
     HandoverError,
     HandoverLimits,
     MAX_IDS,
     MAX_STATIONS,
+    check_claim_age,
     message_fields,
     parse_answer_fields,
     parse_claim,
@@ -127,6 +138,12 @@ HELLO_MIN_S = 1.0  # s between two answers to a hello (each re-sends the whole o
 # horizon every slice (hundreds a second) filled the writer before then, so the segment
 # restarted in its place waited that long for its answer
 HORIZON_STRIDE = 8
+MAX_REMEMBERED = 4096  # parcels taken kept whole, to tell a copy from another parcel
+
+
+def _same_handoff(a: Handoff, b: Handoff) -> bool:
+    """Return True when two hand-overs are one parcel sent twice (a hello's answer)."""
+    return (a.t_ns, a.label, a.state, a.mode, a.dims) == (b.t_ns, b.label, b.state, b.mode, b.dims)
 
 
 def handover_message(h: Handoff, wall_ns: int) -> DiagnosticStatus:
@@ -193,7 +210,8 @@ class SegmentLink:
     Parameters
     ----------
     node : rclpy.node.Node
-        The line node.
+        The line node; its ``seal`` (a ``LineSeal``), when it has one, seals and checks
+        every line message (else ``SORTER_LINE_KEY``'s key, or an open line).
     upstream, downstream : str or None
         The station whose hand-over topic this segment reads (its own first one) and
         writes (the next segment's first one); None at the line's ends.
@@ -230,6 +248,8 @@ class SegmentLink:
         barrier: bool = False,
     ):
         self.node = node
+        # the line key's seal on every message (an open line: none, see line_seal)
+        self.seal = getattr(node, 'seal', None) or LineSeal()
         self.upstream = upstream
         self.downstream = downstream
         self.dx = dx
@@ -255,6 +275,7 @@ class SegmentLink:
             'duplicates': 0,
             'waits': 0,
             'claim_conflicts': 0,
+            'lost': 0,
         }
         self.latencies_ns: list[int] = []  # wall time from sending to receiving
         # called after each message from a neighbour: a held line's cue to look again
@@ -263,7 +284,9 @@ class SegmentLink:
         self.identity = f'{os.getpid()}-{time.time_ns()}'
         self._owned = owned
         self.owners = (
-            Ownership(node, self.identity, owned, lambda why: self._refuse(why, 'owners'))
+            Ownership(
+                node, self.identity, owned, lambda why: self._refuse(why, 'owners'), self.seal
+            )
             if upstream or downstream
             else None
         )
@@ -276,6 +299,11 @@ class SegmentLink:
         self._last_horizon_ns = None  # the newest horizon (said, or waiting to be)
         self._said_horizon_ns = None  # the newest one said
         self._taken: set[int] = set()  # every parcel id taken, to drop a second copy
+        # the newest parcels taken, by id and by time: a copy is told from another parcel
+        self._recent: dict[int, tuple[Handoff, str | None]] = {}  # and its owner upstream
+        self._at_time: dict[int, list[Handoff]] = {}
+        # called with (Handoff, why) for a parcel handed here that is lost (LineNode: an exit)
+        self.on_lost = None
         self._left: list[int] = []  # ids that left this segment, to tell upstream
         self._hello_said = -math.inf  # when the hello was last said (monotonic s)
         self._queue: list[DiagnosticStatus] = []  # to the segment downstream, in order
@@ -287,7 +315,7 @@ class SegmentLink:
             node.create_subscription(
                 DiagnosticStatus,
                 f'line/handover/{downstream}/left',
-                self._guarded(self._on_custody, downstream),
+                self._guarded(self._on_custody, downstream, f'line/handover/{downstream}/left'),
                 HANDOVER_QOS,
             )
         self._barrier = owned if barrier else None
@@ -299,7 +327,7 @@ class SegmentLink:
             node.create_subscription(
                 DiagnosticStatus,
                 'line/progress',
-                self._guarded(self._on_progress, 'progress'),
+                self._guarded(self._on_progress, 'progress', 'line/progress'),
                 PROGRESS_QOS,
             )
             self._progress[owned[0]] = (owned[1], 0)
@@ -307,20 +335,21 @@ class SegmentLink:
             node.create_subscription(
                 DiagnosticStatus,
                 f'line/handover/{upstream}',
-                self._guarded(self._on_message, None),
+                self._guarded(self._on_message, None, f'line/handover/{upstream}'),
                 HANDOVER_QOS,
             )
             self._pub_left = node.create_publisher(
                 DiagnosticStatus, f'line/handover/{upstream}/left', HANDOVER_QOS
             )
 
-    def _guarded(self, callback, station):
-        """Return ``callback`` refusing, in one line, any message it cannot read."""
+    def _guarded(self, callback, station, topic: str):
+        """Return ``callback`` refusing, in one line, any message it cannot read or not sealed."""
+        topic = self.node.resolve_topic_name(topic)
 
         def guarded(msg):
             try:
-                callback(msg)
-            except HandoverError as exc:
+                callback(self.seal.opened(topic, msg))
+            except (HandoverError, SealError) as exc:
                 self._refuse(str(exc), station)
             if self.on_heard is not None:
                 self.on_heard()
@@ -342,7 +371,7 @@ class SegmentLink:
         now = time.time_ns()
         for h in handoffs:
             self.outbox[h.parcel_id] = h
-            self._queue.append(handover_message(h, now))
+            self._enqueue(handover_message(h, now))
             self.stats['sent'] += 1
         self._flush()
 
@@ -369,7 +398,7 @@ class SegmentLink:
             if t_ns - said < (HORIZON_STRIDE - 1) * self.max_step_k * self.dt_ns:
                 return
         self._said_horizon_ns = t_ns
-        self._queue.append(
+        self._enqueue(
             DiagnosticStatus(
                 name='horizon',
                 values=[
@@ -384,6 +413,14 @@ class SegmentLink:
         """Say the newest horizon if it is still waiting (the segment stopped running)."""
         if self._last_horizon_ns is not None and self._last_horizon_ns != self._said_horizon_ns:
             self.horizon(self._last_horizon_ns)
+
+    def _enqueue(self, msg: DiagnosticStatus) -> None:
+        """Queue a message downstream, sealed now: its counter rises in the queue's order."""
+        self._queue.append(self.seal.sealed(self._pub.topic_name, msg))
+
+    def _send(self, pub, msg: DiagnosticStatus) -> None:
+        """Publish a message on ``pub`` at once, sealed."""
+        pub.publish(self.seal.sealed(pub.topic_name, msg))
 
     def backlogged(self) -> bool:
         """Return True while messages wait for the segment downstream to take them."""
@@ -408,7 +445,8 @@ class SegmentLink:
         """Say this segment's time to the others (``segment_sync`` ``barrier``)."""
         first, n, _ = self._barrier
         self._progress[first] = (n, k)
-        self._pub_progress.publish(
+        self._send(
+            self._pub_progress,
             DiagnosticStatus(
                 name='progress',
                 values=[
@@ -417,7 +455,7 @@ class SegmentLink:
                     KeyValue(key='stations', value=str(n)),
                     KeyValue(key='k', value=str(k)),
                 ],
-            )
+            ),
         )
 
     def line_k(self) -> int:
@@ -479,24 +517,29 @@ class SegmentLink:
         ):
             # said again until answered: the segment upstream keeps one hello waiting,
             # which another's may have taken the place of
-            self._pub_left.publish(
+            self._send(
+                self._pub_left,
                 DiagnosticStatus(
                     name='hello', values=[KeyValue(key='identity', value=self.identity)]
-                )
+                ),
             )
             self._hello_said = now
         if self._left and self._hello_said > -math.inf:
             ids, self._left = self._left, []
             for j in range(0, len(ids), MAX_IDS):
-                self._pub_left.publish(
+                self._send(
+                    self._pub_left,
                     DiagnosticStatus(
                         name='left',
                         values=[
                             KeyValue(key='ids', value=' '.join(map(str, ids[j : j + MAX_IDS]))),
                             KeyValue(key='identity', value=self.identity),
                         ],
-                    )
+                    ),
                 )
+
+    def _upstream_owner(self) -> str | None:
+        return self.owners.owner_of(self._owned[0] - 1) if self.owners is not None else None
 
     def _downstream_owner(self) -> str | None:
         return self.owners.owner_of(self._owned[0] + self._owned[1])
@@ -550,13 +593,13 @@ class SegmentLink:
         # a segment that (re)started: everything it answers for, again, in time order
         now = time.time_ns()
         for h in sorted(self.outbox.values(), key=lambda h: (h.t_ns, h.parcel_id)):
-            self._queue.append(handover_message(h, now))
+            self._enqueue(handover_message(h, now))
             self.stats['resent'] += 1
         if self._last_horizon_ns is not None:
             self.horizon(self._last_horizon_ns)
         # the answer's end: behind every parcel on the one ordered topic, so the segment
         # downstream has them all before it runs
-        self._queue.append(
+        self._enqueue(
             DiagnosticStatus(
                 name='answered',
                 values=[
@@ -600,21 +643,83 @@ class SegmentLink:
                 'expected'
             )
         h, sent_ns = parse_handover(msg, self.limits)
+        self._check_ahead(h)
         if h.parcel_id in self._taken:
-            self.stats['duplicates'] += 1  # sent again to a segment that has it, or forged
-            return
+            first, sender = self._recent.get(h.parcel_id, (None, None))
+            if first is None or _same_handoff(first, h) or sender != self._upstream_owner():
+                # sent again to a segment that has it: a hello's answer, or a restarted
+                # segment upstream handing its parcels on again (one that met a parcel
+                # which had already left may differ: the first one taken stays)
+                self.stats['duplicates'] += 1
+                return
+            # a second, different parcel under an id taken, from the same owner upstream:
+            # one of the two is not its; the later one is refused, and said lost
+            self._lose(h, 'handed over twice, differently')
+            raise HandoverError(
+                f'parcel {h.parcel_id}: a different parcel under this id was taken already; '
+                'said lost'
+            )
+        self._check_place(h)
         if len(self.inbox) >= self._room():
+            self._lose(h, f'no room at {self.upstream}')
             raise HandoverError(
                 f'parcel {h.parcel_id}: station {self.upstream} has no room for another '
-                '(max_parcels)'
+                '(max_parcels); said lost'
             )
         self._taken.add(h.parcel_id)
+        self._remember(h)
         self.stats['received'] += 1
         if sent_ns:
             self.latencies_ns.append(max(0, time.time_ns() - sent_ns))
         if h.t_ns // self.dt_ns < self.node.line.k:
             self.stats['late'] += 1  # on the wall clock: taken at once, as it left
         self.inbox.append(h)
+
+    def _check_ahead(self, h: Handoff) -> None:
+        """
+        Refuse a parcel further ahead of its upstream's horizon than that segment runs.
+
+        Every parcel handed on is sent before the horizon that covers its time, and a
+        segment runs at most ``HORIZON_STRIDE`` passes past its last horizon: a parcel
+        further ahead is not its upstream's (HandoverError).
+        """
+        k = h.t_ns // self.dt_ns
+        lead = HORIZON_STRIDE * self.max_step_k
+        if self._horizon_heard and k > self.horizon_k + lead:
+            raise HandoverError(
+                f'parcel {h.parcel_id} at period {k}: ahead of its upstream\'s horizon (period '
+                f'{self.horizon_k}) by more than the {lead} periods it runs between two'
+            )
+
+    def _check_place(self, h: Handoff) -> None:
+        """Refuse a parcel whose inner circle (half its shorter side) meets one at its time."""
+        r = 0.5 * min(h.dims[0], h.dims[1])
+        for other in self._at_time.get(h.t_ns, ()):
+            gap = math.hypot(h.state[0] - other.state[0], h.state[1] - other.state[1])
+            if gap < r + 0.5 * min(other.dims[0], other.dims[1]):
+                raise HandoverError(
+                    f'parcel {h.parcel_id}: at the same place and time (t_ns {h.t_ns}, '
+                    f'{gap:.3g} m apart) as parcel {other.parcel_id}, taken already'
+                )
+
+    def _remember(self, h: Handoff) -> None:
+        """Keep a parcel taken, by id (with its owner upstream) and by time: the newest few."""
+        self._recent[h.parcel_id] = (h, self._upstream_owner())
+        self._at_time.setdefault(h.t_ns, []).append(h)
+        while len(self._recent) > MAX_REMEMBERED:
+            old, _ = self._recent.pop(next(iter(self._recent)))
+            same = self._at_time.get(old.t_ns, [])
+            if old in same:
+                same.remove(old)
+            if not same:
+                self._at_time.pop(old.t_ns, None)
+
+    def _lose(self, h: Handoff, why: str) -> None:
+        """Say a parcel handed to this segment lost, with why: never dropped silently."""
+        self.stats['lost'] += 1
+        if self.on_lost is not None:
+            self.on_lost(h, why)
+        self.left(h.parcel_id)  # out of the custody upstream too: it has its end
 
     def _take_answer(self, sender: str) -> None:
         if sender != self.owners.owner_of(self._owned[0] - 1):
@@ -676,9 +781,10 @@ class Ownership:
     unchallenged, so that a claim already there reaches it first.
     """
 
-    def __init__(self, node, identity: str, owned: tuple, refuse):
+    def __init__(self, node, identity: str, owned: tuple, refuse, seal: LineSeal):
         self.node = node
         self._refuse = refuse
+        self._seal = seal
         self.identity = identity
         self.first, self.n, self.line_stations = owned
         self._start = time.monotonic()
@@ -689,6 +795,7 @@ class Ownership:
         self._reported: set[str] = set()
         self.conflicts = 0
         self._pub = node.create_publisher(DiagnosticStatus, 'line/owners', OWNERS_QOS)
+        self._topic = self._pub.topic_name
         node.create_subscription(DiagnosticStatus, 'line/owners', self._on_claim, OWNERS_QOS)
         self.service()
         # said on the wall clock, whether or not the segment runs (lock-step: between steps)
@@ -704,17 +811,16 @@ class Ownership:
         now = time.monotonic()
         if now - self._said >= CLAIM_PERIOD_S:
             self._said = now
-            self._pub.publish(
-                DiagnosticStatus(
-                    name='owns',
-                    values=[
-                        KeyValue(key='identity', value=self.identity),
-                        KeyValue(key='first', value=str(self.first)),
-                        KeyValue(key='stations', value=str(self.n)),
-                        KeyValue(key='node', value=self.node_name),
-                    ],
-                )
+            msg = DiagnosticStatus(
+                name='owns',
+                values=[
+                    KeyValue(key='identity', value=self.identity),
+                    KeyValue(key='first', value=str(self.first)),
+                    KeyValue(key='stations', value=str(self.n)),
+                    KeyValue(key='node', value=self.node_name),
+                ],
             )
+            self._pub.publish(self._seal.sealed(self._topic, msg))
         for identity, (_, _, heard, _) in list(self._claims.items()):
             if now - heard > CLAIM_LEASE_S:
                 del self._claims[identity]
@@ -722,8 +828,11 @@ class Ownership:
 
     def _on_claim(self, msg: DiagnosticStatus) -> None:
         try:
+            msg = self._seal.opened(self._topic, msg)
             identity, first, n, name = parse_claim(pairs(msg), self.line_stations)
-        except HandoverError as exc:
+            if identity != self.identity:
+                check_claim_age(identity)
+        except (HandoverError, SealError) as exc:
             self._refuse(str(exc))
             return
         if identity == self.identity:

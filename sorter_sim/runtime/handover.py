@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import re
+import time
 from dataclasses import dataclass
 
 from sorter_sim.model.core.cell_kernels import MODE_BELT, MODE_DISKS, MODE_SLIDE
@@ -245,6 +246,50 @@ def parse_identity(text: str) -> str:
     return text.strip()
 
 
+def host_boot_ns() -> int:
+    """Return when this host booted [ns since the epoch] (Linux ``/proc/stat``); 0 unknown."""
+    global _BOOT_NS
+    if _BOOT_NS is None:
+        _BOOT_NS = 0
+        try:
+            with open('/proc/stat', encoding='ascii') as f:
+                for row in f:
+                    if row.startswith('btime '):
+                        _BOOT_NS = int(row.split()[1]) * 1_000_000_000
+                        break
+        except (OSError, ValueError):
+            pass
+    return _BOOT_NS
+
+
+_BOOT_NS: int | None = None
+# s a claim's start time may be ahead of this host's clock (another host's, a little fast)
+MAX_CLOCK_AHEAD_S = 60.0
+
+
+def check_claim_age(identity: str, now_ns: int | None = None) -> None:
+    """
+    Refuse a claim whose identity's start time no segment of this line can have.
+
+    A segment's identity is its process and start time (``<pid>-<start ns>``): a start
+    before this host booted is older than any line on it, and one more than
+    ``MAX_CLOCK_AHEAD_S`` ahead of now is not yet; either is forged (a claim "started
+    first" would make every real segment on its stations hold). HandoverError otherwise.
+    """
+    start = int(identity.partition('-')[2])
+    now_ns = time.time_ns() if now_ns is None else now_ns
+    boot = host_boot_ns()
+    if boot and start < boot:
+        raise HandoverError(
+            f'a claim from {identity}, which started before this host did (booted at '
+            f'{boot // 1_000_000_000} s): older than the line itself'
+        )
+    if start > now_ns + MAX_CLOCK_AHEAD_S * 1e9:
+        raise HandoverError(
+            f'a claim from {identity}, which starts more than {MAX_CLOCK_AHEAD_S:g} s from now'
+        )
+
+
 def parse_claim_fields(pairs, line_stations: int) -> tuple[str, int, int]:
     """
     Return (identity, first station 0-based, stations) of an ``owns`` message.
@@ -298,6 +343,8 @@ __all__ = [
     'HANDOVER_FIELDS',
     'HandoverError',
     'HandoverLimits',
+    'check_claim_age',
+    'host_boot_ns',
     'message_fields',
     'parse_answer_fields',
     'parse_claim',
