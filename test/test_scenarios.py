@@ -237,6 +237,57 @@ def test_a_bad_scenario_is_refused_in_one_line_naming_the_key(tmp_path, capsys, 
     assert str(sc) in err and 'Traceback' not in err
 
 
+# (where in the document, the bad value): a key a cell's and a line's scenario share
+SHARED_BAD = [
+    (path, value)
+    for path in (
+        ('duration',),
+        ('seed',),
+        ('name',),
+        ('stream', 'parcels', 0, 'at'),
+        ('stream', 'parcels', 0, 'length'),
+        ('stream', 'parcels', 0, 'mass'),
+        ('stream', 'parcels', 0, 'label'),
+        ('expect', 0, 'throughput_at_least'),
+        ('expect', 0, 'no_jam'),
+    )
+    for value in (float('nan'), float('inf'), -1, '1', True, None, [1])
+]
+
+
+@pytest.mark.parametrize(
+    'path, value', SHARED_BAD, ids=[f'{".".join(map(str, p))}={v!r}' for p, v in SHARED_BAD]
+)
+def test_a_key_a_cell_and_a_line_share_is_checked_the_same_way_in_both(path, value):
+    from sorter_cell.testing.scenario import check_scenario
+
+    def doc(form: dict) -> dict:
+        d = {
+            'duration': 5.0,
+            'stream': {'parcels': [{'label': 'A-1', 'at': 0.0}]},
+            'expect': [{'throughput_at_least': 10}],
+            **form,
+        }
+        if path[0] == 'expect':
+            d['expect'] = [{}]  # the one kind the entry names
+        where = d
+        for step in path[:-1]:
+            where = where[step]
+        where[path[-1]] = value
+        return d
+
+    said = []
+    for form in ({'controller': False}, {'line': {'stations': 2}}):
+        try:
+            check_scenario(doc(form))
+        except ScenarioError as exc:
+            said.append(str(exc))
+        else:
+            said.append('taken')
+    cell, line = said
+    assert cell == line.replace(' (on a line)', ''), (cell, line)
+
+
 def test_a_campaign_runs_each_scenario_per_seed_in_its_own_process(tmp_path):
     folder = tmp_path / 'campaign'
     folder.mkdir()

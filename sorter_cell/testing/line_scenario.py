@@ -31,7 +31,7 @@ from __future__ import annotations
 import time
 
 from sorter_cell.testing.lockstep import FactoryError, load_node_factory
-from sorter_cell.testing.scenario_types import Check, ScenarioError, refuse_unknown
+from sorter_cell.testing.scenario_types import Check, ScenarioError, number, refuse_unknown
 
 LINE_KEYS = ('stations', 'plan', 'programs')
 LINE_EXPECT_KEYS = ('parcel', 'disposition', 'station', 'chute')
@@ -109,10 +109,8 @@ def check_line_expectation(k: int, entry) -> dict:
     elif kind in ('no_mis_sort', 'no_jam'):
         if entry[kind] is not True:
             raise ScenarioError(f'{key}.{kind} must be true')
-    else:
-        v = entry[kind]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
-            raise ScenarioError(f'{key}.{kind} must be a number >= 0, got {v!r}')
+    else:  # the cell form's check, so .nan and .inf are refused alike
+        number(entry[kind], f'{key}.{kind}', 0.0)
     return dict(entry)
 
 

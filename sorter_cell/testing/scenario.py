@@ -56,7 +56,6 @@ The controller under test (``controller:``) is one of
 
 from __future__ import annotations
 
-import math
 import time
 import xml.etree.ElementTree as ET
 from contextlib import contextmanager
@@ -70,6 +69,7 @@ from sorter_cell.testing.lockstep import (
     make_user_nodes,
 )
 from sorter_cell.testing.scenario_types import Check, ScenarioError, refuse_unknown
+from sorter_cell.testing.scenario_types import number as _number
 from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
 TOP_KEYS = ('name', 'duration', 'seed', 'cell', 'controller', 'line', 'stream', 'faults', 'expect')
@@ -163,14 +163,6 @@ class ScenarioResult:
 
 
 # ---------------------------------------------------------------------- reading
-def _number(value, key: str, lo: float = -math.inf, hi: float = math.inf) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ScenarioError(f'{key} must be a finite number, got {value!r}')
-    if not lo <= value <= hi:
-        raise ScenarioError(f'{key} must be in [{lo:g}, {hi:g}], got {value!r}')
-    return float(value)
-
-
 def _mapping(value, key: str) -> dict:
     if value is None:
         return {}

@@ -7,6 +7,7 @@ module that runs it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 
@@ -33,4 +34,24 @@ def refuse_unknown(entry: dict, allowed, key: str, context: str = '') -> None:
         )
 
 
-__all__ = ['Check', 'ScenarioError', 'refuse_unknown']
+def number(value, key: str, lo: float = -math.inf, hi: float = math.inf) -> float:
+    """
+    Return ``value`` as a float when it is a finite number in [lo, hi].
+
+    The one check of a number in a scenario, of a cell or of a line alike: a bool,
+    a string, NaN (``.nan``) or an infinity is refused by the same line.
+
+    Raises
+    ------
+    ScenarioError
+        Naming ``key``, the value and what is allowed.
+
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ScenarioError(f'{key} must be a finite number, got {repr(value)[:80]}')
+    if not lo <= value <= hi:
+        raise ScenarioError(f'{key} must be in [{lo:g}, {hi:g}], got {value!r}')
+    return float(value)
+
+
+__all__ = ['Check', 'ScenarioError', 'number', 'refuse_unknown']
