@@ -160,14 +160,28 @@ def params_files_problem(args) -> str | None:
         The first file's problem (``params_file_problem``), in one line.
 
     """
-    in_ros, args = False, list(args or [])
-    for k, arg in enumerate(args):
+    args = list(args or [])
+    for k, flag, value in ros_arguments(args):
+        if flag == '--params-file':
+            problem = params_file_problem(value)
+            if problem:
+                return problem
+    return None
+
+
+def ros_arguments(args: list):
+    """
+    Yield (index of the value, flag, value) of each flagged ROS argument of a command line.
+
+    Only what lies in a ``--ros-args`` section is ROS's (up to a ``--``): ``-p``,
+    ``--param``, ``-r``, ``--remap``, ``--params-file`` and the like, each with the
+    argument after it.
+    """
+    in_ros = False
+    for k, arg in enumerate(args[:-1]):
         if arg == '--ros-args':
             in_ros = True
         elif arg == '--':
             in_ros = False
-        elif in_ros and arg == '--params-file' and k + 1 < len(args):
-            problem = params_file_problem(args[k + 1])
-            if problem:
-                return problem
-    return None
+        elif in_ros and arg.startswith('-'):
+            yield k + 1, arg, args[k + 1]
