@@ -236,7 +236,8 @@ def test_statements_command_refuses_a_grid_file_no_run_makes(tmp_path, capsys):
         assert main(["paper", "statements", "--grid", grid]) == 2, why
         captured = capsys.readouterr()
         err = captured.err.strip()
-        assert len(err.splitlines()) == 1 and err.startswith("sorter paper: error: --grid:"), err[:300]
+        one_line = len(err.splitlines()) == 1
+        assert one_line and err.startswith("sorter paper: error: --grid:"), err[:300]
         assert why in err and "Traceback" not in err and len(err) < 600, (why, err[:300])
         assert captured.out == ""
     # as a command: numpy's warnings over a table of alike values are no second line
