@@ -170,7 +170,7 @@ def test_sorter_recover_refuses_what_it_cannot_recover_in_one_line(tmp_path):
 
 
 def _torn_with(tmp_path: Path, last_chunk: bytes) -> Path:
-    """A recording of three messages in one chunk, then ``last_chunk``; no summary, no footer."""
+    """Write a recording of three messages in one chunk, then ``last_chunk``, and no footer."""
     import zlib
 
     from mcap.data_stream import RecordBuilder
@@ -198,7 +198,7 @@ def _torn_with(tmp_path: Path, last_chunk: bytes) -> Path:
 
 
 def _bomb_chunk(compression: str, stated: int) -> bytes:
-    """A chunk of 1 GiB of zeros, compressed to a few tens of kB, stating ``stated`` bytes."""
+    """Return a chunk of 1 GiB of zeros, compressed to tens of kB, stating ``stated`` bytes."""
     from mcap.data_stream import RecordBuilder
     from mcap.records import Chunk
 

@@ -721,7 +721,7 @@ def _end_group(proc) -> None:
     End the command's process group: SIGTERM, then SIGKILL to whatever is left of it.
 
     The group is the command and every process it started (that did not leave it with
-    a session of its own): a grandchild that ignores SIGTERM, or outlives a command that
+    setsid): a grandchild that ignores SIGTERM, or outlives a command that
     ended by itself, is ended with it.
     """
     import os
@@ -835,8 +835,8 @@ _NOT_IN_XML = re.compile('[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ud800-\udfff\ufffe\uff
 
 
 def xml_safe(text) -> str:
-    """
-    Return ``text`` with every character XML 1.0 cannot hold written as ``\\xNN``.
+    r"""
+    Return ``text`` with every character XML 1.0 cannot hold written as ``\xNN``.
 
     A name or a controller's stderr may hold ESC (colours), BEL or a NUL, which
     ElementTree writes as they are: the file is then no XML a CI server reads.
