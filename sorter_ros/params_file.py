@@ -145,9 +145,13 @@ def params_file_problem(path: str | Path) -> str | None:
     return None
 
 
-def params_files_problem(args) -> str | None:
+def ros_arguments_problem(args) -> str | None:
     """
-    Check every ``--params-file`` of a command line's ROS arguments before rcl reads it.
+    Check a command line's parameters before rcl reads them: each params file, each ``-p``.
+
+    A ``-p NAME:=VALUE`` is bounded as a params file's value is (``MAX_VALUE_CHARS``:
+    the system lets one argument be 128 kB); a ``--params-file`` is checked whole
+    (``params_file_problem``).
 
     Parameters
     ----------
@@ -157,15 +161,21 @@ def params_files_problem(args) -> str | None:
     Returns
     -------
     str or None
-        The first file's problem (``params_file_problem``), in one line.
+        The first problem, in one line naming the size and the limit.
 
     """
     args = list(args or [])
-    for k, flag, value in ros_arguments(args):
+    for _, flag, value in ros_arguments(args):
         if flag == '--params-file':
             problem = params_file_problem(value)
             if problem:
                 return problem
+        elif flag in ('-p', '--param') and len(value) > MAX_VALUE_CHARS + 200:
+            name = value.split(':=', 1)[0][:80]
+            return (
+                f'-p {name}:=...: the rule is {len(value)} characters, more than the '
+                f'{MAX_VALUE_CHARS} a value may have'
+            )
     return None
 
 

@@ -101,6 +101,8 @@ def test_a_params_file_rcl_would_read_without_bounds_is_refused_first(tmp_path, 
         many: 'sets more than the 2000 parameters a params file may set',
         deep: 'nested more than 32 levels deep',
     }
+    err = _refused_by_run_node(['-p', 'frame_id:=' + 'x' * 100_000], capsys)
+    assert 'the rule is 100010 characters, more than the 4096 a value may have' in err
     for path, why in cases.items():
         # a good file first: each bad one is named whichever place it has
         shipped = str(CONFIG / 'controller.yaml')
