@@ -19,6 +19,83 @@ import os
 from pathlib import Path
 
 RECORD_SIZE_LIMIT = 256 * 1024 * 1024  # no record of ours comes near; a flipped length may
+# bytes a chunk may inflate to: ours hold 1 MiB of messages (sorter_ros.recording); a chunk
+# of zeros 33 kB long states or inflates to 1 GiB, and is refused rather than held
+CHUNK_INFLATE_LIMIT = 64 * 1024 * 1024
+
+
+class ChunkTooLarge(ValueError):
+    """A chunk that states or inflates to more than the limit: refused, never held whole."""
+
+
+def chunk_records(chunk, limit: int = CHUNK_INFLATE_LIMIT) -> list:
+    """
+    Return the schemas, channels and messages of ``chunk``, inflating at most ``limit`` bytes.
+
+    mcap's own ``breakup_chunk`` inflates a chunk whole, to whatever size its bytes
+    make (a 33 kB zstd chunk of zeros: 1 GiB); here the chunk is inflated as a stream
+    that stops one byte past its stated size or the limit, whichever is smaller, so
+    memory stays bounded whatever the file says. Its CRC is checked as mcap does.
+
+    Parameters
+    ----------
+    chunk : mcap.records.Chunk
+        The chunk, as the stream reader returned it.
+    limit : int
+        Bytes the chunk may inflate to.
+
+    Returns
+    -------
+    list
+        Its records, in order.
+
+    Raises
+    ------
+    ChunkTooLarge
+        When the chunk states, or inflates to, more than ``limit`` bytes.
+    ValueError
+        When it inflates to another size than it states, or its CRC does not match.
+
+    """
+    import io
+    import zlib
+
+    from mcap.stream_reader import CRCValidationError, breakup_chunk
+
+    stated = chunk.uncompressed_size
+    if stated > limit:
+        raise ChunkTooLarge(
+            f'a chunk states {stated} bytes inflated, over the limit of {limit}: refused'
+        )
+    if chunk.compression == 'zstd':
+        import zstandard
+
+        with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data)) as z:
+            data = z.read(stated + 1)
+    elif chunk.compression == 'lz4':
+        import lz4.frame
+
+        data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=stated + 1)
+    elif chunk.compression == '':
+        data = chunk.data
+    else:
+        raise ValueError(f'a chunk compressed with {chunk.compression[:40]!r}, unknown')
+    if len(data) != stated:
+        raise ValueError(
+            f'a chunk inflates to {"more than " * (len(data) > stated)}{len(data)} bytes, '
+            f'not the {stated} it states'
+        )
+    if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise CRCValidationError(chunk.uncompressed_crc, zlib.crc32(data), chunk)
+    plain = type(chunk)(
+        compression='',
+        data=data,
+        message_end_time=chunk.message_end_time,
+        message_start_time=chunk.message_start_time,
+        uncompressed_crc=0,  # checked above
+        uncompressed_size=stated,
+    )
+    return breakup_chunk(plain, validate_crc=False)
 
 
 def add_arguments(parser) -> None:
@@ -36,6 +113,8 @@ def add_arguments(parser) -> None:
 
 
 def _problem(src: Path, dst: Path) -> str | None:
+    from sorter_cell.scenario_cli import output_problem
+
     if not src.is_file():
         return f'{str(src)[:200]!r} is not a file'
     if dst.suffix.lower() != '.mcap':
@@ -45,6 +124,13 @@ def _problem(src: Path, dst: Path) -> str | None:
     parent = dst.parent if str(dst.parent) else Path('.')
     if not parent.is_dir():
         return f'folder {str(parent)[:200]!r} does not exist'
+    # a link is never followed, a file that is no recording never replaced (as sorter
+    # scenario --record); the .part written first is held to the same
+    part = dst.with_name(dst.name + '.part')
+    for path, what in ((dst, 'the output'), (part, 'the output\'s temporary file')):
+        problem = output_problem(str(path), what, 'recording')
+        if problem:
+            return problem[:400]
     with open(src, 'rb') as f:
         if f.read(8) != b'\x89MCAP0\r\n':
             return f'{str(src)[:200]!r} is not an MCAP file (its first bytes are not the magic)'
@@ -161,6 +247,7 @@ def recover(src: str | Path, dst: str | Path) -> dict:
         With one line, when ``src`` is no MCAP file or ``dst`` cannot be written.
 
     """
+    from mcap.records import Chunk
     from mcap.stream_reader import StreamReader
 
     src, dst = Path(src), Path(dst)
@@ -169,15 +256,25 @@ def recover(src: str | Path, dst: str | Path) -> dict:
         raise ValueError(problem)
     part = dst.with_name(dst.name + '.part')
     damage = None
+    fd = None
     try:
-        with open(src, 'rb') as f, open(part, 'wb') as out:
+        part.unlink(missing_ok=True)  # a plain file an earlier run left (checked above)
+        # created anew, never through a link put there since the check
+        fd = os.open(part, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+        with open(src, 'rb') as f, open(fd, 'wb') as out:
             copy = _Copy(out)
-            reader = StreamReader(f, validate_crcs=True, record_size_limit=RECORD_SIZE_LIMIT)
+            reader = StreamReader(
+                f, emit_chunks=True, validate_crcs=True, record_size_limit=RECORD_SIZE_LIMIT
+            )
             read = 0  # the end of the last whole record taken
             try:
                 for record in reader.records:
-                    copy.take(record)
+                    inner = chunk_records(record) if isinstance(record, Chunk) else [record]
+                    for one in inner:
+                        copy.take(one)
                     read = f.tell()
+            except ChunkTooLarge as exc:
+                damage = str(exc)
             except Exception as exc:  # whatever a torn or damaged byte makes the parser do
                 damage = f'{type(exc).__name__} ({str(exc)[:120] or "no detail"})'
             else:
@@ -189,8 +286,8 @@ def recover(src: str | Path, dst: str | Path) -> dict:
     except OSError as exc:
         raise ValueError(f'cannot write {str(dst)[:200]!r}: {exc.strerror or exc}') from None
     finally:
-        if part.exists():
-            part.unlink()
+        if fd is not None and part.is_file() and not part.is_symlink():
+            part.unlink()  # ours, left when the read or the write failed
     return {
         'messages': copy.counts.messages,
         'topics': dict(copy.counts.counts),

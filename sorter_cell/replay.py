@@ -86,7 +86,9 @@ def read_recording(path: str | Path) -> dict:
         Schema,
         Statistics,
     )
-    from mcap.stream_reader import StreamReader, breakup_chunk
+    from mcap.stream_reader import StreamReader
+
+    from sorter_cell.recover import chunk_records
 
     state = _Reading()
     try:
@@ -107,8 +109,9 @@ def read_recording(path: str | Path) -> dict:
             for record in reader.records:
                 if isinstance(record, Chunk) and in_data:
                     # its CRC (when its writer wrote one) is checked before a record is taken;
-                    # a chunk holds only schemas, channels and messages, no index to mistake
-                    for inner in breakup_chunk(record, validate_crc=True):
+                    # a chunk holds only schemas, channels and messages, no index to mistake;
+                    # it is inflated only up to a bound, whatever size it states
+                    for inner in chunk_records(record):
                         state.take(inner, vouched=True)
                 elif isinstance(record, (Schema, Channel, Message)) and in_data:
                     # outside a chunk only the data section's CRC, at DataEnd, vouches for

@@ -164,6 +164,7 @@ def _result_dict(r) -> dict:
         "checks": [{"text": c.text, "passed": c.passed, "detail": c.detail} for c in r.checks],
         "outcomes": len(r.outcomes),
         # where each parcel went and when: two runs of one file compare on this
+        "notes": r.notes,
         "exits": [[o.label, o.exit, round(o.t, 6)] for o in r.outcomes]
         + [[d.label, f"{d.code} {d.station} {d.chute}", round(d.t, 6)] for d in r.dispositions],
     }
@@ -231,6 +232,12 @@ def _run_one(args) -> int | str:
         scratch = Path(tempfile.mkdtemp(prefix="sorter-scenario-"))
         record = str(scratch / f"{Path(args.file).stem}.mcap")
     result = run_scenario(sc, record=record, seed=args.seed)
+    if result.refused:  # the user's callable made no node: a bad file, as at load
+        if scratch is not None:
+            import shutil
+
+            shutil.rmtree(scratch, ignore_errors=True)
+        return f"{sc.path}: {result.error}"
     if scratch is not None and result.passed:
         import shutil
 
@@ -304,9 +311,9 @@ def _campaign_inputs(args) -> tuple[list[str], object] | str:
     files = sorted(str(p) for p in folder.glob("*.yaml"))
     if not files:
         return f"{folder} holds no scenario (*.yaml)"
-    for f in files:  # every file checked before anything runs
-        try:
-            load_scenario(f)
+    for f in files:  # every file checked before anything runs; no module of the user's
+        try:  # is imported here: each run's process does, and refuses it in one line
+            load_scenario(f, imports=False)
         except ScenarioError as exc:
             return str(exc)
     if not 1 <= args.seeds <= 1000:

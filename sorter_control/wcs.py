@@ -81,10 +81,16 @@ class Disposition:
 
 
 def _name(value, what: str) -> str:
-    if not isinstance(value, str) or not value.strip() or len(value) > MAX_NAME:
-        raise PlanError(f'{what} must be 1-{MAX_NAME} characters, got {value!r}')
+    # the size is named, the value shown cut short: a refusal never echoes a 1 MB name
+    if isinstance(value, str) and len(value) > MAX_NAME:
+        raise PlanError(
+            f'{what} is {len(value)} characters, more than the {MAX_NAME} allowed: '
+            f'{shown(value, 40)}'
+        )
+    if not isinstance(value, str) or not value.strip():
+        raise PlanError(f'{what} must be 1-{MAX_NAME} characters, got {shown(value, 40)}')
     if not value.isprintable() or '=' in value:
-        raise PlanError(f'{what} must be printable and without "=", got {value!r}')
+        raise PlanError(f'{what} must be printable and without "=", got {shown(value, 40)}')
     return value.strip()
 
 

@@ -50,7 +50,7 @@ from std_msgs.msg import Bool, String
 
 from sorter_control.wcs import LineWcs, PlanError, parse_exit
 from sorter_ros.line_seal import LineSeal
-from sorter_sim.model.description import chute_pairs, station_name
+from sorter_sim.model.description import chute_pairs, shown, station_name
 from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
 from sorter_ros.interface import (
@@ -66,6 +66,46 @@ LATCHED = SENSOR_QOS
 # requests: none dropped in a burst (a writer and a reader that keep all); each answered
 REQUEST_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 MAX_ANSWERED_LABEL = 256  # an answer names the label, cut to this (the refusal says why)
+MAX_REFUSAL = 400  # characters of a refusal as answered, published, logged and in LastRefusal
+REFUSAL_LOG_S = 1.0  # wall s between two refusals logged; those between are counted
+
+
+class RefusalLog:
+    """
+    Log refusals at most once per ``every_s``: a flood of bad requests is one line a second.
+
+    The line logged says how many refusals came since the last one logged and were not.
+
+    Parameters
+    ----------
+    log : callable
+        Takes one line (the node's logger's ``warning``).
+    every_s : float
+        Wall seconds between two lines.
+    clock : callable
+        Wall time [s] (``time.monotonic``).
+
+    """
+
+    def __init__(self, log, every_s: float = REFUSAL_LOG_S, clock=None):
+        import time
+
+        self.log, self.every_s, self.clock = log, every_s, clock or time.monotonic
+        self.last = -float('inf')
+        self.unlogged = 0
+
+    def __call__(self, text: str) -> None:
+        now = self.clock()
+        if now - self.last < self.every_s:
+            self.unlogged += 1
+            return
+        more = f' ({self.unlogged} more refused since the last line)' if self.unlogged else ''
+        self.log(text + more)
+        self.last, self.unlogged = now, 0
+
+
+def _cut(text: str) -> str:
+    return text if len(text) <= MAX_REFUSAL else text[: MAX_REFUSAL - 3] + '...'
 
 
 # the warehouse node's options: {name: (default, check, what it allows)}
@@ -122,6 +162,7 @@ class WcsNode(Node):
                 raise ValueError(f"parameter 'record_path': {exc}") from None
         self.n_refused = 0
         self.n_refused_exits = 0
+        self.log_refusal = RefusalLog(self.get_logger().warning)
         self._lock = threading.Lock()  # the executor's callbacks and the OPC UA calls
         self.opcua = None
         self._pub_routing = [
@@ -257,8 +298,8 @@ class WcsNode(Node):
                 self._send(self.wcs.set_plan(version, list(entries)))
             except PlanError as exc:
                 self.n_refused += 1
-                text = f'sort plan {version!r} refused: {exc}'
-                self.get_logger().warning(text)
+                text = _cut(f'sort plan {shown(version, 40)} refused: {exc}')
+                self.log_refusal(text)
                 self._publish(self._pub_refused, String(data=text))
                 if self.opcua is not None:
                     self.opcua.refused_change(text)
@@ -282,8 +323,8 @@ class WcsNode(Node):
                 self._send(self.wcs.request(label, destination))
             except PlanError as exc:
                 self.n_refused += 1
-                text = f'request refused: {exc}'
-                self.get_logger().warning(text)
+                text = _cut(f'request refused: {exc}')
+                self.log_refusal(text)
                 if self.opcua is not None:
                     self.opcua.refused_change(text)
                 return text

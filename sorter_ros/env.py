@@ -281,6 +281,13 @@ def run_node(
     from rclpy.signals import SignalHandlerOptions
 
     apply_ros_env_defaults()
+    from sorter_ros.params_file import ros_arguments_problem
+
+    # rcl reads a params file without bounds: each is checked first (size, keys, values)
+    problem = ros_arguments_problem(sys.argv if args is None else args)
+    if problem:
+        print(f'{prog}: {problem}', file=sys.stderr)
+        raise SystemExit(2)
     # rclpy's own handler would shut the context down at once, before the node could
     # say its last words over it
     try:

@@ -10,6 +10,8 @@ checked on made-up curves whose verdict is known in advance.
 import json
 import math
 import random
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -200,6 +202,53 @@ def test_statements_command_bad_input(tmp_path, capsys):
     page.write_text("# no block\n")
     assert main(["paper", "statements", "--doc", str(tmp_path)]) == 2
     assert "block" in capsys.readouterr().err
+
+
+def _grid_with(tmp_path, text: str) -> str:
+    path = tmp_path / "grid.json"
+    path.write_text(text)
+    return str(path)
+
+
+def test_statements_command_refuses_a_grid_file_no_run_makes(tmp_path, capsys):
+    """A grid file is checked as a scenario file is: one line, exit 2, nothing written."""
+    first = json.loads(GRID.read_text())
+    key = next(k for k in sorted(first) if k.startswith("sort|"))
+    f14 = next(k for k in sorted(first) if k.startswith("f14|"))
+    every = json.dumps({k: {f: 1.0 for f in r} for k, r in first.items()})  # all alike
+    cases = {
+        "[1, 2]": "must be a JSON object",
+        json.dumps({key: 3.0}): "its record must hold t, x, e2",
+        "[" * 100_000: "nested too deep",
+        json.dumps({key: {**first[key], "t": 1e300}}): "t = 1e+300 is not a time [s]",
+        json.dumps({key: {**first[key], "t": -1}}): "t = -1 is not a time [s] above 0",
+        json.dumps({key: {**first[key], "t": 0}}): "t = 0 is not a time [s] above 0",
+        '{"%s": {"end": Infinity, "low": 1, "high": 1}}' % f14: "end = inf is not a force",
+        json.dumps({key: {**first[key], "t": "1"}}): "t = 1 is not a time",
+        json.dumps({key: {**first[key], "transitions": True}}): "transitions = True",
+        json.dumps({"sort|seed/full|v=nan": first[key]}): "v='nan' is not a finite number",
+        json.dumps({"cap|seed/full|v=1": first[key]}): "its kind 'cap' is none of",
+        '{"a": ': "not JSON",
+        every: "undecidable",
+    }
+    for text, why in cases.items():
+        grid = _grid_with(tmp_path, text)
+        assert main(["paper", "statements", "--grid", grid]) == 2, why
+        captured = capsys.readouterr()
+        err = captured.err.strip()
+        one_line = len(err.splitlines()) == 1
+        assert one_line and err.startswith("sorter paper: error: --grid:"), err[:300]
+        assert why in err and "Traceback" not in err and len(err) < 600, (why, err[:300])
+        assert captured.out == ""
+    # as a command: numpy's warnings over a table of alike values are no second line
+    out = subprocess.run(
+        [sys.executable, "-m", "sorter_sim.cli", "paper", "statements", "--grid", str(grid)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr[-600:]
+    assert "undecidable" in out.stderr
 
 
 def test_docs_paper_md_shows_the_table_first(saved):

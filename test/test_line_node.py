@@ -269,22 +269,77 @@ def test_a_sorter_sim_rule_on_the_command_line_reaches_every_station():
     )
 
 
-def test_a_sorter_sim_rule_for_a_line_option_is_refused_in_one_line():
+@pytest.mark.parametrize(
+    'rule, said',
+    [
+        (
+            'sorter_sim:time_mode:=fast',
+            "line_node: -p sorter_sim:time_mode:=fast: 'time_mode' is the line's option, and "
+            "its stations take the line's: give it as -p time_mode:=VALUE",
+        ),
+        (  # rcl cannot parse it: refused before rcl reads the command line
+            'sorter_sim:sorter_sim:alpha_deg:=60',
+            'line_node: -p sorter_sim:sorter_sim:alpha_deg:=60: a rule names one node, then '
+            'the parameter: give it as -p sorter_sim:alpha_deg:=VALUE',
+        ),
+    ],
+)
+def test_a_sorter_sim_rule_for_a_line_option_is_refused_in_one_line(rule, said):
     import subprocess
     import sys
 
     done = subprocess.run(
-        [sys.executable, '-m', 'sorter_sim.frontends.line_node', '--ros-args']
-        + ['-p', 'sorter_sim:time_mode:=fast'],
+        [sys.executable, '-m', 'sorter_sim.frontends.line_node', '--ros-args', '-p', rule],
         capture_output=True,
         text=True,
         timeout=60,
     )
     assert done.returncode == 2, done.stderr
-    assert done.stderr.strip().splitlines() == [
-        "line_node: -p sorter_sim:time_mode:=fast: 'time_mode' is the line's option, and its "
-        "stations take the line's: give it as -p time_mode:=VALUE"
-    ]
+    assert done.stderr.strip().splitlines() == [said]
+
+
+def test_a_namespace_for_the_line_puts_each_station_under_it():
+    """``-r __ns:=/line2`` put every station at /line2/sorter_sim: two publishers a topic."""
+    import rclpy
+    from rclpy.context import Context
+
+    from sorter_sim.frontends.line_node import station_rules
+
+    given = ['line_node', '--ros-args', '-p', 'stations:=2', '-p', 'time_mode:=lockstep']
+    args, refused = station_rules(given + ['-r', '__ns:=/line2'])
+    assert refused is None
+    context = Context()
+    rclpy.init(args=args, context=context)
+    try:
+        line = LineNode(context=context)
+        names = [s.get_fully_qualified_name() for s in line.stations]
+        assert line.get_namespace() == '/line2'
+        assert names == ['/line2/S01/sorter_sim', '/line2/S02/sorter_sim'], names
+        line.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+
+
+@pytest.mark.parametrize(
+    'rule, said',
+    [
+        (
+            ['-p', 'sorter_sim:sorter_sim:alpha_deg:=60'],
+            'give it as -p sorter_sim:alpha_deg:=VALUE',
+        ),
+        (
+            ['--param', '/sorter_sim:S01:alpha_deg:=60'],
+            'a rule names one node, then the parameter',
+        ),
+        (['-r', 'sorter_sim:__ns:=/x'], 'it would give every station the same name'),
+        (['--remap', '__node:=cell'], 'it would give every station the same name'),
+    ],
+)
+def test_a_rule_the_line_cannot_give_each_station_is_refused_in_one_line(rule, said):
+    from sorter_sim.frontends.line_node import station_rules
+
+    _, refused = station_rules(['line_node', '--ros-args', *rule])
+    assert refused is not None and said in refused and '\n' not in refused, refused
 
 
 def test_the_whole_line_records_into_one_file_that_rosbags_reads(ros, tmp_path):

@@ -167,3 +167,140 @@ def test_sorter_recover_refuses_what_it_cannot_recover_in_one_line(tmp_path):
         assert len(out.stderr.strip().splitlines()) == 1 and why in out.stderr, out.stderr
         assert 'Traceback' not in out.stderr
     assert not (tmp_path / 'out.mcap').exists()
+
+
+def _torn_with(tmp_path: Path, last_chunk: bytes) -> Path:
+    """Write a recording of three messages in one chunk, then ``last_chunk``, and no footer."""
+    import zlib
+
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Channel, Chunk, Header, Message, Schema
+
+    inner = RecordBuilder()
+    Schema(id=1, name='std_msgs/msg/String', encoding='ros2msg', data=b'string data').write(inner)
+    Channel(id=1, schema_id=1, topic='/counter', message_encoding='cdr', metadata={}).write(inner)
+    for k in range(3):
+        Message(channel_id=1, sequence=k, log_time=k, publish_time=k, data=b'x').write(inner)
+    data = inner.end()
+    out = RecordBuilder()
+    Header(profile='ros2', library='test').write(out)
+    Chunk(
+        compression='',
+        data=data,
+        message_start_time=0,
+        message_end_time=2,
+        uncompressed_crc=zlib.crc32(data),
+        uncompressed_size=len(data),
+    ).write(out)
+    path = tmp_path / 'bomb.mcap'
+    path.write_bytes(b'\x89MCAP0\r\n' + out.end() + last_chunk)
+    return path
+
+
+def _bomb_chunk(compression: str, stated: int) -> bytes:
+    """Return a chunk of 1 GiB of zeros, compressed to tens of kB, stating ``stated`` bytes."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Chunk
+
+    zeros = bytes(1 << 20)
+    if compression == 'zstd':
+        import zstandard
+
+        z = zstandard.ZstdCompressor().compressobj()
+    else:
+        import lz4.frame
+
+        z = lz4.frame.LZ4FrameCompressor()
+        head = z.begin()
+    parts = [head] if compression == 'lz4' else []
+    parts += [z.compress(zeros) for _ in range(1024)]
+    parts.append(z.flush())
+    b = RecordBuilder()
+    Chunk(
+        compression=compression,
+        data=b''.join(parts),
+        message_start_time=3,
+        message_end_time=3,
+        uncompressed_crc=0,
+        uncompressed_size=stated,
+    ).write(b)
+    return b.end()
+
+
+@pytest.mark.parametrize(
+    'compression,stated,why',
+    [
+        ('zstd', 1 << 30, 'over the limit of'),  # states what it inflates to
+        ('zstd', 1000, 'inflates to more than 1001 bytes, not the 1000 it states'),
+        ('lz4', 1000, 'inflates to more than 1001 bytes, not the 1000 it states'),
+    ],
+)
+def test_sorter_recover_keeps_a_chunk_that_inflates_to_1_gib_out_of_memory(
+    tmp_path, compression, stated, why
+):
+    src = _torn_with(tmp_path, _bomb_chunk(compression, stated))
+    assert src.stat().st_size < 5_000_000
+    dst = tmp_path / 'out.mcap'
+    proc = subprocess.Popen(
+        [str(BIN / 'sorter'), 'recover', str(src), str(dst)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    _, status, usage = os.wait4(proc.pid, 0)
+    out, err = proc.stdout.read(), proc.stderr.read()
+    assert os.waitstatus_to_exitcode(status) == 0, err
+    # the chunk is never inflated whole: the process stays far below its 1 GiB
+    assert usage.ru_maxrss < 400 * 1024, f'{usage.ru_maxrss} kB at most'
+    assert len(out.strip().splitlines()) == 1 and why in out, out
+    assert '3 messages on 1 topic' in out and 'Traceback' not in err
+    from mcap.reader import make_reader
+
+    with open(dst, 'rb') as f:
+        assert len(list(make_reader(f).iter_messages())) == 3
+
+
+def _plain_recording(path: Path) -> None:
+    from mcap.writer import Writer
+
+    with open(path, 'wb') as f:
+        w = Writer(f)
+        w.start(profile='ros2', library='test')
+        w.finish()
+
+
+def test_sorter_recover_follows_no_link_and_replaces_only_a_recording(tmp_path):
+    src = _torn_with(tmp_path, b'')
+    victim = tmp_path / 'victim.txt'
+    victim.write_text('kept\n')
+    notes = tmp_path / 'notes.mcap'
+    notes.write_text('my notes\n')
+    (tmp_path / 'linked.mcap').symlink_to(victim)
+    (tmp_path / 'parted.mcap.part').symlink_to(victim)
+    cases = {
+        'linked.mcap': 'is not a plain file: not written',
+        'parted.mcap': 'is not a plain file: not written',
+        'notes.mcap': 'is not a recording this command wrote: not overwritten',
+    }
+    for name, why in cases.items():
+        out = subprocess.run(
+            [str(BIN / 'sorter'), 'recover', str(src), str(tmp_path / name)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert out.returncode == 2, (name, out.stdout, out.stderr)
+        assert len(out.stderr.strip().splitlines()) == 1 and why in out.stderr, out.stderr
+    assert victim.read_text() == 'kept\n' and notes.read_text() == 'my notes\n'
+    assert (tmp_path / 'parted.mcap.part').is_symlink()
+    assert not (tmp_path / 'parted.mcap').exists()
+    # a recording from an earlier run is replaced, as sorter scenario --record does
+    earlier = tmp_path / 'earlier.mcap'
+    _plain_recording(earlier)
+    out = subprocess.run(
+        [str(BIN / 'sorter'), 'recover', str(src), str(earlier)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 0 and '3 messages on 1 topic' in out.stdout, out.stderr

@@ -8,6 +8,7 @@ one line naming the key, before anything runs.
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import textwrap
@@ -17,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from sorter_cell.cli import main
-from sorter_cell.testing.scenario import ScenarioError, load_scenario, run_scenario
+from sorter_cell.testing.scenario import Check, ScenarioError, load_scenario, report, run_scenario
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = sorted((REPO / 'config' / 'scenarios').glob('*.yaml'))
@@ -188,7 +189,7 @@ BAD = [
         'unknown key(s) speed with node',
     ),
     (
-        'duration: 5\ncontroller: {node: "math:floor", parameters: {a: {b: 1}}}\n'
+        'duration: 5\ncontroller: {node: "rclpy.node:Node", parameters: {a: {b: 1}}}\n'
         'expect: [{no_jam: true}]\n',
         'controller.parameters.a',
     ),
@@ -220,6 +221,18 @@ BAD = [
         'duration: 5\nstream: {generated: {arrival_gap: [3, 1]}}\nexpect: [{no_jam: true}]\n',
         'arrival_gap',
     ),
+    (
+        'duration: 5\ncontroller: {command: [ls, "a\\0b"]}\nexpect: [{no_jam: true}]\n',
+        'controller.command[1]',
+    ),
+    (
+        'duration: 5\ncontroller: {node: "os:getcwd"}\nexpect: [{no_jam: true}]\n',
+        "'os:getcwd' is not a node factory: it takes no context=, parameter_overrides=",
+    ),
+    (
+        'duration: 5\nline: {programs: {1: "os:getcwd"}}\nexpect: [{no_jam: true}]\n',
+        "line.programs.1 'os:getcwd' is not a node factory",
+    ),
     ('duration: 5\nduration: 6\nexpect: [{no_jam: true}]\n', 'appears twice'),
     ('duration: [5\n', 'not valid YAML'),
     ('- 1\n- 2\n', 'must be a mapping'),
@@ -235,6 +248,190 @@ def test_a_bad_scenario_is_refused_in_one_line_naming_the_key(tmp_path, capsys, 
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
     assert str(sc) in err and 'Traceback' not in err
+
+
+# (where in the document, the bad value): a key a cell's and a line's scenario share
+SHARED_BAD = [
+    (path, value)
+    for path in (
+        ('duration',),
+        ('seed',),
+        ('name',),
+        ('stream', 'parcels', 0, 'at'),
+        ('stream', 'parcels', 0, 'length'),
+        ('stream', 'parcels', 0, 'mass'),
+        ('stream', 'parcels', 0, 'label'),
+        ('expect', 0, 'throughput_at_least'),
+        ('expect', 0, 'no_jam'),
+    )
+    for value in (float('nan'), float('inf'), -1, '1', True, None, [1])
+]
+
+
+@pytest.mark.parametrize(
+    'path, value', SHARED_BAD, ids=[f'{".".join(map(str, p))}={v!r}' for p, v in SHARED_BAD]
+)
+def test_a_key_a_cell_and_a_line_share_is_checked_the_same_way_in_both(path, value):
+    from sorter_cell.testing.scenario import check_scenario
+
+    def doc(form: dict) -> dict:
+        d = {
+            'duration': 5.0,
+            'stream': {'parcels': [{'label': 'A-1', 'at': 0.0}]},
+            'expect': [{'throughput_at_least': 10}],
+            **form,
+        }
+        if path[0] == 'expect':
+            d['expect'] = [{}]  # the one kind the entry names
+        where = d
+        for step in path[:-1]:
+            where = where[step]
+        where[path[-1]] = value
+        return d
+
+    said = []
+    for form in ({'controller': False}, {'line': {'stations': 2}}):
+        try:
+            check_scenario(doc(form))
+        except ScenarioError as exc:
+            said.append(str(exc))
+        else:
+            said.append('taken')
+    cell, line = said
+    assert cell == line.replace(' (on a line)', ''), (cell, line)
+
+
+def test_a_factory_that_raises_is_refused_in_one_line(tmp_path, capsys):
+    (tmp_path / 'raising.py').write_text(
+        'def make(context, parameter_overrides):\n    raise RuntimeError("no plc here")\n'
+    )
+    sc = write(
+        tmp_path,
+        """
+        duration: 1.0
+        controller: {node: "raising:make"}
+        expect: [{no_jam: true}]
+        """,
+    )
+    assert main(['scenario', 'run', str(sc), '--no-record']) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert len(err.splitlines()) == 1 and str(sc) in err, err
+    assert "'raising:make' raised RuntimeError making its node: no plc here" in err, err
+    assert 'Traceback' not in err and captured.out == ''
+
+
+def test_a_callback_that_blocks_is_reported_with_its_duration(tmp_path):
+    (tmp_path / 'sleepy.py').write_text(
+        textwrap.dedent(
+            """
+            import time
+
+            from rclpy.node import Node
+
+
+            class Sleepy(Node):
+                def __init__(self, **kwargs):
+                    super().__init__('sleepy', **kwargs)
+                    self.slept = False
+                    self.create_timer(0.1, self.tick)
+
+                def tick(self):
+                    if not self.slept:
+                        self.slept = True
+                        time.sleep(1.5)
+            """
+        )
+    )
+    sc = write(
+        tmp_path,
+        """
+        duration: 1.0
+        controller: {node: "sleepy:Sleepy"}
+        expect: [{no_jam: true}]
+        """,
+    )
+    result = run_scenario(load_scenario(sc))
+    assert result.passed, result.error
+    (note,) = result.notes
+    assert "'sleepy' timer of 0.1 s blocked for" in note and 'at t = 0.1' in note, note
+    took = float(note.split('blocked for ')[1].split(' s')[0])
+    assert took >= 1.5  # slept 1.5 s at least; more on a loaded machine
+    assert note in report(result)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[-1].split()[0]
+    except OSError:
+        return False
+    return state != 'Z'
+
+
+def test_a_command_is_ended_with_every_process_it_started(tmp_path):
+    # the command and its child both ignore SIGTERM; neither ever subscribes to /clock
+    pidfile = tmp_path / 'grandchild.pid'
+    child = (
+        'import os, signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); '
+        f'open({str(pidfile)!r}, "w").write(str(os.getpid())); time.sleep(600)'
+    )
+    command = (
+        'import signal, subprocess, sys, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); '
+        f'subprocess.Popen([sys.executable, "-c", {child!r}]); time.sleep(600)'
+    )
+    sc = write(
+        tmp_path,
+        f"""
+        duration: 1.0
+        controller: {{command: ["{{python}}", "-c", {json.dumps(command)}], start_timeout: 8}}
+        expect: [{{no_jam: true}}]
+        """,
+    )
+    result = run_scenario(load_scenario(sc))
+    assert 'did not subscribe to /clock within 8 s' in result.error, result.error
+    pid = int(pidfile.read_text())
+    assert not _alive(pid), 'the grandchild outlived the run'
+
+
+def test_a_junit_file_stays_xml_whatever_the_text_holds():
+    from sorter_cell.testing.scenario import ScenarioResult, junit_xml
+
+    r = ScenarioResult('name \x1b[31mred\x07', error='stderr: \x00\x1b[0m bell \x07 end')
+    r.checks = [Check('check \x1b', False, 'detail \x0b\x0c')]
+    root = ET.fromstring(junit_xml([r]).split('\n', 1)[1])  # parses: valid XML 1.0
+    suite = root.find('testsuite')
+    assert suite.get('name') == 'name \\x1b[31mred\\x07'
+    assert '\\x00\\x1b[0m bell \\x07 end' in suite.find('testcase/failure').get('message')
+
+
+def test_a_campaign_refusing_a_file_imports_no_module_of_another(tmp_path, capsys):
+    folder = tmp_path / 'c'
+    folder.mkdir()
+    marker = tmp_path / 'imported'
+    (folder / 'noisy.py').write_text(
+        f'open({str(marker)!r}, "w").write("top level run")\n'
+        'def make(context, parameter_overrides):\n    return None\n'
+    )
+    write(
+        folder,
+        'duration: 5\ncontroller: {node: "noisy:make"}\nexpect: [{no_jam: true}]\n',
+        'a.yaml',
+    )
+    write(folder, 'duration: 5\n', 'b.yaml')
+    write(
+        folder,
+        'duration: 5\ncontroller: {node: "absent_44:make"}\nexpect: [{no_jam: true}]\n',
+        'c.yaml',
+    )
+    assert main(['scenario', 'campaign', str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert 'b.yaml' in err and 'expect must be' in err, err
+    assert not marker.exists()
+    (folder / 'b.yaml').unlink()
+    assert main(['scenario', 'campaign', str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert 'c.yaml' in err and "cannot import 'absent_44'" in err, err
+    assert not marker.exists()
 
 
 def test_a_campaign_runs_each_scenario_per_seed_in_its_own_process(tmp_path):

@@ -279,6 +279,64 @@ def test_the_wcs_node_refuses_a_bad_plan_in_one_message_and_keeps_the_good_one(r
     assert [(m.key, m.value) for m in routing if m.key == 'P1'] == [('P1', 'right')]
 
 
+def test_a_name_of_a_megabyte_is_refused_naming_its_size_and_the_limit():
+    w = wcs_with_plan()
+    huge = 'D' * 1_000_000
+    for call, args in (
+        (w.set_plan, (huge, [('D1', 'S01L')])),
+        (w.set_plan, ('v2', [(huge, 'S01L')])),
+        (w.set_plan, ('v2', [('D1', huge)])),
+        (w.request, ('P1', huge)),
+    ):
+        with pytest.raises(PlanError) as exc:
+            call(*args)
+        said = str(exc.value)
+        assert 'is 1000000 characters, more than the 64 allowed' in said and len(said) < 200
+    assert w.version == 'v1' and 'P1' not in w.requests
+
+
+def test_a_flood_of_refusals_is_logged_cut_short_once_a_second(ros, capfd):
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import String
+
+    from sorter_control.wcs_node import MAX_REFUSAL, REQUEST_QOS, RefusalLog, WcsNode
+    from sorter_ros.interface import EVENT_QOS
+
+    node = ros.add(
+        WcsNode(context=ros.context, parameter_overrides=[Parameter('stations', value=2)])
+    )
+    probe = ros.make_node('wms')
+    answers, refused = [], []
+    probe.create_subscription(KeyValue, 'wcs/requests/answers', answers.append, REQUEST_QOS)
+    probe.create_subscription(String, 'wcs/sort_plan/refused', refused.append, EVENT_QOS)
+    req = probe.create_publisher(KeyValue, 'wcs/requests', REQUEST_QOS)
+    plan = probe.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
+    ros.spin_until(lambda: req.get_subscription_count() and plan.get_subscription_count(), 10.0)
+    ros.spin_until(lambda: node._pub_answers.get_subscription_count(), 10.0)
+    capfd.readouterr()
+    # the log's clock stands still: every refusal after the first falls in its second
+    node.log_refusal = RefusalLog(node.get_logger().warning, clock=lambda: 0.0)
+    plan.publish(DiagnosticStatus(name='v' * 1_000_000, values=[KeyValue(key='D1', value='S01L')]))
+    for i in range(300):
+        req.publish(KeyValue(key=f'P{i}', value='D' * 100_000))
+    ros.spin_until(lambda: len(answers) == 300 and refused, 60.0)
+    assert node.n_refused == 301
+    assert '1000000 characters, more than the 64 allowed' in refused[0].data
+    assert (
+        all(len(a.value) <= MAX_REFUSAL for a in answers) and len(refused[0].data) <= MAX_REFUSAL
+    )
+    assert '100000 characters, more than the 64 allowed' in answers[-1].value
+    logged = [x for x in capfd.readouterr().err.splitlines() if 'refused' in x]
+    assert len(logged) == 1 and len(logged[0]) < MAX_REFUSAL + 200, logged
+    # a second later the next line counts the refusals not logged
+    lines = []
+    log = RefusalLog(lines.append, clock=iter([0.0, 0.5, 0.7, 1.2]).__next__)
+    for k in range(4):
+        log(f'refusal {k}')
+    assert lines == ['refusal 0', 'refusal 3 (2 more refused since the last line)']
+
+
 def test_the_wcs_node_options_are_fixed_once_it_runs_and_say_so(ros):
     from rclpy.parameter import Parameter
     from ros_harness import refused_at_run_time

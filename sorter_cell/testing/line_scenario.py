@@ -31,14 +31,16 @@ from __future__ import annotations
 import time
 
 from sorter_cell.testing.lockstep import FactoryError, load_node_factory
-from sorter_cell.testing.scenario_types import Check, ScenarioError, refuse_unknown
+from sorter_cell.testing.scenario_types import Check, ScenarioError, number, refuse_unknown
+from sorter_cell.testing.scenario_types import factory_problem, module_problem
 
 LINE_KEYS = ('stations', 'plan', 'programs')
 LINE_EXPECT_KEYS = ('parcel', 'disposition', 'station', 'chute')
 LINE_EXPECT_KINDS = ('parcel', 'no_mis_sort', 'no_jam', 'throughput_at_least')
+PROGRAM_KEYWORDS = ('context', 'namespace', 'parameter_overrides')  # a program is made with
 
 
-def check_line(value, folder) -> dict:
+def check_line(value, folder, imports: bool = True) -> dict:
     """
     Return a scenario's checked ``line:`` (stations, plan, programs).
 
@@ -48,6 +50,8 @@ def check_line(value, folder) -> dict:
         The ``line:`` mapping.
     folder : Path or None
         The scenario file's folder (programs are imported from it first).
+    imports : bool
+        Import the programs' modules (False: only find them, as a campaign checks).
 
     """
     if not isinstance(value, dict):
@@ -71,10 +75,16 @@ def check_line(value, folder) -> dict:
     for k, spec in programs.items():
         if isinstance(k, bool) or not (isinstance(k, int) and 1 <= k <= n):
             raise ScenarioError(f'line.programs: a station is a number in [1, {n}], got {k!r}')
-        try:
-            load_node_factory(spec, folder)
-        except FactoryError as exc:
-            raise ScenarioError(f'line.programs.{k} {exc}') from None
+        if not imports:
+            problem = module_problem(spec, folder)
+        else:
+            try:
+                problem = factory_problem(load_node_factory(spec, folder), PROGRAM_KEYWORDS)
+            except FactoryError as exc:
+                problem = str(exc)
+            problem = problem and f'{spec!r} {problem}'
+        if problem:
+            raise ScenarioError(f'line.programs.{k} {problem}')
     return {'stations': n, 'plan': plan, 'programs': dict(programs)}
 
 
@@ -109,10 +119,8 @@ def check_line_expectation(k: int, entry) -> dict:
     elif kind in ('no_mis_sort', 'no_jam'):
         if entry[kind] is not True:
             raise ScenarioError(f'{key}.{kind} must be true')
-    else:
-        v = entry[kind]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
-            raise ScenarioError(f'{key}.{kind} must be a number >= 0, got {v!r}')
+    else:  # the cell form's check, so .nan and .inf are refused alike
+        number(entry[kind], f'{key}.{kind}', 0.0)
     return dict(entry)
 
 

@@ -56,7 +56,7 @@ The controller under test (``controller:``) is one of
 
 from __future__ import annotations
 
-import math
+import re
 import time
 import xml.etree.ElementTree as ET
 from contextlib import contextmanager
@@ -69,6 +69,8 @@ from sorter_cell.testing.lockstep import (
     make_user_nodes,
 )
 from sorter_cell.testing.scenario_types import Check, ScenarioError, refuse_unknown
+from sorter_cell.testing.scenario_types import factory_problem, module_problem
+from sorter_cell.testing.scenario_types import number as _number
 from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
 TOP_KEYS = ('name', 'duration', 'seed', 'cell', 'controller', 'line', 'stream', 'faults', 'expect')
@@ -88,6 +90,9 @@ RESULTS = (
 EXPECT_KINDS = ('parcel', 'no_mis_sort', 'no_jam', 'throughput_at_least', 'at')
 MAX_DURATION = 3600.0
 COMMAND_GRACE_S = 0.002  # quiet that ends a slice with a controller in another process
+COMMAND_STOP_S = 5.0  # wall s a command's process group has from SIGTERM to SIGKILL
+BLOCKED_S = 1.0  # wall s a callback of the user's node may take before the result says so
+NODE_KEYWORDS = ('context', 'parameter_overrides')  # what a node factory is called with
 CONTROLLER_FORMS = (
     'false, a mapping of this project\'s controller\'s parameters, '
     '{node: "module:callable", parameters: {...}} or {command: [...]}'
@@ -155,6 +160,8 @@ class ScenarioResult:
     state: str = ''  # the cell at the end of the run (LockStep.explain)
     dispositions: list = field(default_factory=list)  # a line's, per parcel
     properties: dict = field(default_factory=dict)  # JUnit properties (a campaign's domain)
+    refused: bool = False  # the user's controller could not be made: error says why (exit 2)
+    notes: list = field(default_factory=list)  # what slowed the run (a callback that blocked)
 
     @property
     def passed(self) -> bool:
@@ -162,14 +169,6 @@ class ScenarioResult:
 
 
 # ---------------------------------------------------------------------- reading
-def _number(value, key: str, lo: float = -math.inf, hi: float = math.inf) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ScenarioError(f'{key} must be a finite number, got {value!r}')
-    if not lo <= value <= hi:
-        raise ScenarioError(f'{key} must be in [{lo:g}, {hi:g}], got {value!r}')
-    return float(value)
-
-
 def _mapping(value, key: str) -> dict:
     if value is None:
         return {}
@@ -204,7 +203,7 @@ def _parameter_values(values, key: str) -> dict:
     return values
 
 
-def _check_controller_spec(ctl, folder) -> ControllerSpec | None:
+def _check_controller_spec(ctl, folder, imports: bool = True) -> ControllerSpec | None:
     """Return the controller a scenario's ``controller:`` names (see the module)."""
     if ctl is False:
         return None
@@ -214,10 +213,16 @@ def _check_controller_spec(ctl, folder) -> ControllerSpec | None:
         raise ScenarioError(f'controller must be {CONTROLLER_FORMS}, got {ctl!r}')
     if 'node' in ctl:
         refuse_unknown(ctl, ('node', 'parameters'), 'controller', ' with node')
-        try:
-            load_node_factory(ctl['node'], folder)
-        except FactoryError as exc:
-            raise ScenarioError(f'controller.node {exc}') from None
+        if not imports:
+            problem = module_problem(ctl['node'], folder)
+        else:
+            try:
+                problem = factory_problem(load_node_factory(ctl['node'], folder), NODE_KEYWORDS)
+            except FactoryError as exc:
+                problem = str(exc)
+            problem = problem and f'{ctl["node"]!r} {problem}'
+        if problem:
+            raise ScenarioError(f'controller.node {problem}')
         params = _parameter_values(ctl.get('parameters'), 'controller.parameters')
         return ControllerSpec('node', params, factory=ctl['node'])
     if 'command' in ctl:
@@ -227,6 +232,12 @@ def _check_controller_spec(ctl, folder) -> ControllerSpec | None:
             raise ScenarioError(
                 f'controller.command must be a non-empty list of strings, got {cmd!r}'
             )
+        for k, arg in enumerate(cmd):
+            if '\0' in arg:  # no command line carries one; Popen would raise
+                raise ScenarioError(
+                    f'controller.command[{k}] {arg[:80]!r} holds a NUL byte (\\0), which '
+                    'no command line can carry'
+                )
         start = _number(ctl.get('start_timeout', 30.0), 'controller.start_timeout', 0.1, 600.0)
         return ControllerSpec('command', command=tuple(cmd), start_timeout=start)
     _check_controller(ctl)
@@ -364,7 +375,7 @@ def _expectation(k: int, entry, labels: set, controller: ControllerSpec | None) 
     return dict(entry)
 
 
-def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
+def check_scenario(doc, name: str = 'scenario', path: str = '', imports: bool = True) -> Scenario:
     """
     Return a checked ``Scenario`` from a parsed document.
 
@@ -376,6 +387,9 @@ def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
         Its name when the document gives none.
     path : str
         Where it came from.
+    imports : bool
+        Import the user's modules and check their callables (False: only that each
+        module can be found; a campaign checks its files so, and imports nothing).
 
     Returns
     -------
@@ -412,7 +426,7 @@ def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
     if 'line' in doc:
         from sorter_cell.testing.line_scenario import check_line
 
-        line = check_line(doc['line'], folder)
+        line = check_line(doc['line'], folder, imports)
         for key in ('controller', 'faults'):
             if key in doc:
                 raise ScenarioError(
@@ -420,7 +434,9 @@ def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
                     'and has no faults (allowed with line: name, duration, seed, cell, stream, '
                     'expect)'
                 )
-    controller = None if line else _check_controller_spec(doc.get('controller', {}), folder)
+    controller = (
+        None if line else _check_controller_spec(doc.get('controller', {}), folder, imports)
+    )
     stream = _mapping(doc.get('stream'), 'stream')
     extra = sorted(set(stream) - {'parcels', 'generated'})
     if extra:
@@ -464,7 +480,7 @@ def check_scenario(doc, name: str = 'scenario', path: str = '') -> Scenario:
     )
 
 
-def load_scenario(path: str | Path) -> Scenario:
+def load_scenario(path: str | Path, imports: bool = True) -> Scenario:
     """
     Read and check a scenario file.
 
@@ -472,6 +488,8 @@ def load_scenario(path: str | Path) -> Scenario:
     ----------
     path : str or Path
         The file.
+    imports : bool
+        Import the user's modules (see ``check_scenario``).
 
     Returns
     -------
@@ -487,7 +505,7 @@ def load_scenario(path: str | Path) -> Scenario:
     p = Path(path)
     try:
         doc = read_yaml_file(p, 'scenario')
-        return check_scenario(doc, p.stem, str(p))
+        return check_scenario(doc, p.stem, str(p), imports)
     except StrictYamlError as exc:
         raise ScenarioError(str(exc)) from None
     except ScenarioError as exc:
@@ -543,11 +561,12 @@ def run_scenario(
     with SorterCell(params, domain_id=domain_id, record=record, grace_s=grace) as cell:
         t0 = cell.t
         try:
-            with _controller_running(cell, spec, sc) as ctl:
+            with _controller_running(cell, spec, sc, res.notes) as ctl:
                 t0 = _play(sc, cell, ctl, timed)
                 res.error = ctl.error if isinstance(ctl, _Process) else ''
         except (ScenarioError, FactoryError) as exc:
             res.error = f'controller: {exc}' if isinstance(exc, FactoryError) else str(exc)
+            res.refused = isinstance(exc, FactoryError)
         res.sim_s = cell.t - t0
         res.outcomes = cell.outcomes
         res.confirmations = cell.confirmations
@@ -593,8 +612,12 @@ class _Process:
 
 
 @contextmanager
-def _controller_running(cell, spec: ControllerSpec | None, sc: Scenario):
-    """Start the scenario's controller in ``cell``; yield it (a node, a _Process or None)."""
+def _controller_running(cell, spec: ControllerSpec | None, sc: Scenario, notes: list):
+    """
+    Start the scenario's controller in ``cell``; yield it (a node, a _Process or None).
+
+    A callback of the user's node that blocks is said in ``notes``.
+    """
     if spec is None:
         yield None
     elif spec.kind == 'project':
@@ -602,11 +625,55 @@ def _controller_running(cell, spec: ControllerSpec | None, sc: Scenario):
     elif spec.kind == 'node':
         folder = Path(sc.path).parent if sc.path else None
         factory = load_node_factory(spec.factory, folder)
-        nodes = cell.add_node(make_user_nodes(factory, cell.context, spec.params))
+        try:
+            made = make_user_nodes(factory, cell.context, spec.params)
+        except FactoryError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the user's factory: what it raised is said
+            what = str(exc).splitlines()[0][:200] if str(exc) else 'no message'
+            raise FactoryError(
+                f'node {spec.factory!r} raised {type(exc).__name__} making its node: {what}'
+            ) from None
+        for node in made:
+            _time_callbacks(node, cell, notes)
+        nodes = cell.add_node(made)
         yield nodes[0]
     else:
         with _command_running(cell, spec, sc) as proc:
             yield proc
+
+
+def _time_callbacks(node, cell, notes: list) -> None:
+    """
+    Time each callback of the user's ``node``; one that blocks ``BLOCKED_S`` or more is noted.
+
+    The cell waits for the node's callbacks in lock-step, so a callback that blocks
+    stretches the run's wall time by as much (a 1 s scenario took 31.6 s for a 25 s
+    sleep): the result says which callback, for how long and at what simulated time.
+    """
+    entities = [
+        *((f'subscription to {e.topic_name}', e) for e in node.subscriptions),
+        *((f'timer of {e.timer_period_ns / 1e9:g} s', e) for e in node.timers),
+        *((f'service {e.srv_name}', e) for e in node.services),
+    ]
+    for what, entity in entities:
+        entity.callback = _timed(entity.callback, f'{node.get_name()!r} {what}', cell, notes)
+
+
+def _timed(callback, what: str, cell, notes: list):
+    def timed(*args):
+        t0 = time.perf_counter()
+        try:
+            return callback(*args)
+        finally:
+            took = time.perf_counter() - t0
+            if took >= BLOCKED_S and len(notes) < 20:
+                notes.append(
+                    f'controller.node: the callback of {what[:160]} blocked for {took:.1f} s '
+                    f'of wall time at t = {cell.t:.3f} s (the cell waits for it)'
+                )
+
+    return timed
 
 
 @contextmanager
@@ -627,6 +694,7 @@ def _command_running(cell, spec: ControllerSpec, sc: Scenario):
             env=env,
             stdout=subprocess.DEVNULL,
             stderr=err,
+            start_new_session=True,  # a process group of its own, ended whole with the run
         )
     except OSError as exc:
         err.close()
@@ -643,14 +711,56 @@ def _command_running(cell, spec: ControllerSpec, sc: Scenario):
         if proc.poll() is not None:
             handle.error = _command_problem(proc, err, spec, f'at t = {cell.t:.3f} s')
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        _end_group(proc)
         err.close()
+
+
+def _end_group(proc) -> None:
+    """
+    End the command's process group: SIGTERM, then SIGKILL to whatever is left of it.
+
+    The group is the command and every process it started (that did not leave it with
+    setsid): a grandchild that ignores SIGTERM, or outlives a command that
+    ended by itself, is ended with it.
+    """
+    import os
+    import signal
+    import subprocess
+
+    def signal_group(sig) -> None:
+        try:
+            os.killpg(proc.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass  # the group is gone
+
+    signal_group(signal.SIGTERM)
+    try:
+        proc.wait(timeout=COMMAND_STOP_S)
+    except subprocess.TimeoutExpired:
+        pass
+    # the leader may have ended at once; its descendants are given the same grace
+    deadline = time.monotonic() + COMMAND_STOP_S
+    while _group_alive(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    signal_group(signal.SIGKILL)
+    proc.wait()
+
+
+def _group_alive(pgid: int) -> bool:
+    """Whether any process of group ``pgid`` is still running (not a zombie)."""
+    import os
+
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f'/proc/{entry}/stat').read_text()
+        except OSError:
+            continue
+        fields = stat.rsplit(')', 1)[-1].split()
+        if fields[0] != 'Z' and int(fields[2]) == pgid:
+            return True
+    return False
 
 
 def _command_problem(proc, err, spec: ControllerSpec, when: str) -> str:
@@ -720,6 +830,19 @@ def _check_end(e: dict, res: ScenarioResult, sc: Scenario) -> Check:
 
 
 # ---------------------------------------------------------------------- reporting
+_NOT_IN_XML = re.compile('[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ud800-\udfff\ufffe\uffff]')
+
+
+def xml_safe(text) -> str:
+    r"""
+    Return ``text`` with every character XML 1.0 cannot hold written as ``\xNN``.
+
+    A name or a controller's stderr may hold ESC (colours), BEL or a NUL, which
+    ElementTree writes as they are: the file is then no XML a CI server reads.
+    """
+    return _NOT_IN_XML.sub(lambda m: f'\\x{ord(m.group()):02x}', str(text))
+
+
 def junit_xml(results: list, suite: str = 'sorter scenarios') -> str:
     """
     Return results as a JUnit XML document (one testcase per expectation).
@@ -768,6 +891,10 @@ def junit_xml(results: list, suite: str = 'sorter scenarios') -> str:
                 )
         if r.record:
             ET.SubElement(ts, 'system-out').text = f'recording: {r.record}'
+    for element in root.iter():  # names, messages, stderr: whatever the run's text held
+        element.attrib = {k: xml_safe(v) for k, v in element.attrib.items()}
+        if element.text:
+            element.text = xml_safe(element.text)
     ET.indent(root)
     return ET.tostring(root, encoding='unicode', xml_declaration=True) + '\n'
 
@@ -793,6 +920,7 @@ def report(r: ScenarioResult) -> str:
     ]
     if r.error:
         lines.append(f'  [error] {r.error}')
+    lines += [f'  [slow] {note}' for note in r.notes]
     for c in r.checks:
         detail = c.detail.splitlines()[0] if c.detail else ''
         lines.append(f'  [{"ok" if c.passed else "FAIL"}] {c.text}: {detail}')

@@ -725,13 +725,10 @@ def main(args=None, stop=None):
     import sys
 
     args, refused = station_rules(sys.argv if args is None else list(args))
-
-    def make_line():
-        if refused:
-            raise ParamError(refused)
-        return LineNode()
-
-    run_node(make_line, 'line_node', (ParamError,), args, stop)
+    if refused:  # before rcl, which may not parse the rule at all
+        print(f'line_node: {refused}', file=sys.stderr)
+        raise SystemExit(2)
+    run_node(LineNode, 'line_node', (ParamError,), args, stop)
 
 
 STATION_NODE_PREFIXES = ('sorter_sim:', '/sorter_sim:')
@@ -759,26 +756,54 @@ def station_rules(args: list) -> tuple[list, str | None]:
         (the command line, rewritten; what is wrong, or None).
 
     """
+    from sorter_ros.params_file import ros_arguments
+
     out = list(args)
-    in_ros_args = False
-    for i, arg in enumerate(out[:-1]):
-        if arg == '--ros-args':
-            in_ros_args = True
-        elif arg == '--':
-            in_ros_args = False
-        elif in_ros_args and arg in ('-p', '--param'):
-            rule = out[i + 1]
-            prefix = next((p for p in STATION_NODE_PREFIXES if rule.startswith(p)), None)
-            if prefix is None:
-                continue
-            name = rule[len(prefix) :].split(':=', 1)[0]
-            if name in LINE_PARAMS:
-                return out, (
-                    f'-p {rule}: {name!r} is the line\'s option, and its stations take the '
-                    f"line's: give it as -p {name}:=VALUE"
-                )
-            out[i + 1] = rule[len(prefix) :]
+    for i, flag, rule in ros_arguments(out):
+        if flag in ('-r', '--remap'):
+            out[i], refused = _line_remap(rule)
+            if refused:
+                return out, refused
+        if flag not in ('-p', '--param'):
+            continue
+        prefix = next((p for p in STATION_NODE_PREFIXES if rule.startswith(p)), None)
+        if prefix is None:
+            continue
+        name = rule[len(prefix) :].split(':=', 1)[0]
+        if ':' in name:  # rcl would match the rest to a node named so: none, silently
+            return out, (
+                f'-p {rule[:120]}: a rule names one node, then the parameter: give it as '
+                f'-p {prefix}{name.rsplit(":", 1)[-1][:60]}:=VALUE'
+            )
+        if name in LINE_PARAMS:
+            return out, (
+                f'-p {rule}: {name!r} is the line\'s option, and its stations take the '
+                f"line's: give it as -p {name}:=VALUE"
+            )
+        out[i] = rule[len(prefix) :]
     return out, None
+
+
+def _line_remap(rule: str) -> tuple[str, str | None]:
+    """
+    Give a ``-r`` rule that would move every node of the process to the line alone.
+
+    ``-r __ns:=/line2`` would put every station at ``/line2/sorter_sim`` (each topic
+    with one publisher per station): it is given to the line's node, whose namespace its
+    stations go under (``/line2/S01/sorter_sim`` ...). A rule naming or moving every
+    station alike (``__node``, ``sorter_sim:__ns``) is refused.
+    """
+    target, _, value = rule.partition(':=')
+    node, _, what = target.rpartition(':')
+    if what == '__ns' and node == '':
+        return f'{NODE_NAME}:{rule}', None
+    if what in ('__ns', '__node', '__name') and node in ('', 'sorter_sim', '/sorter_sim'):
+        return rule, (
+            f'-r {rule[:120]}: it would give every station the same name; the stations are '
+            f'{station_name(0)}, {station_name(1)}, ... under the line\'s namespace '
+            '(-r __ns:=/NAME moves the line)'
+        )
+    return rule, None
 
 
 if __name__ == '__main__':

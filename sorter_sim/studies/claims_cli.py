@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from sorter_sim.studies.claims import HOLDS, PAPER_ONLY, table
+from sorter_sim.studies.claims import CLAIMS, HOLDS, PAPER_ONLY, table
 from sorter_sim.studies.claims_grid import FULL, MODELS, PAPER, GridStore, load_table
 from sorter_sim.studies.claims_grid import stderr_progress
 from sorter_sim.studies.markdown import replace_block
@@ -146,6 +146,42 @@ def text_report(result: dict) -> str:
     return "\n".join(out)
 
 
+def _judged_on_file(store: GridStore) -> dict | str:
+    """
+    Judge every claim on a table read from a file; a claim its values leave undecidable is said.
+
+    Each value of the file is in its range (``claims_grid.table_problem``), yet values
+    no run gives together (every time alike, so a difference the claim divides by is
+    0) can leave a claim without an answer: that is said in one line, naming the claim.
+
+    Parameters
+    ----------
+    store : GridStore
+        The table read from the file.
+
+    Returns
+    -------
+    dict or str
+        ``claims.table``'s result, or the line that says which claim has no answer.
+
+    """
+    import warnings
+
+    rows = []
+    for claim in CLAIMS:
+        try:
+            with warnings.catch_warnings():
+                # a 0/0 of numpy's warns (the grid saved has none); here it is an answer
+                warnings.simplefilter("error", RuntimeWarning)
+                rows += table(store, [claim])["rows"]
+        except (ArithmeticError, ValueError, RuntimeWarning) as exc:
+            return (
+                f"its values leave claim {claim.id} undecidable ({type(exc).__name__}: "
+                f"{str(exc)[:80]}): not a grid these runs make"
+            )
+    return {"rows": rows}
+
+
 def run(args) -> int | str:
     """
     Run ``sorter paper statements``.
@@ -165,8 +201,12 @@ def run(args) -> int | str:
         path = Path(args.grid)
         if not path.is_file():
             return f"--grid: {path} is not a file (a table `--doc DIR` saved in DIR/{GRID_FILE})"
+        try:
+            saved = load_table(path)
+        except (OSError, ValueError) as exc:
+            return f"--grid: {str(path)[:200]}: {getattr(exc, 'strerror', None) or exc}"
         # points the saved grid lacks are run (a grid extended by a new claim)
-        store = GridStore(load_table(path), progress=None if args.quiet else stderr_progress())
+        store = GridStore(saved, progress=None if args.quiet else stderr_progress())
     else:
         store = GridStore(progress=None if args.quiet else stderr_progress())
     page = None
@@ -176,7 +216,9 @@ def run(args) -> int | str:
             return (
                 f"--doc: {page} has no {BLOCK[0]} block (write it first: sorter paper all --doc)"
             )
-    result = table(store)
+    result = table(store) if not args.grid else _judged_on_file(store)
+    if isinstance(result, str):
+        return f"--grid: {str(args.grid)[:200]}: {result}"
     print(json.dumps(result, ensure_ascii=False) if args.json else text_report(result))
     if page is not None:
         saved = store.save(Path(args.doc) / GRID_FILE)

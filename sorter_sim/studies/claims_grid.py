@@ -420,6 +420,103 @@ class GridStore:
         return path
 
 
+TABLE_MAX_BYTES = 64 * 1024 * 1024  # the saved grid is 2.4 MB
+_TIME = (0.0, 1e3, "a time [s]")
+_LENGTH = (0.0, 1e3, "a length [m]")
+_ACCEL = (-1e4, 1e4, "an acceleration [m/s²]")
+_SORT_FIELDS = {
+    "t": _TIME,
+    "x": (-1e3, 1e3, "a position [m]"),
+    "e2": _TIME,
+    "e2_end": _TIME,
+    "ay_early": _ACCEL,
+    "ax_early": _ACCEL,
+    "ay_peak": _ACCEL,
+    "ay_e2": _ACCEL,
+    "ax_e2": _ACCEL,
+    "transitions": (0.0, 1e6, "a count"),
+}
+# what each kind of record holds, and the range each value may take: (low, high, what);
+# a time, a length or a force is above ``low`` (the claims divide by them), the rest within
+TABLE_FIELDS = {
+    "sort": _SORT_FIELDS,
+    "law": _SORT_FIELDS,
+    "f14": {f: (0.0, 1e6, "a force [N]") for f in ("end", "low", "high")},
+    "two": {"single": _LENGTH, "final": _LENGTH},
+    "bmin": {"b": _LENGTH},
+}
+_OPEN_BELOW = {"t", "e2_end", "end", "low", "high", "single", "final", "b"}
+_KEY_PARAMS = {"A", "B", "alpha", "alpha2", "f", "mu_a", "mu_b", "v"}
+
+
+def _key_problem(key) -> str | None:
+    if not isinstance(key, str) or len(key) > 200:
+        return f"a key {str(key)[:60]!r}... is longer than 200 characters"
+    kind, _, rest = key.partition("|")
+    model, _, body = rest.partition("|")
+    if kind not in TABLE_FIELDS:
+        return f"key {key!r}: its kind {kind!r} is none of {', '.join(TABLE_FIELDS)}"
+    if model not in {m.key for m in MODELS}:
+        return f"key {key!r}: model {model!r} is none of {', '.join(m.key for m in MODELS)}"
+    for item in body.split("|"):
+        name, _, value = item.partition("=")
+        if name not in _KEY_PARAMS:
+            return f"key {key!r}: {name!r} is none of {', '.join(sorted(_KEY_PARAMS))}"
+        if name != "f":
+            try:
+                ok = math.isfinite(float(value))
+            except ValueError:
+                ok = False
+            if not ok:
+                return f"key {key!r}: {name}={value!r} is not a finite number"
+    return None
+
+
+def table_problem(raw) -> str | None:
+    """
+    Say what is wrong with a table read from JSON (None when ``GridStore`` may read it).
+
+    Every key names a kind of run, a model and its parameters; every record holds
+    exactly the values of its kind, each a number in its range or null (no such stage),
+    so that a claim judged on it never meets a value it cannot take (a time of 0, a
+    force of 1e300).
+
+    Parameters
+    ----------
+    raw : object
+        What ``json.loads`` made of the file.
+
+    Returns
+    -------
+    str or None
+        One line: the first key or value that is wrong, and what is allowed.
+
+    """
+    if not isinstance(raw, dict):
+        return f"the table must be a JSON object (key -> record), not a {type(raw).__name__}"
+    for key, rec in raw.items():
+        problem = _key_problem(key)
+        if problem:
+            return problem
+        fields = TABLE_FIELDS[key.partition("|")[0]]
+        if not isinstance(rec, dict) or set(rec) != set(fields):
+            got = sorted(rec)[:12] if isinstance(rec, dict) else type(rec).__name__
+            return f"key {key!r}: its record must hold {', '.join(fields)}, got {got}"
+        for f, x in rec.items():
+            if x is None:
+                continue
+            low, high, what = fields[f]
+            num = isinstance(x, (int, float)) and not isinstance(x, bool)
+            above = num and (x > low if f in _OPEN_BELOW else x >= low)
+            if not (num and math.isfinite(x) and above and x <= high):
+                bound = "above" if f in _OPEN_BELOW else "from"
+                return (
+                    f"key {key!r}: {f} = {str(x)[:40]} is not {what} {bound} {low:g} "
+                    f"to {high:g} (or null)"
+                )
+    return None
+
+
 def load_table(path: Path) -> dict:
     """
     Read a table ``GridStore.save`` wrote (None back to NaN).
@@ -434,8 +531,26 @@ def load_table(path: Path) -> dict:
     dict
         key -> record.
 
+    Raises
+    ------
+    ValueError
+        With one line, when the file is too large, no JSON, or not such a table
+        (``table_problem``).
+
     """
-    raw = json.loads(Path(path).read_text())
+    path = Path(path)
+    size = path.stat().st_size
+    if size > TABLE_MAX_BYTES:
+        raise ValueError(f"{size} bytes, more than the {TABLE_MAX_BYTES} a grid table may have")
+    try:
+        raw = json.loads(path.read_bytes())
+    except RecursionError:
+        raise ValueError("nested too deep for a grid table (key -> record of numbers)") from None
+    except ValueError as exc:  # UnicodeDecodeError too
+        raise ValueError(f"not JSON: {str(exc).splitlines()[0][:120]}") from None
+    problem = table_problem(raw)
+    if problem:
+        raise ValueError(problem[:400])
     return {
         k: {f: (math.nan if x is None else float(x)) for f, x in rec.items()}
         for k, rec in raw.items()
