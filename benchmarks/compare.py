@@ -83,8 +83,12 @@ def _tree(rev: str) -> Path:
     stamp = tree / '.bench_warm'
     if not stamp.exists():
         print(f'compare: compiling the kernels of {sha[:12]} (once)', file=sys.stderr)
+        # from the tree itself: ``-m`` puts the working folder first on the path
         subprocess.run(
-            [sys.executable, '-m', 'sorter_cell', 'warmup', '--all'], env=_env(tree), check=True
+            [sys.executable, '-m', 'sorter_cell', 'warmup', '--all'],
+            cwd=tree,
+            env=_env(tree),
+            check=True,
         )
         stamp.write_text('')
     return tree
