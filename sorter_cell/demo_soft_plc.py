@@ -42,36 +42,32 @@ def run_soft_plc(args) -> int | str:
         The exit code, or a message.
 
     """
-    import rclpy
-
     from sorter_control.parameters import config_from_values
     from sorter_control.soft_plc import FieldbusError, SoftPLC
-    from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
+    from sorter_ros.env import StopSignals, find_config_dir
+    from sorter_ros.run_loop import RunLoop
 
-    apply_ros_env_defaults()
     config_dir = find_config_dir()
     plan, stream = _stream(args, config_dir)
     cfg = config_from_values(_controller_values(config_dir))
     # Ctrl-C ends the stream where it is, as in the ROS demo; rclpy's own handler stays out
     stop = StopSignals().install()
-    ctx, port = _init_ros(args, config_dir)
-    nodes, io = [], None
+    loop = RunLoop(params_files=("cell.yaml",), log_level="info" if args.verbose else "warn")
+    io = None
     try:
-        sim, obs, executor = _start_nodes(args, ctx, port, stream, nodes)
+        sim, obs = _start_nodes(args, loop, _free_port(), stream)
         try:
             io = _connect(args.io, sim)
         except FieldbusError as exc:
             return str(exc)
         plc = SoftPLC(cfg, io)
-        t_end, wall = _scan(args, sim, plc, cfg, executor, stop)
+        t_end, wall = _scan(args, sim, plc, cfg, loop, stop)
         summary = _summary(args, sim, plc, obs, plan, (t_end, wall), io)
     finally:
         stop.quiet = True
         if io is not None:
             io.close()
-        for n in nodes:
-            n.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+        loop.close()
         stop.restore()
     if args.json:
         print(json.dumps(summary, sort_keys=True))
@@ -85,60 +81,32 @@ def run_soft_plc(args) -> int | str:
     return exit_code(summary)
 
 
-def _init_ros(args, config_dir: Path):
-    """
-    Start ROS in a context of its own with the cell's parameters file; pick a free port.
-
-    Returns
-    -------
-    (Context, int)
-        The context, and a free loopback port for the cell's fieldbus server.
-
-    """
+def _free_port() -> int:
+    """Return a free loopback port for the cell's fieldbus server."""
     import socket
-
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.signals import SignalHandlerOptions
 
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    ctx = Context()
-    log_level = "info" if args.verbose else "warn"
-    rclpy.init(
-        signal_handler_options=SignalHandlerOptions.NO,
-        context=ctx,
-        args=[
-            "--ros-args",
-            "--params-file",
-            str(config_dir / "cell.yaml"),
-            "--log-level",
-            log_level,
-        ],
-    )
-    return ctx, port
+        return probe.getsockname()[1]
 
 
-def _start_nodes(args, ctx, port: int, stream: dict, nodes: list):
+def _start_nodes(args, loop, port: int, stream: dict):
     """
-    Start the cell's node serving ``port`` in lock-step, and an observer node.
+    Start the cell's node serving ``port`` in lock-step, and an observer node, on ``loop``.
 
     Returns
     -------
-    (SimNode, _Observer, SingleThreadedExecutor)
-        The cell's node, the observer and the executor spinning both; ``nodes`` gets the
-        nodes, for the caller to destroy.
+    (SimNode, _Observer)
+        The cell's node and the observer.
 
     """
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
     from sorter_sim.frontends.node import SimNode
 
     sim = SimNode(
-        context=ctx,
+        context=loop.context,
         parameter_overrides=[
             Parameter(k, value=v)
             for k, v in {
@@ -150,14 +118,12 @@ def _start_nodes(args, ctx, port: int, stream: dict, nodes: list):
             }.items()
         ],
     )
-    nodes.append(sim)
-    watcher = rclpy.create_node("sorter_demo", context=ctx)
-    nodes.append(watcher)
+    loop.add_node(sim)
+    loop._stepper, loop._timebase = sim, sim.cell
+    watcher = rclpy.create_node("sorter_demo", context=loop.context)
     obs = _Observer(watcher, want_paths=True)
-    executor = SingleThreadedExecutor(context=ctx)
-    for n in nodes:
-        executor.add_node(n)
-    return sim, obs, executor
+    loop.add_node(watcher)
+    return sim, obs
 
 
 def _connect(kind: str, sim):
@@ -172,12 +138,12 @@ def _connect(kind: str, sim):
     return OpcUaIO(sim.fieldbus.opcua_endpoint, "cell", sensors)
 
 
-def _scan(args, sim, plc, cfg, executor, stop) -> tuple[float, float]:
+def _scan(args, sim, plc, cfg, loop, stop) -> tuple[float, float]:
     """
     Step the cell a scan period, let the PLC scan, for ``args.sim_time`` of simulated time.
 
     The two step together, so the run is as fast as the machine and as repeatable as the
-    ROS demo; the observer's callbacks run between scans and for 0.5 s after.
+    ROS demo; the run loop serves the observer's callbacks after each scan.
 
     Returns
     -------
@@ -201,16 +167,14 @@ def _scan(args, sim, plc, cfg, executor, stop) -> tuple[float, float]:
     while sim.cell.t - t0 < args.sim_time and not stop.is_set():
         sim.advance(per_scan)
         plc.scan()
-        executor.spin_once(timeout_sec=0.0)
+        loop.spin_idle()
         if sim.cell.t - t0 - shown >= 0.1:
             bar.update(round(sim.cell.t - t0 - shown, 3))
             shown = sim.cell.t - t0
     bar.close()
     wall = time.monotonic() - wall0
     t_end = sim.cell.t - t0
-    deadline = time.monotonic() + 0.5
-    while time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.02)
+    loop.spin_idle()
     return t_end, wall
 
 
