@@ -247,8 +247,13 @@ def _run_one(args) -> int | str:
     return 0 if result.passed else 1
 
 
-def _run_in_process(file: str, seed: int, domains: range) -> dict:
-    """Run one scenario as its own process on a domain it holds alone; return its JSON result."""
+def _run_in_process(file: str, seed: int, domains: range, cwd: str | None = None) -> dict:
+    """
+    Run one scenario as its own process on a domain it holds alone; return its JSON result.
+
+    ``cwd``: the directory the campaign was started in, where the run looks for the
+    user's modules after the scenario's folder (as ``scenario run`` does).
+    """
     from sorter_cell.testing.domains import DomainClaim
 
     with DomainClaim(domains) as domain:
@@ -270,6 +275,7 @@ def _run_in_process(file: str, seed: int, domains: range) -> dict:
             capture_output=True,
             text=True,
             env=env,
+            cwd=cwd,
         )
         wall = time.perf_counter() - wall0
         end = time.time()
@@ -369,7 +375,10 @@ def _campaign(args) -> int | str:
             cluster = local_cluster(args.workers)
             client = Client(cluster)
         jobs = [(f, s) for f in files for s in range(1, args.seeds + 1)]
-        futures = [client.submit(_run_in_process, f, s, domains, pure=False) for f, s in jobs]
+        here = os.getcwd()
+        futures = [
+            client.submit(_run_in_process, f, s, domains, here, pure=False) for f, s in jobs
+        ]
         bar = progress_bar(len(futures), "sorter scenario", "run", quiet=args.quiet)
         rows = []
         for fut in as_completed(futures):

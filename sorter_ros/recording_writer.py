@@ -226,9 +226,7 @@ class _Bag:
                     'topic_type_hash': c.get('type_hash', ''),
                 },
             )
-            self.counts.channel(
-                channel, c['topic'], c['type'], c['qos'], c.get('type_hash', '')
-            )
+            self.counts.channel(channel, c['topic'], c['type'], c['qos'], c.get('type_hash', ''))
         elif kind == METADATA:
             m = json.loads(payload)
             w.add_metadata(name=m['name'], data=m['values'])

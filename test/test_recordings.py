@@ -227,11 +227,15 @@ def test_rosbag2_decodes_the_metadata_record_and_channels_as_its_yaml_hpp_does(r
     assert {t: v['messages'] for t, v in topics.items()} == {'/probe/state': 5, '/probe/label': 1}
     (latched,) = topics['/probe/label']['qos']
     assert (latched['durability'], latched['reliability'], latched['depth']) == (
-        'transient_local', 'reliable', 1
+        'transient_local',
+        'reliable',
+        1,
     )
     (stream,) = topics['/probe/state']['qos']
     assert (stream['history'], stream['durability'], stream['depth']) == (
-        'keep_last', 'volatile', 10
+        'keep_last',
+        'volatile',
+        10,
     )
     # each channel as rosbag2's MCAP storage reads it: the profiles' YAML text
     # (to_rclcpp_qos_vector) and the type hash, the same as the record's
@@ -244,6 +248,7 @@ def test_rosbag2_decodes_the_metadata_record_and_channels_as_its_yaml_hpp_does(r
         (info,) = node.get_publishers_info_by_topic(ch.topic)
         assert str(info.topic_type_hash).startswith('RIHS01_')
         assert ch.metadata['topic_type_hash'] == str(info.topic_type_hash)
+
 
 # ---------------------------------------------------------------- kill, disk full, two writers
 def _node_cmd(path: Path, *extra) -> list[str]:

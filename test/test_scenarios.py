@@ -237,6 +237,74 @@ def test_a_bad_scenario_is_refused_in_one_line_naming_the_key(tmp_path, capsys, 
     assert str(sc) in err and 'Traceback' not in err
 
 
+def _user_project(root: Path, module: str) -> Path:
+    """A user's project: their controller module at its top, scenario files in scenarios/."""
+    (root / f'{module}.py').write_text((USER_EXAMPLES / 'minimal_controller.py').read_text())
+    folder = root / 'scenarios'
+    folder.mkdir()
+    write(
+        folder,
+        f"""
+        duration: 4.0
+        cell: {{alpha_deg: 90.0}}
+        controller: {{node: "{module}:MinimalController"}}
+        stream: {{parcels: [{{label: L-1, at: 0.0}}]}}
+        expect: [{{parcel: L-1, exit: left}}]
+        """,
+        'node.yaml',
+    )
+    return folder
+
+
+def _installed_sorter(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    # the console script, whose sys.path holds neither the project nor a file's folder
+    # (python -m would put the directory it starts in first)
+    sorter = Path(sys.executable).parent / 'sorter'
+    return subprocess.run(
+        [str(sorter), *args], cwd=cwd, capture_output=True, text=True, timeout=120
+    )
+
+
+def test_a_scenario_in_a_subfolder_imports_the_users_module_from_where_the_command_runs(
+    tmp_path,
+):
+    _user_project(tmp_path, 'vowel_sorter')
+    done = _installed_sorter(tmp_path, 'scenario', 'run', 'scenarios/node.yaml', '--no-record')
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+
+
+def test_a_campaign_of_a_subfolder_imports_the_users_module_from_where_the_command_runs(
+    tmp_path,
+):
+    # checked, then each run started, from there
+    _user_project(tmp_path, 'vowel_sorter')
+    done = _installed_sorter(
+        tmp_path, 'scenario', 'campaign', 'scenarios', '--seeds', '1', '--workers', '1', '--quiet'
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    assert '1 passed, 0 failed' in done.stdout
+
+
+def test_a_users_module_found_nowhere_is_refused_naming_where_it_was_looked_for(
+    tmp_path, monkeypatch, capsys
+):
+    folder = _user_project(tmp_path, 'vowel_sorter_elsewhere')
+    (tmp_path / 'vowel_sorter_elsewhere.py').unlink()
+    project = tmp_path / 'project'
+    project.mkdir()
+    monkeypatch.chdir(project)
+    assert main(['scenario', 'run', '../scenarios/node.yaml']) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert (
+        f"cannot import 'vowel_sorter_elsewhere' (looked in ../scenarios, {project} "
+        "(the current directory), then sys.path): ModuleNotFoundError"
+    ) in err, err
+    # nothing of the search is left on the path
+    assert str(project) not in sys.path and '../scenarios' not in sys.path
+    assert folder.is_dir()
+
+
 def test_a_campaign_runs_each_scenario_per_seed_in_its_own_process(tmp_path):
     folder = tmp_path / 'campaign'
     folder.mkdir()

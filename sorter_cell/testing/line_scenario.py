@@ -19,8 +19,9 @@ A scenario with ``line:`` runs a ``SorterLine`` instead of a single cell::
       - {no_jam: true}
       - {throughput_at_least: 1000}    # parcels off the line per hour
 
-A program is ``module:callable`` (imported from the file's folder first), called
-with ``context=``, ``namespace=`` (``/S02``) and ``parameter_overrides=``; the other
+A program is ``module:callable`` (imported from the file's folder, else the directory
+the command runs in), called with ``context=``, ``namespace=`` (``/S02``) and
+``parameter_overrides=``; the other
 stations run this project's program. A line scenario has no ``controller:``, no
 generated stream and no faults; a parcel's ``destination`` is optional (none: its
 disposition is ``no_destination``).
@@ -30,8 +31,13 @@ from __future__ import annotations
 
 import time
 
-from sorter_cell.testing.lockstep import FactoryError, load_node_factory
-from sorter_cell.testing.scenario_types import Check, ScenarioError, refuse_unknown
+from sorter_cell.testing.lockstep import FactoryError
+from sorter_cell.testing.scenario_types import (
+    Check,
+    ScenarioError,
+    load_user_factory,
+    refuse_unknown,
+)
 
 LINE_KEYS = ('stations', 'plan', 'programs')
 LINE_EXPECT_KEYS = ('parcel', 'disposition', 'station', 'chute')
@@ -47,7 +53,8 @@ def check_line(value, folder) -> dict:
     value : object
         The ``line:`` mapping.
     folder : Path or None
-        The scenario file's folder (programs are imported from it first).
+        The scenario file's folder (programs are imported from it first, then from the
+        directory the command runs in).
 
     """
     if not isinstance(value, dict):
@@ -72,7 +79,7 @@ def check_line(value, folder) -> dict:
         if isinstance(k, bool) or not (isinstance(k, int) and 1 <= k <= n):
             raise ScenarioError(f'line.programs: a station is a number in [1, {n}], got {k!r}')
         try:
-            load_node_factory(spec, folder)
+            load_user_factory(spec, folder)
         except FactoryError as exc:
             raise ScenarioError(f'line.programs.{k} {exc}') from None
     return {'stations': n, 'plan': plan, 'programs': dict(programs)}
@@ -137,7 +144,7 @@ def run_line_scenario(sc, result, record: str | None, domain_id: int | None):
     wall0 = time.perf_counter()
     folder = _folder(sc)
     line_spec = sc.line
-    programs = {k: load_node_factory(v, folder) for k, v in line_spec['programs'].items()}
+    programs = {k: load_user_factory(v, folder) for k, v in line_spec['programs'].items()}
     with SorterLine(
         line_spec['stations'],
         plan=line_spec['plan'],

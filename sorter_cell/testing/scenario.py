@@ -41,7 +41,8 @@ The controller under test (``controller:``) is one of
 - ``{node: "module:callable", parameters: {...}}``: the user's node(s), made in this
   process by ``callable(context=..., parameter_overrides=[...])`` (``use_sim_time``
   and the given parameters) and spun in lock-step with the cell: the module is
-  imported from the scenario file's folder first, then ``sys.path``. Runs of the
+  imported from the scenario file's folder, else the directory the command runs in,
+  else ``sys.path`` (``load_user_factory``). Runs of the
   same file give the same exits at the same simulated times;
 - ``{command: [...], start_timeout: 30}``: a process the scenario starts in its own
   ROS domain (``ROS_DOMAIN_ID``), in the file's folder (``{python}`` in the command
@@ -63,13 +64,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sorter_cell.testing.lockstep import (
-    GRACE_S,
-    FactoryError,
-    load_node_factory,
-    make_user_nodes,
+from sorter_cell.testing.lockstep import GRACE_S, FactoryError, make_user_nodes
+from sorter_cell.testing.scenario_types import (
+    Check,
+    ScenarioError,
+    load_user_factory,
+    refuse_unknown,
 )
-from sorter_cell.testing.scenario_types import Check, ScenarioError, refuse_unknown
 from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
 TOP_KEYS = ('name', 'duration', 'seed', 'cell', 'controller', 'line', 'stream', 'faults', 'expect')
@@ -216,7 +217,7 @@ def _check_controller_spec(ctl, folder) -> ControllerSpec | None:
     if 'node' in ctl:
         refuse_unknown(ctl, ('node', 'parameters'), 'controller', ' with node')
         try:
-            load_node_factory(ctl['node'], folder)
+            load_user_factory(ctl['node'], folder)
         except FactoryError as exc:
             raise ScenarioError(f'controller.node {exc}') from None
         params = _parameter_values(ctl.get('parameters'), 'controller.parameters')
@@ -602,7 +603,7 @@ def _controller_running(cell, spec: ControllerSpec | None, sc: Scenario):
         yield cell.add_controller(spec.params)
     elif spec.kind == 'node':
         folder = Path(sc.path).parent if sc.path else None
-        factory = load_node_factory(spec.factory, folder)
+        factory = load_user_factory(spec.factory, folder)
         nodes = cell.add_node(make_user_nodes(factory, cell.context, spec.params))
         yield nodes[0]
     else:
