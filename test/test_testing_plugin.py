@@ -20,6 +20,18 @@ from std_msgs.msg import UInt32
 REPO = Path(__file__).resolve().parents[1]
 
 
+def _pytest_in(folder: Path, *args: str, env=None) -> subprocess.CompletedProcess:
+    """Run pytest on a folder outside the project, as its own user would."""
+    return subprocess.run(
+        [sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider', *args],
+        cwd=folder,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
 def test_the_plugin_is_registered_by_the_installed_package(pytestconfig):
     assert pytestconfig.pluginmanager.has_plugin('sorter_cell')
 
@@ -96,30 +108,76 @@ def test_a_test_outside_the_project_uses_only_the_installed_package(tmp_path):
             """
         )
     )
-    done = subprocess.run(
-        [sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider', 'test_mine.py'],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    done = _pytest_in(tmp_path, 'test_mine.py')
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert '1 passed' in done.stdout
 
 
 def test_the_example_third_party_controller_passes_its_own_tests(tmp_path):
-    # examples/ is a third party's project: copied out of the tree and run there
+    import os
+
+    # examples/ is a third party's project: copied out of the tree and run there, as its
+    # user did: ROS_DOMAIN_ID exported (as the ROS tutorials teach) and two xdist
+    # workers, whose cells shared that domain (the watchdog test heard the other
+    # worker's controller) until each test claimed one of its own
     for name in ('minimal_controller.py', 'test_minimal_controller.py'):
         (tmp_path / name).write_text((REPO / 'examples' / name).read_text())
-    done = subprocess.run(
-        [sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider'],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    done = _pytest_in(tmp_path, '-n', '2', env=dict(os.environ, ROS_DOMAIN_ID='7'))
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert '2 passed' in done.stdout
+
+
+DOMAINS = """
+import fcntl
+import os
+
+import pytest
+
+from sorter_cell.testing.domains import lock_dir
+
+
+def _held(domain):
+    # a lock of this host's claims: a second open file cannot take it while it is held
+    fd = os.open(lock_dir() / f'domain-{domain}.lock', os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return False
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+
+
+@pytest.mark.parametrize('n', range(2))
+def test_a_domain_of_its_own(sorter_cell, n):
+    assert 120 <= sorter_cell.domain_id <= 123 and _held(sorter_cell.domain_id)
+    assert sorter_cell.context.get_domain_id() == sorter_cell.domain_id
+
+
+@pytest.mark.sorter_ros_domain_id
+def test_the_shells_domain_where_the_test_asks_for_it(sorter_cell):
+    assert sorter_cell.domain_id == 7
+"""
+
+
+def test_each_test_and_worker_has_a_domain_of_its_own_whatever_the_shell_exports(tmp_path):
+    import os
+
+    # ROS_DOMAIN_ID exported, two xdist workers: each test on a domain of the range,
+    # claimed on the host while it runs; the shell's only where a test asks for it
+    (tmp_path / 'test_domains.py').write_text(DOMAINS)
+    env = dict(os.environ, ROS_DOMAIN_ID='7', SORTER_DOMAIN_LOCKS=str(tmp_path / 'locks'))
+    done = _pytest_in(tmp_path, '-n', '2', '--sorter-domains', '120-123', env=env)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert '3 passed' in done.stdout
+
+
+def test_a_domain_range_that_is_none_is_refused_before_any_test_runs(tmp_path):
+    (tmp_path / 'test_domains.py').write_text(DOMAINS)
+    bad = _pytest_in(tmp_path, '--sorter-domains', '300-301', 'test_domains.py')
+    assert bad.returncode == 4, bad.stdout[-2000:] + bad.stderr[-2000:]
+    (line,) = bad.stderr.strip().splitlines()
+    assert '--sorter-domains must be a ROS domain range' in line and "'300-301'" in line
 
 
 def test_a_wait_that_times_out_explains_where_the_cell_is(sorter_cell):
