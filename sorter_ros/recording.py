@@ -74,6 +74,7 @@ def publish_recorded(publisher, msg, recorder: Recorder | None, t_ns: int) -> No
         data = msg
     else:
         data = serialize_message(msg)
+    recorder.published.add(publisher.topic_name)
     publisher.publish(data)
     recorder.write(publisher.topic_name, data, t_ns, publisher.msg_type, publisher.qos_profile)
 
@@ -290,6 +291,9 @@ class Recorder:
         self.failure: str | None = None
         self.on_failure: list = []
         self.messages = 0
+        # topics the nodes write as they publish (publish_recorded): a TopicRecorder
+        # of the same file leaves them to the nodes
+        self.published: set[str] = set()
 
     def _fail(self, reason: str, written: int | str | None = None) -> None:
         """Stop recording: say why, once; the writer finishes nothing more."""

@@ -121,6 +121,30 @@ def test_the_users_node_runs_in_lock_step_and_two_runs_agree():
     assert len(exits[0]) == 4 and exits[0] == exits[1]
 
 
+def test_a_scenarios_recording_holds_the_controllers_topics_too(tmp_path):
+    from ros_harness import recorded_topic_counts
+
+    (tmp_path / 'minimal_controller.py').write_text(
+        (USER_EXAMPLES / 'minimal_controller.py').read_text()
+    )
+    sc = write(
+        tmp_path,
+        """
+        duration: 4.0
+        cell: {alpha_deg: 90.0}
+        controller: {node: "minimal_controller:MinimalController"}
+        stream: {parcels: [{label: L-1, at: 0.0}]}
+        expect: [{parcel: L-1, exit: left}]
+        """,
+    )
+    record = tmp_path / 'run.mcap'
+    res = run_scenario(load_scenario(sc), record=str(record))
+    assert res.passed, res.state
+    counts = recorded_topic_counts(record)
+    # the user's node's heartbeat (every 50 ms) beside what the cell writes, once
+    assert counts['/controller/heartbeat'] > 40, counts
+    assert counts['/sort/outcomes'] == 1, counts
+
 def test_the_users_controller_as_a_process_follows_the_cells_clock(tmp_path):
     # from outside the project, as a third party runs it
     for name in ('minimal_controller.py', 'run_minimal_controller.py'):

@@ -180,6 +180,48 @@ def test_a_domain_range_that_is_none_is_refused_before_any_test_runs(tmp_path):
     assert '--sorter-domains must be a ROS domain range' in line and "'300-301'" in line
 
 
+EVERY_TOPIC = """
+import rclpy
+from minimal_controller import MinimalController
+from std_msgs.msg import String
+
+
+def test_recorded(sorter_cell):
+    sorter_cell.add_node(MinimalController(context=sorter_cell.context))
+    mine = sorter_cell.add_node(rclpy.create_node('my_node', context=sorter_cell.context))
+    notes = mine.create_publisher(String, '/mine/notes', 10)
+    sorter_cell.run(0.5)  # looked at the graph
+    for i in range(3):
+        notes.publish(String(data=f'note {i}'))
+        sorter_cell.run(0.1)
+    sorter_cell.induct('L-1', length=0.4, width=0.3)
+    sorter_cell.induct('S-1', length=0.4, width=0.3)
+    assert sorter_cell.run_until(lambda: len(sorter_cell.outcomes) == 2, 30.0)
+    sorter_cell.set_params(alpha_deg=45.0)  # the cell's /parameter_events
+    sorter_cell.run(0.5)
+"""
+
+
+def test_a_tests_recording_holds_every_topic_on_its_domain_its_own_nodes_too(tmp_path):
+    from ros_harness import recorded_topic_counts
+
+    (tmp_path / 'test_mine.py').write_text(EVERY_TOPIC)
+    name = 'minimal_controller.py'
+    (tmp_path / name).write_text((REPO / 'examples' / name).read_text())
+    base = tmp_path / 'bt'
+    done = _pytest_in(tmp_path, f'--basetemp={base}', '--sorter-record=all', 'test_mine.py')
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    (path,) = [p for p in base.glob('*/sorter_cell.mcap') if not p.parent.is_symlink()]
+    counts = recorded_topic_counts(path)
+    # the test's nodes' topics (the controller's heartbeat every 50 ms, its own notes),
+    # as ros2 bag record -a would have them
+    assert counts['/mine/notes'] == 3
+    assert counts['/controller/heartbeat'] > 40
+    assert counts['/parameter_events'] > 0  # alpha_deg's change among them
+    # the cell's own topics once each, as it writes them: no second copy
+    assert counts['/sort/outcomes'] == 2
+
+
 def test_a_wait_that_times_out_explains_where_the_cell_is(sorter_cell):
     sorter_cell.induct('P-1', length=0.5, width=0.3)
     sorter_cell.inject('eye', sensor='pe_exit', mode='blocked')

@@ -140,6 +140,7 @@ def run_line_scenario(sc, result, record: str | None, domain_id: int | None):
 
     """
     from sorter_cell.testing.line import SorterLine
+    from sorter_ros.topic_recorder import record_the_domain
 
     wall0 = time.perf_counter()
     folder = _folder(sc)
@@ -153,6 +154,7 @@ def run_line_scenario(sc, result, record: str | None, domain_id: int | None):
         domain_id=domain_id,
         record=record,
     ) as line:
+        record_the_domain(line, record)  # the programs' and the warehouse's topics too
         t0 = line.t
         for p in sorted(sc.parcels, key=lambda p: p['at']):
             if p['at'] > sc.duration:

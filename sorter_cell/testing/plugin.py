@@ -24,7 +24,9 @@ Fixtures (function scope, a fresh Context each):
 A test that uses one of them and fails gets the state of the cell or line in its
 report (a section ``sorter``, in the terminal and in JUnit's failure text): the
 simulated and wall time, the parcels so far, the faults, the PackML state, and the
-recording of the test, kept under the test's ``tmp_path`` by ``--sorter-record``
+recording of the test (every topic on its domain, the test's own nodes' too, as
+``ros2 bag record -a`` would: ``sorter_ros.topic_recorder``), kept under the test's
+``tmp_path`` by ``--sorter-record``
 (``failed``, the default: kept when the test fails; ``all``; ``none``: not recorded).
 
 Each test's ``sorter_cell`` or ``sorter_line`` is on a ROS domain of its own, claimed
@@ -232,6 +234,7 @@ def _test_domain(request):
 def sorter_cell(request, tmp_path):
     """Return the simulation node in a private Context, in lock-step (``SorterCell``)."""
     from sorter_cell.testing.harness import SorterCell
+    from sorter_ros.topic_recorder import record_the_domain
 
     record = _record_path(request, tmp_path, 'sorter_cell')
     marker = request.node.get_closest_marker('sorter_cell')
@@ -241,6 +244,7 @@ def sorter_cell(request, tmp_path):
             _marker_params(request, 'sorter_cell'), domain_id=domain, record=record, events=events
         )
         try:
+            record_the_domain(cell, record)
             yield cell
         finally:
             cell.close()
@@ -251,6 +255,7 @@ def sorter_cell(request, tmp_path):
 def sorter_line(request, tmp_path):
     """Return a line: stations, their programs and the warehouse, in lock-step (``SorterLine``)."""
     from sorter_cell.testing.line import SorterLine
+    from sorter_ros.topic_recorder import record_the_domain
 
     marker = request.node.get_closest_marker('sorter_line')
     kwargs = dict(marker.kwargs) if marker is not None else {}
@@ -264,6 +269,7 @@ def sorter_line(request, tmp_path):
     with _test_domain(request) as domain:
         line = SorterLine(**kwargs, domain_id=domain, record=record)
         try:
+            record_the_domain(line, record)
             yield line
         finally:
             line.close()

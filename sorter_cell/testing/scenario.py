@@ -529,6 +529,7 @@ def run_scenario(
 
     """
     from sorter_cell.testing.harness import SorterCell
+    from sorter_ros.topic_recorder import record_the_domain
 
     wall0 = time.perf_counter()
     res = ScenarioResult(sc.name, record=record or '')
@@ -543,6 +544,7 @@ def run_scenario(
     grace = COMMAND_GRACE_S if spec is not None and spec.kind == 'command' else GRACE_S
     timed: dict[int, Check] = {}
     with SorterCell(params, domain_id=domain_id, record=record, grace_s=grace) as cell:
+        record_the_domain(cell, record)  # the controller's topics too, a process's included
         t0 = cell.t
         try:
             with _controller_running(cell, spec, sc) as ctl:
