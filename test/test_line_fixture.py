@@ -135,6 +135,7 @@ def test_a_line_scenarios_recording_holds_every_stations_topics(tmp_path):
     assert counts['/S01/scanner/label'] == 1 and counts['/S02/scanner/label'] == 1, counts
     assert counts['/S01/controller/heartbeat'] > 10, counts
 
+
 def outside(tmp_path, *args) -> subprocess.CompletedProcess:
     """Run ``args`` in a folder outside the project holding the example station program."""
     for name in ('station_program.py', 'test_station_program.py', 'line_scenario.yaml'):
@@ -208,7 +209,13 @@ def test_the_contract_check_runs_from_pytest_outside_the_project(tmp_path):
         'no:cacheprovider',
         '--sorter-station-contract',
         'station_program:StationProgram',
+        '-rA',
         '-k',
         'station_contract and not keeps',  # the option's test alone, not the example's own
     )
     assert '1 passed' in done.stdout
+    # the passing check's id names the program's file, as its own tests' ids do
+    assert (
+        'PASSED station_program.py::station_contract[station_program:StationProgram]'
+        in done.stdout.splitlines()
+    ), done.stdout

@@ -284,7 +284,7 @@ def test_a_failed_test_reports_the_cell_and_keeps_its_recording(tmp_path, mode, 
     }
     assert recordings == kept
     for text in (done.stdout, ET.parse(junit).getroot().find('.//failure').text):
-        assert 'the state when the test failed:' in text
+        assert text.count('the state when the test failed:') == 1, text
         assert 'parcels: 1 inducted, 1 on the cell, 0 waiting at the induction, 0 out' in text
         assert 'faults: none; PackML: Execute' in text
         assert ('recording: ' in text) == bool(kept)

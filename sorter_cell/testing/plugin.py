@@ -117,13 +117,51 @@ def pytest_configure(config):
     )
 
 
+def _module_file(module_name: str) -> Path | None:
+    """Return the file ``module_name`` imports from (the directory pytest runs in first)."""
+    import importlib.util
+    import sys
+
+    here = str(Path.cwd())
+    added = here not in sys.path
+    if added:
+        sys.path.insert(0, here)
+    try:
+        found = importlib.util.find_spec(module_name)
+    except (ImportError, ValueError):
+        found = None
+    finally:
+        if added:
+            sys.path.remove(here)
+    origin = getattr(found, 'origin', None)
+    return Path(origin) if origin and origin.endswith('.py') else None
+
+
 def pytest_collection_modifyitems(session, config, items):
-    """With ``--sorter-station-contract``: add the contract's check of that program."""
+    """
+    With ``--sorter-station-contract``: add the contract's check of that program.
+
+    Its test id names the program's file, as a test of that file's would
+    (``station_program.py::station_contract[station_program:StationProgram]``); a module
+    that is not found keeps the bare id, and the check says why it fails.
+    """
     spec = config.getoption('--sorter-station-contract', None)
-    if spec:
-        items.append(
-            StationContractItem.from_parent(session, name=f'station_contract[{spec}]', spec=spec)
+    if not spec:
+        return
+    name = f'station_contract[{spec}]'
+    source = _module_file(spec.split(':')[0]) if spec.count(':') == 1 else None
+    if source is None:
+        items.append(StationContractItem.from_parent(session, name=name, spec=spec))
+        return
+    try:
+        where = source.relative_to(config.rootpath).as_posix()
+    except ValueError:
+        where = str(source)
+    items.append(
+        StationContractItem.from_parent(
+            session, name=name, spec=spec, path=source, nodeid=f'{where}::{name}'
         )
+    )
 
 
 class StationContractFailed(AssertionError):
@@ -172,11 +210,13 @@ def pytest_runtest_makereport(item, call):
     if harness is None:
         return
     text = harness.explain('the state when the test failed:')
-    rep.sections.append(('sorter', text))
     longrepr = rep.longrepr
     if hasattr(longrepr, 'addsection'):
-        # the failure's own text carries it, so JUnit's <failure> has it too
+        # the failure's own text carries it, so JUnit's <failure> has it too; not also
+        # among the report's sections, which the terminal prints after it a second time
         longrepr.addsection('sorter', text)
+    else:
+        rep.sections.append(('sorter', text))
 
 
 def _record_path(request, tmp_path, name: str) -> str:
