@@ -350,6 +350,33 @@ def local_cluster(threads: int):
     )
 
 
+def campaign_table(rows: list[dict]) -> str:
+    """
+    Return the campaign's table: a line per scenario, its runs and mean times, aligned.
+
+    The name column is as wide as the longest name (at least 32): a long name moves
+    the columns, every line alike, rather than pushing its own line out of them.
+    """
+    by_name: dict[str, list] = {}
+    for r in rows:
+        by_name.setdefault(r["name"], []).append(r)
+    width = max([32] + [len(n) for n in by_name])
+    lines = [
+        f"{'scenario':<{width}} {'runs':>5} {'passed':>7} {'failed':>7} {'sim s':>7} "
+        f"{'run s':>7} {'process s':>10}"
+    ]
+    for name, rs in by_name.items():
+        n_ok = sum(r["passed"] for r in rs)
+        sim = sum(r["sim_s"] for r in rs) / len(rs)
+        run_s = sum(r["wall_s"] for r in rs) / len(rs)
+        proc = sum(r["process_s"] for r in rs) / len(rs)
+        lines.append(
+            f"{name:<{width}} {len(rs):>5} {n_ok:>7} {len(rs) - n_ok:>7} {sim:>7.1f} "
+            f"{run_s:>7.1f} {proc:>10.1f}"
+        )
+    return "\n".join(lines)
+
+
 def _campaign(args) -> int | str:
     from sorter_cell.testing.scenario import Check, ScenarioResult, junit_xml
     from sorter_sim.studies.progress import progress_bar
@@ -391,22 +418,7 @@ def _campaign(args) -> int | str:
             cluster.close()
     wall = time.perf_counter() - wall0
     rows.sort(key=lambda r: (r["file"], r["seed"]))
-    by_name: dict[str, list] = {}
-    for r in rows:
-        by_name.setdefault(r["name"], []).append(r)
-    print(
-        f"{'scenario':<32} {'runs':>5} {'passed':>7} {'failed':>7} {'sim s':>7} "
-        f"{'run s':>7} {'process s':>10}"
-    )
-    for name, rs in by_name.items():
-        n_ok = sum(r["passed"] for r in rs)
-        sim = sum(r["sim_s"] for r in rs) / len(rs)
-        run_s = sum(r["wall_s"] for r in rs) / len(rs)
-        proc = sum(r["process_s"] for r in rs) / len(rs)
-        print(
-            f"{name:<32} {len(rs):>5} {n_ok:>7} {len(rs) - n_ok:>7} {sim:>7.1f} "
-            f"{run_s:>7.1f} {proc:>10.1f}"
-        )
+    print(campaign_table(rows))
     failed = [r for r in rows if not r["passed"]]
     print(
         f"{len(rows)} runs in {wall:.1f} s wall with {args.workers} at once: "

@@ -389,6 +389,20 @@ def test_a_campaign_runs_each_scenario_per_seed_in_its_own_process(tmp_path):
     ]
 
 
+def test_the_campaign_table_stays_aligned_with_long_names():
+    from sorter_cell.scenario_cli import campaign_table
+
+    run = {'passed': True, 'sim_s': 5.0, 'wall_s': 2.0, 'process_s': 3.0}
+    names = ['short', 'a scenario whose name runs well past thirty-two characters']
+    rows = [{**run, 'name': n} for n in names] + [{**run, 'name': 'short', 'passed': False}]
+    lines = campaign_table(rows).splitlines()
+    assert len(lines) == 3
+    # every column ends where the header's does, on every line
+    for column in ('runs', 'passed', 'failed', 'sim s', 'run s', 'process s'):
+        end = lines[0].index(column) + len(column)
+        assert all(line[end - 1] != ' ' and line[end : end + 1] in ('', ' ') for line in lines)
+    assert lines[1].split()[-6:] == ['2', '1', '1', '5.0', '2.0', '3.0']
+
 def test_a_campaign_with_a_bad_file_runs_nothing(tmp_path, capsys):
     folder = tmp_path / 'c'
     folder.mkdir()
