@@ -134,6 +134,7 @@ def message_type_hash(name: str) -> str:
     -------
     str
         ``RIHS01_<64 hex digits>``, or '' (a package built without descriptions).
+
     """
     pkg, _, short = name.split('/')
     for share in _share_dirs():

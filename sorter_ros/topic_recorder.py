@@ -109,7 +109,7 @@ class TopicRecorder(Node):
 
     @property
     def topics(self) -> list[str]:
-        """The topics recorded through this node so far."""
+        """Return the topics recorded through this node so far."""
         return sorted(self._subscribed)
 
     def destroy_node(self):

@@ -93,7 +93,7 @@ def test_bad_stations_plans_requests_and_programs_are_refused(sorter_line):
 
 
 def _program_at_s01(tmp_path, duration: float, parcels: str, expect: str):
-    """A 2-station line scenario with the example program at S01, beside the program."""
+    """Return a 2-station line scenario with the example program at S01, beside it."""
     (tmp_path / 'station_program.py').write_text((EXAMPLES / 'station_program.py').read_text())
     path = tmp_path / 'line.yaml'
     path.write_text(

@@ -127,7 +127,7 @@ RMW_POLICIES = {
 
 
 def _scalar(node, kind=str):
-    """A yaml-cpp ``as<T>()``: a scalar of that kind, never a map or a sequence."""
+    """Read ``node`` as yaml-cpp's ``as<T>()``: a scalar of that kind, never a map or list."""
     assert not isinstance(node, (dict, list)) and node is not None, node
     if kind is int:
         assert isinstance(node, int) and not isinstance(node, bool), node

@@ -262,7 +262,7 @@ def test_a_bad_scenario_is_refused_in_one_line_naming_the_key(tmp_path, capsys, 
 
 
 def _user_project(root: Path, module: str) -> Path:
-    """A user's project: their controller module at its top, scenario files in scenarios/."""
+    """Make a user's project: their controller module at its top, scenarios in scenarios/."""
     (root / f'{module}.py').write_text((USER_EXAMPLES / 'minimal_controller.py').read_text())
     folder = root / 'scenarios'
     folder.mkdir()

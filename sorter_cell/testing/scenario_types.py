@@ -69,6 +69,7 @@ def load_user_factory(spec, folder):
     -------
     callable
         What ``load_node_factory`` returns; its ``FactoryError`` for a bad spec or name.
+
     """
     from sorter_cell.testing.lockstep import FactoryError, load_node_factory
 
