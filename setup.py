@@ -129,6 +129,10 @@ setup(
         'ros-ament-index-python>=1.8',
     ],
     extras_require={
+        # the pytest a user's own tests of the fixtures run with: the versions the suite
+        # runs, pinned as in 'test' (`pip install sorter_cell[pytest]`); the plugin itself
+        # needs pytest 8
+        'pytest': ['pytest>=8,<9.2', 'pytest-xdist>=3.5'],
         # pytest-xdist: the suite runs in a worker process, so that a test ended by its
         # time limit (test/suite_timeout.py) is an ordinary failure and the suite goes on
         # import-linter: the layer contracts in setup.cfg (test/test_layers.py);

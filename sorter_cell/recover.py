@@ -187,6 +187,7 @@ class _Copy:
                 record.topic,
                 self.schema_names.get(record.schema_id, ''),
                 record.metadata.get('offered_qos_profiles', ''),
+                record.metadata.get('topic_type_hash', ''),
             )
         elif isinstance(record, Message):
             w.add_message(

@@ -254,8 +254,13 @@ def _run_one(args) -> int | str:
     return 0 if result.passed else 1
 
 
-def _run_in_process(file: str, seed: int, domains: range) -> dict:
-    """Run one scenario as its own process on a domain it holds alone; return its JSON result."""
+def _run_in_process(file: str, seed: int, domains: range, cwd: str | None = None) -> dict:
+    """
+    Run one scenario as its own process on a domain it holds alone; return its JSON result.
+
+    ``cwd``: the directory the campaign was started in, where the run looks for the
+    user's modules after the scenario's folder (as ``scenario run`` does).
+    """
     from sorter_cell.testing.domains import DomainClaim
 
     with DomainClaim(domains) as domain:
@@ -277,6 +282,7 @@ def _run_in_process(file: str, seed: int, domains: range) -> dict:
             capture_output=True,
             text=True,
             env=env,
+            cwd=cwd,
         )
         wall = time.perf_counter() - wall0
         end = time.time()
@@ -351,6 +357,33 @@ def local_cluster(threads: int):
     )
 
 
+def campaign_table(rows: list[dict]) -> str:
+    """
+    Return the campaign's table: a line per scenario, its runs and mean times, aligned.
+
+    The name column is as wide as the longest name (at least 32): a long name moves
+    the columns, every line alike, rather than pushing its own line out of them.
+    """
+    by_name: dict[str, list] = {}
+    for r in rows:
+        by_name.setdefault(r["name"], []).append(r)
+    width = max([32] + [len(n) for n in by_name])
+    lines = [
+        f"{'scenario':<{width}} {'runs':>5} {'passed':>7} {'failed':>7} {'sim s':>7} "
+        f"{'run s':>7} {'process s':>10}"
+    ]
+    for name, rs in by_name.items():
+        n_ok = sum(r["passed"] for r in rs)
+        sim = sum(r["sim_s"] for r in rs) / len(rs)
+        run_s = sum(r["wall_s"] for r in rs) / len(rs)
+        proc = sum(r["process_s"] for r in rs) / len(rs)
+        lines.append(
+            f"{name:<{width}} {len(rs):>5} {n_ok:>7} {len(rs) - n_ok:>7} {sim:>7.1f} "
+            f"{run_s:>7.1f} {proc:>10.1f}"
+        )
+    return "\n".join(lines)
+
+
 def _campaign(args) -> int | str:
     from sorter_cell.testing.scenario import Check, ScenarioResult, junit_xml
     from sorter_sim.studies.progress import progress_bar
@@ -376,7 +409,10 @@ def _campaign(args) -> int | str:
             cluster = local_cluster(args.workers)
             client = Client(cluster)
         jobs = [(f, s) for f in files for s in range(1, args.seeds + 1)]
-        futures = [client.submit(_run_in_process, f, s, domains, pure=False) for f, s in jobs]
+        here = os.getcwd()
+        futures = [
+            client.submit(_run_in_process, f, s, domains, here, pure=False) for f, s in jobs
+        ]
         bar = progress_bar(len(futures), "sorter scenario", "run", quiet=args.quiet)
         rows = []
         for fut in as_completed(futures):
@@ -389,22 +425,7 @@ def _campaign(args) -> int | str:
             cluster.close()
     wall = time.perf_counter() - wall0
     rows.sort(key=lambda r: (r["file"], r["seed"]))
-    by_name: dict[str, list] = {}
-    for r in rows:
-        by_name.setdefault(r["name"], []).append(r)
-    print(
-        f"{'scenario':<32} {'runs':>5} {'passed':>7} {'failed':>7} {'sim s':>7} "
-        f"{'run s':>7} {'process s':>10}"
-    )
-    for name, rs in by_name.items():
-        n_ok = sum(r["passed"] for r in rs)
-        sim = sum(r["sim_s"] for r in rs) / len(rs)
-        run_s = sum(r["wall_s"] for r in rs) / len(rs)
-        proc = sum(r["process_s"] for r in rs) / len(rs)
-        print(
-            f"{name:<32} {len(rs):>5} {n_ok:>7} {len(rs) - n_ok:>7} {sim:>7.1f} "
-            f"{run_s:>7.1f} {proc:>10.1f}"
-        )
+    print(campaign_table(rows))
     failed = [r for r in rows if not r["passed"]]
     print(
         f"{len(rows)} runs in {wall:.1f} s wall with {args.workers} at once: "

@@ -11,7 +11,8 @@ own ApplicationUri (``urn:<host name>:sorter_cell:<application>``) and the produ
 BuildInfo (``PRODUCT_URI``, the package's version and build date); and the nodes both
 add are typed as a generic client browses them (``add_variable``: a type definition,
 ValueRank and ArrayDimensions for arrays; ``argument``: a method argument with its
-name and description, OPC UA Part 3, 8.6).
+name and description, OPC UA Part 3, 8.6; ``add_method``: a method whose argument
+properties are declared arrays).
 """
 
 from __future__ import annotations
@@ -157,6 +158,37 @@ def argument(name: str, vtype, description: str, array: bool = False):
         ArrayDimensions=[0] if array else [],
         Description=ua.LocalizedText(description),
     )
+
+
+async def add_method(parent, idx: int, name: str, callback, inputs: list, outputs: list):
+    """
+    Add a method under ``parent`` with its arguments declared as the standard's methods are.
+
+    asyncua's ``add_method`` leaves the ``InputArguments`` and ``OutputArguments``
+    properties ValueRank 0 (one or more dimensions) without ArrayDimensions; each is a
+    one-dimensional array of Argument, as every method of the standard's own address
+    space declares it (OPC UA Part 3, 5.7: ValueRank 1, ArrayDimensions its count).
+
+    Returns
+    -------
+    asyncua.Node
+        The method.
+
+    """
+    from asyncua import ua
+
+    method = await parent.add_method(idx, name, callback, inputs, outputs)
+    for prop, args in (('InputArguments', inputs), ('OutputArguments', outputs)):
+        if args:
+            node = await method.get_child([f'0:{prop}'])
+            await node.write_attribute(
+                ua.AttributeIds.ValueRank, ua.DataValue(ua.Variant(1, ua.VariantType.Int32))
+            )
+            await node.write_attribute(
+                ua.AttributeIds.ArrayDimensions,
+                ua.DataValue(ua.Variant([len(args)], ua.VariantType.UInt32)),
+            )
+    return method
 
 
 async def add_variable(parent, idx: int, name: str, variant, description: str, typedef=None):

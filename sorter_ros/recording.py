@@ -74,6 +74,7 @@ def publish_recorded(publisher, msg, recorder: Recorder | None, t_ns: int) -> No
         data = msg
     else:
         data = serialize_message(msg)
+    recorder.published.add(publisher.topic_name)
     publisher.publish(data)
     recorder.write(publisher.topic_name, data, t_ns, publisher.msg_type, publisher.qos_profile)
 
@@ -113,6 +114,41 @@ def _msg_file_text(pkg: str, name: str) -> str:
         f'no definition of {pkg}/msg/{name} (looked in share/{pkg}/msg under '
         f'{", ".join(str(s.parent) for s in _share_dirs())})'
     )
+
+
+def message_type_hash(name: str) -> str:
+    """
+    Return the RIHS01 type hash of ``pkg/msg/Type``, or '' when its package ships none.
+
+    The hash rosidl generates into ``share/<pkg>/msg/<Type>.json`` and DDS announces
+    with each publisher; rosbag2 (Jazzy) writes it as the channel's ``topic_type_hash``
+    and the topic's ``type_description_hash``.
+
+    Parameters
+    ----------
+    name : str
+        ``pkg/msg/Type``, whose package's description (a JSON file beside its ``.msg``)
+        lists the hash of the type and of each type it uses.
+
+    Returns
+    -------
+    str
+        ``RIHS01_<64 hex digits>``, or '' (a package built without descriptions).
+
+    """
+    pkg, _, short = name.split('/')
+    for share in _share_dirs():
+        path = share / pkg / 'msg' / f'{short}.json'
+        if path.is_file():
+            try:
+                hashes = json.loads(path.read_text())['type_hashes']
+            except (OSError, ValueError, KeyError, TypeError):
+                return ''  # an unreadable description: no hash rather than no recording
+            for entry in hashes:
+                if entry.get('type_name') == name:
+                    return str(entry.get('hash_string', ''))
+            return ''
+    return ''
 
 
 def message_definition(name: str) -> str:
@@ -256,6 +292,9 @@ class Recorder:
         self.failure: str | None = None
         self.on_failure: list = []
         self.messages = 0
+        # topics the nodes write as they publish (publish_recorded): a TopicRecorder
+        # of the same file leaves them to the nodes
+        self.published: set[str] = set()
 
     def _fail(self, reason: str, written: int | str | None = None) -> None:
         """Stop recording: say why, once; the writer finishes nothing more."""
@@ -336,6 +375,7 @@ class Recorder:
             'type': msg_type,
             'definition': definition,
             'qos': qos_profiles_yaml(qos),
+            'type_hash': message_type_hash(msg_type),
         }
         self._frame(CHANNEL, channel, 0, json.dumps(spec).encode())
         return channel

@@ -7,7 +7,7 @@ frames on its standard input; this process turns them into MCAP records. Nothing
 here imports ROS: the node sends each schema's text with the channel that first uses it.
 
 A frame is a fixed head (``HEAD``: kind, channel id, time [ns], payload length) and its
-payload: ``CHANNEL`` (JSON: topic, schema name, schema text, QoS YAML), ``MESSAGE``
+payload: ``CHANNEL`` (JSON: topic, schema name, schema text, QoS YAML, type hash), ``MESSAGE``
 (the CDR bytes), ``METADATA`` (JSON: name, values), ``FINISH``. The file is finished
 (summary and footer) on ``FINISH`` and also when the input ends without it (the node
 was killed) or this process gets SIGTERM: what reached it is a complete file.
@@ -34,6 +34,8 @@ import signal
 import struct
 import sys
 import time
+
+import yaml
 
 HEAD = struct.Struct('<BHqI')  # kind, channel id, time [ns], payload length
 CHANNEL, MESSAGE, METADATA, FINISH = 1, 2, 3, 4
@@ -92,12 +94,15 @@ def bag_metadata(
     Return the ``rosbag2`` metadata record's values, as rosbag2's MCAP storage writes them.
 
     ``serialized_metadata`` is the bag's metadata (version 9, with ``ros_distro``) in
-    YAML; ``ROS_DISTRO`` is where older readers look.
+    YAML; ``ROS_DISTRO`` is where older readers look. Each topic is in the schema
+    rosbag2 decodes for version 9 (``rosbag2_storage/yaml.hpp``): ``offered_qos_profiles``
+    a YAML sequence of profiles (a string only up to version 8) and
+    ``type_description_hash`` the type's RIHS01 hash (a string from version 7).
 
     Parameters
     ----------
     topics : dict, optional
-        {topic: (type, QoS YAML)} of the channels so far.
+        {topic: (type, QoS YAML, type hash)} of the channels so far.
     counts : dict, optional
         {topic: messages}.
     span : (int, int), optional
@@ -120,12 +125,14 @@ def bag_metadata(
                     'name': topic,
                     'type': msg_type,
                     'serialization_format': 'cdr',
-                    'offered_qos_profiles': qos,
-                    'type_description_hash': '',
+                    # the channel's YAML text, as a sequence: version 9 decodes a
+                    # string here as no profiles at all and refuses the record
+                    'offered_qos_profiles': (yaml.safe_load(qos) or []) if qos else [],
+                    'type_description_hash': type_hash,
                 },
                 'message_count': counts.get(topic, 0),
             }
-            for topic, (msg_type, qos) in topics.items()
+            for topic, (msg_type, qos, type_hash) in topics.items()
         ],
         'compression_format': '',
         'compression_mode': '',
@@ -147,14 +154,16 @@ class BagCounts:
     """
 
     def __init__(self):
-        self.topics: dict[str, tuple[str, str]] = {}  # topic -> (type, QoS YAML)
+        self.topics: dict[str, tuple[str, str, str]] = {}  # topic -> (type, QoS YAML, hash)
         self.counts: dict[str, int] = {}
         self.span: tuple[int, int] | None = None  # first and last message time [ns]
         self.messages = 0
         self._topic_of: dict[int, str] = {}
 
-    def channel(self, channel: int, topic: str, msg_type: str, qos: str) -> None:
-        self.topics[topic] = (msg_type, qos)
+    def channel(
+        self, channel: int, topic: str, msg_type: str, qos: str, type_hash: str = ''
+    ) -> None:
+        self.topics[topic] = (msg_type, qos, type_hash)
         self._topic_of[channel] = topic
 
     def message(self, channel: int, t_ns: int) -> None:
@@ -211,9 +220,13 @@ class _Bag:
                 topic=c['topic'],
                 message_encoding='cdr',
                 schema_id=schema,
-                metadata={'offered_qos_profiles': c['qos']},
+                # both keys on every channel, as rosbag2's MCAP storage writes them
+                metadata={
+                    'offered_qos_profiles': c['qos'],
+                    'topic_type_hash': c.get('type_hash', ''),
+                },
             )
-            self.counts.channel(channel, c['topic'], c['type'], c['qos'])
+            self.counts.channel(channel, c['topic'], c['type'], c['qos'], c.get('type_hash', ''))
         elif kind == METADATA:
             m = json.loads(payload)
             w.add_metadata(name=m['name'], data=m['values'])

@@ -27,6 +27,24 @@ SENSORS = ['pe_scan', 'pe_divert', 'pe_exit', 'chute_left', 'chute_right']
 MAP = by_name(io_map(SENSORS))
 
 
+def modbus_image():
+    """Return an I/O image of the cell's map with its outputs as shipped, no cell behind it."""
+    from sorter_sim.frontends.fieldbus import IOImage
+
+    return IOImage(
+        io_map(SENSORS),
+        {
+            'diverter.popup': False,
+            'cell.reset': False,
+            'belt.run': True,
+            'scanner.ack': False,
+            'cell.estop': False,
+            'diverter.alpha_setpoint': 45.0,
+            'plc.heartbeat': 0,
+        },
+    )
+
+
 def serving_cell(ros, **ports):
     """
     Return a lock-step short cell serving its I/O image on ``ports`` (modbus_port=..., ...).

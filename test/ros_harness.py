@@ -235,3 +235,13 @@ def refused_at_run_time(ros, node, changes: dict) -> dict:
         result = ros.call(client, request, 10.0).results[0]
         out[name] = None if result.successful else result.reason
     return out
+
+
+def recorded_topic_counts(path) -> dict:
+    """Return {topic: messages} of an MCAP recording, read by mcap's default reader."""
+    from collections import Counter
+
+    from mcap.reader import make_reader
+
+    with open(path, 'rb') as f:
+        return Counter(ch.topic for _, ch, _ in make_reader(f).iter_messages())

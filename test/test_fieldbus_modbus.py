@@ -151,6 +151,44 @@ def test_modbus_frames_at_byte_level(cell):
     r.close()
 
 
+def _device_id(server, code: int, first: int) -> tuple:
+    """Ask 43/14 and parse the answer as § 6.21 lays it out; an exception as (code,)."""
+    pdu = server.answer(bytes([43, 14, code, first]))
+    if pdu[0] == 43 | 0x80:
+        return (pdu[1],)
+    assert pdu[:3] == bytes([43, 14, code])  # the request's read device id code echoed
+    conformity, more, next_id, n = pdu[3:7]
+    objects, at = {}, 7
+    for _ in range(n):
+        oid, size = pdu[at], pdu[at + 1]
+        objects[oid] = pdu[at + 2 : at + 2 + size].decode()
+        at += 2 + size
+    assert at == len(pdu)
+    return conformity, more, next_id, objects
+
+
+def test_read_device_identification_answers_every_code_at_the_devices_conformity_level():
+    """Modbus Application Protocol v1.1b3 § 6.21, byte by byte, on the server alone."""
+    from fieldbus_helpers import modbus_image
+
+    from sorter_sim.frontends.modbus_server import ModbusTcpImageServer
+
+    server = ModbusTcpImageServer(modbus_image(), '127.0.0.1', 0)
+    basic = {0: 'sorter_cell', 1: 'sorter_cell emulated pivot diverter', 2: '0.1.0'}
+    # basic, regular and extended stream requests: a basic device answers each with its
+    # basic objects, its level saying individual access (code 4) is served too: 0x81
+    for code in (1, 2, 3):
+        assert _device_id(server, code, 0) == (0x81, 0, 0, basic)
+        # a stream from an object the device has; from one it has not: from object 0
+        assert _device_id(server, code, 1) == (0x81, 0, 0, {1: basic[1], 2: basic[2]})
+        assert _device_id(server, code, 0x80) == (0x81, 0, 0, basic)
+    # individual access: the object asked for, or exception 2 for one it does not have
+    assert _device_id(server, 4, 2) == (0x81, 0, 0, {2: basic[2]})
+    assert _device_id(server, 4, 3) == (2,)
+    # a read device id code the protocol has not: exception 3
+    assert _device_id(server, 0, 0) == (3,) and _device_id(server, 5, 0) == (3,)
+
+
 def test_an_independent_modbus_client_reads_and_writes_the_image(cell):
     """pyModbusTCP, a Modbus stack this project neither wrote nor serves with."""
     from pyModbusTCP.client import ModbusClient
@@ -174,6 +212,10 @@ def test_an_independent_modbus_client_reads_and_writes_the_image(cell):
         assert float(cell.cell.act[ck.A_STROKE_TARGET]) == 1.0
         ident = client.read_device_identification()
         assert ident is not None and ident.vendor_name == b'sorter_cell'
+        # a regular stream request, answered at the device's level
+        regular = client.read_device_identification(read_code=2)
+        assert regular is not None, client.last_error_as_txt
+        assert regular.conformity_level == 0x81 and regular.vendor_name == b'sorter_cell'
     finally:
         client.close()
 

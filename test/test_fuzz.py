@@ -313,24 +313,6 @@ def test_the_nodes_take_any_parameter_request_induct_and_routing_update(ros, dat
 MODBUS_COUNTS = {'tried': 0, 'exceptions': 0, 'writes': 0}
 
 
-def _modbus_image():
-    from sorter_sim.frontends.fieldbus import IOImage
-    from sorter_sim.model.io_map import io_map
-
-    return IOImage(
-        io_map(['pe_scan', 'pe_divert', 'pe_exit', 'chute_left', 'chute_right']),
-        {
-            'diverter.popup': False,
-            'cell.reset': False,
-            'belt.run': True,
-            'scanner.ack': False,
-            'cell.estop': False,
-            'diverter.alpha_setpoint': 45.0,
-            'plc.heartbeat': 0,
-        },
-    )
-
-
 pdus = st.one_of(
     st.binary(min_size=1, max_size=260),
     st.tuples(
@@ -364,10 +346,12 @@ pdus = st.one_of(
 @FUZZ
 @given(pdu=pdus)
 def test_any_modbus_request_is_answered_by_the_protocol_and_a_refusal_changes_nothing(pdu):
+    from fieldbus_helpers import modbus_image
+
     from sorter_sim.frontends.modbus_server import ModbusTcpImageServer
     from sorter_sim.model.io_map import COIL, DI, HR, IR
 
-    image = _modbus_image()
+    image = modbus_image()
     server = ModbusTcpImageServer(image, '127.0.0.1', 0)
     before = {t: image.snapshot(t) for t in (DI, COIL, IR, HR)}
     writes = image.stats['writes']

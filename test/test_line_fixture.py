@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import pytest
@@ -93,27 +92,48 @@ def test_bad_stations_plans_requests_and_programs_are_refused(sorter_line):
         stray.destroy_node()
 
 
-def test_two_runs_of_a_line_scenario_give_the_same_dispositions_at_the_same_times(tmp_path):
+def _program_at_s01(tmp_path, duration: float, parcels: str, expect: str):
+    """Return a 2-station line scenario with the example program at S01, beside it."""
     (tmp_path / 'station_program.py').write_text((EXAMPLES / 'station_program.py').read_text())
-    path = tmp_path / 'two.yaml'
+    path = tmp_path / 'line.yaml'
     path.write_text(
-        textwrap.dedent(
-            """
-        duration: 12.0
-        line: {stations: 2, programs: {1: "station_program:StationProgram"}}
-        stream:
-          parcels:
-            - {label: R-1, at: 0.0, destination: D02}
-            - {label: R-2, at: 2.5, destination: D03}
-        expect: [{parcel: R-1, chute: S01R}, {parcel: R-2, chute: S02L}]
-        """
-        )
+        f'duration: {duration}\n'
+        'line: {stations: 2, programs: {1: "station_program:StationProgram"}}\n'
+        f'stream: {{parcels: {parcels}}}\nexpect: {expect}\n'
     )
-    sc = load_scenario(path)
+    return load_scenario(path)
+
+
+def test_two_runs_of_a_line_scenario_give_the_same_dispositions_at_the_same_times(tmp_path):
+    sc = _program_at_s01(
+        tmp_path,
+        12.0,
+        '[{label: R-1, at: 0.0, destination: D02}, {label: R-2, at: 2.5, destination: D03}]',
+        '[{parcel: R-1, chute: S01R}, {parcel: R-2, chute: S02L}]',
+    )
     first, second = run_scenario(sc), run_scenario(sc)
     assert first.passed, first.state
     key = [[(d.label, d.code, d.station, d.t) for d in r.dispositions] for r in (first, second)]
     assert len(key[0]) == 2 and key[0] == key[1]
+
+
+def test_a_line_scenarios_recording_holds_every_stations_topics(tmp_path):
+    from ros_harness import recorded_topic_counts
+
+    sc = _program_at_s01(
+        tmp_path,
+        8.0,
+        '[{label: R-2, at: 0.0, destination: D03}]',
+        '[{parcel: R-2, chute: S02L}]',
+    )
+    record = tmp_path / 'line.mcap'
+    res = run_scenario(sc, record=str(record))
+    assert res.passed, res.state
+    counts = recorded_topic_counts(record)
+    # the warehouse hands station 2 the label station 1 read: on the line's record now,
+    # as the user's program's own topics are
+    assert counts['/S01/scanner/label'] == 1 and counts['/S02/scanner/label'] == 1, counts
+    assert counts['/S01/controller/heartbeat'] > 10, counts
 
 
 def outside(tmp_path, *args) -> subprocess.CompletedProcess:
@@ -189,7 +209,13 @@ def test_the_contract_check_runs_from_pytest_outside_the_project(tmp_path):
         'no:cacheprovider',
         '--sorter-station-contract',
         'station_program:StationProgram',
+        '-rA',
         '-k',
         'station_contract and not keeps',  # the option's test alone, not the example's own
     )
     assert '1 passed' in done.stdout
+    # the passing check's id names the program's file, as its own tests' ids do
+    assert (
+        'PASSED station_program.py::station_contract[station_program:StationProgram]'
+        in done.stdout.splitlines()
+    ), done.stdout

@@ -71,7 +71,7 @@ def _variables(folder):
 def test_analog_values_are_analog_items_with_the_standard_units_and_range(client):
     idx = client.get_namespace_index('urn:sorter_cell')
     root = client.nodes.objects.get_child([f'{idx}:cell'])
-    found = {}
+    found, instrument = {}, {}
     for folder in ('Inputs', 'Outputs'):
         for name, var in _variables(root.get_child([f'{idx}:{folder}'])).items():
             if var.read_type_definition() != ANALOG_ITEM:
@@ -83,6 +83,14 @@ def test_analog_values_are_analog_items_with_the_standard_units_and_range(client
             assert eu_range.read_type_definition() == ua.NodeId(ua.ObjectIds.PropertyType)
             assert eu_range.read_data_type() == ua.NodeId(ua.ObjectIds.Range)
             rng = eu_range.read_value()
+            if MAP[name].direction == 'input':
+                # what the register can carry: the instrument's range (Part 8, 5.3.2)
+                node = var.get_child(['0:InstrumentRange'])
+                assert node.read_data_type() == ua.NodeId(ua.ObjectIds.Range)
+                instrument[name] = node.read_value()
+            else:
+                with pytest.raises(ua.UaStatusCodeError):
+                    var.get_child(['0:InstrumentRange'])
             units = None
             if MAP[name].unit:
                 node = var.get_child(['0:EngineeringUnits'])
@@ -106,9 +114,19 @@ def test_analog_values_are_analog_items_with_the_standard_units_and_range(client
         -90.0,
         90.0,
     )
-    # an input's range is what its register carries: alpha is int16 in 0.01 deg
-    alpha = found['diverter.alpha'][0]
-    assert (alpha.Low, alpha.High) == pytest.approx((-327.68, 327.67))
+    # an input's EURange is its range in normal operation, its InstrumentRange what its
+    # register carries: alpha is int16 in 0.01 deg and within the setpoint's ±90 deg,
+    # the stroke uint16 in 0.001 and 0 (down) .. 1 (up)
+    ranges = {
+        n: ((found[n][0].Low, found[n][0].High), (instrument[n].Low, instrument[n].High))
+        for n in ('diverter.alpha', 'diverter.stroke')
+    }
+    assert ranges['diverter.alpha'] == ((-90.0, 90.0), pytest.approx((-327.68, 327.67)))
+    assert ranges['diverter.stroke'] == ((0.0, 1.0), pytest.approx((0.0, 65.535)))
+    # a time or a counter covers its whole encoding in normal operation: both the same
+    t = found['cell.time'][0]
+    assert (t.Low, t.High) == (instrument['cell.time'].Low, instrument['cell.time'].High)
+    assert set(instrument) == {n for n in found if MAP[n].direction == 'input'}
 
 
 def test_method_arguments_are_named_and_arrays_are_one_dimensional(client):
@@ -119,9 +137,14 @@ def test_method_arguments_are_named_and_arrays_are_one_dimensional(client):
         name = method.read_browse_name().Name
         for prop in ('InputArguments', 'OutputArguments'):
             try:
-                values = method.get_child([f'0:{prop}']).read_value()
+                node = method.get_child([f'0:{prop}'])
             except ua.UaStatusCodeError:
                 continue  # a method without outputs has no OutputArguments
+            values = node.read_value()
+            # the property is an array of Argument, declared as the standard's methods'
+            # are: ValueRank 1, ArrayDimensions the number of arguments
+            assert node.read_value_rank() == 1, (name, prop)
+            assert node.read_array_dimensions() == [len(values)], (name, prop)
             for a in values:
                 assert a.Name and a.Description.Text, (name, a)
                 args[f'{name}.{a.Name}'] = (a.ValueRank, list(a.ArrayDimensions or []))

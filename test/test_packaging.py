@@ -103,23 +103,35 @@ def _pinned() -> tuple[dict, dict]:
     return python, ros
 
 
-def _setup_requirements() -> tuple[list[str], list[str]]:
-    """(install_requires, extras_require['test']) of setup.py, as normalised names."""
+def _setup_lists() -> dict:
+    """install_requires and extras_require of setup.py, as written."""
     tree = ast.parse((ROOT / 'setup.py').read_text())
     call = next(
         n
         for n in ast.walk(tree)
         if isinstance(n, ast.Call) and getattr(n.func, 'id', '') == 'setup'
     )
-    kw = {
+    return {
         k.arg: ast.literal_eval(k.value)
         for k in call.keywords
         if k.arg in ('install_requires', 'extras_require')
     }
 
+
+def _setup_requirements() -> tuple[list[str], list[str]]:
+    """(install_requires, extras_require['test']) of setup.py, as normalised names."""
+    kw = _setup_lists()
     return [_name(r) for r in kw['install_requires']], [
         _name(r) for r in kw['extras_require']['test']
     ]
+
+
+def test_the_pytest_extra_pins_pytest_as_the_suites_own_extra_does():
+    extras = _setup_lists()['extras_require']
+    # a user's `pip install sorter_cell[pytest]` resolves the pytest the suite runs with
+    pins = {r for r in extras['test'] if r.startswith('pytest')}
+    assert pins == {'pytest>=8,<9.2', 'pytest-xdist>=3.5'}
+    assert set(extras['pytest']) == pins
 
 
 def test_package_xml_names_every_dependency_of_setup_py():

@@ -116,6 +116,140 @@ def test_rosbags_reads_the_recording_with_its_own_jazzy_type_store(ros, tmp_path
     assert stream.durability == QosDurability.VOLATILE
 
 
+# rmw's names of each policy (rmw/qos_string_conversions.c), which rosbag2 (Jazzy) decodes
+# a version-9 profile's policies from; anything else decodes to "unknown"
+RMW_POLICIES = {
+    'history': {'system_default', 'keep_last', 'keep_all'},
+    'reliability': {'system_default', 'reliable', 'best_effort', 'best_available'},
+    'durability': {'system_default', 'transient_local', 'volatile', 'best_available'},
+    'liveliness': {'system_default', 'automatic', 'manual_by_topic', 'best_available'},
+}
+
+
+def _scalar(node, kind=str):
+    """Read ``node`` as yaml-cpp's ``as<T>()``: a scalar of that kind, never a map or list."""
+    assert not isinstance(node, (dict, list)) and node is not None, node
+    if kind is int:
+        assert isinstance(node, int) and not isinstance(node, bool), node
+    if kind is bool:
+        assert isinstance(node, bool), node
+    return node if kind is not str else str(node)
+
+
+def _decode_qos(node: dict) -> dict:
+    """rosbag2's ``convert<rclcpp::QoS>::decode``: policies by number (<= 8) or by name."""
+    if isinstance(node['history'], int) and not isinstance(node['history'], bool):
+        policies = {k: _scalar(node[k], int) for k in RMW_POLICIES}
+    else:
+        policies = {k: _scalar(node[k]) for k in RMW_POLICIES}
+        for k, names in RMW_POLICIES.items():
+            assert policies[k] in names, f'{k}: {policies[k]!r} decodes as unknown'
+    for k in ('deadline', 'lifespan', 'liveliness_lease_duration'):
+        assert _scalar(node[k]['sec'], int) >= 0 and _scalar(node[k]['nsec'], int) >= 0
+    _scalar(node['avoid_ros_namespace_conventions'], bool)
+    return {**policies, 'depth': _scalar(node['depth'], int)}
+
+
+def _decode_qos_vector(node, version: int) -> list[dict]:
+    """``decode_for_version<std::vector<rclcpp::QoS>>``: a sequence, else a bad conversion."""
+    assert isinstance(node, list), f'version {version}: offered_qos_profiles is not a sequence'
+    return [_decode_qos(p) for p in node]
+
+
+def _decode_bag_metadata(text: str) -> dict:
+    """
+    Decode a ``serialized_metadata`` as rosbag2 Jazzy's ``yaml.hpp`` does, or fail.
+
+    ``convert<BagMetadata>::decode`` field by field with the version the record names:
+    each topic's ``offered_qos_profiles`` a sequence from version 9 (before it, a
+    string holding one), ``type_description_hash`` from 7, ``ros_distro`` from 8.
+    """
+    import yaml
+
+    node = yaml.safe_load(text)
+    version = _scalar(node['version'], int)
+    _scalar(node['storage_identifier'])
+    _scalar(node['duration']['nanoseconds'], int)
+    _scalar(node['starting_time']['nanoseconds_since_epoch'], int)
+    _scalar(node['message_count'], int)
+    topics = {}
+    assert isinstance(node['topics_with_message_count'], list)
+    for info in node['topics_with_message_count']:
+        meta = info['topic_metadata']
+        qos = meta['offered_qos_profiles']
+        if version >= 9:
+            profiles = _decode_qos_vector(qos, version)
+        else:
+            profiles = _decode_qos_vector(yaml.safe_load(_scalar(qos)) or [], version)
+        topics[_scalar(meta['name'])] = {
+            'type': _scalar(meta['type']),
+            'serialization_format': _scalar(meta['serialization_format']),
+            'qos': profiles,
+            'type_hash': _scalar(meta['type_description_hash']) if version >= 7 else '',
+            'messages': _scalar(info['message_count'], int),
+        }
+    assert all(isinstance(_scalar(p), str) for p in node['relative_file_paths'])
+    _scalar(node['compression_format']), _scalar(node['compression_mode'])
+    assert isinstance(node['files'], list) and isinstance(node['custom_data'], dict)
+    return {'version': version, 'topics': topics, 'ros_distro': _scalar(node['ros_distro'])}
+
+
+@pytest.mark.ros
+def test_rosbag2_decodes_the_metadata_record_and_channels_as_its_yaml_hpp_does(ros, tmp_path):
+    import yaml
+    from mcap.reader import make_reader
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from sorter_ros.interface import SENSOR_QOS
+    from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
+
+    # published and recorded as the nodes do: the publishers' own profiles and types
+    path = tmp_path / 'bag.mcap'
+    node = ros.add(Node('bag_probe', context=ros.context))
+    state = node.create_publisher(JointState, '/probe/state', QoSProfile(depth=10))
+    label = node.create_publisher(String, '/probe/label', SENSOR_QOS)
+    rec = open_recorder(str(path))
+    for i in range(5):
+        publish_recorded(state, JointState(name=['a'], position=[float(i)]), rec, 10**9 + i)
+    publish_recorded(label, String(data='A'), rec, 2 * 10**9)
+    release_recorder(rec)
+    with open(path, 'rb') as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        records = [m for m in reader.iter_metadata() if m.name == 'rosbag2']
+    # the record written on close, the last, is the one that counts the messages
+    bag = _decode_bag_metadata(records[-1].metadata['serialized_metadata'])
+    assert bag['version'] == 9 and bag['ros_distro'] == 'jazzy'
+    topics = bag['topics']
+    assert {t: v['messages'] for t, v in topics.items()} == {'/probe/state': 5, '/probe/label': 1}
+    (latched,) = topics['/probe/label']['qos']
+    assert (latched['durability'], latched['reliability'], latched['depth']) == (
+        'transient_local',
+        'reliable',
+        1,
+    )
+    (stream,) = topics['/probe/state']['qos']
+    assert (stream['history'], stream['durability'], stream['depth']) == (
+        'keep_last',
+        'volatile',
+        10,
+    )
+    # each channel as rosbag2's MCAP storage reads it: the profiles' YAML text
+    # (to_rclcpp_qos_vector) and the type hash, the same as the record's
+    for ch in summary.channels.values():
+        assert set(ch.metadata) == {'offered_qos_profiles', 'topic_type_hash'}, ch.topic
+        profiles = _decode_qos_vector(yaml.safe_load(ch.metadata['offered_qos_profiles']), 9)
+        assert profiles == topics[ch.topic]['qos']
+        assert ch.metadata['topic_type_hash'] == topics[ch.topic]['type_hash']
+        # the hash rmw announces for the publisher's type (its graph, not our files)
+        (info,) = node.get_publishers_info_by_topic(ch.topic)
+        assert str(info.topic_type_hash).startswith('RIHS01_')
+        assert ch.metadata['topic_type_hash'] == str(info.topic_type_hash)
+
+
 # ---------------------------------------------------------------- kill, disk full, two writers
 def _node_cmd(path: Path, *extra) -> list[str]:
     return [

@@ -122,6 +122,31 @@ def test_the_users_node_runs_in_lock_step_and_two_runs_agree():
     assert len(exits[0]) == 4 and exits[0] == exits[1]
 
 
+def test_a_scenarios_recording_holds_the_controllers_topics_too(tmp_path):
+    from ros_harness import recorded_topic_counts
+
+    (tmp_path / 'minimal_controller.py').write_text(
+        (USER_EXAMPLES / 'minimal_controller.py').read_text()
+    )
+    sc = write(
+        tmp_path,
+        """
+        duration: 4.0
+        cell: {alpha_deg: 90.0}
+        controller: {node: "minimal_controller:MinimalController"}
+        stream: {parcels: [{label: L-1, at: 0.0}]}
+        expect: [{parcel: L-1, exit: left}]
+        """,
+    )
+    record = tmp_path / 'run.mcap'
+    res = run_scenario(load_scenario(sc), record=str(record))
+    assert res.passed, res.state
+    counts = recorded_topic_counts(record)
+    # the user's node's heartbeat (every 50 ms) beside what the cell writes, once
+    assert counts['/controller/heartbeat'] > 40, counts
+    assert counts['/sort/outcomes'] == 1, counts
+
+
 def test_the_users_controller_as_a_process_follows_the_cells_clock(tmp_path):
     # from outside the project, as a third party runs it
     for name in ('minimal_controller.py', 'run_minimal_controller.py'):
@@ -434,6 +459,74 @@ def test_a_campaign_refusing_a_file_imports_no_module_of_another(tmp_path, capsy
     assert not marker.exists()
 
 
+def _user_project(root: Path, module: str) -> Path:
+    """Make a user's project: their controller module at its top, scenarios in scenarios/."""
+    (root / f'{module}.py').write_text((USER_EXAMPLES / 'minimal_controller.py').read_text())
+    folder = root / 'scenarios'
+    folder.mkdir()
+    write(
+        folder,
+        f"""
+        duration: 4.0
+        cell: {{alpha_deg: 90.0}}
+        controller: {{node: "{module}:MinimalController"}}
+        stream: {{parcels: [{{label: L-1, at: 0.0}}]}}
+        expect: [{{parcel: L-1, exit: left}}]
+        """,
+        'node.yaml',
+    )
+    return folder
+
+
+def _installed_sorter(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    # the console script, whose sys.path holds neither the project nor a file's folder
+    # (python -m would put the directory it starts in first)
+    sorter = Path(sys.executable).parent / 'sorter'
+    return subprocess.run(
+        [str(sorter), *args], cwd=cwd, capture_output=True, text=True, timeout=120
+    )
+
+
+def test_a_scenario_in_a_subfolder_imports_the_users_module_from_where_the_command_runs(
+    tmp_path,
+):
+    _user_project(tmp_path, 'vowel_sorter')
+    done = _installed_sorter(tmp_path, 'scenario', 'run', 'scenarios/node.yaml', '--no-record')
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+
+
+def test_a_campaign_of_a_subfolder_imports_the_users_module_from_where_the_command_runs(
+    tmp_path,
+):
+    # checked, then each run started, from there
+    _user_project(tmp_path, 'vowel_sorter')
+    done = _installed_sorter(
+        tmp_path, 'scenario', 'campaign', 'scenarios', '--seeds', '1', '--workers', '1', '--quiet'
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    assert '1 passed, 0 failed' in done.stdout
+
+
+def test_a_users_module_found_nowhere_is_refused_naming_where_it_was_looked_for(
+    tmp_path, monkeypatch, capsys
+):
+    folder = _user_project(tmp_path, 'vowel_sorter_elsewhere')
+    (tmp_path / 'vowel_sorter_elsewhere.py').unlink()
+    project = tmp_path / 'project'
+    project.mkdir()
+    monkeypatch.chdir(project)
+    assert main(['scenario', 'run', '../scenarios/node.yaml']) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert (
+        f"cannot import 'vowel_sorter_elsewhere' (looked in ../scenarios, {project} "
+        "(the current directory), then sys.path): ModuleNotFoundError"
+    ) in err, err
+    # nothing of the search is left on the path
+    assert str(project) not in sys.path and '../scenarios' not in sys.path
+    assert folder.is_dir()
+
+
 def test_a_campaign_runs_each_scenario_per_seed_in_its_own_process(tmp_path):
     folder = tmp_path / 'campaign'
     folder.mkdir()
@@ -492,6 +585,21 @@ def test_a_campaign_runs_each_scenario_per_seed_in_its_own_process(tmp_path):
         'wrong wish [seed 1]',
         'wrong wish [seed 2]',
     ]
+
+
+def test_the_campaign_table_stays_aligned_with_long_names():
+    from sorter_cell.scenario_cli import campaign_table
+
+    run = {'passed': True, 'sim_s': 5.0, 'wall_s': 2.0, 'process_s': 3.0}
+    names = ['short', 'a scenario whose name runs well past thirty-two characters']
+    rows = [{**run, 'name': n} for n in names] + [{**run, 'name': 'short', 'passed': False}]
+    lines = campaign_table(rows).splitlines()
+    assert len(lines) == 3
+    # every column ends where the header's does, on every line
+    for column in ('runs', 'passed', 'failed', 'sim s', 'run s', 'process s'):
+        end = lines[0].index(column) + len(column)
+        assert all(line[end - 1] != ' ' and line[end : end + 1] in ('', ' ') for line in lines)
+    assert lines[1].split()[-6:] == ['2', '1', '1', '5.0', '2.0', '3.0']
 
 
 def test_a_campaign_with_a_bad_file_runs_nothing(tmp_path, capsys):

@@ -20,6 +20,18 @@ from std_msgs.msg import UInt32
 REPO = Path(__file__).resolve().parents[1]
 
 
+def _pytest_in(folder: Path, *args: str, env=None) -> subprocess.CompletedProcess:
+    """Run pytest on a folder outside the project, as its own user would."""
+    return subprocess.run(
+        [sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider', *args],
+        cwd=folder,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
 def test_the_plugin_is_registered_by_the_installed_package(pytestconfig):
     assert pytestconfig.pluginmanager.has_plugin('sorter_cell')
 
@@ -96,30 +108,118 @@ def test_a_test_outside_the_project_uses_only_the_installed_package(tmp_path):
             """
         )
     )
-    done = subprocess.run(
-        [sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider', 'test_mine.py'],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    done = _pytest_in(tmp_path, 'test_mine.py')
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert '1 passed' in done.stdout
 
 
 def test_the_example_third_party_controller_passes_its_own_tests(tmp_path):
-    # examples/ is a third party's project: copied out of the tree and run there
+    import os
+
+    # examples/ is a third party's project: copied out of the tree and run there, as its
+    # user did: ROS_DOMAIN_ID exported (as the ROS tutorials teach) and two xdist
+    # workers, whose cells shared that domain (the watchdog test heard the other
+    # worker's controller) until each test claimed one of its own
     for name in ('minimal_controller.py', 'test_minimal_controller.py'):
         (tmp_path / name).write_text((REPO / 'examples' / name).read_text())
-    done = subprocess.run(
-        [sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider'],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    done = _pytest_in(tmp_path, '-n', '2', env=dict(os.environ, ROS_DOMAIN_ID='7'))
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert '2 passed' in done.stdout
+
+
+DOMAINS = """
+import fcntl
+import os
+
+import pytest
+
+from sorter_cell.testing.domains import lock_dir
+
+
+def _held(domain):
+    # a lock of this host's claims: a second open file cannot take it while it is held
+    fd = os.open(lock_dir() / f'domain-{domain}.lock', os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return False
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+
+
+@pytest.mark.parametrize('n', range(2))
+def test_a_domain_of_its_own(sorter_cell, n):
+    assert 120 <= sorter_cell.domain_id <= 123 and _held(sorter_cell.domain_id)
+    assert sorter_cell.context.get_domain_id() == sorter_cell.domain_id
+
+
+@pytest.mark.sorter_ros_domain_id
+def test_the_shells_domain_where_the_test_asks_for_it(sorter_cell):
+    assert sorter_cell.domain_id == 7
+"""
+
+
+def test_each_test_and_worker_has_a_domain_of_its_own_whatever_the_shell_exports(tmp_path):
+    import os
+
+    # ROS_DOMAIN_ID exported, two xdist workers: each test on a domain of the range,
+    # claimed on the host while it runs; the shell's only where a test asks for it
+    (tmp_path / 'test_domains.py').write_text(DOMAINS)
+    env = dict(os.environ, ROS_DOMAIN_ID='7', SORTER_DOMAIN_LOCKS=str(tmp_path / 'locks'))
+    done = _pytest_in(tmp_path, '-n', '2', '--sorter-domains', '120-123', env=env)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert '3 passed' in done.stdout
+
+
+def test_a_domain_range_that_is_none_is_refused_before_any_test_runs(tmp_path):
+    (tmp_path / 'test_domains.py').write_text(DOMAINS)
+    bad = _pytest_in(tmp_path, '--sorter-domains', '300-301', 'test_domains.py')
+    assert bad.returncode == 4, bad.stdout[-2000:] + bad.stderr[-2000:]
+    (line,) = bad.stderr.strip().splitlines()
+    assert '--sorter-domains must be a ROS domain range' in line and "'300-301'" in line
+
+
+EVERY_TOPIC = """
+import rclpy
+from minimal_controller import MinimalController
+from std_msgs.msg import String
+
+
+def test_recorded(sorter_cell):
+    sorter_cell.add_node(MinimalController(context=sorter_cell.context))
+    mine = sorter_cell.add_node(rclpy.create_node('my_node', context=sorter_cell.context))
+    notes = mine.create_publisher(String, '/mine/notes', 10)
+    sorter_cell.run(0.5)  # looked at the graph
+    for i in range(3):
+        notes.publish(String(data=f'note {i}'))
+        sorter_cell.run(0.1)
+    sorter_cell.induct('L-1', length=0.4, width=0.3)
+    sorter_cell.induct('S-1', length=0.4, width=0.3)
+    assert sorter_cell.run_until(lambda: len(sorter_cell.outcomes) == 2, 30.0)
+    sorter_cell.set_params(alpha_deg=45.0)  # the cell's /parameter_events
+    sorter_cell.run(0.5)
+"""
+
+
+def test_a_tests_recording_holds_every_topic_on_its_domain_its_own_nodes_too(tmp_path):
+    from ros_harness import recorded_topic_counts
+
+    (tmp_path / 'test_mine.py').write_text(EVERY_TOPIC)
+    name = 'minimal_controller.py'
+    (tmp_path / name).write_text((REPO / 'examples' / name).read_text())
+    base = tmp_path / 'bt'
+    done = _pytest_in(tmp_path, f'--basetemp={base}', '--sorter-record=all', 'test_mine.py')
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    (path,) = [p for p in base.glob('*/sorter_cell.mcap') if not p.parent.is_symlink()]
+    counts = recorded_topic_counts(path)
+    # the test's nodes' topics (the controller's heartbeat every 50 ms, its own notes),
+    # as ros2 bag record -a would have them
+    assert counts['/mine/notes'] == 3
+    assert counts['/controller/heartbeat'] > 40
+    assert counts['/parameter_events'] > 0  # alpha_deg's change among them
+    # the cell's own topics once each, as it writes them: no second copy
+    assert counts['/sort/outcomes'] == 2
 
 
 def test_a_wait_that_times_out_explains_where_the_cell_is(sorter_cell):
@@ -184,7 +284,7 @@ def test_a_failed_test_reports_the_cell_and_keeps_its_recording(tmp_path, mode, 
     }
     assert recordings == kept
     for text in (done.stdout, ET.parse(junit).getroot().find('.//failure').text):
-        assert 'the state when the test failed:' in text
+        assert text.count('the state when the test failed:') == 1, text
         assert 'parcels: 1 inducted, 1 on the cell, 0 waiting at the induction, 0 out' in text
         assert 'faults: none; PackML: Execute' in text
         assert ('recording: ' in text) == bool(kept)

@@ -9,6 +9,12 @@ folder's ``sorter-domains``) and holds it until its process ends; the kernel let
 lock go when the holder dies, so a killed campaign leaves nothing to clean. The range
 is ``--domains A-B`` or ``SORTER_CAMPAIGN_DOMAINS``, default 200-231 (Fast DDS takes
 ids up to 232; the test suite keeps to 100-199).
+
+The pytest plugin's fixtures claim theirs the same way, one for each test while it
+runs: ``--sorter-domains A-B`` or ``SORTER_TEST_DOMAINS``, default 100-139 (this
+project's own suite gives its workers 150-197 and a test of its own graph 141), so
+that two xdist workers, or two test runs, on one host never share a graph, whatever
+``ROS_DOMAIN_ID`` the shell exports.
 """
 
 from __future__ import annotations
@@ -22,6 +28,8 @@ from pathlib import Path
 DOMAINS_ENV = 'SORTER_CAMPAIGN_DOMAINS'
 LOCKS_ENV = 'SORTER_DOMAIN_LOCKS'
 DEFAULT_DOMAINS = '200-231'
+TEST_DOMAINS_ENV = 'SORTER_TEST_DOMAINS'
+DEFAULT_TEST_DOMAINS = '100-139'
 MAX_DOMAIN = 232
 POLL_S = 0.05
 
@@ -61,12 +69,21 @@ def parse_domains(text: str, what: str = '--domains') -> range:
 
 def campaign_domains(option: str | None = None) -> range:
     """Return the range ``option`` names, else ``SORTER_CAMPAIGN_DOMAINS``, else 200-231."""
+    return _domains(option, '--domains', DOMAINS_ENV, DEFAULT_DOMAINS)
+
+
+def fixture_domains(option: str | None = None) -> range:
+    """Return the range ``option`` names, else ``SORTER_TEST_DOMAINS``, else 100-139."""
+    return _domains(option, '--sorter-domains', TEST_DOMAINS_ENV, DEFAULT_TEST_DOMAINS)
+
+
+def _domains(option: str | None, flag: str, env_name: str, default: str) -> range:
     if option:
-        return parse_domains(option)
-    env = os.environ.get(DOMAINS_ENV, '').strip()
+        return parse_domains(option, flag)
+    env = os.environ.get(env_name, '').strip()
     if env:
-        return parse_domains(env, DOMAINS_ENV)
-    return parse_domains(DEFAULT_DOMAINS)
+        return parse_domains(env, env_name)
+    return parse_domains(default)
 
 
 def lock_dir() -> Path:

@@ -19,8 +19,9 @@ A scenario with ``line:`` runs a ``SorterLine`` instead of a single cell::
       - {no_jam: true}
       - {throughput_at_least: 1000}    # parcels off the line per hour
 
-A program is ``module:callable`` (imported from the file's folder first), called
-with ``context=``, ``namespace=`` (``/S02``) and ``parameter_overrides=``; the other
+A program is ``module:callable`` (imported from the file's folder, else the directory
+the command runs in), called with ``context=``, ``namespace=`` (``/S02``) and
+``parameter_overrides=``; the other
 stations run this project's program. A line scenario has no ``controller:``, no
 generated stream and no faults; a parcel's ``destination`` is optional (none: its
 disposition is ``no_destination``).
@@ -30,9 +31,16 @@ from __future__ import annotations
 
 import time
 
-from sorter_cell.testing.lockstep import FactoryError, load_node_factory
-from sorter_cell.testing.scenario_types import Check, ScenarioError, number, refuse_unknown
-from sorter_cell.testing.scenario_types import factory_problem, module_problem
+from sorter_cell.testing.lockstep import FactoryError
+from sorter_cell.testing.scenario_types import (
+    Check,
+    ScenarioError,
+    factory_problem,
+    load_user_factory,
+    module_problem,
+    number,
+    refuse_unknown,
+)
 
 LINE_KEYS = ('stations', 'plan', 'programs')
 LINE_EXPECT_KEYS = ('parcel', 'disposition', 'station', 'chute')
@@ -49,7 +57,8 @@ def check_line(value, folder, imports: bool = True) -> dict:
     value : object
         The ``line:`` mapping.
     folder : Path or None
-        The scenario file's folder (programs are imported from it first).
+        The scenario file's folder (programs are imported from it first, then from the
+        directory the command runs in).
     imports : bool
         Import the programs' modules (False: only find them, as a campaign checks).
 
@@ -79,7 +88,7 @@ def check_line(value, folder, imports: bool = True) -> dict:
             problem = module_problem(spec, folder)
         else:
             try:
-                problem = factory_problem(load_node_factory(spec, folder), PROGRAM_KEYWORDS)
+                problem = factory_problem(load_user_factory(spec, folder), PROGRAM_KEYWORDS)
             except FactoryError as exc:
                 problem = str(exc)
             problem = problem and f'{spec!r} {problem}'
@@ -141,11 +150,12 @@ def run_line_scenario(sc, result, record: str | None, domain_id: int | None):
 
     """
     from sorter_cell.testing.line import SorterLine
+    from sorter_ros.topic_recorder import record_the_domain
 
     wall0 = time.perf_counter()
     folder = _folder(sc)
     line_spec = sc.line
-    programs = {k: load_node_factory(v, folder) for k, v in line_spec['programs'].items()}
+    programs = {k: load_user_factory(v, folder) for k, v in line_spec['programs'].items()}
     with SorterLine(
         line_spec['stations'],
         plan=line_spec['plan'],
@@ -154,6 +164,7 @@ def run_line_scenario(sc, result, record: str | None, domain_id: int | None):
         domain_id=domain_id,
         record=record,
     ) as line:
+        record_the_domain(line, record)  # the programs' and the warehouse's topics too
         t0 = line.t
         for p in sorted(sc.parcels, key=lambda p: p['at']):
             if p['at'] > sc.duration:

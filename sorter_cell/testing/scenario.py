@@ -41,7 +41,8 @@ The controller under test (``controller:``) is one of
 - ``{node: "module:callable", parameters: {...}}``: the user's node(s), made in this
   process by ``callable(context=..., parameter_overrides=[...])`` (``use_sim_time``
   and the given parameters) and spun in lock-step with the cell: the module is
-  imported from the scenario file's folder first, then ``sys.path``. Runs of the
+  imported from the scenario file's folder, else the directory the command runs in,
+  else ``sys.path`` (``load_user_factory``). Runs of the
   same file give the same exits at the same simulated times;
 - ``{command: [...], start_timeout: 30}``: a process the scenario starts in its own
   ROS domain (``ROS_DOMAIN_ID``), in the file's folder (``{python}`` in the command
@@ -63,13 +64,15 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sorter_cell.testing.lockstep import (
-    FactoryError,
-    load_node_factory,
-    make_user_nodes,
+from sorter_cell.testing.lockstep import FactoryError, make_user_nodes
+from sorter_cell.testing.scenario_types import (
+    Check,
+    ScenarioError,
+    factory_problem,
+    load_user_factory,
+    module_problem,
+    refuse_unknown,
 )
-from sorter_cell.testing.scenario_types import Check, ScenarioError, refuse_unknown
-from sorter_cell.testing.scenario_types import factory_problem, module_problem
 from sorter_cell.testing.scenario_types import number as _number
 from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
@@ -217,7 +220,7 @@ def _check_controller_spec(ctl, folder, imports: bool = True) -> ControllerSpec 
             problem = module_problem(ctl['node'], folder)
         else:
             try:
-                problem = factory_problem(load_node_factory(ctl['node'], folder), NODE_KEYWORDS)
+                problem = factory_problem(load_user_factory(ctl['node'], folder), NODE_KEYWORDS)
             except FactoryError as exc:
                 problem = str(exc)
             problem = problem and f'{ctl["node"]!r} {problem}'
@@ -545,6 +548,7 @@ def run_scenario(
 
     """
     from sorter_cell.testing.harness import SorterCell
+    from sorter_ros.topic_recorder import record_the_domain
 
     wall0 = time.perf_counter()
     res = ScenarioResult(sc.name, record=record or '')
@@ -559,6 +563,7 @@ def run_scenario(
     grace = COMMAND_GRACE_S if spec is not None and spec.kind == 'command' else None
     timed: dict[int, Check] = {}
     with SorterCell(params, domain_id=domain_id, record=record, grace_s=grace) as cell:
+        record_the_domain(cell, record)  # the controller's topics too, a process's included
         t0 = cell.t
         try:
             with _controller_running(cell, spec, sc, res.notes) as ctl:
@@ -624,7 +629,7 @@ def _controller_running(cell, spec: ControllerSpec | None, sc: Scenario, notes: 
         yield cell.add_controller(spec.params)
     elif spec.kind == 'node':
         folder = Path(sc.path).parent if sc.path else None
-        factory = load_node_factory(spec.factory, folder)
+        factory = load_user_factory(spec.factory, folder)
         try:
             made = make_user_nodes(factory, cell.context, spec.params)
         except FactoryError:

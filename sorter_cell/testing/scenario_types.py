@@ -7,8 +7,12 @@ module that runs it.
 
 from __future__ import annotations
 
+import importlib
 import math
+import sys
+from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 
 
 class ScenarioError(ValueError):
@@ -67,26 +71,23 @@ def module_problem(spec, folder) -> str | None:
 
     A campaign checks its files this way before any of them runs: no user module is
     imported (and its top level run) in the campaign's process for a file it then
-    refuses; the run's own process imports it.
+    refuses; the run's own process imports it. The module is looked for where
+    ``load_user_factory`` looks: the file's folder, the current directory, ``sys.path``.
     """
     import importlib.util
-    import sys
 
     if not isinstance(spec, str) or spec.count(':') != 1 or not all(spec.split(':')):
         return f'must be "module:callable", got {str(spec)[:200]!r}'
     top = spec.split(':')[0].split('.')[0]
-    added = folder is not None and str(folder) not in sys.path
-    if added:
-        sys.path.insert(0, str(folder))
-    try:
-        found = top in sys.modules or importlib.util.find_spec(top) is not None
-    except (ImportError, ValueError):
-        found = False
-    finally:
-        if added:
-            sys.path.remove(str(folder))
+    places = _user_places(folder)
+    with _on_path([p for p, _ in places]):
+        try:
+            found = top in sys.modules or importlib.util.find_spec(top) is not None
+        except (ImportError, ValueError):
+            found = False
     if not found:
-        return f'cannot import {top!r} (from {folder or "sys.path"}): no such module'
+        looked = ', '.join(name for _, name in places)
+        return f'cannot import {top!r} (looked in {looked}, then sys.path): no such module'
     return None
 
 
@@ -114,6 +115,78 @@ __all__ = [
     'Check',
     'ScenarioError',
     'factory_problem',
+    'module_problem',
+    'number',
+    'refuse_unknown',
+]
+
+
+@contextmanager
+def _on_path(folders: list[str]):
+    added = [f for f in folders if f not in sys.path]
+    sys.path[:0] = added
+    try:
+        yield
+    finally:
+        for f in added:
+            if f in sys.path:
+                sys.path.remove(f)
+
+
+def _user_places(folder) -> list[tuple[str, str]]:
+    """Return where a user's module is looked for, (folder, its name in a message), in order."""
+    here = Path.cwd()
+    places = [(str(folder), str(folder))] if folder is not None else []
+    if folder is None or Path(folder).resolve() != here.resolve():
+        places.append((str(here), f'{here} (the current directory)'))
+    return places
+
+
+def load_user_factory(spec, folder):
+    """
+    Return the callable a scenario's ``module:callable`` names, as ``load_node_factory``.
+
+    The module is looked for in the scenario file's folder, then in the directory the
+    command runs in (where the user's own modules are, as pytest finds them from
+    there), then on ``sys.path``; when it does not import, the message says where it
+    was looked for.
+
+    Parameters
+    ----------
+    spec : str
+        ``module:callable``, as the scenario's ``controller.node`` or a line's program.
+    folder : Path or None
+        The scenario file's folder (None: a scenario not read from a file).
+
+    Returns
+    -------
+    callable
+        What ``load_node_factory`` returns; its ``FactoryError`` for a bad spec or name.
+
+    """
+    from sorter_cell.testing.lockstep import FactoryError, load_node_factory
+
+    places = _user_places(folder)
+    with _on_path([p for p, _ in places]):
+        if isinstance(spec, str) and spec.count(':') == 1 and all(spec.split(':')):
+            module_name = spec.split(':')[0]
+            try:
+                importlib.import_module(module_name)
+            except Exception as exc:  # noqa: BLE001 - any import error is the user's to see
+                looked = ', '.join(name for _, name in places)
+                raise FactoryError(
+                    f'cannot import {module_name!r} (looked in {looked}, then sys.path): '
+                    f'{type(exc).__name__}: {exc}'
+                ) from None
+        # a malformed spec is refused there, in its own words
+        return load_node_factory(spec)
+
+
+__all__ = [
+    'Check',
+    'ScenarioError',
+    'factory_problem',
+    'load_user_factory',
     'module_problem',
     'number',
     'refuse_unknown',

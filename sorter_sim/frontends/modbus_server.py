@@ -42,6 +42,8 @@ CELL_UNITS = (1, 0xFF)  # the unit ids a single cell answers
 VENDOR = 'sorter_cell'
 PRODUCT = 'sorter_cell emulated pivot diverter'
 VERSION = '0.1.0'
+# read device identification: basic objects, streamed and individually (code 4)
+CONFORMITY = 0x81
 
 _READS = {1: COIL, 2: DI, 3: HR, 4: IR}
 _MAX_READ = {1: 2000, 2: 2000, 3: 125, 4: 125}
@@ -206,12 +208,20 @@ class ModbusTcpImageServer:
         raise ModbusRefusal(ILLEGAL_FUNCTION, 'illegal_functions')
 
     def _identification(self, body: bytes) -> bytes:
-        """Read Device Identification (43/14): the basic objects, streamed or one by one."""
+        """
+        Read Device Identification (43/14), as the protocol's § 6.21 says.
+
+        The device holds the basic objects (0-2) and serves them streamed and one by
+        one: conformity level 0x81. A stream request (code 1, 2 or 3) is answered at
+        that level whatever level it asks for, from its object id or, when the device
+        has no such object, from object 0; an individual request (code 4) for an
+        object it does not have is exception 2; any other code is exception 3.
+        """
         if len(body) != 3:
             raise ModbusRefusal(ILLEGAL_VALUE, 'reads_refused')
         code, first = body[1], body[2]
         objects = {0: VENDOR, 1: PRODUCT, 2: VERSION}
-        if code == 1:
+        if code in (1, 2, 3):
             ids = [i for i in objects if i >= first] if first in objects else list(objects)
         elif code == 4:
             if first not in objects:
@@ -219,7 +229,8 @@ class ModbusTcpImageServer:
             ids = [first]
         else:
             raise ModbusRefusal(ILLEGAL_VALUE, 'reads_refused')
-        out = bytes([0x0E, code, 0x01, 0x00, 0x00, len(ids)])
+        # the whole answer fits one response: no more follows, next object id 0
+        out = bytes([0x0E, code, CONFORMITY, 0x00, 0x00, len(ids)])
         for i in ids:
             value = objects[i].encode()
             out += bytes([i, len(value)]) + value

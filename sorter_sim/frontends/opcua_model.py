@@ -6,9 +6,12 @@ The cell's OPC UA address space, typed as OPC UA Part 3 and Part 8 lay it out.
 40001-1's names), ``PackML`` (OPC 30050's state and commands) and, for a single cell,
 ``Warehouse`` (the routing mailbox). What a generic client looks for is where the
 specifications put it: a value in engineering units is an ``AnalogItemType`` variable
-with the standard properties ``0:EURange`` (Range) and ``0:EngineeringUnits``
-(EUInformation with the UNECE common code, Part 8, 5.6.3); every method argument has
-a name and a description; an array is declared one-dimensional (ValueRank 1).
+with the standard properties ``0:EURange`` (Range: the range in normal operation),
+on an input ``0:InstrumentRange`` (what its register can carry) and
+``0:EngineeringUnits`` (EUInformation with the UNECE common code, Part 8, 5.6.3);
+every method argument has a name and a description; an array is declared
+one-dimensional (ValueRank 1), the methods' ``InputArguments`` and
+``OutputArguments`` too (``sorter_ros.opcua.add_method``).
 
 A value read is the image's, stamped with the wall-clock time the cell sampled it
 (SourceTimestamp, the end of the physics period that produced it) and the time the
@@ -23,14 +26,14 @@ from __future__ import annotations
 import asyncio
 from datetime import datetime, timezone
 
-from sorter_ros.opcua import add_variable, argument, build_identity
+from sorter_ros.opcua import add_method, add_variable, argument, build_identity
 from sorter_sim.model.io_map import INPUT, OUTPUT, WriteRefused
 from sorter_sim.model.packml import COMMAND_NUMBERS, STATE_BY_NUMBER, TRANSITIONS
 from sorter_sim.model.packml import COMMANDS as PACKML_COMMANDS
 
 PUSH_S = 0.02  # s between hand-overs of changed inputs to OPC UA subscriptions
 _UNSET = object()
-# the raw range of each register type: an input's EURange is what its encoding can carry
+# the raw range of each register type: what an input's encoding can carry (InstrumentRange)
 _RAW_RANGE = {'int16': (-32768, 32767), 'uint16': (0, 65535), 'uint32': (0, 2**32 - 1)}
 # UNECE Recommendation 20 common codes of the map's units (OPC UA Part 8, 5.6.3)
 UNECE = {
@@ -175,7 +178,7 @@ class CellAddressSpace:
             return call
 
         for name in PACKML_COMMANDS:
-            node = await packml.add_method(idx, name.capitalize(), command(name), [], [])
+            node = await add_method(packml, idx, name.capitalize(), command(name), [], [])
             self.nodes[f'{prefix}PackML.{name.capitalize()}'] = node.nodeid
 
     # ---------------------------------------------------------------- the warehouse
@@ -219,8 +222,8 @@ class CellAddressSpace:
             )
             self.nodes[f'Warehouse.{name}'] = var.nodeid
         for name, (func, inputs, outputs) in _warehouse_methods(wh).items():
-            node = await folder.add_method(
-                idx, name, _method(wh, len(inputs), func), inputs, outputs
+            node = await add_method(
+                folder, idx, name, _method(wh, len(inputs), func), inputs, outputs
             )
             self.nodes[f'Warehouse.{name}'] = node.nodeid
 
@@ -424,7 +427,11 @@ def _is_analog(s) -> bool:
 
 def eu_range(s) -> tuple[float, float]:
     """
-    Return a signal's EURange: what an output accepts, what an input's encoding carries.
+    Return a signal's EURange: its range in normal operation (OPC UA Part 8, 5.3.2).
+
+    What an output accepts; for an input, its range in normal operation where the map
+    gives one (α within ±90 deg, the stroke 0 .. 1), else what its register carries
+    (a counter or a time covers its whole encoding before it wraps).
 
     Parameters
     ----------
@@ -439,18 +446,33 @@ def eu_range(s) -> tuple[float, float]:
     """
     if s.lo is not None and s.hi is not None:
         return float(s.lo), float(s.hi)
+    if s.normal is not None:
+        return float(s.normal[0]), float(s.normal[1])
+    return instrument_range(s)
+
+
+def instrument_range(s) -> tuple[float, float]:
+    """Return what a signal's register can carry, in engineering units (InstrumentRange)."""
     lo, hi = _RAW_RANGE[s.type]
     return lo * s.scale, hi * s.scale
 
 
 async def _add_analog_properties(var, idx: int, s) -> None:
-    """Add Part 8's standard properties: ``0:EURange``, and ``0:EngineeringUnits`` with a unit."""
+    """
+    Add Part 8's properties: ``0:EURange``, ``0:InstrumentRange``, ``0:EngineeringUnits``.
+
+    InstrumentRange (what the register can carry) on the inputs, what the instrument
+    returns; EngineeringUnits where the signal has a unit.
+    """
     from asyncua import ua
 
-    lo, hi = eu_range(s)
-    await var.add_property(
-        ua.NodeId(0, idx), ua.QualifiedName('EURange', 0), ua.Range(Low=lo, High=hi)
-    )
+    ranges = [('EURange', eu_range(s))]
+    if s.direction == INPUT:
+        ranges.append(('InstrumentRange', instrument_range(s)))
+    for name, (lo, hi) in ranges:
+        await var.add_property(
+            ua.NodeId(0, idx), ua.QualifiedName(name, 0), ua.Range(Low=lo, High=hi)
+        )
     if s.unit:
         await var.add_property(
             ua.NodeId(0, idx), ua.QualifiedName('EngineeringUnits', 0), eu_information(s.unit)

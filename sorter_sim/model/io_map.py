@@ -31,6 +31,7 @@ S7_INPUT_BITS_BYTES = 8  # DB1.DBX0.0 .. DBX7.7: room for 64 discrete inputs
 S7_OUTPUT_BITS_BYTES = 2  # DB2.DBX0.0 .. DBX1.7: 16 coils
 SENSOR_EDGE_BASE = 100  # input register of sensor 0's last rising edge time
 EDGE_TIME_SCALE = 1e-4  # s per count of an edge time (0.1 ms; uint32 wraps after 4.97 days)
+ALPHA_LIMIT_DEG = 90.0  # the disk angle α a PLC may ask for, either way; the disk stays inside
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,9 @@ class Signal:
     scale: float = 1.0  # engineering value = raw x scale
     lo: float | None = None  # engineering range an output accepts (inclusive)
     hi: float | None = None
+    # an input's range in normal operation (OPC UA Part 8's EURange), where it is
+    # narrower than what its register can carry
+    normal: tuple[float, float] | None = None
     words: int = 1  # registers it spans
 
     @property
@@ -243,6 +247,7 @@ def _status_inputs() -> list[Signal]:
             'deg',
             'physical disk angle α',
             scale=0.01,
+            normal=(-ALPHA_LIMIT_DEG, ALPHA_LIMIT_DEG),
         ),
         Signal(
             'diverter.stroke',
@@ -253,6 +258,7 @@ def _status_inputs() -> list[Signal]:
             '',
             'pop-up position, 0 down .. 1 up',
             scale=0.001,
+            normal=(0.0, 1.0),
         ),
         Signal(
             'scanner.sequence',
@@ -347,8 +353,8 @@ def _outputs() -> list[Signal]:
             'deg',
             'disk angle α to turn to',
             scale=0.01,
-            lo=-90.0,
-            hi=90.0,
+            lo=-ALPHA_LIMIT_DEG,
+            hi=ALPHA_LIMIT_DEG,
         ),
         Signal(
             'plc.heartbeat',
