@@ -88,6 +88,8 @@ class TopicRecorder(Node):
         for topic, types in self.get_topic_names_and_types():
             if topic in self._subscribed or topic in self._left_out or topic in own:
                 continue
+            if any(part.startswith('_') for part in topic.split('/')):
+                continue  # a hidden topic (the run loop's marker): ros2 bag record -a skips them
             endpoints = self.get_publishers_info_by_topic(topic)
             if not endpoints:
                 continue  # only readers so far: nothing to record
