@@ -542,7 +542,13 @@ def matrix(quick: bool = False) -> list[StiffCase]:
 
 
 # (case, method) -> what goes wrong; the report and the tests keep these as failures
-KNOWN_DEFECTS: dict[tuple[str, str], str] = {}
+KNOWN_DEFECTS: dict[tuple[str, str], str] = {
+    ("slow_600s", "threshold"): (
+        "at rest on disks creeping at 1.2 mm/s the threshold method (h = 1 ms, v_min = 1e-6 "
+        "m/s) moves the parcel at 0.98 mm/s with its velocity recorded as zero, and never "
+        "reaches the scrap line in 600 s (its own law, converged: 583.33 s)"
+    ),
+}
 
 
 __all__ = [
