@@ -17,8 +17,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from sorter_sim.studies.claims import CLAIMS, HOLDS, PAPER_ONLY, table
-from sorter_sim.studies.claims_grid import FULL, MODELS, PAPER, GridStore, load_table
+from sorter_sim.studies.claims import CLAIMS, DEPENDS, HOLDS, PAPER_ONLY, table
+from sorter_sim.studies.claims_grid import BEYOND, FULL, MODELS, PAPER, GridStore, load_table
 from sorter_sim.studies.claims_grid import stderr_progress
 from sorter_sim.studies.markdown import replace_block
 
@@ -26,7 +26,12 @@ GRID_FILE = Path("data") / "statement_grid.json"  # under the docs folder
 BLOCK = ("<!-- generated: claims -->", "<!-- end: claims -->")
 REPO_DOCS = Path(__file__).resolve().parents[2] / "docs"
 SOURCE = f"its grid saved in docs/{GRID_FILE.as_posix()}"
-WORDS = {HOLDS: "holds", PAPER_ONLY: "holds at the seed's points only", "fails": "FAILS"}
+WORDS = {
+    HOLDS: "holds",
+    PAPER_ONLY: "holds at the seed's points only",
+    DEPENDS: "depends",
+    "fails": "FAILS",
+}
 
 
 def _verdict_cell(v: dict) -> str:
@@ -38,7 +43,13 @@ def _verdict_cell(v: dict) -> str:
         text = f"**{word}**: {where}"
     else:
         text = f"**{word}**"
-    return f"{text} ({v['points']} pts)".replace("|", "\\|")
+    text = f"{text} ({v['points']} pts)"
+    if "beyond" in v:
+        b = v["beyond"]
+        text += f"; beyond, v to 2.5 m/s: {b['verdict']}" + (
+            f" ({b['where']})" if b["verdict"] != HOLDS else ""
+        )
+    return text.replace("|", "\\|")
 
 
 def markdown_block(result: dict, source: str) -> str:
@@ -67,7 +78,11 @@ def markdown_block(result: dict, source: str) -> str:
         "(full) and neglected (simplified, the seed's model for its width estimates). "
         "**holds**: every case of the ranges; **holds at the seed's points only**: the "
         "seed's points pass, the first failures between or beyond them are named; "
-        "**FAILS**: a case at the seed's own points fails. A case is one curve (over α, A, "
+        "**FAILS**: a case at the seed's own points fails; **depends**: the verdict changes "
+        "within the stated range of a parameter of the judging (a detection threshold), "
+        "each value's verdict given. The same test beyond the stated ranges "
+        f"({_grid_words(BEYOND)}) is reported after the verdict as *beyond*, an "
+        "extrapolation that never enters it. A case is one curve (over α, A, "
         "v or μ) at one setting of the other parameters; pts: the grid points the verdict "
         "reads. Cells that hold over a range name no numbers (`sorter paper statements` "
         "prints the closest case); those at one point give its value.",
@@ -143,6 +158,9 @@ def text_report(result: dict) -> str:
         out.append(f"  test: {row['test']}")
         for key, v in row["models"].items():
             out.append(f"  {key:<17} {WORDS[v['verdict']]:<32} {v['where']} [{v['points']} pts]")
+            if "beyond" in v:
+                b = v["beyond"]
+                out.append(f"  {'':<17} beyond: {WORDS[b['verdict']]:<24} {b['where']}")
     return "\n".join(out)
 
 

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from sorter_sim.model.build import BSPLINE_DEFAULT
+from sorter_sim.model.core.simulate import FrictionLaw
 from sorter_sim.runtime.scene import run_scene, scene_parcel, scene_strips
 from sorter_sim.studies.two_stage import final_min_width, size_pre_field
 from sorter_sim.studies.paper_models import FINAL_PART
@@ -37,10 +38,17 @@ from sorter_sim.studies.paper_support import (
     SEED_MUG,
     minimal_disk_width,
     sorting_scene,
+    swing_peaks,
+    two_belt_positioning,
 )
 
 ACC_WINDOW = 0.05  # s, the start of E2 over which the lateral acceleration is taken
 BMIN_XTOL = 1e-3  # m, the minimal field width's tolerance (as Fig. 11)
+BMIN_XTOL_FINE = 1e-4  # m, b_min located again where a rise is within a few BMIN_XTOL
+# the break-away detection thresholds over which C2c's window start is varied: a slip
+# of the parcel's centre off the belt a reader of the records would call "sliding"
+BREAK_THRESHOLDS = (3e-4, 1e-3, 3e-3)  # m/s
+FIG13_T_END = 12.0  # s, the two-belt runs of Fig. 13 (as ``paper_models.fig13``)
 
 
 @dataclass(frozen=True)
@@ -58,10 +66,11 @@ class Grid:
     As: tuple
     Bs: tuple
     mus: tuple
+    offsets: tuple = (0.05,)  # m, Fig. 13's release offsets off the belts' border
 
 
 # the seed's own sample points: α = 90°, 45°, 30° (Figs. 8c-11), v 0.5-1.5 m/s, A and B
-# over the ranges section 5 states
+# over the ranges section 5 states; Fig. 13 released 5 cm off (the seed gives no offset)
 PAPER = Grid(
     "the seed's points",
     (30.0, 45.0, 90.0),
@@ -70,15 +79,27 @@ PAPER = Grid(
     (0.2, 0.4, 0.6, 0.8),
     (0.3, 0.6, 0.9),
 )
-# the ranges the seed states, finer: α 30-90° in 5° steps; v to 2.5 m/s, the speed
-# section 3 says sorting lines reach
+# the ranges the seed states (section 5: v 0.5-1.5 m/s, A 0.2-1.2 m, B 0.2-0.8 m; α
+# 30-90°), finer in α: 5° steps; Fig. 13 released 2.5-10 cm off
 FULL = Grid(
     "the stated ranges",
     tuple(float(a) for a in range(30, 91, 5)),
-    (0.5, 1.0, 1.5, 2.0, 2.5),
+    (0.5, 1.0, 1.5),
     (0.2, 0.4, 0.6, 0.8, 1.0, 1.2),
     (0.2, 0.4, 0.6, 0.8),
     (0.3, 0.45, 0.6, 0.75, 0.9),
+    (0.025, 0.05, 0.075, 0.10),
+)
+# beyond them: v to 2.5 m/s, the rubbing speed section 3 says sorting lines reach,
+# reported apart as an extrapolation of the claim, never in its verdict
+BEYOND = Grid(
+    "beyond the stated ranges (v to 2.5 m/s)",
+    FULL.alphas,
+    (0.5, 1.0, 1.5, 2.0, 2.5),
+    FULL.As,
+    FULL.Bs,
+    FULL.mus,
+    FULL.offsets,
 )
 
 
@@ -119,6 +140,15 @@ def _num(v) -> str:
     return f"{v:g}" if isinstance(v, float) else str(v)
 
 
+def _stage_e2(summary: dict) -> tuple:
+    """Return t_c, the start of E2 and its end (the stick on the disks, else t_c) of a run."""
+    st = summary["stages"]
+    t_c = summary["t_scrap"] if summary["t_scrap"] is not None else math.nan
+    e2 = st["E2"] if st["E2"] is not None else math.nan
+    e2_end = st["E3"] if st["E3"] is not None else t_c
+    return t_c, e2, e2_end
+
+
 def sort_record(res, summary: dict) -> dict:
     """
     Return what the claims read of one sorting run.
@@ -143,10 +173,7 @@ def sort_record(res, summary: dict) -> dict:
         The record (NaN where the run has no such stage).
 
     """
-    st = summary["stages"]
-    t_c = summary["t_scrap"] if summary["t_scrap"] is not None else math.nan
-    e2 = st["E2"] if st["E2"] is not None else math.nan
-    e2_end = st["E3"] if st["E3"] is not None else t_c
+    t_c, e2, e2_end = _stage_e2(summary)
 
     def vel(t, col):
         # stuck stretches are records at both ends with one velocity: linear is exact
@@ -171,6 +198,66 @@ def sort_record(res, summary: dict) -> dict:
         "ax_e2": (vel(e2_end, 3) - vel(e2, 3)) / span if span > 0 else math.nan,
         "transitions": float(sum(1 for e in summary["events"] if e["kind"] in ("stick", "break"))),
     }
+
+
+def detail_record(res, summary: dict, v: float, alpha_deg: float) -> dict:
+    """
+    Return what the newer claims read of one sorting run, beyond ``sort_record``.
+
+    ay_thr<i>: mean ÿ over the ``ACC_WINDOW`` from where the centre's slip off the belt
+    first exceeds ``BREAK_THRESHOLDS[i]`` (E2 as a reader of the records would find it)
+    [m/s²]; phi: φ at the scrap line [deg]; eta_b, xi_b: the mean |η_b| and |ξ_b| of
+    eq. 4.7 at the centre of gravity over E2 [m/s]; rhs: the run's right-hand-side
+    evaluations.
+
+    Parameters
+    ----------
+    res : SimResult
+        The run.
+    summary : dict
+        Its summary (``run_scene``).
+    v : float
+        The belt speed [m/s].
+    alpha_deg : float
+        The disk angle [deg].
+
+    Returns
+    -------
+    dict
+        The record (NaN where the run has no such stage).
+
+    """
+    d = densify(res)
+    t, y = d.t, d.y
+    slip = np.hypot(y[:, 3] - v, y[:, 4])
+    out = {}
+    for i, thr in enumerate(BREAK_THRESHOLDS):
+        over = np.flatnonzero(slip > thr)
+        t0 = math.nan
+        if len(over) and over[0] > 0:
+            k = over[0]
+            # the crossing between records k-1 and k, linear in the slip
+            t0 = t[k - 1] + (thr - slip[k - 1]) / (slip[k] - slip[k - 1]) * (t[k] - t[k - 1])
+        if math.isfinite(t0) and t0 + ACC_WINDOW <= t[-1]:
+            vy = np.interp([t0, t0 + ACC_WINDOW], t, y[:, 4])
+            out[f"ay_thr{i}"] = float((vy[1] - vy[0]) / ACC_WINDOW)
+        else:
+            out[f"ay_thr{i}"] = math.nan
+    _, e2, e2_end = _stage_e2(summary)
+    al = math.radians(alpha_deg)
+    inside = (t >= e2) & (t <= e2_end) if math.isfinite(e2) and e2_end > e2 else None
+    if inside is not None and inside.sum() >= 2:
+        tt = t[inside]
+        xi = np.abs(v * math.cos(al) - y[inside, 3])
+        eta = np.abs(-v * math.sin(al) + y[inside, 4])
+        span = tt[-1] - tt[0]
+        out["xi_b"] = float(np.trapezoid(xi, tt) / span)
+        out["eta_b"] = float(np.trapezoid(eta, tt) / span)
+    else:
+        out["xi_b"] = out["eta_b"] = math.nan
+    out["phi"] = summary["phi_scrap_deg"] if summary["phi_scrap_deg"] is not None else math.nan
+    out["rhs"] = float(res.n_rhs)
+    return out
 
 
 class GridStore:
@@ -251,6 +338,75 @@ class GridStore:
             _key("sort", model, A=A, B=B, v=v, alpha=alpha, mu_a=mu_a, mu_b=mu_b), run
         )
 
+    def detail(self, model: Model, *, A, v, alpha) -> dict:
+        """
+        Return ``detail_record`` of one sort on an endless field (B 0.2 m, μ 0.6).
+
+        Parameters
+        ----------
+        model : Model
+            Stick law and moment.
+        A : float
+            The parcel's length [m].
+        v : float
+            The belt speed [m/s].
+        alpha : float
+            The disk angle [deg].
+
+        Returns
+        -------
+        dict
+            The record.
+
+        """
+
+        def run():
+            scene = sorting_scene(
+                A=A, B=0.2, v=v, alpha_deg=alpha, mu_a=SEED_MU, mu_b=SEED_MU,
+                stick=model.stick, rotation=model.rotation,
+            )  # fmt: skip
+            res, summary = run_scene(scene)
+            return detail_record(res, summary, v, alpha)
+
+        return self._get(_key("detail", model, A=A, v=v, alpha=alpha), run)
+
+    def positioning(self, model: Model, friction: str, *, x0) -> dict:
+        """
+        Return the Fig. 13 two-belt positioning of one friction model from one release.
+
+        v = 0.37 m/s, 0.4 x 0.3 m, released at rest x0 off the border, ``FIG13_T_END``
+        long (as ``paper_models.fig13``; the parcel is symmetric about the border's
+        normal, so the moment stays at round-off: one run serves both keys of a law).
+
+        Parameters
+        ----------
+        model : Model
+            Stick law (the moment does not enter, see above).
+        friction : str
+            The seed's model number, a key of ``FRICTION_MODELS``.
+        x0 : float
+            The release offset [m].
+
+        Returns
+        -------
+        dict
+            decay: last/first swing height; sticks: stick events.
+
+        """
+
+        def run():
+            law, values = FRICTION_MODELS[friction]
+            res = two_belt_positioning(
+                FrictionLaw(law, values), x0=x0, t_end=FIG13_T_END, stick=model.stick
+            )
+            _, pk = swing_peaks(res.t, res.y[:, 0])
+            return {
+                "decay": float(pk[-1] / pk[0]) if len(pk) >= 2 else math.nan,
+                "sticks": float(sum(1 for _, k, _ in res.events if k == "stick")),
+            }
+
+        return self._get(_key("pos", Model(model.stick, True), f=friction, x0=x0), run)
+
     def sort_law(self, model: Model, friction: str, *, A, B, v, alpha) -> dict:
         """
         Return the record of one sort with a section-6 friction model in every zone.
@@ -330,7 +486,7 @@ class GridStore:
 
         return self._get(_key("f14", model, f=friction), run)
 
-    def b_min(self, model: Model, *, A, v, alpha) -> float:
+    def b_min(self, model: Model, *, A, v, alpha, fine: bool = False) -> float:
         """
         Return the minimal disk-field width [m] that still scrapes (Fig. 11's criterion).
 
@@ -345,25 +501,30 @@ class GridStore:
         alpha : float
             The disk angle [deg].
 
+        fine : bool
+            Locate it to ``BMIN_XTOL_FINE`` instead.
+
         Returns
         -------
         float
-            b_min to ``BMIN_XTOL``.
+            b_min to ``BMIN_XTOL`` (or ``BMIN_XTOL_FINE``), on the side that scrapes.
 
         """
+        xtol = BMIN_XTOL_FINE if fine else BMIN_XTOL
 
         def run():
             mw = minimal_disk_width(
                 A=A,
                 v=v,
                 alpha_deg=alpha,
-                xtol=BMIN_XTOL,
+                xtol=xtol,
                 stick=model.stick,
                 rotation=model.rotation,
             )
             return {"b": mw.b_min}
 
-        return self._get(_key("bmin", model, A=A, v=v, alpha=alpha), run)["b"]
+        kind = "bminfine" if fine else "bmin"
+        return self._get(_key(kind, model, A=A, v=v, alpha=alpha), run)["b"]
 
     def two_stage(self, model: Model, *, alpha2) -> dict:
         """
@@ -580,8 +741,14 @@ def recompute(key: str) -> dict:
         name, value = item.split("=")
         params[name] = value if name == "f" else float(value)
     store = GridStore()
+    if kind == "pos":
+        return store.positioning(model, params.pop("f"), **params)
     if kind == "sort":
         return store.sort(model, **params)
+    if kind == "detail":
+        return store.detail(model, **params)
+    if kind == "bminfine":
+        return {"b": store.b_min(model, fine=True, **params)}
     if kind == "law":
         return store.sort_law(model, params.pop("f"), **params)
     if kind == "f14":

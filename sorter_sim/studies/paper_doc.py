@@ -312,10 +312,12 @@ def _notes(results: dict, name: str) -> str:
         }[len(agree)]
         text += (
             "\n\nThe seed's sentence on α = 45° (“slightly deteriorates … especially in the "
-            "case of longer objects”) reads as: the loss is slight, slightest for longer "
-            "objects. Its next sentence (30°: “similar … more significant in the case of short "
-            "loads”) and its conclusion 2b (the gain from a larger α “is more pronounced in "
-            f"the case of short loads”) say the same; {verdict} (statement table, Fig. 9b)."
+            "case of longer objects”) reads two ways: the loss is slight, slightest for longer "
+            "objects (row 9b of the statement table), or the loss is larger for longer objects "
+            "(row 9b-longer). Its next sentence (30°: “similar … more significant in the case "
+            "of short loads”) and its conclusion 2b (the gain from a larger α “is more "
+            "pronounced in the case of short loads”) side with the first; read so, "
+            f"{verdict} (Fig. 9b); the statement table judges both readings."
         )
         return text
     if name == "13":

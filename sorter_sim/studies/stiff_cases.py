@@ -47,7 +47,7 @@ from sorter_sim.studies.stiff_scenes import (
     two_belt_case,
     two_belt_exact,
 )
-from sorter_sim.studies.workprecision import ParcelCase, Trajectory, timed
+from sorter_sim.studies.workprecision import ParcelCase, Trajectory, compare, timed
 
 CHECKS = """\
 - **finite**: no NaN/inf in any record, and the run ended as asked (time span or scrap line).
@@ -77,6 +77,14 @@ CHECKS = """\
 - **chatter**: at most 10 stick/break switches in any 1 s of simulated time. A stick-slip cycle
   needs one stick and one break, and the fastest physical cycles here last seconds; a chattering
   integrator switches every step (hundreds to thousands per second).
+- **reference** (the extremes group): the CoG at the end against a converged solution of the
+  method's own model, the accurate method at rtol = atol = 1e-12 with the exact stick (accurate
+  and implicit) or the seed's decoupled stick test (threshold, ``stick = seed``): within
+  1e3·rtol m (accurate), 2·S·h (implicit, first order: S the largest surface speed) or
+  2·S·h + 1e3·v_min·t_end (threshold, RK4 at h with the threshold speed's drift); where the
+  scene has a closed form for t_scrap (a parcel at rest filling the disk field), the reference
+  must meet it within 1e-8 s and the run within 1e3·rtol·t_scrap s (accurate) or 2h (the
+  fixed-step methods).
 - **convergence**: refining the tolerance (accurate: rtol 1e-6, 1e-8, 1e-10 with atol = rtol/100)
   or the step (implicit: h, h/4, h/16) brings the CoG position at the common end time closer to
   the finest run: |p2 - p3| <= |p1 - p3| (or both below 1e-12 m).
@@ -359,6 +367,82 @@ def check_run(sc: StiffCase, method: str, settings: dict, res, traj: Trajectory)
     return checks
 
 
+REFERENCE_TOL = 1e-12  # rtol = atol of the converged solutions the extremes are measured on
+
+
+def reference_bounds(method: str, settings: dict, S: float, t_end: float) -> tuple:
+    """
+    Return the bounds of the reference check: (CoG error [m], t_scrap error [s]).
+
+    As the module's CHECKS state them: the accurate method's error follows its
+    tolerance; a fixed step's is first order in h (S h: how far the fastest surface
+    carries a parcel in one step), the threshold method's also drifts by up to v_min
+    over the run.
+    """
+    if method == "accurate":
+        rtol = settings.get("rtol", 1e-8)
+        return 1e3 * rtol, 1e3 * rtol * max(t_end, 1.0)
+    h = settings.get("dt", 1e-3)
+    bound = 2.0 * max(S, 1e-3) * h
+    if method == "threshold":
+        bound += 1e3 * settings.get("v_min", 1e-6) * t_end
+    return bound, 2.0 * h
+
+
+def reference_check(sc: StiffCase, method: str, settings: dict, traj: Trajectory, ref) -> list:
+    """
+    Return the reference check (and the closed form's, where the scene has one) of a run.
+
+    ``ref`` is the converged solution of the method's own model (``own_reference``).
+    """
+    S = max(math.hypot(st.vx, st.vy) for st in sc.case.strips)
+    e = compare(traj, ref)
+    b_pos, b_t = reference_bounds(method, settings, S, ref.t_end)
+    out = [
+        Check(
+            "reference",
+            e.final <= b_pos,
+            e.final,
+            f"CoG {e.final:.1e} m off the converged solution at t = {ref.t_end:.6g} s "
+            f"(bound {b_pos:.1e} m)",
+        )
+    ]
+    if sc.closed_form is not None:
+        t_cf, formula = sc.closed_form
+        d_ref = abs(ref.t_end - t_cf)
+        d_run = abs(traj.t_end - t_cf)
+        out.append(
+            Check(
+                "closed_form",
+                d_ref <= 1e-8 and d_run <= b_t,
+                d_run,
+                f"t_scrap {traj.t_end:.9g} s against {formula} = {t_cf:.9g} s: run off by "
+                f"{d_run:.1e} s (bound {b_t:.1e}), converged solution by {d_ref:.1e} s",
+            )
+        )
+    return out
+
+
+def own_reference(sc: StiffCase, method: str, cache: dict) -> Trajectory:
+    """
+    Return the converged solution of ``method``'s own model on ``sc`` (computed once a law).
+
+    The accurate method at rtol = atol = ``REFERENCE_TOL``: with the seed's decoupled
+    stick test for the threshold method (eqs. 4.2, 4.4, the model it integrates), with
+    the exact stick for the accurate and implicit methods.
+    """
+    stick = "seed" if method == "threshold" else "exact"
+    if stick not in cache:
+        cache[stick] = sc.case.core(
+            "accurate",
+            rtol=REFERENCE_TOL,
+            atol=REFERENCE_TOL,
+            stick=stick,
+            max_points=ACCURATE_MAX_POINTS * 10,
+        )
+    return cache[stick]
+
+
 def _setting_text(settings: dict) -> str:
     return ", ".join(f"{k}={v:g}" for k, v in settings.items() if k != "max_points")
 
@@ -387,6 +471,7 @@ def run_case(sc: StiffCase, repeats: int = 1) -> list[CaseRun]:
 
     """
     out = []
+    refs: dict = {}
     for method, settings in sc.methods.items():
         if method == "accurate":
             settings = dict(settings, max_points=settings.get("max_points", ACCURATE_MAX_POINTS))
@@ -421,6 +506,12 @@ def run_case(sc: StiffCase, repeats: int = 1) -> list[CaseRun]:
         run.figures["switches"] = len(_switch_times(traj))
         if method in sc.converge:
             run.checks.append(convergence_check(sc, method, settings))
+        if sc.reference:
+            ref_checks = reference_check(
+                sc, method, settings, traj, own_reference(sc, method, refs)
+            )
+            run.checks += ref_checks
+            run.figures["ref_err"] = ref_checks[0].value
         out.append(run)
     return out
 
