@@ -149,9 +149,9 @@ def _latency_two_processes(t_run: float, executor: str):
     from rclpy.context import Context
     from rclpy.parameter import Parameter
 
-    from sorter_cell.demo import _executor
     from sorter_control.node import ControllerNode
     from sorter_ros.env import find_config_dir
+    from sorter_ros.run_loop import make_executor
 
     config = find_config_dir()
     args = [
@@ -195,7 +195,7 @@ def _latency_two_processes(t_run: float, executor: str):
         watcher = rclpy.create_node("latency_probe", context=ctx)
         nodes.append(watcher)
         probe = _EdgeClock(watcher)
-        ex = _executor(ctx, executor)
+        ex = make_executor(ctx, executor == "events")
         for n in nodes:
             ex.add_node(n)
         deadline = time.monotonic() + 60.0
