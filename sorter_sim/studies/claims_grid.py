@@ -605,9 +605,20 @@ TABLE_FIELDS = {
     "f14": {f: (0.0, 1e6, "a force [N]") for f in ("end", "low", "high")},
     "two": {"single": _LENGTH, "final": _LENGTH},
     "bmin": {"b": _LENGTH},
+    "bminfine": {"b": _LENGTH},
+    "pos": {"decay": (0.0, 1e6, "a ratio of swings"), "sticks": (0.0, 1e6, "a count")},
+    "detail": {
+        "ay_thr0": _ACCEL,
+        "ay_thr1": _ACCEL,
+        "ay_thr2": _ACCEL,
+        "eta_b": (-1e3, 1e3, "a length [m]"),
+        "xi_b": (-1e3, 1e3, "a length [m]"),
+        "phi": (-1e5, 1e5, "an angle [°]"),
+        "rhs": (0.0, 1e9, "a count"),
+    },
 }
 _OPEN_BELOW = {"t", "e2_end", "end", "low", "high", "single", "final", "b"}
-_KEY_PARAMS = {"A", "B", "alpha", "alpha2", "f", "mu_a", "mu_b", "v"}
+_KEY_PARAMS = {"A", "B", "alpha", "alpha2", "f", "mu_a", "mu_b", "v", "x0"}
 
 
 def _key_problem(key) -> str | None:
