@@ -272,7 +272,7 @@ class RunningCell(RunLoop):
         self._start_context(
             None,
             FAST_SLICE,
-            0.0,
+            None,
             events=self.executor_kind == "events",
             log_level=self.log_level,
         )

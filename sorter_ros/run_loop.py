@@ -30,6 +30,9 @@ import sys
 import time
 
 SLICE_S = 0.005  # simulated time per slice [s]
+# wall time without a ready callback that ends a slice's spin with the single-threaded
+# executor (the events executor drains the nodes of this process exactly: no grace)
+GRACE_S = 0.0005
 SETTLE_S = 0.2  # the most wall time a slice waits for answers to requests in flight
 MATCH_S = 10.0  # the most wall time the first run waits for new nodes' topics to match
 DRAIN_WALL_S = 5.0  # wall time after which a drain that never ends is given up (a stuck node)
@@ -100,9 +103,10 @@ class RunLoop:
         The ROS domain (default: ``ROS_DOMAIN_ID``, else rcl's own, 0).
     slice_s : float
         Simulated seconds per slice of ``run``, in (0, 1].
-    grace_s : float
+    grace_s : float, optional
         Wall seconds of quiet that end a slice's spin, for nodes the executor cannot
-        drain (in other processes; every node with the single-threaded executor).
+        drain (in other processes; every node with the single-threaded executor);
+        default: none with the events executor, ``GRACE_S`` with the single-threaded one.
     events : bool
         Spin with rclpy's events executor (where there is one), else the single-threaded one.
     params_files : tuple of str
@@ -124,7 +128,7 @@ class RunLoop:
         *,
         domain_id: int | None = None,
         slice_s: float = SLICE_S,
-        grace_s: float = 0.0,
+        grace_s: float | None = None,
         events: bool = True,
         params_files: tuple = ('cell.yaml', 'controller.yaml'),
         log_level: str = 'warn',
@@ -144,7 +148,7 @@ class RunLoop:
         self,
         domain_id: int | None,
         slice_s: float,
-        grace_s: float,
+        grace_s: float | None,
         events: bool = True,
         params_files: tuple = ('cell.yaml', 'controller.yaml'),
         log_level: str = 'warn',
@@ -157,6 +161,9 @@ class RunLoop:
 
         if not (isinstance(slice_s, (int, float)) and 0.0 < slice_s <= 1.0):
             raise ValueError(f'slice_s must be in (0, 1] s, got {slice_s!r}')
+        self._events = events and events_executor_class() is not None
+        if grace_s is None:
+            grace_s = 0.0 if self._events else GRACE_S
         if not (isinstance(grace_s, (int, float)) and 0.0 <= grace_s <= 1.0):
             raise ValueError(f'grace_s must be in [0, 1] s, got {grace_s!r}')
         apply_ros_env_defaults()
@@ -179,7 +186,6 @@ class RunLoop:
             signal_handler_options=SignalHandlerOptions.NO,
             args=args + ['--log-level', log_level],
         )
-        self._events = events and events_executor_class() is not None
         self.executor = make_executor(self.context, self._events)
 
     # ------------------------------------------------------------------ nodes

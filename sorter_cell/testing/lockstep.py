@@ -22,16 +22,12 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
-from sorter_ros.run_loop import (  # noqa: F401 (SLICE_S, WaitTimedOut: the faces' names, as before)
+from sorter_ros.run_loop import (  # noqa: F401 (GRACE_S, SLICE_S, WaitTimedOut: as before)
+    GRACE_S,
     SLICE_S,
     RunLoop,
     WaitTimedOut,
-    events_executor_class,
 )
-
-# wall time without a ready callback that ends a slice's spin with the single-threaded
-# executor (the events executor drains the nodes of this process exactly: no grace)
-GRACE_S = 0.0005
 
 
 def pick_domain_id() -> int:
@@ -61,10 +57,6 @@ class LockStep(RunLoop):
     def _start_context(
         self, domain_id: int | None, slice_s: float, grace_s: float | None, events: bool = False
     ) -> None:
-        if grace_s is None:
-            # in-process nodes are drained exactly by the events executor: a grace is for
-            # the single-threaded one, and for nodes in other processes when a test asks
-            grace_s = 0.0 if events and events_executor_class() is not None else GRACE_S
         super()._start_context(
             pick_domain_id() if domain_id is None else domain_id, slice_s, grace_s, events=events
         )
