@@ -109,6 +109,10 @@ setup(
         # 1.6: Writer.flush(), which closes a chunk on time (sorter_ros/recording_writer.py)
         'mcap>=1.6',
         'mcap-ros2-support>=0.5',
+        # sorter recover and sorter replay inflate a chunk as a stream, bounded, rather
+        # than mcap's whole-chunk decompression (a 33 kB chunk can state 1 GiB)
+        'lz4>=4.0',
+        'zstandard>=0.22',
         # a Foxglove client (python -m sorter_cell.live_snapshot, the live-view test):
         # WebSocket, and protobuf to decode the schemas the server advertises
         'websockets>=13',

@@ -24,7 +24,17 @@ PINNED = ROOT / 'test' / 'data' / 'rosdep'
 PACKAGES = ('sorter_sim', 'sorter_control', 'sorter_ros', 'sorter_cell')
 # rosdistro has no key for these (checked below against the pinned database): package.xml
 # names each in a comment, docs/setup.md installs each with pip
-NO_KEY = {'dask', 'distributed', 'pyarrow', 'foxglove-sdk', 'mcap', 'asyncua', 'import-linter'}
+NO_KEY = {
+    'dask',
+    'distributed',
+    'pyarrow',
+    'foxglove-sdk',
+    'mcap',
+    'lz4',
+    'zstandard',
+    'asyncua',
+    'import-linter',
+}
 # a ROS bundle wheel of setup.py -> the rosdistro repositories whose packages it brings
 BUNDLES = {
     'ros-jazzy-common-interfaces': ('common_interfaces',),
@@ -46,6 +56,8 @@ ROSDEP = {
     'foxglove-sdk': [],
     'mcap': [],
     'mcap-ros2-support': ['mcap-ros2-support'],
+    'lz4': [],
+    'zstandard': [],
     'websockets': ['python3-websockets'],
     'protobuf': ['python3-protobuf'],
     'pymodbus': ['python3-pymodbus'],
