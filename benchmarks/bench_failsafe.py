@@ -61,6 +61,7 @@ def main(argv=None) -> int:
     from std_srvs.srv import SetBool
 
     from sorter_ros.interface import EVENT_QOS, STREAM_QOS
+    from sorter_ros.outcomes import values
 
     rclpy.init()
     node = rclpy.create_node('failsafe_watcher')
@@ -79,7 +80,7 @@ def main(argv=None) -> int:
     node.create_subscription(
         DiagnosticStatus,
         f'{NS}/sort/outcomes',
-        lambda m: outcomes.update({m.name: {kv.key: kv.value for kv in m.values}}),
+        lambda m: outcomes.update({m.name: values(m)}),
         EVENT_QOS,
     )
     popup = node.create_client(SetBool, f'{NS}/diverter/popup')

@@ -550,4 +550,6 @@ def run(args) -> int | str:
 
 def _diag_values(ctl) -> dict:
     """Return the controller's final diagnostic values (the same the diagnostics topic carries)."""
-    return {kv.key: kv.value for kv in ctl.diagnostic_status().values}
+    from sorter_ros.outcomes import values
+
+    return values(ctl.diagnostic_status())

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sorter_ros.outcomes import values
+
 LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
 
@@ -115,18 +117,17 @@ class _Observer:
         self.t_sim = msg.clock.sec + 1e-9 * msg.clock.nanosec
 
     def _on_outcome(self, msg):
-        values = {kv.key: kv.value for kv in msg.values}
-        self.outcomes[values.get("label") or msg.name] = values
+        v = values(msg)
+        self.outcomes[v.get("label") or msg.name] = v
 
     def _on_confirmation(self, msg):
-        values = {kv.key: kv.value for kv in msg.values}
-        self.confirmations[values.get("label", msg.name)] = values
+        v = values(msg)
+        self.confirmations[v.get("label", msg.name)] = v
 
     def _on_diag(self, msg):
         for st in msg.status:
-            values = {kv.key: kv.value for kv in st.values}
             if st.name.endswith(": controller"):
-                self.ctl_diag = values
+                self.ctl_diag = values(st)
 
     def _on_ids(self, msg):
         self._ids = list(msg.data)

@@ -25,7 +25,10 @@ import math
 import time
 from collections import Counter
 
-FAST_SLICE = 0.005
+from sorter_ros.outcomes import values
+from sorter_ros.run_loop import RunLoop
+
+LOCKSTEP_SLICE = 0.05  # s simulated at most per slice of a lock-step line (cut at scans)
 READY_POLL_S = 0.1  # s between two looks at the segments said ready while others start
 ANSWER_S = 2.0  # s station 1 has to answer a parameter change before it is sent again
 
@@ -47,12 +50,8 @@ def run_line(args) -> int | str:
         otherwise; a message for a refused input.
 
     """
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.signals import SignalHandlerOptions
-
     from sorter_cell.line_segment import SegmentRun, SegmentStream, build_segment
-    from sorter_ros.env import StopSignals, apply_ros_env_defaults, find_config_dir
+    from sorter_ros.env import StopSignals
 
     n = args.stations
     k_seg = getattr(args, 'segments', None)
@@ -80,52 +79,38 @@ def run_line(args) -> int | str:
         key_from_env()  # SORTER_LINE_KEY: every segment and the warehouse read it
     except LineKeyError as exc:
         return str(exc)
-    apply_ros_env_defaults()
-    config = find_config_dir()
-    ctx = Context()
     # Ctrl-C (or SIGTERM) is a flag the spin loop reads between callbacks: a signal
     # raised inside the executor's wait would come out of rclpy as a RuntimeError and
     # could leave its wait set half torn down (see StopSignals)
     stop = StopSignals().install()
-    rclpy.init(
-        context=ctx,
-        signal_handler_options=SignalHandlerOptions.NO,
-        args=[
-            '--ros-args',
-            '--params-file',
-            str(config / 'cell.yaml'),
-            '--params-file',
-            str(config / 'controller.yaml'),
-            '--log-level',
-            'error',
-        ],
-    )
-    nodes, procs = [], []
     fast = args.rtf == 'fast'
+    run = None
     try:
-        line = ctls = None
+        run = _LineRun(args, stop, lockstep=fast and k_seg == 1)
         if k_seg == 1:
             line, ctls = build_segment(
-                ctx,
+                run.context,
                 first=1,
                 stations=n,
                 line_stations=n,
                 stream=SegmentStream(seed=args.seed, gap=args.gap, count=args.parcels or 0),
                 run=SegmentRun(
                     fast=fast,
+                    lockstep=run.lockstep,
                     rtf=1.0 if fast else float(args.rtf),
                     record=args.record or '',
                     foxglove=int(args.foxglove or 0),
                 ),
             )
-            nodes += [*line.nodes, *ctls]
+            run.add_line(line, ctls)
         else:
             try:
-                procs = _start_segments(args, n, k_seg, stop)
+                run.add_segments(_start_segments(args, n, k_seg, stop))
             except SegmentDied as exc:
                 return str(exc)  # (Ctrl-C while they start: _start_segments says 130)
         try:
-            return _run(args, ctx, nodes, line, ctls, procs, stop)
+            problem = run.prepare() or run.stream()
+            return problem or run.report(run.drain())
         except SegmentDied as exc:
             if stop.is_set():
                 raise KeyboardInterrupt from None  # Ctrl-C ended it too: a stop (130)
@@ -133,6 +118,7 @@ def run_line(args) -> int | str:
             return str(exc)
     finally:
         stop.quiet = True  # the teardown is short and bounded: let it finish
+        procs = run.procs if run is not None else []
         for proc, _ in procs:
             if proc.poll() is None:
                 proc.terminate()
@@ -141,12 +127,8 @@ def run_line(args) -> int | str:
                 proc.wait(timeout=20)
             except Exception:  # noqa: BLE001 - a segment that will not stop is killed
                 proc.kill()
-        for node in nodes:
-            try:
-                node.destroy_node()
-            except Exception:  # noqa: BLE001 - teardown goes on
-                pass
-        rclpy.try_shutdown(context=ctx)
+        if run is not None:
+            run.close()
         stop.restore()
 
 
@@ -359,62 +341,90 @@ def segment_commands(args, n: int, k_seg: int) -> list[tuple[list, str]]:
     return out
 
 
-def _run(args, ctx, nodes, line, ctls, procs, stop) -> int | str:
-    """Drive the line (in this process, or its segments' processes) and report."""
-    run = _LineRun(args, ctx, nodes, line, ctls, procs, stop)
-    problem = run.prepare() or run.stream()
-    if problem:
-        return problem
-    return run.report(run.drain())
-
-
-class _LineRun:
+class _LineRun(RunLoop):
     """
     One drive of the line as the demo sees it: the warehouse and an observer, and what it heard.
 
-    ``_run`` calls its steps in order: prepare (the controllers, the sort plan, the
-    requests), stream (the infeed open for the simulated time or the batch), drain (the
-    infeed closed until every parcel has its disposition) and report. Every wait goes
-    through ``spin_until``, which also restarts (or reports) a segment process that
-    ended, so that no wait of the run can miss one.
+    A face of ``RunLoop`` (its Context, executor, drain and slices). ``run_line`` calls
+    its steps in order: prepare (the controllers, the sort plan, the requests), stream
+    (the infeed open for the simulated time or the batch), drain (the infeed closed until
+    every parcel has its disposition) and report. A line in this process in fast mode
+    runs in lock-step: the clock stands still while the nodes start and the requests go
+    out, then each slice ends at the stations' next PLC scan (``align_to_timers``), so
+    that every scan sees the line where the scan period says and nothing waits on the
+    wall clock. A line on the wall clock, or in segment processes, runs its own time;
+    the waits then only spin. Every wait goes through ``wait``/``wait_sim``, which also
+    restart (or report) a segment process that ended, so that no wait misses one.
     """
 
-    def __init__(self, args, ctx, nodes, line, ctls, procs, stop):
+    what = 'the line'
+
+    def __init__(self, args, stop, lockstep: bool):
+        self.args, self.stop, self.lockstep = args, stop, lockstep
+        self.line = self.ctls = None
+        self.procs: list = []
+        self.n = args.stations
+        self.restarts = Restarts([], [], 0)
+        RunLoop.__init__(
+            self,
+            slice_s=LOCKSTEP_SLICE,
+            events=(args.executor or 'events') == 'events',
+            log_level='error',
+            align_to_timers=True,
+        )
+
+    def add_line(self, line, ctls) -> None:
+        """Spin the line in this process: its node, its stations and their controllers."""
+        self.line, self.ctls = line, ctls
+        if self.lockstep:
+            self._stepper, self._timebase = line, line.line
+        self.add_node([*line.nodes, *ctls])
+        self._start_observer()
+
+    def add_segments(self, procs: list) -> None:
+        """Watch the line's segment processes (restarted by ``--restart``)."""
+        self.procs = procs
+        self.restarts = Restarts(
+            procs,
+            [cmd for cmd, _ in segment_commands(self.args, self.n, len(procs))],
+            getattr(self.args, 'restart', 0) or 0,
+        )
+        self._start_observer()
+
+    @property
+    def segments(self) -> int:
+        return len(self.procs) or 1
+
+    def _start_observer(self) -> None:
         import rclpy
         from rclpy.parameter import Parameter
 
         from sorter_control.wcs_node import WcsNode
 
-        self.args, self.nodes, self.line, self.ctls = args, nodes, line, ctls
-        self.procs, self.stop = procs, stop
-        self.n = args.stations
-        self.segments = len(procs) or 1
-        self.restarts = Restarts(
-            procs,
-            [cmd for cmd, _ in segment_commands(args, self.n, self.segments)] if procs else [],
-            getattr(args, 'restart', 0) or 0,
+        self.wcs = self.add_node(
+            WcsNode(
+                context=self.context,
+                parameter_overrides=[
+                    Parameter('stations', value=self.n),
+                    # a recording on the line's clock
+                    Parameter('use_sim_time', value=self.line is not None),
+                    Parameter('record_path', value=self.args.record or ''),
+                ],
+            )
         )
-        self.wcs = WcsNode(
-            context=ctx,
-            parameter_overrides=[
-                Parameter('stations', value=self.n),
-                Parameter('use_sim_time', value=line is not None),  # recording on the line's clock
-                Parameter('record_path', value=args.record or ''),
-            ],
-        )
-        nodes.append(self.wcs)
-        self.obs = rclpy.create_node('sorter_line_demo', context=ctx)
-        nodes.append(self.obs)
+        self.obs = rclpy.create_node('sorter_line_demo', context=self.context)
         self._listen()
-        self._open_outputs(ctx)
+        self._open_outputs()
+        self.add_node(self.obs)
 
     def _listen(self) -> None:
         """
         Subscribe the observer to what the report counts and the waits watch.
 
         The dispositions and exits are the summary's; the scanner's labels count what
-        was inducted where a segment process holds station 1; the clocks, station 1's
-        PackML state and the active sort plan are what the steps wait on.
+        was inducted where a segment process holds station 1; the clocks (of a line not
+        in this loop's hands), station 1's PackML state and the active sort plan are
+        what the steps wait on.
         """
         from diagnostic_msgs.msg import DiagnosticStatus
         from rosgraph_msgs.msg import Clock
@@ -430,15 +440,13 @@ class _LineRun:
         obs.create_subscription(
             DiagnosticStatus,
             'wcs/dispositions',
-            lambda m: self.records.append({kv.key: kv.value for kv in m.values}),
+            lambda m: self.records.append(values(m)),
             EVENT_QOS,
         )
         self._exits = obs.create_subscription(
             DiagnosticStatus,
             'line/exits',
-            lambda m: self.exits.__setitem__(
-                {kv.key: kv.value for kv in m.values}['label'], m.message
-            ),
+            lambda m: self.exits.__setitem__(values(m)['label'], m.message),
             EVENT_QOS,
         )
         obs.create_subscription(
@@ -447,16 +455,19 @@ class _LineRun:
         # the line's time: its last segment's (the others are ahead of it in a lock-step line);
         # and station 1's, whose stream the run is
         self.first_clock = {'t': 0.0}
-        for topic, into in (
-            (procs[-1][1] if procs else '/clock', self.clock),
-            (procs[0][1] if procs else '/clock', self.first_clock),
-        ):
-            obs.create_subscription(
-                Clock,
-                topic,
-                lambda m, into=into: into.__setitem__('t', m.clock.sec + 1e-9 * m.clock.nanosec),
-                STREAM_QOS,
-            )
+        if not self.lockstep:
+            for topic, into in (
+                (procs[-1][1] if procs else '/clock', self.clock),
+                (procs[0][1] if procs else '/clock', self.first_clock),
+            ):
+                obs.create_subscription(
+                    Clock,
+                    topic,
+                    lambda m, into=into: into.__setitem__(
+                        't', m.clock.sec + 1e-9 * m.clock.nanosec
+                    ),
+                    STREAM_QOS,
+                )
         self.packml = {'state': ''}  # station 1's machine state: Completing once its stream is out
         obs.create_subscription(
             String,
@@ -469,33 +480,52 @@ class _LineRun:
             DiagnosticStatus, 'wcs/sort_plan/active', self.active.append, SENSOR_QOS
         )
 
-    def _open_outputs(self, ctx) -> None:
-        """Make the plan and request publishers, station 1's parameter client, the executor."""
+    def _open_outputs(self) -> None:
+        """Make the plan and request publishers and station 1's parameter client."""
         from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
         from rclpy.parameter_client import AsyncParameterClient
 
-        from sorter_cell.line_segment import line_executor
         from sorter_control.wcs_node import REQUEST_QOS
         from sorter_ros.interface import EVENT_QOS
 
         self.pub_plan = self.obs.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
         self.pub_req = self.obs.create_publisher(KeyValue, 'wcs/requests', REQUEST_QOS)
         self.infeed = AsyncParameterClient(self.obs, '/S01/sorter_sim')
-        self.ex = line_executor(ctx, self.args.executor or 'events')
-        for node in self.nodes:
-            self.ex.add_node(node)
 
-    def spin_until(self, pred, wall_s) -> bool:
-        """Spin until ``pred()`` holds (True) or ``wall_s`` of wall time passed (False)."""
-        end = time.monotonic() + wall_s
-        while not pred():
+    # ------------------------------------------------------------------ time
+    def line_t(self) -> float:
+        """Return the line's time: its last segment's [s]."""
+        return self.line.line.t if self.lockstep else self.clock['t']
+
+    def first_t(self) -> float:
+        """Return station 1's time [s] (one process: the line's)."""
+        return self.line.line.t if self.lockstep else self.first_clock['t']
+
+    def _checked(self, pred):
+        """Return ``pred`` with the stop flag and the segment processes looked at on each call."""
+
+        def checked():
             if self.stop.is_set():
                 raise KeyboardInterrupt  # Ctrl-C: the line stops where it is (exit 130)
-            if time.monotonic() > end:
-                return False
-            self.ex.spin_once(timeout_sec=0.02)
             self.restarts.check()
-        return True
+            return pred()
+
+        return checked
+
+    def wait(self, pred, wall_s) -> bool:
+        """Spin, simulated time standing still in lock-step, until ``pred()`` or ``wall_s``."""
+        if self.lockstep:
+            self.spin_idle()
+        return self.spin_until(self._checked(pred), wall_s)
+
+    def wait_sim(self, pred) -> None:
+        """Let simulated time run until ``pred()``: in lock-step, slice by slice."""
+        pred = self._checked(pred)
+        if not self.lockstep:
+            self.spin_until(pred)
+            return
+        while not pred():
+            self.run(self.slice_s)
 
     def set_arrival(self, value, **more) -> bool:
         """
@@ -514,7 +544,7 @@ class _LineRun:
         end = time.monotonic() + 20.0
         while (left := end - time.monotonic()) > 0:
             fut = self.infeed.set_parameters(values)
-            if self.spin_until(fut.done, min(ANSWER_S, left)):
+            if self.wait(fut.done, min(ANSWER_S, left)):
                 return all(r.successful for r in fut.result().results)
         return False
 
@@ -529,12 +559,12 @@ class _LineRun:
         import numpy as np
         from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
-        args, ctls, spin_until = self.args, self.ctls, self.spin_until
-        if ctls is not None and not spin_until(
+        args, ctls, wait = self.args, self.ctls, self.wait
+        if ctls is not None and not wait(
             lambda: all(c.logic is not None and c.logic.state == 'running' for c in ctls), 120.0
         ):
             return 'the stations\' controllers did not start within 120 s'
-        if not spin_until(self.infeed.services_are_ready, 30.0):
+        if not wait(self.infeed.services_are_ready, 30.0):
             return 'station 1\'s parameter services did not appear within 30 s'
         # every station's edges, labels, routes and confirmations matched with the
         # warehouse, and every segment's exits with it and the observer: discovery across
@@ -545,7 +575,7 @@ class _LineRun:
             out = self.wcs.unmatched(writers)
             return out + ['line/exits (the demo)'] * (self._exits.get_publisher_count() < writers)
 
-        if not spin_until(lambda: not unmatched(), 30.0):
+        if not wait(lambda: not unmatched(), 30.0):
             missing = unmatched()
             return (
                 f'the warehouse had no peer on {len(missing)} of the line\'s topics after '
@@ -553,13 +583,13 @@ class _LineRun:
             )
         self.chutes = [name for pair in self.wcs.wcs.chutes for name in pair]
         dests = [f'D{j + 1:02d}' for j in range(len(self.chutes))]
-        spin_until(lambda: self.pub_plan.get_subscription_count() > 0, 10.0)
+        wait(lambda: self.pub_plan.get_subscription_count() > 0, 10.0)
         self.pub_plan.publish(
             DiagnosticStatus(
                 name='v1', values=[KeyValue(key=d, value=c) for d, c in zip(dests, self.chutes)]
             )
         )
-        if not spin_until(lambda: self.active, 10.0):
+        if not wait(lambda: self.active, 10.0):
             return 'the warehouse node did not take the sort plan'
         rng = np.random.default_rng(int(args.seed))
         # more than the infeed can send in the time, or the batch
@@ -569,8 +599,8 @@ class _LineRun:
                 KeyValue(key=f'P{i:05d}', value=dests[int(rng.integers(len(dests)))])
             )
             if i % 50 == 0:
-                spin_until(lambda i=i: self.wcs.wcs.n_taken >= i, 10.0)
-        if not spin_until(lambda: self.wcs.wcs.n_taken == expected, 10.0):
+                wait(lambda i=i: self.wcs.wcs.n_taken >= i, 10.0)
+        if not wait(lambda: self.wcs.wcs.n_taken == expected, 10.0):
             return f'the warehouse node took {self.wcs.wcs.n_taken} of {expected} requests'
         return None
 
@@ -582,11 +612,15 @@ class _LineRun:
         time went) is taken here, before the drain, so that the throughput is the open
         infeed's. Return what failed, or None.
         """
-        args, line, ctls, clock = self.args, self.line, self.ctls, self.clock
-        spin_until = self.spin_until
-        spin_until(lambda: False, 0.3)  # the routing updates reach the stations
-        spin_until(lambda: clock['t'] > 0.0, 30.0)
-        t0, wall0 = clock['t'], time.monotonic()
+        args, line, ctls = self.args, self.line, self.ctls
+        if self.lockstep:
+            if self._joined:
+                self._settle_graph()  # the new nodes' topics matched before time moves
+            self.spin_idle()  # the routing updates reach the stations
+        else:
+            self.wait(lambda: False, 0.3)  # the routing updates reach the stations
+            self.wait(lambda: self.clock['t'] > 0.0, 30.0)
+        t0, wall0 = self.line_t(), time.monotonic()
         if line is not None:
             line.cost = {'physics_s': 0.0, 'publish_s': 0.0}
             scans0 = [c.logic.scan_wall_total for c in ctls]
@@ -596,17 +630,17 @@ class _LineRun:
         if not self.set_arrival('gap', **self.span):
             return 'station 1 did not take arrival: gap'
         # station 1's time once it answered: the stream opened before
-        self.t_opened = self.first_clock['t']
+        self.t_opened = self.first_t()
         p0 = line.stations[0].params if line is not None else _cell_params()
         self.transit = self.n * (p0.exit_x - p0.induct_x) / p0.belt_speed
         if args.parcels:
             # a batch: until every parcel has its disposition (10 s a parcel at the most)
             end = t0 + 10.0 * args.parcels + 2.0 * self.transit
-            spin_until(lambda: len(self.records) >= args.parcels or clock['t'] >= end, math.inf)
+            self.wait_sim(lambda: len(self.records) >= args.parcels or self.line_t() >= end)
         else:
-            spin_until(lambda: clock['t'] >= t0 + args.sim_time, math.inf)
+            self.wait_sim(lambda: self.line_t() >= t0 + args.sim_time - 1e-9)
         self.wall = time.monotonic() - wall0
-        self.sim = clock['t'] - t0
+        self.sim = self.line_t() - t0
         self.n_out = len(self.exits)
         self.cost = None
         if line is not None:
@@ -627,38 +661,37 @@ class _LineRun:
         Every parcel inducted gets its disposition this way, so that the report's
         balance (dispositions + parcels still on the line = inducted) can be checked.
         """
-        args, line, clock, spin_until = self.args, self.line, self.clock, self.spin_until
+        args, line = self.args, self.line
         if self.span and not args.no_drain:
             # the stream ends on station 1's clock, ahead of the one measured by: wait until
             # it has (station 1 completes once its last parcel is out), or station 1 is well
             # past the span's end (held by a jam, say)
             t_closed = self.t_opened + args.sim_time + 2.0 * self.transit / self.n + 10.0
-            spin_until(
+            self.wait_sim(
                 lambda: (
                     self.packml['state'] in ('Completing', 'Complete')
-                    or self.first_clock['t'] >= t_closed
-                ),
-                math.inf,
+                    or self.first_t() >= t_closed
+                )
             )
         # the infeed stops and the line runs empty, so that every parcel inducted gets its
         # disposition: at most the belt's transit over the whole line, twice, + 10 s
         self.set_arrival('none')
         # (--no-drain: at once)
-        t_drain = clock['t'] + (0.0 if args.no_drain else 2.0 * self.transit + 10.0)
+        t_drain = self.line_t() + (0.0 if args.no_drain else 2.0 * self.transit + 10.0)
         if args.no_drain:
             inducted = line.stations[0].cell.n_inducted if line is not None else len(self.scanned)
         elif line is not None:
-            spin_until(lambda: line.line.n_parcels == 0 or line.line.t >= t_drain, math.inf)
+            self.wait_sim(lambda: line.line.n_parcels == 0 or line.line.t >= t_drain)
             inducted = line.stations[0].cell.n_inducted
         else:
-            spin_until(
-                lambda: len(self.records) >= len(self.scanned) or clock['t'] >= t_drain,
-                math.inf,
+            self.wait_sim(
+                lambda: len(self.records) >= len(self.scanned) or self.line_t() >= t_drain
             )
             inducted = len(self.scanned)
-        if line is not None:
-            self.ex.remove_node(line)  # stop the clock; let the last messages in
-        spin_until(lambda: len(self.records) >= inducted, 0.5 if args.no_drain else 5.0)
+        if line is not None and not self.lockstep:
+            for timer in line.timers:
+                timer.cancel()  # stop the clock; let the last messages in
+        self.wait(lambda: len(self.records) >= inducted, 0.5 if args.no_drain else 5.0)
         return inducted
 
     def report(self, inducted: int) -> int | str:
@@ -701,7 +734,7 @@ class _LineRun:
             'throughput_pcs_h': 3600.0 * self.n_out / sim if sim > 0 else 0.0,
             'real_time_factor': sim / wall if wall > 0 else 0.0,
             'sim_time_s': sim,
-            'executor': type(self.ex).__name__,
+            'executor': type(self.executor).__name__,
             'wall_s': wall,
             'chutes_reached': sum(1 for c in self.chutes if exit_counts.get(c)),
             'chutes': len(self.chutes),

@@ -60,6 +60,9 @@ class SegmentRun:
     ----------
     fast : bool
         As fast as possible (True) or on the wall clock at ``rtf``.
+    lockstep : bool
+        As fast as possible, advanced by the process's run loop (``time_mode: lockstep``)
+        rather than by the line node's own timer: a line wholly in one process.
     rtf : float
         The real-time factor on the wall clock.
     sync : str
@@ -75,6 +78,7 @@ class SegmentRun:
     """
 
     fast: bool = True
+    lockstep: bool = False
     rtf: float = 1.0
     sync: str = 'conservative'
     record: str = ''
@@ -127,7 +131,10 @@ def build_segment(
             Parameter('stations', value=stations),
             Parameter('first_station', value=first),
             Parameter('line_stations', value=line_stations),
-            Parameter('time_mode', value='fast' if run.fast else 'realtime'),
+            Parameter(
+                'time_mode',
+                value='lockstep' if run.lockstep else 'fast' if run.fast else 'realtime',
+            ),
             Parameter('fast_slice', value=FAST_SLICE),
             Parameter('real_time_factor', value=1.0 if run.fast else float(run.rtf)),
             Parameter('record_path', value=run.record),

@@ -17,6 +17,7 @@ import math
 from collections import Counter
 from pathlib import Path
 
+from sorter_ros.outcomes import values
 from sorter_sim.studies.outpaths import file_problem
 
 METADATA = "sorter_sim parameters"  # written by the simulation node (sorter_sim.frontends.node)
@@ -259,11 +260,11 @@ class _Reading:
     def _take(self, topic: str, msg) -> None:
         name = topic.rsplit("/", 2)[-2:]
         if name == ["sort", "outcomes"]:
-            values = {kv.key: kv.value for kv in msg.values}
-            self.outcomes[int(values["id"])] = values
+            v = values(msg)
+            self.outcomes[int(v["id"])] = v
         elif name == ["sort", "confirmations"]:
-            values = {kv.key: kv.value for kv in msg.values}
-            self.confirmations[values.get("label", msg.name)] = values
+            v = values(msg)
+            self.confirmations[v.get("label", msg.name)] = v
         elif name == ["parcels", "ids"]:
             self.ids = [int(i) for i in msg.data]
         elif name == ["parcels", "poses"] and self.ids is not None:

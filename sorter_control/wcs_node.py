@@ -50,6 +50,7 @@ from std_msgs.msg import Bool, String
 
 from sorter_control.wcs import LineWcs, PlanError, parse_exit
 from sorter_ros.line_seal import LineSeal
+from sorter_ros.outcomes import disposition_msg, values
 from sorter_sim.model.description import chute_pairs, shown, station_name
 from sorter_ros.env import run_node
 from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
@@ -347,7 +348,7 @@ class WcsNode(Node):
                 self.opcua.full_changed(self.wcs.full)
 
     def _on_confirmation(self, k: int, msg: DiagnosticStatus) -> None:
-        v = {kv.key: kv.value for kv in msg.values}
+        v = values(msg)
         with self._lock:
             self.wcs.confirmed(
                 k,
@@ -387,23 +388,7 @@ class WcsNode(Node):
             self.opcua.disposition(
                 ';'.join((d.label, d.code, d.destination, d.chute, d.station, f'{d.t:.6f}'))
             )
-        values = [
-            ('label', d.label),
-            ('code', d.code),
-            ('destination', d.destination),
-            ('chute', d.chute),
-            ('station', d.station),
-            ('t', f'{d.t:.6f}'),
-        ] + ([('cause', d.cause)] if d.cause else [])
-        self._publish(
-            self._pub_disp,
-            DiagnosticStatus(
-                level=DiagnosticStatus.OK if d.code == 'sorted' else DiagnosticStatus.WARN,
-                name=d.label,
-                message=d.code,
-                values=[KeyValue(key=k, value=val) for k, val in values],
-            ),
-        )
+        self._publish(self._pub_disp, disposition_msg(d))
 
 
 def main(args=None, stop=None):

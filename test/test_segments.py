@@ -433,7 +433,7 @@ def test_station_1_is_asked_again_when_its_answer_does_not_come(ros, monkeypatch
     monkeypatch.setattr(line_demo, 'ANSWER_S', 0.3)
     run = object.__new__(line_demo._LineRun)  # only what set_arrival uses
     run.infeed = AsyncParameterClient(ros.make_node('observer'), '/S01/sorter_sim')
-    run.ex, run.stop = ros.executor, threading.Event()
+    run.executor, run.stop, run.lockstep = ros.executor, threading.Event(), False
     run.restarts = SimpleNamespace(check=lambda: None)
     sent = []
     set_parameters = run.infeed.set_parameters

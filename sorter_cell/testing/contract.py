@@ -120,6 +120,7 @@ def check_station_program(
 
     from sorter_cell.testing.line import SorterLine
     from sorter_ros.interface import EVENT_QOS
+    from sorter_ros.outcomes import values
 
     name = program if isinstance(program, str) else getattr(program, '__name__', repr(program))
     report = ContractReport(str(name))
@@ -131,10 +132,7 @@ def check_station_program(
         spy.create_subscription(
             DiagnosticStatus,
             f'{st.namespace}/sort/confirmations',
-            lambda m: confirmations.setdefault(
-                {kv.key: kv.value for kv in m.values}.get('label', m.name),
-                {kv.key: kv.value for kv in m.values},
-            ),
+            lambda m: confirmations.setdefault(values(m).get('label', m.name), values(m)),
             EVENT_QOS,
         )
         line.run(1.0)  # the program subscribes; the warehouse sends it its table

@@ -29,26 +29,7 @@ from sorter_cell.testing.lockstep import (
     parcel_spec,
     pick_domain_id,
 )
-
-
-@dataclass(frozen=True)
-class OutcomeRecord:
-    """
-    Where the cell says a parcel went (``sort/outcomes``).
-
-    label, id, exit (left | right | straight | jammed), t (simulated, s), cause (what
-    jammed it, or '').
-    """
-
-    label: str
-    id: int
-    exit: str
-    t: float
-    cause: str = ''
-
-    @property
-    def jammed(self) -> bool:
-        return self.exit == 'jammed'
+from sorter_ros.outcomes import OutcomeRecord, read_outcome, values
 
 
 @dataclass
@@ -56,10 +37,6 @@ class _Observer:
     node: object
     outcomes: list = field(default_factory=list)
     confirmations: list = field(default_factory=list)
-
-
-def _values(msg) -> dict:
-    return {kv.key: kv.value for kv in msg.values}
 
 
 class SorterCell(LockStep):
@@ -134,19 +111,10 @@ class SorterCell(LockStep):
         from sorter_ros.interface import EVENT_QOS
 
         def on_outcome(msg):
-            v = _values(msg)
-            self._obs.outcomes.append(
-                OutcomeRecord(
-                    v.get('label', ''),
-                    int(v.get('id', '0')),
-                    v.get('exit', msg.message),
-                    float(v.get('t', 'nan')),
-                    v.get('cause', ''),
-                )
-            )
+            self._obs.outcomes.append(read_outcome(msg))
 
         def on_confirmation(msg):
-            self._obs.confirmations.append(_values(msg))
+            self._obs.confirmations.append(values(msg))
 
         node = self._obs.node
         node.create_subscription(DiagnosticStatus, 'sort/outcomes', on_outcome, EVENT_QOS)

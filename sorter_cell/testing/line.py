@@ -19,8 +19,7 @@ destination is the warehouse's request for the label); what the test reads is
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
+from sorter_ros.outcomes import LineDisposition, read_disposition, read_exit
 from sorter_cell.testing.lockstep import (
     SLICE_S,
     LockStep,
@@ -32,24 +31,6 @@ from sorter_cell.testing.lockstep import (
 )
 
 MAX_STATIONS = 64
-
-
-@dataclass(frozen=True)
-class LineDisposition:
-    """
-    Where one parcel left the line and why (``wcs/dispositions``).
-
-    label, code (``sorted``, ``no_read``, ``no_destination``, ``gap_too_short``,
-    ``cannot_divert``, ``chute_full``, ``late``, ``not_executing``, ``mis_sorted``,
-    ``jammed``, ``lost``), destination, chute ('' for none), station (S01 ...), t [s].
-    """
-
-    label: str
-    code: str
-    destination: str
-    chute: str
-    station: str
-    t: float
 
 
 def default_plan(chutes: list) -> dict:
@@ -249,23 +230,11 @@ class SorterLine(LockStep):
         from sorter_ros.interface import EVENT_QOS
 
         def on_disposition(msg):
-            v = {kv.key: kv.value for kv in msg.values}
-            self.dispositions_seen.append(
-                LineDisposition(
-                    v.get('label', ''),
-                    v.get('code', msg.message),
-                    v.get('destination', ''),
-                    v.get('chute', ''),
-                    v.get('station', ''),
-                    float(v.get('t', 'nan')),
-                )
-            )
+            self.dispositions_seen.append(read_disposition(msg))
 
         def on_exit(msg):
-            v = {kv.key: kv.value for kv in msg.values}
-            self.exits_seen.append(
-                (v.get('label', ''), f'{v.get("exit", msg.message)}', float(v.get('t', 'nan')))
-            )
+            e = read_exit(msg)
+            self.exits_seen.append((e.label, e.exit, e.t))
 
         node = self.add_node(rclpy.create_node('sorter_line_observer', context=self.context))
         node.create_subscription(DiagnosticStatus, 'wcs/dispositions', on_disposition, EVENT_QOS)

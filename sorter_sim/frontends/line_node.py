@@ -42,7 +42,7 @@ from __future__ import annotations
 import math
 import time
 
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
@@ -64,6 +64,7 @@ from sorter_sim.frontends.cdr import clock_cdr
 from sorter_sim.frontends.fieldbus import FieldbusServers
 from sorter_sim.frontends.node import SimNode, burst_limit, realtime_tick
 from sorter_ros.line_seal import LineSeal
+from sorter_ros.outcomes import exit_msg
 from sorter_sim.frontends.segments import SegmentLink
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_sim.runtime.cell import STATE_NAMES, SensorEdge
@@ -671,22 +672,7 @@ class LineNode(Node):
 
     def _publish_exit(self, e: LineExit) -> None:
         self.exits += 1
-        values = [
-            ('id', str(e.parcel_id)),
-            ('label', e.label),
-            ('exit', e.exit),
-            ('station', station_name(self.first + e.station)),
-            ('t', f'{e.t_ns * 1e-9:.9f}'),
-        ]
-        if e.cause:
-            values.append(('cause', e.cause))
-        msg = DiagnosticStatus(
-            level=DiagnosticStatus.WARN if e.exit in ('jammed', 'lost') else DiagnosticStatus.OK,
-            name=f'parcel/{e.parcel_id}',
-            message=e.exit,
-            hardware_id=self.get_fully_qualified_name(),
-            values=[KeyValue(key=k, value=v) for k, v in values],
-        )
+        msg = exit_msg(e, station_name(self.first + e.station), self.get_fully_qualified_name())
         self._publish(self._pub_exits, self.seal.sealed(self._pub_exits.topic_name, msg))
 
     def destroy_node(self):

@@ -17,7 +17,7 @@ import math
 from collections import Counter
 
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseArray
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, TimeReference
@@ -25,6 +25,7 @@ from std_msgs.msg import Bool, String, UInt32MultiArray
 from visualization_msgs.msg import Marker, MarkerArray
 
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS, quiet_publisher_events
+from sorter_ros.outcomes import outcome_msg
 from sorter_ros.recording import publish_recorded
 from sorter_sim.frontends.cdr import (
     JointStateCdr,
@@ -257,24 +258,7 @@ class CellPublishers:
             self.publish_status()
 
     def _outcome_msg(self, e: Outcome) -> DiagnosticStatus:
-        values = [
-            ('id', str(e.parcel_id)),
-            ('label', e.label),
-            ('exit', e.exit),
-            ('t', f'{e.t_ns * 1e-9:.9f}'),
-            ('jammed', 'true' if e.jammed else 'false'),
-            ('x_exit', f'{e.x:.6f}'),
-            ('y_exit', f'{e.y:.6f}'),
-        ]
-        if e.cause:
-            values.append(('cause', e.cause))
-        return DiagnosticStatus(
-            level=DiagnosticStatus.WARN if e.jammed else DiagnosticStatus.OK,
-            name=f'parcel/{e.parcel_id}',
-            message=e.exit,
-            hardware_id=self._node.get_fully_qualified_name(),
-            values=[KeyValue(key=k, value=v) for k, v in values],
-        )
+        return outcome_msg(e, self._node.get_fully_qualified_name())
 
     def publish_sensors(self) -> None:
         """Publish every sensor's state (the periodic copy of the latched bits)."""
