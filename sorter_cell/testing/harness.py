@@ -19,7 +19,10 @@ controller's ``sort/confirmations``, when one runs). A wait that times out
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 from sorter_cell.testing.lockstep import (
     SLICE_S,
@@ -49,6 +52,57 @@ class OutcomeRecord:
     @property
     def jammed(self) -> bool:
         return self.exit == 'jammed'
+
+
+@dataclass(frozen=True)
+class ConfirmationRecord:
+    """
+    What a controller confirmed of a parcel (``sort/confirmations``).
+
+    label, result (sorted, gap_too_short, cannot_divert, late, ...), destination_asked,
+    destination_reached (left | right | straight), seq (the program's count, None when
+    the message has none), t (simulated, s; nan without one). ``c['label']`` and
+    ``c.get('seq')`` read the message's key/values as it sent them, all strings, as
+    the fixture gave them before a confirmation was an object.
+    """
+
+    label: str
+    result: str
+    destination_asked: str
+    destination_reached: str
+    seq: int | None
+    t: float
+    values: Mapping[str, str] = field(default_factory=dict, repr=False, compare=False)
+
+    @classmethod
+    def from_message(cls, msg) -> ConfirmationRecord:
+        """Return the confirmation a ``DiagnosticStatus`` carries; what it lacks is '' or None."""
+        v = MappingProxyType(_values(msg))
+        seq, t = v.get('seq', ''), v.get('t', '')
+        try:
+            t_s = float(t)
+        except ValueError:
+            t_s = math.nan
+        return cls(
+            v.get('label', msg.name),
+            v.get('result', msg.message),
+            v.get('destination_asked', ''),
+            v.get('destination_reached', ''),
+            int(seq) if seq.isascii() and seq.isdigit() else None,
+            t_s,
+            v,
+        )
+
+    def __getitem__(self, key: str) -> str:
+        return self.values[key]
+
+    def get(self, key: str, default=None):
+        """Return the message's value of ``key`` (a string), or ``default``."""
+        return self.values.get(key, default)
+
+    def keys(self):
+        """Return the message's keys."""
+        return self.values.keys()
 
 
 @dataclass
@@ -146,7 +200,7 @@ class SorterCell(LockStep):
             )
 
         def on_confirmation(msg):
-            self._obs.confirmations.append(_values(msg))
+            self._obs.confirmations.append(ConfirmationRecord.from_message(msg))
 
         node = self._obs.node
         node.create_subscription(DiagnosticStatus, 'sort/outcomes', on_outcome, EVENT_QOS)
@@ -327,8 +381,8 @@ class SorterCell(LockStep):
         return list(self._obs.outcomes)
 
     @property
-    def confirmations(self) -> list[dict]:
-        """Return a controller's sort confirmations so far (label, result, destination...)."""
+    def confirmations(self) -> list[ConfirmationRecord]:
+        """Return a controller's sort confirmations so far, in order (``ConfirmationRecord``)."""
         return list(self._obs.confirmations)
 
     def outcome(self, label: str) -> OutcomeRecord | None:
