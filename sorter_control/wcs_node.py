@@ -21,7 +21,9 @@ topic                      type                                 meaning
 ========================== ==================================== ===================================
 
 Per station k it listens to ``Sk/sort/confirmations`` and (k > 1) ``Sk/sensors/edges``,
-and writes ``Sk/routing/updates`` and (k > 1) ``Sk/scanner/label``; it reads
+and writes ``Sk/routing/updates`` and (k > 1) ``Sk/scanner/label`` and, after each
+scanner edge it hears, ``Sk/scanner/answered`` (the edge's time, ``source`` ``label`` or
+``none``: a line that waits for its warehouse runs on once it has it); it reads
 ``line/exits`` (an exit that is not the line's: a time not finite, a station or a
 chute the line does not have, a label outside the grammar, is refused in one line and
 counted, ``n_refused_exits``) and ``line/chutes/<name>/full``. At most ``MAX_PENDING``
@@ -172,6 +174,14 @@ class WcsNode(Node):
         ]
         self._pub_label = {
             k: self.create_publisher(String, f'{station_name(k)}/scanner/label', EVENT_QOS)
+            for k in range(1, n)
+        }
+        # each scanner edge answered, label or none: a line that waits for its warehouse
+        # runs on once its label is out (sorter_sim.frontends.scan_answers)
+        self._pub_answered = {
+            k: self.create_publisher(
+                TimeReference, f'{station_name(k)}/scanner/answered', EVENT_QOS
+            )
             for k in range(1, n)
         }
         self._pub_disp = self.create_publisher(DiagnosticStatus, 'wcs/dispositions', EVENT_QOS)
@@ -365,6 +375,13 @@ class WcsNode(Node):
             label = self.wcs.arriving(k, t_ns)
         if label is not None:
             self._pub_label[k].publish(String(data=label))
+        self._pub_answered[k].publish(
+            TimeReference(
+                header=msg.header,
+                time_ref=msg.time_ref,
+                source='none' if label is None else 'label',
+            )
+        )
 
     def _on_exit(self, msg: DiagnosticStatus) -> None:
         try:

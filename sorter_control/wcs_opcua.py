@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from collections import deque
 
-from sorter_ros.opcua import ServerThread, add_variable, argument, new_server
+from sorter_ros.opcua import ServerThread, add_method, add_variable, argument, new_server
 
 KEEP = 256  # dispositions the Dispositions array holds
 MAX_ENTRIES = 10_000  # entries of a plan over OPC UA
@@ -167,8 +167,10 @@ class WcsOpcUa:
             ),
         }
         for name, (func, inputs, outputs) in methods.items():
-            self.nodes[name] = await folder.add_method(
-                idx, name, method(len(inputs), func), inputs, outputs
+            # the arguments' properties declared as the standard's own methods' are
+            # (ValueRank 1, ArrayDimensions their count), as the cell's model does
+            self.nodes[name] = await add_method(
+                folder, idx, name, method(len(inputs), func), inputs, outputs
             )
         try:
             await server.start()

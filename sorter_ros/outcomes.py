@@ -9,6 +9,8 @@ custom interface to build) whose key-value pairs are the record:
   the nanosecond), ``jammed``, ``x_exit``, ``y_exit`` and, for a jam, ``cause``;
 * the line's ``line/exits``: the same, with ``station`` and without the exit point
   (``exit`` may also be ``lost``);
+* a controller's ``sort/confirmations`` (read here; the controller node writes it):
+  ``label``, ``result``, ``destination_asked``, ``destination_reached``, ``seq``, ``t``;
 * the warehouse's ``wcs/dispositions``: name the label, message the code, values
   ``label``, ``code``, ``destination``, ``chute``, ``station``, ``t`` and ``cause``.
 
@@ -21,7 +23,9 @@ back to the name and the message for a record from an older writer.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
 
 
 @dataclass(frozen=True)
@@ -79,6 +83,53 @@ class LineDisposition:
     t: float
 
 
+@dataclass(frozen=True)
+class ConfirmationRecord:
+    """
+    What a controller confirmed of a parcel (``sort/confirmations``).
+
+    label, result (sorted, gap_too_short, cannot_divert, late, ...), destination_asked,
+    destination_reached (left | right | straight), seq (the program's count, None when
+    the message has none), t (simulated, s; nan without one). ``c['label']`` and
+    ``c.get('seq')`` read the message's key/values as it sent them, all strings, as
+    the fixture gave them before a confirmation was an object.
+    """
+
+    label: str
+    result: str
+    destination_asked: str
+    destination_reached: str
+    seq: int | None
+    t: float
+    values: Mapping[str, str] = field(default_factory=dict, repr=False, compare=False)
+
+    @classmethod
+    def from_message(cls, msg) -> ConfirmationRecord:
+        """Return the confirmation a ``DiagnosticStatus`` carries; what it lacks is '' or None."""
+        v = MappingProxyType(values(msg))
+        seq = v.get('seq', '')
+        return cls(
+            v.get('label', msg.name),
+            v.get('result', msg.message),
+            v.get('destination_asked', ''),
+            v.get('destination_reached', ''),
+            int(seq) if seq.isascii() and seq.isdigit() else None,
+            _float(v.get('t', 'nan')),
+            v,
+        )
+
+    def __getitem__(self, key: str) -> str:
+        return self.values[key]
+
+    def get(self, key: str, default=None):
+        """Return the message's value of ``key`` (a string), or ``default``."""
+        return self.values.get(key, default)
+
+    def keys(self):
+        """Return the message's keys."""
+        return self.values.keys()
+
+
 # ---------------------------------------------------------------------- reading
 def values(msg) -> dict:
     """Return a status message's key-value pairs as a dict (the last of a repeated key)."""
@@ -122,6 +173,11 @@ def read_exit(msg) -> ExitRecord:
         _float(v.get('t', 'nan')),
         v.get('cause', ''),
     )
+
+
+def read_confirmation(msg) -> ConfirmationRecord:
+    """Return a controller's confirmation in ``msg`` (``sort/confirmations``)."""
+    return ConfirmationRecord.from_message(msg)
 
 
 def read_disposition(msg) -> LineDisposition:

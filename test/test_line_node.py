@@ -190,10 +190,39 @@ def test_a_line_that_waits_for_its_warehouse_runs_once_the_edges_after_station_1
         ros.drain()
     # station 1's label is its own scanner's; station 2's edges have no reader yet
     assert line.line.k == 0
-    probe.create_subscription(TimeReference, '/S02/sensors/edges', lambda m: None, EVENT_QOS)
+    scans = []  # station 2's scanner edges, as the warehouse hears them
+    probe.create_subscription(
+        TimeReference,
+        '/S02/sensors/edges',
+        lambda m: scans.append(m) if m.header.frame_id.endswith('/pe_scan') else None,
+        EVENT_QOS,
+    )
     ros.spin_until(lambda: edges[1].get_subscription_count() > 0, 10.0)
     line.advance(25)
+    # read, but nobody answers station 2's scanner edges yet: an edge would not wait
+    assert line.line.k == 0
+    answered = probe.create_publisher(TimeReference, '/S02/scanner/answered', EVENT_QOS)
+    ros.spin_until(lambda: answered.get_subscription_count() > 0, 10.0)
+    line.advance(25)
     assert line.line.k == 25
+    # a parcel reaches station 2's scanner eye: the line stops after that pass until the
+    # warehouse answers that edge (its label out), and runs on once it has
+    line.stations[0].cell.induct(ParcelSpec(0.4, 0.3, 4.0, label='W-1'))
+    while not any(m.source == 'rising' for m in scans) and line.line.t < 15.0:
+        line.advance(25)
+        ros.drain()
+    (edge,) = [m for m in scans if m.source == 'rising']
+    t_edge = edge.time_ref.sec + edge.time_ref.nanosec * 1e-9
+    k = line.line.k
+    assert t_edge <= line.line.t < t_edge + 0.025
+    for _ in range(3):
+        line.advance(25)
+        ros.drain()
+    assert line.line.k == k
+    answered.publish(TimeReference(header=edge.header, time_ref=edge.time_ref, source='label'))
+    ros.spin_until(lambda: not line._answers.pending, 10.0)
+    line.advance(25)
+    assert line.line.k == k + 25
 
 
 def test_a_station_refuses_the_outputs_a_line_does_not_have_yet(ros, tmp_path):

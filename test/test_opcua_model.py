@@ -220,7 +220,12 @@ def test_wcs_method_arguments_are_named_and_the_plan_is_an_array(wcs):
         wh = c.nodes.objects.get_child([f'{idx}:sorter_line', f'{idx}:Warehouse'])
         args = {}
         for name in ('SetSortPlan', 'RequestDestination'):
-            for a in wh.get_child([f'{idx}:{name}', '0:InputArguments']).read_value():
+            node = wh.get_child([f'{idx}:{name}', '0:InputArguments'])
+            values = node.read_value()
+            # an array of Argument, declared as the standard's methods' (and the cell's) are
+            assert node.read_value_rank() == 1, name
+            assert node.read_array_dimensions() == [len(values)], name
+            for a in values:
                 assert a.Description.Text, (name, a.Name)
                 args[f'{name}.{a.Name}'] = (a.ValueRank, list(a.ArrayDimensions or []))
         assert args == {

@@ -31,14 +31,17 @@ def test_segments_split_the_line_evenly_upstream_first():
     assert segment_bounds(48, 1) == [(1, 48)]
 
 
-def _demo(tmp_path, segments: int, *run: str) -> tuple[dict, list]:
-    """Run the demo on 3 stations in K segments (12 parcels, or `run`): summary, dispositions."""
+def _demo(tmp_path, segments: int, *run: str, cli=('-m', 'sorter_cell')) -> tuple[dict, list]:
+    """
+    Run the demo on 3 stations in K segments (12 parcels, or `run`): summary, dispositions.
+
+    ``cli`` is how the interpreter starts the command (``-c`` and a program, say).
+    """
     path = tmp_path / f'k{segments}.jsonl'
     done = subprocess.run(
         [
             sys.executable,
-            '-m',
-            'sorter_cell',
+            *cli,
             'demo',
             '--stations',
             '3',
@@ -151,6 +154,32 @@ def test_a_timed_line_inducts_and_sorts_the_same_parcels_however_it_is_split(
     assert summary['mis_sorted'] == 0 and summary['jams'] == 0
     # and the same parcels as in one process, each into the same chute at the same time
     assert summary['inducted'] == one['inducted']
+    assert summary['exits'] == one['exits']
+    assert timeline(records) == timeline(d1)
+
+
+# the demo with its warehouse node answering each scanner edge 50 ms of wall time late,
+# as a loaded demo process does: 50 ms is several slices of simulated time that a fast
+# segment would run past the station's label_window without waiting for the label
+LATE_WAREHOUSE = """
+import sys, time
+import sorter_control.wcs_node as wcs_node
+answer = wcs_node.WcsNode._on_edge
+def late(self, k, msg):
+    time.sleep(0.05)
+    answer(self, k, msg)
+wcs_node.WcsNode._on_edge = late
+from sorter_cell.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.xdist_group('timed_line')
+def test_a_timed_line_in_segments_waits_for_a_late_warehouses_labels(timed_one_process, tmp_path):
+    """Each station after the first takes its label at the same simulated time, however late."""
+    one, d1 = timed_one_process
+    summary, records = _demo(tmp_path, 2, *TIMED, cli=('-c', LATE_WAREHOUSE))
+    assert summary['dispositions'] == one['dispositions'] == {'sorted': one['inducted']}
     assert summary['exits'] == one['exits']
     assert timeline(records) == timeline(d1)
 

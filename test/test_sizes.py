@@ -28,8 +28,6 @@ MAX_FUNCTION_LINES = 150
 # gained (the statement table's new rows, the scenario controllers' containment, the
 # line's seals and checks, the implicit method's border sub-steps); each is to be split
 STILL_TOO_LONG: set[str] = {
-    'sorter_cell/testing/scenario.py',
-    'sorter_sim/frontends/segments.py',
     'sorter_sim/model/core/implicit.py',
     'sorter_sim/studies/claims.py',
 }

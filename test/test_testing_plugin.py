@@ -8,6 +8,7 @@ project, as a third party's project would.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import subprocess
 import sys
@@ -53,8 +54,21 @@ def test_the_controller_sorts_by_its_routing(sorter_cell, sorter_controller):
     exits = {o.label: o.exit for o in sorter_cell.outcomes}
     assert exits == {'A-1': 'left', 'B-1': 'right', 'C-1': 'straight', 'X-1': 'straight'}
     sorter_cell.run(1.0)
-    results = {c['label']: c['result'] for c in sorter_cell.confirmations}
+    confirmations = sorter_cell.confirmations
+    results = {c.label: c.result for c in confirmations}
     assert results == {'A-1': 'sorted', 'B-1': 'sorted', 'C-1': 'sorted', 'X-1': 'rejected'}
+    reached = {c.label: c.destination_reached for c in confirmations}
+    assert reached == exits
+    # a confirmation is an object as an outcome is, its numbers numbers; the message's
+    # strings stay readable by key, as they were when a confirmation was a dict
+    for c in confirmations:
+        assert isinstance(c.seq, int) and c['seq'] == str(c.seq)
+        assert 0.0 < c.t <= sorter_cell.t and c['t'] == f'{c.t:.6f}'
+        assert (c['label'], c.get('result'), c.get('no such key', '-')) == (c.label, c.result, '-')
+        assert set(c.keys()) >= {'label', 'result', 'destination_asked', 'destination_reached'}
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            c.result = 'sorted'
+    assert [c.seq for c in confirmations] == sorted({c.seq for c in confirmations})
 
 
 @pytest.mark.sorter_cell(params={'belt_speed': 1.0, 'watchdog_timeout': 0.3})

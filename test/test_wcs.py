@@ -295,25 +295,42 @@ def test_a_name_of_a_megabyte_is_refused_naming_its_size_and_the_limit():
     assert w.version == 'v1' and 'P1' not in w.requests
 
 
-def test_a_flood_of_refusals_is_logged_cut_short_once_a_second(ros, capfd):
-    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-    from rclpy.parameter import Parameter
-    from std_msgs.msg import String
+def _wcs_and_wms(ros, stations: int):
+    """
+    Start a warehouse node of ``stations`` and a probe ``wms`` writing requests to it.
 
-    from sorter_control.wcs_node import MAX_REFUSAL, REQUEST_QOS, RefusalLog, WcsNode
-    from sorter_ros.interface import EVENT_QOS
+    Returns the node, the probe, the requests' publisher and the answers as they come,
+    once the two are matched both ways.
+    """
+    from diagnostic_msgs.msg import KeyValue
+    from rclpy.parameter import Parameter
+
+    from sorter_control.wcs_node import REQUEST_QOS, WcsNode
 
     node = ros.add(
-        WcsNode(context=ros.context, parameter_overrides=[Parameter('stations', value=2)])
+        WcsNode(context=ros.context, parameter_overrides=[Parameter('stations', value=stations)])
     )
     probe = ros.make_node('wms')
-    answers, refused = [], []
+    answers = []
     probe.create_subscription(KeyValue, 'wcs/requests/answers', answers.append, REQUEST_QOS)
-    probe.create_subscription(String, 'wcs/sort_plan/refused', refused.append, EVENT_QOS)
     req = probe.create_publisher(KeyValue, 'wcs/requests', REQUEST_QOS)
-    plan = probe.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
-    ros.spin_until(lambda: req.get_subscription_count() and plan.get_subscription_count(), 10.0)
+    ros.spin_until(lambda: req.get_subscription_count(), 10.0)
     ros.spin_until(lambda: node._pub_answers.get_subscription_count(), 10.0)
+    return node, probe, req, answers
+
+
+def test_a_flood_of_refusals_is_logged_cut_short_once_a_second(ros, capfd):
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    from std_msgs.msg import String
+
+    from sorter_control.wcs_node import MAX_REFUSAL, RefusalLog
+    from sorter_ros.interface import EVENT_QOS
+
+    node, probe, req, answers = _wcs_and_wms(ros, 2)
+    refused = []
+    probe.create_subscription(String, 'wcs/sort_plan/refused', refused.append, EVENT_QOS)
+    plan = probe.create_publisher(DiagnosticStatus, 'wcs/sort_plan', EVENT_QOS)
+    ros.spin_until(lambda: plan.get_subscription_count(), 10.0)
     capfd.readouterr()
     # the log's clock stands still: every refusal after the first falls in its second
     node.log_refusal = RefusalLog(node.get_logger().warning, clock=lambda: 0.0)
@@ -676,22 +693,14 @@ def test_a_forged_line_exit_is_refused_naming_what_is_wrong(values, named):
 @pytest.mark.ros
 def test_the_wcs_node_answers_every_request_of_a_burst_and_refuses_forged_exits(ros):
     from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-    from rclpy.parameter import Parameter
 
-    from sorter_control.wcs_node import REQUEST_QOS, WcsNode
     from sorter_ros.interface import EVENT_QOS
 
-    node = ros.add(
-        WcsNode(context=ros.context, parameter_overrides=[Parameter('stations', value=3)])
-    )
-    probe = ros.make_node('wms')
-    answers, disp = [], []
-    probe.create_subscription(KeyValue, 'wcs/requests/answers', answers.append, REQUEST_QOS)
+    node, probe, req, answers = _wcs_and_wms(ros, 3)
+    disp = []
     probe.create_subscription(DiagnosticStatus, 'wcs/dispositions', disp.append, EVENT_QOS)
-    req = probe.create_publisher(KeyValue, 'wcs/requests', REQUEST_QOS)
     exits = probe.create_publisher(DiagnosticStatus, 'line/exits', EVENT_QOS)
-    ros.spin_until(lambda: req.get_subscription_count() and exits.get_subscription_count(), 10.0)
-    ros.spin_until(lambda: node._pub_answers.get_subscription_count(), 10.0)
+    ros.spin_until(lambda: exits.get_subscription_count(), 10.0)
     burst = 1000
     for i in range(burst):
         req.publish(KeyValue(key=f'P{i:05d}', value='D1'))

@@ -15,10 +15,17 @@ against the station-program contract.
 """
 
 from sorter_cell.testing.contract import ContractReport, check_station_program
-from sorter_cell.testing.harness import OutcomeRecord, SorterCell, WaitTimedOut, pick_domain_id
+from sorter_cell.testing.harness import (
+    ConfirmationRecord,
+    OutcomeRecord,
+    SorterCell,
+    WaitTimedOut,
+    pick_domain_id,
+)
 from sorter_cell.testing.line import LineDisposition, SorterLine
 
 __all__ = [
+    'ConfirmationRecord',
     'ContractReport',
     'LineDisposition',
     'OutcomeRecord',

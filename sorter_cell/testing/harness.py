@@ -29,7 +29,7 @@ from sorter_cell.testing.lockstep import (
     parcel_spec,
     pick_domain_id,
 )
-from sorter_ros.outcomes import OutcomeRecord, read_outcome, values
+from sorter_ros.outcomes import ConfirmationRecord, OutcomeRecord, read_confirmation, read_outcome
 
 
 @dataclass
@@ -114,7 +114,7 @@ class SorterCell(LockStep):
             self._obs.outcomes.append(read_outcome(msg))
 
         def on_confirmation(msg):
-            self._obs.confirmations.append(values(msg))
+            self._obs.confirmations.append(read_confirmation(msg))
 
         node = self._obs.node
         node.create_subscription(DiagnosticStatus, 'sort/outcomes', on_outcome, EVENT_QOS)
@@ -295,8 +295,8 @@ class SorterCell(LockStep):
         return list(self._obs.outcomes)
 
     @property
-    def confirmations(self) -> list[dict]:
-        """Return a controller's sort confirmations so far (label, result, destination...)."""
+    def confirmations(self) -> list[ConfirmationRecord]:
+        """Return a controller's sort confirmations so far, in order (``ConfirmationRecord``)."""
         return list(self._obs.confirmations)
 
     def outcome(self, label: str) -> OutcomeRecord | None:

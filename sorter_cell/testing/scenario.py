@@ -57,9 +57,7 @@ The controller under test (``controller:``) is one of
 
 from __future__ import annotations
 
-import re
 import time
-import xml.etree.ElementTree as ET
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,12 +66,14 @@ from sorter_cell.testing.lockstep import FactoryError, make_user_nodes
 from sorter_cell.testing.scenario_types import (
     Check,
     ScenarioError,
+    ScenarioResult,
     factory_problem,
     load_user_factory,
     module_problem,
     refuse_unknown,
 )
 from sorter_cell.testing.scenario_types import number as _number
+from sorter_cell.testing.scenario_report import junit_xml, report, xml_safe  # noqa: F401
 from sorter_ros.strict_yaml import StrictYamlError, read_yaml_file
 
 TOP_KEYS = ('name', 'duration', 'seed', 'cell', 'controller', 'line', 'stream', 'faults', 'expect')
@@ -146,29 +146,6 @@ class Scenario:
     expect: list
     path: str = ''
     line: dict | None = None  # a line scenario's stations, plan and programs (line_scenario)
-
-
-@dataclass
-class ScenarioResult:
-    """What a scenario's run gave: the checks, the outcomes, the times."""
-
-    name: str
-    checks: list = field(default_factory=list)
-    outcomes: list = field(default_factory=list)
-    confirmations: list = field(default_factory=list)
-    sim_s: float = 0.0
-    wall_s: float = 0.0
-    record: str = ''
-    error: str = ''
-    state: str = ''  # the cell at the end of the run (LockStep.explain)
-    dispositions: list = field(default_factory=list)  # a line's, per parcel
-    properties: dict = field(default_factory=dict)  # JUnit properties (a campaign's domain)
-    refused: bool = False  # the user's controller could not be made: error says why (exit 2)
-    notes: list = field(default_factory=list)  # what slowed the run (a callback that blocked)
-
-    @property
-    def passed(self) -> bool:
-        return not self.error and all(c.passed for c in self.checks)
 
 
 # ---------------------------------------------------------------------- reading
@@ -832,109 +809,6 @@ def _check_end(e: dict, res: ScenarioResult, sc: Scenario) -> Check:
         have >= want,
         f'{have:.0f} pcs/h ({out} parcels out in {res.sim_s:.1f} s)',
     )
-
-
-# ---------------------------------------------------------------------- reporting
-_NOT_IN_XML = re.compile('[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ud800-\udfff\ufffe\uffff]')
-
-
-def xml_safe(text) -> str:
-    r"""
-    Return ``text`` with every character XML 1.0 cannot hold written as ``\xNN``.
-
-    A name or a controller's stderr may hold ESC (colours), BEL or a NUL, which
-    ElementTree writes as they are: the file is then no XML a CI server reads.
-    """
-    return _NOT_IN_XML.sub(lambda m: f'\\x{ord(m.group()):02x}', str(text))
-
-
-def junit_xml(results: list, suite: str = 'sorter scenarios') -> str:
-    """
-    Return results as a JUnit XML document (one testcase per expectation).
-
-    Parameters
-    ----------
-    results : list of ScenarioResult
-        The runs.
-    suite : str
-        The test suite's name.
-
-    Returns
-    -------
-    str
-        The XML.
-
-    """
-    root = ET.Element('testsuites', name=suite)
-    for r in results:
-        failures = sum(not c.passed for c in r.checks) + bool(r.error)
-        ts = ET.SubElement(
-            root,
-            'testsuite',
-            name=r.name,
-            tests=str(len(r.checks) + bool(r.error)),
-            failures=str(failures),
-            errors='0',
-            time=f'{r.wall_s:.3f}',
-        )
-        if r.properties:
-            props = ET.SubElement(ts, 'properties')
-            for k, v in r.properties.items():
-                ET.SubElement(props, 'property', name=str(k), value=str(v))
-        if r.error:
-            case = ET.SubElement(ts, 'testcase', classname=r.name, name='runs', time='0')
-            ET.SubElement(case, 'failure', message=r.error).text = r.error + (
-                f'\n{r.state}' if r.state else ''
-            )
-        for c in r.checks:
-            case = ET.SubElement(ts, 'testcase', classname=r.name, name=c.text, time='0')
-            if not c.passed:
-                ET.SubElement(case, 'failure', message=c.detail.splitlines()[0]).text = (
-                    c.detail
-                    + (f'\n{r.state}' if r.state else '')
-                    + (f'\nevidence: {r.record}' if r.record else '')
-                )
-        if r.record:
-            ET.SubElement(ts, 'system-out').text = f'recording: {r.record}'
-    for element in root.iter():  # names, messages, stderr: whatever the run's text held
-        element.attrib = {k: xml_safe(v) for k, v in element.attrib.items()}
-        if element.text:
-            element.text = xml_safe(element.text)
-    ET.indent(root)
-    return ET.tostring(root, encoding='unicode', xml_declaration=True) + '\n'
-
-
-def report(r: ScenarioResult) -> str:
-    """
-    Return a run's result as text: one line per expectation.
-
-    Parameters
-    ----------
-    r : ScenarioResult
-        The run.
-
-    Returns
-    -------
-    str
-        The lines.
-
-    """
-    lines = [
-        f'scenario {r.name}: {"passed" if r.passed else "FAILED"} '
-        f'({r.sim_s:.1f} s simulated in {r.wall_s:.1f} s)'
-    ]
-    if r.error:
-        lines.append(f'  [error] {r.error}')
-    lines += [f'  [slow] {note}' for note in r.notes]
-    for c in r.checks:
-        detail = c.detail.splitlines()[0] if c.detail else ''
-        lines.append(f'  [{"ok" if c.passed else "FAIL"}] {c.text}: {detail}')
-    if not r.passed and r.state:
-        # where the run ended: the parcels, faults and PackML state behind the failure
-        lines += ['  ' + x for x in r.state.splitlines()]
-    elif r.record:
-        lines.append(f'  recording: {r.record}')
-    return '\n'.join(lines)
 
 
 __all__ = [

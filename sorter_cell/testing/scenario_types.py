@@ -1,5 +1,5 @@
 """
-What scenario files of a cell and of a line share: the error, a key check, an expectation's result.
+What scenario files of a cell and of a line share: the error, a key check, the results.
 
 Kept apart from ``scenario`` so that ``line_scenario`` uses them without importing the
 module that runs it.
@@ -11,7 +11,7 @@ import importlib
 import math
 import sys
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 
@@ -26,6 +26,29 @@ class Check:
     text: str
     passed: bool
     detail: str = ''
+
+
+@dataclass
+class ScenarioResult:
+    """What a scenario's run gave: the checks, the outcomes, the times."""
+
+    name: str
+    checks: list = field(default_factory=list)
+    outcomes: list = field(default_factory=list)
+    confirmations: list = field(default_factory=list)
+    sim_s: float = 0.0
+    wall_s: float = 0.0
+    record: str = ''
+    error: str = ''
+    state: str = ''  # the cell at the end of the run (LockStep.explain)
+    dispositions: list = field(default_factory=list)  # a line's, per parcel
+    properties: dict = field(default_factory=dict)  # JUnit properties (a campaign's domain)
+    refused: bool = False  # the user's controller could not be made: error says why (exit 2)
+    notes: list = field(default_factory=list)  # what slowed the run (a callback that blocked)
+
+    @property
+    def passed(self) -> bool:
+        return not self.error and all(c.passed for c in self.checks)
 
 
 def refuse_unknown(entry: dict, allowed, key: str, context: str = '') -> None:

@@ -27,7 +27,8 @@ Parameters (besides every station's cell parameters, from the params files'
 ``chute_capacity``, ``chute_drain_per_s``, ``time_mode``, ``fast_slice``,
 ``real_time_factor``, ``record_path`` (the whole line in one MCAP file),
 ``wait_for_warehouse`` (hold the time until the edges of every station after the
-line's first have a reader: the warehouse that gives those stations their labels),
+line's first have a reader: the warehouse that gives those stations their labels, and
+after each of their scanner edges until the warehouse answered it: ``scan_answers``),
 ``modbus_port`` / ``opcua_port`` (0: off) and their ``*_host`` (127.0.0.1): one
 fieldbus server pair for every station's I/O image, exchanged every period: station
 k is Modbus unit id k (the single cell's addresses in each), and OPC UA folder
@@ -65,6 +66,7 @@ from sorter_sim.frontends.fieldbus import FieldbusServers
 from sorter_sim.frontends.node import SimNode, burst_limit, realtime_tick
 from sorter_ros.line_seal import LineSeal
 from sorter_ros.outcomes import exit_msg
+from sorter_sim.frontends.scan_answers import ScanAnswers
 from sorter_sim.frontends.segments import SegmentLink
 from sorter_sim.model.description import chute_pairs, station_name
 from sorter_sim.runtime.cell import STATE_NAMES, SensorEdge
@@ -127,7 +129,8 @@ LINE_PARAMS = {
         lambda v: isinstance(v, bool),
         'true or false: hold the line\'s time until a reader (the warehouse node) takes the '
         'edges of each of its stations after the line\'s first, which get their labels from '
-        'what the warehouse hears',
+        'what the warehouse hears, and (lockstep, fast) after each of their scanner edges '
+        'until the warehouse answered it',
     ),
     'fast_slice': (
         0.005,
@@ -234,6 +237,7 @@ class LineNode(Node):
         self._link_segments(f0, n, last, total)
         self.exits = 0
         self._warehouse_heard = False  # wait_for_warehouse: every station's edges read
+        self._answers = None  # wait_for_warehouse: the scanner edges it has yet to answer
         # wall time spent in the line's physics and in publishing what it reports
         self.cost = {'physics_s': 0.0, 'publish_s': 0.0}
         self._wall_ref = None
@@ -247,6 +251,10 @@ class LineNode(Node):
             self._timer = self.create_timer(0.001, self._tick_realtime)
         else:
             self._timer = None
+        if values['wait_for_warehouse'] and mode != 'realtime':
+            self._answers = ScanAnswers(
+                self, self.stations, self.first, self._wake if mode == 'fast' else None
+            )
         self._publish_clock()
         if self.segment.upstream or self.segment.downstream or self.seal.keyed:
             # said once: an open line takes any message in an owner's name on what it says
@@ -574,6 +582,8 @@ class LineNode(Node):
             self._publish_clock()
             self.cost['publish_s'] += time.perf_counter() - t1
             n -= m
+            if self._answers is not None and self._answers.sent(per_station):
+                break  # a label the warehouse gives: it reaches the program before time runs on
         if ran:
             # once a call: every parcel up to now is sent (a fast segment running on says
             # one every HORIZON_STRIDE - 1 slices; _tick_fast says the newest when it stops)
@@ -594,6 +604,8 @@ class LineNode(Node):
             return True  # the segment downstream has not taken what it was sent yet
         if self.values['wait_for_warehouse'] and not self._warehouse_reads():
             return True  # an edge sent now would be lost, and its parcel would have no label
+        if self._answers is not None and self._answers.waiting():
+            return True  # the warehouse has not yet answered a scanner edge (scan_answers)
         # what the segment upstream answers for (a restart's parcels) not all in yet: run
         # now and they would be taken late
         return not link.answered
@@ -611,6 +623,15 @@ class LineNode(Node):
                     throttle_duration_sec=5.0,
                 )
                 return False
+        silent = self._answers.silent() if self._answers is not None else []
+        if silent:
+            # the warehouse answers each scanner edge there: until it is heard, an edge
+            # would not wait for its label
+            self.get_logger().info(
+                f'holding: nobody answers on {silent[0]} yet (wait_for_warehouse)',
+                throttle_duration_sec=5.0,
+            )
+            return False
         self._warehouse_heard = True  # not looked at again: a count is a query of the graph
         return True
 

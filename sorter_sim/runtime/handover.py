@@ -311,7 +311,7 @@ def parse_claim(pairs, line_stations: int) -> tuple[str, int, int, str]:
 
     ``node`` is the claiming node's fully qualified name ('' when the claim has none):
     a segment restarted under its old name succeeds its own claim
-    (``frontends.segments.Ownership``).
+    (``frontends.segment_owners.Ownership``).
     """
     v = message_fields(pairs, 'claim', ('identity', 'first', 'stations'), ('node',))
     first = integer(v['first'], 'first', 0, line_stations - 1)
