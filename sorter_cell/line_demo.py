@@ -752,9 +752,58 @@ class _LineRun(RunLoop):
         if args.json:
             print(json.dumps(summary, sort_keys=True))
         else:
-            for key, v in summary.items():
-                print(f'  {key:<22} {v}')
+            print_line_table(summary)
         return code
+
+
+def print_line_table(s: dict) -> None:
+    """
+    Print the line demo's summary as a table, as the cell's (``demo_summary.print_table``).
+
+    Parameters
+    ----------
+    s : dict
+        The summary (``--json`` prints it whole).
+
+    """
+
+    def counts(d: dict) -> str:
+        return ', '.join(f'{k} {v}' for k, v in d.items()) or 'none'
+
+    how = f'in {s["segments"]} segment processes' if s['segments'] > 1 else 'in one process'
+    rows = [
+        (
+            'simulated time',
+            f'{s["sim_time_s"]:.1f} s in {s["wall_s"]:.1f} s wall '
+            f'(real-time factor {s["real_time_factor"]:.2f}, {s["executor"]})',
+        ),
+        ('inducted', s['inducted']),
+        ('dispositions', counts(s['dispositions'])),
+        ('mis-sorted', s['mis_sorted']),
+        ('jams', s['jams']),
+        ('lost', s['lost']),
+        ('still on the line', s['in_cell_at_end']),
+        ('throughput', f'{s["throughput_pcs_h"]:.0f} pcs/h'),
+        ('chutes reached', f'{s["chutes_reached"]} of {s["chutes"]}'),
+        ('exits', counts(s['exits'])),
+    ]
+    if 'cost_s' in s:
+        c = s['cost_s']
+        rows.append(
+            (
+                'wall time went to',
+                f'physics {c["physics"]:.2f} s, publishing {c["publishing"]:.2f} s, '
+                f'controllers {c["controllers"]:.2f} s, the rest {c["other"]:.2f} s',
+            )
+        )
+    if s.get('segments', 1) > 1:
+        rows.append(('hand-overs', s.get('handovers', 0)))
+    for what in s.get('restarted', []):
+        rows.append(('restarted', what))
+    width = max(len(r[0]) for r in rows)
+    print(f'sorter demo: a line of {s["stations"]} stations {how}, their PLCs and the warehouse')
+    for name, value in rows:
+        print(f'  {name:<{width}}  {value}')
 
 
 def line_exit_code(summary: dict, seg_stats: list) -> int:

@@ -82,6 +82,41 @@ def test_the_line_demo_exits_1_for_a_parcel_mis_sorted_jammed_lost_unaccounted_o
     assert line_exit_code(clean, [{'refused': 0}, {'refused': 2}]) == 1
 
 
+def test_the_line_demo_prints_its_summary_as_a_table_not_a_dump(capsys):
+    """Counts as words, numbers rounded, no Python dict: read as the cell's summary is."""
+    from sorter_cell.line_demo import print_line_table
+
+    summary = {
+        'stations': 3,
+        'segments': 2,
+        'inducted': 5,
+        'mis_sorted': 0,
+        'jams': 1,
+        'lost': 0,
+        'in_cell_at_end': 0,
+        'exits': {'S01L': 2, 'S02R': 2},
+        'dispositions': {'jammed': 1, 'sorted': 4},
+        'throughput_pcs_h': 1234.5678,
+        'real_time_factor': 1.279998227390196,
+        'sim_time_s': 12.0,
+        'executor': 'EventsExecutor',
+        'wall_s': 9.375,
+        'chutes_reached': 2,
+        'chutes': 6,
+        'handovers': 7,
+        'restarted': ['segment 2 of 2 (process 1) ended with signal 9'],
+    }
+    print_line_table(summary)
+    out = capsys.readouterr().out
+    assert out.startswith('sorter demo: a line of 3 stations in 2 segment processes')
+    assert 'real-time factor 1.28' in out and '1.279998' not in out
+    assert 'dispositions       jammed 1, sorted 4' in out
+    assert 'exits              S01L 2, S02R 2' in out
+    assert 'chutes reached     2 of 6' in out and 'throughput         1235 pcs/h' in out
+    assert 'hand-overs         7' in out and 'restarted          segment 2' in out
+    assert '{' not in out and '}' not in out
+
+
 @pytest.fixture(scope='module')
 def batch_one_process(tmp_path_factory):
     """Run the batch of 12 parcels on 3 stations in one process: what 3 processes must give."""
