@@ -51,3 +51,33 @@ def test_bench_cell_runs_every_case_and_prints_a_ratio_for_each():
     assert 'file ' in lines[every]
     # the raw subscriber ran (what it received in a run this short depends on the load)
     assert re.search(r'received \d+', lines['node+rawsub'])
+
+
+def test_bench_executor_prints_the_floor_of_both_executors_and_every_marker_comes_back():
+    """Its drain figure is only a figure if each marker published came back to its node."""
+    import json
+    import os
+
+    out = subprocess.run(
+        [sys.executable, str(ROOT / 'benchmarks' / 'bench_executor.py'), '--calls', '50']
+        + ['--json'],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=dict(os.environ),
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert [r['executor'] for r in got['rows']] == ['EventsExecutor', 'SingleThreadedExecutor']
+    for r in got['rows']:
+        assert all(r[k] > 0 for k in ('spin_once_idle_us', 'marker_round_us'))
+    # a message between nodes of one process is queued inside the publisher's call: the
+    # events executor serves it in the very next call, which is what the drain counts on
+    assert got['rows'][0]['marker_not_in_one_call'] == 0
+    bad = subprocess.run(
+        [sys.executable, str(ROOT / 'benchmarks' / 'bench_executor.py'), '--calls', '5'],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert bad.returncode == 2 and '--calls must be in [10, 100000], got 5' in bad.stderr
