@@ -28,6 +28,7 @@ import time
 from dataclasses import dataclass
 
 FAST_SLICE = 0.005  # s of simulated time per pass of a line in fast mode
+LOCKSTEP_SLICE = 0.05  # s simulated at most per slice of a lock-step segment (cut at scans)
 
 
 @dataclass(frozen=True)
@@ -270,103 +271,87 @@ def main(argv=None) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.append(True))
 
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.signals import SignalHandlerOptions
+    from sorter_ros.run_loop import RunLoop
 
-    from sorter_ros.env import apply_ros_env_defaults, find_config_dir
-
-    apply_ros_env_defaults()
-    config = find_config_dir()
-    ctx = Context()
-    rclpy.init(
-        context=ctx,
-        signal_handler_options=SignalHandlerOptions.NO,
-        args=[
-            '--ros-args',
-            '--params-file',
-            str(config / 'cell.yaml'),
-            '--params-file',
-            str(config / 'controller.yaml'),
-            '-r',
-            f'/clock:={args.clock or f"/line/S{args.first:02d}/clock"}',
-            '--log-level',
-            'error',
-        ],
-    )
     fast = args.rtf == 'fast'
-    line, ctls = build_segment(
-        ctx,
-        first=args.first,
-        stations=args.stations,
-        line_stations=args.line_stations,
-        stream=SegmentStream(seed=args.seed, gap=args.gap, count=args.parcels),
-        run=SegmentRun(
-            fast=fast,
-            rtf=1.0 if fast else float(args.rtf),
-            sync=args.sync,
-            warehouse=args.warehouse,
-        ),
+    loop = RunLoop(
+        slice_s=LOCKSTEP_SLICE,
+        log_level='error',
+        align_to_timers=True,
+        ros_args=('-r', f'/clock:={args.clock or f"/line/S{args.first:02d}/clock"}'),
     )
-    if args.start:
-        from rclpy.parameter import Parameter
-
-        line.stations[0].set_parameters([Parameter('arrival', value='gap')])
-    nodes = [*line.nodes, *ctls]
-    ex = line_executor(ctx, 'events')
-    for node in nodes:
-        ex.add_node(node)
     try:
-        told = False
-        next_report = 0.0
-        while not stop:
-            ex.spin_once(timeout_sec=0.05)
-            # the reports follow "ready", never precede it: a reader takes the first line
-            # for it, and on a loaded machine the controllers can take longer than a period
-            if told and args.report > 0 and time.monotonic() >= next_report:
-                print(json.dumps(segment_stats(line, ctls), sort_keys=True), flush=True)
-                next_report += args.report
-            if not told and all(c.logic is not None and c.logic.state == 'running' for c in ctls):
-                print('ready', flush=True)
-                told = True
-                next_report = time.monotonic() + args.report
+        line, ctls = build_segment(
+            loop.context,
+            first=args.first,
+            stations=args.stations,
+            line_stations=args.line_stations,
+            stream=SegmentStream(seed=args.seed, gap=args.gap, count=args.parcels),
+            run=SegmentRun(
+                fast=fast,
+                # a barrier line (kept for comparison) meets its neighbours every 5 ms
+                # slice: in fast mode, as before, its slices are not drained one by one
+                lockstep=fast and args.sync != 'barrier',
+                rtf=1.0 if fast else float(args.rtf),
+                sync=args.sync,
+                warehouse=args.warehouse,
+            ),
+        )
+        if args.start:
+            from rclpy.parameter import Parameter
+
+            line.stations[0].set_parameters([Parameter('arrival', value='gap')])
+        loop.add_node([*line.nodes, *ctls])
+        if line.values['time_mode'] == 'lockstep':
+            loop._stepper, loop._timebase = line, line.line
+        _run_segment(loop, line, ctls, args, stop)
         try:
             print(json.dumps(segment_stats(line, ctls), sort_keys=True), flush=True)
         except BrokenPipeError:  # the demo that reads it is gone (Ctrl-C): nobody to tell
             pass
     finally:
-        for node in nodes:
-            try:
-                node.destroy_node()
-            except Exception:  # noqa: BLE001 - teardown goes on
-                pass
-        rclpy.try_shutdown(context=ctx)
+        loop.close()
     return 0
 
 
-def line_executor(ctx, kind: str):
+def _run_segment(loop, line, ctls, args, stop) -> None:
     """
-    Return the line's executor: rclpy's events executor, or the single-threaded one.
+    Run the segment until ``stop``: in lock-step when fast, else on its own clock.
 
-    The single-threaded executor builds a new wait set from every entity of every node
-    on each pass (about 110 a station: the station's and its controller's publishers,
-    subscriptions, services, timers and their QoS event handlers), in Python: with 24
-    stations a pass costs more wall time than the 5 ms of simulated time it serves.
-    The events executor (``rclpy.experimental``, in C++) queues each entity's events as
-    they happen and walks nothing. The line's results do not depend on the choice (a
-    test runs both and compares every parcel's exit); the single-threaded one stays
-    for an rclpy without the events executor.
+    In lock-step, the segment's time stands still until its programs run (then ``ready``), and
+    each slice ends at their next scan and is served whole before the next: a program
+    starved of the CPU still scans where its period says, so the line's split does not
+    change a parcel's chute. A slice the line cannot run (held by its neighbours: the
+    segment upstream's horizon, the segment downstream's backlog, the warehouse's
+    answer) waits for the next message instead.
     """
-    if kind == 'events':
-        try:
-            from rclpy.experimental import EventsExecutor
-        except ImportError:
-            pass
-        else:
-            return EventsExecutor(context=ctx)
-    from rclpy.executors import SingleThreadedExecutor
-
-    return SingleThreadedExecutor(context=ctx)
+    told = False
+    next_report = 0.0
+    most = max(1, round(loop.slice_s / line.line.dt))
+    while not stop:
+        # the reports follow "ready", never precede it: a reader takes the first line
+        # for it, and on a loaded machine the controllers can take longer than a period
+        if told and args.report > 0 and time.monotonic() >= next_report:
+            print(json.dumps(segment_stats(line, ctls), sort_keys=True), flush=True)
+            next_report += args.report
+        if not told:
+            if all(c.logic is not None and c.logic.state == 'running' for c in ctls):
+                print('ready', flush=True)
+                told = True
+                next_report = time.monotonic() + args.report
+                if loop._stepper is not None:
+                    loop._settle_graph()  # its own readers matched before time moves
+                continue
+            loop.executor.spin_once(timeout_sec=0.05)
+            continue
+        if loop._stepper is None:  # fast (barrier) or wall clock: the line node keeps its own
+            loop.executor.spin_once(timeout_sec=0.05)
+            continue
+        k = line.line.k
+        loop._advance(loop._periods_to_next_timer(most))
+        loop.spin_idle()
+        if line.line.k == k:
+            loop._serve_one(0.05)  # held: a neighbour's message (or a look again) wakes it
 
 
 if __name__ == '__main__':

@@ -113,6 +113,8 @@ class RunLoop:
         The shipped parameter files the Context reads (names in ``find_config_dir()``).
     log_level : str
         The nodes' log level.
+    ros_args : tuple of str
+        More ROS arguments for the Context (a remapping: ``('-r', '/clock:=/mine')``).
     align_to_timers : bool
         End a slice early where a timer on simulated time falls due (``run``): a node
         that acts only in its timers (a PLC's scan) then sees every slice end at one of
@@ -133,6 +135,7 @@ class RunLoop:
         params_files: tuple = ('cell.yaml', 'controller.yaml'),
         log_level: str = 'warn',
         align_to_timers: bool = False,
+        ros_args: tuple = (),
     ):
         self.align_to_timers = align_to_timers
         self._start_context(
@@ -142,6 +145,7 @@ class RunLoop:
             events=events,
             params_files=params_files,
             log_level=log_level,
+            ros_args=ros_args,
         )
 
     def _start_context(
@@ -152,6 +156,7 @@ class RunLoop:
         events: bool = True,
         params_files: tuple = ('cell.yaml', 'controller.yaml'),
         log_level: str = 'warn',
+        ros_args: tuple = (),
     ) -> None:
         import rclpy
         from rclpy.context import Context
@@ -184,7 +189,7 @@ class RunLoop:
             context=self.context,
             **({} if self.domain_id is None else {'domain_id': self.domain_id}),
             signal_handler_options=SignalHandlerOptions.NO,
-            args=args + ['--log-level', log_level],
+            args=args + [*ros_args, '--log-level', log_level],
         )
         self.executor = make_executor(self.context, self._events)
 
