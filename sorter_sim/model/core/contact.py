@@ -55,7 +55,11 @@ OB_PHI = 2  # turn [rad]
 OB_HALF_A = 3  # half extents along its own axes [m]
 OB_HALF_B = 4
 OB_KIND = 5  # OBK_*
-OB_WIDTH = 6
+OB_XLO = 6  # its bounding box [m] (``contacts_for`` fills it in)
+OB_XHI = 7
+OB_YLO = 8
+OB_YHI = 9
+OB_WIDTH = 10
 
 OBK_WALL = 0.0  # a side wall outside the chute openings (its corners: the openings' edges)
 OBK_RAIL = 1.0  # a rail or a stopper the cell declares
@@ -143,8 +147,9 @@ def contacts_for(capacity: int, obstacles: np.ndarray) -> Contacts:
     ----------
     capacity : int
         The cell's parcel slots.
-    obstacles : ndarray, shape (n, OB_WIDTH)
-        The static boxes (``side_walls``, rails).
+    obstacles : ndarray, shape (n, 6)
+        The static boxes (``side_walls``, ``rail``: OB_X .. OB_KIND); their bounding
+        boxes are added here.
 
     Returns
     -------
@@ -152,7 +157,18 @@ def contacts_for(capacity: int, obstacles: np.ndarray) -> Contacts:
         Zeroed state: no contacts, the slots in index order.
 
     """
-    obstacles = np.ascontiguousarray(obstacles, dtype=float).reshape(-1, OB_WIDTH)
+    rows = np.asarray(obstacles, dtype=float).reshape(-1, OB_KIND + 1)
+    obstacles = np.zeros((rows.shape[0], OB_WIDTH))
+    obstacles[:, : OB_KIND + 1] = rows
+    # the bounding box: a parcel outside it (most of them, most periods) costs 4 compares
+    c = np.abs(np.cos(rows[:, OB_PHI]))
+    s = np.abs(np.sin(rows[:, OB_PHI]))
+    ex = c * rows[:, OB_HALF_A] + s * rows[:, OB_HALF_B]
+    ey = s * rows[:, OB_HALF_A] + c * rows[:, OB_HALF_B]
+    obstacles[:, OB_XLO] = rows[:, OB_X] - ex
+    obstacles[:, OB_XHI] = rows[:, OB_X] + ex
+    obstacles[:, OB_YLO] = rows[:, OB_Y] - ey
+    obstacles[:, OB_YHI] = rows[:, OB_Y] + ey
     # a box touches at most its four sides' worth of bodies with two points each
     max_ct = 8 * capacity + 2 * obstacles.shape[0] * capacity + 8
     return Contacts(
@@ -294,20 +310,17 @@ def _broad_phase(state, phase, par, r_out, codes, mus, cont, scratch_f, scratch_
         if phase[i] != ph_cell:
             continue
         for o in range(obs.shape[0]):
-            # the obstacle's circle against the parcel's: a wall's is long, so its
-            # box is checked by its own extent across (walls and rails lie thin)
             reach = r_out[i] + CONTACT_REACH
-            ob_r = math.sqrt(obs[o, OB_HALF_A] ** 2 + obs[o, OB_HALF_B] ** 2)
-            dx = state[i, 0] - obs[o, OB_X]
-            dy = state[i, 1] - obs[o, OB_Y]
-            if abs(dx) > reach + ob_r or abs(dy) > reach + ob_r:
+            xi = state[i, 0]
+            yi = state[i, 1]
+            if xi + reach < obs[o, OB_XLO] or xi - reach > obs[o, OB_XHI]:
                 continue
-            # distance from the parcel's centre to the obstacle's centre line, across it
+            if yi + reach < obs[o, OB_YLO] or yi - reach > obs[o, OB_YHI]:
+                continue
+            # a turned rail's box is wide: the distance across its centre line next
             c = math.cos(obs[o, OB_PHI])
             s = math.sin(obs[o, OB_PHI])
-            if abs(-s * dx + c * dy) > reach + obs[o, OB_HALF_B]:
-                continue
-            if abs(c * dx + s * dy) > reach + obs[o, OB_HALF_A]:
+            if abs(-s * (xi - obs[o, OB_X]) + c * (yi - obs[o, OB_Y])) > reach + obs[o, OB_HALF_B]:
                 continue
             box_polygon(
                 poly[0], state[i, 0], state[i, 1], state[i, 2], par[i, P_HALF_A], par[i, P_HALF_B]
@@ -506,7 +519,10 @@ def _solve_velocities(state, phase, par, ph_cell, cont):
     for sweep in range(PGS_MAX_SWEEPS):
         biggest = 0.0
         change = 0.0
-        for c in range(n_ct):
+        for q in range(n_ct):
+            # forward and backward in turn (symmetric Gauss-Seidel): a chain's load
+            # runs its whole length in one pair of sweeps, whichever end holds it
+            c = q if sweep % 2 == 0 else n_ct - 1 - q
             a = ct_i[c, 0]
             b = ct_i[c, 1]
             cf = ct_f[c]
