@@ -89,8 +89,9 @@ def warm_up(cell: Cell, parcels: int) -> float:
     return cell.t
 
 
-def bench_cell(sim_s: float, parcels: int) -> dict:
-    cell = Cell(CellParams.defaults().with_changes(bench_values(parcels), runtime=False))
+def bench_cell(sim_s: float, parcels: int, contact: str = 'jam') -> dict:
+    values = {**bench_values(parcels), 'contact': contact}
+    cell = Cell(CellParams.defaults().with_changes(values, runtime=False))
     warm_up(cell, parcels)
     n = round(sim_s / cell.dt)
     stats0 = cell.stats.copy()

@@ -54,6 +54,13 @@ from sorter_sim.runtime.params import (
     parcel_half_extents,
 )
 from sorter_sim.runtime import cell_view
+from sorter_sim.runtime.cell_contacts import (
+    N_QUAD,
+    cell_contacts,
+    configure_contacts,
+    jam_cause,
+    rail_row,
+)
 from sorter_sim.runtime.cell_infeed import Infeed
 from sorter_sim.runtime.cell_packml import PackMLTimers
 from sorter_sim.runtime.cell_watchdog import Watchdog
@@ -63,7 +70,6 @@ EXIT_NAMES = {ck.EV_LEFT: 'left', ck.EV_RIGHT: 'right', ck.EV_STRAIGHT: 'straigh
 # parcel states for markers, indexed by the kernels' S_* codes
 STATE_NAMES = ('on_belt', 'on_disks', 'sliding', 'diverted', 'straight', 'jammed')
 CHUTE_SENSORS = ('chute_left', 'chute_right')
-N_QUAD = 8
 
 
 class Cell:
@@ -117,6 +123,8 @@ class Cell:
         # the kernel's note of the last period's strips (see ``advance_cell``)
         self._last_strips = np.zeros((ck.MAX_STRIPS, STRIP_WIDTH))
         self._last_info = np.array([-1, 0], dtype=np.int64)
+        self.rails: list = []  # declared by add_rail; the side walls are always there
+        self.contacts = cell_contacts(params)
         self.snapshot_rows = np.zeros((cap, 7))  # cell_view.parcels fills it
         # the machine state (PackML): in automatic mode it resets and starts at once, so a
         # cell that nobody commands runs from period 0 as it always has
@@ -153,6 +161,7 @@ class Cell:
         c[ck.C_METHOD] = 0.0 if p.integrator == 'accurate' else 1.0
         c[ck.C_LAW_A] = law_a.law_id
         c[ck.C_LAW_B] = law_b.law_id
+        configure_contacts(c, p)
 
     def update_params(self, params: CellParams) -> None:
         """
@@ -562,6 +571,11 @@ class Cell:
         self.mode[i] = ck.MODE_SLIDE
         return edges
 
+    def add_rail(self, x0: float, y0: float, x1: float, y1: float, thickness: float = 0.02):
+        """Declare a rail or a stopper from (x0, y0) to (x1, y1) [m] (contact: rigid)."""
+        self.rails.append(rail_row(x0, y0, x1, y1, thickness))
+        self.contacts = cell_contacts(self.params, self.rails)
+
     # ------------------------------------------------------------------ parcels
     def induct(self, spec: ParcelSpec) -> None:
         """
@@ -751,6 +765,7 @@ class Cell:
             ck.Sensors(self.eye_x, self.blocked, self.counts),
             ck.EventLog(self.ev_i, self.ev_f, self._ev_reserve),
             ck.Memo(self.stats, self._last_strips, self._last_info),
+            self.contacts,
         )
 
     def advance(self, n: int = 1) -> list:
@@ -837,13 +852,7 @@ class Cell:
             elif kind == ck.EV_JAM:
                 self.jam = True
                 self.outcome_counts['jammed'] += 1
-                cause = (
-                    'side wall'
-                    if b == -1
-                    else 'integration failed'
-                    if b == -2
-                    else f'parcel {int(self.ids[b])}'
-                )
+                cause = jam_cause(b, self.ids)
                 self.jam_cause[a] = cause
                 out.append(Outcome(t_ns, int(self.ids[a]), self.labels[a], 'jammed', x, y, cause))
         return out

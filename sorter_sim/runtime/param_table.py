@@ -27,6 +27,7 @@ from sorter_sim.model.description import Q
 TIME_MODES = ('realtime', 'fast', 'lockstep')
 ARRIVAL_MODES = ('gap', 'rate', 'none')
 INTEGRATORS = ('accurate', 'implicit')
+CONTACT_MODELS = ('jam', 'rigid')
 # topic names the photo-eyes may not take (other sensors/ topics of the node)
 RESERVED_SENSOR_NAMES = ('edges', 'chute_left', 'chute_right')
 
@@ -201,6 +202,56 @@ SCHEMA: tuple[ParamSpec, ...] = (
         '',
         1e-14,
         1e-2,
+    ),
+    # -- parcels that touch (sorter_sim/model/core/contact.py; docs/model.md)
+    _p(
+        'contact',
+        STRING,
+        'jam',
+        'what a touch is: jam (two parcels that touch, or a parcel that reaches a side '
+        'wall outside a chute opening, stop and latch a jam fault) or rigid (planar '
+        'rigid-box contact: they push, slide and ride on together with Coulomb friction '
+        'at the contact; a jam is parcels that make no progress for jam_time)',
+        choices=CONTACT_MODELS,
+    ),
+    _p(
+        'mu_parcel',
+        DOUBLE,
+        0.4,
+        'Coulomb friction coefficient between two parcels that touch (contact: rigid)',
+        '',
+        0.0,
+        3.0,
+    ),
+    _p(
+        'mu_wall',
+        DOUBLE,
+        0.3,
+        'Coulomb friction coefficient between a parcel and a side wall, a chute opening\'s '
+        'edge, a rail or a stopper (contact: rigid)',
+        '',
+        0.0,
+        3.0,
+    ),
+    _p(
+        'restitution',
+        DOUBLE,
+        0.0,
+        'normal restitution of an impact between parcels or with a wall: 0 perfectly '
+        'inelastic, 1 elastic (contact: rigid)',
+        '',
+        0.0,
+        1.0,
+    ),
+    _p(
+        'jam_time',
+        DOUBLE,
+        1.0,
+        'a parcel held by its contacts that makes no progress along the belt for this '
+        'long is jammed (contact: rigid)',
+        's',
+        0.01,
+        60.0,
     ),
     # -- parcel stream
     _p(

@@ -289,6 +289,11 @@ class CellParams:
     integrator: str
     integrator_rtol: float
     integrator_atol: float
+    contact: str
+    mu_parcel: float
+    mu_wall: float
+    restitution: float
+    jam_time: float
     arrival: str
     arrival_gap: tuple
     arrival_rate: float

@@ -59,14 +59,19 @@ from sorter_sim.model.core.cell_layout import (
     C_ALPHA_RATE,
     C_ATOL,
     C_B,
+    C_CONTACT,
     C_DT,
     C_EXIT_X,
     C_HALF_W,
+    C_JAM_TIME,
     C_LAW_A,
     C_LAW_B,
     C_METHOD,
+    C_MU_PARCEL,
+    C_MU_WALL,
     C_OPEN_HI,
     C_OPEN_LO,
+    C_RESTITUTION,
     C_RTOL,
     C_SCAN_X,
     C_STROKE_RATE,
@@ -110,6 +115,16 @@ from sorter_sim.model.core.cell_sensing import (
     sensor_blocked,
     upstream_room,
 )
+from sorter_sim.model.core.contact import (
+    H_BY,
+    H_CLOCK,
+    OB_KIND,
+    OBK_WALL,
+    contact_step,
+    hold_clocks,
+    keep_start,
+)
+from sorter_sim.model.core.common import N_OUT, N_RHS, N_STEPS, ST_END, ST_TARGET
 from sorter_sim.model.core.jit import borrowing, kernel, kernel_step
 from sorter_sim.model.core.layout import (
     P_HALF_A,
@@ -322,6 +337,65 @@ def _wall_jams(k, cfg, parcels, work, log, n_ev):
 
 
 @kernel_step
+def _replay_floor(k, period, setup, parcels, work, contacts, stats, log, n_ev):
+    """
+    Contact: rigid. Give each parcel struck this period its floor friction since the touch.
+
+    The contact step applied an impact's impulse at the period's end and moved the
+    bodies as if it had acted at the touch, t_o earlier (``contact.impact``); the
+    floor friction over t_o is that of the old velocity. Each struck parcel is taken
+    back to the touch along its new velocity and integrated over t_o by the cell's
+    method from sliding: a parcel at rest that is struck slides from the touch on.
+    """
+    state, impact, ct_i = parcels.state, contacts.impact, contacts.ct_i
+    s0, ys, counters = work.s0, work.ys, work.counters
+    for c in range(contacts.counts[0]):
+        for e in range(2):
+            i = ct_i[c, e]
+            if i < 0 or impact[i] <= 0.0:
+                continue
+            t_o = impact[i]
+            impact[i] = 0.0
+            for j in range(3):
+                s0[j] = state[i, j] - t_o * state[i, j + 3]
+                s0[j + 3] = state[i, j + 3]
+            counters[:] = 0
+            status, m_new = period[4](
+                i, MODE_SLIDE, period[1], setup, parcels, work, counters, t_o
+            )
+            stats[2] += counters[N_STEPS]
+            stats[3] += counters[N_RHS]
+            last = counters[N_OUT] - 1
+            if (status != ST_END and status != ST_TARGET) or not 0 <= last < ys.shape[0]:
+                n_ev = _jam(i, -2, k, setup.cfg[C_DT], parcels, log, n_ev)
+                continue
+            for j in range(6):
+                state[i, j] = ys[last, j]
+            parcels.mode[i] = m_new
+    return n_ev
+
+
+@kernel_step
+def _contact_jams(k, cfg, parcels, contacts, log, n_ev):
+    """
+    Contact: rigid. Jam the parcels held by contacts without progress for ``jam_time``.
+
+    ``contact.hold_clocks`` keeps each parcel's clock; one that reaches C_JAM_TIME jams
+    where it stands (EV_JAM, b = the parcel that holds it, -1 a side wall, -3 a rail).
+    """
+    phase, hold, obs = parcels.phase, contacts.hold, contacts.obstacles
+    hold_clocks(cfg[C_DT], parcels.state, phase, PH_CELL, contacts)
+    for i in range(phase.shape[0]):
+        if phase[i] != PH_CELL or hold[i, H_CLOCK] < cfg[C_JAM_TIME] * (1.0 - 1e-12):
+            continue
+        by = int(hold[i, H_BY])
+        if by < 0:
+            by = -1 if obs[-1 - by, OB_KIND] == OBK_WALL else -3
+        n_ev = _jam(i, by, k, cfg[C_DT], parcels, log, n_ev)
+    return n_ev
+
+
+@kernel_step
 def _time_order(tau, n, order):
     """
     Write into ``order[:n]`` the indices of ``tau[:n]`` in increasing order, ties in index order.
@@ -400,12 +474,13 @@ def _period_loop(accurate: bool):
     integrator and what it calls, not both.
     """
 
-    def advance_periods(n_periods, k0, setup, act, parcels, sensors, log, memo, work):
+    def advance_periods(n_periods, k0, setup, act, parcels, sensors, log, memo, work, contacts):
         """
         Advance the cell period by period: ``advance_cell``'s loop, with its scratch ``work``.
 
         Each period: its strips, every parcel's motion, events and sensor transitions,
-        the jams, the sensors' edges, the actuators. Compiled without reference
+        the contacts (``contact.contact_step``; the jams of the old rule under
+        ``contact: jam``), the sensors' edges, the actuators. Compiled without reference
         counting (``jit.borrowing``) and its steps inlined (``jit.kernel_step``): the
         loop runs for every slot of the cell every period, and counting the references
         of the thirty arrays its steps receive cost more than a parcel's closed-form
@@ -430,12 +505,29 @@ def _period_loop(accurate: bool):
             else:
                 period = (v, n_strips, disk_sid, same_strips, _integrate_implicit)
             ntr = 0
+            if cfg[C_CONTACT] > 0.5:
+                keep_start(parcels.state, parcels.phase, PH_CELL, contacts)
             for i in range(parcels.state.shape[0]):
                 n_ev, ntr = _advance_parcel(
                     i, k, period, setup, parcels, sensors, work, stats, log, (n_ev, ntr)
                 )
-            n_ev = _parcel_jams(k, cfg[C_DT], parcels, work, log, n_ev)
-            n_ev = _wall_jams(k, cfg, parcels, work, log, n_ev)
+            if cfg[C_CONTACT] > 0.5:
+                contact_step(
+                    cfg[C_DT],
+                    parcels.state,
+                    parcels.phase,
+                    parcels.par,
+                    work.r_out,
+                    (PH_CELL, PH_JAMMED),
+                    (cfg[C_MU_PARCEL], cfg[C_MU_WALL], cfg[C_RESTITUTION]),
+                    contacts,
+                    work.contact_scratch,
+                )
+                n_ev = _replay_floor(k, period, setup, parcels, work, contacts, stats, log, n_ev)
+                n_ev = _contact_jams(k, cfg, parcels, contacts, log, n_ev)
+            else:
+                n_ev = _parcel_jams(k, cfg[C_DT], parcels, work, log, n_ev)
+                n_ev = _wall_jams(k, cfg, parcels, work, log, n_ev)
             n_ev = _sensor_edges(k, ntr, work, sensors.counts, log, n_ev)
             _actuators_end(act, cfg)
             done += 1
@@ -453,15 +545,15 @@ _advance_periods_implicit = _period_loop(False)
 def _cell_kernel(accurate: bool):
     """Return ``advance_cell`` compiled for one method (see ``_period_loop``)."""
 
-    def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
+    def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo, contacts):
         n_sens = sensors.eye_x.shape[0] + 2
         work = _cell_work(parcels.par, n_sens, setup.cfg[C_B])
         if accurate:
             return _advance_periods_accurate(
-                n_periods, k0, setup, act, parcels, sensors, log, memo, work
+                n_periods, k0, setup, act, parcels, sensors, log, memo, work, contacts
             )
         return _advance_periods_implicit(
-            n_periods, k0, setup, act, parcels, sensors, log, memo, work
+            n_periods, k0, setup, act, parcels, sensors, log, memo, work, contacts
         )
 
     return _compiled_for("accurate" if accurate else "implicit", advance_cell, kernel)
@@ -471,7 +563,7 @@ advance_cell_accurate = _cell_kernel(True)
 advance_cell_implicit = _cell_kernel(False)
 
 
-def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
+def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo, contacts):
     """
     Advance the cell over up to ``n_periods`` control periods from period index ``k0``.
 
@@ -507,6 +599,9 @@ def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
         count]): the strips of the last period advanced, updated (a stick that held
         through it holds through the next under the same strips where nothing about
         the parcel changes).
+    contacts : Contacts
+        The contact step's obstacles and what it keeps from period to period
+        (``contact.contacts_for``), updated; used under ``cfg[C_CONTACT]`` = 1 (rigid).
 
     Returns
     -------
@@ -515,7 +610,7 @@ def advance_cell(n_periods, k0, setup, act, parcels, sensors, log, memo):
 
     """
     kernel = advance_cell_accurate if setup.cfg[C_METHOD] < 0.5 else advance_cell_implicit
-    return kernel(n_periods, k0, setup, act, parcels, sensors, log, memo)
+    return kernel(n_periods, k0, setup, act, parcels, sensors, log, memo, contacts)
 
 
 # what the runtime and the tests use of the cell (``ck.*``): the layout and the sensing

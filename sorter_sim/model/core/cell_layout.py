@@ -33,7 +33,12 @@ C_ATOL = 11
 C_METHOD = 12  # 0 accurate, 1 implicit
 C_LAW_A = 13  # law ids of the belt and the disks
 C_LAW_B = 14
-CFG_WIDTH = 15
+C_CONTACT = 15  # what a touch is: 0 jam (the parcels stop, a fault), 1 rigid (``contact``)
+C_MU_PARCEL = 16  # Coulomb friction at a parcel-parcel contact
+C_MU_WALL = 17  # at a parcel-wall, -rail or -stopper contact
+C_RESTITUTION = 18  # normal restitution of an impact, 0 .. 1
+C_JAM_TIME = 19  # no progress for this long while held by contacts: a jam [s]
+CFG_WIDTH = 20
 
 # ---- actuator state (float64) ------------------------------------------------------
 A_ALPHA = 0  # physical disk angle [rad]
@@ -71,7 +76,7 @@ EV_SCAN = 2  # leading edge crossed the scanner line: a = slot
 EV_LEFT = 3  # CoG crossed y = +w/2 in the opening: a = slot, (x, y) there
 EV_RIGHT = 4  # CoG crossed y = -w/2 in the opening
 EV_STRAIGHT = 5  # CoG passed exit_x: a = slot (now free), (x, y) there
-EV_JAM = 6  # a = slot jammed; b = other slot, -1 side wall, -2 integration failed
+EV_JAM = 6  # a = slot jammed; b = other slot, -1 side wall, -2 integration failed, -3 rail
 EV_GONE = 7  # a parcel on a chute cleared the entry line: a = slot (now free)
 
 # geometric features a sensor condition looks at
@@ -113,6 +118,11 @@ __all__ = [
     "C_METHOD",
     "C_LAW_A",
     "C_LAW_B",
+    "C_CONTACT",
+    "C_MU_PARCEL",
+    "C_MU_WALL",
+    "C_RESTITUTION",
+    "C_JAM_TIME",
     "CFG_WIDTH",
     "A_ALPHA",
     "A_ALPHA_CMD",

@@ -103,7 +103,8 @@ def _emit(ev_i, ev_f, n_ev, k, kind, a, b, tau, x, y):
 # counters, a parcel's state at the period's start and end, which parcels moved rigidly
 # with the belt, each footprint's circumradius [m] (bounding its extent in any
 # direction), this period's sensor transitions (tau, sensor, +1/-1) and their time
-# order, and the sensor conditions
+# order, the sensor conditions, and the contact step's narrow-phase scratch (two
+# points' rows and feature numbers, ``contact.contact_step``)
 CellWork = namedtuple(
     'CellWork',
     [
@@ -123,6 +124,7 @@ CellWork = namedtuple(
         'tr_d',
         'order',
         'conditions',
+        'contact_scratch',
     ],
 )
 
@@ -154,6 +156,7 @@ def _cell_work(par, n_sens, b):
         np.empty(cap * n_sens, dtype=np.int64),
         np.empty(cap * n_sens, dtype=np.int64),
         Conditions(np.empty(4, np.int64), np.empty(4), np.empty(4)),
+        (np.zeros((2, 5)), np.zeros(2, dtype=np.int64)),
     )
 
 
@@ -243,16 +246,16 @@ def _closed_form(i, m, period, setup, parcels, work, stats):
 
 
 @kernel_step
-def _integrate_accurate(i, m, n_strips, setup, parcels, work, counters):
+def _integrate_accurate(i, m, n_strips, setup, parcels, work, counters, h):
     """
-    Integrate parcel i over the period by the accurate method, from mode ``m``.
+    Integrate parcel i over a time ``h`` (the period, or less) by the accurate method.
 
     ``accurate.run_accurate``: event-located Dormand-Prince, restarted every period,
-    under the period's ``n_strips`` strips. Returns its status and the mode reached;
-    the trajectory is in the scratch (``work.ys``), the counts in ``counters``.
+    from mode ``m`` under the period's ``n_strips`` strips. Returns its status and the
+    mode reached; the trajectory is in the scratch (``work.ys``), the counts in
+    ``counters``.
     """
     cfg, nodes, weights = setup.cfg, setup.nodes, setup.weights
-    h = cfg[C_DT]
     strip_view = work.strips[:n_strips]
     contact = Contact(strip_view, parcels.par[i], nodes, weights)
     slide = Slide(
@@ -279,14 +282,13 @@ def _integrate_accurate(i, m, n_strips, setup, parcels, work, counters):
 
 
 @kernel_step
-def _integrate_implicit(i, m, n_strips, setup, parcels, work, counters):
+def _integrate_implicit(i, m, n_strips, setup, parcels, work, counters, h):
     """
-    Integrate parcel i over the period by one backward-Euler step, from mode ``m``.
+    Integrate parcel i over a time ``h`` by one backward-Euler step, from mode ``m``.
 
     ``implicit.run_implicit`` (exact stick too) under the period's ``n_strips``
     strips. Returns its status and the mode reached, as ``_integrate_accurate``.
     """
-    h = setup.cfg[C_DT]
     contact = Contact(work.strips[:n_strips], parcels.par[i], setup.nodes, setup.weights)
     status, _, m_new = run_implicit(
         work.s0,
@@ -320,7 +322,7 @@ def _integrate(i, k, m, period, setup, parcels, work, stats, log, n_ev):
     n_strips, integrate = period[1], period[4]
     state, ys, counters = parcels.state, work.ys, work.counters
     counters[:] = 0
-    status, m_new = integrate(i, m, n_strips, setup, parcels, work, counters)
+    status, m_new = integrate(i, m, n_strips, setup, parcels, work, counters, setup.cfg[C_DT])
     stats[1] += 1
     stats[2] += counters[N_STEPS]
     stats[3] += counters[N_RHS]
