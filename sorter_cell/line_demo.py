@@ -9,10 +9,10 @@ observer. The sort plan sends destinations D01 .. D(2N) to the 2N chutes in orde
 each parcel (labels P00001, P00002, ...) is requested to a destination drawn
 uniformly, before it reaches the scanner. The line runs as fast as possible in
 lock-step on the run loop (``time_mode: lockstep``, a slice to the stations' next
-scan; in segments, each segment in ``fast`` mode), or on the wall clock at
-``--rtf F``; ``--foxglove`` serves the whole line's live view, ``--record`` records it into one MCAP file. After
-``--sim-time`` the infeed stops and the line runs empty, so that every parcel has its
-disposition (``--dispositions FILE.jsonl`` writes them, one a line).
+scan), or on the wall clock at ``--rtf F``; ``--foxglove`` serves the whole line's
+live view, ``--record`` records it into one MCAP file. After ``--sim-time`` the
+infeed stops and the line runs empty, so that every parcel has its disposition
+(``--dispositions FILE.jsonl`` writes them, one a line).
 
 The summary (``--json``: one object) has ``stations``, ``inducted``, ``mis_sorted``,
 ``jams``, ``in_cell_at_end``, ``exits`` (chute -> count), ``dispositions`` (code ->

@@ -30,7 +30,7 @@ RAIL_T = 0.02  # the rails' thickness [m]
 
 
 def rigid_cell(**changes) -> Cell:
-    """A cell under contact: rigid, no stream, disks down, no jam in the test's time."""
+    """Return a cell under contact: rigid, no stream, disks down, no jam in the test's time."""
     values = {
         'arrival': 'none',
         'contact': 'rigid',
@@ -48,7 +48,7 @@ def place(cell, i, x, y, size, vel=(0.0, 0.0, 0.0), phi=0.0):
 
 
 def stopper_across(cell, x):
-    """A stopper across the whole belt, its upstream face at x [m]; its obstacle index."""
+    """Put a stopper across the whole belt, its upstream face at x [m]; its obstacle index."""
     hw = 0.5 * cell.params.belt_width
     cell.add_rail(x + 0.5 * RAIL_T, -hw, x + 0.5 * RAIL_T, hw, RAIL_T)
     return cell.contacts.obstacles.shape[0] - 1
@@ -220,7 +220,7 @@ def test_momentum_across_an_oblique_impact_is_conserved():
 
 def test_kinetic_energy_relative_to_the_belt_never_grows():
     """
-    e = 0: friction at the floor and the contacts only dissipates, impacts only dissipate.
+    With e = 0, friction at the floor and the contacts and the impacts only dissipate.
 
     Eight parcels thrown at random onto the running belt between its side walls, turned
     and spinning, colliding with each other and the walls: the kinetic energy relative

@@ -23,7 +23,7 @@ from sorter_sim.runtime.params import CellParams, ParamError
 
 
 def _overlapping_pairs(cell, tol):
-    """The pairs of parcels on the cell that interpenetrate by more than ``tol`` [m]."""
+    """Return the pairs of parcels on the cell that interpenetrate by more than ``tol`` [m]."""
     on = np.flatnonzero(cell.phase == ck.PH_CELL)
     s, par = cell.state, cell.par
     return [
@@ -44,6 +44,8 @@ def _overlapping_pairs(cell, tol):
 )
 def test_stiff_queues_carry_their_load(masses, mu_belt, mu_parcel):
     """
+    Stiff queues at a stopper carry their load, at rest, with no NaN.
+
     The queue of ``test_queue_against_a_stopper_carries_the_belt_friction_of_all`` at
     the matrix's extremes: the stopper carries Σ μ m_i g within 0.1 %, at rest (below
     1e-9 m/s), no NaN, overlap within the 1e-9 m tolerance (plus one period's push).
@@ -141,6 +143,8 @@ def test_a_parcel_wedged_between_two_rails_jams_with_cause_rail():
 
 def test_a_queue_at_a_stopper_jams_after_jam_time_with_its_causes():
     """
+    A queue held at a stopper jams after ``jam_time``, each with its cause.
+
     Held by the stopper and by each other, making no progress: after jam_time (0.2 s)
     each parcel of the queue jams, the front one by the rail, each other by the
     parcel ahead of it (its strongest contact).

@@ -55,7 +55,7 @@ def rail_row(x0: float, y0: float, x1: float, y1: float, thickness: float = RAIL
 
 
 def jam_cause(b: int, ids: np.ndarray) -> str:
-    """The cause an EV_JAM's code ``b`` names: a parcel's id, the side wall, a rail, ..."""
+    """Return the cause an EV_JAM's code ``b`` names: a parcel's id, the side wall, a rail."""
     if b >= 0:
         return f'parcel {int(ids[b])}'
     return {-1: 'side wall', -2: 'integration failed', -3: 'rail'}[b]

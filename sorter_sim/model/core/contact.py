@@ -210,7 +210,7 @@ def side_walls(half_w: float, open_lo: float, open_hi: float) -> np.ndarray:
 
 def rail(x0: float, y0: float, x1: float, y1: float, thickness: float) -> np.ndarray:
     """
-    Return a rail (or a stopper) from (x0, y0) to (x1, y1) as an obstacle row.
+    Return a rail or a stopper, the segment (x0, y0)-(x1, y1), as an obstacle row.
 
     A box ``thickness`` thick centred on the segment [m].
     """
@@ -229,7 +229,7 @@ def rail(x0: float, y0: float, x1: float, y1: float, thickness: float) -> np.nda
 # ---------------------------------------------------------------- broad phase
 @kernel_step
 def _broad_key(state, phase, r_out, ph_cell, ph_jammed, key):
-    """The sweep key of each slot: the lower x of its circle; +inf for a slot not on the cell."""
+    """Set each slot's sweep key: the lower x of its circle; +inf for a slot not on the cell."""
     for i in range(state.shape[0]):
         if phase[i] == ph_cell or phase[i] == ph_jammed:
             key[i] = state[i, 0] - r_out[i]
@@ -239,7 +239,7 @@ def _broad_key(state, phase, r_out, ph_cell, ph_jammed, key):
 
 @kernel_step
 def _sort_order(key, order):
-    """Insertion sort of ``order`` by ``key`` (nearly sorted from the last period: one pass)."""
+    """Sort ``order`` by ``key`` by insertion (nearly sorted from the last period: one pass)."""
     for q in range(1, order.shape[0]):
         o = order[q]
         x = key[o]
@@ -340,7 +340,7 @@ def _broad_phase(state, phase, par, r_out, codes, mus, cont, scratch_f, scratch_
 # ---------------------------------------------------------------- solve
 @kernel_step
 def _inverse_mass(i, phase, par, ph_cell):
-    """A body's inverse mass and moment of inertia: zero for an obstacle or a jammed parcel."""
+    """Return a body's inverse mass and moment of inertia (zero: an obstacle, a jammed parcel)."""
     if i < 0 or phase[i] != ph_cell:
         return 0.0, 0.0
     return 1.0 / par[i, P_MASS], 1.0 / par[i, P_INERTIA]
@@ -348,7 +348,7 @@ def _inverse_mass(i, phase, par, ph_cell):
 
 @kernel_step
 def _point_velocity(i, state, px, py):
-    """The velocity of body i's material point (px, py) (zero for an obstacle)."""
+    """Return the velocity of body i's material point (px, py) (zero for an obstacle)."""
     if i < 0:
         return 0.0, 0.0
     return state[i, 3] - state[i, 5] * (py - state[i, 1]), state[i, 4] + state[i, 5] * (
@@ -560,8 +560,10 @@ def _displace(i, sign, state, disp, px, py, jx, jy, im, ii):
 @kernel_step
 def _approached(a, b, h, state, cont, cf):
     """
-    Whether the bodies of a new contact were closing in at the period's start fast enough
-    to make its overlap within the period: an impact, not a press.
+    Return whether a new contact's bodies closed in fast enough to be an impact.
+
+    Fast enough: closing in at the period's start at a speed that makes its overlap
+    within the period; an impact, not a press.
 
     A parcel at rest pressed into a stopper by the floor closes in from zero speed: its
     overlap is the floor's ½ a h², not a speed's, and it owes no floor friction.
@@ -697,7 +699,7 @@ def _obstacle_forces(h, cont):
 
 @kernel_step
 def _keep_for_warm_start(cont):
-    """This period's contacts become the last period's (the next one's warm start)."""
+    """Keep this period's contacts as the last period's (the next one's warm start)."""
     n = cont.counts[N_CT]
     for c in range(n):
         for j in range(3):

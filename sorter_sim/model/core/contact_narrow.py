@@ -44,7 +44,7 @@ def box_polygon(poly, x, y, phi, ha, hb):
 
 @kernel_step
 def _max_separation(p1, p2):
-    """The face of box ``p1`` that separates it most from box ``p2``, and that separation [m]."""
+    """Return the face of box ``p1`` separating it most from box ``p2``, and the separation [m]."""
     best = -math.inf
     face = 0
     for q in range(4):
