@@ -26,10 +26,10 @@ import math
 import time
 from collections import Counter
 
+from sorter_cell.line_segment import LOCKSTEP_SLICE
 from sorter_ros.outcomes import values
 from sorter_ros.run_loop import RunLoop
 
-LOCKSTEP_SLICE = 0.05  # s simulated at most per slice of a lock-step line (cut at scans)
 READY_POLL_S = 0.1  # s between two looks at the segments said ready while others start
 ANSWER_S = 2.0  # s station 1 has to answer a parameter change before it is sent again
 

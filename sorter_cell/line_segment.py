@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass
 
 FAST_SLICE = 0.005  # s of simulated time per pass of a line in fast mode
-LOCKSTEP_SLICE = 0.05  # s simulated at most per slice of a lock-step segment (cut at scans)
+LOCKSTEP_SLICE = 0.05  # s simulated at most per slice of a lock-step line (cut at scans)
 
 
 @dataclass(frozen=True)
@@ -327,7 +327,6 @@ def _run_segment(loop, line, ctls, args, stop) -> None:
     """
     told = False
     next_report = 0.0
-    most = max(1, round(loop.slice_s / line.line.dt))
     while not stop:
         # the reports follow "ready", never precede it: a reader takes the first line
         # for it, and on a loaded machine the controllers can take longer than a period
@@ -339,19 +338,13 @@ def _run_segment(loop, line, ctls, args, stop) -> None:
                 print('ready', flush=True)
                 told = True
                 next_report = time.monotonic() + args.report
-                if loop._stepper is not None:
-                    loop._settle_graph()  # its own readers matched before time moves
                 continue
             loop.executor.spin_once(timeout_sec=0.05)
             continue
         if loop._stepper is None:  # fast (barrier) or wall clock: the line node keeps its own
             loop.executor.spin_once(timeout_sec=0.05)
-            continue
-        k = line.line.k
-        loop._advance(loop._periods_to_next_timer(most))
-        loop.spin_idle()
-        if line.line.k == k:
-            loop._serve_one(0.05)  # held: a neighbour's message (or a look again) wakes it
+        elif not loop.step():
+            loop.serve_one(0.05)  # held: a neighbour's message (or a look again) wakes it
 
 
 if __name__ == '__main__':

@@ -420,7 +420,7 @@ class RunLoop:
                 # the marker itself would make every round look busy: the bound ends that
                 rounds += 1
                 continue
-            if self.grace_s > 0.0 and self._serve_one(self.grace_s):
+            if self.grace_s > 0.0 and self.serve_one(self.grace_s):
                 continue
             if not self._unsettled():
                 return
@@ -433,9 +433,9 @@ class RunLoop:
             if now > settle_end:
                 return
             # what is awaited comes from another thread (DDS, a timer's own): wait for it
-            self._serve_one(0.0005)
+            self.serve_one(0.0005)
 
-    def _serve_one(self, timeout_s: float) -> bool:
+    def serve_one(self, timeout_s: float) -> bool:
         """Serve one ready callback; return False when none came within ``timeout_s``."""
         from rclpy.executors import ShutdownException, TimeoutException
 
@@ -502,7 +502,7 @@ class RunLoop:
                 raise RuntimeError(self.explain(f'{what} within {timeout_s:g} s of wall time'))
             self.spin_idle()
             # the starting node's own threads (a service answer) get the core
-            self._serve_one(0.001)
+            self.serve_one(0.001)
 
     def run(self, seconds: float) -> None:
         """
@@ -522,12 +522,28 @@ class RunLoop:
             self._settle_graph()
         self.spin_idle()
         while total > 0:
-            n = min(step, total)
-            if self.align_to_timers:
-                n = self._periods_to_next_timer(n)
-            self._advance(n)
-            total -= n
-            self.spin_idle()
+            total -= self._slice(min(step, total))
+
+    def _slice(self, n: int) -> int:
+        """Run one slice of at most ``n`` periods and serve what it caused; return its periods."""
+        if self.align_to_timers:
+            n = self._periods_to_next_timer(n)
+        self._advance(n)
+        self.spin_idle()
+        return n
+
+    def step(self) -> bool:
+        """
+        Run one slice (``slice_s``, to the next timer when aligned); return whether time moved.
+
+        For a stepper that may hold its time (a line segment waiting for its neighbours):
+        when it did not move, ``serve_one`` waits for the message that lets it go on.
+        """
+        if self._joined:
+            self._settle_graph()
+        t = self.t
+        self._slice(max(1, round(self.slice_s / self.dt)))
+        return self.t != t
 
     def run_until(self, predicate, timeout_s: float = 60.0, what: str = '', stop=None):
         """
