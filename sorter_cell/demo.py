@@ -306,7 +306,11 @@ class RunningCell(RunLoop):
             )
             self.add_node(self.ctl)
             self.watcher = rclpy.create_node("sorter_demo", context=self.context)
-            self.obs = _Observer(self.watcher, want_paths=self.want_paths)
+            self.obs = _Observer(
+                self.watcher,
+                want_paths=self.want_paths,
+                cell=self.sim.cell if self.rtf is None else None,
+            )
             self.add_node(self.watcher)
             running = lambda: self.obs.ctl_diag.get("state") == "running"  # noqa: E731
             if self.rtf is None:
@@ -323,6 +327,13 @@ class RunningCell(RunLoop):
             self.__exit__(None, None, None)
             raise
         return self
+
+    def _advance(self, n: int) -> None:
+        k0 = self.sim.cell.k
+        super()._advance(n)
+        stride = self.sim.params.pose_stride
+        if self.started and self.rtf is None and self.sim.cell.k // stride != k0 // stride:
+            self.obs.sample()  # the pose period the slice reached, as the topic gives it
 
     def _set_sim(self, name: str, value: str) -> None:
         """Set a string parameter of the cell over its set_parameters service."""

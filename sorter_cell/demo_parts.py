@@ -86,7 +86,7 @@ def stream_plan(parcel_lengths: tuple[float, float], config_dir: Path) -> dict:
 class _Observer:
     """Watch what a warehouse would, from an ordinary node: outcomes, confirmations, poses."""
 
-    def __init__(self, node, want_paths: bool):
+    def __init__(self, node, want_paths: bool, cell=None):
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
         from geometry_msgs.msg import PoseArray
         from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -103,15 +103,31 @@ class _Observer:
         self.ids_seen: set[int] = set()
         self.paths: dict[int, list] = {}
         self._ids = None
-        node.create_subscription(Clock, "/clock", self._on_clock, stream)
+        self._cell = cell
+        self._want_paths = want_paths
         node.create_subscription(DiagnosticStatus, "sort/outcomes", self._on_outcome, events)
         node.create_subscription(
             DiagnosticStatus, "sort/confirmations", self._on_confirmation, events
         )
         node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, stream)
+        if cell is not None:
+            # a cell in this process, in lock-step: its time, ids and poses are read from
+            # it after each slice (``sample``), as the poses topic would give them; three
+            # subscriptions fewer for every slice to serve
+            return
+        node.create_subscription(Clock, "/clock", self._on_clock, stream)
         node.create_subscription(UInt32MultiArray, "parcels/ids", self._on_ids, stream)
         if want_paths:
             node.create_subscription(PoseArray, "parcels/poses", self._on_poses, stream)
+
+    def sample(self) -> None:
+        """Take the ids and poses of the cell in this process (at the pose topic's period)."""
+        parcels = self._cell.parcels()
+        ids = parcels["id"].tolist()
+        self.ids_seen.update(ids)
+        if self._want_paths:
+            for pid, x, y in zip(ids, parcels["x"].tolist(), parcels["y"].tolist()):
+                self.paths.setdefault(int(pid), []).append((x, y))
 
     def _on_clock(self, msg):
         self.t_sim = msg.clock.sec + 1e-9 * msg.clock.nanosec

@@ -180,6 +180,7 @@ class RunLoop:
         self.record_path = ''
         self._barrier = None
         self._barrier_served = None
+        self._barrier_seen = False  # a marker came back: later drains need no timeout
         self.domain_id = None if domain_id is None else int(domain_id)
         self.context = Context()
         args = ['--ros-args']
@@ -300,6 +301,7 @@ class RunLoop:
             self._barrier_node.destroy_subscription(self._barrier_sub)
             self._barrier_node.destroy_publisher(self._barrier)
         self._barrier = self._barrier_node = self._barrier_sub = None
+        self._barrier_seen = False
 
     # ------------------------------------------------------------------ time
     # set by a face: the node whose ``advance(n)`` runs n control periods and the
@@ -390,15 +392,21 @@ class RunLoop:
 
         self._barrier_served = Future()
         self._barrier.publish(self._barrier_msg)
-        self.executor.spin_until_future_complete(self._barrier_served, timeout_sec=DRAIN_WALL_S)
+        # the marker is queued before this call: no timeout (a timeout costs the executor
+        # a timer, a third of the call) unless no marker has come back yet
+        wait = {} if self._barrier_seen else {'timeout_sec': DRAIN_WALL_S}
+        self.executor.spin_until_future_complete(self._barrier_served, **wait)
         if not self._barrier_served.done():
             return False  # a callback that never lets go: the settle check waits on its own
+        self._barrier_seen = True
         self._barrier_served = Future()
         self._barrier.publish(self._barrier_msg)
-        self.executor.spin_once(timeout_sec=0.0)
+        # with an event queued, one spin_once serves it at once; a timeout of 0 costs
+        # more than a long one that is never waited for
+        self.executor.spin_once(timeout_sec=DRAIN_WALL_S)
         if self._barrier_served.done():
             return False
-        self.executor.spin_until_future_complete(self._barrier_served, timeout_sec=DRAIN_WALL_S)
+        self.executor.spin_until_future_complete(self._barrier_served)
         return True
 
     def spin_idle(self) -> None:

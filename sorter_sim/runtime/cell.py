@@ -431,8 +431,11 @@ class Cell:
             True if it cleared a watchdog trip.
 
         """
-        self._packml_dirty = True
-        return self.watchdog.feed(counter, self.k)
+        cleared = self.watchdog.feed(counter, self.k)
+        # only a trip cleared changes what PackML sees (the hold's cause): a heartbeat
+        # each scan must not make every slice look at the conditions again
+        self._packml_dirty = self._packml_dirty or cleared
+        return cleared
 
     # what the watchdog shows, by the names the node's diagnostics and the tests use
     watchdog_tripped = property(lambda self: self.watchdog.tripped)
