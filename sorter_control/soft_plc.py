@@ -253,20 +253,56 @@ class OpcUaIO:
             None, or why the server refused it.
 
         """
-        ua = self.ua
-        if s.type == 'bool':
-            variant = ua.Variant(bool(value), ua.VariantType.Boolean)
-        elif s.opcua_type == 'Double':
-            variant = ua.Variant(float(value), ua.VariantType.Double)
-        else:
-            variant = ua.Variant(int(value), getattr(ua.VariantType, s.opcua_type))
         try:
-            self.nodes[s.name].write_value(variant)
+            self.nodes[s.name].write_value(self._variant(s, value))
         except Exception as exc:  # asyncua raises the server's bad status code
             return f'OPC UA {type(exc).__name__} writing {s.name}'
         finally:
             self.requests += 1
         return None
+
+    def write_many(self, writes: list) -> list:
+        """
+        Write several outputs in one Write request; return each one's error or None.
+
+        The server applies them in order, as one write each would be, and answers each
+        with its own status: the scan's outputs cost one round trip, not one each.
+
+        Parameters
+        ----------
+        writes : list of (Signal, object)
+            The outputs and their engineering values, in order.
+
+        Returns
+        -------
+        list of (str or None)
+            For each write: None, or why the server refused it.
+
+        """
+        if len(writes) == 1:
+            return [self.write(*writes[0])]
+        try:
+            results = self.client.write_values(
+                [self.nodes[s.name] for s, _ in writes],
+                [self._variant(s, value) for s, value in writes],
+                raise_on_partial_error=False,
+            )
+        except Exception as exc:  # the request itself failed: every write in it did
+            return [f'OPC UA {type(exc).__name__} writing {s.name}' for s, _ in writes]
+        finally:
+            self.requests += 1
+        return [
+            None if r.is_good() else f'OPC UA {r.name} writing {s.name}'
+            for (s, _), r in zip(writes, results)
+        ]
+
+    def _variant(self, s: Signal, value):
+        ua = self.ua
+        if s.type == 'bool':
+            return ua.Variant(bool(value), ua.VariantType.Boolean)
+        if s.opcua_type == 'Double':
+            return ua.Variant(float(value), ua.VariantType.Double)
+        return ua.Variant(int(value), getattr(ua.VariantType, s.opcua_type))
 
     def close(self) -> None:
         self.client.disconnect()
@@ -419,9 +455,15 @@ class SoftPLC:
             self._take_routes(x['warehouse.requests'])
         out = self.logic.scan(image)
         self._beat = (self._beat + 1) & 0xFFFF
-        self._write('plc.heartbeat', self._beat)
-        for cmd in out.commands:
-            self._command(cmd)
+        # the scan's outputs go out together at its end, as a PLC's output image does
+        writes = [('plc.heartbeat', self._beat)]
+        commands = [(cmd, self._command_output(cmd)) for cmd in out.commands]
+        writes += [w for _, w in commands if w is not None]
+        errors = iter(self._write_all(writes))
+        next(errors)  # the heartbeat's: counted in write_errors
+        for cmd, w in commands:
+            err = next(errors) if w is not None else f'no output for {cmd.kind}'
+            self._replies.append(Reply(cmd.id, err is None, err or 'written'))
         self.confirmations += out.confirmations
         self.log += out.log
         if self.io.warehouse:
@@ -457,22 +499,27 @@ class SoftPLC:
             self.io.publish_table(table)
             self._table = table
 
-    def _command(self, cmd) -> None:
+    def _command_output(self, cmd) -> tuple[str, object] | None:
+        """Return the output (name, value) a command writes, or None for none."""
         if cmd.kind == 'popup':
-            err = self._write('diverter.popup', bool(cmd.value))
-        elif cmd.kind == 'alpha':
-            err = self._write('diverter.alpha_setpoint', float(cmd.value))
-        elif cmd.kind == 'packml':
-            err = self._write('packml.command', PACKML_COMMAND_NUMBERS[cmd.value])
-        elif cmd.kind in ('estop', 'reset'):
+            return 'diverter.popup', bool(cmd.value)
+        if cmd.kind == 'alpha':
+            return 'diverter.alpha_setpoint', float(cmd.value)
+        if cmd.kind == 'packml':
+            return 'packml.command', PACKML_COMMAND_NUMBERS[cmd.value]
+        if cmd.kind in ('estop', 'reset'):
             name = 'cell.estop' if cmd.kind == 'estop' else 'cell.reset'
-            err = self._write(name, True)
             self._pulses.append(name)
-        else:
-            err = f'no output for {cmd.kind}'
-        self._replies.append(Reply(cmd.id, err is None, err or 'written'))
+            return name, True
+        return None
 
     def _write(self, name: str, value) -> str | None:
-        err = self.io.write(self.out[name], value)
-        self.write_errors += err is not None
-        return err
+        return self._write_all([(name, value)])[0]
+
+    def _write_all(self, writes: list[tuple[str, object]]) -> list:
+        """Write outputs in order (one request where the fieldbus allows); return errors."""
+        signals = [(self.out[name], value) for name, value in writes]
+        many = getattr(self.io, 'write_many', None)
+        errors = many(signals) if many is not None else [self.io.write(*w) for w in signals]
+        self.write_errors += sum(e is not None for e in errors)
+        return errors

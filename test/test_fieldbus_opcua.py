@@ -219,6 +219,32 @@ def test_a_mixed_write_request_is_answered_item_by_item(cell, opcua):
     assert float(cell.cell.act[ck.A_STROKE_TARGET]) == 1.0
 
 
+def test_the_soft_plcs_outputs_of_a_scan_go_in_one_write_answered_output_by_output(cell):
+    """The soft PLC's output image: one Write request a scan, each output with its status."""
+    from sorter_control.soft_plc import OpcUaIO
+
+    io = OpcUaIO(cell.fieldbus.opcua_endpoint, 'cell', cell.cell.sensor_names)
+    try:
+        out = {s.name: s for s in io.signals if s.direction == 'output'}
+        cell.advance(5)
+        before = io.requests
+        errors = io.write_many(
+            [
+                (out['diverter.alpha_setpoint'], 95.0),  # beyond the disks' +-90 deg
+                (out['diverter.popup'], True),
+                (out['diverter.alpha_setpoint'], 30.0),
+            ]
+        )
+        assert io.requests == before + 1
+        assert errors[0] == 'OPC UA BadOutOfRange writing diverter.alpha_setpoint', errors
+        assert errors[1:] == [None, None]
+        cell.advance(1)
+        assert cell.get_parameter('alpha_deg').value == 30.0
+        assert float(cell.cell.act[ck.A_STROKE_TARGET]) == 1.0
+    finally:
+        io.close()
+
+
 def test_warehouse_methods_take_typed_bounded_arguments_and_change_nothing_on_refusal(cell):
     import asyncio
 
