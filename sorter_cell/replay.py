@@ -9,7 +9,7 @@ and (when the controller was recorded too) what the controller made of it, and a
 PNG of the parcels' paths over the cell drawn from the recorded poses and the
 cell's parameters stored in the file. A recording of a cell under ``contact: rigid``
 holds its ``contacts`` too: how many periods' contacts, the most points at once and the
-largest normal force, between what; a recording without them reads as before.
+largest normal force between two bodies, which; a recording without them reads as before.
 """
 
 from __future__ import annotations
@@ -280,8 +280,16 @@ class _Reading:
                     )
 
     def _take_contacts(self, msg) -> None:
-        """Take one period's contact markers (``contact_markers``): count, most points, peak."""
+        """
+        Take one period's contact markers (``contact_markers``): count, most points, peak.
+
+        The peak is the largest normal force between two bodies, summed over their points
+        (a face in contact has two, whose split is the solver's; their sum is the load).
+        """
         points = [parse_contact_text(m.text) for m in msg.markers if m.action == 0]
+        pairs: dict = {}
+        for first, second, force in points:
+            pairs[first, second] = pairs.get((first, second), 0.0) + force
         c = self.contacts
         if c is None:
             c = self.contacts = {
@@ -292,7 +300,7 @@ class _Reading:
             }
         c["frames"] += 1
         c["most_points"] = max(c["most_points"], len(points))
-        for first, second, force in points:
+        for (first, second), force in pairs.items():
             if math.isfinite(force) and force > c["largest_force_n"]:
                 c["largest_force_n"] = force
                 c["largest_between"] = f"{first} | {second}"
