@@ -43,6 +43,7 @@ from sorter_cell.demo_parts import (  # noqa: F401 (the demo's public names, as 
 from sorter_cell.demo_summary import exit_code, exits_by_id, plot_paths, print_table, summarize
 from sorter_ros.run_loop import RunLoop
 from sorter_sim.model.description import Q
+from sorter_sim.runtime.params import JAM_CONTACT_MIN_GAP
 from sorter_sim.studies.outpaths import file_problem
 
 FOXGLOVE_PORT = 8765  # Foxglove's usual WebSocket port
@@ -148,6 +149,14 @@ def add_arguments(parser) -> None:
         "least gap for a mixed stream)",
     )
     parser.add_argument(
+        "--contact",
+        choices=("jam", "rigid"),
+        default=None,
+        help="what a touch is in the cell: jam (two parcels that touch stop and jam) or "
+        "rigid (parcels push and ride on as rigid boxes); default jam, and rigid for a "
+        f"--gap below {JAM_CONTACT_MIN_GAP:g} m (--gap 0 0: parcels end to end)",
+    )
+    parser.add_argument(
         "--seed", type=int, default=1, help="seed of the parcel stream (default 1)"
     )
     parser.add_argument(
@@ -204,6 +213,11 @@ def _check_args(args) -> str | None:
         q = Q["stream.gap"]
         if not (q.contains(lo) and q.contains(hi) and lo <= hi):
             return f"--gap MIN MAX: each must be {q.allowed}, with MIN <= MAX; got {lo} {hi}"
+        if lo < JAM_CONTACT_MIN_GAP and args.contact == "jam":
+            return (
+                f"--gap MIN below {JAM_CONTACT_MIN_GAP:g} m needs --contact rigid (or no "
+                f"--contact): under jam parcels that close up or touch jam; got --gap {lo} {hi}"
+            )
     if not 0 <= args.seed < 2**31:
         return f"--seed must be in [0, 2^31), got {args.seed}"
     if not 0 <= args.foxglove <= 65535:
@@ -473,6 +487,11 @@ def run(args) -> int | str:
         err = _check_args(args)
         if err:
             return err
+        if args.contact or (args.gap is not None and args.gap[0] < JAM_CONTACT_MIN_GAP):
+            return (
+                f"--stations N > 1: the line's cells run contact: jam; --contact and a --gap "
+                f"below {JAM_CONTACT_MIN_GAP:g} m are the one-cell demo's"
+            )
         problem = args.dispositions and file_problem(args.dispositions, "--dispositions")
         if problem:
             return problem

@@ -12,6 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from sorter_ros.outcomes import values
+from sorter_sim.runtime.params import JAM_CONTACT_MIN_GAP
 
 LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
@@ -181,6 +182,21 @@ def cell_params(sim) -> dict:
     return out
 
 
+def demo_contact(args) -> str:
+    """
+    Return what a touch is in the demo's cell: ``--contact``, or what the gap needs.
+
+    Unless told, the cell keeps ``contact: jam`` (the cell's default) for gaps it allows
+    and runs ``contact: rigid`` for a stream closer than that (``--gap 0 0``: parcels
+    end to end), where a touch is what the stream is made of, not a fault.
+    """
+    if args.contact is not None:
+        return args.contact
+    if args.gap is not None and args.gap[0] < JAM_CONTACT_MIN_GAP:
+        return "rigid"
+    return "jam"
+
+
 def _stream(args, config_dir: Path):
     """Return the plan of the demo's stream (gaps, capacity) and the cell's stream values."""
     from sorter_ros.params_file import read_params_file
@@ -194,7 +210,9 @@ def _stream(args, config_dir: Path):
         else (round(plan["min_gap_m"] + 0.02, 3), round(plan["min_gap_m"] + 0.4, 3))
     )
     plan["stream_gap_m"] = list(gap)
+    plan["contact"] = demo_contact(args)
     return plan, {
+        "contact": plan["contact"],
         "arrival": "gap",
         "arrival_gap": list(gap),
         "labels": list(LABEL_CYCLE),

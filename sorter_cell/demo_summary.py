@@ -91,6 +91,7 @@ def summarize(obs, plan: dict, sim_time: float, wall: float, time_mode: str) -> 
         "cell_capacity_pcs_h": round(cell_capacity, 1),
         "min_gap_m": round(plan["min_gap_m"], 3),
         "stream_gap_m": plan["stream_gap_m"],
+        "contact": plan.get("contact", "jam"),
         "mean_parcel_length_m": mean,
         "controller_state": d.get("state", "unknown"),
         "controller_faults": {
@@ -173,6 +174,12 @@ def print_table(s: dict) -> None:
             f"{s['min_gap_m']:.3f} m",
         ),
         ("stream gap", f"{s['stream_gap_m'][0]:.3f} .. {s['stream_gap_m'][1]:.3f} m"),
+        (
+            "contact",
+            "rigid (parcels push and ride on as rigid boxes; a jam is one that makes no progress)"
+            if s.get("contact") == "rigid"
+            else "jam (two parcels that touch stop and jam)",
+        ),
         (
             "controller",
             f"{s['controller_state']}; late decisions {s['late_decisions']}; "

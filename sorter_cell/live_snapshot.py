@@ -6,7 +6,8 @@ on, connects a WebSocket client speaking the Foxglove protocol, takes one
 ``foxglove.SceneUpdate`` as it arrives, decodes it with protobuf from the schema
 the server advertises, and draws it from above into a PNG: belt, disk field with
 its angle arrow, chutes, photo-eyes (red while blocked), scanner, parcels with
-their ids, labels and paths. The README's picture of the live view comes from here:
+their ids, labels and paths, and (``contact: rigid``) the contact points with their
+normal-force arrows. The README's picture of the live view comes from here:
 it shows what the server sends, drawn by the project, not a photo of a GUI.
 
     .venv/bin/python -m sorter_cell.live_snapshot [--out docs/img/live_view.png]
@@ -117,14 +118,23 @@ def draw_scene(scene, out: Path, title: str) -> None:
                 )
         for a in e.arrows:
             yaw = _yaw(a.pose.orientation)
+            length = a.shaft_length + a.head_length
             ax.annotate(
                 '',
                 xy=(
-                    a.pose.position.x + a.shaft_length * math.cos(yaw),
-                    a.pose.position.y + a.shaft_length * math.sin(yaw),
+                    a.pose.position.x + length * math.cos(yaw),
+                    a.pose.position.y + length * math.sin(yaw),
                 ),
                 xytext=(a.pose.position.x, a.pose.position.y),
-                arrowprops=dict(arrowstyle='-|>', color='white', lw=2),
+                arrowprops=dict(arrowstyle='-|>', color=(a.color.r, a.color.g, a.color.b), lw=2),
+            )
+        for sp in e.spheres:
+            ax.plot(
+                sp.pose.position.x,
+                sp.pose.position.y,
+                'o',
+                ms=4,
+                color=(sp.color.r, sp.color.g, sp.color.b),
             )
         for t in e.texts:
             ax.text(

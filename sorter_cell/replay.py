@@ -7,7 +7,9 @@ definitions embedded in the file (no ROS installation needed): the topics with
 their types and counts, the simulated span, every parcel with its label, its exit
 and (when the controller was recorded too) what the controller made of it, and a
 PNG of the parcels' paths over the cell drawn from the recorded poses and the
-cell's parameters stored in the file.
+cell's parameters stored in the file. A recording of a cell under ``contact: rigid``
+holds its ``contacts`` too: how many periods' contacts, the most points at once and the
+largest normal force between two bodies, which; a recording without them reads as before.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import math
 from collections import Counter
 from pathlib import Path
 
-from sorter_ros.outcomes import values
+from sorter_ros.outcomes import parse_contact_text, values
 from sorter_sim.studies.outpaths import file_problem
 
 METADATA = "sorter_sim parameters"  # written by the simulation node (sorter_sim.frontends.node)
@@ -179,6 +181,7 @@ class _Reading:
         self.confirmations: dict[str, dict] = {}
         self.paths: dict[int, list] = {}
         self.ids: list[int] | None = None
+        self.contacts: dict | None = None  # the contacts topic's figures, once one is read
         self.cell = None
         self.damage: str | None = None
         self.n_records = 0
@@ -265,6 +268,8 @@ class _Reading:
         elif name == ["sort", "confirmations"]:
             v = values(msg)
             self.confirmations[v.get("label", msg.name)] = v
+        elif name[-1] == "contacts":
+            self._take_contacts(msg)
         elif name == ["parcels", "ids"]:
             self.ids = [int(i) for i in msg.data]
         elif name == ["parcels", "poses"] and self.ids is not None:
@@ -273,6 +278,32 @@ class _Reading:
                     self.paths.setdefault(pid, []).append(
                         (float(pose.position.x), float(pose.position.y))
                     )
+
+    def _take_contacts(self, msg) -> None:
+        """
+        Take one period's contact markers (``contact_markers``): count, most points, peak.
+
+        The peak is the largest normal force between two bodies, summed over their points
+        (a face in contact has two, whose split is the solver's; their sum is the load).
+        """
+        points = [parse_contact_text(m.text) for m in msg.markers if m.action == 0]
+        pairs: dict = {}
+        for first, second, force in points:
+            pairs[first, second] = pairs.get((first, second), 0.0) + force
+        c = self.contacts
+        if c is None:
+            c = self.contacts = {
+                "frames": 0,
+                "most_points": 0,
+                "largest_force_n": 0.0,
+                "largest_between": None,
+            }
+        c["frames"] += 1
+        c["most_points"] = max(c["most_points"], len(points))
+        for (first, second), force in pairs.items():
+            if math.isfinite(force) and force > c["largest_force_n"]:
+                c["largest_force_n"] = force
+                c["largest_between"] = f"{first} | {second}"
 
     def metadata(self, values: dict) -> None:
         try:
@@ -303,6 +334,7 @@ class _Reading:
             "cell": self.cell,
             "damage": self.damage,
             "undecodable": dict(sorted(self.undecodable.items())),
+            "contacts": self.contacts,
         }
 
 
@@ -345,6 +377,7 @@ def summarize(rec: dict) -> dict:
         "parcel_outcomes": {str(k): v for k, v in rec["parcels"].items()},
         "damage": rec.get("damage"),
         "undecodable": rec.get("undecodable", {}),
+        "contacts": rec.get("contacts"),
     }
 
 
@@ -364,6 +397,13 @@ def _print(s: dict, png: str | None) -> None:
         t = "" if p["t_exit_s"] is None else f" at {p['t_exit_s']:.3f} s"
         ctl = f" ({p['controller']}, asked {p['destination_asked']})" if p["controller"] else ""
         print(f"  {pid:>5} {p['label']:<12} {p['exit']}{t}{ctl}")
+    c = s.get("contacts")
+    if c:
+        between = f" ({c['largest_between']})" if c["largest_between"] else ""
+        print(
+            f"contacts: {c['frames']} periods recorded, up to {c['most_points']} points, "
+            f"largest normal force {c['largest_force_n']:.1f} N{between}"
+        )
     if s.get("undecodable"):
         print(
             "undecodable: "

@@ -233,6 +233,14 @@ SCHEMA = (
         "follows it (more throughput, risk of a forced divert)",
     ),
     ParamSpec(
+        "gap_rules",
+        B,
+        True,
+        "refuse a divert whose gap to the parcel ahead or behind is too short (sent "
+        "straight, gap_too_short); false: every divert the model allows is made "
+        "whatever the spacing (to show what the rules prevent: mis-sorts, shoves, jams)",
+    ),
+    ParamSpec(
         "diagnostics_period",
         D,
         1.0,
@@ -403,6 +411,7 @@ def config_from_values(values: dict) -> ControllerConfig:
             clearance=values["clearance"],
             estop_on_jam=values["estop_on_jam"],
             open_chains=values["open_chains"],
+            gap_rules=values["gap_rules"],
             cell=cell,
         )
     except ValueError as exc:

@@ -14,6 +14,9 @@ custom interface to build) whose key-value pairs are the record:
 * the warehouse's ``wcs/dispositions``: name the label, message the code, values
   ``label``, ``code``, ``destination``, ``chute``, ``station``, ``t`` and ``cause``.
 
+The cell's ``contacts`` markers (``contact: rigid``) carry each contact point's bodies
+and normal force in their ``text``, written and read here too (``contact_text``).
+
 Every node that publishes one builds it here, and every reader (the demos, the test
 fixtures, the replay, the warehouse) reads it here, so that a field added or renamed
 is added or renamed once. A reader takes what a well-formed message holds and falls
@@ -194,6 +197,28 @@ def read_disposition(msg) -> LineDisposition:
 
 
 # ---------------------------------------------------------------------- writing
+def contact_text(a: int, second: str, force: float) -> str:
+    """
+    Return a contact marker's text: ``parcel <a> | <second body> | <force> N``.
+
+    ``second`` is named as a jam's cause names it (``parcel <id>``, ``side wall``,
+    ``rail``); the force [N] is written to its last digit.
+    """
+    return f'parcel {a} | {second} | {force!r} N'
+
+
+def parse_contact_text(text: str) -> tuple[str, str, float]:
+    """
+    Return (first body, second body, normal force [N]) of a contact marker's ``text``.
+
+    Raises ValueError when the text is not one ``contact_text`` writes.
+    """
+    parts = text.split(' | ')
+    if len(parts) != 3 or not parts[2].endswith(' N'):
+        raise ValueError(f'not a contact marker text: {text[:80]!r}')
+    return parts[0], parts[1], float(parts[2][:-2])
+
+
 def _status(level_warn: bool, name: str, message: str, pairs: list, hardware_id: str = ''):
     from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 

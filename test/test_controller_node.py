@@ -631,13 +631,44 @@ def test_sorter_demo_sorts_and_reports(tmp_path, capsys):
     assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_sorter_demo_runs_a_touching_stream_under_rigid_contact(tmp_path, capsys):
+    """
+    --gap 0 0: parcels end to end, run under contact: rigid, sorted by the shipped rules.
+
+    The controller needs 1.40 m between parcels to divert one (its least mixed-stream
+    gap): at gap 0 every divert is refused and its parcel sent straight, flagged
+    gap_too_short. Riding the belt together the parcels push nothing (no jam); a parcel
+    in a chute would be a mis-sort, since none was routed to one.
+    """
+    import json
+
+    from sorter_cell.cli import main
+
+    png = tmp_path / "paths.png"
+    argv = ["demo", "--gap", "0", "0", "--sim-time", "8", "--json", "--out", str(png)]
+    assert main(argv) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["contact"] == "rigid" and s["stream_gap_m"] == [0.0, 0.0]
+    assert s["jams"] == 0 and s["mis_sorted"] == 0 and s["untracked"] == 0
+    assert s["controller_state"] == "running" and not s["controller_faults"]
+    assert s["sorted_left"] == s["sorted_right"] == 0
+    assert s["flagged"]["gap_too_short"] >= 5
+    # every parcel that left went straight: flagged, rejected (label D) or asked straight
+    assert s["straight"] >= s["straight_flagged"] + s["rejected"]
+    assert s["inducted"] == s["straight"] + s["in_cell_at_end"]
+    # end to end: one parcel every mean length / belt speed (0.5 m / 1.5 m/s)
+    assert s["inducted"] >= 8.0 * 1.5 / 0.7
+
+
 @pytest.mark.parametrize(
     "argv, words",
     [
         (["--sim-time", "0"], "--sim-time"),
         (["--rtf", "warp"], "--rtf"),
         (["--gap", "1.0", "0.5"], "--gap"),
-        (["--gap", "0", "0"], "[0.05, 100] m"),
+        (["--gap", "-0.1", "0"], "[0, 100] m"),
+        (["--gap", "0", "0", "--contact", "jam"], "needs --contact rigid"),
+        (["--gap", "0", "0", "--stations", "2"], "the one-cell demo's"),
         (["--out", "paths.svg"], "--out"),
         (["--out", "/proc/version/paths.png"], "is not a folder"),
     ],

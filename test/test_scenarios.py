@@ -33,6 +33,7 @@ def test_the_examples_the_issue_asks_for_are_there():
         'lost controller',
         'e-stop mid divert',
         'dense stream',
+        'touching stream without gap rules',
     } <= names
 
 

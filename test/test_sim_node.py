@@ -625,6 +625,8 @@ def test_a_namespaced_second_cell_does_not_see_the_first(ros):
         ('parcel_A', [0.9, 0.3], 'parcel_A'),
         ('time_mode', 'slow', 'time_mode'),
         ('belt_sped', 1.0, 'belt_sped'),
+        # touching parcels are a stream only where touches are rigid contact
+        ('arrival_gap', [0.0, 0.0], r'arrival_gap.*needs contact: rigid'),
     ],
 )
 def test_bad_start_up_values_stop_the_node_with_a_clear_error(ros, name, value, match):

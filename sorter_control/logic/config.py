@@ -42,6 +42,7 @@ class ControllerConfig:
     clearance: float = 0.02
     estop_on_jam: bool = True
     open_chains: bool = False
+    gap_rules: bool = True
     cell: CellModel = field(default_factory=CellModel)
 
     def __post_init__(self):

@@ -6,9 +6,11 @@ arrives after the scan still counts): the destination comes from the routing
 table, and the divert is checked against its neighbours with
 ``timing.GapModel``: if the gap to the parcel ahead, or to the one behind, is
 too short for the disks to serve both, the parcel is sent straight and flagged
-rather than mis-sorted. The disks go up so that the stroke ends as the leading
-edge reaches the field (stroke time, one scan period and the service latency
-ahead), and down only after the model core's predicted commit time t_commit.
+rather than mis-sorted (unless ``gap_rules`` is off: then every divert the model
+allows is made, whatever the spacing, to show what the rules prevent). The disks
+go up so that the stroke ends as the leading edge reaches the field (stroke time,
+one scan period and the service latency ahead), and down only after the model
+core's predicted commit time t_commit.
 
 Every service call the program makes goes through here (``command``), so that
 one kind of call is never in flight twice.
@@ -290,7 +292,7 @@ class DiverterSequencer:
                 f"to the {asked} chute within the disk field; straight",
             )
             return
-        if prev is not None and prev.length is not None:
+        if prev is not None and prev.length is not None and self.config.gap_rules:
             headway = tr.t_enter(p) - tr.t_enter(prev)
             need = self.gaps.headway(
                 prev.length, prev.plan, p.length, asked, v, alpha_before_deg=self.alpha_end()
@@ -327,6 +329,7 @@ class DiverterSequencer:
         Parcels too close behind to go straight past raised disks must follow p to
         the same side (a chain, each bound to it); a chain that breaks refuses p.
         A bound p (forced) cannot be refused: a break behind it binds the next one.
+        Without ``gap_rules`` nothing behind p is looked at.
 
         Parameters
         ----------
@@ -347,7 +350,7 @@ class DiverterSequencer:
         pred = self.gaps.prediction(length, v, dest)
         chain = []
         cur, cur_len, cur_te = p, length, tr.t_enter(p)
-        while True:
+        while cfg.gap_rules:
             nxt = tr.next_after(cur)
             if nxt is None:
                 # nobody seen behind: a parcel not yet at the scanner is at least this far back

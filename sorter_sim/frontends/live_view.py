@@ -4,7 +4,8 @@ The cell's live view: a Foxglove WebSocket server showing the cell as it runs.
 Owns what a Foxglove client sees of one cell, with Foxglove's standard schemas:
 ``<prefix>/scene`` (``foxglove.SceneUpdate``: belt, disk field with its angle α and
 pop-up state, chutes, photo-eyes lit while blocked, the scanner, every parcel as a
-box with its id and label and the path it has taken), ``<prefix>/tf``
+box with its id and label and the path it has taken, and under ``contact: rigid``
+each contact point with an arrow of its normal force), ``<prefix>/tf``
 (``foxglove.FrameTransforms``: the cell's frame under ``world``) and
 ``<prefix>/values`` (JSON, plottable: α, the pop-up stroke, each sensor bit, and per
 parcel its speed and its slip on the belt and on the disks, the friction zones'
@@ -31,6 +32,7 @@ from foxglove.messages import (
     FrameTransforms,
     KeyValuePair,
     LinePrimitive,
+    SpherePrimitive,
     Point3,
     Pose,
     Quaternion,
@@ -57,6 +59,16 @@ STATE_COLOURS = {
     'diverted': (0.1, 0.8, 0.2),
     'straight': (0.55, 0.35, 0.15),
     'jammed': (1.0, 0.0, 0.0),
+}
+
+# contacts (contact: rigid): an arrow of the normal force on the parcel, this long per N
+# [m/N], at half a parcel's height [m], coloured by what the parcel touches
+CONTACT_FORCE_SCALE = 0.005
+CONTACT_Z = 0.5 * PARCEL_HEIGHT
+CONTACT_COLOURS = {
+    'parcel': (1.0, 0.2, 0.8),
+    'side wall': (1.0, 0.9, 0.1),
+    'rail': (0.1, 0.9, 1.0),
 }
 
 VALUES_SCHEMA = {
@@ -125,6 +137,52 @@ def _box(x0, x1, y0, y1, z0, z1, rgb, a=1.0) -> CubePrimitive:
 
 def _stamp(t_ns: int) -> Timestamp:
     return Timestamp(sec=t_ns // 1_000_000_000, nsec=t_ns % 1_000_000_000)
+
+
+def contact_colour(second: str) -> tuple:
+    """Return the colour of a contact with ``second``: ``parcel <id>``, ``side wall``, ``rail``."""
+    return CONTACT_COLOURS['parcel' if second.startswith('parcel') else second]
+
+
+def contact_entity(stamp, contacts: dict, frame_id: str, ids: str = '') -> SceneEntity:
+    """
+    Return the contacts of a period as one entity: a sphere per point, an arrow per force.
+
+    Each arrow starts at its point and shows the normal force on the first body (a
+    parcel), ``CONTACT_FORCE_SCALE`` m per N long, as on the node's ``contacts`` topic;
+    the metadata names both bodies of each point and its force.
+    """
+    spheres, arrows, meta = [], [], []
+    cols = (contacts[k].tolist() for k in ('x', 'y', 'nx', 'ny', 'force', 'a'))
+    for (x, y, nx, ny, force, a), second in zip(zip(*cols), contacts['second']):
+        colour = _rgba(contact_colour(second))
+        spheres.append(
+            SpherePrimitive(
+                pose=_pose(x, y, CONTACT_Z), size=Vector3(x=0.03, y=0.03, z=0.03), color=colour
+            )
+        )
+        length = CONTACT_FORCE_SCALE * force
+        if length > 1e-4:
+            head = min(0.03, length)
+            arrows.append(
+                ArrowPrimitive(
+                    pose=_pose(x, y, CONTACT_Z, math.atan2(-ny, -nx)),
+                    shaft_length=length - head,
+                    shaft_diameter=0.012,
+                    head_length=head,
+                    head_diameter=0.03,
+                    color=colour,
+                )
+            )
+        meta.append(KeyValuePair(key=f'parcel {a} | {second}', value=f'{force:.3f} N'))
+    return SceneEntity(
+        timestamp=stamp,
+        frame_id=frame_id,
+        id=f'{ids}contacts',
+        spheres=spheres,
+        arrows=arrows,
+        metadata=meta,
+    )
 
 
 class LiveView:
@@ -212,6 +270,7 @@ class LiveView:
         stroke: float,
         sensors: dict[str, bool],
         state_names,
+        contacts: dict | None = None,
     ) -> None:
         """
         Send one frame: the scene, the frame transform and the plottable values.
@@ -234,6 +293,9 @@ class LiveView:
             {sensor name: blocked}.
         state_names : sequence of str
             The parcel states' names.
+        contacts : dict of str to ndarray, optional
+            The contact points of the period, as ``Cell.contact_points()`` gives them
+            (None: the cell has no rigid contact, nothing drawn).
 
         """
         self.update_stations(
@@ -245,6 +307,7 @@ class LiveView:
                     'alpha': alpha,
                     'stroke': stroke,
                     'sensors': sensors,
+                    'contacts': contacts,
                 }
             ],
             state_names,
@@ -260,7 +323,7 @@ class LiveView:
             The simulated time [ns].
         states : list of dict
             Per station (in the order given at construction): parcels, motion, alpha,
-            stroke, sensors, as ``update`` takes them.
+            stroke, sensors and (optional) contacts, as ``update`` takes them.
         state_names : sequence of str
             The parcel states' names.
 
@@ -294,6 +357,8 @@ class LiveView:
                     stamp, st['alpha'], st['stroke'], st['sensors'], lay, ids
                 )
                 entities += self._parcel_entities(stamp, parcels, motion, state_names, lay, ids)
+                if st.get('contacts') is not None:
+                    entities.append(contact_entity(stamp, st['contacts'], lay.frame_id, ids))
             values = self.value_channels[name]
             if values.has_sinks():
                 values.log(

@@ -351,6 +351,8 @@ class SimNode(Node):
             'alpha': c.alpha,
             'stroke': c.stroke,
             'sensors': c.sensor_states(),
+            # the contacts only where parcels touch as rigid boxes (contact: rigid)
+            'contacts': c.contact_points() if c.params.contact == 'rigid' else None,
         }
 
     # ------------------------------------------------------------------ parameters

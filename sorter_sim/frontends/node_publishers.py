@@ -3,8 +3,9 @@ What the simulation node publishes: the cell's topics, recorded, and the live vi
 
 ``CellPublishers`` creates the publishers of the interface contract (README,
 "Simulation node") once and turns what the cell reports into messages on them:
-sensor edges, scanner reads, outcomes, poses, markers, the diverter's state, the
-latched status bits and PackML state, and ``/clock``. Every message goes out through
+sensor edges, scanner reads, outcomes, poses, markers, the contacts (``contact:
+rigid``), the diverter's state, the latched status bits and PackML state, and
+``/clock``. Every message goes out through
 ``publish``, which counts it per topic and hands the same bytes to the node's
 recording, so a recording is exactly what subscribers saw; the node's live view is
 fed from the same periods. The node's other collaborators (fieldbus bridge,
@@ -35,6 +36,7 @@ from sorter_sim.frontends.cdr import (
     stamp,
     uint32_array_cdr,
 )
+from sorter_sim.frontends.contact_markers import contact_marker_array
 from sorter_sim.frontends.live_view import PARCEL_HEIGHT, STATE_COLOURS
 from sorter_sim.runtime.cell import STATE_NAMES, LabelRead, Outcome, SensorEdge, WatchdogTrip
 
@@ -90,10 +92,18 @@ class CellPublishers:
         self.published = Counter()  # messages per topic, counted where they are published
         self.n_messages = 0
         self.n_marker_arrays = 0
+        self.n_contact_arrays = 0
         self._topic_names = {}
         self.pub_poses = self.create(PoseArray, 'parcels/poses', STREAM_QOS)
         self.pub_ids = self.create(UInt32MultiArray, 'parcels/ids', STREAM_QOS)
         self.pub_markers = self.create(MarkerArray, 'parcels/markers', STREAM_QOS)
+        # the contacts exist only where parcels touch as rigid boxes: a cell under
+        # ``contact: jam`` has no such topic and builds nothing
+        self.pub_contacts = (
+            self.create(MarkerArray, 'contacts', STREAM_QOS)
+            if node.params.contact == 'rigid'
+            else None
+        )
         self.pub_sensor = {
             name: self.create(Bool, f'sensors/{name}', SENSOR_QOS)
             for name in self._cell.sensor_names
@@ -174,6 +184,8 @@ class CellPublishers:
             self._publish_diverter()
         if k % p.marker_stride == 0 and self.pub_markers.get_subscription_count() > 0:
             self._publish_markers()
+        if k % p.marker_stride == 0 and self._contacts_wanted():
+            self._publish_contacts()
         live_view = self._node.live_view
         if live_view is not None and k % p.pose_stride == 0 and live_view.due():
             live_view.update(self._cell.t_ns, state_names=STATE_NAMES, **self._node.live_state())
@@ -304,6 +316,22 @@ class CellPublishers:
             markers.append(m)
         self.publish(self.pub_markers, MarkerArray(markers=markers))
         self.n_marker_arrays += 1
+
+    def _contacts_wanted(self) -> bool:
+        """Return whether the contacts go out now: someone subscribes, or the node records."""
+        if self.pub_contacts is None:
+            return False
+        recorder = self._node.recorder
+        if recorder is not None and not recorder.closed:
+            return True
+        return self.pub_contacts.get_subscription_count() > 0
+
+    def _publish_contacts(self) -> None:
+        msg = contact_marker_array(
+            self._cell.contact_points(), self.frame_id, time_msg(self._cell.t_ns)
+        )
+        self.publish(self.pub_contacts, msg)
+        self.n_contact_arrays += 1
 
     def _publish_clock(self) -> None:
         if self.pub_clock is None:

@@ -326,10 +326,11 @@ QUANTITIES: tuple[Quantity, ...] = (
         'stream.gap',
         'm',
         1.45,
-        0.05,
+        0.0,
         100.0,
-        'belt gap between consecutive parcels, trailing edge to leading edge (below 5 cm '
-        'the photo-eyes could not tell two parcels apart within a scan)',
+        'belt gap between consecutive parcels, trailing edge to leading edge (below '
+        '5 cm, down to 0: end to end, only under contact: rigid; under contact: jam '
+        'parcels that close up or touch jam)',
     ),
     _q('stream.rate', '1/s', 1.0, 0.001, 50.0, 'mean arrival rate of a Poisson stream'),
 )

@@ -869,6 +869,10 @@ class Cell:
         """Return label, speed and slips of each parcel (``cell_view.parcel_motion``)."""
         return cell_view.parcel_motion(self)
 
+    def contact_points(self) -> dict[str, np.ndarray]:
+        """Return the last period's contact points and forces (``cell_view.contacts``)."""
+        return cell_view.contacts(self)
+
     @property
     def n_parcels(self) -> int:
         return int(np.count_nonzero(self.phase != ck.PH_FREE))

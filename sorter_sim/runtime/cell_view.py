@@ -2,7 +2,7 @@
 What an overhead camera sees of a cell: its parcels' poses and how they move.
 
 Read-only views of a ``runtime.cell.Cell``'s slots (taken as it is, not imported: the
-cell imports this module), for the node's pose and marker topics, the live
+cell imports this module), for the node's pose, marker and contact topics, the live
 view and the tests; they change nothing in the cell. Parcels riding a surface are
 advanced in closed form by the kernel, which keeps no velocity for them: their
 velocity is that surface's, and is filled in here.
@@ -15,6 +15,21 @@ import math
 import numpy as np
 
 from sorter_sim.model.core import cell_kernels as ck
+from sorter_sim.model.core.contact import (
+    CF_NX,
+    CF_NY,
+    CF_PN,
+    CF_PT,
+    CF_PX,
+    CF_PY,
+    N_CT,
+    OB_KIND,
+    OBK_WALL,
+)
+
+# what a contact's second body is (``contacts``'s ``with`` column)
+WITH_PARCEL, WITH_WALL, WITH_RAIL = 0, 1, 2
+WITH_NAMES = ('parcel', 'side wall', 'rail')
 
 
 def parcels(cell) -> dict[str, np.ndarray]:
@@ -68,4 +83,50 @@ def parcel_motion(cell) -> dict:
         'speed': np.hypot(v[:, 0], v[:, 1]),
         'slip_belt': np.hypot(v[:, 0] - belt[0], v[:, 1] - belt[1]),
         'slip_disks': np.hypot(v[:, 0] - disks[0], v[:, 1] - disks[1]),
+    }
+
+
+def contacts(cell) -> dict[str, np.ndarray]:
+    """
+    Return the contact points of the cell's last period (``contact: rigid``), as arrays.
+
+    One row per contact point, as the contact step left them at the period's end:
+    ``x``, ``y`` the point [m]; ``nx``, ``ny`` the unit normal from the first body to
+    the second; ``force`` the normal force over the period, impulse / h [N] (>= 0: the
+    second body is pushed along the normal, the first against it); ``friction`` the
+    tangential force, impulse / h [N], along (-ny, nx); ``a`` the first body's parcel
+    id; ``with`` what the second is (``WITH_PARCEL``, ``WITH_WALL``, ``WITH_RAIL``);
+    ``b`` its parcel id, or its obstacle's index (the side walls first, then the rails
+    in the order declared); ``second`` the second body as a jam's cause names it
+    (``parcel <id>``, ``side wall``, ``rail``). Empty under ``contact: jam`` and while
+    nothing touches. Nothing is kept: each call reads the contact step's own rows.
+    """
+    cont = cell.contacts
+    n = int(cont.counts[N_CT]) if cell.params.contact == 'rigid' else 0
+    ct_i, ct_f = cont.ct_i[:n], cont.ct_f[:n]
+    a, b = ct_i[:, 0], ct_i[:, 1]
+    obstacle = b < 0
+    ob = np.where(obstacle, -1 - b, 0)
+    kind = (
+        np.where(cont.obstacles[ob, OB_KIND] == OBK_WALL, WITH_WALL, WITH_RAIL)
+        if n
+        else np.zeros(0, dtype=np.int64)
+    )
+    inv_h = 1.0 / cell.dt
+    b_id = np.where(obstacle, ob, cell.ids[np.maximum(b, 0)]).astype(np.int64)
+    with_ = np.where(obstacle, kind, WITH_PARCEL).astype(np.int64)
+    return {
+        'x': ct_f[:, CF_PX].copy(),
+        'y': ct_f[:, CF_PY].copy(),
+        'nx': ct_f[:, CF_NX].copy(),
+        'ny': ct_f[:, CF_NY].copy(),
+        'force': ct_f[:, CF_PN] * inv_h,
+        'friction': ct_f[:, CF_PT] * inv_h,
+        'a': cell.ids[a].astype(np.int64),
+        'with': with_,
+        'b': b_id,
+        'second': [
+            f'parcel {j}' if w == WITH_PARCEL else WITH_NAMES[w]
+            for w, j in zip(with_.tolist(), b_id.tolist())
+        ],
     }

@@ -424,7 +424,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
         'marker_rate_hz',
         DOUBLE,
         10.0,
-        'rate of parcels/markers while someone subscribes (simulated time)',
+        'rate of parcels/markers while someone subscribes, and of contacts (contact: '
+        'rigid) while someone subscribes or the node records (simulated time)',
         'Hz',
         0.1,
         1000.0,

@@ -51,6 +51,9 @@ from sorter_sim.runtime.param_table import (
 _SENSOR_NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 _FORMAT_FIELD = re.compile(r'\{([^{}:!]*)')
 LABEL_FIELDS = ('id', 'n', 'label')
+# the least stream gap under contact: jam [m]: closer, the photo-eyes cannot tell two
+# parcels apart within a scan, and parcels that close up touch, which jams them
+JAM_CONTACT_MIN_GAP = 0.05
 
 
 class ParamError(ValueError):
@@ -542,6 +545,12 @@ class CellParams:
             'parcel_y0',
         ):
             _range_pair(name, getattr(self, name))
+        if self.arrival_gap[0] < JAM_CONTACT_MIN_GAP and self.contact != 'rigid':
+            raise ParamError(
+                f'parameter \'arrival_gap\' below {JAM_CONTACT_MIN_GAP:g} m (got '
+                f'{list(self.arrival_gap)}) needs contact: rigid: under contact: '
+                f'{self.contact} parcels that close up or touch jam'
+            )
         half_w = 0.5 * self.belt_width
         hy = max_half_width(self.parcel_A[1], self.parcel_B[1], *self.parcel_phi0_deg)
         worst = max(abs(self.parcel_y0[0]), abs(self.parcel_y0[1])) + hy
