@@ -432,9 +432,7 @@ class Cell:
 
         """
         cleared = self.watchdog.feed(counter, self.k)
-        # only a trip cleared changes what PackML sees (the hold's cause): a heartbeat
-        # each scan must not make every slice look at the conditions again
-        self._packml_dirty = self._packml_dirty or cleared
+        self._packml_dirty |= cleared  # only a trip cleared changes what PackML sees
         return cleared
 
     # what the watchdog shows, by the names the node's diagnostics and the tests use
