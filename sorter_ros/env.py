@@ -411,18 +411,13 @@ def spin_surviving(node, stop=None) -> int:
         The number of callback exceptions survived.
 
     """
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
 
-    executor = None
-    if getattr(node, 'executor_kind', 'single') == 'events':
-        try:
-            from rclpy.experimental import EventsExecutor
-        except ImportError:  # an rclpy without it
-            pass
-        else:
-            executor = EventsExecutor(context=node.context)
-    if executor is None:
-        executor = SingleThreadedExecutor(context=node.context)
+    from sorter_ros.run_loop import make_executor
+
+    # the run loop's one executor picker (the events executor where rclpy has it)
+    events = getattr(node, 'executor_kind', 'single') == 'events'
+    executor = make_executor(node.context, events=events)
     # a node that owns others (a line and its stations) lists them all in ``nodes``
     for n in getattr(node, 'nodes', [node]):
         executor.add_node(n)
