@@ -4,20 +4,23 @@ The fieldbus servers in a process of their own, sharing the I/O image with the n
 The Modbus TCP, OPC UA and S7 servers are Python (pymodbus, asyncua, python-snap7):
 in the node's interpreter every client request they serve holds the physics up
 (the interpreter runs one thread at a time). Here they run in a child process; the
-image is exchanged as it is in the node, once per physics period:
+image is exchanged through shared memory, once per I/O cycle (docs/fieldbus.md, Timing):
 
-- **inputs** (the cell to the PLC): the node encodes what changed at the end of each
-  period straight into shared memory (``multiprocessing.shared_memory``: the raw
-  discrete inputs and input registers, the Modbus image itself), bracketed by a
-  sequence counter (a seqlock); the servers read a consistent copy of it, retrying
-  while the node is writing.
+- **inputs** (the cell to the PLC): at each latch the node encodes what changed
+  straight into shared memory (``multiprocessing.shared_memory``: the raw discrete
+  inputs and input registers, the Modbus image itself), bracketed by a sequence
+  counter (a seqlock); the servers read a consistent copy of it, retrying while the
+  node is writing. With a cycle of one period the node latches at the end of each run
+  of periods and when a read asks: a read while the node runs (``STEPPING``) counts
+  itself in ``READ_ASK`` and waits, ASK_WAIT_S at most, until the node has latched for
+  it (``READ_SERVED``), which it does between two chunks of periods.
 - **outputs** (the PLC to the cell): the servers check and apply each write as they
   do in process (``IOImage``) and put it in shared memory too: per output its raw
   value, a count of its writes and a count of its rising edges, then a sequence
-  number. The node, at the start of each period, compares the sequence number with
-  the one it saw (one read when nothing was written) and takes the outputs whose
-  counts moved. Nothing the servers do waits on the node: a cell that is not
-  stepped never holds a client up.
+  number. The node, at the start of each period or chunk, compares the sequence
+  number with the one it saw (one read when nothing was written) and takes the
+  outputs whose counts moved. Nothing else the servers do waits on the node: a cell
+  that is not stepped never holds a client up.
 - **counters** (writes refused, reads refused, calls refused ...) are kept in shared
   memory by the servers and read by the node's diagnostics.
 
@@ -58,7 +61,7 @@ START_TIMEOUT_S = 60.0
 # is running periods now; then the servers' counters
 IN_SEQ, OUT_SEQ, IN_WALL, READ_ASK, READ_SERVED, STEPPING, HEAD = range(7)
 ASK_WAIT_S = 0.005  # the longest a read waits for a running node to latch the inputs
-ASK_POLL_S = 50e-6  # how often it looks meanwhile
+ASK_POLL_S = 2e-4  # how often it looks meanwhile (each look a wake-up of this process)
 # reads this soon after an answered one take its latch: the variables of one OPC UA
 # request (a callback each), a PLC scan's few requests, see one period
 ASK_FRESH_S = 0.001
