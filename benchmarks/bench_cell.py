@@ -18,7 +18,7 @@ The measurements, after a warm-up that fills the cell (not timed):
   node+live     the Foxglove live view with one WebSocket client (another process);
   node+rec      recording everything the node publishes to an MCAP file;
   node+servers  the Modbus TCP, OPC UA and S7 servers on, no client: the image
-                exchanged every physics period;
+                latched at the end of each slice only (nobody asks for more);
   node+fieldbus the servers with one Modbus, one OPC UA and one S7 client (another
                 process) each reading every input every 10 ms of wall time;
   everything    the subscriber, the live view with its client, the recording and

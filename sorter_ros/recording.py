@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import errno
 import fcntl
+import functools
 import json
 import os
 import select
@@ -74,9 +75,9 @@ def publish_recorded(publisher, msg, recorder: Recorder | None, t_ns: int) -> No
         data = msg
     else:
         data = serialize_message(msg)
-    recorder.published.add(publisher.topic_name)
+    channel = recorder.channel_of(publisher)
     publisher.publish(data)
-    recorder.write(publisher.topic_name, data, t_ns, publisher.msg_type, publisher.qos_profile)
+    recorder.write_channel(channel, data, t_ns)
 
 
 def type_name(msg_class) -> str:
@@ -116,6 +117,7 @@ def _msg_file_text(pkg: str, name: str) -> str:
     )
 
 
+@functools.lru_cache(maxsize=None)
 def message_type_hash(name: str) -> str:
     """
     Return the RIHS01 type hash of ``pkg/msg/Type``, or '' when its package ships none.
@@ -151,6 +153,7 @@ def message_type_hash(name: str) -> str:
     return ''
 
 
+@functools.lru_cache(maxsize=None)
 def message_definition(name: str) -> str:
     """
     Return the full ros2msg definition of ``pkg/msg/Type``, dependencies appended.
@@ -188,6 +191,26 @@ def message_definition(name: str) -> str:
     for p, n in order:
         parts.append(f'{SEPARATOR}\nMSG: {p}/{n}\n{_msg_file_text(p, n)}')
     return '\n'.join(parts)
+
+
+def prepare_channel(msg_class) -> None:
+    """
+    Read a message type's definition and hash now, at a node's start, for its recording.
+
+    A channel is written with the first message on its topic: the definition's files
+    read and parsed then (some milliseconds a type) would cost the running node, when
+    the first parcel reaches a sensor. Both are kept for the process (the files do not
+    change while it runs).
+
+    Parameters
+    ----------
+    msg_class : type
+        A rosidl message class a recorded publisher publishes.
+
+    """
+    name = type_name(msg_class)
+    message_definition(name)
+    message_type_hash(name)
 
 
 def qos_profiles_yaml(qos) -> str:
@@ -286,6 +309,7 @@ class Recorder:
         self._pending = bytearray()
         self._last_flush = time.monotonic()
         self._channels: dict[str, int] = {}
+        self._by_publisher: dict = {}  # publisher -> its channel (channel_of)
         self._lock = threading.Lock()
         self._users = 0
         self.closed = False
@@ -415,6 +439,60 @@ class Recorder:
                 if not isinstance(msg_type, str):
                     msg_type = type_name(msg_type)
                 channel = self._channel(topic, msg_type, qos)
+            self.messages += 1
+            self._frame(MESSAGE, channel, t_ns, data)
+
+    def channel_of(self, publisher) -> int:
+        """
+        Return the channel of a publisher of this process, made the first time it is asked.
+
+        Its topic, type and QoS are asked of rclpy once per publisher (a topic name is a
+        call into its C handle): ``write_channel`` then costs a message no more than its
+        frame. The topic counts from now as the nodes' own (``published``).
+
+        Parameters
+        ----------
+        publisher : rclpy.publisher.Publisher
+            The publisher.
+
+        Returns
+        -------
+        int
+            Its channel; 0 when the recording has stopped (nothing is written to it).
+
+        """
+        channel = self._by_publisher.get(publisher)
+        if channel is not None:
+            return channel
+        topic = publisher.topic_name
+        self.published.add(topic)
+        with self._lock:
+            if self.closed:
+                return 0
+            channel = self._channels.get(topic)
+            if channel is None:
+                msg_type = type_name(publisher.msg_type)
+                channel = self._channel(topic, msg_type, publisher.qos_profile)
+            self._by_publisher[publisher] = channel
+            return channel
+
+    def write_channel(self, channel: int, data: bytes, t_ns: int) -> None:
+        """
+        Write CDR ``data`` on a channel from ``channel_of``, at ``t_ns``.
+
+        Parameters
+        ----------
+        channel : int
+            The channel (0: the recording had stopped, nothing is written).
+        data : bytes
+            The message's CDR bytes.
+        t_ns : int
+            The simulated time [ns].
+
+        """
+        with self._lock:
+            if self.closed or not channel:
+                return
             self.messages += 1
             self._frame(MESSAGE, channel, t_ns, data)
 

@@ -411,3 +411,73 @@ def test_ctrl_c_stops_the_node_and_its_fieldbus_process_without_a_traceback(tmp_
     err = ''.join(seen) + err
     assert proc.returncode == 0, err[-3000:]
     assert 'Traceback' not in err and 'KeyboardInterrupt' not in err, err[-3000:]
+
+
+def test_the_inputs_are_latched_when_a_read_asks_and_at_the_end_of_a_run(ros, monkeypatch):
+    """
+    A cycle of one period: no latch while nobody reads; a read asks and gets one.
+
+    Nobody reading, a run of periods latches the inputs once, at its end, each edge time
+    the period's own; a read while the node runs asks for a latch, waits for the end of
+    the chunk it came in and sees the cell as it is then.
+    """
+    import threading
+    import time
+
+    from sorter_sim.frontends import fieldbus_process
+    from sorter_sim.runtime.cell import Cell, SensorEdge
+    from sorter_sim.runtime.params import CellParams
+
+    node = fb.serving_cell(ros, modbus_port=free_port())
+    image, bridge = node.fieldbus.image, node.fieldbus_bridge
+    assert node.params.io_stride == 1
+    latches = image.stats['refreshes']
+    node.advance(2603)  # nobody reads: one latch, at the end of the run
+    assert image.stats['refreshes'] == latches + 1
+    twin = Cell(
+        CellParams.defaults().with_changes(
+            {**SHORT_CELL, 'arrival': 'gap', 'arrival_gap': [1.0, 1.0], 'alpha_deg': 60.0},
+            runtime=False,
+        )
+    )
+    edges = [e for e in twin.advance(2603) if isinstance(e, SensorEdge)]
+    client = ModbusTcpClient('127.0.0.1', port=node.fieldbus.modbus_port, timeout=5, retries=0)
+    assert client.connect()
+    try:
+        t = MAP['cell.time']
+        regs = client.read_input_registers(0, count=40).registers
+        assert u32(regs, t.address) * t.scale == pytest.approx(2.603, abs=1e-9)
+        compared = 0
+        for name in node.cell.sensor_names:
+            rises = [e.t_ns for e in edges if e.sensor == name and e.blocked]
+            if rises:
+                rise = MAP[f'sensor.{name}.rise_time']
+                raw = client.read_input_registers(rise.address, count=2).registers
+                assert u32(raw, 0) * rise.scale == pytest.approx(max(rises) * 1e-9, abs=rise.scale)
+                compared += 1
+        assert compared >= 2
+    finally:
+        client.close()
+    # the servers' side of the image, here; a read waits for its latch whatever the load
+    monkeypatch.setattr(fieldbus_process, 'ASK_WAIT_S', 60.0)
+    server = fieldbus_process.ServerImage(image.signals, {}, node.fieldbus._shm.buf)
+    got = []
+    bridge.start_run(1)
+    try:
+        bridge.advance(10, 1)
+        assert image.stats['refreshes'] == latches + 1  # nobody asked
+        reader = threading.Thread(target=lambda: got.append(server.input_values(['cell.time'])))
+        reader.start()
+        deadline = time.monotonic() + 30.0
+        while not image.read_asked():
+            assert time.monotonic() < deadline, 'the read never asked for a latch'
+            time.sleep(0.001)
+        assert not got  # it waits for the node
+        bridge.advance(10, 1)  # the chunk the read came in: latched at its end
+        reader.join(30.0)
+        assert image.stats['refreshes'] == latches + 2
+        assert got == [(pytest.approx(2.623, abs=1e-9),)]
+        assert node.cell.t == pytest.approx(2.623)
+    finally:
+        bridge.end_run(1)
+    assert image.stats['refreshes'] == latches + 2  # nothing run since: nothing to latch

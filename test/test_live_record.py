@@ -414,3 +414,21 @@ def test_a_stalled_or_killed_live_view_process_never_holds_the_cell(ros):
         sent = view.frames_sent
         node.advance(1000)
         assert view.frames_sent == sent
+
+
+def test_the_live_view_draws_at_a_lower_priority_than_the_physics(ros):
+    """On a machine short of cores the scheduler gives them to the node before the view."""
+    from sorter_sim.frontends.live_view_process import NICE
+
+    node = _sim(ros, foxglove_port=free_port())
+    view = node.live_view
+    mine = os.getpriority(os.PRIO_PROCESS, 0)
+    # the view lowers its priority once it has started (just after it said so)
+    deadline = time.monotonic() + 30.0
+    while os.getpriority(os.PRIO_PROCESS, view.pid) == mine and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert os.getpriority(os.PRIO_PROCESS, view.pid) == min(19, mine + NICE)
+    assert NICE > 0
+    k0 = node.cell.k
+    node.advance(500)  # the node itself runs at its own priority
+    assert node.cell.k == k0 + 500 and os.getpriority(os.PRIO_PROCESS, 0) == mine

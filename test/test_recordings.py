@@ -686,3 +686,43 @@ def test_sorter_replay_reads_a_bag_a_rosbag2_writer_made(tmp_path):
     assert s['topics']['/parcels/poses'] == {'type': 'geometry_msgs/msg/PoseArray', 'count': 50}
     assert s['exits'] == {'left': 1} and s['parcel_outcomes']['7']['t_exit_s'] == 0.49
     assert len(rec['paths'][7]) == 50 and rec['paths'][7][-1][0] == pytest.approx(0.49)
+
+
+def test_a_recorded_message_asks_rclpy_nothing_its_publisher_was_asked_once(tmp_path):
+    """Topic, type and QoS are taken once per publisher: a message costs its frame alone."""
+    from mcap.reader import make_reader
+    from rclpy.qos import QoSProfile
+    from std_msgs.msg import String
+
+    from sorter_ros.recording import open_recorder, publish_recorded, release_recorder
+
+    class CountingPublisher:
+        msg_type = String
+        qos_profile = QoSProfile(depth=10)
+
+        def __init__(self):
+            self.asked = 0
+            self.sent = []
+
+        @property
+        def topic_name(self):  # a call into rclpy's C handle each time
+            self.asked += 1
+            return '/probe/label'
+
+        def publish(self, msg):
+            self.sent.append(msg)
+
+    path = tmp_path / 'once.mcap'
+    pub = CountingPublisher()
+    rec = open_recorder(str(path))
+    for i in range(50):
+        publish_recorded(pub, String(data=f'A{i:05d}'), rec, 10**9 + i)
+    assert rec.published == {'/probe/label'}
+    release_recorder(rec)
+    assert pub.asked == 1
+    with open(path, 'rb') as f:
+        got = [(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages()]
+    assert got == [('/probe/label', 10**9 + i, sent) for i, sent in enumerate(pub.sent)]
+    assert [deserialize_message(d, String).data for _, _, d in got] == [
+        f'A{i:05d}' for i in range(50)
+    ]

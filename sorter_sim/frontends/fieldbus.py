@@ -55,6 +55,10 @@ class IOImage:
     Thread-safe: the node and the servers' thread meet here under one lock.
     """
 
+    # latched every period of a one-period cycle: a read here cannot ask the node for a
+    # latch (``fieldbus_process.NodeImage`` can: it is latched when a read asks)
+    on_demand = False
+
     def __init__(self, signals, initial_outputs: dict):
         self.signals = tuple(signals)
         self.by_name = by_name(self.signals)

@@ -4,20 +4,23 @@ The fieldbus servers in a process of their own, sharing the I/O image with the n
 The Modbus TCP, OPC UA and S7 servers are Python (pymodbus, asyncua, python-snap7):
 in the node's interpreter every client request they serve holds the physics up
 (the interpreter runs one thread at a time). Here they run in a child process; the
-image is exchanged as it is in the node, once per physics period:
+image is exchanged through shared memory, once per I/O cycle (docs/fieldbus.md, Timing):
 
-- **inputs** (the cell to the PLC): the node encodes what changed at the end of each
-  period straight into shared memory (``multiprocessing.shared_memory``: the raw
-  discrete inputs and input registers, the Modbus image itself), bracketed by a
-  sequence counter (a seqlock); the servers read a consistent copy of it, retrying
-  while the node is writing.
+- **inputs** (the cell to the PLC): at each latch the node encodes what changed
+  straight into shared memory (``multiprocessing.shared_memory``: the raw discrete
+  inputs and input registers, the Modbus image itself), bracketed by a sequence
+  counter (a seqlock); the servers read a consistent copy of it, retrying while the
+  node is writing. With a cycle of one period the node latches at the end of each run
+  of periods and when a read asks: a read while the node runs (``STEPPING``) counts
+  itself in ``READ_ASK`` and waits, ASK_WAIT_S at most, until the node has latched for
+  it (``READ_SERVED``), which it does between two chunks of periods.
 - **outputs** (the PLC to the cell): the servers check and apply each write as they
   do in process (``IOImage``) and put it in shared memory too: per output its raw
   value, a count of its writes and a count of its rising edges, then a sequence
-  number. The node, at the start of each period, compares the sequence number with
-  the one it saw (one read when nothing was written) and takes the outputs whose
-  counts moved. Nothing the servers do waits on the node: a cell that is not
-  stepped never holds a client up.
+  number. The node, at the start of each period or chunk, compares the sequence
+  number with the one it saw (one read when nothing was written) and takes the
+  outputs whose counts moved. Nothing else the servers do waits on the node: a cell
+  that is not stepped never holds a client up.
 - **counters** (writes refused, reads refused, calls refused ...) are kept in shared
   memory by the servers and read by the node's diagnostics.
 
@@ -32,6 +35,8 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
+import time
 from collections.abc import Mapping
 from multiprocessing.connection import Connection
 
@@ -52,8 +57,14 @@ START_TIMEOUT_S = 60.0
 
 
 # the header: the inputs' sequence number, the outputs', when the inputs were sampled
-# [ns since the epoch], then the servers' counters
-IN_SEQ, OUT_SEQ, IN_WALL, HEAD = 0, 1, 2, 3
+# [ns since the epoch]; the reads asked for (servers) and served (node), whether the node
+# is running periods now; then the servers' counters
+IN_SEQ, OUT_SEQ, IN_WALL, READ_ASK, READ_SERVED, STEPPING, HEAD = range(7)
+ASK_WAIT_S = 0.005  # the longest a read waits for a running node to latch the inputs
+ASK_POLL_S = 2e-4  # how often it looks meanwhile (each look a wake-up of this process)
+# reads this soon after an answered one take its latch: the variables of one OPC UA
+# request (a callback each), a PLC scan's few requests, see one period
+ASK_FRESH_S = 0.001
 
 
 def _layout(signals) -> dict:
@@ -110,6 +121,7 @@ class NodeImage(IOImage):
         self._out_signals = [s for s in self.signals if s.direction == OUTPUT]
         self._out_seen = 0
         self._counts_seen = np.zeros((2, layout['n_out']), dtype=np.int64)
+        self._served = 0  # the reads the last latch answered (READ_ASK then)
 
     @property
     def stats(self) -> dict:
@@ -123,11 +135,33 @@ class NodeImage(IOImage):
 
     def refresh_inputs(self, values: dict) -> None:
         head = self._head
+        asked = int(head[READ_ASK])  # the reads asked so far: this latch answers them all
         head[IN_SEQ] += 1  # odd: being written
         super().refresh_inputs(values)  # encodes what changed, into shared memory
         head[IN_WALL] = self.sampled_ns
         head[IN_SEQ] += 1  # even: consistent
+        head[READ_SERVED] = asked
+        self._served = asked
         self._local['refreshes'] += 1
+
+    # the node's side of latching on demand (``FieldbusBridge``, a cycle of one period)
+    on_demand = True
+
+    def read_asked(self) -> bool:
+        """Return whether a client asked for the inputs since they were last latched."""
+        return int(self._head[READ_ASK]) != self._served
+
+    def running(self, on: bool) -> None:
+        """
+        Say the node is running periods (a read then asks it for a latch) or stopped.
+
+        Parameters
+        ----------
+        on : bool
+            True before the node runs periods; False once it has latched their end.
+
+        """
+        self._head[STEPPING] = 1 if on else 0
 
     def take_outputs(self) -> tuple[dict, set]:
         seq = int(self._head[OUT_SEQ])
@@ -177,6 +211,8 @@ class ServerImage(IOImage):
             s.name: i for i, s in enumerate(s for s in self.signals if s.direction == OUTPUT)
         }
         self._decoded = None  # (sequence number, {input: value}, sampled [ns]) of the last decode
+        self._ask_lock = threading.Lock()  # the servers' threads ask one at a time
+        self._answered = -ASK_FRESH_S  # when the node last latched for a read [monotonic s]
         self.inputs = _SharedInputs(self)
 
     def _consistent_inputs(self, tables=(DI, IR)) -> tuple[dict, int]:
@@ -191,10 +227,35 @@ class ServerImage(IOImage):
             if int(head[IN_SEQ]) == seq:
                 return copy, sampled
 
+    def _ask_for_inputs(self) -> None:
+        """
+        Have a node that is running periods latch its inputs for this read; wait for it.
+
+        A node with a cycle of one period latches the inputs when a read asks (and at the
+        end of each run of periods), not every period: the read sees the cell at the end
+        of the periods run by then, as it would with a latch every period, and nobody
+        reading costs the physics nothing. The node answers within a run of periods (a
+        pose period at most, some hundred µs); a node that does not within ASK_WAIT_S
+        (stopped, killed) leaves the read with the inputs last latched. A node that is
+        not running periods (between steps, between realtime ticks) is not asked, and
+        neither is one that latched for a read less than ASK_FRESH_S ago.
+        """
+        head = self._head
+        if not head[STEPPING] or time.monotonic() - self._answered < ASK_FRESH_S:
+            return
+        with self._ask_lock:
+            head[READ_ASK] += 1
+            asked = int(head[READ_ASK])
+        deadline = time.monotonic() + ASK_WAIT_S
+        while head[STEPPING] and head[READ_SERVED] < asked and time.monotonic() < deadline:
+            time.sleep(ASK_POLL_S)
+        self._answered = time.monotonic()
+
     def snapshot_tables(self, tables) -> dict:
         out = {}
         wanted = [t for t in tables if t in (DI, IR)]
         if wanted:
+            self._ask_for_inputs()
             out.update(self._consistent_inputs(wanted)[0])
         with self._lock:
             for t in tables:
@@ -221,6 +282,7 @@ class ServerImage(IOImage):
         Decoded once per period the node wrote: a client reading thirty variables in one
         request (an OPC UA read, a subscription's sampling) decodes the image once.
         """
+        self._ask_for_inputs()
         seq = int(self._head[IN_SEQ])
         cached = self._decoded
         if cached is not None and cached[0] == seq and seq % 2 == 0:

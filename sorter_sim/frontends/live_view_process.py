@@ -6,7 +6,9 @@ a path of up to ``PATH_POINTS`` points each) built in Python: about 10 ms, which
 the node's interpreter the physics waits for. Here the node only pickles the state it
 already has (the parcels' columns, their motion, α, the stroke, the sensors: some
 tens of µs) and hands it through a socket to a plain interpreter that runs
-``LiveView`` (the Foxglove server, the paths, the frames).
+``LiveView`` (the Foxglove server, the paths, the frames), at a lower priority
+(``NICE``): on a machine short of cores the physics goes first and the view draws
+fewer frames.
 
 The child asks for each frame: it sends ``WANT`` when a client listens and the rate
 allows one (``LiveView.due``), ``IDLE`` when the last client left; the node hands
@@ -29,6 +31,10 @@ LENGTH = struct.Struct('<I')
 WANT, IDLE = b'F', b'N'
 START_TIMEOUT_S = 20.0
 STOP_WAIT_S = 2.0
+# the drawing process runs this much nicer than the node: where the cores are short
+# (the node, its clients, other work) the scheduler gives them to the physics first,
+# and the view draws fewer frames rather than the cell running slower
+NICE = 5
 
 
 def _send_blocking(sock: socket.socket, obj) -> None:
@@ -221,6 +227,10 @@ def _serve(sock: socket.socket) -> None:
         _send_blocking(sock, ('error', str(exc)))
         return
     _send_blocking(sock, ('ready', view.port))
+    try:  # started (at the node's priority: its start is the node's too), it yields
+        os.nice(NICE)
+    except OSError:  # a system that refuses it: the view draws at the node's priority
+        pass
     tick = min(0.01, 0.25 * view.min_wall_interval)
     buf = bytearray()
     asked = said_listening = False

@@ -461,16 +461,27 @@ class SimNode(Node):
         bridge = self.fieldbus_bridge
         cycle = p.io_stride if bridge.io_image is not None else 0
         # a chunk ends where an I/O cycle of several periods does (one of a single period
-        # is run period by period inside the chunk)
+        # is latched when a read asks, and at the end of the run: FieldbusBridge.advance)
         strides = (p.pose_stride, p.marker_stride, p.heartbeat_stride) + (
             (cycle,) if cycle > 1 else ()
         )
+        if bridge.io_image is None:
+            self._run(n, strides)
+            return
+        bridge.start_run(cycle)
+        try:
+            self._run(n, strides, bridge, cycle)
+        finally:
+            bridge.end_run(cycle)
+
+    def _run(self, n: int, strides, bridge=None, cycle: int = 0) -> None:
+        """Run ``n`` periods in chunks that end at ``strides``, publishing after each."""
         cost = self.cost
         while n > 0:
             k = self.cell.k
             m = min([n] + [s - k % s for s in strides])
             t0 = time.perf_counter()
-            if bridge.io_image is None:
+            if bridge is None:
                 events = self.cell.advance(m)
             else:
                 events = bridge.advance(m, cycle)

@@ -69,6 +69,7 @@ class FieldbusBridge:
         self._scanner = ScannerQueue()
         self._belt_travel = 0.0
         self._io_events = []  # what the periods of the current I/O cycle reported so far
+        self._unlatched = False  # periods run since the inputs were last latched
         self.refused = 0  # outputs the cell refused (a popup while e-stopped, ...)
         self._servers_ended_said = False
         self._refresh_io([])
@@ -151,9 +152,19 @@ class FieldbusBridge:
 
         """
         c = self._cell
+        if cycle == 1 and self.io_image.on_demand:
+            # a cycle of one period, latched when a read asks for it (and at the end of
+            # the run: ``end_run``): the kernel runs the chunk in one call; the outputs
+            # written meanwhile are applied at its start, the inputs latched at the end of
+            # the chunk a read came in, with every edge's own time
+            events = self._apply_io()
+            chunk = self._run_chunk(m)
+            if self.io_image.read_asked():
+                self._latch()
+            return events + chunk
         if cycle == 1:
-            # the I/O image is exchanged every period; what the periods report is
-            # published together after them, as without a fieldbus
+            # an image in this process (a line's station): exchanged every period; what
+            # the periods report is published together after them, as without a fieldbus
             events = []
             for _ in range(m):
                 events += self._apply_io()
@@ -166,15 +177,55 @@ class FieldbusBridge:
         # at its start, the inputs latched at its end with what the whole cycle
         # reported (a cycle may span several of these chunks: strides split it)
         events = self._apply_io() if c.k % cycle == 0 else []
+        chunk = self._run_chunk(m)
+        if c.k % cycle == 0:
+            self._latch()
+        return events + chunk
+
+    def _run_chunk(self, m: int) -> list:
+        """Run ``m`` periods in one kernel call; keep what they reported for the next latch."""
+        c = self._cell
         v_dt = c.belt_velocity * c.dt  # the belt is set between calls
         for _ in range(m):
             self._belt_travel += v_dt  # summed per period, as an exchange per period does
         chunk = c.advance(m)
         self._io_events += chunk
-        if c.k % cycle == 0:
-            self._refresh_io(self._io_events)
-            self._io_events = []
-        return events + chunk
+        self._unlatched = True
+        return chunk
+
+    def _latch(self) -> None:
+        """Latch the inputs with what the periods since the last latch reported."""
+        self._refresh_io(self._io_events)
+        self._io_events = []
+        self._unlatched = False
+
+    def start_run(self, cycle: int) -> None:
+        """
+        Say the node runs periods now: a read asks for the inputs (a cycle of one period).
+
+        Parameters
+        ----------
+        cycle : int
+            The I/O cycle (``io_stride``) [periods].
+
+        """
+        if cycle == 1 and self.io_image.on_demand:
+            self.io_image.running(True)
+
+    def end_run(self, cycle: int) -> None:
+        """
+        Latch the end of the periods just run (a cycle of one period); reads need not ask.
+
+        Parameters
+        ----------
+        cycle : int
+            The I/O cycle (``io_stride``) [periods].
+
+        """
+        if cycle == 1 and self.io_image.on_demand:
+            if self._unlatched:
+                self._latch()
+            self.io_image.running(False)
 
     def _apply_io(self) -> list:
         """

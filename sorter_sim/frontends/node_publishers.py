@@ -27,7 +27,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from sorter_ros.interface import EVENT_QOS, SENSOR_QOS, STREAM_QOS, quiet_publisher_events
 from sorter_ros.outcomes import outcome_msg
-from sorter_ros.recording import publish_recorded
+from sorter_ros.recording import prepare_channel, publish_recorded
 from sorter_sim.frontends.cdr import (
     JointStateCdr,
     bool_cdr,
@@ -144,6 +144,8 @@ class CellPublishers:
             The publisher.
 
         """
+        if self._node.recorder is not None:
+            prepare_channel(msg_type)  # its first message then costs no file reads
         return self._node.create_publisher(
             msg_type, topic, qos, event_callbacks=quiet_publisher_events()
         )
