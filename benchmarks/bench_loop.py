@@ -146,7 +146,8 @@ def main(argv=None) -> int:
             f'| {part} | {r["ms_per_sim_s"]:.0f} | {r["ms_per_slice"]:.3f} | '
             f'{100 * r["share"]:.0f} % |'
         )
-    print(f'| the slice, whole | {fig["slice_ms_per_sim_s"]:.0f} | {fig["slice_ms"]:.3f} | 100 % |')
+    whole = f'{fig["slice_ms_per_sim_s"]:.0f} | {fig["slice_ms"]:.3f}'
+    print(f'| the slice, whole | {whole} | 100 % |')
     return 0
 
 
