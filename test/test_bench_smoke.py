@@ -81,3 +81,35 @@ def test_bench_executor_prints_the_floor_of_both_executors_and_every_marker_come
         timeout=60,
     )
     assert bad.returncode == 2 and '--calls must be in [10, 100000], got 5' in bad.stderr
+
+
+def test_bench_loop_splits_the_demos_slices_into_parts_that_add_up():
+    """The parts it times are inside the slice: their shares add up to at most the whole."""
+    import json
+    import os
+
+    out = subprocess.run(
+        [sys.executable, str(ROOT / 'benchmarks' / 'bench_loop.py'), '--sim-time', '2', '--json'],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=dict(os.environ),
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    parts = {r['part']: r for r in got['rows']}
+    assert list(parts) == ['physics', 'publishing', 'drain', 'waits', 'settle', 'scan']
+    # one slice a 10 ms scan (the demo aligns its slices to the controller's timer)
+    assert got['slices'] >= 90 * got['sim_time_s'] and got['sim_time_s'] >= 2.0
+    assert all(r['ms_per_slice'] > 0 for r in parts.values())
+    # the scans run inside the drain or the waits; the rest do not overlap
+    outside = sum(parts[p]['share'] for p in ('physics', 'publishing', 'drain', 'waits', 'settle'))
+    assert 0.5 < outside <= 1.0 + 1e-9, outside
+    assert parts['scan']['share'] <= parts['drain']['share'] + parts['waits']['share']
+    bad = subprocess.run(
+        [sys.executable, str(ROOT / 'benchmarks' / 'bench_loop.py'), '--sim-time', '0'],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert bad.returncode == 2 and '--sim-time must be in [1, 600] s, got 0' in bad.stderr
