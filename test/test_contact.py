@@ -309,13 +309,14 @@ def _law_names():
 @pytest.mark.parametrize('law', _law_names())
 def test_a_queue_at_a_stopper_holds_still_under_every_method_and_friction_law(integrator, law):
     """
-    Every combination a user can choose: three parcels against a stopper, steady.
+    Every combination a user can choose: three parcels against a stopper, still.
 
     Whatever the law's μ(v) and however the off-belt parcels are integrated, parcels
-    held at rest by a stopper while the belt slides under them at v stay at rest
-    (the belt's slip is the same v for each, so the floor force is constant), keep
-    their order without overlap, raise no fault, and the stopper's force is steady
-    and positive: the floor's pull of all three.
+    held at rest by a stopper while the belt slides under them at v stay at rest to
+    below 1e-9 m/s (the belt's slip is the same v for each, so the floor force is
+    constant), keep their order without overlap (beyond the projection's 1e-9 m),
+    raise no fault, and the stopper's force is steady and positive: the floor's pull
+    of all three.
     """
     cell = rigid_cell(integrator=integrator, friction_model=law)
     ob = stopper_across(cell, -0.6)
@@ -328,8 +329,8 @@ def test_a_queue_at_a_stopper_holds_still_under_every_method_and_friction_law(in
         cell.advance(1)
         forces.append(cell.contacts.ob_force[ob, 0])
         assert np.all(np.isfinite(cell.state[:3]))
-        assert np.max(np.abs(cell.state[:3, 3:6])) < 1e-6
-        assert np.all(-np.diff(cell.state[:3, 0]) - a >= -1e-6)
+        assert np.max(np.abs(cell.state[:3, 3:6])) < 1e-9
+        assert np.all(-np.diff(cell.state[:3, 0]) - a >= -2e-9)
     assert not cell.faults and np.all(cell.phase[:3] == ck.PH_CELL)
     assert min(forces) > 0.0
     assert max(forces) - min(forces) <= 1e-6 * max(forces)
