@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from sorter_sim.model.core import cell_kernels as ck
-from sorter_sim.model.core.contact import CF_PN, CF_SEP, N_CT
+from sorter_sim.model.core.contact import CF_PN, CF_SEP, N_CT, N_SWEEPS
+from sorter_sim.model.core.contact_solve import PGS_MAX_SWEEPS
 from sorter_sim.runtime.cell import Cell, Outcome
 from sorter_sim.runtime.cell_contacts import place_parcel
 from sorter_sim.runtime.params import CellParams
@@ -337,14 +338,15 @@ def test_a_queue_at_a_stopper_holds_still_under_every_method_and_friction_law(in
 
 
 @pytest.mark.parametrize('integrator', ['accurate', 'implicit'])
-@pytest.mark.parametrize('n', [1, 4, 10])
+@pytest.mark.parametrize('n', [1, 4, 10, 20])
 def test_a_queue_of_long_parcels_at_a_stopper_settles_still(integrator, n):
     """
-    Up to ten long parcels (0.7 x 0.2 m) pressed by the belt against a stopper settle still.
+    Up to twenty long parcels (0.7 x 0.2 m) pressed by the belt against a stopper settle still.
 
     The chain's faces each touch at two points, coupled through the parcels' turn: solved
-    point by point that converges slowly and the queue creeps; solved face by face it
-    settles. After 0.5 s every speed stays below 1e-9 m/s and the stopper carries
+    point by point the solve did not converge within its sweeps on a chain of 20 and the
+    queue crept; solved face by face it converges every period. After 0.5 s every speed
+    stays below 1e-9 m/s, the solve converges in every period and the stopper carries
     Σ μ m_i g to 1e-9 (relative) over 0.1 s, under each integrator.
     """
     cell = rigid_cell(integrator=integrator)
@@ -359,4 +361,5 @@ def test_a_queue_of_long_parcels_at_a_stopper_settles_still(integrator, n):
         cell.advance(1)
         assert np.max(np.abs(cell.state[:n, 3:6])) < 1e-9
         assert abs(cell.contacts.ob_force[ob, 0] - expected) <= 1e-9 * expected
+        assert cell.contacts.counts[N_SWEEPS] < PGS_MAX_SWEEPS
     assert not cell.faults and np.all(cell.phase[:n] == ck.PH_CELL)
