@@ -383,9 +383,10 @@ def test_estop_stops_the_belt_and_parcels_slide_to_rest():
 
 # ---------------------------------------------------------------- jams
 def test_wall_and_parcel_jams_stop_the_parcels_until_reset():
-    # a short disk field with no margin: the disks push a parcel riding near the left
-    # edge into the wall downstream of the opening
-    cell = make_cell(disk_field_length=0.3, chute_margin=0.0, popup_stroke_time=0.0)
+    # the old rule (contact: jam), a touch is a fault: a short disk field with no
+    # margin, the disks push a parcel riding near the left edge into the wall
+    # downstream of the opening
+    cell = make_cell(disk_field_length=0.3, chute_margin=0.0, popup_stroke_time=0.0, contact='jam')
     cell.popup(True)
     cell.induct(ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.2, 'W'))
     events = cell.advance(3000)

@@ -231,7 +231,8 @@ def test_an_estop_aborts_until_the_disks_are_down_and_a_clear_releases_it():
 
 
 def test_a_jam_and_a_watchdog_trip_hold_and_automatic_mode_unholds_when_they_clear():
-    cell = make_cell(disk_field_length=0.3, chute_margin=0.0, popup_stroke_time=0.0)
+    # contact: jam, the rule under which a touch of the side wall is a jam at once
+    cell = make_cell(disk_field_length=0.3, chute_margin=0.0, popup_stroke_time=0.0, contact='jam')
     assert [s for _, s, _ in _states(cell)] == ['Resetting', 'Idle', 'Starting', 'Execute']
     cell.popup(True)
     cell.induct(ParcelSpec(0.4, 0.2, 5.0, 0.0, 0.2, 'W'))  # into the side wall: a jam

@@ -418,6 +418,7 @@ _REPORT_PARTS = {
     "fig13": ("## Fig. 13 two-belt positioning",),
     "core": ("## Core benchmark: Fig. 9a",),
     "matrix": ("## Stiff and extreme cases",),
+    "contact": ("## Parcels that touch: stiff and extreme cases",),
     "long": ("## Two-belt positioning, long runs",),
     "reductions": ("## Reductions",),
     "quadrature": ("The implicit method's error floor is its quadrature",),

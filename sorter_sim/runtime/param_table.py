@@ -207,7 +207,7 @@ SCHEMA: tuple[ParamSpec, ...] = (
     _p(
         'contact',
         STRING,
-        'jam',
+        'rigid',
         'what a touch is: jam (two parcels that touch, or a parcel that reaches a side '
         'wall outside a chute opening, stop and latch a jam fault) or rigid (planar '
         'rigid-box contact: they push, slide and ride on together with Coulomb friction '

@@ -13,8 +13,9 @@ small steps (no floor, constant μ).
 ``sorter bench precision [--quick] [--out DIR]`` writes DIR/accuracy.md and
 DIR/img/accuracy_*.png: work-precision tables and log-log plots for the Fig. 4
 oscillator, Fig. 9a, a parcel straddling all three zones and the Fig. 13 two-belt
-positioning, then the stiff/extreme-case matrix (``stiff_cases``), 10 minutes of
-two-belt positioning and the reductions. ``--quick`` (coarse sweeps, the matrix's
+positioning, then the stiff/extreme-case matrix (``stiff_cases``), the stiff and
+extreme cases of parcels that touch (``contact_cases``), 10 minutes of two-belt
+positioning and the reductions. ``--quick`` (coarse sweeps, the matrix's
 quick subset, 20 s of two-belt positioning) is what the test suite runs.
 
 The measuring itself is ``workprecision`` and the report's cases are
@@ -29,6 +30,7 @@ import time
 from pathlib import Path
 
 from sorter_sim.model.core.simulate import three_zone_strips
+from sorter_sim.studies.contact_cases import contact_rows
 from sorter_sim.studies import stiff_cases as sx
 from sorter_sim.studies.outpaths import dir_problem
 from sorter_sim.studies.precision_cases import (
@@ -74,7 +76,7 @@ TARGET_SPEEDUP = 20.0  # against the best scipy method at the same error
 
 # the report's parts, in its order; `--parts` picks some (the suite checks them one by one):
 # its cases by group (``cases`` names the four), then the benchmark and the stability runs
-REPORT_PARTS = CASE_GROUPS + ("core", "matrix", "long", "reductions", "quadrature")
+REPORT_PARTS = CASE_GROUPS + ("core", "matrix", "contact", "long", "reductions", "quadrature")
 
 
 def report_parts(names) -> list[str]:
@@ -544,10 +546,11 @@ def write_precision_report(
     img = out / "img"
     img.mkdir(parents=True, exist_ok=True)
     info = machine_info()
-    cases, core_text, core_fig, matrix_runs, long_runs, red_rows, quad = (
+    cases, core_text, core_fig, matrix_runs, contact_runs, long_runs, red_rows, quad = (
         [],
         None,
         {},
+        [],
         [],
         [],
         [],
@@ -573,6 +576,10 @@ def write_precision_report(
                 + " ".join(f"{r.method}:{'pass' if r.passed else 'FAIL'}" for r in runs)
             )
             done(sc.name)
+        if "contact" in parts:
+            log("parcels that touch: stiff and extreme cases")
+            contact_runs = contact_rows(quick=quick, log=log)
+            done("contact")
         if "long" in parts:
             log("two-belt positioning, long runs")
             long_runs = sx.two_belt_long(QUICK_LONG_S if quick else 600.0)
@@ -592,6 +599,7 @@ def write_precision_report(
             core_text=core_text,
             core_fig=core_fig,
             matrix_runs=matrix_runs,
+            contact_runs=contact_runs,
             long_runs=long_runs,
             red_rows=red_rows,
             quad=quad,

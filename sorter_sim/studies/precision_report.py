@@ -3,8 +3,8 @@ The work-precision report's text and plots, rendered from the measured cases.
 
 ``bench.write_precision_report`` measures; this module renders what it measured
 into docs/accuracy.md (headline, error levels, one section per case with its
-log-log plot, the stiff and extreme matrix, the long runs, the reductions, the
-findings) with its contents list.
+log-log plot, the stiff and extreme matrix, the stiff contact cases, the long
+runs, the reductions, the findings) with its contents list.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sorter_sim.studies import stiff_cases as sx
+from sorter_sim.studies.contact_cases import contact_findings, contact_markdown
 from sorter_sim.studies.markdown import CONTENTS_END, CONTENTS_START, with_contents
 from sorter_sim.studies.workprecision import (
     Trajectory,
@@ -112,6 +113,8 @@ class PrecisionParts:
         The core benchmark's figures.
     matrix_runs : list
         (case, runs) of the stiff and extreme matrix.
+    contact_runs : list
+        (case, rows) of the stiff and extreme cases of parcels that touch.
     long_runs : list
         The two-belt long runs.
     red_rows : list
@@ -125,6 +128,7 @@ class PrecisionParts:
     core_text: str | None = None
     core_fig: dict = field(default_factory=dict)
     matrix_runs: list = field(default_factory=list)
+    contact_runs: list = field(default_factory=list)
     long_runs: list = field(default_factory=list)
     red_rows: list = field(default_factory=list)
     quad: tuple = ()
@@ -161,12 +165,21 @@ def _report_markdown(
         L.extend(_case_markdown(pc, img))
     if parts.matrix_runs:
         L.append(_matrix_markdown(parts.matrix_runs))
+    if parts.contact_runs:
+        L.append(contact_markdown(parts.contact_runs))
     if parts.long_runs:
         L.append(_long_markdown(parts.long_runs))
     if parts.red_rows:
         L.append(_reductions_markdown(parts.red_rows))
     L.append(
-        _findings_markdown(cases, parts.matrix_runs, parts.long_runs, parts.core_fig, parts.quad)
+        _findings_markdown(
+            cases,
+            parts.matrix_runs,
+            parts.long_runs,
+            parts.core_fig,
+            parts.quad,
+            contact_findings(parts.contact_runs),
+        )
     )
     return with_contents("\n".join(L) + "\n")
 
@@ -513,7 +526,7 @@ def _families(rows) -> list[str]:
     return out
 
 
-def _findings_markdown(cases, matrix_runs, long_runs, core_fig, quad=()) -> str:
+def _findings_markdown(cases, matrix_runs, long_runs, core_fig, quad=(), contact=()) -> str:
     L = ["## Failures and findings", ""]
     if quad:
         L.append(
@@ -555,6 +568,7 @@ def _findings_markdown(cases, matrix_runs, long_runs, core_fig, quad=()) -> str:
         for c in r.checks:
             if not c.passed:
                 L.append(f"- two-belt {r.case}, {r.method}: {c.name} — {c.detail}")
+    L.extend(contact)
     if len(L) == 2:
         L.append("- none")
     L.append("")

@@ -18,16 +18,17 @@ and Coulomb friction at the contact. Three steps, as every rigid-body contact co
   edge of the other clipped to the reference face's side planes: up to two contact
   points, each with its normal and its separation (corner on edge: one point; edge
   on edge: two).
-* **Solve** (``_solve_velocities``, ``_project_positions``): velocity-level
+* **Solve** (``contact_solve.solve_velocities``, ``_project_positions``): velocity-level
   complementarity in the line of Stewart and Trinkle (1996) and Anitescu and Potra
   (1997). For every contact point the normal impulse p_n >= 0 is complementary to
   the normal velocity after the step, v_n+ = -e min(v_n-, 0) (e: the restitution,
   default 0), and the friction impulse lies in the Coulomb cone |p_t| <= μ p_n,
   opposing the tangential velocity where it is not zero (μ: ``mu_parcel`` between
-  parcels, ``mu_wall`` at an obstacle). Projected Gauss-Seidel, warm started from the
-  last period's impulses of the same contact (same bodies, same features), iterated
-  until no impulse changes by more than ``PGS_TOL`` of the largest: a chain of
-  parcels against a stopper carries its whole load. The velocities it changes are
+  parcels, ``mu_wall`` at an obstacle). Projected Gauss-Seidel over the faces (a
+  face's two points solved together, exactly), warm started from the last period's
+  impulses of the same contact (same bodies, same features), iterated until no
+  impulse changes by more than ``PGS_TOL`` of the largest: a chain of parcels
+  against a stopper carries its whole load. The velocities it changes are
   the parcels' velocities at the end of the period; positions are then projected out
   of any overlap beyond ``OVERLAP_TOL`` (a mass-weighted Gauss-Seidel on the linearised
   separations, Cline and Pai 2003), which changes no velocity, so it adds no energy.
@@ -45,8 +46,30 @@ from collections import namedtuple
 import numpy as np
 
 from sorter_sim.model.core.contact_narrow import box_contacts, box_polygon
+from sorter_sim.model.core.contact_solve import (
+    CF_BIAS,
+    CF_MASS_N,
+    CF_MASS_T,
+    CF_MU,
+    CF_NEW,
+    CF_NX,
+    CF_NY,
+    CF_PN,
+    CF_PT,
+    CF_PX,
+    CF_PY,
+    CF_SEP,
+    CF_TO,
+    CF_VN0,
+    CF_WIDTH,
+    _apply_pair,
+    _effective_mass,
+    _masses,
+    _relative_velocity,
+    solve_velocities,
+)
 from sorter_sim.model.core.jit import kernel_step
-from sorter_sim.model.core.layout import P_HALF_A, P_HALF_B, P_INERTIA, P_MASS
+from sorter_sim.model.core.layout import P_HALF_A, P_HALF_B
 
 # ---- an obstacle row: a static box (float64) --------------------------------------
 OB_X = 0  # centre [m]
@@ -67,30 +90,10 @@ OBK_RAIL = 1.0  # a rail or a stopper the cell declares
 WALL_THICKNESS = 0.05  # the side walls' boxes: how far beyond y = ±w/2 they reach [m]
 WALL_REACH = 500.0  # how far up- and downstream of the opening a side wall's box reaches [m]
 
-# ---- a contact point: int row [a, b, feature], float row CF_* ----------------------
-CF_PX = 0  # the point [m]
-CF_PY = 1
-CF_NX = 2  # the unit normal, from body a to body b
-CF_NY = 3
-CF_SEP = 4  # the separation along the normal (< 0: overlap) [m]
-CF_MASS_N = 5  # effective masses along the normal and the tangent [kg]
-CF_MASS_T = 6
-CF_BIAS = 7  # the normal velocity the step aims at (restitution) [m/s]
-CF_PN = 8  # the accumulated impulses [N s]
-CF_PT = 9
-CF_MU = 10  # the contact's friction coefficient
-CF_VN0 = 11  # the normal velocity before the solve [m/s]
-CF_NEW = 12  # 1 for a contact the last period did not have, else 0
-CF_TO = 13  # an impact: how long before the period's end it touched [s]; else 0
-CF_WIDTH = 14
-
 # contact points closer than this count as touching [m] (a face tilted by a
-# microradian must keep both its points); PGS stops when no impulse
-# changes by more than PGS_TOL of the largest; the projection leaves at most
+# microradian must keep both its points); the projection leaves at most
 # OVERLAP_TOL of overlap [m]
 CONTACT_REACH = 1e-6
-PGS_TOL = 1e-13
-PGS_MAX_SWEEPS = 20000
 OVERLAP_TOL = 1e-9
 PROJECTION_MAX_SWEEPS = 2000
 
@@ -337,85 +340,6 @@ def _broad_phase(state, phase, par, r_out, codes, mus, cont, scratch_f, scratch_
             _add_contacts(i, -1 - o, mu_wall, n_pts, cont, scratch_f, scratch_id)
 
 
-# ---------------------------------------------------------------- solve
-@kernel_step
-def _inverse_mass(i, phase, par, ph_cell):
-    """Return a body's inverse mass and moment of inertia (zero: an obstacle, a jammed parcel)."""
-    if i < 0 or phase[i] != ph_cell:
-        return 0.0, 0.0
-    return 1.0 / par[i, P_MASS], 1.0 / par[i, P_INERTIA]
-
-
-@kernel_step
-def _point_velocity(i, state, px, py):
-    """Return the velocity of body i's material point (px, py) (zero for an obstacle)."""
-    if i < 0:
-        return 0.0, 0.0
-    return state[i, 3] - state[i, 5] * (py - state[i, 1]), state[i, 4] + state[i, 5] * (
-        px - state[i, 0]
-    )
-
-
-@kernel_step
-def _relative_velocity(a, b, state, cf):
-    """Body b's velocity relative to a's at the contact point, along its normal and tangent."""
-    px = cf[CF_PX]
-    py = cf[CF_PY]
-    vax, vay = _point_velocity(a, state, px, py)
-    vbx, vby = _point_velocity(b, state, px, py)
-    dvx = vbx - vax
-    dvy = vby - vay
-    nx = cf[CF_NX]
-    ny = cf[CF_NY]
-    return dvx * nx + dvy * ny, -dvx * ny + dvy * nx
-
-
-@kernel_step
-def _apply(i, sign, state, px, py, jx, jy, im, ii):
-    """Add the impulse sign·(jx, jy) at (px, py) to body i's velocities (none: an obstacle)."""
-    if im == 0.0:
-        return
-    state[i, 3] += sign * im * jx
-    state[i, 4] += sign * im * jy
-    rx = px - state[i, 0]
-    ry = py - state[i, 1]
-    state[i, 5] += sign * ii * (rx * jy - ry * jx)
-
-
-@kernel_step
-def _apply_pair(a, b, state, cf, jn, jt, masses):
-    """Apply the normal and tangent impulses jn, jt (on b; -them on a) at contact ``cf``."""
-    ima, iia, imb, iib = masses
-    nx = cf[CF_NX]
-    ny = cf[CF_NY]
-    jx = jn * nx - jt * ny
-    jy = jn * ny + jt * nx
-    _apply(a, -1.0, state, cf[CF_PX], cf[CF_PY], jx, jy, ima, iia)
-    if b >= 0:
-        _apply(b, 1.0, state, cf[CF_PX], cf[CF_PY], jx, jy, imb, iib)
-
-
-@kernel_step
-def _effective_mass(a, b, state, cf, masses, dx, dy):
-    """1 / (relative velocity along (dx, dy) per unit impulse along it) [kg]; 0: none moves."""
-    ima, iia, imb, iib = masses
-    k = ima + imb
-    if a >= 0:
-        ra = (cf[CF_PX] - state[a, 0]) * dy - (cf[CF_PY] - state[a, 1]) * dx
-        k += iia * ra * ra
-    if b >= 0:
-        rb = (cf[CF_PX] - state[b, 0]) * dy - (cf[CF_PY] - state[b, 1]) * dx
-        k += iib * rb * rb
-    return 1.0 / k if k > 0.0 else 0.0
-
-
-@kernel_step
-def _masses(a, b, phase, par, ph_cell):
-    ima, iia = _inverse_mass(a, phase, par, ph_cell)
-    imb, iib = _inverse_mass(b, phase, par, ph_cell)
-    return ima, iia, imb, iib
-
-
 @kernel_step
 def _classify(h, state, phase, ph_cell, cont):
     """
@@ -504,47 +428,6 @@ def _prepare(h, state, phase, par, ph_cell, restitution, cont):
         else:
             cf[CF_PN] = 0.0
             cf[CF_PT] = 0.0
-
-
-@kernel_step
-def _solve_velocities(state, phase, par, ph_cell, cont):
-    """
-    Projected Gauss-Seidel on the contacts' impulses until none changes by more than PGS_TOL.
-
-    Normal: p_n = max(0, p_n + m_n (bias - v_n)), so that p_n > 0 only where v_n =
-    bias (complementarity). Tangent: p_t = clip(p_t - m_t v_t, ±μ p_n) (the Coulomb
-    cone; sticking where the clip does not bind). Returns the sweeps made.
-    """
-    ct_i, ct_f, n_ct = cont.ct_i, cont.ct_f, cont.counts[N_CT]
-    for sweep in range(PGS_MAX_SWEEPS):
-        biggest = 0.0
-        change = 0.0
-        for q in range(n_ct):
-            # forward and backward in turn (symmetric Gauss-Seidel): a chain's load
-            # runs its whole length in one pair of sweeps, whichever end holds it
-            c = q if sweep % 2 == 0 else n_ct - 1 - q
-            a = ct_i[c, 0]
-            b = ct_i[c, 1]
-            cf = ct_f[c]
-            masses = _masses(a, b, phase, par, ph_cell)
-            vn, vt = _relative_velocity(a, b, state, cf)
-            pn_old = cf[CF_PN]
-            pn = max(0.0, pn_old + cf[CF_MASS_N] * (cf[CF_BIAS] - vn))
-            if pn != pn_old:
-                _apply_pair(a, b, state, cf, pn - pn_old, 0.0, masses)
-                cf[CF_PN] = pn
-            vn, vt = _relative_velocity(a, b, state, cf)
-            pt_old = cf[CF_PT]
-            bound = cf[CF_MU] * pn
-            pt = min(bound, max(-bound, pt_old - cf[CF_MASS_T] * vt))
-            if pt != pt_old:
-                _apply_pair(a, b, state, cf, 0.0, pt - pt_old, masses)
-                cf[CF_PT] = pt
-            change = max(change, abs(pn - pn_old), abs(pt - pt_old))
-            biggest = max(biggest, pn, abs(pt))
-        if change <= PGS_TOL * biggest:
-            return sweep + 1
-    return PGS_MAX_SWEEPS
 
 
 @kernel_step
@@ -734,7 +617,9 @@ def contact_step(h, state, phase, par, r_out, codes, prm, cont, scratch):
     n_ct = cont.counts[N_CT]
     if n_ct > 0:
         _prepare(h, state, phase, par, ph_cell, restitution, cont)
-        cont.counts[N_SWEEPS] = _solve_velocities(state, phase, par, ph_cell, cont)
+        cont.counts[N_SWEEPS] = solve_velocities(
+            state, phase, par, ph_cell, cont.ct_i, cont.ct_f, n_ct
+        )
         _project_positions(h, state, phase, par, ph_cell, cont)
     if n_ct > 0 or cont.counts[N_OLD] > 0:
         _obstacle_forces(h, cont)
