@@ -153,8 +153,8 @@ def add_arguments(parser) -> None:
         choices=("jam", "rigid"),
         default=None,
         help="what a touch is in the cell: jam (two parcels that touch stop and jam) or "
-        "rigid (parcels push and ride on as rigid boxes); default jam, and rigid for a "
-        f"--gap below {JAM_CONTACT_MIN_GAP:g} m (--gap 0 0: parcels end to end)",
+        "rigid (parcels push and ride on as rigid boxes); default: the cell's (rigid), "
+        f"and a --gap below {JAM_CONTACT_MIN_GAP:g} m (0 0: parcels end to end) needs rigid",
     )
     parser.add_argument(
         "--seed", type=int, default=1, help="seed of the parcel stream (default 1)"
@@ -489,8 +489,8 @@ def run(args) -> int | str:
             return err
         if args.contact or (args.gap is not None and args.gap[0] < JAM_CONTACT_MIN_GAP):
             return (
-                f"--stations N > 1: the line's cells run contact: jam; --contact and a --gap "
-                f"below {JAM_CONTACT_MIN_GAP:g} m are the one-cell demo's"
+                f"--stations N > 1: --contact and a --gap below {JAM_CONTACT_MIN_GAP:g} m are "
+                f"the one-cell demo's (a line's stations take their contact from cell.yaml)"
             )
         problem = args.dispositions and file_problem(args.dispositions, "--dispositions")
         if problem:

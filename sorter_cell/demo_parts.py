@@ -12,7 +12,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from sorter_ros.outcomes import values
-from sorter_sim.runtime.params import JAM_CONTACT_MIN_GAP
 
 LABEL_CYCLE = ["A", "B", "C", "A", "A", "B", "D", "B", "C", "A", "B", "B"]
 ROUTING = ["A*=left", "B*=right", "C*=straight"]
@@ -182,19 +181,20 @@ def cell_params(sim) -> dict:
     return out
 
 
-def demo_contact(args) -> str:
+def demo_contact(args, cell_values: dict) -> str:
     """
-    Return what a touch is in the demo's cell: ``--contact``, or what the gap needs.
+    Return what a touch is in the demo's cell: ``--contact``, or the cell's own setting.
 
-    Unless told, the cell keeps ``contact: jam`` (the cell's default) for gaps it allows
-    and runs ``contact: rigid`` for a stream closer than that (``--gap 0 0``: parcels
-    end to end), where a touch is what the stream is made of, not a fault.
+    Unless told, the cell keeps its ``contact`` (config/cell.yaml, else the parameter's
+    default, rigid); a stream closer than ``jam`` allows (``--gap 0 0``: parcels end to
+    end) is refused under ``jam`` before the run (``_check_args``).
     """
     if args.contact is not None:
         return args.contact
-    if args.gap is not None and args.gap[0] < JAM_CONTACT_MIN_GAP:
-        return "rigid"
-    return "jam"
+    from sorter_sim.runtime.param_table import SCHEMA
+
+    default = next(spec.default for spec in SCHEMA if spec.name == "contact")
+    return str(cell_values.get("contact", default))
 
 
 def _stream(args, config_dir: Path):
@@ -210,7 +210,7 @@ def _stream(args, config_dir: Path):
         else (round(plan["min_gap_m"] + 0.02, 3), round(plan["min_gap_m"] + 0.4, 3))
     )
     plan["stream_gap_m"] = list(gap)
-    plan["contact"] = demo_contact(args)
+    plan["contact"] = demo_contact(args, cell)
     return plan, {
         "contact": plan["contact"],
         "arrival": "gap",

@@ -625,13 +625,18 @@ def test_a_namespaced_second_cell_does_not_see_the_first(ros):
         ('parcel_A', [0.9, 0.3], 'parcel_A'),
         ('time_mode', 'slow', 'time_mode'),
         ('belt_sped', 1.0, 'belt_sped'),
-        # touching parcels are a stream only where touches are rigid contact
-        ('arrival_gap', [0.0, 0.0], r'arrival_gap.*needs contact: rigid'),
     ],
 )
 def test_bad_start_up_values_stop_the_node_with_a_clear_error(ros, name, value, match):
     with pytest.raises(ParamError, match=match):
         make_sim(ros, **{name: value})
+
+
+def test_a_touching_stream_is_refused_at_start_up_where_a_touch_is_a_jam(ros):
+    # touching parcels are a stream only where touches are rigid contact (the default)
+    with pytest.raises(ParamError, match=r'arrival_gap.*needs contact: rigid'):
+        make_sim(ros, contact='jam', arrival_gap=[0.0, 0.0])
+    assert make_sim(ros, arrival_gap=[0.0, 0.0]).params.contact == 'rigid'
 
 
 def test_main_exits_2_with_one_line_on_a_bad_parameter(capsys):
