@@ -22,6 +22,7 @@ otherwise:
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 PACKAGE_NAME = 'sorter_cell'
@@ -413,8 +414,6 @@ def spin_surviving(node, stop=None) -> int:
     """
     from rclpy.executors import ExternalShutdownException
 
-    from sorter_ros.run_loop import make_executor
-
     # the run loop's one executor picker (the events executor where rclpy has it)
     events = getattr(node, 'executor_kind', 'single') == 'events'
     executor = make_executor(node.context, events=events)
@@ -461,3 +460,37 @@ def spin_surviving(node, stop=None) -> int:
         executor.remove_node(node)
         executor.shutdown(timeout_sec=1.0)
     return node.callback_errors
+
+
+def events_executor_class():
+    """Return rclpy's events executor (C++, walks no wait set), or None where it is missing."""
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:
+        return None
+    return EventsExecutor
+
+
+def make_executor(context, events: bool = True):
+    """
+    Return rclpy's events executor for ``context`` (or, without one, the single-threaded one).
+
+    rclpy's events executor turns on ``faulthandler`` for the standard error it finds; a
+    standard error without a file descriptor (pytest's ``capsys``, an embedding program)
+    would refuse that and the executor with it: the process's own standard error is
+    handed over instead, for as long as the executor is made.
+    """
+    from rclpy.executors import SingleThreadedExecutor
+
+    events_class = events_executor_class() if events else None
+    if events_class is None:
+        return SingleThreadedExecutor(context=context)
+    stderr = sys.stderr
+    try:
+        stderr.fileno()
+    except (AttributeError, OSError, ValueError):
+        sys.stderr = sys.__stderr__
+    try:
+        return events_class(context=context)
+    finally:
+        sys.stderr = stderr

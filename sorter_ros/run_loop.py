@@ -26,8 +26,10 @@ wall time in which no callback came.
 from __future__ import annotations
 
 import math
-import sys
 import time
+
+# the one executor picker, with the environment it depends on (sorter_ros.env)
+from sorter_ros.env import events_executor_class, make_executor  # noqa: F401
 
 SLICE_S = 0.005  # simulated time per slice [s]
 # wall time without a ready callback that ends a slice's spin with the single-threaded
@@ -37,40 +39,6 @@ SETTLE_S = 0.2  # the most wall time a slice waits for answers to requests in fl
 MATCH_S = 10.0  # the most wall time the first run waits for new nodes' topics to match
 DRAIN_WALL_S = 5.0  # wall time after which a drain that never ends is given up (a stuck node)
 DRAIN_ROUNDS = 64  # drain rounds a slice takes at most (a node that answers every marker)
-
-
-def events_executor_class():
-    """Return rclpy's events executor (C++, walks no wait set), or None where it is missing."""
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:
-        return None
-    return EventsExecutor
-
-
-def make_executor(context, events: bool = True):
-    """
-    Return rclpy's events executor for ``context`` (or, without one, the single-threaded one).
-
-    rclpy's events executor turns on ``faulthandler`` for the standard error it finds; a
-    standard error without a file descriptor (pytest's ``capsys``, an embedding program)
-    would refuse that and the executor with it: the process's own standard error is
-    handed over instead, for as long as the executor is made.
-    """
-    from rclpy.executors import SingleThreadedExecutor
-
-    events_class = events_executor_class() if events else None
-    if events_class is None:
-        return SingleThreadedExecutor(context=context)
-    stderr = sys.stderr
-    try:
-        stderr.fileno()
-    except (AttributeError, OSError, ValueError):
-        sys.stderr = sys.__stderr__
-    try:
-        return events_class(context=context)
-    finally:
-        sys.stderr = stderr
 
 
 class WaitTimedOut:
