@@ -21,6 +21,25 @@ ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.ros
 
 
+def _bench(script: str, *args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    """Run ``benchmarks/<script>`` with ``args`` in a process of its own; return it."""
+    return subprocess.run(
+        [sys.executable, str(ROOT / 'benchmarks' / script), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def _bench_json(script: str, *args: str) -> dict:
+    """Run a benchmark with ``--json``; return the object it printed last."""
+    import json
+
+    out = _bench(script, *args, '--json')
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def test_bench_cell_runs_every_case_and_prints_a_ratio_for_each():
     out = subprocess.run(
         [
@@ -55,48 +74,20 @@ def test_bench_cell_runs_every_case_and_prints_a_ratio_for_each():
 
 def test_bench_executor_prints_the_floor_of_both_executors_and_every_marker_comes_back():
     """Its drain figure is only a figure if each marker published came back to its node."""
-    import json
-    import os
-
-    out = subprocess.run(
-        [sys.executable, str(ROOT / 'benchmarks' / 'bench_executor.py'), '--calls', '50']
-        + ['--json'],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=dict(os.environ),
-    )
-    assert out.returncode == 0, out.stderr[-3000:]
-    got = json.loads(out.stdout.strip().splitlines()[-1])
+    got = _bench_json('bench_executor.py', '--calls', '50')
     assert [r['executor'] for r in got['rows']] == ['EventsExecutor', 'SingleThreadedExecutor']
     for r in got['rows']:
         assert all(r[k] > 0 for k in ('spin_once_idle_us', 'marker_round_us'))
     # a message between nodes of one process is queued inside the publisher's call: the
     # events executor serves it in the very next call, which is what the drain counts on
     assert got['rows'][0]['marker_not_in_one_call'] == 0
-    bad = subprocess.run(
-        [sys.executable, str(ROOT / 'benchmarks' / 'bench_executor.py'), '--calls', '5'],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    bad = _bench('bench_executor.py', '--calls', '5', timeout=60)
     assert bad.returncode == 2 and '--calls must be in [10, 100000], got 5' in bad.stderr
 
 
 def test_bench_loop_splits_the_demos_slices_into_parts_that_add_up():
     """The parts it times are inside the slice: their shares add up to at most the whole."""
-    import json
-    import os
-
-    out = subprocess.run(
-        [sys.executable, str(ROOT / 'benchmarks' / 'bench_loop.py'), '--sim-time', '2', '--json'],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=dict(os.environ),
-    )
-    assert out.returncode == 0, out.stderr[-3000:]
-    got = json.loads(out.stdout.strip().splitlines()[-1])
+    got = _bench_json('bench_loop.py', '--sim-time', '2')
     parts = {r['part']: r for r in got['rows']}
     assert list(parts) == ['physics', 'publishing', 'drain', 'waits', 'settle', 'scan']
     # one slice a 10 ms scan (the demo aligns its slices to the controller's timer)
@@ -106,10 +97,5 @@ def test_bench_loop_splits_the_demos_slices_into_parts_that_add_up():
     outside = sum(parts[p]['share'] for p in ('physics', 'publishing', 'drain', 'waits', 'settle'))
     assert 0.5 < outside <= 1.0 + 1e-9, outside
     assert parts['scan']['share'] <= parts['drain']['share'] + parts['waits']['share']
-    bad = subprocess.run(
-        [sys.executable, str(ROOT / 'benchmarks' / 'bench_loop.py'), '--sim-time', '0'],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    bad = _bench('bench_loop.py', '--sim-time', '0', timeout=60)
     assert bad.returncode == 2 and '--sim-time must be in [1, 600] s, got 0' in bad.stderr
