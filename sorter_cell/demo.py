@@ -152,8 +152,9 @@ def add_arguments(parser) -> None:
         "--contact",
         choices=("jam", "rigid"),
         default=None,
-        help="what a touch is in the cell: jam (two parcels that touch stop and jam) or "
-        "rigid (parcels push and ride on as rigid boxes); default: the cell's (rigid), "
+        help="what a touch is in the cell (at every station of a line): jam (two parcels "
+        "that touch stop and jam) or rigid (parcels push and ride on as rigid boxes); "
+        "default: the cell's (rigid), "
         f"and a --gap below {JAM_CONTACT_MIN_GAP:g} m (0 0: parcels end to end) needs rigid",
     )
     parser.add_argument(
@@ -487,11 +488,6 @@ def run(args) -> int | str:
         err = _check_args(args)
         if err:
             return err
-        if args.contact or (args.gap is not None and args.gap[0] < JAM_CONTACT_MIN_GAP):
-            return (
-                f"--stations N > 1: --contact and a --gap below {JAM_CONTACT_MIN_GAP:g} m are "
-                f"the one-cell demo's (a line's stations take their contact from cell.yaml)"
-            )
         problem = args.dispositions and file_problem(args.dispositions, "--dispositions")
         if problem:
             return problem

@@ -51,8 +51,8 @@ def run_line(args) -> int | str:
         otherwise; a message for a refused input.
 
     """
-    from sorter_cell.line_segment import SegmentRun, SegmentStream, build_segment
     from sorter_ros.env import StopSignals
+    from sorter_sim.runtime.params import ParamError
 
     n = args.stations
     k_seg = getattr(args, 'segments', None)
@@ -89,20 +89,10 @@ def run_line(args) -> int | str:
     try:
         run = _LineRun(args, stop, lockstep=fast and k_seg == 1)
         if k_seg == 1:
-            line, ctls = build_segment(
-                run.context,
-                first=1,
-                stations=n,
-                line_stations=n,
-                stream=SegmentStream(seed=args.seed, gap=args.gap, count=args.parcels or 0),
-                run=SegmentRun(
-                    fast=fast,
-                    lockstep=run.lockstep,
-                    rtf=1.0 if fast else float(args.rtf),
-                    record=args.record or '',
-                    foxglove=int(args.foxglove or 0),
-                ),
-            )
+            try:
+                line, ctls = _build_line(run, args, n, fast)
+            except ParamError as exc:  # the cell's file and the command line disagree
+                return f"the line's stations refuse their parameters: {exc}"
             run.add_line(line, ctls)
         else:
             try:
@@ -135,6 +125,27 @@ def run_line(args) -> int | str:
 
 class SegmentDied(RuntimeError):
     """A segment process of the line ended while the line ran: the message names it."""
+
+
+def _build_line(run, args, n: int, fast: bool):
+    """Return the line node and its stations' controllers of a line wholly in this process."""
+    from sorter_cell.line_segment import SegmentRun, SegmentStream, build_segment
+
+    return build_segment(
+        run.context,
+        first=1,
+        stations=n,
+        line_stations=n,
+        stream=SegmentStream(seed=args.seed, gap=args.gap, count=args.parcels or 0),
+        run=SegmentRun(
+            fast=fast,
+            lockstep=run.lockstep,
+            rtf=1.0 if fast else float(args.rtf),
+            record=args.record or '',
+            foxglove=int(args.foxglove or 0),
+            contact=getattr(args, 'contact', None) or '',
+        ),
+    )
 
 
 def _dead_segment(procs) -> str:
@@ -334,6 +345,8 @@ def segment_commands(args, n: int, k_seg: int) -> list[tuple[list, str]]:
             cmd += ['--gap', *(str(float(g)) for g in args.gap)]
         if args.parcels:
             cmd += ['--parcels', str(args.parcels)]
+        if getattr(args, 'contact', None):
+            cmd += ['--contact', args.contact]
         if args.rtf != 'fast':
             cmd += ['--rtf', str(float(args.rtf))]
         if getattr(args, 'sync', None):
@@ -365,6 +378,7 @@ class _LineRun(RunLoop):
         self.line = self.ctls = None
         self.procs: list = []
         self.n = args.stations
+        self.contact = getattr(args, 'contact', None) or ''
         self.restarts = Restarts([], [], 0)
         RunLoop.__init__(
             self,
@@ -634,6 +648,9 @@ class _LineRun(RunLoop):
         self.t_opened = self.first_t()
         p0 = line.stations[0].params if line is not None else _cell_params()
         self.transit = self.n * (p0.exit_x - p0.induct_x) / p0.belt_speed
+        # what a touch is: the stations' own (``--contact`` set it in process; segment
+        # processes were given it on their command lines)
+        self.contact = p0.contact if line is not None else self.contact or p0.contact
         if args.parcels:
             # a batch: until every parcel has its disposition (10 s a parcel at the most)
             end = t0 + 10.0 * args.parcels + 2.0 * self.transit
@@ -739,6 +756,7 @@ class _LineRun(RunLoop):
             'wall_s': wall,
             'chutes_reached': sum(1 for c in self.chutes if exit_counts.get(c)),
             'chutes': len(self.chutes),
+            'contact': self.contact,
         }
         if self.cost is not None:
             # where the wall time went: the line's physics, the stations' publishing, the PLC
@@ -779,6 +797,7 @@ def print_line_table(s: dict) -> None:
             f'(real-time factor {s["real_time_factor"]:.2f}, {s["executor"]})',
         ),
         ('inducted', s['inducted']),
+        ('contact', s.get('contact', 'rigid')),
         ('dispositions', counts(s['dispositions'])),
         ('mis-sorted', s['mis_sorted']),
         ('jams', s['jams']),

@@ -75,6 +75,9 @@ class SegmentRun:
     warehouse : bool
         The line has a warehouse node: the segment's time holds until it reads the
         edges of its stations (``wait_for_warehouse``).
+    contact : str
+        What a touch is at every station, ``rigid`` or ``jam`` ('': the cell's own,
+        config/cell.yaml). Every segment of a line must be given the same.
 
     """
 
@@ -85,6 +88,7 @@ class SegmentRun:
     record: str = ''
     foxglove: int = 0
     warehouse: bool = False
+    contact: str = ''
 
 
 def build_segment(
@@ -154,6 +158,7 @@ def build_segment(
             'pose_rate_hz': 50.0,
             'arrival_count': int(stream.count),
             **({'arrival_gap': [float(g) for g in stream.gap]} if stream.gap else {}),
+            **({'contact': run.contact} if run.contact else {}),
         },
     )
     try:
@@ -250,6 +255,12 @@ def main(argv=None) -> int:
     ap.add_argument('--sync', choices=('conservative', 'barrier'), default='conservative')
     ap.add_argument('--parcels', type=int, default=0, help='the stream stops after these')
     ap.add_argument(
+        '--contact',
+        choices=('jam', 'rigid'),
+        default='',
+        help="what a touch is at every station (default: the cell's, config/cell.yaml)",
+    )
+    ap.add_argument(
         '--warehouse',
         action='store_true',
         help="hold the segment's time until a warehouse node reads its stations' edges",
@@ -272,6 +283,7 @@ def main(argv=None) -> int:
         signal.signal(sig, lambda *_: stop.append(True))
 
     from sorter_ros.run_loop import RunLoop
+    from sorter_sim.runtime.params import ParamError
 
     fast = args.rtf == 'fast'
     loop = RunLoop(
@@ -281,22 +293,27 @@ def main(argv=None) -> int:
         ros_args=('-r', f'/clock:={args.clock or f"/line/S{args.first:02d}/clock"}'),
     )
     try:
-        line, ctls = build_segment(
-            loop.context,
-            first=args.first,
-            stations=args.stations,
-            line_stations=args.line_stations,
-            stream=SegmentStream(seed=args.seed, gap=args.gap, count=args.parcels),
-            run=SegmentRun(
-                fast=fast,
-                # a barrier line (kept for comparison) meets its neighbours every 5 ms
-                # slice: in fast mode, as before, its slices are not drained one by one
-                lockstep=fast and args.sync != 'barrier',
-                rtf=1.0 if fast else float(args.rtf),
-                sync=args.sync,
-                warehouse=args.warehouse,
-            ),
-        )
+        try:
+            line, ctls = build_segment(
+                loop.context,
+                first=args.first,
+                stations=args.stations,
+                line_stations=args.line_stations,
+                stream=SegmentStream(seed=args.seed, gap=args.gap, count=args.parcels),
+                run=SegmentRun(
+                    fast=fast,
+                    # a barrier line (kept for comparison) meets its neighbours every 5 ms
+                    # slice: in fast mode, as before, its slices are not drained one by one
+                    lockstep=fast and args.sync != 'barrier',
+                    rtf=1.0 if fast else float(args.rtf),
+                    sync=args.sync,
+                    warehouse=args.warehouse,
+                    contact=args.contact,
+                ),
+            )
+        except ParamError as exc:  # the cell's file and the command line disagree
+            print(f"line_segment: the stations refuse their parameters: {exc}", file=sys.stderr)
+            return 2
         if args.start:
             from rclpy.parameter import Parameter
 

@@ -668,7 +668,7 @@ def test_sorter_demo_runs_a_touching_stream_under_rigid_contact(tmp_path, capsys
         (["--gap", "1.0", "0.5"], "--gap"),
         (["--gap", "-0.1", "0"], "[0, 100] m"),
         (["--gap", "0", "0", "--contact", "jam"], "needs --contact rigid"),
-        (["--gap", "0", "0", "--stations", "2"], "the one-cell demo's"),
+        (["--gap", "0", "0", "--stations", "2", "--contact", "jam"], "needs --contact rigid"),
         (["--out", "paths.svg"], "--out"),
         (["--out", "/proc/version/paths.png"], "is not a folder"),
     ],

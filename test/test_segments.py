@@ -155,6 +155,39 @@ def test_three_segment_processes_sort_every_parcel_as_one_process_does(
     assert timeline(d3) == timeline(d1)
 
 
+def test_a_touching_stream_rides_through_a_line_of_segment_processes(tmp_path):
+    """
+    --gap 0 0 on a line in two segment processes: parcels end to end, no false jam.
+
+    Every segment process is given the line's contact (--contact rigid). Touching, the
+    parcels ride the belts together and are handed on from station to station; every
+    divert is refused for its gap (1.40 m needed), so every parcel leaves at the line's
+    straight end, none jams, none is lost.
+    """
+    s, recs = _demo(tmp_path, 2, '--gap', '0', '0', '--contact', 'rigid', '--parcels', '10')
+    assert s['contact'] == 'rigid' and s['segments'] == 2
+    assert s['inducted'] == len(recs) == 10 and s['in_cell_at_end'] == 0
+    assert s['jams'] == 0 and s['mis_sorted'] == 0 and s['lost'] == 0
+    assert s['exits'] == {'straight_end': 10}
+    assert {r['code'] for r in recs} <= {'gap_too_short', 'no_destination'}
+    assert s['dispositions'].get('gap_too_short', 0) >= 5
+    # every parcel crossed both segment boundaries' hand-overs (stations 1 -> 2 -> 3)
+    assert s['handovers'] >= 10 and all(st['refused'] == 0 for st in s['segment_stats'])
+
+
+def test_a_segment_process_refuses_a_touching_stream_under_jam_contact_in_one_line():
+    done = subprocess.run(
+        [sys.executable, '-m', 'sorter_cell.line_segment', '--first', '1', '--stations', '1']
+        + ['--line-stations', '1', '--gap', '0', '0', '--contact', 'jam'],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2 and 'Traceback' not in done.stderr, done.stderr[-2000:]
+    err = done.stderr.strip().splitlines()
+    assert len(err) == 1 and 'arrival_gap' in err[0] and 'needs contact: rigid' in err[0]
+
+
 def timeline(records):
     """Return every parcel's (label, code, chute, station, exit time from the first exit)."""
     t0 = min(float(r['t']) for r in records)
