@@ -237,20 +237,45 @@ def declare_typed(node, name: str, default, desc):
 
     """
     override = node._parameter_overrides.get(name)
+    if desc.type not in _ARRAY_TYPES:
+        return node.declare_parameter(name, default, desc)
     # rcl's params-file parser cannot type an empty sequence and hands it over unset
     # (NOT_SET, value None); the command line's ``[]`` arrives as an empty byte array
     # (a scalar given for an array is left to rclpy, which refuses its type)
-    if (
-        override is not None
-        and desc.type in _ARRAY_TYPES
-        and (override.value is None or _empty_sequence(override.value))
-    ):
-        node.declare_parameter(name, default, desc, ignore_override=True)
-        result = node.set_parameters([Parameter(name, Parameter.Type(desc.type), [])])[0]
-        if not result.successful:
-            raise ValueError(result.reason)
-        return node.get_parameter(name)
+    if override is not None and (override.value is None or _empty_sequence(override.value)):
+        return _declare_empty(node, name, default, desc)
+    if _empty_sequence(default):
+        # rclpy types a parameter by its default, and reads [] as a byte array: an
+        # override is checked against the declared type instead, and no override
+        # leaves the array declared empty, of its type
+        if override is None:
+            return _declare_empty(node, name, default, desc)
+        return node.declare_parameter(name, Parameter.Type(desc.type), desc)
     return node.declare_parameter(name, default, desc)
+
+
+_PLACEHOLDER = {
+    ParameterType.PARAMETER_BOOL_ARRAY: [False],
+    ParameterType.PARAMETER_INTEGER_ARRAY: [0],
+    ParameterType.PARAMETER_DOUBLE_ARRAY: [0.0],
+    ParameterType.PARAMETER_STRING_ARRAY: [''],
+}
+
+
+def _declare_empty(node, name: str, default, desc):
+    """Declare an array parameter empty, of its declared type, read-only if it is."""
+    import copy
+
+    writable = copy.copy(desc)
+    writable.read_only = False
+    first = default if not _empty_sequence(default) else _PLACEHOLDER[desc.type]
+    node.declare_parameter(name, first, writable, ignore_override=True)
+    result = node.set_parameters([Parameter(name, Parameter.Type(desc.type), [])])[0]
+    if not result.successful:
+        raise ValueError(result.reason)
+    if desc.read_only:
+        node.set_descriptor(name, desc)
+    return node.get_parameter(name)
 
 
 def accept_integers_for_doubles(node, declared: dict[str, int]) -> None:

@@ -141,16 +141,24 @@ def test_a_parcel_wedged_between_two_rails_jams_with_cause_rail():
     assert not cell.faults and cell.phase[0] == ck.PH_FREE
 
 
-def test_a_queue_at_a_stopper_jams_after_jam_time_with_its_causes():
+@pytest.mark.parametrize('declared_by', ['add_rail', 'the rails parameter'])
+def test_a_queue_at_a_stopper_jams_after_jam_time_with_its_causes(declared_by):
     """
     A queue held at a stopper jams after ``jam_time``, each with its cause.
 
     Held by the stopper and by each other, making no progress: after jam_time (0.2 s)
     each parcel of the queue jams, the front one by the rail, each other by the
-    parcel ahead of it (its strongest contact).
+    parcel ahead of it (its strongest contact). The stopper is the same whether the
+    code declares it (``Cell.add_rail``) or the cell's ``rails`` parameter does.
     """
-    cell = rigid_cell(jam_time=0.2)
-    stopper_across(cell, -0.6)
+    if declared_by == 'add_rail':
+        cell = rigid_cell(jam_time=0.2)
+        stopper_across(cell, -0.6)
+    else:
+        hw = 0.5 * CellParams.defaults().belt_width
+        x = -0.6 + 0.5 * RAIL_T
+        cell = rigid_cell(jam_time=0.2, rails=[x, -hw, x, hw])
+        assert np.array_equal(cell.contacts.obstacles[-1], rigid_stopper_row(hw, x))
     a, b = 0.3, 0.2
     for i in range(3):
         place(cell, i, -0.6 - 0.5 * a - i * a, 0.0, (a, b, 2.0))
@@ -159,6 +167,39 @@ def test_a_queue_at_a_stopper_jams_after_jam_time_with_its_causes():
     events = cell.advance(100)
     causes = {o.parcel_id: o.cause for o in events if isinstance(o, Outcome)}
     assert causes == {100: 'rail', 101: 'parcel 100', 102: 'parcel 101'}
+
+
+def rigid_stopper_row(hw, x):
+    """Return the obstacle row of a stopper across the belt at x, as add_rail makes it."""
+    cell = rigid_cell()
+    cell.add_rail(x, -hw, x, hw, RAIL_T)
+    return cell.contacts.obstacles[-1]
+
+
+@pytest.mark.parametrize(
+    'rails, words',
+    [
+        ([0.0, 0.0, 1.0], 'takes 4 numbers a rail'),
+        ([0.0, -0.3, 0.0, 0.3, 1.0], 'takes 4 numbers a rail'),
+        ([0.0, -0.3, 0.005, -0.3], 'at least 1 cm long'),
+        ([0.0, -0.3, 3.5, 0.3], 'off the cell'),
+        ([-3.5, -0.3, 0.0, 0.3], 'off the cell'),
+        ([0.0, -0.71, 0.0, 0.3], 'off the cell'),
+        ([0.0, math.nan, 0.0, 0.3], 'finite numbers'),
+        ([0.0, -0.3, math.inf, 0.3], 'finite numbers'),
+        ([0.0] * 68, '0 to 64'),
+        (['a', 'b', 'c', 'd'], 'finite numbers'),
+    ],
+)
+def test_the_rails_are_checked(rails, words):
+    """A rail that is not a segment on the cell is refused, naming it; nothing changes."""
+    base = CellParams.defaults()
+    with pytest.raises(ParamError, match='rails') as err:
+        base.with_changes({'rails': rails}, runtime=False)
+    assert words in str(err.value) and '\n' not in str(err.value)
+    assert base.rails == ()
+    with pytest.raises(ParamError, match='needs contact: rigid'):
+        base.with_changes({'rails': [0.0, -0.3, 0.0, 0.3], 'contact': 'jam'}, runtime=False)
 
 
 def test_the_contact_parameters_are_checked():

@@ -55,11 +55,17 @@ def _sim(ros, **overrides) -> SimNode:
     return ros.add(node)
 
 
+# the stopper as the cell's ``rails`` parameter declares it: its segment, 2 cm thick
+HW = 0.35  # half the belt's width [m] (SHORT_CELL's belt_width)
+STOPPER = [STOPPER_X + 0.5 * RAIL_T, -HW, STOPPER_X + 0.5 * RAIL_T, HW]
+
+
 def _queue_at_a_stopper(sim: SimNode) -> None:
-    """Put a stopper across the belt and the two parcels at rest against it, end to end."""
+    """Put a stopper across the belt (unless the node declares it) and the two parcels at rest."""
     cell = sim.cell
-    hw = 0.5 * cell.params.belt_width
-    cell.add_rail(STOPPER_X + 0.5 * RAIL_T, -hw, STOPPER_X + 0.5 * RAIL_T, hw, RAIL_T)
+    assert 0.5 * cell.params.belt_width == HW
+    if not cell.params.rails:
+        cell.add_rail(*STOPPER, RAIL_T)
     for i, m in enumerate(MASSES):
         place_parcel(cell, i, (STOPPER_X - 0.5 * A - i * A, 0.0, 0.0), (A, B, m))
 
@@ -119,6 +125,39 @@ def test_contacts_topic_carries_the_stoppers_closed_form_load_only_when_read(ros
         assert p0.x == pytest.approx(face, abs=MU * G * 1e-6)
 
 
+def test_the_rails_parameter_declares_the_cells_rails_read_only(ros):
+    from rcl_interfaces.msg import ParameterType
+
+    sim = _sim(ros, rails=[*STOPPER, -1.0, -HW, -0.8, 0.0])
+    assert sim.params.rail_segments == (tuple(STOPPER), (-1.0, -HW, -0.8, 0.0))
+    # the contact step's obstacles: the side walls, then the two rails as add_rail
+    # makes them
+    from sorter_sim.model.core.contact import OB_KIND, OBK_RAIL, OBK_WALL
+    from sorter_sim.runtime.cell_contacts import rail_row
+
+    obstacles = sim.cell.contacts.obstacles
+    kinds = list(obstacles[:, OB_KIND])
+    assert kinds == [OBK_WALL] * (len(kinds) - 2) + [OBK_RAIL] * 2
+    assert obstacles[-2, : OB_KIND + 1] == pytest.approx(rail_row(*STOPPER, RAIL_T))
+    assert obstacles[-1, : OB_KIND + 1] == pytest.approx(rail_row(-1.0, -HW, -0.8, 0.0, RAIL_T))
+    d = sim.describe_parameter('rails')
+    assert d.read_only and d.type == ParameterType.PARAMETER_DOUBLE_ARRAY
+    result = sim.set_parameters([Parameter('rails', value=[*STOPPER])])[0]
+    assert not result.successful and sim.params.rail_segments[0] == tuple(STOPPER)
+
+
+def test_a_cell_without_rails_declares_them_an_empty_array_of_doubles(ros):
+    from rcl_interfaces.msg import ParameterType
+
+    # none given: an empty array of doubles, not rclpy's guess from [] (a byte array)
+    bare = _sim(ros)
+    assert bare.get_parameter('rails').value == [] and not bare.cell.rails
+    assert bare.describe_parameter('rails').type == ParameterType.PARAMETER_DOUBLE_ARRAY
+    from sorter_sim.model.core.contact import OB_KIND, OBK_WALL
+
+    assert set(bare.cell.contacts.obstacles[:, OB_KIND]) == {OBK_WALL}  # the side walls alone
+
+
 def test_a_jam_cell_has_no_contacts_topic_and_builds_nothing(ros):
     sim = _sim(ros, contact='jam')
     assert sim.publisher_set.pub_contacts is None
@@ -137,10 +176,17 @@ def _free_port() -> int:
 
 def test_the_live_view_draws_each_contact_point_and_its_force(ros, tmp_path):
     port = _free_port()
-    sim = _sim(ros, foxglove_port=port, foxglove_rate_hz=200.0)
+    # the stopper from the node's own parameter: the live view draws it where it is
+    sim = _sim(ros, foxglove_port=port, foxglove_rate_hz=200.0, rails=STOPPER)
     _queue_at_a_stopper(sim)
     sim.advance(300)
     scene = _client_scene(port, lambda: sim.advance(sim.params.pose_stride), frames=3)
+    (rails,) = [e for e in scene.entities if e.id == 'rails']
+    (cube,) = rails.cubes
+    assert (cube.pose.position.x, cube.pose.position.y) == pytest.approx((STOPPER[0], 0.0))
+    assert (cube.size.x, cube.size.y) == pytest.approx((2 * HW, RAIL_T))
+    q = cube.pose.orientation
+    assert abs(math.atan2(2 * q.w * q.z, 1 - 2 * q.z * q.z)) == pytest.approx(math.pi / 2)
     (entity,) = [e for e in scene.entities if e.id == 'contacts']
     assert len(entity.spheres) == len(entity.metadata) >= 4  # two points per face
     # the arrows' lengths are the forces: summed per pair of bodies, the closed forms

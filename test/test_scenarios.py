@@ -34,6 +34,7 @@ def test_the_examples_the_issue_asks_for_are_there():
         'e-stop mid divert',
         'dense stream',
         'touching stream without gap rules',
+        'stopper queue',
     } <= names
 
 
@@ -187,6 +188,21 @@ BAD = [
     ('duration: 5\nexpect: [{no_jam: false}]\n', 'no_jam must be true'),
     ('duration: 5\nexpect: [{parcel: A}]\n', 'needs exit or result'),
     ('duration: 5\nexpect: [{parcel: A, exit: up}]\n', 'exit must be one of'),
+    ('duration: 5\nexpect: [{parcel: A, exit: left, cause: rail}]\n', 'needs exit: jammed'),
+    ('duration: 5\nexpect: [{parcel: A, exit: jammed, cause: 7}]\n', 'cause must be what'),
+    (
+        'duration: 5\ncell: {rails: [-0.6, -0.35, -0.6]}\nexpect: [{no_jam: true}]\n',
+        "'rails' takes 4 numbers a rail",
+    ),
+    (
+        'duration: 5\ncell: {contact: jam, rails: [-0.6, -0.35, -0.6, 0.35]}\n'
+        'expect: [{no_jam: true}]\n',
+        "'rails' needs contact: rigid",
+    ),
+    (
+        'duration: 5\ncell: {rails: [-0.6, -0.35, 9.0, 0.35]}\nexpect: [{no_jam: true}]\n',
+        'off the cell',
+    ),
     (
         'duration: 5\ncontroller: false\nexpect: [{parcel: A, result: sorted}]\n',
         'needs a controller',

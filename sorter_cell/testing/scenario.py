@@ -23,6 +23,8 @@ line naming the key::
     expect:
       - {parcel: A-1, exit: left}              # the cell's outcome for that label
       - {parcel: A-1, result: sorted}          # the controller's confirmation
+      - {parcel: A-3, exit: jammed, cause: rail}  # what jammed it: rail, side wall,
+                                               # parcel <id>, chute full
       - {no_mis_sort: true}                    # no confirmation mis-sorted or missed
       - {no_jam: true}                         # no parcel jammed
       - {throughput_at_least: 1500}            # parcels out per hour of the run
@@ -288,6 +290,32 @@ def _fault(k: int, entry) -> dict:
     return {'at': at, 'fault': str(name), 'args': args}
 
 
+def _parcel_expectation(key: str, entry: dict, has_controller: bool) -> None:
+    """Check a parcel's expectation: its label, and its exit, cause or result."""
+    if not isinstance(entry['parcel'], str) or not entry['parcel']:
+        raise ScenarioError(f'{key}.parcel must be a label (a non-empty string)')
+    if 'exit' not in entry and 'result' not in entry:
+        raise ScenarioError(f'{key} needs exit or result for parcel {entry["parcel"]!r}')
+    if 'exit' in entry and entry['exit'] not in EXITS:
+        raise ScenarioError(f'{key}.exit must be one of {", ".join(EXITS)}, got {entry["exit"]!r}')
+    if 'cause' in entry:
+        cause = entry['cause']
+        if entry.get('exit') != 'jammed':
+            raise ScenarioError(f'{key}.cause is a jam\'s: it needs exit: jammed')
+        if not (isinstance(cause, str) and 0 < len(cause) <= 80):
+            raise ScenarioError(
+                f'{key}.cause must be what jammed the parcel (rail, side wall, parcel '
+                f'<id>, chute full: a string of 1 to 80 characters), got {cause!r}'
+            )
+    if 'result' in entry:
+        if entry['result'] not in RESULTS:
+            raise ScenarioError(
+                f'{key}.result must be one of {", ".join(RESULTS)}, got {entry["result"]!r}'
+            )
+        if not has_controller:
+            raise ScenarioError(f'{key}.result needs a controller (controller: false)')
+
+
 def _expectation(k: int, entry, labels: set, controller: ControllerSpec | None) -> dict:
     has_controller = controller is not None
     key = f'expect[{k}]'
@@ -297,7 +325,7 @@ def _expectation(k: int, entry, labels: set, controller: ControllerSpec | None) 
         raise ScenarioError(f'{key} must have one of {", ".join(EXPECT_KINDS)}')
     kind = kinds[0]
     allowed = {
-        'parcel': {'parcel', 'exit', 'result'},
+        'parcel': {'parcel', 'exit', 'result', 'cause'},
         'no_mis_sort': {'no_mis_sort'},
         'no_jam': {'no_jam'},
         'throughput_at_least': {'throughput_at_least'},
@@ -305,21 +333,7 @@ def _expectation(k: int, entry, labels: set, controller: ControllerSpec | None) 
     }[kind]
     refuse_unknown(entry, allowed, key, f' with {kind}')
     if kind == 'parcel':
-        if not isinstance(entry['parcel'], str) or not entry['parcel']:
-            raise ScenarioError(f'{key}.parcel must be a label (a non-empty string)')
-        if 'exit' not in entry and 'result' not in entry:
-            raise ScenarioError(f'{key} needs exit or result for parcel {entry["parcel"]!r}')
-        if 'exit' in entry and entry['exit'] not in EXITS:
-            raise ScenarioError(
-                f'{key}.exit must be one of {", ".join(EXITS)}, got {entry["exit"]!r}'
-            )
-        if 'result' in entry:
-            if entry['result'] not in RESULTS:
-                raise ScenarioError(
-                    f'{key}.result must be one of {", ".join(RESULTS)}, got {entry["result"]!r}'
-                )
-            if not has_controller:
-                raise ScenarioError(f'{key}.result needs a controller (controller: false)')
+        _parcel_expectation(key, entry, has_controller)
     elif kind in ('no_mis_sort', 'no_jam'):
         if entry[kind] is not True:
             raise ScenarioError(f'{key}.{kind} must be true')
@@ -787,6 +801,11 @@ def _check_end(e: dict, res: ScenarioResult, sc: Scenario) -> Check:
             ok &= out is not None and out.exit == e['exit']
             parts.append(f'exit {e["exit"]}')
             got.append(f'exit {have}')
+        if 'cause' in e:
+            have = repr(out.cause) if out else 'none'
+            ok &= out is not None and out.cause == e['cause']
+            parts.append(f'cause {e["cause"]!r}')
+            got.append(f'cause {have}')
         if 'result' in e:
             have = conf.get('result') if conf else 'none'
             ok &= conf is not None and conf.get('result') == e['result']

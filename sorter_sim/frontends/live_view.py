@@ -114,6 +114,8 @@ class CellLayout:
     exit_x: float
     scanner_x: float
     photo_eyes: tuple[tuple[str, float], ...]
+    rails: tuple[tuple[float, float, float, float], ...] = ()  # (x0, y0, x1, y1) segments
+    rail_thickness: float = 0.0
 
 
 def _rgba(rgb, a=1.0) -> Color:
@@ -525,7 +527,22 @@ class LiveView:
             cubes=sensor_cubes,
             texts=sensor_texts,
         )
-        return [belt, chutes, disks, sensors_entity]
+        out = [belt, chutes, disks, sensors_entity]
+        if lay.rails:
+            # the rails and stoppers, in the colour of a contact with one, as thick as
+            # the contact step takes them
+            rails = [
+                CubePrimitive(
+                    pose=_pose(
+                        0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.075, math.atan2(y1 - y0, x1 - x0)
+                    ),
+                    size=Vector3(x=math.hypot(x1 - x0, y1 - y0), y=lay.rail_thickness, z=0.15),
+                    color=_rgba(CONTACT_COLOURS['rail']),
+                )
+                for x0, y0, x1, y1 in lay.rails
+            ]
+            out.append(SceneEntity(timestamp=stamp, frame_id=fid, id=f'{ids}rails', cubes=rails))
+        return out
 
     def _parcel_entities(self, stamp, parcels, motion, state_names, lay, ids) -> list[SceneEntity]:
         fid = lay.frame_id

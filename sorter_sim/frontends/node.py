@@ -49,6 +49,7 @@ from sorter_sim.frontends.node_fieldbus import FieldbusBridge
 from sorter_sim.frontends.node_publishers import CellPublishers
 from sorter_sim.model.compile_progress import compiles
 from sorter_sim.runtime.cell import WATCHDOG_REFUSAL, Cell
+from sorter_sim.runtime.cell_contacts import RAIL_THICKNESS
 from sorter_sim.runtime.params import SCHEMA, SPECS, CellParams, ParamError
 from sorter_sim.runtime.warmup import warm_cell
 
@@ -340,6 +341,8 @@ class SimNode(Node):
             exit_x=p.exit_x,
             scanner_x=p.scanner_x,
             photo_eyes=tuple(zip(p.photo_eyes_names, p.photo_eyes_x)),
+            rails=p.rail_segments,
+            rail_thickness=RAIL_THICKNESS,
         )
 
     def live_state(self) -> dict:

@@ -123,8 +123,8 @@ class Cell:
         # the kernel's note of the last period's strips (see ``advance_cell``)
         self._last_strips = np.zeros((ck.MAX_STRIPS, STRIP_WIDTH))
         self._last_info = np.array([-1, 0], dtype=np.int64)
-        self.rails: list = []  # declared by add_rail; the side walls are always there
-        self.contacts = cell_contacts(params)
+        self.rails: list = [rail_row(*seg) for seg in params.rail_segments]  # and add_rail's
+        self.contacts = cell_contacts(params, self.rails)
         self.snapshot_rows = np.zeros((cap, 7))  # cell_view.parcels fills it
         # the machine state (PackML): in automatic mode it resets and starts at once, so a
         # cell that nobody commands runs from period 0 as it always has

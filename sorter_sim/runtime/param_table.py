@@ -253,6 +253,19 @@ SCHEMA: tuple[ParamSpec, ...] = (
         0.01,
         60.0,
     ),
+    _p(
+        'rails',
+        DOUBLE_ARRAY,
+        [],
+        'guide rails and stoppers the parcels meet (contact: rigid), 4 numbers each: the '
+        'ends x0, y0, x1, y1 of a 2 cm thick segment in the cell\'s frame, each end on the '
+        'cell (x in [induct_x, exit_x], |y| at most belt_width); up to 16; a segment across '
+        'the belt is a stopper',
+        'm',
+        -500.0,
+        500.0,
+        length=(0, 64),
+    ),
     # -- parcel stream
     _p(
         'arrival',

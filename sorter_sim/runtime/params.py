@@ -297,6 +297,7 @@ class CellParams:
     mu_wall: float
     restitution: float
     jam_time: float
+    rails: tuple
     arrival: str
     arrival_gap: tuple
     arrival_rate: float
@@ -551,6 +552,7 @@ class CellParams:
                 f'{list(self.arrival_gap)}) needs contact: rigid: under contact: '
                 f'{self.contact} parcels that close up or touch jam'
             )
+        self._check_rails()
         half_w = 0.5 * self.belt_width
         hy = max_half_width(self.parcel_A[1], self.parcel_B[1], *self.parcel_phi0_deg)
         worst = max(abs(self.parcel_y0[0]), abs(self.parcel_y0[1])) + hy
@@ -570,6 +572,40 @@ class CellParams:
                 f'parameter \'control_period\' must be a whole number of nanoseconds, '
                 f'got {shown(self.control_period)}'
             )
+
+    @property
+    def rail_segments(self) -> tuple[tuple[float, float, float, float], ...]:
+        """Return the rails and stoppers (``rails``) as (x0, y0, x1, y1) segments [m]."""
+        r = self.rails
+        return tuple(tuple(r[k : k + 4]) for k in range(0, len(r), 4))
+
+    def _check_rails(self) -> None:
+        """Check the rails: whole segments, two distinct ends on the cell, rigid contact."""
+        if len(self.rails) % 4:
+            raise ParamError(
+                f'parameter \'rails\' takes 4 numbers a rail (x0, y0, x1, y1 [m]), got '
+                f'{len(self.rails)} numbers'
+            )
+        if self.rails and self.contact != 'rigid':
+            raise ParamError(
+                f'parameter \'rails\' needs contact: rigid (under contact: {self.contact} '
+                f'nothing meets a rail); got {len(self.rails) // 4} rail(s)'
+            )
+        w = self.belt_width
+        for k, (x0, y0, x1, y1) in enumerate(self.rail_segments):
+            for x, y in ((x0, y0), (x1, y1)):
+                if not (self.induct_x <= x <= self.exit_x and abs(y) <= w):
+                    raise ParamError(
+                        f'parameter \'rails\': rail {k + 1} has an end at ({x:g}, {y:g}) m, '
+                        f'off the cell: x must be in [induct_x, exit_x] = '
+                        f'[{self.induct_x:g}, {self.exit_x:g}] m and |y| at most '
+                        f'belt_width = {w:g} m'
+                    )
+            if math.hypot(x1 - x0, y1 - y0) < 0.01:
+                raise ParamError(
+                    f'parameter \'rails\': rail {k + 1} must be at least 1 cm long, got ends '
+                    f'({x0:g}, {y0:g}) and ({x1:g}, {y1:g}) m'
+                )
 
     def _check_outputs(self) -> None:
         """Labels, the servers' hosts, the fieldbus I/O map, the recording and the frame."""
