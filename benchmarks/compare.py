@@ -20,6 +20,9 @@ Cases (``--cases``, default all but ``core`` and ``line48``):
 - ``user10``: a user's test with the ``sorter_cell`` fixture, its defaults and this
   project's controller, 10 parcels until every one is out: set-up (warm) and run, wall;
 - ``line_physics``: ``benchmarks/bench_line.py`` at 1 and 24 stations, the physics alone;
+- ``cell_physics``: ``benchmarks/bench_cell.py``'s ``cell`` case, the default cell's
+  physics alone (``Cell.advance``, 200 parcels on the belt, none touching): real-time
+  factor and us a period;
 - ``core``: ``sorter bench core``: the accurate method's time for Fig. 9a at 1e-6 m.
 """
 
@@ -40,7 +43,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCH_DIR = ROOT / '.bench'
-CASES = ('demo', 'line24', 'line48', 'user10', 'line_physics', 'core')
+CASES = ('demo', 'line24', 'line48', 'user10', 'line_physics', 'cell_physics', 'core')
 DEFAULT_CASES = ('demo', 'line24', 'user10', 'line_physics')
 
 USER10 = r"""
@@ -177,6 +180,14 @@ def case(name: str, tree: Path, sim_time: float) -> dict:
             if m:
                 figures[f'real-time factor, N = {n}'] = float(m.group(1))
         return figures
+    if name == 'cell_physics':
+        code = (
+            f'import json, sys; sys.path.insert(0, {str(tree / "benchmarks")!r}); '
+            'from bench_cell import bench_cell; r = bench_cell(5.0, 200); '
+            "print(json.dumps({'rtf': r['rtf'], 'us': r['us_per_period']}))"
+        )
+        s = _json_line(_run(tree, ['-c', code]))
+        return {'real-time factor': s['rtf'], 'us a period': s['us']}
     if name == 'core':
         out = _run(tree, ['-m', 'sorter_cell', 'bench', 'core'], timeout=3600)
         # its first target's line: the cheapest accurate setting within 1e-6 m, its time
