@@ -99,3 +99,20 @@ def test_bench_loop_splits_the_demos_slices_into_parts_that_add_up():
     assert parts['scan']['share'] <= parts['drain']['share'] + parts['waits']['share']
     bad = _bench('bench_loop.py', '--sim-time', '0', timeout=60)
     assert bad.returncode == 2 and '--sim-time must be in [1, 600] s, got 0' in bad.stderr
+
+
+def test_compare_runs_a_case_on_a_tree_and_refuses_a_bad_one():
+    """compare.py's cell_physics case reads its figures off the tree it is given."""
+    sys.path.insert(0, str(ROOT / 'benchmarks'))
+    try:
+        import compare
+    finally:
+        sys.path.remove(str(ROOT / 'benchmarks'))
+    figures = compare.case('cell_physics', ROOT, 1.0)
+    assert set(figures) == {'real-time factor', 'us a period'}
+    # one figure from the other: 1 ms a period
+    assert figures['real-time factor'] == pytest.approx(1e3 / figures['us a period'], rel=1e-6)
+    with pytest.raises(ValueError, match='unknown case'):
+        compare.case('warp', ROOT, 1.0)
+    with pytest.raises(SystemExit):
+        compare.main(['HEAD', '--cases', 'warp'])
