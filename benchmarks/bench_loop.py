@@ -16,8 +16,10 @@ process with each part of a slice timed by a wrapper (perf_counter around the ca
                drain or the waits: their time is part of those);
   settle       ``RunLoop._unsettled`` and ``_periods_to_next_timer``: the loop's checks;
 
-each in ms per simulated second, per slice and as a share of the slice. The
-wrappers add about a microsecond a call. The load average is printed with it: on a
+each in ms per simulated second, per slice and as a share of the slice; and the
+messages a slice publishes, by topic (``Publisher.publish``: the run loop's markers
+among them), each of which the executor serves to every subscriber in this process.
+The wrappers add about a microsecond a call. The load average is printed with it: on a
 shared machine the waits above all grow with the load.
 
     .venv/bin/python benchmarks/bench_loop.py [--sim-time 20] [--json]
@@ -47,7 +49,7 @@ PARTS = {
 }
 
 
-def _time_parts(spent: collections.Counter, calls: collections.Counter) -> None:
+def _time_parts(spent: collections.Counter, calls: collections.Counter) -> list:
     """
     Wrap each part's method so that its wall time and calls add up in the counters.
 
@@ -74,6 +76,21 @@ def _time_parts(spent: collections.Counter, calls: collections.Counter) -> None:
                 inside[0] -= _part == 'slice'
 
         setattr(owner, name, timed)
+    return inside  # [slices running now]
+
+
+def _count_messages(topics: collections.Counter, inside: list) -> None:
+    """Count what is published inside a slice (``inside[0]`` > 0), by topic."""
+    from rclpy.publisher import Publisher
+
+    inner = Publisher.publish
+
+    def counted(self, msg, _inner=inner):
+        if inside[0]:
+            topics[self.topic_name] += 1
+        return _inner(self, msg)
+
+    Publisher.publish = counted
 
 
 def measure(sim_time: float) -> dict:
@@ -82,7 +99,8 @@ def measure(sim_time: float) -> dict:
 
     spent: collections.Counter = collections.Counter()
     calls: collections.Counter = collections.Counter()
-    _time_parts(spent, calls)
+    topics: collections.Counter = collections.Counter()
+    _count_messages(topics, _time_parts(spent, calls))
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         code = sorter(
@@ -108,6 +126,7 @@ def measure(sim_time: float) -> dict:
     return {
         'sim_time_s': sim_s,
         'slices': slices,
+        'messages_per_slice': {t: n / slices for t, n in topics.most_common()},
         'slice_ms': 1e3 * spent['slice'] / slices,
         'slice_ms_per_sim_s': 1e3 * spent['slice'] / sim_s,
         'real_time_factor': summary['real_time_factor'],
@@ -148,6 +167,12 @@ def main(argv=None) -> int:
         )
     whole = f'{fig["slice_ms_per_sim_s"]:.0f} | {fig["slice_ms"]:.3f}'
     print(f'| the slice, whole | {whole} | 100 % |')
+    per = fig['messages_per_slice']
+    print(
+        f'messages a slice: {sum(per.values()):.2f} ('
+        + ', '.join(f'{t} {n:.2f}' for t, n in per.items() if n >= 0.01)
+        + ')'
+    )
     return 0
 
 

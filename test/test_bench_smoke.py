@@ -97,6 +97,10 @@ def test_bench_loop_splits_the_demos_slices_into_parts_that_add_up():
     outside = sum(parts[p]['share'] for p in ('physics', 'publishing', 'drain', 'waits', 'settle'))
     assert 0.5 < outside <= 1.0 + 1e-9, outside
     assert parts['scan']['share'] <= parts['drain']['share'] + parts['waits']['share']
+    # every slice publishes the clock once and sends the drain's marker at least once
+    per = got['messages_per_slice']
+    assert per['/clock'] == pytest.approx(1.0, abs=0.05), per
+    assert per['/sorter_sim/_run_loop_drain'] >= 1.0, per
     bad = _bench('bench_loop.py', '--sim-time', '0', timeout=60)
     assert bad.returncode == 2 and '--sim-time must be in [1, 600] s, got 0' in bad.stderr
 
