@@ -10,7 +10,8 @@ case: each one slides over the disk field), 1 ms physics, poses at 100 Hz, senso
 The measurements, after a warm-up that fills the cell (not timed):
   cell          the ROS-free core alone (``Cell.advance``), no messages;
   node          the node in fast mode, spun by the executor sim_node runs in, nobody
-                subscribed (rmw still serializes every message): the reference;
+                subscribed (the poses are then not built; rmw still serializes every
+                other message): the reference;
   node+sub      one subscriber of every output topic in another process, in rclpy
                 (Python objects: its deserialization takes a core of its own);
   node+rawsub   the same subscriber taking the serialized bytes (rosbag2, or a C++

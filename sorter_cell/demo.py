@@ -545,7 +545,14 @@ def run(args) -> int | str:
             file=sys.stderr,
         )
     try:
-        wall = rc.run_for(args.sim_time, quiet=args.quiet)
+        try:
+            wall = rc.run_for(args.sim_time, quiet=args.quiet)
+        except RuntimeError:
+            # a second Ctrl-C raised inside a callback the executor called from C++
+            # comes out of pybind11 as a RuntimeError: the same hurried stop (130)
+            if rc.stop.hurry:
+                raise KeyboardInterrupt from None
+            raise
         t_end = rc.finish()
         summary = summarize(rc.obs, plan, t_end, wall, rc.time_mode)
         summary["png"] = str(args.out)

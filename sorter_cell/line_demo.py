@@ -57,23 +57,9 @@ def run_line(args) -> int | str:
     n = args.stations
     k_seg = getattr(args, 'segments', None)
     k_seg = 1 if k_seg is None else k_seg
-    if not (isinstance(n, int) and 1 <= n <= 64):
-        return f'--stations must be an integer in [1, 64], got {n}'
-    if not (isinstance(k_seg, int) and 1 <= k_seg <= n):
-        return f'--segments must be an integer in [1, --stations] = [1, {n}], got {k_seg}'
-    if not (isinstance(args.parcels, int) and 0 <= args.parcels <= 100_000):
-        return f'--parcels must be an integer in [0, 100000], got {args.parcels}'
-    if getattr(args, 'sync', None) and k_seg == 1:
-        return '--sync is how segments keep time together: use it with --segments K > 1'
-    restarts = getattr(args, 'restart', 0) or 0
-    if not (isinstance(restarts, int) and 0 <= restarts <= 100):
-        return f'--restart must be an integer in [0, 100], got {restarts}'
-    if restarts and k_seg == 1:
-        return '--restart starts a segment process again: use it with --segments K > 1'
-    if k_seg > 1 and (args.record or args.foxglove):
-        return (
-            '--segments K > 1: --record and --foxglove are a single process\'s, not a segment\'s'
-        )
+    problem = _args_problem(args, n, k_seg)
+    if problem:
+        return problem
     from sorter_ros.line_key import LineKeyError, key_from_env
 
     try:
@@ -107,6 +93,12 @@ def run_line(args) -> int | str:
                 raise KeyboardInterrupt from None  # Ctrl-C ended it too: a stop (130)
             # the line cannot finish without it: say so at once rather than wait
             return str(exc)
+        except RuntimeError:
+            # a second Ctrl-C raised inside a callback the executor called from C++
+            # comes out of pybind11 as a RuntimeError: the same hurried stop (130)
+            if stop.hurry:
+                raise KeyboardInterrupt from None
+            raise
     finally:
         stop.quiet = True  # the teardown is short and bounded: let it finish
         procs = run.procs if run is not None else []
@@ -125,6 +117,28 @@ def run_line(args) -> int | str:
 
 class SegmentDied(RuntimeError):
     """A segment process of the line ended while the line ran: the message names it."""
+
+
+def _args_problem(args, n, k_seg) -> str | None:
+    """Say what is wrong with the line demo's arguments, or None."""
+    if not (isinstance(n, int) and 1 <= n <= 64):
+        return f'--stations must be an integer in [1, 64], got {n}'
+    if not (isinstance(k_seg, int) and 1 <= k_seg <= n):
+        return f'--segments must be an integer in [1, --stations] = [1, {n}], got {k_seg}'
+    if not (isinstance(args.parcels, int) and 0 <= args.parcels <= 100_000):
+        return f'--parcels must be an integer in [0, 100000], got {args.parcels}'
+    if getattr(args, 'sync', None) and k_seg == 1:
+        return '--sync is how segments keep time together: use it with --segments K > 1'
+    restarts = getattr(args, 'restart', 0) or 0
+    if not (isinstance(restarts, int) and 0 <= restarts <= 100):
+        return f'--restart must be an integer in [0, 100], got {restarts}'
+    if restarts and k_seg == 1:
+        return '--restart starts a segment process again: use it with --segments K > 1'
+    if k_seg > 1 and (args.record or args.foxglove):
+        return (
+            '--segments K > 1: --record and --foxglove are a single process\'s, not a segment\'s'
+        )
+    return None
 
 
 def _build_line(run, args, n: int, fast: bool):

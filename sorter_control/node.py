@@ -21,8 +21,9 @@ Interface (all names relative): subscribes ``sensors/<name>`` (std_msgs/Bool),
 and ``status/jam`` (std_msgs/Bool, the cell's state bits), ``routing/updates``
 (diagnostic_msgs/KeyValue: key = label, ``prefix*`` or ``*``, value = left | right |
 straight, or empty to remove);
-publishes ``controller/heartbeat`` (std_msgs/UInt32, a counter, every scan: the
-cell's watchdog), ``sort/confirmations`` (diagnostic_msgs/DiagnosticStatus) and
+publishes ``controller/heartbeat`` (std_msgs/UInt32, a counter, every
+``heartbeat_period`` of simulated time or every scan: the cell's watchdog),
+``sort/confirmations`` (diagnostic_msgs/DiagnosticStatus) and
 ``diagnostics`` (diagnostic_msgs/DiagnosticArray); serves ``~/reset``
 (std_srvs/Trigger) and ``~/estop`` (std_srvs/SetBool).
 """
@@ -138,11 +139,12 @@ class ControllerNode(Node):
         self._pub_diag = self.create_publisher(
             DiagnosticArray, "/diagnostics", STREAM_QOS, event_callbacks=quiet()
         )
-        # the cell's watchdog expects this every scan: a scan that stops, stops it
+        # the cell's watchdog expects this every heartbeat_period: a scan that stops, stops it
         self._pub_heartbeat = self.create_publisher(
             UInt32, "controller/heartbeat", STREAM_QOS, event_callbacks=quiet()
         )
         self._beats = 0
+        self._last_beat = self._next_beat = -math.inf  # the first scan beats
         self.create_service(Trigger, "~/reset", self._srv_reset, qos_profile=SERVICE_QOS)
         self.create_service(SetBool, "~/estop", self._srv_estop, qos_profile=SERVICE_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -352,11 +354,17 @@ class ControllerNode(Node):
         if self.logic is None:
             return
         wall0 = time.perf_counter()
-        self._beats = (self._beats + 1) & 0xFFFFFFFF
-        self._publish(self._pub_heartbeat, UInt32(data=self._beats))
+        now = self._now()
+        if not self._last_beat <= now < self._next_beat:  # due, or the clock went back
+            # the cell's watchdog needs a beat within its timeout, not every scan: one a
+            # heartbeat_period is one message fewer for each scan between
+            self._beats = (self._beats + 1) & 0xFFFFFFFF
+            self._publish(self._pub_heartbeat, UInt32(data=self._beats))
+            self._last_beat = now
+            self._next_beat = now + self.values["heartbeat_period"] - 1e-9
         self._expire_calls()
         image = InputImage(
-            t=self._now(),
+            t=now,
             bits=dict(self._bits),
             edges=self._edges,
             labels=self._labels,

@@ -38,6 +38,16 @@ SCHEMA = (
         "scan_period", D, 0.01, "PLC scan period on the simulation clock [s]", lo=0.001, hi=0.1
     ),
     ParamSpec(
+        "heartbeat_period",
+        D,
+        0.0,
+        "period of controller/heartbeat on the simulation clock [s]: a beat at the first "
+        "scan at or after it is due; 0: every scan. Keep it well below the cell's "
+        "watchdog_timeout (a quarter of it at most), or the cell fails safe",
+        lo=0.0,
+        hi=1.0,
+    ),
+    ParamSpec(
         "cell_node",
         S,
         "sorter_sim",

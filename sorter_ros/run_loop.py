@@ -346,18 +346,26 @@ class RunLoop:
         if self._barrier_served is not None:
             self._barrier_served.set_result(True)
 
-    def _drain(self) -> bool:
+    def _drain(self, looks: int, mark: bool = True) -> int:
         """
-        Serve every callback queued so far, in order; return whether any but the marker ran.
+        Serve every callback queued so far and what they queue in turn, in order.
 
         The events executor serves its queue in the order events came, and a message
         between nodes of this process is queued inside the publisher's call: a marker
-        sent now is served after everything already delivered. One marker is served
-        in one call to the executor (cheaper than a call an event); a second marker
-        served by the very next event then says nothing came behind the first.
+        sent now is served after everything already delivered. Once the first marker is
+        back, each look sends another and serves one event: the marker itself (nothing
+        came behind the last one: done), or something else, after which the look waits
+        for its marker and looks again. Return the looks that found something (at most
+        ``looks``: a node that answers every marker would keep each one busy).
+
+        ``mark=False`` starts with the looks: after one callback was served alone (the
+        scan's timer), what it queued is usually nothing, which one look tells; the first
+        marker serves a slice's many messages in one call to the executor.
         """
         from rclpy.task import Future
 
+        if not mark and self._barrier_seen:
+            return self._looks(looks)
         self._barrier_served = Future()
         self._barrier.publish(self._barrier_msg)
         # the marker is queued before this call: no timeout (a timeout costs the executor
@@ -365,17 +373,26 @@ class RunLoop:
         wait = {} if self._barrier_seen else {'timeout_sec': DRAIN_WALL_S}
         self.executor.spin_until_future_complete(self._barrier_served, **wait)
         if not self._barrier_served.done():
-            return False  # a callback that never lets go: the settle check waits on its own
+            return 0  # a callback that never lets go: the settle check waits on its own
         self._barrier_seen = True
-        self._barrier_served = Future()
-        self._barrier.publish(self._barrier_msg)
-        # with an event queued, one spin_once serves it at once; a timeout of 0 costs
-        # more than a long one that is never waited for
-        self.executor.spin_once(timeout_sec=DRAIN_WALL_S)
-        if self._barrier_served.done():
-            return False
-        self.executor.spin_until_future_complete(self._barrier_served)
-        return True
+        return self._looks(looks)
+
+    def _looks(self, looks: int) -> int:
+        """Look behind the last marker until nothing is (``_drain``); return the busy looks."""
+        from rclpy.task import Future
+
+        busy = 0
+        while busy < looks:
+            self._barrier_served = Future()
+            self._barrier.publish(self._barrier_msg)
+            # with an event queued, one spin_once serves it at once; a timeout of 0 costs
+            # more than a long one that is never waited for
+            self.executor.spin_once(timeout_sec=DRAIN_WALL_S)
+            if self._barrier_served.done():
+                return busy
+            busy += 1
+            self.executor.spin_until_future_complete(self._barrier_served)
+        return busy
 
     def spin_idle(self) -> None:
         """
@@ -390,13 +407,16 @@ class RunLoop:
         """
         settle_end = None
         rounds = 0
+        drained = False  # nothing ran since the queue was last drained
+        served_one = False  # the last thing that ran was one callback, served alone
         while True:
-            if self._barrier is not None and rounds < DRAIN_ROUNDS and self._drain():
-                # each round runs what the one before caused; a node that subscribed to
-                # the marker itself would make every round look busy: the bound ends that
-                rounds += 1
-                continue
+            if self._barrier is not None and rounds < DRAIN_ROUNDS and not drained:
+                # each look runs what the one before caused; a node that subscribed to
+                # the marker itself would make every look busy: the bound ends that
+                rounds += self._drain(DRAIN_ROUNDS - rounds, mark=not served_one)
+                drained = True
             if self.grace_s > 0.0 and self.serve_one(self.grace_s):
+                drained = served_one = False
                 continue
             if not self._unsettled():
                 return
@@ -409,7 +429,8 @@ class RunLoop:
             if now > settle_end:
                 return
             # what is awaited comes from another thread (DDS, a timer's own): wait for it
-            self.serve_one(0.0005)
+            served_one = self.serve_one(0.0005)
+            drained = False
 
     def serve_one(self, timeout_s: float) -> bool:
         """Serve one ready callback; return False when none came within ``timeout_s``."""

@@ -684,6 +684,28 @@ def test_sorter_demo_bad_arguments_exit_2(argv, words, capsys):
 # --------------------------------------------------------------------------- watchdog
 
 
+@pytest.mark.parametrize("period, per_second", [(0.0, 100), (0.05, 20)])
+def test_the_heartbeat_beats_every_heartbeat_period_and_keeps_the_watchdog(
+    ros, period, per_second
+):
+    """
+    heartbeat_period 0 beats every scan (100 a second at 10 ms), 0.05 s 20 a second.
+
+    Either way the cell's watchdog (0.3 s) sees a beat in time: armed, never tripped.
+    """
+    cell = Cell(ros, sim={"watchdog_timeout": 0.3}, ctl={"heartbeat_period": period})
+    sim, ctl = cell.sim, cell.ctl
+    ros.spin_until(lambda: sim.cell.watchdog_armed, 20.0, "the controller's first heartbeat")
+    topic = ctl._pub_heartbeat.topic_name
+    t0, n0 = ctl._now(), ctl.published[topic]
+    ros.spin_until(lambda: ctl._now() >= t0 + 2.0, 60.0, "two simulated seconds")
+    beats = ctl.published[topic] - n0
+    seconds = ctl._now() - t0
+    assert abs(beats - per_second * seconds) <= 2, (beats, seconds)
+    assert sim.cell.watchdog_armed and not sim.cell.watchdog_tripped
+    assert ctl.get_parameter("heartbeat_period").value == period
+
+
 def test_a_stopped_controller_leaves_the_disks_down_and_a_new_one_takes_over(ros):
     cell = Cell(ros, sim={"watchdog_timeout": 0.3})
     sim = cell.sim

@@ -182,7 +182,8 @@ class CellPublishers:
         k = self._cell.k
         self.publish_events(events)
         if k % p.pose_stride == 0:
-            self._publish_poses()
+            if self._poses_wanted():
+                self._publish_poses()
             self._publish_diverter()
         if k % p.marker_stride == 0 and self.pub_markers.get_subscription_count() > 0:
             self._publish_markers()
@@ -278,6 +279,15 @@ class CellPublishers:
         """Publish every sensor's state (the periodic copy of the latched bits)."""
         for name, blocked in self._cell.sensor_states().items():
             self.publish(self.pub_sensor[name], bool_cdr(blocked))
+
+    def _poses_wanted(self) -> bool:
+        # nobody reads them and nothing records them: not built, not serialized (a reader
+        # that subscribes later, ``ros2 topic echo``, gets them from the next pose period)
+        return (
+            self._node.recorder is not None
+            or self.pub_poses.get_subscription_count() > 0
+            or self.pub_ids.get_subscription_count() > 0
+        )
 
     def _publish_poses(self) -> None:
         parcels = self._cell.parcels()
