@@ -145,6 +145,7 @@ class ControllerNode(Node):
         )
         self._beats = 0
         self._last_beat = self._next_beat = -math.inf  # the first scan beats
+        self._beat_period = self.values["heartbeat_period"]  # fitted to the cell's watchdog
         self.create_service(Trigger, "~/reset", self._srv_reset, qos_profile=SERVICE_QOS)
         self.create_service(SetBool, "~/estop", self._srv_estop, qos_profile=SERVICE_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -257,8 +258,9 @@ class ControllerNode(Node):
                 self._start(dict(self.values))
                 return
             if client.service_is_ready():
+                # and the cell's watchdog, which the heartbeat must keep fed
                 self._cell_request = client.call_async(
-                    GetParameters.Request(names=list(CELL_KEYS))
+                    GetParameters.Request(names=[*CELL_KEYS, "watchdog_timeout"])
                 )
             return
         if not self._cell_request.done():
@@ -274,6 +276,8 @@ class ControllerNode(Node):
             v = _value(pv)
             if v is not None:
                 values[key] = v
+        if len(response.values) > len(CELL_KEYS):
+            self._fit_heartbeat(_value(response.values[len(CELL_KEYS)]))
         self._cell_params_client = None
         self._startup_timer.cancel()  # now, not on a tick to come: the node may be gone by then
         try:
@@ -281,6 +285,18 @@ class ControllerNode(Node):
         except ValueError as exc:
             self.get_logger().error(f"the cell's parameters do not make a controller: {exc}")
             raise
+
+    def _fit_heartbeat(self, watchdog_timeout) -> None:
+        """Beat at least four times a watchdog_timeout of the cell's (when it has one)."""
+        if not isinstance(watchdog_timeout, float) or not watchdog_timeout > 0.0:
+            return
+        most = watchdog_timeout / 4.0
+        if self._beat_period > most:
+            self.get_logger().warning(
+                f"heartbeat_period {self._beat_period:g} s is more than a quarter of the "
+                f"cell's watchdog_timeout ({watchdog_timeout:g} s): beating every {most:g} s"
+            )
+            self._beat_period = most
 
     # ------------------------------------------------------------------ inputs (buffer only)
     def _on_bit(self, name: str, msg: Bool) -> None:
@@ -361,7 +377,7 @@ class ControllerNode(Node):
             self._beats = (self._beats + 1) & 0xFFFFFFFF
             self._publish(self._pub_heartbeat, UInt32(data=self._beats))
             self._last_beat = now
-            self._next_beat = now + self.values["heartbeat_period"] - 1e-9
+            self._next_beat = now + self._beat_period - 1e-9
         self._expire_calls()
         image = InputImage(
             t=now,

@@ -42,8 +42,9 @@ SCHEMA = (
         D,
         0.0,
         "period of controller/heartbeat on the simulation clock [s]: a beat at the first "
-        "scan at or after it is due; 0: every scan. Keep it well below the cell's "
-        "watchdog_timeout (a quarter of it at most), or the cell fails safe",
+        "scan at or after it is due; 0: every scan. At most a quarter of the cell's "
+        "watchdog_timeout: read from cell_node, a longer one is shortened to that, said "
+        "in a warning",
         lo=0.0,
         hi=1.0,
     ),

@@ -407,16 +407,14 @@ class RunLoop:
         """
         settle_end = None
         rounds = 0
-        drained = False  # nothing ran since the queue was last drained
         served_one = False  # the last thing that ran was one callback, served alone
         while True:
-            if self._barrier is not None and rounds < DRAIN_ROUNDS and not drained:
+            if self._barrier is not None and rounds < DRAIN_ROUNDS:
                 # each look runs what the one before caused; a node that subscribed to
                 # the marker itself would make every look busy: the bound ends that
                 rounds += self._drain(DRAIN_ROUNDS - rounds, mark=not served_one)
-                drained = True
             if self.grace_s > 0.0 and self.serve_one(self.grace_s):
-                drained = served_one = False
+                served_one = False
                 continue
             if not self._unsettled():
                 return
@@ -430,7 +428,6 @@ class RunLoop:
                 return
             # what is awaited comes from another thread (DDS, a timer's own): wait for it
             served_one = self.serve_one(0.0005)
-            drained = False
 
     def serve_one(self, timeout_s: float) -> bool:
         """Serve one ready callback; return False when none came within ``timeout_s``."""

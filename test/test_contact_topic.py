@@ -143,7 +143,9 @@ def test_the_rails_parameter_declares_the_cells_rails_read_only(ros):
     d = sim.describe_parameter('rails')
     assert d.read_only and d.type == ParameterType.PARAMETER_DOUBLE_ARRAY
     result = sim.set_parameters([Parameter('rails', value=[*STOPPER])])[0]
-    assert not result.successful and sim.params.rail_segments[0] == tuple(STOPPER)
+    assert not result.successful and 'read-only' in result.reason
+    assert sim.params.rail_segments == (tuple(STOPPER), (-1.0, -HW, -0.8, 0.0))
+    assert len(sim.cell.rails) == 2
 
 
 def test_a_cell_without_rails_declares_them_an_empty_array_of_doubles(ros):

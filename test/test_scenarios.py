@@ -190,6 +190,8 @@ BAD = [
     ('duration: 5\nexpect: [{parcel: A, exit: up}]\n', 'exit must be one of'),
     ('duration: 5\nexpect: [{parcel: A, exit: left, cause: rail}]\n', 'needs exit: jammed'),
     ('duration: 5\nexpect: [{parcel: A, exit: jammed, cause: 7}]\n', 'cause must be what'),
+    ('duration: 5\nexpect: [{parcel: A, exit: jammed, cause: stopper}]\n', 'or parcel <id>'),
+    ('duration: 5\nexpect: [{parcel: A, exit: jammed, cause: parcel A}]\n', 'or parcel <id>'),
     (
         'duration: 5\ncell: {rails: [-0.6, -0.35, -0.6]}\nexpect: [{no_jam: true}]\n',
         "'rails' takes 4 numbers a rail",

@@ -164,6 +164,14 @@ def test_a_touching_stream_rides_through_a_line_of_segment_processes(tmp_path):
     divert is refused for its gap (1.40 m needed), so every parcel leaves at the line's
     straight end, none jams, none is lost.
     """
+    import argparse
+
+    from sorter_cell.line_demo import segment_commands
+
+    # every segment process is told the contact, whatever the cell's file says
+    args = argparse.Namespace(seed=1, gap=[0.0, 0.0], parcels=10, rtf='fast', contact='jam')
+    for cmd, _ in segment_commands(args, 3, 2):
+        assert cmd[cmd.index('--contact') + 1] == 'jam', cmd
     s, recs = _demo(tmp_path, 2, '--gap', '0', '0', '--contact', 'rigid', '--parcels', '10')
     assert s['contact'] == 'rigid' and s['segments'] == 2
     assert s['inducted'] == len(recs) == 10 and s['in_cell_at_end'] == 0

@@ -59,6 +59,7 @@ The controller under test (``controller:``) is one of
 
 from __future__ import annotations
 
+import re
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -93,6 +94,10 @@ RESULTS = (
     'aborted',
 )
 EXPECT_KINDS = ('parcel', 'no_mis_sort', 'no_jam', 'throughput_at_least', 'at')
+# what an outcome names as a jam's cause (runtime.cell_contacts.jam_cause, the line's
+# full chute, a jam injected by a fault), or the parcel it jammed against
+JAM_CAUSES = ('rail', 'side wall', 'chute full', 'injected', 'integration failed')
+PARCEL_CAUSE = re.compile(r'parcel [0-9]{1,10}')
 MAX_DURATION = 3600.0
 COMMAND_GRACE_S = 0.002  # quiet that ends a slice with a controller in another process
 COMMAND_STOP_S = 5.0  # wall s a command's process group has from SIGTERM to SIGKILL
@@ -302,10 +307,10 @@ def _parcel_expectation(key: str, entry: dict, has_controller: bool) -> None:
         cause = entry['cause']
         if entry.get('exit') != 'jammed':
             raise ScenarioError(f'{key}.cause is a jam\'s: it needs exit: jammed')
-        if not (isinstance(cause, str) and 0 < len(cause) <= 80):
+        if not (isinstance(cause, str) and (cause in JAM_CAUSES or PARCEL_CAUSE.fullmatch(cause))):
             raise ScenarioError(
-                f'{key}.cause must be what jammed the parcel (rail, side wall, parcel '
-                f'<id>, chute full: a string of 1 to 80 characters), got {cause!r}'
+                f'{key}.cause must be what jams a parcel: one of {", ".join(JAM_CAUSES)} '
+                f'or parcel <id>; got {cause!r}'
             )
     if 'result' in entry:
         if entry['result'] not in RESULTS:
