@@ -545,15 +545,9 @@ def run(args) -> int | str:
             file=sys.stderr,
         )
     try:
-        try:
+        with rc.stop.hurry_interrupts():  # a second Ctrl-C mid-spin: exit 130
             wall = rc.run_for(args.sim_time, quiet=args.quiet)
             t_end = rc.finish()
-        except RuntimeError:
-            # a second Ctrl-C raised inside a callback the executor called from C++
-            # comes out of pybind11 as a RuntimeError: the same hurried stop (130)
-            if rc.stop.hurry:
-                raise KeyboardInterrupt from None
-            raise
         summary = summarize(rc.obs, plan, t_end, wall, rc.time_mode)
         summary["png"] = str(args.out)
         try:

@@ -86,19 +86,14 @@ def run_line(args) -> int | str:
             except SegmentDied as exc:
                 return str(exc)  # (Ctrl-C while they start: _start_segments says 130)
         try:
-            problem = run.prepare() or run.stream()
-            return problem or run.report(run.drain())
+            with stop.hurry_interrupts():  # a second Ctrl-C mid-spin: exit 130
+                problem = run.prepare() or run.stream()
+                return problem or run.report(run.drain())
         except SegmentDied as exc:
             if stop.is_set():
                 raise KeyboardInterrupt from None  # Ctrl-C ended it too: a stop (130)
             # the line cannot finish without it: say so at once rather than wait
             return str(exc)
-        except RuntimeError:
-            # a second Ctrl-C raised inside a callback the executor called from C++
-            # comes out of pybind11 as a RuntimeError: the same hurried stop (130)
-            if stop.hurry:
-                raise KeyboardInterrupt from None
-            raise
     finally:
         stop.quiet = True  # the teardown is short and bounded: let it finish
         procs = run.procs if run is not None else []

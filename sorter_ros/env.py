@@ -21,6 +21,7 @@ otherwise:
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from pathlib import Path
@@ -206,6 +207,22 @@ class StopSignals:
 
     def is_set(self) -> bool:
         return self.requested.is_set()
+
+    @contextlib.contextmanager
+    def hurry_interrupts(self):
+        """
+        Turn the hurried stop's KeyboardInterrupt back into one where pybind11 changed it.
+
+        Raised inside a callback the events executor called from C++, the second
+        signal's KeyboardInterrupt comes out of pybind11 as a RuntimeError ("Unable to
+        convert call argument"): after a hurry, that RuntimeError is the interrupt (130).
+        """
+        try:
+            yield
+        except RuntimeError:
+            if self.hurry:
+                raise KeyboardInterrupt from None
+            raise
 
 
 def _ignore_stop_signals() -> None:
