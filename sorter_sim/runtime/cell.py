@@ -568,8 +568,8 @@ class Cell:
             name = self.sensor_names[s]
             if self.counts[s] == 0 and name not in self.sensor_faults:
                 edges.append(SensorEdge(self.t_ns, name, False))
-        self.phase[i] = ck.PH_FREE
-        self.mode[i] = ck.MODE_SLIDE
+        self.phase[i], self.mode[i] = ck.PH_FREE, ck.MODE_SLIDE
+        self.contacts.clear[i] = 0  # whatever comes into the slot is new to the contact step
         return edges
 
     def add_rail(self, x0: float, y0: float, x1: float, y1: float, thickness: float = 0.02):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from sorter_sim.model.core import cell_kernels as ck
-from sorter_sim.model.core.contact import Contacts, contacts_for, rail, side_walls
+from sorter_sim.model.core.contact import Contacts, contacts_for, fresh_slot, rail, side_walls
 from sorter_sim.model.core.simulate import Parcel, parcel_array
 
 # the footprint quadrature's points per direction in the cell
@@ -74,4 +74,5 @@ def place_parcel(cell, i: int, pose: tuple, size: tuple, vel: tuple = (0.0, 0.0,
     cell.phase[i] = ck.PH_CELL
     cell.mode[i] = ck.MODE_SLIDE
     cell.ids[i] = 100 + i
+    fresh_slot(cell.contacts, i)
     cell.dims[i] = size

@@ -119,10 +119,14 @@ from sorter_sim.model.core.contact import (
     H_BY,
     H_CLOCK,
     OB_KIND,
+    N_OLD,
+    N_QUIET,
     OBK_WALL,
     contact_step,
     hold_clocks,
     keep_start,
+    quiet_movers,
+    quiet_slot,
 )
 from sorter_sim.model.core.common import N_OUT, N_RHS, N_STEPS, ST_END, ST_TARGET
 from sorter_sim.model.core.jit import borrowing, kernel, kernel_step
@@ -505,20 +509,42 @@ def _period_loop(accurate: bool):
             else:
                 period = (v, n_strips, disk_sid, same_strips, _integrate_implicit)
             ntr = 0
-            if cfg[C_CONTACT] > 0.5:
-                keep_start(parcels.state, parcels.phase, PH_CELL, contacts)
+            rigid_contact = cfg[C_CONTACT] > 0.5
+            # quiet (no contact step) only where nothing touched at the last period's
+            # end; each slot's part of the check while its row is at hand
+            quiet = rigid_contact and contacts.counts[N_OLD] == 0
+            n_mov = 0
+            codes = (PH_CELL, PH_JAMMED)
             for i in range(parcels.state.shape[0]):
+                if rigid_contact and parcels.phase[i] == PH_CELL:
+                    keep_start(i, parcels.state, contacts)
                 n_ev, ntr = _advance_parcel(
                     i, k, period, setup, parcels, sensors, work, stats, log, (n_ev, ntr)
                 )
-            if cfg[C_CONTACT] > 0.5:
+                if quiet:
+                    quiet, n_mov = quiet_slot(
+                        i,
+                        parcels.state,
+                        parcels.phase,
+                        parcels.par,
+                        work.rigid,
+                        codes,
+                        contacts,
+                        n_mov,
+                    )
+            if quiet and quiet_movers(
+                n_mov, parcels.state, parcels.phase, parcels.par, work.r_out, codes, contacts
+            ):
+                # nothing in reach, nothing touched last period: no contact step
+                contacts.counts[N_QUIET] = 1
+            elif rigid_contact:
                 contact_step(
                     cfg[C_DT],
                     parcels.state,
                     parcels.phase,
                     parcels.par,
                     work.r_out,
-                    (PH_CELL, PH_JAMMED),
+                    codes,
                     (cfg[C_MU_PARCEL], cfg[C_MU_WALL], cfg[C_RESTITUTION]),
                     contacts,
                     work.contact_scratch,

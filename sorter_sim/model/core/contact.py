@@ -12,7 +12,15 @@ and Coulomb friction at the contact. Three steps, as every rigid-body contact co
   bounding boxes overlap in x and y goes on. Each parcel is checked against the
   cell's obstacles (static boxes: the side walls outside the chute openings, whose
   corners are the openings' edges, and the rails and stoppers a cell declares) by
-  their bounding boxes. With no pair in reach a period costs the sort's pass.
+  their bounding boxes.
+* **Quiet periods** (``quiet_slot``, ``quiet_movers``): most periods of a stream have no contact at
+  all, and the broad phase would find none again. A parcel that moved with the belt
+  (the cell's ``rigid``) kept its distance to every other such parcel, so only the
+  pairs with a parcel that did not (integrated, on the disks, jammed, new on the
+  cell) are looked at, by their circles; and a parcel moved along x alone stays clear
+  of every obstacle over an x stretch found once (``_obstacle_room``, separating
+  axes). Where all is clear, and nothing touched in the last period, the period has
+  no contact step: it costs what the old rule's overlap check cost.
 * **Narrow phase** (``contact_narrow.box_contacts``): two turned boxes, the
   reference face the one of greatest separation (separating axes), the incident
   edge of the other clipped to the reference face's side planes: up to two contact
@@ -82,7 +90,9 @@ OB_XLO = 6  # its bounding box [m] (``contacts_for`` fills it in)
 OB_XHI = 7
 OB_YLO = 8
 OB_YHI = 9
-OB_WIDTH = 10
+OB_COS = 10  # cos and sin of its turn (``contacts_for`` fills them in: no libm call a check)
+OB_SIN = 11
+OB_WIDTH = 12
 
 OBK_WALL = 0.0  # a side wall outside the chute openings (its corners: the openings' edges)
 OBK_RAIL = 1.0  # a rail or a stopper the cell declares
@@ -104,8 +114,11 @@ PROJECTION_MAX_SWEEPS = 2000
 # the sweep keys, a polygon pair, the projection's displacements; per slot its hold
 # (``H_*``: where its no-progress clock started, the clock, its strongest contact);
 # per slot the time since it was struck this period (0: not struck), for the cell to
-# replay its floor friction over that time at its new velocity; and the slots'
-# velocities at the period's start (ẋ, ẏ, φ̇), kept by the cell (``keep_start``)
+# replay its floor friction over that time at its new velocity; the slots' velocities
+# (ẋ, ẏ, φ̇) and positions (x, y) at the period's start, kept by the cell
+# (``keep_start``); and for the quiet periods (``quiet_slot``): per slot whether it
+# was found clear at the last period's end (1; 0: look at it afresh, as a slot Python
+# filled), its clear row (``CL_*``), and the list of movers to look at
 Contacts = namedtuple(
     'Contacts',
     [
@@ -123,6 +136,10 @@ Contacts = namedtuple(
         'hold',
         'impact',
         'v_start',
+        'xy_start',
+        'clear',
+        'clear_x',
+        'movers',
     ],
 )
 
@@ -136,10 +153,23 @@ H_WIDTH = 5
 # a parcel that moves less than this from where its clock started makes no progress [m]
 JAM_PROGRESS = 1e-3
 
-# counts: this period's contacts, the last period's, PGS sweeps of the last period
+# counts: this period's contacts, the last period's, PGS sweeps of the last period,
+# and whether the last period was quiet (``quiet_movers``: no contact step ran)
 N_CT = 0
 N_OLD = 1
 N_SWEEPS = 2
+N_QUIET = 3
+
+# a slot's clear row (``quiet_slot``): the x stretch over which it stays clear of
+# every obstacle, for the y and turn it had when that was found
+CL_X_LO = 0
+CL_X_HI = 1
+CL_Y = 2
+CL_PHI = 3
+CL_WIDTH = 4
+# the clearance a quiet period asks of every pair and obstacle, beyond CONTACT_REACH:
+# ten times it, so that no rounding of the bounds below lets a contact slip by [m]
+QUIET_MARGIN = 10.0 * CONTACT_REACH
 
 
 def contacts_for(capacity: int, obstacles: np.ndarray) -> Contacts:
@@ -172,6 +202,8 @@ def contacts_for(capacity: int, obstacles: np.ndarray) -> Contacts:
     obstacles[:, OB_XHI] = rows[:, OB_X] + ex
     obstacles[:, OB_YLO] = rows[:, OB_Y] - ey
     obstacles[:, OB_YHI] = rows[:, OB_Y] + ey
+    obstacles[:, OB_COS] = np.cos(rows[:, OB_PHI])
+    obstacles[:, OB_SIN] = np.sin(rows[:, OB_PHI])
     # a box touches at most its four sides' worth of bodies with two points each
     max_ct = 8 * capacity + 2 * obstacles.shape[0] * capacity + 8
     return Contacts(
@@ -181,7 +213,7 @@ def contacts_for(capacity: int, obstacles: np.ndarray) -> Contacts:
         np.zeros((max_ct, CF_WIDTH)),
         np.zeros((max_ct, 3), dtype=np.int64),
         np.zeros((max_ct, CF_WIDTH)),
-        np.zeros(3, dtype=np.int64),
+        np.zeros(4, dtype=np.int64),
         np.zeros((max(obstacles.shape[0], 1), 2)),
         np.zeros(capacity),
         np.zeros((2, 4, 4)),
@@ -189,7 +221,16 @@ def contacts_for(capacity: int, obstacles: np.ndarray) -> Contacts:
         np.zeros((capacity, H_WIDTH)),
         np.zeros(capacity),
         np.zeros((capacity, 3)),
+        np.zeros((capacity, 2)),
+        np.zeros(capacity, dtype=np.int64),
+        np.zeros((capacity, CL_WIDTH)),
+        np.zeros(capacity, dtype=np.int64),
     )
+
+
+def fresh_slot(cont: Contacts, i: int) -> None:
+    """Have the next period look at slot ``i`` afresh: Python put a parcel there."""
+    cont.clear[i] = 0
 
 
 def side_walls(half_w: float, open_lo: float, open_hi: float) -> np.ndarray:
@@ -321,8 +362,8 @@ def _broad_phase(state, phase, par, r_out, codes, mus, cont, scratch_f, scratch_
             if yi + reach < obs[o, OB_YLO] or yi - reach > obs[o, OB_YHI]:
                 continue
             # a turned rail's box is wide: the distance across its centre line next
-            c = math.cos(obs[o, OB_PHI])
-            s = math.sin(obs[o, OB_PHI])
+            c = obs[o, OB_COS]
+            s = obs[o, OB_SIN]
             if abs(-s * (xi - obs[o, OB_X]) + c * (yi - obs[o, OB_Y])) > reach + obs[o, OB_HALF_B]:
                 continue
             box_polygon(
@@ -466,12 +507,139 @@ def _approached(a, b, h, state, cont, cf):
 
 
 @kernel_step
-def keep_start(state, phase, ph_cell, cont):
-    """Keep the velocities of the parcels on the cell at the period's start (``v_start``)."""
-    for i in range(state.shape[0]):
-        if phase[i] == ph_cell:
-            for j in range(3):
-                cont.v_start[i, j] = state[i, j + 3]
+def keep_start(i, state, cont):
+    """Keep parcel i's velocity and position at the period's start (``v_start``, ``xy_start``)."""
+    for j in range(3):
+        cont.v_start[i, j] = state[i, j + 3]
+    cont.xy_start[i, 0] = state[i, 0]
+    cont.xy_start[i, 1] = state[i, 1]
+
+
+@kernel_step
+def _obstacle_room(i, state, par, cont):
+    """
+    How far parcel i may move along x alone and stay QUIET_MARGIN clear of every obstacle [m].
+
+    Each obstacle is kept off by a separating axis: x or y between its bounding box and
+    the parcel's, or the obstacle's own normal or tangent against the parcel's extent
+    along it. A gap along an axis bounds the distance from below (a contact point lies
+    within CONTACT_REACH of both bodies, ``box_contacts``), and a move dx along x
+    closes it by at most dx times the axis's x component; the best axis of each
+    obstacle, the worst obstacle. 0 or less: an obstacle is within reach now; inf: no
+    move along x reaches one (a side wall beside the parcel).
+    """
+    obs = cont.obstacles
+    x = state[i, 0]
+    y = state[i, 1]
+    ha = par[i, P_HALF_A]
+    hb = par[i, P_HALF_B]
+    cp = math.cos(state[i, 2])
+    sp = math.sin(state[i, 2])
+    ex = abs(cp) * ha + abs(sp) * hb
+    ey = abs(sp) * ha + abs(cp) * hb
+    room = math.inf
+    for o in range(obs.shape[0]):
+        if max(obs[o, OB_YLO] - (y + ey), (y - ey) - obs[o, OB_YHI]) > QUIET_MARGIN:
+            continue
+        best = max(obs[o, OB_XLO] - (x + ex), (x - ex) - obs[o, OB_XHI]) - QUIET_MARGIN
+        c = obs[o, OB_COS]
+        s = obs[o, OB_SIN]
+        dx = x - obs[o, OB_X]
+        dy = y - obs[o, OB_Y]
+        sin_rel = abs(sp * c - cp * s)
+        cos_rel = abs(cp * c + sp * s)
+        gap_n = abs(-s * dx + c * dy) - (ha * sin_rel + hb * cos_rel + obs[o, OB_HALF_B])
+        gap_n -= QUIET_MARGIN
+        if gap_n > 0.0:
+            best = max(best, gap_n / abs(s) if s != 0.0 else math.inf)
+        gap_t = abs(c * dx + s * dy) - (ha * cos_rel + hb * sin_rel + obs[o, OB_HALF_A])
+        gap_t -= QUIET_MARGIN
+        if gap_t > 0.0:
+            best = max(best, gap_t / abs(c) if c != 0.0 else math.inf)
+        room = min(room, best)
+    return room
+
+
+@kernel_step
+def _clear_of_obstacles(i, state, par, cont):
+    """Return whether parcel i is clear of every obstacle, and keep its clear x stretch."""
+    room = _obstacle_room(i, state, par, cont)
+    if not room > 0.0:
+        return False
+    row = cont.clear_x[i]
+    row[CL_X_LO] = state[i, 0] - room
+    row[CL_X_HI] = state[i, 0] + room
+    row[CL_Y] = state[i, 1]
+    row[CL_PHI] = state[i, 2]
+    return True
+
+
+@kernel_step
+def quiet_slot(i, state, phase, par, rigid, codes, cont, n_mov):
+    """
+    Check what slot i's own period end decides of whether the period is quiet.
+
+    Called for each slot right after the cell advanced it (its row is at hand): a
+    parcel that moved with the belt (``rigid``: along x by v h, the same for all of
+    them) and was clear at the last period's end keeps its distance to every other such
+    parcel, and stays clear of the obstacles while its x is within its clear stretch
+    (``_obstacle_room``, found again where it leaves it). Any other body (integrated,
+    on the disks, jammed, new: ``clear`` 0) goes on the movers' list.
+
+    Returns
+    -------
+    (bool, int)
+        Whether the period may still be quiet, and the movers listed.
+
+    """
+    ph_cell, ph_jammed = codes
+    ph = phase[i]
+    if ph != ph_cell and ph != ph_jammed:
+        cont.clear[i] = 0
+        return True, n_mov
+    if ph == ph_cell and rigid[i] and cont.clear[i] == 1:
+        row = cont.clear_x
+        x = state[i, 0]
+        if (
+            state[i, 1] == row[i, CL_Y]
+            and state[i, 2] == row[i, CL_PHI]
+            and row[i, CL_X_LO] <= x <= row[i, CL_X_HI]
+        ):
+            return True, n_mov
+        return _clear_of_obstacles(i, state, par, cont), n_mov
+    cont.movers[n_mov] = i
+    return True, n_mov + 1
+
+
+@kernel_step
+def quiet_movers(n_mov, state, phase, par, r_out, codes, cont):
+    """
+    Return whether no contact can be in reach at this period's end: then none is solved.
+
+    The cell asks only where nothing touched at the last period's end (``N_OLD`` 0)
+    and every slot passed ``quiet_slot``; the claim then holds by induction from that
+    period's end. The movers' circles are checked against every body's, and each
+    mover against the obstacles; anything closer than QUIET_MARGIN: not quiet, and the
+    contact step decides. ``codes`` (PH_CELL, PH_JAMMED).
+    """
+    ph_cell, ph_jammed = codes
+    cap = state.shape[0]
+    for q in range(n_mov):
+        i = cont.movers[q]
+        for j in range(cap):
+            if j == i or (phase[j] != ph_cell and phase[j] != ph_jammed):
+                continue
+            if phase[i] == ph_jammed and phase[j] == ph_jammed:
+                continue
+            reach = r_out[i] + r_out[j] + QUIET_MARGIN
+            if abs(state[i, 0] - state[j, 0]) > reach or abs(state[i, 1] - state[j, 1]) > reach:
+                continue
+            return False
+        if phase[i] == ph_cell and not _clear_of_obstacles(i, state, par, cont):
+            return False
+    for q in range(n_mov):
+        cont.clear[cont.movers[q]] = 1
+    return True
 
 
 @kernel_step
@@ -624,6 +792,10 @@ def contact_step(h, state, phase, par, r_out, codes, prm, cont, scratch):
     if n_ct > 0 or cont.counts[N_OLD] > 0:
         _obstacle_forces(h, cont)
     _keep_for_warm_start(cont)
+    # every body was looked at: what the next quiet period builds on
+    ph_jammed = codes[1]
+    for i in range(state.shape[0]):
+        cont.clear[i] = 1 if phase[i] == ph_cell or phase[i] == ph_jammed else 0
     return n_ct
 
 
@@ -638,6 +810,14 @@ def hold_clocks(h, state, phase, ph_cell, cont):
     contact (``H_LOAD``, ``H_BY``) names what holds it.
     """
     hold, ct_i, ct_f = cont.hold, cont.ct_i, cont.ct_f
+    if cont.counts[N_QUIET] > 0:
+        # the clocks of a quiet period were not kept: nothing held anything, so each
+        # started afresh where the last period left its parcel
+        for i in range(hold.shape[0]):
+            hold[i, H_CLOCK] = 0.0
+            hold[i, H_X] = cont.xy_start[i, 0]
+            hold[i, H_Y] = cont.xy_start[i, 1]
+        cont.counts[N_QUIET] = 0
     for i in range(hold.shape[0]):
         hold[i, H_LOAD] = 0.0
         hold[i, H_BY] = -1.0
@@ -678,14 +858,18 @@ __all__ = [
     "H_CLOCK",
     "JAM_PROGRESS",
     "N_CT",
+    "N_QUIET",
     "N_SWEEPS",
     "OBK_RAIL",
     "OBK_WALL",
     "OB_WIDTH",
     "OVERLAP_TOL",
     "contact_step",
+    "fresh_slot",
     "hold_clocks",
     "keep_start",
+    "quiet_movers",
+    "quiet_slot",
     "contacts_for",
     "rail",
     "side_walls",
