@@ -58,6 +58,7 @@ from sorter_sim.runtime.cell_contacts import (
     N_QUAD,
     cell_contacts,
     configure_contacts,
+    fresh_slot,
     jam_cause,
     rail_row,
 )
@@ -569,7 +570,6 @@ class Cell:
             if self.counts[s] == 0 and name not in self.sensor_faults:
                 edges.append(SensorEdge(self.t_ns, name, False))
         self.phase[i], self.mode[i] = ck.PH_FREE, ck.MODE_SLIDE
-        self.contacts.clear[i] = 0  # whatever comes into the slot is new to the contact step
         return edges
 
     def add_rail(self, x0: float, y0: float, x1: float, y1: float, thickness: float = 0.02):
@@ -645,7 +645,6 @@ class Cell:
         self.ids[i] = h.parcel_id
         self.dims[i] = h.dims
         self.labels[i] = h.label
-        self.jam_cause[i] = ''
         return self._sense_new(i)
 
     @property
@@ -707,11 +706,12 @@ class Cell:
         self.ids[i] = pid
         self.dims[i] = (spec.A, spec.B, spec.m)
         self.labels[i] = label
-        self.jam_cause[i] = ''
         return edges + self._sense_new(i)
 
     def _sense_new(self, i: int) -> list[SensorEdge]:
-        """Set the sensors a parcel just placed in slot ``i`` blocks; return their edges."""
+        """Start the parcel just put in slot ``i`` afresh; return the edges of what it blocks."""
+        self.jam_cause[i] = ''
+        fresh_slot(self.contacts, i)  # new to the contact step, whatever the slot held
         edges: list[SensorEdge] = []
         for s in range(len(self.sensor_names)):
             on = ck.sensor_blocked(
