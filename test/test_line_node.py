@@ -558,9 +558,16 @@ def test_the_live_view_shows_the_whole_line_to_a_foxglove_client(ros):
         # run until the parcel rides station 2, then take the frames of that moment
         while not line.stations[1].cell.n_parcels:
             line.advance(20)
+        # the view's process asks for each frame when its client can take one: a loaded
+        # machine may leave it waiting a while, so wait for its ask in wall time, not by
+        # running the line on (which would carry the parcel past station 2)
+        deadline = time.monotonic() + 10.0
+        while not line.live_view.due() and time.monotonic() < deadline:
+            time.sleep(0.002)
         sent = line.live_view.frames_sent
         while line.live_view.frames_sent == sent:
             line.advance(line.stations[0].params.pose_stride)
+        assert line.stations[1].cell.n_parcels == 1
         t_ns, got = line.line.t_ns, {}
         deadline = time.monotonic() + 10.0
         while len(got) < 3 and time.monotonic() < deadline:
