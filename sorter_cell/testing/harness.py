@@ -57,6 +57,11 @@ class SorterCell(LockStep):
         Wall seconds of quiet that end a slice's spin, for nodes in other processes
         (default: none with the events executor, which drains this process's nodes
         exactly; 0.5 ms with the single-threaded one).
+    heartbeat_wait_s : float
+        For a controller in another process: the most wall seconds a slice that would
+        trip the watchdog waits first for the controller's next heartbeat (0: none).
+        A process starved of the core lags in wall time, not in simulated time; a
+        frozen one still trips, at the same simulated moment, a wait later.
     record : str, optional
         An MCAP file: everything the cell publishes (named in every report).
     events : bool
@@ -76,6 +81,7 @@ class SorterCell(LockStep):
         domain_id: int | None = None,
         slice_s: float = SLICE_S,
         grace_s: float | None = None,
+        heartbeat_wait_s: float = 0.0,
         record: str | None = None,
         events: bool = True,
     ):
@@ -84,6 +90,9 @@ class SorterCell(LockStep):
 
         from sorter_sim.frontends.node import SimNode
 
+        if not (isinstance(heartbeat_wait_s, (int, float)) and 0.0 <= heartbeat_wait_s <= 60.0):
+            raise ValueError(f'heartbeat_wait_s must be in [0, 60] s, got {heartbeat_wait_s!r}')
+        self.heartbeat_wait_s = float(heartbeat_wait_s)
         self._start_context(domain_id, slice_s, grace_s, events=events)
         try:
             values = {'time_mode': 'lockstep', 'arrival': 'none', **(params or {})}
@@ -103,6 +112,19 @@ class SorterCell(LockStep):
             self.close()
             raise
         self.t0 = self.t
+
+    def _slice(self, n: int) -> int:
+        """Run one slice; first, if it would trip the watchdog, wait for a late heartbeat."""
+        if self.heartbeat_wait_s > 0.0:
+            cell, dog = self.sim.cell, self.sim.cell.watchdog
+            deadline = dog.deadline(cell.params.watchdog_timeout, cell.dt)
+            if deadline is not None and deadline <= cell.k + n:
+                # any heartbeat that came says the controller lives: fed, frozen or cut
+                seen = (dog.fed_k, dog.frozen, dog.lost)
+                self.spin_until(
+                    lambda: (dog.fed_k, dog.frozen, dog.lost) != seen, self.heartbeat_wait_s
+                )
+        return super()._slice(n)
 
     # ------------------------------------------------------------------ set-up
     def _subscribe(self) -> None:

@@ -54,7 +54,10 @@ The controller under test (``controller:``) is one of
   publishes the clock and what it sensed, and waits until the graph has been quiet
   for ``COMMAND_GRACE_S`` of wall time; an answer that takes longer is taken in the
   next slice. On an idle machine runs repeat; a loaded one can move a command by a
-  slice (5 ms). A process that ends early fails the run with its exit code.
+  slice (5 ms). A slice that would trip the watchdog first waits up to
+  ``COMMAND_HEARTBEAT_WAIT_S`` of wall time for the next heartbeat: a process starved
+  of the core is late in wall time only, and a frozen one still trips at the same
+  simulated moment. A process that ends early fails the run with its exit code.
 """
 
 from __future__ import annotations
@@ -100,6 +103,7 @@ JAM_CAUSES = ('rail', 'side wall', 'chute full', 'injected', 'integration failed
 PARCEL_CAUSE = re.compile(r'parcel [0-9]{1,10}')
 MAX_DURATION = 3600.0
 COMMAND_GRACE_S = 0.002  # quiet that ends a slice with a controller in another process
+COMMAND_HEARTBEAT_WAIT_S = 2.0  # wall s a slice waits for its late heartbeat (SorterCell)
 COMMAND_STOP_S = 5.0  # wall s a command's process group has from SIGTERM to SIGKILL
 BLOCKED_S = 1.0  # wall s a callback of the user's node may take before the result says so
 NODE_KEYWORDS = ('context', 'parameter_overrides')  # what a node factory is called with
@@ -556,9 +560,15 @@ def run_scenario(
     if sc.generated:
         params['arrival'] = 'none'  # the stream starts once the controller runs
     spec = sc.controller
-    grace = COMMAND_GRACE_S if spec is not None and spec.kind == 'command' else None
+    command = spec is not None and spec.kind == 'command'
     timed: dict[int, Check] = {}
-    with SorterCell(params, domain_id=domain_id, record=record, grace_s=grace) as cell:
+    with SorterCell(
+        params,
+        domain_id=domain_id,
+        record=record,
+        grace_s=COMMAND_GRACE_S if command else None,
+        heartbeat_wait_s=COMMAND_HEARTBEAT_WAIT_S if command else 0.0,
+    ) as cell:
         record_the_domain(cell, record)  # the controller's topics too, a process's included
         t0 = cell.t
         try:
