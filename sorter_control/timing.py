@@ -45,6 +45,7 @@ service latency allowance. ``min_gap`` reports the result as a gap in metres.
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +54,26 @@ from sorter_sim.model.core.simulate import Parcel, simulate
 from sorter_sim.model.build import cell_strips, entry_state
 
 DESTINATIONS = ("left", "right", "straight")
+
+# A prediction depends only on the cell's mechanics and the method's settings, so every
+# predictor of a process with the same ones shares its results: a line's station
+# programs, or the controllers a test worker makes one after another, each run the
+# model once per length rather than once per program. The last SHARED_SETTINGS
+# settings are kept; a predictor keeps its own results whatever is dropped.
+SHARED_SETTINGS = 8
+_shared: OrderedDict[tuple, dict] = OrderedDict()
+
+
+def _shared_cache(key: tuple) -> dict:
+    """Return the results store every predictor (or gap model) with settings ``key`` uses."""
+    store = _shared.get(key)
+    if store is None:
+        store = _shared[key] = {}
+        while len(_shared) > SHARED_SETTINGS:
+            _shared.popitem(last=False)
+    else:
+        _shared.move_to_end(key)
+    return store
 
 
 def side_of(destination: str) -> int:
@@ -296,7 +317,8 @@ class DivertPredictor:
         self.t_max = t_max
         self.rtol = rtol
         self.atol = atol
-        self._cache: dict[tuple, Prediction] = {}
+        self.settings = ("predictions", cell, method, t_max, rtol, atol)
+        self._cache: dict[tuple, Prediction] = _shared_cache(self.settings)
         self.n_runs = 0
         self.wall_s = 0.0
 
@@ -549,7 +571,9 @@ class GapModel:
         self.clearance = clearance
         self.dt = dt
         self.geometry_step = geometry_step
-        self._geo_cache: dict[tuple, float] = {}
+        self._geo_cache: dict[tuple, float] = _shared_cache(
+            ("headways", predictor.settings, self.divert_alpha_deg, clearance, dt, geometry_step)
+        )
 
     @property
     def cell(self) -> CellModel:

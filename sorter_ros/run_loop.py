@@ -145,6 +145,8 @@ class RunLoop:
         self.slice_s = float(slice_s)
         self.grace_s = float(grace_s)
         self.nodes: list = []
+        self._watch_key, self._watch = None, ([], [])  # _watched's lists and what they hold
+        self._due, self._due_at = [], (None, -1)  # the timers due in the coming slice, when
         self.record_path = ''
         self._barrier = None
         self._barrier_served = None
@@ -296,50 +298,88 @@ class RunLoop:
     def _advance(self, n: int) -> None:
         self._stepper.advance(n)
 
+    def _watched(self) -> tuple:
+        """
+        Return every node's clients and, per node, its ROS clock with the timers on it.
+
+        Kept from one check to the next and made again when a node was added or
+        removed, or made or dropped a client or a timer: the checks after each slice,
+        a few a slice, then walk flat lists (a line has about 50 nodes, 250 clients).
+        """
+        from rclpy.clock import ROSClock
+
+        nodes = self.nodes
+        # rclpy keeps a node's clients and timers in these lists (Node.clients, .timers);
+        # a new one is appended: the count and the last one tell a change
+        key = [id(n) for n in nodes]
+        for node in nodes:
+            for made in (node._clients, node._timers):
+                key.append(id(made[-1]) if made else len(made))
+                key.append(len(made))
+        if key != self._watch_key:
+            clients = [c for node in nodes for c in node._clients]
+            clocked = []
+            for node in nodes:
+                clock = node.get_clock()
+                if isinstance(clock, ROSClock):
+                    clocked.append((clock, [t for t in node._timers if t.clock is clock]))
+            self._watch_key, self._watch = key, (clients, clocked)
+        return self._watch
+
     def _unsettled(self) -> bool:
         """
         Return True while a node has not yet caught up with the slice just run.
 
         Caught up: every node on simulated time has taken the clock's last tick, every
         timer on that clock that fell due has run, and every service call has its answer.
+        Which timers fall due in a slice ``_periods_to_next_timer`` found before it ran
+        (time stands still in between): only those are looked at again.
         """
-        from rclpy.clock import ROSClock
-
+        watch = self._watched()
+        clients, clocked = watch
+        for c in clients:
+            if c._pending_requests:
+                return True
         t_ns = self.t_ns
-        for node in self.nodes:
-            if any(c._pending_requests for c in node.clients):
+        due = self._due if self._due_at[0] is watch and self._due_at[1] == t_ns else None
+        timers = []
+        for clock, ts in clocked:
+            # one reading says both: behind the slice (not caught up), at it (on simulated
+            # time), or past it (off simulated time: the wall's clock, whose timers the
+            # slices do not wait for), as Clock.ros_time_is_active would at twice the cost
+            now = clock.handle.get_now().nanoseconds
+            if now < t_ns:
                 return True
-            clock = node.get_clock()
-            if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
-                continue
-            if clock.now().nanoseconds < t_ns:
+            if now == t_ns and due is None:
+                timers += ts
+        for timer in timers if due is None else due:
+            left = timer.time_until_next_call()  # None: cancelled
+            if left is not None and left <= 0:
                 return True
-            for timer in node.timers:
-                if timer.clock is clock and not timer.is_canceled():
-                    left = timer.time_until_next_call()
-                    if left is not None and left <= 0:
-                        return True
         return False
 
-    def _periods_to_next_timer(self, most: int) -> int:
+    def _periods_to_next_timer(self, most: int, align: bool = True) -> int:
         """
         Return the control periods until a timer on simulated time falls due (1..most).
 
-        A timer falls due at the first period boundary at or after its next call.
+        A timer falls due at the first period boundary at or after its next call. The
+        timers that fall due within those periods (``align=False``: within ``most``,
+        which is returned) are kept for ``_unsettled``.
         """
-        from rclpy.clock import ROSClock
-
         dt_ns = round(self.dt * 1e9)
-        n = most
-        for node in self.nodes:
-            clock = node.get_clock()
-            if not (isinstance(clock, ROSClock) and clock.ros_time_is_active):
-                continue
-            for timer in node.timers:
-                if timer.clock is clock and not timer.is_canceled():
-                    left = timer.time_until_next_call()
+        watch = self._watched()
+        lefts = []
+        t_ns = self.t_ns
+        for clock, timers in watch[1]:
+            if clock.handle.get_now().nanoseconds <= t_ns:  # on simulated time (_unsettled)
+                for timer in timers:
+                    left = timer.time_until_next_call()  # None: cancelled
                     if left is not None:
-                        n = min(n, max(1, -(-left // dt_ns)))
+                        lefts.append((left, timer))
+        least = min([most * dt_ns] + [left for left, _ in lefts])
+        n = min(most, max(1, -(-least // dt_ns))) if align else most
+        self._due = [timer for left, timer in lefts if left <= n * dt_ns]
+        self._due_at = (watch, t_ns + n * dt_ns)
         return n
 
     def _on_barrier(self, _msg) -> None:
@@ -520,8 +560,7 @@ class RunLoop:
 
     def _slice(self, n: int) -> int:
         """Run one slice of at most ``n`` periods and serve what it caused; return its periods."""
-        if self.align_to_timers:
-            n = self._periods_to_next_timer(n)
+        n = self._periods_to_next_timer(n, self.align_to_timers)
         self._advance(n)
         self.spin_idle()
         return n

@@ -178,6 +178,25 @@ def test_prediction_mirrors_for_the_other_chute_and_rounds_length_up():
     assert PREDICTOR.key_length(0.4001) == pytest.approx(0.41)
 
 
+def test_predictors_with_the_same_settings_share_their_results_and_no_others_do():
+    cell = CellModel(disk_field_length=1.1)  # settings no other test uses: nothing shared yet
+    one, two = DivertPredictor(cell), DivertPredictor(cell)
+    first = one.predict(0.4, 1.5, 90.0)
+    assert two.predict(0.4, 1.5, 90.0) is first and (one.n_runs, two.n_runs) == (1, 0)
+    # another method, tolerance or cell runs the model again, to its own result
+    other = DivertPredictor(cell, rtol=1e-7).predict(0.4, 1.5, 90.0)
+    assert other is not first and other.t_commit == pytest.approx(first.t_commit, abs=1e-4)
+    assert DivertPredictor(CellModel(disk_field_length=1.0)).predict(0.4, 1.5, 90.0) is not first
+    # a gap model shares its headways only with one of the same disk angle and clearance
+    act = Actuators()
+    a = GapModel(one, act, divert_alpha_deg=90.0, clearance=0.02)
+    h = a.geometric_headway(0.4, 'left', 0.4, 'left', 1.5)
+    b = GapModel(two, act, divert_alpha_deg=90.0, clearance=0.02)
+    assert b._geo_cache is a._geo_cache and b.geometric_headway(0.4, 'left', 0.4, 'left', 1.5) == h
+    wider = GapModel(two, act, divert_alpha_deg=90.0, clearance=0.05)
+    assert wider.geometric_headway(0.4, 'left', 0.4, 'left', 1.5) > h
+
+
 def test_prediction_infeasible_when_the_field_is_too_short():
     pr = DivertPredictor(CellModel(disk_field_length=0.3)).predict(0.4, 1.5, 90.0)
     assert not pr.feasible and "never reaches" in pr.why
