@@ -128,7 +128,9 @@ class ControllerNode(Node):
             SetParameters, f"{cell or 'sorter_sim'}/set_parameters"
         )
         self._cell_request = None
-        self._cell_wait_start = time.monotonic()
+        # the wait counts from the first look, once the node spins: a line's process
+        # makes its stations one after another, minutes with 48 of them, before any spins
+        self._cell_wait_start = None
         # without rclpy's default QoS-event handlers, as the cell's publishers: each is a
         # waitable of every executor pass, and the subscribers warn of a mismatch anyway
         quiet = quiet_publisher_events
@@ -247,6 +249,8 @@ class ControllerNode(Node):
             self._startup_timer.cancel()
             return
         if self._cell_request is None:
+            if self._cell_wait_start is None:
+                self._cell_wait_start = time.monotonic()
             if time.monotonic() - self._cell_wait_start > self.values["cell_timeout"]:
                 self.get_logger().error(
                     f"no answer from {client.srv_name} after {self.values['cell_timeout']:g} s; "

@@ -59,7 +59,7 @@ SCHEMA = (
         "cell_timeout",
         D,
         10.0,
-        "how long to wait for cell_node's parameters at start-up, wall [s]",
+        "how long to wait for cell_node's parameters from the first spin, wall [s]",
         lo=0.1,
         hi=600.0,
     ),

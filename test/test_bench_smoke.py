@@ -89,20 +89,35 @@ def test_bench_loop_splits_the_demos_slices_into_parts_that_add_up():
     """The parts it times are inside the slice: their shares add up to at most the whole."""
     got = _bench_json('bench_loop.py', '--sim-time', '2')
     parts = {r['part']: r for r in got['rows']}
-    assert list(parts) == ['physics', 'publishing', 'drain', 'waits', 'settle', 'scan']
+    assert list(parts) == ['physics', 'publishing', 'drain', 'waits', 'settle', 'scan', 'predict']
     # one slice a 10 ms scan (the demo aligns its slices to the controller's timer)
     assert got['slices'] >= 90 * got['sim_time_s'] and got['sim_time_s'] >= 2.0
-    assert all(r['ms_per_slice'] > 0 for r in parts.values())
+    assert all(r['ms_per_slice'] > 0 for r in parts.values() if r['part'] != 'predict')
     # the scans run inside the drain or the waits; the rest do not overlap
     outside = sum(parts[p]['share'] for p in ('physics', 'publishing', 'drain', 'waits', 'settle'))
     assert 0.5 < outside <= 1.0 + 1e-9, outside
-    assert parts['scan']['share'] <= parts['drain']['share'] + parts['waits']['share']
+    for inside in ('scan', 'predict'):
+        assert parts[inside]['share'] <= parts['drain']['share'] + parts['waits']['share']
     # every slice publishes the clock once and sends the drain's marker at least once
     per = got['messages_per_slice']
     assert per['/clock'] == pytest.approx(1.0, abs=0.05), per
     assert per['/sorter_sim/_run_loop_drain'] >= 1.0, per
     bad = _bench('bench_loop.py', '--sim-time', '0', timeout=60)
     assert bad.returncode == 2 and '--sim-time must be in [1, 600] s, got 0' in bad.stderr
+    bad = _bench('bench_loop.py', '--stations', '65', timeout=60)
+    assert bad.returncode == 2 and '--stations must be in [1, 64], got 65' in bad.stderr
+
+
+def test_bench_loop_splits_a_lines_slices_too():
+    """With --stations the line's physics and publishing are timed, and its programs' scans."""
+    got = _bench_json('bench_loop.py', '--sim-time', '1', '--stations', '2')
+    parts = {r['part']: r for r in got['rows']}
+    assert got['stations'] == 2 and got['sim_time_s'] >= 1.0
+    for p in ('physics', 'publishing', 'drain', 'settle', 'scan'):
+        assert parts[p]['ms_per_slice'] > 0, p
+    # two programs, one scan a slice each (the slices end at their 10 ms scans)
+    assert got['slices'] >= 90 * got['sim_time_s']
+    assert got['messages_per_slice']['/clock'] == pytest.approx(1.0, abs=0.05)
 
 
 def test_compare_runs_a_case_on_a_tree_and_refuses_a_bad_one():

@@ -763,6 +763,31 @@ def test_a_stopped_controller_leaves_the_disks_down_and_a_new_one_takes_over(ros
     assert [o["exit"] for o in cell.outcomes] == ["left", "right"], cell.outcomes
 
 
+def test_the_wait_for_the_cells_parameters_counts_from_the_first_spin(ros):
+    """A controller made long before it spins (a line's 48 stations) still asks the cell."""
+    import time
+
+    ctl = ros.add(
+        ControllerNode(
+            context=ros.context,
+            parameter_overrides=[
+                Parameter(k, value=v) for k, v in {**CONTROLLER, "cell_timeout": 0.5}.items()
+            ],
+        )
+    )
+    time.sleep(1.0)  # twice cell_timeout, nothing spinning
+    ros.add(
+        SimNode(
+            context=ros.context,
+            parameter_overrides=[
+                Parameter(k, value=v) for k, v in {**CELL, "belt_speed": 1.7}.items()
+            ],
+        )
+    )
+    ros.spin_until(lambda: getattr(ctl, "config", None) is not None, 20.0, "the controller")
+    assert ctl.config.belt_speed == 1.7  # the cell's, not its own file's 1.5
+
+
 def test_use_sim_time_cannot_change_while_the_controller_runs(ros):
     cell = Cell(ros)
     bad = ParameterMsg(
