@@ -38,6 +38,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import sys
 import time
 
@@ -120,7 +121,8 @@ def measure(sim_time: float, stations: int = 1) -> dict:
     summary = json.loads(out.getvalue())
     slices = calls['slice']
     sim_s = summary['sim_time_s']
-    spent['publishing'] = spent.pop('node advance') + spent.pop('line advance') - spent['physics']
+    advanced = spent.pop('node advance', 0.0) + spent.pop('line advance', 0.0)
+    spent['publishing'] = advanced - spent['physics']
     spent['settle'] += spent.pop('next timer')
     rows = []
     for part in ('physics', 'publishing', 'drain', 'waits', 'settle', 'scan', 'predict'):
@@ -183,10 +185,12 @@ def main(argv=None) -> int:
         )
     whole = f'{fig["slice_ms_per_sim_s"]:.0f} | {fig["slice_ms"]:.3f}'
     print(f'| the slice, whole | {whole} | 100 % |')
-    per = fig['messages_per_slice']
+    per = collections.Counter()
+    for topic, n in fig['messages_per_slice'].items():
+        per[re.sub(r'^/S[0-9]+/', '/S*/', topic)] += n  # a line's stations' topics, together
     print(
         f'messages a slice: {sum(per.values()):.2f} ('
-        + ', '.join(f'{t} {n:.2f}' for t, n in per.items() if n >= 0.01)
+        + ', '.join(f'{t} {n:.2f}' for t, n in per.most_common() if n >= 0.01)
         + ')'
     )
     return 0

@@ -61,6 +61,12 @@ class WaitTimedOut:
     __str__ = __repr__
 
 
+def _falls_due(timer) -> bool:
+    """Return whether ``timer`` is due now (its next call is not ahead; not cancelled)."""
+    left = timer.time_until_next_call()  # None: cancelled
+    return left is not None and left <= 0
+
+
 class RunLoop:
     """
     A Context, its executor and simulated time, for any runner (see the module).
@@ -147,6 +153,7 @@ class RunLoop:
         self.nodes: list = []
         self._watch_key, self._watch = None, ([], [])  # _watched's lists and what they hold
         self._due, self._due_at = [], (None, -1)  # the timers due in the coming slice, when
+        self._look = [None, -1, [], [], False]  # what _unsettled's last look left unsettled
         self.record_path = ''
         self._barrier = None
         self._barrier_served = None
@@ -341,22 +348,29 @@ class RunLoop:
             if c._pending_requests:
                 return True
         t_ns = self.t_ns
-        due = self._due if self._due_at[0] is watch and self._due_at[1] == t_ns else None
-        timers = []
-        for clock, ts in clocked:
+        look = self._look
+        if look[0] is not watch or look[1] != t_ns:
+            # the slice's first look: every clock, and the timers due in it if known (else
+            # those of every clock on simulated time); a later look in the same slice
+            # takes up only what the last one left (time stands still: a node caught up
+            # stays so, a timer that ran is not due again)
+            known = self._due_at[0] is watch and self._due_at[1] == t_ns
+            look = self._look = [watch, t_ns, clocked, list(self._due) if known else [], known]
+        behind, timers, known = [], look[3], look[4]
+        for entry in look[2]:
             # one reading says both: behind the slice (not caught up), at it (on simulated
             # time), or past it (off simulated time: the wall's clock, whose timers the
             # slices do not wait for), as Clock.ros_time_is_active would at twice the cost
-            now = clock.handle.get_now().nanoseconds
+            now = entry[0].handle.get_now().nanoseconds
             if now < t_ns:
-                return True
-            if now == t_ns and due is None:
-                timers += ts
-        for timer in timers if due is None else due:
-            left = timer.time_until_next_call()  # None: cancelled
-            if left is not None and left <= 0:
-                return True
-        return False
+                behind.append(entry)
+            elif now == t_ns and not known:
+                timers += entry[1]
+        look[2] = behind
+        if behind:
+            return True  # (a timer is judged on its clock once that has caught up)
+        look[3] = [t for t in timers if _falls_due(t)]
+        return bool(look[3])
 
     def _periods_to_next_timer(self, most: int, align: bool = True) -> int:
         """
