@@ -81,6 +81,28 @@ class RosHarness:
                 pytest.fail(f'timed out after {timeout_sec}s waiting for: {message}')
             self.executor.spin_once(timeout_sec=0.01)
 
+    def spin_until_matched(self, timeout_sec: float = 10.0) -> None:
+        """
+        Spin until every publisher of these nodes has matched every reader they have on its topic.
+
+        DDS matches a new reader on threads of its own: a message sent before (a sensor's
+        first edge, a label) is lost to that reader, and a test would depend on the
+        machine's speed (``sorter_ros.run_loop.RunLoop._settle_graph`` waits alike).
+        """
+
+        def matched() -> bool:
+            readers: dict[str, int] = {}
+            for node in self.nodes:
+                for sub in node.subscriptions:
+                    readers[sub.topic_name] = readers.get(sub.topic_name, 0) + 1
+            return all(
+                pub.get_subscription_count() >= readers.get(pub.topic_name, 0)
+                for node in self.nodes
+                for pub in node.publishers
+            )
+
+        self.spin_until(matched, timeout_sec, 'every reader of these nodes matched')
+
     def drain(self, limit: int = 10_000) -> int:
         """
         Run every callback that is ready now (``limit`` at the most); return how many ran.

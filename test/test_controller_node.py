@@ -15,6 +15,7 @@ come from its ``diagnostics`` topic.
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import pytest
@@ -114,6 +115,7 @@ class Cell:
             10.0,
             "the controller's diagnostics",
         )
+        ros.spin_until_matched()  # its sensors' first edges must reach the controller
 
     def _on_diag(self, msg):
         for st in msg.status:
@@ -194,7 +196,6 @@ def test_mixed_stream_with_routing_table_has_zero_mis_sorts(ros):
             "labels": labels,
             "parcel_A": [0.3, 0.5],
             "parcel_B": [0.2, 0.35],
-            "induct_x": -2.2,
         },
     )
     cell.start_stream()
@@ -346,8 +347,6 @@ def test_on_the_simulation_clock_a_call_times_out_once_both_clocks_are_past(ros)
     run on as well (a lock-step line under load lost every later divert to a
     ``diverter_timeout`` whose answer was already on its way).
     """
-    import time
-
     from builtin_interfaces.msg import Time
     from rosgraph_msgs.msg import Clock
 
@@ -765,8 +764,6 @@ def test_a_stopped_controller_leaves_the_disks_down_and_a_new_one_takes_over(ros
 
 def test_the_wait_for_the_cells_parameters_counts_from_the_first_spin(ros):
     """A controller made long before it spins (a line's 48 stations) still asks the cell."""
-    import time
-
     ctl = ros.add(
         ControllerNode(
             context=ros.context,
@@ -776,12 +773,11 @@ def test_the_wait_for_the_cells_parameters_counts_from_the_first_spin(ros):
         )
     )
     time.sleep(1.0)  # twice cell_timeout, nothing spinning
+    cell = {**CELL, "belt_speed": 1.7}
     ros.add(
         SimNode(
             context=ros.context,
-            parameter_overrides=[
-                Parameter(k, value=v) for k, v in {**CELL, "belt_speed": 1.7}.items()
-            ],
+            parameter_overrides=[Parameter(k, value=v) for k, v in cell.items()],
         )
     )
     ros.spin_until(lambda: getattr(ctl, "config", None) is not None, 20.0, "the controller")
@@ -851,7 +847,6 @@ def test_ctrl_c_ends_the_demo_cleanly(ros, tmp_path, signals):
     import signal
     import subprocess
     import sys
-    import time
 
     exe = Path(sys.executable).parent / "sorter"
     proc = subprocess.Popen(
