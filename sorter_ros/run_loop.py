@@ -317,8 +317,9 @@ class RunLoop:
 
         nodes = self.nodes
         # rclpy keeps a node's clients and timers in these lists (Node.clients, .timers);
-        # a new one is appended: the count and the last one tell a change
-        key = [id(n) for n in nodes]
+        # a new one is appended: the count and the last one tell a change (the nodes
+        # themselves, not their ids: a node made where a dropped one was is another)
+        key = list(nodes)
         for node in nodes:
             for made in (node._clients, node._timers):
                 key.append(id(made[-1]) if made else len(made))
@@ -384,16 +385,21 @@ class RunLoop:
         watch = self._watched()
         lefts = []
         t_ns = self.t_ns
+        behind = False
         for clock, timers in watch[1]:
-            if clock.handle.get_now().nanoseconds <= t_ns:  # on simulated time (_unsettled)
+            now = clock.handle.get_now().nanoseconds
+            if now <= t_ns:  # on simulated time (_unsettled)
+                behind |= now < t_ns
                 for timer in timers:
                     left = timer.time_until_next_call()  # None: cancelled
                     if left is not None:
                         lefts.append((left, timer))
         least = min([most * dt_ns] + [left for left, _ in lefts])
         n = min(most, max(1, -(-least // dt_ns))) if align else most
+        # a clock still behind (a node just added, a slice that settled late) measures
+        # its timers from its own time: which fall due is known only once it catches up
         self._due = [timer for left, timer in lefts if left <= n * dt_ns]
-        self._due_at = (watch, t_ns + n * dt_ns)
+        self._due_at = (None, -1) if behind else (watch, t_ns + n * dt_ns)
         return n
 
     def _on_barrier(self, _msg) -> None:
