@@ -311,7 +311,7 @@ class RunLoop:
 
         Kept from one check to the next and made again when a node was added or
         removed, or made or dropped a client or a timer: the checks after each slice,
-        a few a slice, then walk flat lists (a line has about 50 nodes, 250 clients).
+        a few a slice, then walk flat lists (24 stations: 51 nodes, 342 clients).
         """
         from rclpy.clock import ROSClock
 
