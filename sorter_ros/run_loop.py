@@ -61,6 +61,25 @@ class WaitTimedOut:
     __str__ = __repr__
 
 
+def unmatched_topics(nodes) -> list[str]:
+    """
+    Return the topics ``nodes`` publish that their own readers are not all matched on.
+
+    Their own readers only: the graph may still list those of a process that ended
+    (until its lease runs out), which no writer will ever match.
+    """
+    readers: dict[str, int] = {}
+    for node in nodes:
+        for sub in node.subscriptions:
+            readers[sub.topic_name] = readers.get(sub.topic_name, 0) + 1
+    out = []
+    for node in nodes:
+        for pub in node.publishers:
+            if pub.get_subscription_count() < readers.get(pub.topic_name, 0):
+                out.append(pub.topic_name)
+    return out
+
+
 def _falls_due(timer) -> bool:
     """Return whether ``timer`` is due now (its next call is not ahead; not cancelled)."""
     left = timer.time_until_next_call()  # None: cancelled
@@ -204,22 +223,8 @@ class RunLoop:
         return node
 
     def _unmatched(self) -> list[str]:
-        """
-        Return the topics a node of ours publishes that our own readers are not all matched on.
-
-        Our own readers only: the graph may still list those of a process that ended
-        (until its lease runs out), which no writer will ever match.
-        """
-        readers: dict[str, int] = {}
-        for node in self.nodes:
-            for sub in node.subscriptions:
-                readers[sub.topic_name] = readers.get(sub.topic_name, 0) + 1
-        out = []
-        for node in self.nodes:
-            for pub in node.publishers:
-                if pub.get_subscription_count() < readers.get(pub.topic_name, 0):
-                    out.append(pub.topic_name)
-        return out
+        """Return the topics our nodes publish that our own readers are not all matched on."""
+        return unmatched_topics(self.nodes)
 
     def _graph_settled(self) -> bool:
         return not self._unmatched()

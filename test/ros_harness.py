@@ -89,19 +89,11 @@ class RosHarness:
         first edge, a label) is lost to that reader, and a test would depend on the
         machine's speed (``sorter_ros.run_loop.RunLoop._settle_graph`` waits alike).
         """
+        from sorter_ros.run_loop import unmatched_topics
 
-        def matched() -> bool:
-            readers: dict[str, int] = {}
-            for node in self.nodes:
-                for sub in node.subscriptions:
-                    readers[sub.topic_name] = readers.get(sub.topic_name, 0) + 1
-            return all(
-                pub.get_subscription_count() >= readers.get(pub.topic_name, 0)
-                for node in self.nodes
-                for pub in node.publishers
-            )
-
-        self.spin_until(matched, timeout_sec, 'every reader of these nodes matched')
+        self.spin_until(
+            lambda: not unmatched_topics(self.nodes), timeout_sec, 'every reader matched'
+        )
 
     def drain(self, limit: int = 10_000) -> int:
         """

@@ -117,7 +117,7 @@ class SorterCell(LockStep):
         """Run one slice; first, if it would trip the watchdog, wait for a late heartbeat."""
         if self.heartbeat_wait_s > 0.0:
             cell, dog = self.sim.cell, self.sim.cell.watchdog
-            deadline = dog.deadline(cell.params.watchdog_timeout, cell.dt)
+            deadline = cell.watchdog_deadline()
             if deadline is not None and deadline <= cell.k + n:
                 # any heartbeat that came says the controller lives: fed, frozen or cut
                 seen = (dog.fed_k, dog.frozen, dog.lost)

@@ -444,7 +444,7 @@ class Cell:
     heartbeats_frozen = property(lambda self: self.watchdog.frozen)
     watchdog_armed = property(lambda self: self.watchdog.armed(self.params.watchdog_timeout))
 
-    def _watchdog_deadline(self) -> int | None:
+    def watchdog_deadline(self) -> int | None:
         """Period index at which the watchdog trips, or None when it cannot."""
         return self.watchdog.deadline(self.params.watchdog_timeout, self.dt)
 
@@ -803,7 +803,7 @@ class Cell:
                 ahead = self._packml_horizon()
                 self._packml_due_k = self.k + ahead
                 m = min(remaining, self._periods_until_placement(), ahead)
-            deadline = self._watchdog_deadline()
+            deadline = self.watchdog_deadline()
             if deadline is not None:
                 if self.k >= deadline:
                     events.append(self._trip_watchdog())
@@ -813,7 +813,7 @@ class Cell:
             events += self._collect(n_ev)
             self.k += done
             remaining -= done
-        deadline = self._watchdog_deadline()
+        deadline = self.watchdog_deadline()
         if deadline is not None and self.k >= deadline:
             events.append(self._trip_watchdog())
         self.update_packml()
