@@ -1,7 +1,10 @@
 """
-Two commits side by side: the benchmarks that guard the loop, the physics and a user's test.
+Commits side by side: the benchmarks that guard the loop, the physics and a user's test.
 
-``python benchmarks/compare.py BASE [HEAD] [--cases demo,user10,...] [--repeat 3] [--sim-time 60]``
+``python benchmarks/compare.py BASE [OTHER ...] [HEAD] [--cases demo,user10,...] [--repeat 3]
+[--sim-time 60]``: with one revision, it is compared with HEAD; with more, the last is
+compared with each of the others in one run (``compare.py 69d5ceb 3a305ee HEAD``: the
+issue's base, the commit before, this one).
 
 Each revision is checked out once into ``.bench/<sha>`` (a detached git worktree, its
 numba kernels compiled there on first use and kept), and every case runs as a process
@@ -23,7 +26,11 @@ Cases (``--cases``, default all but ``core`` and ``line48``):
 - ``cell_physics``: ``benchmarks/bench_cell.py``'s ``cell`` case, the default cell's
   physics alone (``Cell.advance``, 200 parcels on the belt, none touching): real-time
   factor and us a period;
-- ``core``: ``sorter bench core``: the accurate method's time for Fig. 9a at 1e-6 m.
+- ``core``: ``sorter bench core``: the accurate method's time for Fig. 9a at 1e-6 m;
+- ``watching``: ``benchmarks/bench_cell.py``'s node alone, with the live view, with a
+  recording and with the fieldbus clients at the default I/O cycle (``--sim-s`` 10, one
+  run each a round): the node's real-time factor, each front end's ratio to it (cost =
+  1 - ratio) and the node thread's CPU per simulated second.
 """
 
 from __future__ import annotations
@@ -43,7 +50,17 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCH_DIR = ROOT / '.bench'
-CASES = ('demo', 'line24', 'line48', 'user10', 'line_physics', 'cell_physics', 'core')
+CASES = (
+    'demo',
+    'line24',
+    'line48',
+    'user10',
+    'line_physics',
+    'cell_physics',
+    'core',
+    'watching',
+)
+WATCHING = ('node', 'node+live', 'node+rec', 'node+fieldbus')
 DEFAULT_CASES = ('demo', 'line24', 'user10', 'line_physics')
 
 USER10 = r"""
@@ -87,13 +104,15 @@ def _tree(rev: str) -> Path:
     stamp = tree / '.bench_warm'
     if not stamp.exists():
         print(f'compare: compiling the kernels of {sha[:12]} (once)', file=sys.stderr)
-        # from the tree itself: ``-m`` puts the working folder first on the path
-        subprocess.run(
-            [sys.executable, '-m', 'sorter_cell', 'warmup', '--all'],
-            cwd=tree,
-            env=_env(tree),
-            check=True,
-        )
+        # from the tree itself: ``-m`` puts the working folder first on the path; a
+        # revision older than ``sorter warmup`` (69d5ceb, the issue's base) has its module
+        warm = ['-m', 'sorter_cell', 'warmup', '--all']
+        if (
+            not (tree / 'sorter_cell' / 'warmup_cli.py').exists()
+            and (tree / 'sorter_sim' / 'runtime' / 'warmup.py').exists()
+        ):
+            warm = ['-m', 'sorter_sim.runtime.warmup']
+        subprocess.run([sys.executable, *warm], cwd=tree, env=_env(tree), check=True)
         stamp.write_text('')
     return tree
 
@@ -141,6 +160,37 @@ def _run(tree: Path, args: list[str], timeout: float = 1800.0) -> str:
 
 def _json_line(out: str) -> dict:
     return json.loads(next(line for line in reversed(out.splitlines()) if line.startswith('{')))
+
+
+def watching_figures(out: str) -> dict:
+    """
+    Read the watching figures off ``bench_cell.py``'s output; return name -> value.
+
+    Parameters
+    ----------
+    out : str
+        What it printed: a line a case, ``node+rec  real-time factor ... ratio ...``.
+
+    Returns
+    -------
+    dict
+        The node's real-time factor, each front end's ratio to it, and the node
+        thread's CPU per simulated second of each, for the cases of WATCHING it ran.
+
+    """
+    figures = {}
+    line = (
+        r'^(node\S*)\s+real-time factor\s+([\d.]+).*?ratio ([\d.]+).*?node thread CPU\s+([\d.]+)'
+    )
+    for m in re.finditer(line, out, re.M):
+        if m.group(1) not in WATCHING:
+            continue
+        if m.group(1) == 'node':
+            figures['node alone, real-time factor'] = float(m.group(2))
+        else:
+            figures[f'{m.group(1)}, ratio to node'] = float(m.group(3))
+        figures[f'{m.group(1)}, node thread ms/simulated s'] = float(m.group(4))
+    return figures
 
 
 def case(name: str, tree: Path, sim_time: float) -> dict:
@@ -193,31 +243,48 @@ def case(name: str, tree: Path, sim_time: float) -> dict:
         # its first target's line: the cheapest accurate setting within 1e-6 m, its time
         m = re.search(r'^target 1: .* in ([\d.]+) ms ->', out, re.M)
         return {'Fig. 9a within 1e-6 m, ms': float(m.group(1))} if m else {}
+    if name == 'watching':
+        cases = ['--cases', ','.join(WATCHING)]
+        bench = [str(tree / 'benchmarks' / 'bench_cell.py'), '--sim-s', '10', '--repeat', '1']
+        return watching_figures(_run(tree, bench + cases))
     raise ValueError(f'unknown case {name!r}; the cases: {", ".join(CASES)}')
 
 
 def main(argv=None) -> int:
     """Run the comparison; print the machine, then the table."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('base', help='the commit to compare against (a hash, a branch, HEAD~1)')
-    ap.add_argument('head', nargs='?', default='HEAD', help='the commit compared (default HEAD)')
+    ap.add_argument(
+        'revs',
+        nargs='+',
+        metavar='REV',
+        help='the commits (a hash, a branch, HEAD~1); the last is compared with each of the '
+        'others; one alone is compared with HEAD',
+    )
     ap.add_argument('--cases', default=','.join(DEFAULT_CASES), help=f'of {", ".join(CASES)}')
     ap.add_argument('--repeat', type=int, default=3, help='runs of each case per commit')
     ap.add_argument('--sim-time', type=float, default=60.0, help='simulated s of demo, line')
     args = ap.parse_args(argv)
+    revs = args.revs if len(args.revs) > 1 else [*args.revs, 'HEAD']
     cases = [c.strip() for c in args.cases.split(',') if c.strip()]
     bad = [c for c in cases if c not in CASES]
-    if bad or not 1 <= args.repeat <= 20 or not 1.0 <= args.sim_time <= 600.0:
+    if (
+        bad
+        or not 1 <= args.repeat <= 20
+        or not 1.0 <= args.sim_time <= 600.0
+        or not 2 <= len(revs) <= 4
+        or len(set(revs)) < len(revs)
+    ):
         ap.error(
             f'--cases from {", ".join(CASES)} (got {", ".join(bad)}), --repeat 1-20, '
-            '--sim-time 1-600'
+            '--sim-time 1-600, 2-4 different revisions'
         )
-    trees = {rev: _tree(rev) for rev in (args.base, args.head)}
+    trees = {rev: _tree(rev) for rev in revs}
     print(
         f'{platform.node()}: {os.cpu_count()} cores, Python {platform.python_version()}, '
         f'load average {os.getloadavg()[0]:.2f} at the start; {args.repeat} runs a case '
         'a commit, alternating'
     )
+    head, others = revs[-1], revs[:-1]
     rows = []
     for name in cases:
         runs: dict[str, list[dict]] = {rev: [] for rev in trees}
@@ -226,18 +293,33 @@ def main(argv=None) -> int:
                 t0 = time.perf_counter()
                 runs[rev].append(case(name, tree, args.sim_time))
                 print(f'  {name} {rev}: {time.perf_counter() - t0:.1f} s', file=sys.stderr)
-        figures = {f for rev in trees for r in runs[rev] for f in r}
+        figures = [f for rev in revs for r in runs[rev] for f in r]
         if not figures:  # an output it could not read is said, not left out of the table
-            rows.append((name, 'no figure read from its output', math.nan, math.nan, math.nan))
-        for figure in runs[args.base][0]:
-            a = statistics.median(r[figure] for r in runs[args.base] if figure in r)
-            b = statistics.median(r[figure] for r in runs[args.head] if figure in r)
-            rows.append((name, figure, a, b, b / a if a else float('nan')))
+            rows.append((name, 'no figure read from its output', [math.nan] * len(revs)))
+        for figure in dict.fromkeys(figures):
+            medians = []
+            for rev in revs:
+                got = [r[figure] for r in runs[rev] if figure in r]
+                medians.append(statistics.median(got) if got else math.nan)
+            rows.append((name, figure, medians))
     print(f'load average {os.getloadavg()[0]:.2f} at the end')
-    print(f'| case | figure | {args.base} (median) | {args.head} (median) | ratio |')
-    print('|---|---|---|---|---|')
-    for name, figure, a, b, ratio in rows:
-        print(f'| {name} | {figure} | {a:.3g} | {b:.3g} | {ratio:.2f} |')
+    print(
+        '| case | figure | '
+        + ' | '.join(f'{rev} (median)' for rev in revs)
+        + ' | '
+        + ' | '.join(f'ratio {head} / {rev}' for rev in others)
+        + ' |'
+    )
+    print('|---|---|' + '---|' * (2 * len(revs) - 1))
+    for name, figure, medians in rows:
+        ratios = [medians[-1] / m if m else math.nan for m in medians[:-1]]
+        print(
+            f'| {name} | {figure} | '
+            + ' | '.join(f'{m:.3g}' for m in medians)
+            + ' | '
+            + ' | '.join(f'{r:.2f}' for r in ratios)
+            + ' |'
+        )
     return 0
 
 

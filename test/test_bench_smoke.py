@@ -40,6 +40,16 @@ def _bench_json(script: str, *args: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def _compare():
+    """Import benchmarks/compare.py."""
+    sys.path.insert(0, str(ROOT / 'benchmarks'))
+    try:
+        import compare
+    finally:
+        sys.path.remove(str(ROOT / 'benchmarks'))
+    return compare
+
+
 def test_bench_cell_runs_every_case_and_prints_a_ratio_for_each():
     out = subprocess.run(
         [
@@ -70,6 +80,18 @@ def test_bench_cell_runs_every_case_and_prints_a_ratio_for_each():
     assert 'file ' in lines[every]
     # the raw subscriber ran (what it received in a run this short depends on the load)
     assert re.search(r'received \d+', lines['node+rawsub'])
+    # compare.py's watching case reads the same lines: each case it knows, no other
+    watching = _compare().watching_figures(out.stdout)
+    assert set(watching) == {
+        'node alone, real-time factor',
+        'node, node thread ms/simulated s',
+        'node+fieldbus, ratio to node',
+        'node+fieldbus, node thread ms/simulated s',
+    }
+    assert watching['node+fieldbus, ratio to node'] == pytest.approx(
+        float(re.search(r'ratio (\d+\.\d\d)', lines['node+fieldbus']).group(1))
+    )
+    assert all(v > 0 for v in watching.values())
 
 
 def test_bench_executor_prints_the_floor_of_both_executors_and_every_marker_comes_back():
@@ -122,11 +144,7 @@ def test_bench_loop_splits_a_lines_slices_too():
 
 def test_compare_runs_a_case_on_a_tree_and_refuses_a_bad_one():
     """compare.py's cell_physics case reads its figures off the tree it is given."""
-    sys.path.insert(0, str(ROOT / 'benchmarks'))
-    try:
-        import compare
-    finally:
-        sys.path.remove(str(ROOT / 'benchmarks'))
+    compare = _compare()
     figures = compare.case('cell_physics', ROOT, 1.0)
     assert set(figures) == {'real-time factor', 'us a period'}
     # one figure from the other: 1 ms a period
@@ -135,3 +153,5 @@ def test_compare_runs_a_case_on_a_tree_and_refuses_a_bad_one():
         compare.case('warp', ROOT, 1.0)
     with pytest.raises(SystemExit):
         compare.main(['HEAD', '--cases', 'warp'])
+    with pytest.raises(SystemExit):  # one revision twice
+        compare.main(['HEAD', 'HEAD', '--cases', 'demo'])
