@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import socket
 
+import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from test_sim_node import SHORT_CELL
@@ -123,6 +124,43 @@ def test_contacts_topic_carries_the_stoppers_closed_form_load_only_when_read(ros
         assert abs(p1.y - p0.y) < 1e-9
         # found before the period's overlap is taken out: within μ g h² (5.9e-6 m)
         assert p0.x == pytest.approx(face, abs=MU * G * 1e-6)
+
+
+@pytest.mark.parametrize('t_ns', [0, 1_000_000, 7 * 10**9 + 123, 2**31 * 10**9 - 1])
+@pytest.mark.parametrize('frame_id', ['conveyor', 'ä_frame_with_a_longer_name'])
+def test_a_period_without_contacts_is_the_bytes_rclpy_serializes_its_delete_all_to(t_ns, frame_id):
+    from builtin_interfaces.msg import Time
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    from sorter_sim.frontends.contact_markers import contact_marker_array, no_contacts_cdr
+
+    none = {k: np.zeros(0) for k in ('x', 'y', 'nx', 'ny', 'force', 'a')} | {'second': []}
+    stamp = Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+    expected = serialize_message(contact_marker_array(none, frame_id, stamp))
+    assert no_contacts_cdr(frame_id, t_ns) == expected
+    (clear,) = deserialize_message(no_contacts_cdr(frame_id, t_ns), MarkerArray).markers
+    assert clear.action == Marker.DELETEALL and clear.header.stamp == stamp
+
+
+def test_a_subscriber_gets_each_period_without_contacts_stamped_on_the_simulation_clock(ros):
+    sim = _sim(ros)  # an empty belt: nothing touches
+    probe = ros.make_node('contact_probe')
+    got: list = []
+    sub = probe.create_subscription(MarkerArray, 'contacts', got.append, STREAM_QOS)
+    pub = sim.publisher_set.pub_contacts
+    ros.spin_until(lambda: pub.get_subscription_count() > 0, 5.0, 'the contacts subscriber')
+    ros.spin_until(lambda: sub.get_publisher_count() > 0, 5.0, 'the contacts publisher')
+    t0 = sim.cell.t_ns
+    sim.advance(30)  # 3 marker periods at 100 Hz
+    ros.spin_until(lambda: len(got) >= 3, 5.0, 'three contact marker arrays')
+    step = (sim.cell.t_ns - t0) // 3  # one marker period
+    assert step > 0 and t0 + 3 * step == sim.cell.t_ns
+    for i, msg in enumerate(got[-3:]):
+        (clear,) = msg.markers
+        assert clear.action == Marker.DELETEALL and clear.ns == 'contacts'
+        assert clear.header.frame_id == 'conveyor'
+        t_ns = t0 + (i + 1) * step
+        assert (clear.header.stamp.sec, clear.header.stamp.nanosec) == divmod(t_ns, 10**9)
 
 
 def test_the_rails_parameter_declares_the_cells_rails_read_only(ros):

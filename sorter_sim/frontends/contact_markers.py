@@ -14,10 +14,15 @@ arrays.
 
 from __future__ import annotations
 
+import struct
+
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point
+from rclpy.serialization import serialize_message
 from visualization_msgs.msg import Marker, MarkerArray
 
 from sorter_ros.outcomes import contact_text
+from sorter_sim.frontends.cdr import stamp as sec_nsec
 from sorter_sim.frontends.live_view import (
     CONTACT_FORCE_SCALE,
     CONTACT_Z,
@@ -48,10 +53,7 @@ def contact_marker_array(contacts: dict, frame_id: str, stamp) -> MarkerArray:
         A DELETEALL of the namespace, then one ARROW per contact point.
 
     """
-    clear = Marker(action=Marker.DELETEALL, ns=NS)
-    clear.header.frame_id = frame_id
-    clear.header.stamp = stamp
-    markers = [clear]
+    markers = [_clear(frame_id, stamp)]
     cols = (contacts[k].tolist() for k in ('x', 'y', 'nx', 'ny', 'force', 'a'))
     for i, ((x, y, nx, ny, force, a), second) in enumerate(zip(zip(*cols), contacts['second'])):
         m = Marker(ns=NS, id=i, type=Marker.ARROW, action=Marker.ADD)
@@ -71,3 +73,44 @@ def contact_marker_array(contacts: dict, frame_id: str, stamp) -> MarkerArray:
         m.text = contact_text(a, second, force)
         markers.append(m)
     return MarkerArray(markers=markers)
+
+
+def _clear(frame_id: str, stamp) -> Marker:
+    clear = Marker(action=Marker.DELETEALL, ns=NS)
+    clear.header.frame_id = frame_id
+    clear.header.stamp = stamp
+    return clear
+
+
+_NO_CONTACTS: dict[str, bytes] = {}  # frame -> a period without contacts, at t = 0
+# its CDR: the encapsulation (4 bytes), the array's length (4), then the DELETEALL's
+# header.stamp, sec (int32) and nanosec (uint32)
+_STAMP_AT = slice(8, 16)
+_STAMP = struct.Struct('<iI')
+
+
+def no_contacts_cdr(frame_id: str, t_ns: int) -> bytes:
+    """
+    Return the CDR of a period without contacts: the DELETEALL alone, stamped ``t_ns``.
+
+    Most periods have none: the message is serialized once per frame and only its stamp
+    is written again (a MarkerArray built and serialized in Python costs some 30 us).
+
+    Parameters
+    ----------
+    frame_id : str
+        The cell's frame.
+    t_ns : int
+        The simulated time of the period [ns], >= 0.
+
+    Returns
+    -------
+    bytes
+        The same bytes rclpy serializes ``contact_marker_array`` of no contacts to.
+
+    """
+    template = _NO_CONTACTS.get(frame_id)
+    if template is None:
+        array = MarkerArray(markers=[_clear(frame_id, Time())])
+        template = _NO_CONTACTS[frame_id] = serialize_message(array)
+    return template[: _STAMP_AT.start] + _STAMP.pack(*sec_nsec(t_ns)) + template[_STAMP_AT.stop :]

@@ -36,8 +36,9 @@ from sorter_sim.frontends.cdr import (
     stamp,
     uint32_array_cdr,
 )
-from sorter_sim.frontends.contact_markers import contact_marker_array
+from sorter_sim.frontends.contact_markers import contact_marker_array, no_contacts_cdr
 from sorter_sim.frontends.live_view import PARCEL_HEIGHT, STATE_COLOURS
+from sorter_sim.runtime import cell_view
 from sorter_sim.runtime.cell import STATE_NAMES, LabelRead, Outcome, SensorEdge, WatchdogTrip
 
 # status/<bit>: std_msgs/Bool each; fault = estop or jam or watchdog
@@ -339,9 +340,12 @@ class CellPublishers:
         return self.pub_contacts.get_subscription_count() > 0
 
     def _publish_contacts(self) -> None:
-        msg = contact_marker_array(
-            self._cell.contact_points(), self.frame_id, time_msg(self._cell.t_ns)
-        )
+        t_ns = self._cell.t_ns
+        if cell_view.n_contact_points(self._cell):
+            contacts = self._cell.contact_points()
+            msg = contact_marker_array(contacts, self.frame_id, time_msg(t_ns))
+        else:
+            msg = no_contacts_cdr(self.frame_id, t_ns)
         self.publish(self.pub_contacts, msg)
         self.n_contact_arrays += 1
 

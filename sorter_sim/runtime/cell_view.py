@@ -86,6 +86,11 @@ def parcel_motion(cell) -> dict:
     }
 
 
+def n_contact_points(cell) -> int:
+    """Return how many contact points the cell's last period has (0 under ``contact: jam``)."""
+    return int(cell.contacts.counts[N_CT]) if cell.params.contact == 'rigid' else 0
+
+
 def contacts(cell) -> dict[str, np.ndarray]:
     """
     Return the contact points of the cell's last period (``contact: rigid``), as arrays.
@@ -102,7 +107,7 @@ def contacts(cell) -> dict[str, np.ndarray]:
     nothing touches. Nothing is kept: each call reads the contact step's own rows.
     """
     cont = cell.contacts
-    n = int(cont.counts[N_CT]) if cell.params.contact == 'rigid' else 0
+    n = n_contact_points(cell)
     ct_i, ct_f = cont.ct_i[:n], cont.ct_f[:n]
     a, b = ct_i[:, 0], ct_i[:, 1]
     obstacle = b < 0
