@@ -63,6 +63,7 @@ from sorter_control.parameters import (
     descriptor,
 )
 from sorter_ros.env import run_node
+from sorter_ros.graph_counts import publisher_count
 from sorter_sim.model.packml import COMMANDS as PACKML_COMMANDS
 from sorter_sim.model.packml import STATES as PACKML_STATES
 from sorter_ros.interface import (
@@ -619,7 +620,9 @@ class ControllerNode(Node):
         # who publishes the simulated clock, checked here (once per diagnostics period)
         # rather than per scan: more than one is a clock fault the next scan reports
         if self.get_parameter("use_sim_time").value:
-            self._clock_sources = self.count_publishers("/clock")
+            # one count a simulated second for every node of this process (a line's 48)
+            t_ns = self.get_clock().now().nanoseconds
+            self._clock_sources = publisher_count(self, "/clock", t_ns)
         msg = DiagnosticArray(status=[self.diagnostic_status()])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._publish(self._pub_diag, msg)

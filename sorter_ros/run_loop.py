@@ -272,11 +272,15 @@ class RunLoop:
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=4, reliability=ReliabilityPolicy.RELIABLE
         )
+        from rclpy.serialization import serialize_message
+
         topic = '~/_run_loop_drain'
         self._barrier_node = node
-        self._barrier_msg = Empty()
+        # sent and taken as its CDR bytes: a marker is a few a slice, and converting an
+        # Empty to and from Python would cost each of them more than its delivery
+        self._barrier_msg = serialize_message(Empty())
         self._barrier = node.create_publisher(Empty, topic, qos)
-        self._barrier_sub = node.create_subscription(Empty, topic, self._on_barrier, qos)
+        self._barrier_sub = node.create_subscription(Empty, topic, self._on_barrier, qos, raw=True)
 
     def _drop_barrier(self) -> None:
         if self._barrier is not None:

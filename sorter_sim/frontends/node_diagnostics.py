@@ -15,6 +15,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
+from sorter_ros.graph_counts import publisher_count
 from sorter_ros.interface import EVENT_QOS, STREAM_QOS
 from sorter_sim.frontends.node_publishers import time_msg
 from sorter_sim.runtime.faults import apply_fault
@@ -49,9 +50,6 @@ class RunCost:
         self.periods = 0
         self.publish_s = 0.0
         self.messages = 0
-
-
-_clock_count = [None, -1, 0]  # the Context, simulated time and count of /clock's last look
 
 
 class CellDiagnostics:
@@ -146,14 +144,9 @@ class CellDiagnostics:
     def _check_clock_publishers(self) -> int:
         """Warn (once per change) when another node publishes /clock too: time is then two."""
         node = self._node
-        # the stations of a line share a Context and report at the same simulated time:
-        # one look at the graph serves them all (each costs a walk of its every endpoint)
-        context, t_ns = node.context, self._cell.t_ns
-        if _clock_count[0] is context and _clock_count[1] == t_ns:
-            n = _clock_count[2]
-        else:
-            n = node.count_publishers('/clock')
-            _clock_count[:] = [context, t_ns, n]
+        # the stations of a line and their programs share a Context: one look at the
+        # graph a simulated second serves them all (each costs a walk of every endpoint)
+        n = publisher_count(node, '/clock', self._cell.t_ns)
         if n > 1 and n != self._clock_publishers_warned:
             others = [
                 f'{i.node_namespace.rstrip("/")}/{i.node_name}'
