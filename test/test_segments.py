@@ -441,8 +441,8 @@ def test_the_demo_says_at_once_when_a_segment_process_dies(ros, when):
     assert 'Traceback' not in err and len(err.strip().splitlines()) == 1
 
 
-# (sync, the parcels that reached segment 2, wall seconds after): of the batch of 5,
-# P00002-P00004 go to station 2's chutes, so one to three reach it
+# (sync, the labels station 2's eye read, wall seconds after): segment 2 holds the
+# parcel just read (or, 0.3 s later, a later one of the batch)
 KILL_RUNS = [
     (sync, after, delay)
     for sync in ('conservative', 'barrier')
@@ -466,7 +466,11 @@ def test_a_segment_process_killed_mid_run_comes_back_and_loses_nothing(
 
     from sorter_ros.interface import EVENT_QOS
 
-    parcels = 5
+    # a batch long enough that segment 2 still holds parcels when the watcher has heard
+    # its labels: a batch of 5 was over in some 2 s of wall time, and the watcher, whose
+    # subscription matches segment 2's publisher only once that process is up, could miss
+    # the first labels and wait for a kill that came after the end
+    parcels = 12
     seen = []  # the labels the warehouse gave station 2's program, as its eye saw them
     probe = ros.make_node('watcher')
     probe.create_subscription(
