@@ -617,7 +617,7 @@ class ControllerNode(Node):
         )
 
     def _publish_diagnostics(self) -> None:
-        # who publishes the simulated clock, checked here (once per diagnostics period)
+        # who publishes the simulated clock, checked here (at each diagnostics period)
         # rather than per scan: more than one is a clock fault the next scan reports
         if self.get_parameter("use_sim_time").value:
             # one count a simulated second for every node of this process (a line's 48)
