@@ -267,13 +267,12 @@ class RunLoop:
         start. (The events executor serves no guard condition, which would cost less.)
         """
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.serialization import serialize_message
         from std_msgs.msg import Empty
 
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=4, reliability=ReliabilityPolicy.RELIABLE
         )
-        from rclpy.serialization import serialize_message
-
         topic = '~/_run_loop_drain'
         self._barrier_node = node
         # sent and taken as its CDR bytes: a marker is a few a slice, and converting an
